@@ -1,0 +1,68 @@
+"""The ``hdeem-watch`` command line (the contract is in docs/cli.md and DESIGN.md §7).
+
+Each subcommand lives in its own module of this package and exposes
+``register(subparsers) -> None``, which adds its parser and sets ``func`` (a callable taking the
+parsed ``argparse.Namespace`` and returning the exit code).
+
+Exit codes: 0 success, 2 bad input (one line on stderr), 1 anything else.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from hdeem_watch import __version__
+from hdeem_watch.errors import InputError
+
+#: Subcommand modules, in the order ``--help`` lists them.
+SUBCOMMAND_MODULES = ("demo", "daemon", "tui", "bench", "model", "calibrate")
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_BAD_INPUT = 2
+
+
+class _ArgumentParser(argparse.ArgumentParser):
+    """An argparse parser whose usage errors are one line and exit code 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise InputError(f"{self.prog}: {message}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the top-level parser with every subcommand registered."""
+    parser = _ArgumentParser(
+        prog="hdeem-watch",
+        description="DRAM power monitoring and DRAM power-model calibration on HPC nodes.",
+    )
+    parser.add_argument("--version", action="version", version=f"hdeem-watch {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_ArgumentParser)
+    for name in SUBCOMMAND_MODULES:
+        module = importlib.import_module(f"hdeem_watch.cli.{name}")
+        module.register(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; return the exit code (also used as the console-script entry point)."""
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if getattr(args, "func", None) is None:
+            parser.print_help(sys.stderr)
+            return EXIT_BAD_INPUT
+        return int(args.func(args) or 0)
+    except InputError as error:
+        print(f"hdeem-watch: error: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:
+        return EXIT_OK
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,140 @@
+"""Command statistics: the interface between command producers and the energy model.
+
+Everything that turns traffic into DRAM commands (a DRAMPower command trace, the controller model
+driven by a request stream, the model of a STREAM-like kernel, a simulated node) produces
+:class:`CommandStats`; the energy model (:mod:`hdeem_watch.dram.energy`) turns them into joules
+and into the linear columns the calibrator fits. Counts are floats so that statistics can be
+scaled (several identical DIMMs, a measured window longer than the modelled one).
+
+Example:
+    >>> rank = RankStats(act=10, pre=10, rd=640, cycles_total=10_000, cycles_act=2_000,
+    ...                  cycles_pre=8_000, bank_active_cycles=2_000)
+    >>> stats = CommandStats(ranks=(rank, RankStats(cycles_total=10_000, cycles_pre=10_000)))
+    >>> stats.total("rd")
+    640.0
+    >>> stats.scaled(2.0).total("act")
+    20.0
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+from hdeem_watch.errors import InputError
+
+#: Command counters of a rank, in the order of the ``counts`` object of ``model energy --json``.
+COUNT_FIELDS = ("act", "pre", "rd", "wr", "rda", "wra", "ref")
+#: State-residency fields of a rank, as ``cycles_<name>``, in the order of ``cycles`` in the JSON.
+CYCLE_FIELDS = ("act", "pre", "pdna", "pdnp", "sref")
+
+
+@dataclass(frozen=True)
+class RankStats:
+    """Command counts and state residency of one rank over an evaluation window of ``cycles_total``.
+
+    Attributes:
+        act: activations.
+        pre: precharges that closed an open bank, explicit (PRE, each bank closed by PREA) and
+            implicit (the auto-precharge of RDA/WRA, the precharge after a refresh is not counted).
+        rd: reads without auto-precharge (BL bursts).
+        wr: writes without auto-precharge.
+        rda: reads with auto-precharge.
+        wra: writes with auto-precharge.
+        ref: all-bank refreshes (REFA, and the refresh that starts a self-refresh).
+        cycles_total: the window T in clock cycles.
+        cycles_act: cycles with at least one bank active (including refresh).
+        cycles_pre: cycles with all banks precharged and not in power-down or self-refresh.
+        cycles_pdna: active power-down cycles.
+        cycles_pdnp: precharge power-down cycles.
+        cycles_sref: self-refresh cycles.
+        bank_active_cycles: sum over the banks of each bank's active cycles (used only by the
+            bank-wise ρ ≠ 1 form of the background energy).
+    """
+
+    act: float = 0.0
+    pre: float = 0.0
+    rd: float = 0.0
+    wr: float = 0.0
+    rda: float = 0.0
+    wra: float = 0.0
+    ref: float = 0.0
+    cycles_total: float = 0.0
+    cycles_act: float = 0.0
+    cycles_pre: float = 0.0
+    cycles_pdna: float = 0.0
+    cycles_pdnp: float = 0.0
+    cycles_sref: float = 0.0
+    bank_active_cycles: float = 0.0
+
+    def scaled(self, factor: float) -> RankStats:
+        """Every count and cycle figure multiplied by ``factor``."""
+        return RankStats(**{f.name: getattr(self, f.name) * factor for f in fields(self)})
+
+    def to_dict(self) -> dict[str, float]:
+        """Plain dict of every field (JSON-ready)."""
+        return {k: float(v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "stats") -> RankStats:
+        """Build from a dict of this class's field names; unknown keys or non-numbers are errors.
+
+        Raises:
+            InputError: naming ``where`` and the bad key or value.
+        """
+        known = {f.name for f in fields(cls)}
+        values: dict[str, float] = {}
+        for key, value in data.items():
+            if key not in known:
+                raise InputError(f"{where}: unknown field {key!r}; expected one of {sorted(known)}")
+            if isinstance(value, bool) or not isinstance(value, int | float) or value != value or value < 0:
+                raise InputError(f"{where}.{key}: {value!r} is not a non-negative number")
+            values[key] = float(value)
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class CommandStats:
+    """Per-rank statistics of one channel (one memspec) over one window.
+
+    Attributes:
+        ranks: one :class:`RankStats` per rank, index = rank number.
+    """
+
+    ranks: tuple[RankStats, ...]
+
+    def total(self, name: str) -> float:
+        """Sum of field ``name`` (e.g. ``"act"`` or ``"cycles_act"``) over the ranks."""
+        return float(sum(getattr(rank, name) for rank in self.ranks))
+
+    def scaled(self, factor: float) -> CommandStats:
+        """Every rank scaled by ``factor`` (e.g. identical channels, or a longer window)."""
+        return CommandStats(ranks=tuple(rank.scaled(factor) for rank in self.ranks))
+
+    def with_rank(self, index: int, rank: RankStats) -> CommandStats:
+        """A copy with rank ``index`` replaced."""
+        ranks = list(self.ranks)
+        ranks[index] = rank
+        return replace(self, ranks=tuple(ranks))
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"ranks": [ {field: value, ...}, ... ]}`` (JSON-ready; read back by :meth:`from_dict`)."""
+        return {"ranks": [rank.to_dict() for rank in self.ranks]}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "stats") -> CommandStats:
+        """Read the form written by :meth:`to_dict`.
+
+        Raises:
+            InputError: naming ``where`` and what was wrong.
+        """
+        ranks = data.get("ranks") if isinstance(data, Mapping) else None
+        if not isinstance(ranks, list) or not ranks:
+            raise InputError(f"{where}: expected an object with a non-empty list 'ranks'")
+        parsed = []
+        for i, rank in enumerate(ranks):
+            if not isinstance(rank, Mapping):
+                raise InputError(f"{where}.ranks[{i}]: expected an object")
+            parsed.append(RankStats.from_dict(rank, where=f"{where}.ranks[{i}]"))
+        return cls(ranks=tuple(parsed))

@@ -1,0 +1,1 @@
+"""hdeem_watch.sources."""
