@@ -1,18 +1,20 @@
-"""``hdeem-watch model``: not built yet (its issue is open)."""
+"""``hdeem-watch model ...``: the DRAM model on its own (energy, command statistics, kernels).
+
+The sub-subcommands live in their own modules: ``energy`` in :mod:`hdeem_watch.cli.model_energy`,
+``stats`` and ``kernel`` in :mod:`hdeem_watch.cli.model_stats`.
+"""
 
 from __future__ import annotations
 
-import argparse
-import sys
 from typing import Any
+
+from hdeem_watch.cli import model_energy, model_stats
 
 
 def register(subparsers: Any) -> None:
-    """Add the ``model`` subcommand."""
-    parser = subparsers.add_parser("model", help="(not built yet)")
-    parser.set_defaults(func=_run)
-
-
-def _run(args: argparse.Namespace) -> int:
-    print("hdeem-watch model: not built yet", file=sys.stderr)
-    return 1
+    """Add ``model`` and its sub-subcommands."""
+    parser = subparsers.add_parser("model", help="DRAM model: energy of a trace, command statistics, kernels")
+    model_subparsers = parser.add_subparsers(dest="model_command", metavar="MODEL_COMMAND",
+                                             parser_class=type(parser))
+    model_energy.register(model_subparsers)
+    model_stats.register(model_subparsers)
