@@ -1,0 +1,182 @@
+"""Control client of the node daemon, and where the daemon listens by default.
+
+The daemon's control socket is a ROUTER; this client uses a DEALER (default) or a plain REQ
+socket. Both send ``[b"", request]`` (the REQ envelope), so the daemon sees the same frames.
+A request that gets no reply within ``timeout_s`` raises :class:`DaemonUnreachable`; the socket is
+then recreated so a REQ client never stays stuck in its send/receive state machine, and a DEALER
+client drops late replies to earlier requests by their ``id``.
+
+Example:
+    >>> client = ControlClient("ipc:///tmp/none/control.sock", timeout_s=0.1)
+    >>> try:
+    ...     client.call("status")
+    ... except DaemonUnreachable as error:
+    ...     print("unreachable")
+    unreachable
+    >>> client.close()
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import zmq
+
+from hdeem_watch.daemon import protocol
+
+#: Environment variable that overrides the runtime directory of the default endpoints.
+RUNTIME_DIR_ENV = "HDEEM_WATCH_RUNTIME_DIR"
+PUB_SOCKET_NAME = "pub.sock"
+CONTROL_SOCKET_NAME = "control.sock"
+
+
+class ControlError(RuntimeError):
+    """The daemon answered with an error reply.
+
+    Attributes:
+        code: the protocol error code (``unknown-op``, ``bad-args``, ``not-found``, ...).
+        message: the daemon's one-line message.
+    """
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(f"{code}: {message}")
+        self.code = code
+        self.message = message
+
+
+class DaemonUnreachable(ConnectionError):
+    """No reply from the daemon within the timeout (not running, wrong endpoint, or hung)."""
+
+
+def runtime_dir(explicit: str | os.PathLike[str] | None = None) -> Path:
+    """The directory of the daemon's ipc sockets.
+
+    ``explicit``, else ``$HDEEM_WATCH_RUNTIME_DIR``, else ``$XDG_RUNTIME_DIR/hdeem-watch``
+    (``$RUNTIME_DIRECTORY`` under systemd), else ``/tmp/hdeem-watch-<uid>``.
+    """
+    if explicit is not None:
+        return Path(explicit)
+    env = os.environ.get(RUNTIME_DIR_ENV)
+    if env:
+        return Path(env)
+    systemd = os.environ.get("RUNTIME_DIRECTORY")
+    if systemd:
+        return Path(systemd.split(":")[0])
+    xdg = os.environ.get("XDG_RUNTIME_DIR")
+    if xdg:
+        return Path(xdg) / "hdeem-watch"
+    return Path(f"/tmp/hdeem-watch-{os.getuid()}")
+
+
+def default_endpoints(runtime_dir_path: str | os.PathLike[str] | None = None) -> tuple[str, str]:
+    """``(pub, control)`` ipc endpoints in the runtime directory (see :func:`runtime_dir`)."""
+    base = runtime_dir(runtime_dir_path)
+    return f"ipc://{base / PUB_SOCKET_NAME}", f"ipc://{base / CONTROL_SOCKET_NAME}"
+
+
+def ipc_path(endpoint: str) -> Path | None:
+    """The file of an ``ipc://`` endpoint, None for other transports."""
+    return Path(endpoint[len("ipc://") :]) if endpoint.startswith("ipc://") else None
+
+
+class ControlClient:
+    """Synchronous request/reply client of the daemon's control socket (not thread-safe).
+
+    Args:
+        endpoint: the daemon's control endpoint, e.g. ``ipc:///run/hdeem-watch/control.sock``.
+        timeout_s: how long :meth:`call` waits for a reply.
+        socket_type: ``"dealer"`` (default) or ``"req"``.
+        context: a ZeroMQ context (default: the process's shared instance).
+
+    Example:
+        >>> with ControlClient("ipc:///tmp/x/control.sock", timeout_s=0.05) as c:  # doctest: +SKIP
+        ...     c.call("status")["node"]
+        'node7'
+    """
+
+    def __init__(
+        self,
+        endpoint: str,
+        timeout_s: float = 5.0,
+        *,
+        socket_type: str = "dealer",
+        context: zmq.Context[Any] | None = None,
+    ) -> None:
+        if socket_type not in ("dealer", "req"):
+            raise ValueError(f"socket_type {socket_type!r}: expected 'dealer' or 'req'")
+        self.endpoint = endpoint
+        self.timeout_s = float(timeout_s)
+        self._type = zmq.DEALER if socket_type == "dealer" else zmq.REQ
+        self._context = context or zmq.Context.instance()
+        self._ids = itertools.count(1)
+        self._socket: zmq.Socket[Any] | None = None
+
+    def _connect(self) -> zmq.Socket[Any]:
+        if self._socket is None:
+            sock = self._context.socket(self._type)
+            sock.setsockopt(zmq.LINGER, 0)
+            sock.connect(self.endpoint)
+            self._socket = sock
+        return self._socket
+
+    def _drop_socket(self) -> None:
+        if self._socket is not None:
+            self._socket.close(linger=0)
+            self._socket = None
+
+    def call(self, op: str, args: dict[str, Any] | None = None, *, timeout_s: float | None = None) -> Any:
+        """Send one request and return its ``result``.
+
+        Raises:
+            ControlError: the daemon replied with an error.
+            DaemonUnreachable: no reply within the timeout (or the ipc socket file is missing).
+        """
+        path = ipc_path(self.endpoint)
+        if path is not None and not path.exists():
+            raise DaemonUnreachable(f"{self.endpoint}: no daemon socket at {path}")
+        request_id = next(self._ids)
+        data = protocol.encode_request(op, args, request_id)
+        reply = self._roundtrip(data, request_id, self.timeout_s if timeout_s is None else timeout_s)
+        if not reply.ok:
+            raise ControlError(reply.code, reply.message)
+        return reply.result
+
+    def _roundtrip(self, data: bytes, request_id: int, timeout_s: float) -> protocol.Reply:
+        sock = self._connect()
+        if self._type == zmq.DEALER:
+            sock.send_multipart([b"", data])
+        else:
+            sock.send(data)
+        deadline_ms = max(1, int(timeout_s * 1000))
+        poller = zmq.Poller()
+        poller.register(sock, zmq.POLLIN)
+        remaining = deadline_ms
+        end = time.monotonic() + timeout_s
+        while remaining > 0:
+            if not poller.poll(remaining):
+                break
+            frames = sock.recv_multipart()
+            try:
+                reply = protocol.decode_reply(frames[-1])
+            except protocol.ProtocolError as error:
+                self._drop_socket()
+                raise ControlError("bad-reply", str(error)) from None
+            if reply.id == request_id:
+                return reply
+            remaining = int((end - time.monotonic()) * 1000)  # a late reply to an earlier request
+        self._drop_socket()
+        raise DaemonUnreachable(f"{self.endpoint}: no reply within {timeout_s:g} s")
+
+    def close(self) -> None:
+        """Close the socket (the client can still be used again; it reconnects)."""
+        self._drop_socket()
+
+    def __enter__(self) -> ControlClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,519 @@
+"""Wire protocol v1 between the node daemon and its clients (TUI, bench, exporters).
+
+Stream (ZeroMQ PUB/SUB): every message has three frames ``[topic, header, payload]``:
+
+* ``topic``: UTF-8, ``hw1/<node>/<kind>`` or ``hw1/<node>/samples/<channel>``; kinds are
+  ``samples``, ``status``, ``run``, ``calib`` and ``baseline`` (:data:`KINDS`). Subscribing to a
+  prefix (``hw1/node7/``, ``hw1/node7/samples/``) selects nodes and kinds.
+* ``header``: a UTF-8 JSON object with at least ``"v": 1``, ``"seq"`` (per topic, +1 each message,
+  so a subscriber sees gaps), ``"node"`` and ``"t_ns"`` (wall clock, integer ns). NaN is sent as
+  ``null``.
+* ``payload``: bytes. For samples: ``n`` int64 little-endian wall-clock ns, then ``n`` float64
+  little-endian watts (NaN = unknown). Empty for every other kind. Never pickle.
+
+Control (ROUTER; a REQ or DEALER client works): one JSON frame per request
+``{"id": ..., "op": "...", "args": {...}}``, replied with ``{"id": ..., "ok": true, "result": ...}``
+or ``{"id": ..., "ok": false, "error": {"code": "...", "message": "..."}}``.
+
+The full description is in ``docs/protocol.md``. This module is pure: no sockets.
+
+Example:
+    >>> import numpy as np
+    >>> frames = encode_samples("n1", "DDR_AB", seq=0, rate_hz=100.0,
+    ...                         t_wall_ns=np.array([10, 20]), power_w=np.array([1.5, np.nan]),
+    ...                         energy_j=3.0, status="ok")
+    >>> msg = decode(frames)
+    >>> msg.kind, msg.channel, msg.seq
+    ('samples', 'DDR_AB', 0)
+    >>> msg.samples()[1].tolist()
+    [1.5, nan]
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+#: Protocol version carried in every header as ``"v"`` and in the topic prefix ``hw1``.
+VERSION = 1
+#: The first element of every topic.
+TOPIC_PREFIX = f"hw{VERSION}"
+#: Message kinds (the third topic element).
+KINDS = ("samples", "status", "run", "calib", "baseline")
+#: Largest control request the daemon accepts, in bytes; larger ones get error ``too-large``.
+MAX_REQUEST_BYTES = 64 * 1024
+#: dtype of the power part of a samples payload (little-endian float64).
+SAMPLE_DTYPE = "<f8"
+#: dtype of the time part of a samples payload (little-endian int64 ns).
+TIME_DTYPE = "<i8"
+
+#: Error codes of control replies.
+ERROR_CODES = (
+    "bad-json",  # the request frame is not a UTF-8 JSON object
+    "bad-request",  # the object lacks "op", or fields have the wrong type
+    "too-large",  # larger than MAX_REQUEST_BYTES
+    "unknown-op",  # no such operation
+    "bad-args",  # arguments missing or invalid for the operation
+    "not-found",  # e.g. run.stop with an unknown run_id
+    "conflict",  # e.g. run.start while a run is in progress
+    "unavailable",  # the operation cannot be served now (e.g. no model for this kernel)
+    "internal",  # a bug in the daemon; the message says what
+)
+
+
+class ProtocolError(ValueError):
+    """A message or request that does not follow protocol v1.
+
+    Attributes:
+        code: one of :data:`ERROR_CODES` (used as the control error code).
+    """
+
+    def __init__(self, message: str, code: str = "bad-request") -> None:
+        super().__init__(message)
+        self.code = code
+
+
+# ----------------------------------------------------------------------------------------------
+# Topics
+
+
+def topic(node: str, kind: str, channel: str | None = None) -> str:
+    """The topic of a message: ``hw1/<node>/<kind>`` or ``hw1/<node>/samples/<channel>``.
+
+    Raises:
+        ProtocolError: for an unknown kind, a missing channel on samples, or a ``/`` in a name.
+    """
+    if kind not in KINDS:
+        raise ProtocolError(f"topic kind {kind!r}: expected one of {KINDS}")
+    _check_name("node", node)
+    if kind == "samples":
+        if channel is None:
+            raise ProtocolError("samples topic needs a channel")
+        _check_name("channel", channel)
+        return f"{TOPIC_PREFIX}/{node}/samples/{channel}"
+    if channel is not None:
+        raise ProtocolError(f"{kind} topic takes no channel")
+    return f"{TOPIC_PREFIX}/{node}/{kind}"
+
+
+def samples_topic(node: str, channel: str) -> str:
+    """``hw1/<node>/samples/<channel>``."""
+    return topic(node, "samples", channel)
+
+
+def subscription(node: str | None = None, kind: str | None = None) -> bytes:
+    """A SUB prefix: everything (``hw1/``), one node (``hw1/n/``) or one kind of one node.
+
+    Note that ``hw1/n1/`` does not match node ``n10`` because of the trailing slash.
+    """
+    if node is None:
+        if kind is not None:
+            raise ProtocolError("a kind subscription needs a node (ZeroMQ matches prefixes)")
+        return f"{TOPIC_PREFIX}/".encode()
+    _check_name("node", node)
+    if kind is None:
+        return f"{TOPIC_PREFIX}/{node}/".encode()
+    if kind not in KINDS:
+        raise ProtocolError(f"subscription kind {kind!r}: expected one of {KINDS}")
+    suffix = "/" if kind == "samples" else ""
+    return f"{TOPIC_PREFIX}/{node}/{kind}{suffix}".encode()
+
+
+def parse_topic(text: str) -> tuple[str, str, str | None]:
+    """Split a topic into ``(node, kind, channel or None)``.
+
+    Raises:
+        ProtocolError: when it is not a v1 topic.
+    """
+    parts = text.split("/")
+    if len(parts) < 3 or parts[0] != TOPIC_PREFIX:
+        raise ProtocolError(f"topic {text!r}: expected '{TOPIC_PREFIX}/<node>/<kind>[/<channel>]'")
+    node, kind = parts[1], parts[2]
+    if not node:
+        raise ProtocolError(f"topic {text!r}: empty node")
+    if kind == "samples":
+        if len(parts) != 4 or not parts[3]:
+            raise ProtocolError(f"topic {text!r}: samples topics are '{TOPIC_PREFIX}/<node>/samples/<channel>'")
+        return node, kind, parts[3]
+    if len(parts) != 3:
+        raise ProtocolError(f"topic {text!r}: too many elements for kind {kind!r}")
+    return node, kind, None
+
+
+def _check_name(what: str, name: str) -> None:
+    if not isinstance(name, str) or not name or "/" in name:
+        raise ProtocolError(f"{what} {name!r}: expected a non-empty name without '/'")
+
+
+# ----------------------------------------------------------------------------------------------
+# JSON with NaN -> null
+
+
+def jsonable(value: Any) -> Any:
+    """``value`` with NaN/inf floats as ``None`` and numpy scalars/arrays as plain Python."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, bool | int | str) or value is None:
+        return value
+    if isinstance(value, Mapping):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return [jsonable(v) for v in value.tolist()]
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return jsonable(float(value))
+    raise ProtocolError(f"cannot encode {type(value).__name__} as JSON")
+
+
+def dumps(value: Any) -> bytes:
+    """Compact UTF-8 JSON, NaN/inf as ``null`` (strict JSON, every parser reads it)."""
+    return json.dumps(jsonable(value), separators=(",", ":"), allow_nan=False).encode()
+
+
+def loads_object(data: bytes, what: str = "frame") -> dict[str, Any]:
+    """Parse a UTF-8 JSON object.
+
+    Raises:
+        ProtocolError: code ``bad-json`` when it is not UTF-8 JSON or not an object.
+    """
+    try:
+        value = json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as error:
+        raise ProtocolError(f"{what}: not UTF-8 JSON ({error})", code="bad-json") from None
+    if not isinstance(value, dict):
+        raise ProtocolError(f"{what}: expected a JSON object, got {type(value).__name__}", code="bad-json")
+    return value
+
+
+# ----------------------------------------------------------------------------------------------
+# Stream messages
+
+
+def now_ns() -> int:
+    """Wall-clock time in integer nanoseconds (labels only; never for intervals)."""
+    return time.time_ns()
+
+
+def encode(topic: str | bytes, header: Mapping[str, Any], payload: bytes = b"") -> list[bytes]:
+    """The three frames of a stream message. ``"v"`` is filled in when absent.
+
+    Raises:
+        ProtocolError: when ``seq``, ``node`` or ``t_ns`` is missing or not an integer/string.
+    """
+    head = dict(header)
+    head.setdefault("v", VERSION)
+    _check_header(head, "header")
+    topic_bytes = topic.encode() if isinstance(topic, str) else bytes(topic)
+    return [topic_bytes, dumps(head), bytes(payload)]
+
+
+def _check_header(head: Mapping[str, Any], where: str) -> None:
+    if head.get("v") != VERSION:
+        raise ProtocolError(f"{where}: v = {head.get('v')!r}; expected {VERSION}")
+    for key in ("seq", "t_ns"):
+        value = head.get(key)
+        if isinstance(value, bool) or not isinstance(value, int | np.integer):
+            raise ProtocolError(f"{where}.{key} = {value!r}: expected an integer")
+    if not isinstance(head.get("node"), str):
+        raise ProtocolError(f"{where}.node = {head.get('node')!r}: expected a string")
+
+
+def pack_samples(t_wall_ns: np.ndarray, power_w: np.ndarray) -> bytes:
+    """Samples payload: n int64 LE ns followed by n float64 LE W.
+
+    Raises:
+        ProtocolError: when the arrays differ in length or are not one-dimensional.
+    """
+    t = np.ascontiguousarray(t_wall_ns, dtype=TIME_DTYPE)
+    p = np.ascontiguousarray(power_w, dtype=SAMPLE_DTYPE)
+    if t.ndim != 1 or p.shape != t.shape:
+        raise ProtocolError(f"samples: times {t.shape} and powers {p.shape} must be equal 1-D arrays")
+    return t.tobytes() + p.tobytes()
+
+
+def unpack_samples(payload: bytes, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`pack_samples` (read-only views on ``payload``).
+
+    Raises:
+        ProtocolError: when the payload is not exactly ``16 * n`` bytes.
+    """
+    if n < 0 or len(payload) != 16 * n:
+        raise ProtocolError(f"samples payload: {len(payload)} bytes for n = {n}; expected {16 * n}")
+    t = np.frombuffer(payload, dtype=TIME_DTYPE, count=n)
+    p = np.frombuffer(payload, dtype=SAMPLE_DTYPE, count=n, offset=8 * n)
+    return t, p
+
+
+def encode_samples(
+    node: str,
+    channel: str,
+    *,
+    seq: int,
+    rate_hz: float,
+    t_wall_ns: np.ndarray,
+    power_w: np.ndarray,
+    energy_j: float,
+    status: str,
+    t_ns: int | None = None,
+) -> list[bytes]:
+    """Frames of one samples batch of one channel.
+
+    Args:
+        node: node name.
+        channel: channel name, e.g. ``"DDR_AB"``.
+        seq: this topic's sequence number.
+        rate_hz: the channel's native sample rate.
+        t_wall_ns: sample times (wall clock, int ns).
+        power_w: sample values in W (NaN = unknown).
+        energy_j: cumulative energy at the end of the batch (NaN = unknown → ``null``).
+        status: the channel status (``"ok"``, ``"stale"``, ``"error: ..."``).
+        t_ns: header time; defaults to now.
+    """
+    payload = pack_samples(t_wall_ns, power_w)
+    n = len(payload) // 16
+    t0 = int(t_wall_ns[0]) if n else None
+    header = {
+        "v": VERSION,
+        "seq": int(seq),
+        "node": node,
+        "t_ns": now_ns() if t_ns is None else int(t_ns),
+        "channel": channel,
+        "unit": "W",
+        "rate_hz": float(rate_hz),
+        "n": n,
+        "dtype": SAMPLE_DTYPE,
+        "t0_ns": t0,
+        "dt_ns": round(1e9 / rate_hz) if rate_hz > 0 else None,
+        "energy_j": energy_j,
+        "status": status,
+    }
+    return [samples_topic(node, channel).encode(), dumps(header), payload]
+
+
+@dataclass(frozen=True)
+class Message:
+    """A decoded stream message.
+
+    Attributes:
+        topic: the topic string.
+        kind: ``samples``, ``status``, ``run``, ``calib``, ``baseline`` (or a newer kind).
+        node: the node name.
+        channel: the channel for samples, else None.
+        header: the parsed header (NaN arrives as None).
+        payload: the raw payload bytes.
+    """
+
+    topic: str
+    kind: str
+    node: str
+    channel: str | None
+    header: dict[str, Any]
+    payload: bytes = field(repr=False)
+
+    @property
+    def seq(self) -> int:
+        """The header's sequence number."""
+        return int(self.header["seq"])
+
+    @property
+    def t_ns(self) -> int:
+        """The header's wall-clock time in ns."""
+        return int(self.header["t_ns"])
+
+    def samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(t_wall_ns int64, power_w float64)`` of a samples message.
+
+        Raises:
+            ProtocolError: when this is not a samples message.
+        """
+        if self.kind != "samples":
+            raise ProtocolError(f"{self.topic}: not a samples message")
+        return unpack_samples(self.payload, int(self.header["n"]))
+
+
+def decode(frames: Sequence[bytes | Any]) -> Message:
+    """Decode the frames of a stream message (bytes or ``zmq.Frame``).
+
+    Raises:
+        ProtocolError: wrong frame count, non-v1 topic or header, or a samples payload whose size
+            does not match its header.
+    """
+    if len(frames) != 3:
+        raise ProtocolError(f"expected 3 frames [topic, header, payload], got {len(frames)}")
+    raw = [f if isinstance(f, bytes) else bytes(f.buffer if hasattr(f, "buffer") else f) for f in frames]
+    try:
+        topic_text = raw[0].decode("utf-8")
+    except UnicodeDecodeError:
+        raise ProtocolError("topic is not UTF-8") from None
+    node, kind, channel = parse_topic(topic_text)
+    header = loads_object(raw[1], f"{topic_text} header")
+    _check_header(header, f"{topic_text} header")
+    if header["node"] != node:
+        raise ProtocolError(f"{topic_text}: header node {header['node']!r} differs from the topic")
+    if kind == "samples":
+        n = header.get("n")
+        if isinstance(n, bool) or not isinstance(n, int):
+            raise ProtocolError(f"{topic_text}: header n = {n!r}; expected an integer")
+        if header.get("dtype", SAMPLE_DTYPE) != SAMPLE_DTYPE:
+            raise ProtocolError(f"{topic_text}: dtype {header.get('dtype')!r}; expected {SAMPLE_DTYPE!r}")
+        if len(raw[2]) != 16 * n:
+            raise ProtocolError(f"{topic_text}: payload {len(raw[2])} bytes for n = {n}; expected {16 * n}")
+    return Message(topic=topic_text, kind=kind, node=node, channel=channel, header=header, payload=raw[2])
+
+
+class SequenceCounter:
+    """Per-topic sequence numbers for a publisher (first message of each topic has seq 0)."""
+
+    def __init__(self) -> None:
+        self._next: dict[str, int] = {}
+
+    def next(self, topic: str) -> int:
+        """The sequence number for the next message on ``topic``."""
+        seq = self._next.get(topic, 0)
+        self._next[topic] = seq + 1
+        return seq
+
+
+class GapTracker:
+    """Counts messages a subscriber missed, from the per-topic sequence numbers.
+
+    Example:
+        >>> tracker = GapTracker()
+        >>> tracker.observe("t", 0), tracker.observe("t", 1), tracker.observe("t", 4)
+        (0, 0, 2)
+        >>> tracker.missed
+        2
+    """
+
+    def __init__(self) -> None:
+        self._last: dict[str, int] = {}
+        self.missed = 0
+        self.restarts = 0
+
+    def observe(self, topic: str, seq: int) -> int:
+        """Record ``seq`` on ``topic``; return how many messages were missed just before it.
+
+        A sequence number that goes backwards means the publisher restarted: counted in
+        :attr:`restarts`, not as a gap.
+        """
+        last = self._last.get(topic)
+        self._last[topic] = seq
+        if last is None:
+            return 0
+        if seq <= last:
+            self.restarts += 1
+            return 0
+        missed = seq - last - 1
+        self.missed += missed
+        return missed
+
+
+# ----------------------------------------------------------------------------------------------
+# Control requests and replies
+
+
+@dataclass(frozen=True)
+class Request:
+    """A parsed control request."""
+
+    id: Any
+    op: str
+    args: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Reply:
+    """A parsed control reply: ``result`` when ``ok``, else ``code`` and ``message``."""
+
+    id: Any
+    ok: bool
+    result: Any = None
+    code: str = ""
+    message: str = ""
+
+
+def encode_request(op: str, args: Mapping[str, Any] | None = None, request_id: Any = None) -> bytes:
+    """One control request frame."""
+    return dumps({"id": request_id, "op": op, "args": dict(args or {})})
+
+
+def decode_request(data: bytes, max_bytes: int = MAX_REQUEST_BYTES) -> Request:
+    """Parse a control request frame.
+
+    Raises:
+        ProtocolError: ``too-large``, ``bad-json`` or ``bad-request``; its message is one line.
+    """
+    if len(data) > max_bytes:
+        raise ProtocolError(f"request of {len(data)} bytes exceeds the limit of {max_bytes}", code="too-large")
+    obj = loads_object(data, "request")
+    op = obj.get("op")
+    if not isinstance(op, str) or not op:
+        raise ProtocolError(f"request.op = {op!r}: expected a non-empty string")
+    args = obj.get("args", {})
+    if args is None:
+        args = {}
+    if not isinstance(args, dict):
+        raise ProtocolError(f"request.args: expected an object, got {type(args).__name__}")
+    request_id = obj.get("id")
+    if not isinstance(request_id, str | int | float | type(None)) or isinstance(request_id, bool):
+        raise ProtocolError("request.id: expected a string, a number or null")
+    return Request(id=request_id, op=op, args=args)
+
+
+def request_id_of(data: bytes) -> Any:
+    """Best-effort ``id`` of a request that failed to parse (None if it cannot be found)."""
+    if len(data) > MAX_REQUEST_BYTES:
+        return None
+    try:
+        value = json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError):
+        return None
+    if isinstance(value, dict):
+        rid = value.get("id")
+        if isinstance(rid, str | int | float) and not isinstance(rid, bool):
+            return rid
+    return None
+
+
+def encode_reply_ok(request_id: Any, result: Any) -> bytes:
+    """A success reply frame."""
+    return dumps({"id": request_id, "ok": True, "result": result})
+
+
+def encode_reply_error(request_id: Any, code: str, message: str) -> bytes:
+    """An error reply frame (``message`` is flattened to one line)."""
+    return dumps({"id": request_id, "ok": False, "error": {"code": code, "message": " ".join(message.split())}})
+
+
+def decode_reply(data: bytes) -> Reply:
+    """Parse a reply frame.
+
+    Raises:
+        ProtocolError: when it is not a v1 reply.
+    """
+    obj = loads_object(data, "reply")
+    ok = obj.get("ok")
+    if ok is True:
+        return Reply(id=obj.get("id"), ok=True, result=obj.get("result"))
+    if ok is False:
+        error = obj.get("error")
+        if not isinstance(error, dict):
+            raise ProtocolError("reply.error: expected an object")
+        return Reply(
+            id=obj.get("id"),
+            ok=False,
+            code=str(error.get("code", "")),
+            message=str(error.get("message", "")),
+        )
+    raise ProtocolError(f"reply.ok = {ok!r}: expected true or false")
