@@ -1,0 +1,246 @@
+"""DRAM request streams of the STREAM-like kernels, and their command statistics.
+
+Each kernel touches one 64-byte line per access (stride 8 doubles, one BL8 burst) of arrays much
+larger than the last-level cache. Per iteration ``k`` the stream holds a read of each source line
+in operand order, then a read-for-ownership of the destination line unless it was just read as a
+source (write-allocate), then the destination's write-back (``wb0``: right after the reads of the
+same iteration). This is exactly how the Ramulator reference traces were built
+(``reference/ramulator/README.md``); arrays ``a``, ``b``, ``c`` start at 1, 2 and 3 GiB.
+
+Threads split the line range into contiguous chunks (OpenMP ``static``: the first ``lines % T``
+threads get one line more); their streams interleave at the memory controller round-robin, one
+iteration of each thread in turn.
+
+Example:
+    >>> kernel_traffic("copy", 16)
+    Traffic(lines_read=4, lines_written=2)
+    >>> addresses, is_write = kernel_requests("copy", 16, threads=1)
+    >>> [hex(int(a)) for a in addresses[:3]], is_write[:3].tolist()
+    (['0x40000000', '0x80000000', '0x80000000'], [False, False, True])
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from hdeem_watch.errors import InputError
+
+if TYPE_CHECKING:
+    from hdeem_watch.dram.stats import CommandStats
+
+#: The kernels, in the order of the seed paper.
+KERNELS = ("read", "assign", "scale", "add", "triad", "copy", "selfscale")
+#: Accepted alternative names.
+ALIASES = {"addition": "add", "sum": "read"}
+#: Bytes per request (one cache line, one BL8 burst of a 64-bit channel).
+LINE_BYTES = 64
+#: Doubles per line: the stride of every kernel.
+STRIDE_DOUBLES = 8
+#: Physical base address of each array.
+ARRAY_BASES = {"a": 1 << 30, "b": 2 << 30, "c": 3 << 30}
+
+#: Sources (in operand order) and destination of each kernel.
+_OPERANDS: dict[str, tuple[tuple[str, ...], str | None]] = {
+    "read": (("a",), None),
+    "assign": ((), "a"),
+    "scale": (("a",), "b"),
+    "add": (("a", "b"), "c"),
+    "triad": (("b", "a"), "a"),
+    "copy": (("a",), "b"),
+    "selfscale": (("a",), "a"),
+}
+
+
+@dataclass(frozen=True)
+class Traffic:
+    """DRAM lines one pass of a kernel moves.
+
+    Attributes:
+        lines_read: 64-byte lines read, read-for-ownership included.
+        lines_written: 64-byte lines written back.
+    """
+
+    lines_read: int
+    lines_written: int
+
+
+@dataclass(frozen=True)
+class KernelModel:
+    """Command statistics of a kernel run on one channel.
+
+    Attributes:
+        stats: per-rank statistics of one channel, all passes.
+        reads: read requests on that channel.
+        writes: write requests on that channel.
+        cycles: DRAM clock cycles the channel needs.
+        row_hits: requests that found their row open.
+        row_misses: requests to a precharged bank.
+        row_conflicts: requests that had to close another row first.
+        scale: how much the simulated prefix was multiplied by.
+    """
+
+    stats: CommandStats
+    reads: float
+    writes: float
+    cycles: float
+    row_hits: float
+    row_misses: float
+    row_conflicts: float
+    scale: float
+
+
+def canonical_kernel(kernel: str) -> str:
+    """The canonical name of ``kernel`` (aliases resolved, case-insensitive).
+
+    Raises:
+        InputError: for an unknown kernel.
+    """
+    name = str(kernel).strip().lower()
+    name = ALIASES.get(name, name)
+    if name not in _OPERANDS:
+        raise InputError(f"kernel {kernel!r}: unknown; expected one of {', '.join(KERNELS)} (or 'addition')")
+    return name
+
+
+def access_pattern(kernel: str) -> tuple[tuple[str, bool], ...]:
+    """The per-iteration accesses of ``kernel`` as ``(array, is_write)`` in stream order."""
+    sources, destination = _OPERANDS[canonical_kernel(kernel)]
+    pattern = [(array, False) for array in sources]
+    if destination is not None:
+        if destination not in sources:
+            pattern.append((destination, False))
+        pattern.append((destination, True))
+    return tuple(pattern)
+
+
+def kernel_lines(elements: int) -> int:
+    """Lines one array of ``elements`` doubles spans at stride 8 (``ceil(elements / 8)``)."""
+    if isinstance(elements, bool) or int(elements) != elements or elements < 0:
+        raise InputError(f"elements {elements!r}: expected a non-negative integer")
+    return -(-int(elements) // STRIDE_DOUBLES)
+
+
+def kernel_traffic(kernel: str, elements: int) -> Traffic:
+    """Lines read and written by one pass of ``kernel`` over ``elements`` doubles per array.
+
+    Pure counting: write-allocate reads are included, so a written line counts once as read and
+    once as written unless it is also a source.
+    """
+    pattern = access_pattern(kernel)
+    lines = kernel_lines(elements)
+    writes = sum(1 for _, is_write in pattern if is_write)
+    return Traffic(lines_read=lines * (len(pattern) - writes), lines_written=lines * writes)
+
+
+def thread_line_order(lines: int, threads: int) -> np.ndarray:
+    """Line indices in controller order: contiguous chunks per thread, interleaved round-robin.
+
+    Raises:
+        InputError: if ``threads`` is not a positive integer.
+    """
+    if isinstance(threads, bool) or int(threads) != threads or threads < 1:
+        raise InputError(f"threads {threads!r}: expected a positive integer")
+    threads = int(threads)
+    if threads == 1 or lines == 0:
+        return np.arange(lines, dtype=np.uint64)
+    base, extra = divmod(lines, threads)
+    sizes = np.full(threads, base, dtype=np.int64)
+    sizes[:extra] += 1
+    starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    steps = int(sizes.max())
+    step = np.arange(steps, dtype=np.int64)[:, None]
+    grid = starts[None, :] + step
+    valid = step < sizes[None, :]
+    return grid[valid].astype(np.uint64)
+
+
+def kernel_requests(kernel: str, elements: int, threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """The DRAM request stream of one pass of ``kernel``.
+
+    Args:
+        kernel: one of :data:`KERNELS` (or an alias).
+        elements: doubles per array.
+        threads: threads sharing the index range.
+
+    Returns:
+        ``(addresses, is_write)``: physical byte addresses (``uint64``) and write flags, in the
+        order the controller receives them.
+    """
+    pattern = access_pattern(kernel)
+    order = thread_line_order(kernel_lines(elements), threads) * np.uint64(LINE_BYTES)
+    width = len(pattern)
+    addresses = np.empty((order.size, width), dtype=np.uint64)
+    is_write = np.empty((order.size, width), dtype=bool)
+    for column, (array, write) in enumerate(pattern):
+        np.add(order, np.uint64(ARRAY_BASES[array]), out=addresses[:, column])
+        is_write[:, column] = write
+    return addresses.ravel(), is_write.ravel()
+
+
+def kernel_stats(
+    spec: Any,
+    kernel: str,
+    elements: int,
+    threads: int,
+    *,
+    repeat: int = 1,
+    channels: int = 1,
+    mapping: str = "RoBaRaCoCh",
+    max_requests: int = 2_000_000,
+    policy: str = "open",
+) -> KernelModel:
+    """Command statistics of ``repeat`` passes of ``kernel`` on ONE of ``channels`` channels.
+
+    Each channel carries ``1/channels`` of the traffic (the lines are interleaved over the
+    channels). A representative prefix of the stream (at most ``max_requests`` requests, whole
+    iterations) is simulated and every figure is scaled linearly to the full run, so this is fast
+    for any size.
+
+    Args:
+        spec: the memspec of one channel (:class:`hdeem_watch.dram.memspec.MemSpec`).
+        kernel: kernel name.
+        elements: doubles per array.
+        threads: threads.
+        repeat: passes over the arrays.
+        channels: channels the traffic is spread over (1 = everything on this channel).
+        mapping: address-mapping scheme of the channel.
+        max_requests: the largest prefix simulated.
+        policy: row-buffer policy, ``"open"`` or ``"closed"``.
+
+    Raises:
+        InputError: for a bad kernel, size, thread count, repeat, channel count or mapping.
+    """
+    from hdeem_watch.dram.controller import simulate
+
+    name = canonical_kernel(kernel)
+    for label, value, low in (("repeat", repeat, 0), ("channels", channels, 1), ("max_requests", max_requests, 1)):
+        if isinstance(value, bool) or int(value) != value or value < low:
+            raise InputError(f"{label} {value!r}: expected an integer >= {low}")
+    width = len(access_pattern(name))
+    total_lines = kernel_lines(elements)
+    lines_per_channel = total_lines / channels
+    full_requests = lines_per_channel * width * repeat
+    prefix_lines = int(min(np.ceil(lines_per_channel), max(1, max_requests // width)))
+    if total_lines == 0 or repeat == 0:
+        prefix_lines = 0
+    # The prefix: the first ``prefix_lines`` lines of the channel's share, threads keeping their
+    # proportions (each thread's chunk shrinks by the same factor).
+    shrink = prefix_lines / lines_per_channel if lines_per_channel else 0.0
+    sim_threads = max(1, min(int(threads), prefix_lines)) if prefix_lines else 1
+    addresses, is_write = kernel_requests(name, prefix_lines * STRIDE_DOUBLES, sim_threads)
+    result = simulate(spec, addresses, is_write, policy=policy, mapping=mapping)
+    factor = full_requests / result.requests if result.requests else 0.0
+    del shrink
+    return KernelModel(
+        stats=result.stats.scaled(factor),
+        reads=lines_per_channel * repeat * (width - sum(w for _, w in access_pattern(name))),
+        writes=lines_per_channel * repeat * sum(w for _, w in access_pattern(name)),
+        cycles=result.cycles * factor,
+        row_hits=result.row_hits * factor,
+        row_misses=result.row_misses * factor,
+        row_conflicts=result.row_conflicts * factor,
+        scale=factor,
+    )
