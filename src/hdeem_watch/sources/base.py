@@ -1,0 +1,244 @@
+"""The source contract: what every power source (sim, HDEEM, RAPL, replay) gives the daemon.
+
+A source is a small object behind the :class:`Source` protocol: ``open()``, then ``poll()`` at the
+daemon's own pace (each call returns every sample that became due since the previous call, at the
+channel's native rate, as a :class:`SourceBatch`), then ``close()``. Unknown values are NaN with a
+status, never a silent 0. Times are integer nanoseconds: monotonic for intervals (the batch's
+``t_mono_ns``), wall clock for labels (sample timestamps). Clocks are injectable.
+
+:func:`make_source` builds a source by kind and raises :class:`SourceUnavailable` with a reason a
+user can act on; :func:`available_sources` says for every kind whether it can be used here.
+
+Example:
+    >>> src = make_source("sim", seed=1)
+    >>> src.open()
+    >>> batch = src.poll()
+    >>> sorted(batch.samples) == sorted(CHANNELS)
+    True
+    >>> src.close()
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Literal, Protocol, runtime_checkable
+
+import numpy as np
+
+#: The HDEEM channels of a Haswell node, in HDEEM's own order.
+CHANNELS = ("BLADE", "CPU0", "CPU1", "DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
+#: The DIMM-pair channels (each covers two DIMMs, one per memory channel).
+DRAM_CHANNELS = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
+#: Which socket each DIMM pair hangs off (DDR_AB, DDR_CD on socket 0; DDR_EF, DDR_GH on socket 1).
+DRAM_SOCKET = {"DDR_AB": 0, "DDR_CD": 0, "DDR_EF": 1, "DDR_GH": 1}
+#: RAPL reports DRAM per socket, not per pair: ``DRAM<n>`` covers these HDEEM channels.
+RAPL_DRAM_COVERS = {"DRAM0": ("DDR_AB", "DDR_CD"), "DRAM1": ("DDR_EF", "DDR_GH")}
+#: Source kinds :func:`make_source` knows.
+SOURCE_KINDS = ("sim", "hdeem", "rapl", "replay")
+
+ChannelKind = Literal["blade", "cpu", "dram"]
+Clock = Callable[[], int]
+
+#: Status strings used by every source (plus ``"error: <reason>"``).
+STATUS_OK = "ok"
+STATUS_STALE = "stale"          # no new value for longer than expected (slow sensor call)
+STATUS_OVERFLOW = "overflow"    # the sensor buffer overflowed: samples are missing
+STATUS_GAP = "gap"              # the poller was late beyond the sensor buffer: samples are missing
+STATUS_CLOSED = "closed"
+
+
+class SourceUnavailable(RuntimeError):
+    """A source cannot be used here; ``reason`` says why and what to do about it."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class ChannelInfo:
+    """One measured channel.
+
+    Attributes:
+        name: channel name, e.g. ``"DDR_AB"`` (one of :data:`CHANNELS` for HDEEM and the sim;
+            ``"DRAM0"``... for RAPL, see :data:`RAPL_DRAM_COVERS`).
+        rate_hz: native sample rate (samples per second of the source's time).
+        kind: ``"blade"``, ``"cpu"`` or ``"dram"``.
+    """
+
+    name: str
+    rate_hz: float
+    kind: ChannelKind
+
+
+@dataclass(frozen=True)
+class SourceBatch:
+    """What one ``poll()`` returns.
+
+    Attributes:
+        t_mono_ns: monotonic time of the poll (the source's injected clock).
+        t_wall_ns: wall-clock time of the poll.
+        samples: per channel ``(t_wall_ns int64[n], power_w float64[n])`` — the new samples since
+            the last poll at the channel's native rate (possibly none); NaN = unknown. A sample's
+            timestamp is the end of the interval it averages (``1/rate_hz`` long).
+        energy_j: cumulative energy per channel since the source opened (NaN if unknown).
+        status: per channel ``"ok"``, ``"stale"``, ``"overflow"``, ``"gap"``, ``"error: ..."``.
+    """
+
+    t_mono_ns: int
+    t_wall_ns: int
+    samples: dict[str, tuple[np.ndarray, np.ndarray]]
+    energy_j: dict[str, float]
+    status: dict[str, str]
+    gaps: dict[str, int] = field(default_factory=dict)
+    """Samples known to be missing in this batch, per channel (0 or absent = none)."""
+
+    def n_samples(self) -> int:
+        """Total number of samples over all channels."""
+        return sum(len(t) for t, _ in self.samples.values())
+
+
+@dataclass(frozen=True)
+class RunEvent:
+    """A benchmark run starting or stopping, as announced to the daemon.
+
+    Attributes:
+        kind: ``"start"`` or ``"stop"``.
+        run_id: the daemon's id of the run.
+        kernel: kernel name (``"read"``, ``"triad"``, ...; ``"idle"``/``"sleep"`` = no traffic).
+        threads: OpenMP threads (≥ 1).
+        elements: array elements (doubles) per array.
+        repeat: passes over the arrays.
+        t_mono_ns: when it happened, on the daemon's monotonic clock (the same clock as the source's).
+    """
+
+    kind: Literal["start", "stop"]
+    run_id: str
+    kernel: str
+    threads: int
+    elements: int
+    repeat: int
+    t_mono_ns: int
+
+
+@runtime_checkable
+class Source(Protocol):
+    """A power source. ``on_run(event: RunEvent) -> None`` is optional (the sim implements it)."""
+
+    kind: str
+
+    def channels(self) -> list[ChannelInfo]:
+        """The channels this source measures."""
+        ...
+
+    def open(self) -> None:
+        """Connect/start measuring. Raises :class:`SourceUnavailable` if it cannot."""
+        ...
+
+    def poll(self) -> SourceBatch:
+        """Every sample due since the previous poll (no invented samples after a stall)."""
+        ...
+
+    def close(self) -> None:
+        """Stop measuring and release resources (idempotent)."""
+        ...
+
+    def health(self) -> str:
+        """``"ok"`` or a short description of what is wrong."""
+        ...
+
+
+_SEP = re.compile(r"[\s_\-]+")
+
+
+def normalise_channel_name(name: str) -> str:
+    """Map a sensor name as a library or printout spells it onto :data:`CHANNELS`.
+
+    Case, spaces, ``-`` and ``_`` vary between firmware versions ("ddr ab", "Ddr_Ab", "DDRAB");
+    unknown names are returned upper-cased with separators replaced by ``_``.
+
+    >>> normalise_channel_name(" ddr ab ")
+    'DDR_AB'
+    >>> normalise_channel_name("Blade")
+    'BLADE'
+    """
+    squashed = _SEP.sub("", name).upper()
+    for known in CHANNELS:
+        if known.replace("_", "") == squashed:
+            return known
+    return _SEP.sub("_", name.strip()).upper()
+
+
+def hdeem_channel_infos() -> list[ChannelInfo]:
+    """The HDEEM channel set: BLADE at 1000 Sa/s, CPU0/1 and the DIMM pairs at 100 Sa/s."""
+    infos = [ChannelInfo("BLADE", 1000.0, "blade")]
+    infos += [ChannelInfo(n, 100.0, "cpu") for n in ("CPU0", "CPU1")]
+    infos += [ChannelInfo(n, 100.0, "dram") for n in DRAM_CHANNELS]
+    return infos
+
+
+def make_source(kind: str, **options: Any) -> Source:
+    """Build a source by kind.
+
+    Args:
+        kind: ``"sim"``, ``"hdeem"``, ``"rapl"`` or ``"replay"``.
+        **options: passed to the source's constructor (e.g. ``seed``, ``clock``, ``speed`` for the
+            sim; ``root`` for RAPL; ``path``, ``speed``, ``loop`` for replay; ``include_dir``,
+            ``lib_dir``, ``host`` for HDEEM).
+
+    Raises:
+        SourceUnavailable: the source cannot be used here (reason says why and the fix).
+        InputError: ``kind`` is not a known kind, or an option is bad (e.g. a malformed recording).
+    """
+    from hdeem_watch.errors import InputError
+
+    if kind == "sim":
+        from hdeem_watch.sources.sim import SimSource
+
+        return SimSource(**options)
+    if kind == "hdeem":
+        from hdeem_watch.sources.hdeem import HdeemSource
+
+        return HdeemSource(**options)
+    if kind == "rapl":
+        from hdeem_watch.sources.rapl import RaplSource
+
+        return RaplSource(**options)
+    if kind == "replay":
+        from hdeem_watch.sources.replay import ReplaySource
+
+        return ReplaySource(**options)
+    raise InputError(f"source: unknown kind {kind!r}; expected one of {', '.join(SOURCE_KINDS)}")
+
+
+def available_sources(**options: Any) -> dict[str, str | None]:
+    """For each kind, ``None`` if it can be used here, else the reason why not (with the fix).
+
+    Options are passed to the probes (``rapl_root=...``, ``hdeem_include_dir=...``,
+    ``hdeem_lib_dir=...``, ``replay_path=...``).
+    """
+    result: dict[str, str | None] = {"sim": None}
+    try:
+        from hdeem_watch.sources.hdeem import probe as hdeem_probe
+
+        result["hdeem"] = hdeem_probe(
+            include_dir=options.get("hdeem_include_dir"), lib_dir=options.get("hdeem_lib_dir")
+        )
+    except ImportError as exc:  # module not there yet
+        result["hdeem"] = f"hdeem source not installed: {exc}"
+    try:
+        from hdeem_watch.sources.rapl import probe as rapl_probe
+
+        result["rapl"] = rapl_probe(root=options.get("rapl_root"))
+    except ImportError as exc:
+        result["rapl"] = f"rapl source not installed: {exc}"
+    path = options.get("replay_path")
+    if path is None:
+        result["replay"] = None  # available; needs path=RECORDING.csv
+    else:
+        from pathlib import Path
+
+        result["replay"] = None if Path(path).is_file() else f"replay: {path}: no such file"
+    return result

@@ -1,0 +1,327 @@
+"""The simulated node: the embedded default source (HDEEM's channels on a modelled Haswell-EP node).
+
+The node and its model are described in :mod:`hdeem_watch.sources.sim_model`. This module is the
+time shell: it turns the model into HDEEM-like samples — BLADE at 1000 Sa/s, CPU0/CPU1 and the four
+DIMM pairs at 100 Sa/s, in steps of 0.125 W — and reacts to the runs the daemon announces
+(:meth:`SimSource.on_run`).
+
+Time: the sim's time runs ``speed`` × the injected monotonic clock since :meth:`SimSource.open`.
+Sample timestamps are ``wall-clock at open + sim time`` (so at ``speed`` 1 they follow the wall
+clock; at ``speed`` 10 they run ten times faster and the channel rates hold in timestamp time). A
+sample at ``t`` is the mean power over ``(t − 1/rate, t]``. ``poll()`` returns exactly the samples
+whose interval ended since the previous poll — nothing is invented after a stall; if the poller was
+late by more than ``buffer_s`` (the sensor buffer), the older samples are lost (counted in
+``SourceBatch.gaps``, status ``"gap"``) but their energy still enters the cumulative ``energy_j``
+(like HDEEM's energy totals). ``energy_j`` is the integral of the published (quantised) samples
+plus that of lost ones.
+
+What the calibrator does not model is in the signal on purpose: I/O energy per line
+(``io_j_per_line``), a board offset per channel, Gaussian noise, 0.125 W quantisation.
+
+Example:
+    >>> t = [0]
+    >>> sim = SimSource(seed=3, clock=lambda: t[0], wall_clock=lambda: 0)
+    >>> sim.open(); t[0] = 50_000_000
+    >>> b = sim.poll()
+    >>> len(b.samples["BLADE"][0]), len(b.samples["DDR_AB"][0])
+    (50, 5)
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from hdeem_watch.sources.base import (
+    CHANNELS,
+    DRAM_CHANNELS,
+    STATUS_GAP,
+    STATUS_OK,
+    ChannelInfo,
+    RunEvent,
+    SourceBatch,
+    hdeem_channel_infos,
+)
+from hdeem_watch.sources.sim_model import (
+    DIMM_PAIR,
+    DIMM_SOCKET,
+    DIMMS,
+    RunPlan,
+    TruthModel,
+    idle_power_w,
+    load_model,
+    modelled_line_rate,
+    plan_run,
+    socket_shares,
+    threads_per_socket,
+)
+
+__all__ = ["SimSource", "modelled_line_rate", "socket_shares", "threads_per_socket"]
+
+#: Idle CPU package power (W) per socket and the extra power per busy core / hyper-thread.
+CPU_IDLE_W = (12.0, 8.0)
+CPU_CORE_W = 1.5
+CPU_HT_W = 0.3
+#: Blade power not in the VR sensors (fans, board, disks, NIC), W.
+BLADE_BASE_W = 45.0
+#: Noise σ (W) per channel kind.
+NOISE_W = {"blade": 0.8, "cpu": 0.25, "dram": 0.05}
+
+
+class SimSource:
+    """The modelled Haswell-EP node with 8 DIMMs behind HDEEM's seven channels.
+
+    Args:
+        seed: seeds the hidden currents, offsets and noise (deterministic for the same poll times).
+        clock: monotonic clock in ns (the daemon's clock; ``RunEvent.t_mono_ns`` uses it too).
+        speed: sim seconds per clock second.
+        wall_clock: wall clock in ns (read once at open).
+        noise: add Gaussian noise.
+        quantum_w: quantisation step (0 = none).
+        io_j_per_line: I/O energy per 64-byte line on the DIMM rails (unmodelled by the calibrator).
+        offsets: add a board offset per channel (DIMM pairs −0.1…+0.3 W, others ±1 W).
+        aging_per_h: relative growth of every true current per sim hour.
+        temp_amp_c: amplitude of the DIMM temperature swing (°C, period 1 sim hour).
+        dimm_spread: relative spread of the true currents between DIMMs.
+        buffer_s: sensor buffer (sim s): samples older than this at a poll are lost.
+
+    Example:
+        >>> sim = SimSource(seed=1)
+        >>> sim.truth()["simulated"]
+        True
+    """
+
+    kind = "sim"
+
+    def __init__(self, seed: int = 0, clock: Callable[[], int] = time.monotonic_ns, speed: float = 1.0,
+                 wall_clock: Callable[[], int] = time.time_ns, *, noise: bool = True, quantum_w: float = 0.125,
+                 io_j_per_line: float = 2.0e-9, offsets: bool = True, aging_per_h: float = 0.005,
+                 temp_amp_c: float = 3.0, dimm_spread: float = 0.10, buffer_s: float = 60.0) -> None:
+        if not speed > 0 or not math.isfinite(speed):
+            from hdeem_watch.errors import InputError
+
+            raise InputError(f"sim: speed = {speed!r}; expected a finite number > 0")
+        self.seed = int(seed)
+        self._clock = clock
+        self._wall_clock = wall_clock
+        self.speed = float(speed)
+        self.noise = noise
+        self.quantum_w = float(quantum_w)
+        self.io_j_per_line = float(io_j_per_line)
+        self.buffer_ns = int(buffer_s * 1e9)
+        self.model = load_model()
+        self.truth_model = TruthModel(self.model.names, self.model.datasheet, self.seed,
+                                      aging_per_h=aging_per_h, temp_amp_c=temp_amp_c, dimm_spread=dimm_spread)
+        self._infos = hdeem_channel_infos()
+        rng = np.random.default_rng([self.seed, 104729])
+        self._offset_w = {
+            info.name: (float(rng.uniform(-0.1, 0.3)) if info.kind == "dram" else float(rng.uniform(-1.0, 1.0)))
+            if offsets else 0.0
+            for info in self._infos
+        }
+        self._rngs = {info.name: np.random.default_rng([self.seed, i + 1]) for i, info in enumerate(self._infos)}
+        self._period_ns = {info.name: round(1e9 / info.rate_hz) for info in self._infos}
+        self._open = False
+        self._t0_mono = 0
+        self._t0_wall = 0
+        self._next_k: dict[str, int] = {}
+        self._energy_j: dict[str, float] = {}
+        self._plans: dict[str, RunPlan] = {}
+        self._owed: dict[str, list[tuple[int, float]]] = {}  # channel -> [(sim ns, J)] to deposit
+        self._sim_ns = 0
+
+    # -- Source protocol -------------------------------------------------------------------------------
+    def channels(self) -> list[ChannelInfo]:
+        """BLADE 1000 Sa/s; CPU0, CPU1, DDR_AB, DDR_CD, DDR_EF, DDR_GH 100 Sa/s."""
+        return list(self._infos)
+
+    def open(self) -> None:
+        """Start the node's clock (idempotent)."""
+        if self._open:
+            return
+        self._t0_mono = int(self._clock())
+        self._t0_wall = int(self._wall_clock())
+        self._next_k = {name: 1 for name in CHANNELS}
+        self._energy_j = {name: 0.0 for name in CHANNELS}
+        self._sim_ns = 0
+        self._open = True
+
+    def close(self) -> None:
+        """Stop (idempotent); a closed sim can be opened again and starts afresh."""
+        self._open = False
+        self._plans.clear()
+        self._owed = {}
+
+    def health(self) -> str:
+        """``"ok"`` when open, else ``"closed"``."""
+        return "ok" if self._open else "closed"
+
+    def sim_time_ns(self, t_mono_ns: int) -> int:
+        """Sim time (ns since open) of a time on the injected monotonic clock."""
+        return round((int(t_mono_ns) - self._t0_mono) * self.speed)
+
+    def poll(self) -> SourceBatch:
+        """Every sample whose interval ended since the previous poll (see the module docstring)."""
+        if not self._open:
+            raise RuntimeError("SimSource.poll() before open()")
+        now = int(self._clock())
+        sim_now = max(self._sim_ns, self.sim_time_ns(now))
+        self._sim_ns = sim_now
+        t_s = sim_now * 1e-9
+        currents = self.truth_model.currents(t_s)
+        idle = idle_power_w(self.model, currents)
+        samples: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        status: dict[str, str] = {}
+        gaps: dict[str, int] = {}
+        for info in self._infos:
+            name, period = info.name, self._period_ns[info.name]
+            k0, k1 = self._next_k[name], sim_now // period
+            lost = 0
+            if (k1 - k0 + 1) * period > self.buffer_ns:
+                keep_from = k1 - self.buffer_ns // period + 1
+                lost = keep_from - k0
+                self._energy_j[name] += self._mean_power(name, k0 * period - period, (keep_from - 1) * period,
+                                                         idle) * (keep_from - k0) * period * 1e-9
+                k0 = keep_from
+            ks = np.arange(k0, k1 + 1, dtype=np.int64)
+            t_end = ks * period
+            power = self._power(name, t_end, period, idle)
+            self._deposit_owed(name, t_end, period, power)
+            if self.noise and len(ks):
+                power = power + self._rngs[name].normal(0.0, NOISE_W[info.kind], size=len(ks))
+            if self.quantum_w > 0:
+                power = np.round(power / self.quantum_w) * self.quantum_w
+            power = np.maximum(power, 0.0)
+            self._energy_j[name] += float(power.sum()) * period * 1e-9
+            self._next_k[name] = k1 + 1
+            samples[name] = (t_end + self._t0_wall, power)
+            status[name] = STATUS_GAP if lost else STATUS_OK
+            if lost:
+                gaps[name] = int(lost)
+        self._retire(sim_now)
+        return SourceBatch(t_mono_ns=now, t_wall_ns=self._t0_wall + sim_now, samples=samples,
+                           energy_j=dict(self._energy_j), status=status, gaps=gaps)
+
+    # -- runs ------------------------------------------------------------------------------------------
+    def on_run(self, event: RunEvent) -> None:
+        """Start or stop the load of a run (threads fill socket 0 first; energy conserved at stop)."""
+        if not self._open:
+            raise RuntimeError("SimSource.on_run() before open()")
+        t = max(0, self.sim_time_ns(event.t_mono_ns))
+        if event.kind == "start":
+            currents = self.truth_model.currents(t * 1e-9)
+            self._plans[event.run_id] = plan_run(self.model, currents, event.run_id, t, event.kernel,
+                                                 int(event.elements), int(event.threads), int(event.repeat),
+                                                 self.io_j_per_line)
+        elif event.kind == "stop":
+            plan = self._plans.get(event.run_id)
+            if plan is None or plan.cpu_end_ns is not None:
+                return
+            stopped, owed = plan.stopped(t)
+            self._plans[event.run_id] = stopped
+            if np.any(owed > 0):
+                for d, pair in enumerate(DIMM_PAIR):
+                    self._add_owed(pair, t, float(owed[d]))
+                self._add_owed("BLADE", t, float(owed.sum()))
+
+    def expected_run_energy_j(self, run_id: str) -> dict[str, float]:
+        """Per DIMM-pair channel, the energy (J) the run adds above idle-at-start (for tests/demo)."""
+        plan = self._plans[run_id]
+        out = dict.fromkeys(DRAM_CHANNELS, 0.0)
+        for d in range(len(DIMMS)):
+            out[DIMM_PAIR[d]] += float(plan.excess_w[d] * plan.duration_ns * 1e-9)
+        return out
+
+    def truth(self) -> dict:
+        """The hidden true currents now (A per device), per DIMM and averaged — simulation only."""
+        t_s = self._sim_ns * 1e-9
+        currents = self.truth_model.currents(t_s)
+        temps = self.truth_model.temperature_c(t_s)
+        names = self.model.names
+        return {
+            "simulated": True,
+            "t_ns": self._t0_wall + self._sim_ns,
+            "backend": self.model.backend,
+            "unit": "A per device",
+            "datasheet": {n: float(v) for n, v in zip(names, self.model.datasheet)},
+            "mean_currents_a": {n: float(v) for n, v in zip(names, currents.mean(axis=0))},
+            "dimms": {
+                f"DIMM_{dimm}": {
+                    "channel": DIMM_PAIR[d], "socket": DIMM_SOCKET[d], "temperature_c": float(temps[d]),
+                    "currents_a": {n: float(v) for n, v in zip(names, currents[d])},
+                }
+                for d, dimm in enumerate(DIMMS)
+            },
+            "offsets_w": dict(self._offset_w),
+            "io_j_per_line": self.io_j_per_line,
+        }
+
+    # -- the signal ------------------------------------------------------------------------------------
+    def _add_owed(self, name: str, t_ns: int, joules: float) -> None:
+        self._owed.setdefault(name, []).append((t_ns, joules))
+
+    def _deposit_owed(self, name: str, t_end: np.ndarray, period: int, power: np.ndarray) -> None:
+        """Add energy owed by stopped runs to the first sample ending at/after the stop (in place)."""
+        pending = self._owed.get(name)
+        if not pending or not len(t_end):
+            return
+        keep = []
+        for t_owed, joules in pending:
+            if t_owed > t_end[-1]:
+                keep.append((t_owed, joules))
+                continue
+            i = int(np.searchsorted(t_end, t_owed, side="left"))
+            power[i] += joules / (period * 1e-9)
+        self._owed[name] = keep
+
+    def _retire(self, sim_now: int) -> None:
+        for run_id, plan in list(self._plans.items()):
+            if plan.cpu_end_ns is not None and plan.cpu_end_ns <= sim_now and plan.traffic_end_ns <= sim_now:
+                del self._plans[run_id]
+
+    @staticmethod
+    def _overlap(t_end: np.ndarray, period: int, a: int, b: float) -> np.ndarray:
+        lo = np.maximum(t_end - period, a)
+        hi = np.minimum(t_end.astype(float), b)
+        return np.clip(hi - lo, 0.0, None) / period
+
+    def _dram_w(self, dimms: list[int], t_end: np.ndarray, period: int, idle: np.ndarray) -> np.ndarray:
+        power = np.full(len(t_end), float(idle[dimms].sum()))
+        for plan in self._plans.values():
+            if plan.duration_ns <= 0:
+                continue
+            excess = float(plan.excess_w[dimms].sum())
+            power += excess * self._overlap(t_end, period, plan.t0_ns, plan.traffic_end_ns)
+        return power
+
+    def _cpu_w(self, socket: int, t_end: np.ndarray, period: int) -> np.ndarray:
+        power = np.full(len(t_end), CPU_IDLE_W[socket])
+        for plan in self._plans.values():
+            n = plan.threads[socket]
+            if n <= 0:
+                continue
+            extra = CPU_CORE_W * min(n, 12) + CPU_HT_W * max(n - 12, 0)
+            end = math.inf if plan.cpu_end_ns is None else plan.cpu_end_ns
+            power += extra * self._overlap(t_end, period, plan.t0_ns, end)
+        return power
+
+    def _power(self, name: str, t_end: np.ndarray, period: int, idle: np.ndarray) -> np.ndarray:
+        """Noise-free mean power of ``name`` over each interval ``(t − period, t]`` (W)."""
+        if name in DRAM_CHANNELS:
+            dimms = [d for d in range(len(DIMMS)) if DIMM_PAIR[d] == name]
+            power = self._dram_w(dimms, t_end, period, idle)
+        elif name in ("CPU0", "CPU1"):
+            power = self._cpu_w(int(name[-1]), t_end, period)
+        else:  # BLADE: base + both sockets + all DIMMs
+            power = BLADE_BASE_W + self._cpu_w(0, t_end, period) + self._cpu_w(1, t_end, period)
+            power = power + self._dram_w(list(range(len(DIMMS))), t_end, period, idle)
+        return power + self._offset_w[name]
+
+    def _mean_power(self, name: str, a: int, b: int, idle: np.ndarray) -> float:
+        """Noise-free mean power of ``name`` over ``(a, b]`` (for samples lost to the buffer)."""
+        if b <= a:
+            return 0.0
+        return float(self._power(name, np.array([b], dtype=np.int64), b - a, idle)[0])
