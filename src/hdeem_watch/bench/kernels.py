@@ -1,0 +1,208 @@
+"""The STREAM-like kernels at stride 8 doubles, and a compute-only idle kernel.
+
+Every kernel touches one double per 64-byte line (``x[k]`` for ``k = 0, 8, 16, ...``), so each
+access is one line and one BL8 burst in the DRAM model (DESIGN.md §3). A pass visits every line of
+the worker's index range exactly once per array:
+
+=========  ======================  ==========  ==================  =============
+kernel     operation               reads       writes (+ RFO)      arrays
+=========  ======================  ==========  ==================  =============
+read       ``sum += a[k]``         a           -                   a
+assign     ``a[k] = 2``            -           a                   a
+scale      ``b[k] = 2 a[k]``       a           b                   a, b
+add        ``c[k] = a[k] + b[k]``  a, b        c                   a, b, c
+triad      ``a[k] = b[k] + 2 a[k]``  b, a      a                   a, b
+copy       ``b[k] = a[k]``         a           b                   a, b
+selfscale  ``a[k] = 2 a[k]``       a           a                   a
+=========  ======================  ==========  ==================  =============
+
+Each pass is one numpy call on strided views with ``out=`` (no temporaries), except triad,
+which needs ``2 a[k]`` as an intermediate: it runs in chunks of :data:`TRIAD_CHUNK_LINES` lines
+through a small per-worker scratch buffer that stays in the L1/L2 cache, so the lines of ``a`` read
+by the first step are still cached when the second step writes them back (no extra DRAM traffic).
+numpy releases the GIL inside each loop, so threads run these passes truly in parallel. The calls
+were chosen for speed on strided views: ``einsum`` sums faster than ``add.reduce`` and ``positive``
+copies faster than ``copyto`` (measured: see docs/bench.md).
+
+The idle kernel evaluates ``sin`` over a 16 KiB scratch buffer (L1-resident): cores busy, DRAM idle.
+
+Example:
+    >>> import numpy as np
+    >>> arrays = make_arrays("add", 64)
+    >>> init_arrays(arrays, 0, 8)
+    >>> run_pass("add", arrays, 0, 8, np.empty(TRIAD_CHUNK_LINES))
+    0.0
+    >>> float(arrays["c"][8]), float(arrays["c"][9])
+    (3.0, 0.0)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from hdeem_watch.bench.schedule import IDLE_KERNEL, KERNELS, canonical_kernel
+
+#: Doubles per 64-byte cache line: the access stride.
+STRIDE = 8
+#: Bytes per cache line / DRAM burst.
+LINE_BYTES = 64
+#: Lines per triad chunk: 2 arrays x 4096 lines x 64 B = 512 KiB of lines plus a 32 KiB scratch,
+#: inside a 1 MiB L2 (and any LLC), so the read lines of ``a`` are still cached when written.
+TRIAD_CHUNK_LINES = 4096
+#: Doubles in the idle kernel's scratch buffer (16 KiB: L1-resident).
+IDLE_BUFFER = 2048
+
+#: Initial values written at first touch, per array.
+INIT_VALUES: dict[str, float] = {"a": 1.0, "b": 2.0, "c": 0.0}
+
+#: Arrays each kernel uses (allocated and first-touched).
+KERNEL_ARRAYS: dict[str, tuple[str, ...]] = {
+    "read": ("a",),
+    "assign": ("a",),
+    "scale": ("a", "b"),
+    "add": ("a", "b", "c"),
+    "triad": ("a", "b"),
+    "copy": ("a", "b"),
+    "selfscale": ("a",),
+    IDLE_KERNEL: (),
+}
+
+#: Lines read and written per array line per pass, write-allocate (read for ownership) included.
+#: ``(reads, writes)`` per line index; multiply by the number of lines for a pass.
+_LINE_TRAFFIC: dict[str, tuple[int, int]] = {
+    "read": (1, 0),
+    "assign": (1, 1),      # RFO of a, write-back of a
+    "scale": (2, 1),       # a, RFO of b; b
+    "add": (3, 1),         # a, b, RFO of c; c
+    "triad": (2, 1),       # b, a (destination already read); a
+    "copy": (2, 1),        # a, RFO of b; b
+    "selfscale": (1, 1),   # a (destination already read); a
+    IDLE_KERNEL: (0, 0),
+}
+
+
+def lines_of(elements: int) -> int:
+    """Return the number of 64-byte lines a stride-8 pass touches in an array of ``elements``."""
+    return (int(elements) + STRIDE - 1) // STRIDE
+
+
+def array_bytes(kernel: str, elements: int) -> int:
+    """Return the bytes the kernel's arrays occupy (what the memory check must find free)."""
+    return len(KERNEL_ARRAYS[canonical_kernel(kernel)]) * int(elements) * 8
+
+
+def local_traffic(kernel: str, elements: int) -> tuple[int, int]:
+    """Return ``(lines_read, lines_written)`` of one pass, counted from the kernel definitions.
+
+    This is the bench's own count; :func:`hdeem_watch.bench.runner.pass_traffic` prefers the DRAM
+    model's ``kernel_traffic`` when it is installed and the two are checked against each other in
+    the tests.
+    """
+    reads, writes = _LINE_TRAFFIC[canonical_kernel(kernel)]
+    n = lines_of(elements)
+    return reads * n, writes * n
+
+
+def make_arrays(kernel: str, elements: int) -> dict[str, np.ndarray]:
+    """Allocate (but do not touch) the kernel's arrays of ``elements`` doubles each.
+
+    ``np.empty`` of a large size maps fresh pages that the OS places on first touch, so the worker
+    that later calls :func:`init_arrays` on its own range decides where its pages live.
+    """
+    return {name: np.empty(int(elements), dtype=np.float64)
+            for name in KERNEL_ARRAYS[canonical_kernel(kernel)]}
+
+
+def init_arrays(arrays: Mapping[str, np.ndarray], lo_line: int, hi_line: int) -> None:
+    """First-touch every element of lines ``[lo_line, hi_line)`` with :data:`INIT_VALUES`."""
+    for name, array in arrays.items():
+        array[lo_line * STRIDE:hi_line * STRIDE] = INIT_VALUES[name]
+
+
+def split_lines(lines: int, workers: int) -> list[tuple[int, int]]:
+    """Split ``lines`` into ``workers`` contiguous ranges whose sizes differ by at most one.
+
+    Example:
+        >>> split_lines(10, 3)
+        [(0, 4), (4, 7), (7, 10)]
+    """
+    base, extra = divmod(int(lines), int(workers))
+    out: list[tuple[int, int]] = []
+    lo = 0
+    for w in range(int(workers)):
+        hi = lo + base + (1 if w < extra else 0)
+        out.append((lo, hi))
+        lo = hi
+    return out
+
+
+def _view(array: np.ndarray, lo_line: int, hi_line: int) -> np.ndarray:
+    return array[lo_line * STRIDE:hi_line * STRIDE:STRIDE]
+
+
+def run_pass(kernel: str, arrays: Mapping[str, np.ndarray], lo_line: int, hi_line: int,
+             scratch: np.ndarray) -> float:
+    """Run one pass of ``kernel`` over lines ``[lo_line, hi_line)``; return the read sum (else 0).
+
+    Args:
+        kernel: canonical name (see :data:`KERNEL_ARRAYS`).
+        arrays: the arrays from :func:`make_arrays`.
+        lo_line: first line of this worker's range.
+        hi_line: one past the last line.
+        scratch: a per-worker float64 buffer of at least :data:`TRIAD_CHUNK_LINES` (triad) or
+            :data:`IDLE_BUFFER` (idle) elements.
+
+    Returns:
+        ``sum(a[k])`` for read, 0.0 for every other kernel (the idle kernel returns a checksum).
+    """
+    if kernel == "read":
+        return float(np.einsum("i->", _view(arrays["a"], lo_line, hi_line)))
+    if kernel == "assign":
+        _view(arrays["a"], lo_line, hi_line).fill(2.0)
+    elif kernel == "scale":
+        np.multiply(_view(arrays["a"], lo_line, hi_line), 2.0, out=_view(arrays["b"], lo_line, hi_line))
+    elif kernel == "add":
+        np.add(_view(arrays["a"], lo_line, hi_line), _view(arrays["b"], lo_line, hi_line),
+               out=_view(arrays["c"], lo_line, hi_line))
+    elif kernel == "copy":
+        np.positive(_view(arrays["a"], lo_line, hi_line), out=_view(arrays["b"], lo_line, hi_line))
+    elif kernel == "selfscale":
+        a = _view(arrays["a"], lo_line, hi_line)
+        np.multiply(a, 2.0, out=a)
+    elif kernel == "triad":
+        _triad(arrays["a"], arrays["b"], lo_line, hi_line, scratch)
+    elif kernel == IDLE_KERNEL:
+        return _idle(hi_line - lo_line, scratch)
+    else:  # pragma: no cover - canonical names are checked by the schedule
+        raise ValueError(f"unknown kernel {kernel!r}; expected one of {KERNELS}")
+    return 0.0
+
+
+def _triad(a_full: np.ndarray, b_full: np.ndarray, lo_line: int, hi_line: int,
+           scratch: np.ndarray) -> None:
+    step = TRIAD_CHUNK_LINES
+    for lo in range(lo_line, hi_line, step):
+        hi = min(lo + step, hi_line)
+        a = _view(a_full, lo, hi)
+        tmp = scratch[:hi - lo]
+        np.multiply(a, 2.0, out=tmp)
+        np.add(_view(b_full, lo, hi), tmp, out=a)
+
+
+def _idle(lines: int, scratch: np.ndarray) -> float:
+    """Evaluate ``lines`` sines in an L1-resident buffer (one per 'line' of the range)."""
+    buf = scratch[:IDLE_BUFFER]
+    buf[:] = np.linspace(0.0, 1.0, IDLE_BUFFER)
+    done = 0
+    while done < lines:
+        n = min(IDLE_BUFFER, lines - done)
+        np.sin(buf[:n], out=buf[:n])
+        done += n
+    return float(buf[0])
+
+
+def scratch_size(kernel: str) -> int:
+    """Return the scratch elements a worker needs for ``kernel``."""
+    return max(TRIAD_CHUNK_LINES, IDLE_BUFFER) if kernel in ("triad", IDLE_KERNEL) else 1

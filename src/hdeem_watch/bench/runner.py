@@ -1,0 +1,333 @@
+"""Run benchmark kernels on 1..N pinned workers and measure them.
+
+One run (:func:`run_one`) goes through four phases:
+
+1. check: the arrays must fit in the available memory (:class:`InputError` otherwise, before any
+   allocation) and should be much larger than the LLC (a warning otherwise);
+2. prepare: the workers start, each pins itself to its own CPU (``os.sched_setaffinity``), and
+   first-touches its contiguous share of every array, so its pages are local to it;
+3. measure: ``on_start`` is called (the daemon announcement), the wall-clock window opens, all
+   workers run ``repeat`` passes of the kernel over their shares, the window closes and ``on_stop``
+   is called;
+4. report: a :class:`RunResult` with the seconds, line rate and DRAM bandwidth the DRAM model's
+   traffic count implies.
+
+Two backends run the workers truly in parallel: ``"thread"`` (numpy releases the GIL in every kernel
+loop) and ``"process"`` (forked workers over a shared anonymous mapping). Threads are the default:
+the passes are single numpy calls, so the GIL is held for microseconds per pass, and threads start
+faster (see docs/bench.md for the measurement).
+
+Example:
+    >>> result = run_one(RunSpec("copy", 1, 1 << 12, 2))
+    >>> result.lines_read_per_pass, result.lines_written_per_pass
+    (1024, 512)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import mmap
+import multiprocessing as mp
+import os
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hdeem_watch.bench import kernels as K
+from hdeem_watch.bench import system
+from hdeem_watch.bench.schedule import IDLE_KERNEL, RunSpec, canonical_kernel
+from hdeem_watch.errors import InputError
+
+BACKENDS = ("thread", "process")
+#: Seconds a run may take to prepare or finish before the runner gives up on its workers.
+WORKER_TIMEOUT_S = 3600.0
+
+
+def pass_traffic(kernel: str, elements: int) -> tuple[int, int, str]:
+    """Return ``(lines_read, lines_written, origin)`` of one pass over all threads' ranges.
+
+    Uses the DRAM model's ``hdeem_watch.dram.kernels.kernel_traffic`` (origin ``"dram-model"``) when
+    it is available, the bench's own count otherwise (origin ``"bench-count"``). The idle kernel
+    moves no lines.
+    """
+    name = canonical_kernel(kernel)
+    if name == IDLE_KERNEL:
+        return 0, 0, "none"
+    try:
+        from hdeem_watch.dram.kernels import kernel_traffic
+    except ImportError:
+        reads, writes = K.local_traffic(name, elements)
+        return reads, writes, "bench-count"
+    traffic = kernel_traffic(name, int(elements))
+    return int(traffic.lines_read), int(traffic.lines_written), "dram-model"
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What one run measured.
+
+    Attributes:
+        spec: the run's parameters.
+        seconds: duration of the measured window (monotonic clock).
+        t_start_ns: wall-clock start of the window (ns since the epoch).
+        t_end_ns: wall-clock end of the window.
+        lines_per_s: loop iterations per second, one 64-byte line per array each (``repeat ×
+            elements/8 / seconds``): the line rate the C benchmark compares.
+        dram_bytes_per_s: bytes the DRAM model says move (reads incl. write-allocate, and
+            write-backs) per second.
+        lines_read_per_pass: lines read from DRAM per pass (all threads).
+        lines_written_per_pass: lines written back per pass.
+        traffic_origin: ``"dram-model"``, ``"bench-count"`` or ``"none"`` (idle).
+        cpus: the CPU each worker was pinned to, in worker order.
+        worker_affinity: the affinity each worker reported after pinning.
+        backend: ``"thread"`` or ``"process"``.
+        checksum: the read kernel's sum over the last pass (NaN for the other kernels).
+        warnings: messages for the user (e.g. arrays not much larger than the LLC).
+        announce: what ``on_start``/``on_stop`` returned (e.g. the daemon's run id and energies).
+        arrays: the arrays after the run, only when asked for (``keep_arrays=True``).
+    """
+
+    spec: RunSpec
+    seconds: float
+    t_start_ns: int
+    t_end_ns: int
+    lines_per_s: float
+    dram_bytes_per_s: float
+    lines_read_per_pass: int
+    lines_written_per_pass: int
+    traffic_origin: str
+    cpus: tuple[int, ...]
+    worker_affinity: tuple[tuple[int, ...], ...]
+    backend: str
+    checksum: float = float("nan")
+    warnings: tuple[str, ...] = ()
+    announce: Mapping[str, Any] = field(default_factory=dict)
+    arrays: Mapping[str, np.ndarray] | None = field(default=None, repr=False, compare=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the JSON-ready record printed by ``hdeem-watch bench --json``."""
+        out: dict[str, Any] = {
+            **self.spec.to_dict(),
+            "seconds": self.seconds,
+            "lines_per_s": self.lines_per_s,
+            "dram_bytes_per_s": self.dram_bytes_per_s,
+            "lines_read_per_pass": self.lines_read_per_pass,
+            "lines_written_per_pass": self.lines_written_per_pass,
+            "traffic_origin": self.traffic_origin,
+            "t_start_ns": self.t_start_ns,
+            "t_end_ns": self.t_end_ns,
+            "cpus": list(self.cpus),
+            "backend": self.backend,
+            "checksum": None if np.isnan(self.checksum) else self.checksum,
+        }
+        out.update({k: v for k, v in self.announce.items() if k not in out})
+        return out
+
+
+Hook = Callable[[RunSpec], Mapping[str, Any] | None]
+
+
+def choose_cpus(threads: int, allowed: list[int] | None = None, *, oversubscribe: bool = False) -> list[int]:
+    """Pick one CPU per worker from the allowed set (socket 0 and physical cores first).
+
+    Raises:
+        InputError: more threads than allowed CPUs and ``oversubscribe`` is off.
+    """
+    cpus = system.cpu_order(system.allowed_cpus() if allowed is None else allowed)
+    if threads > len(cpus) and not oversubscribe:
+        raise InputError(f"--threads {threads}: only {len(cpus)} CPUs are allowed here "
+                         f"({','.join(map(str, sorted(cpus)))}); expected at most {len(cpus)} "
+                         "(or --oversubscribe)")
+    return [cpus[i % len(cpus)] for i in range(threads)]
+
+
+def validate(specs: list[RunSpec], allowed: list[int] | None = None, *, oversubscribe: bool = False,
+             available_bytes: int | None = None) -> None:
+    """Check a whole schedule before the first run: thread counts and memory of every run.
+
+    Raises:
+        InputError: the first run that could not start (so a sweep fails before, not midway).
+    """
+    for spec in specs:
+        kernel = canonical_kernel(spec.kernel)
+        choose_cpus(spec.threads, allowed, oversubscribe=oversubscribe)
+        system.check_memory(K.array_bytes(kernel, spec.elements),
+                            f"--elements {spec.elements} ({kernel}, {len(K.KERNEL_ARRAYS[kernel])} arrays)",
+                            available_bytes)
+
+
+def _worker(kernel: str, arrays: Mapping[str, np.ndarray], lo: int, hi: int, repeat: int, cpu: int,
+            ready: Any, go: Any, report: Callable[[tuple[tuple[int, ...], float]], None]) -> None:
+    os.sched_setaffinity(0, {cpu})
+    affinity = tuple(sorted(os.sched_getaffinity(0)))
+    K.init_arrays(arrays, lo, hi)
+    scratch = np.zeros(K.scratch_size(kernel))
+    ready.wait()
+    go.wait()
+    checksum = 0.0
+    for _ in range(repeat):
+        checksum = K.run_pass(kernel, arrays, lo, hi, scratch)
+    report((affinity, checksum))
+
+
+def _shared_arrays(kernel: str, elements: int) -> tuple[dict[str, np.ndarray], list[mmap.mmap]]:
+    maps: list[mmap.mmap] = []
+    arrays: dict[str, np.ndarray] = {}
+    for name in K.KERNEL_ARRAYS[kernel]:
+        mm = mmap.mmap(-1, max(8, elements * 8))  # MAP_SHARED | MAP_ANONYMOUS: visible after fork
+        maps.append(mm)
+        arrays[name] = np.frombuffer(mm, dtype=np.float64, count=elements)
+    return arrays, maps
+
+
+def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None = None,
+            oversubscribe: bool = False, on_start: Hook | None = None, on_stop: Hook | None = None,
+            keep_arrays: bool = False, available_bytes: int | None = None) -> RunResult:
+    """Run one benchmark run and measure it (see the module docstring for the phases).
+
+    Args:
+        spec: kernel, threads, elements and repeat.
+        backend: ``"thread"`` or ``"process"``.
+        allowed: CPUs to use (default: this process's affinity).
+        oversubscribe: allow more workers than CPUs (round-robin pinning).
+        on_start: called after the arrays are ready, just before the window opens; may return a
+            mapping stored in ``RunResult.announce`` (e.g. ``{"run_id": ...}``).
+        on_stop: called just after the window closes; its mapping is merged into ``announce``.
+        keep_arrays: return the arrays in the result (tests check the arithmetic).
+        available_bytes: override the available-memory figure (tests).
+
+    Raises:
+        InputError: unknown backend, too many threads, or arrays that do not fit in memory.
+    """
+    if backend not in BACKENDS:
+        raise InputError(f"--backend {backend!r}: unknown; expected one of {', '.join(BACKENDS)}")
+    kernel = canonical_kernel(spec.kernel)
+    spec = RunSpec(kernel, spec.threads, spec.elements, spec.repeat)
+    cpus = choose_cpus(spec.threads, allowed, oversubscribe=oversubscribe)
+    needed = K.array_bytes(kernel, spec.elements)
+    system.check_memory(needed, f"--elements {spec.elements} ({kernel}, {len(K.KERNEL_ARRAYS[kernel])} arrays)",
+                        available_bytes)
+    warnings = []
+    if kernel != IDLE_KERNEL:
+        message = system.llc_warning(needed, cpus)
+        if message:
+            warnings.append(message)
+    lines = K.lines_of(spec.elements)
+    ranges = K.split_lines(lines, spec.threads)
+    runner = _run_threads if backend == "thread" else _run_processes
+    announce: dict[str, Any] = {}
+
+    def start_hook() -> None:
+        if on_start is not None:
+            announce.update(on_start(spec) or {})
+
+    def stop_hook() -> None:
+        if on_stop is not None:
+            announce.update(on_stop(spec) or {})
+
+    arrays, t0_ns, t1_ns, seconds, reports = runner(kernel, spec, cpus, ranges, start_hook, stop_hook,
+                                                          keep_arrays)
+    reads, writes, origin = pass_traffic(kernel, spec.elements)
+    seconds = max(seconds, 1e-9)
+    return RunResult(
+        spec=spec, seconds=seconds, t_start_ns=t0_ns, t_end_ns=t1_ns,
+        lines_per_s=0.0 if kernel == IDLE_KERNEL else lines * spec.repeat / seconds,
+        dram_bytes_per_s=(reads + writes) * K.LINE_BYTES * spec.repeat / seconds,
+        lines_read_per_pass=reads, lines_written_per_pass=writes, traffic_origin=origin,
+        cpus=tuple(cpus), worker_affinity=tuple(r[0] for r in reports), backend=backend,
+        checksum=float(sum(r[1] for r in reports)) if kernel == "read" else float("nan"),
+        warnings=tuple(warnings), announce=announce, arrays=arrays if keep_arrays else None,
+    )
+
+
+_Outcome = tuple[dict[str, np.ndarray], int, int, float, list[tuple[tuple[int, ...], float]]]
+
+
+def _run_threads(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple[int, int]],
+                 start_hook: Callable[[], None], stop_hook: Callable[[], None], keep: bool) -> _Outcome:
+    arrays = K.make_arrays(kernel, spec.elements)
+    n = spec.threads
+    ready, go = threading.Barrier(n + 1), threading.Barrier(n + 1)
+    reports: list[Any] = [None] * n
+    errors: list[BaseException] = []
+
+    def body(i: int) -> None:
+        try:
+            _worker(kernel, arrays, *ranges[i], spec.repeat, cpus[i], ready, go,
+                    lambda r: reports.__setitem__(i, r))
+        except BaseException as error:  # surfaced below; the barriers must not hang
+            errors.append(error)
+            ready.abort()
+            go.abort()
+
+    workers = [threading.Thread(target=body, args=(i,), name=f"bench-{i}", daemon=True) for i in range(n)]
+    for worker in workers:
+        worker.start()
+    try:
+        ready.wait(WORKER_TIMEOUT_S)
+        start_hook()
+        t0_ns, m0 = time.time_ns(), time.perf_counter_ns()
+        go.wait(WORKER_TIMEOUT_S)
+        for worker in workers:
+            worker.join()
+        m1, t1_ns = time.perf_counter_ns(), time.time_ns()
+    except threading.BrokenBarrierError:
+        for worker in workers:
+            worker.join(1.0)
+        raise RuntimeError(f"bench worker failed: {errors[0] if errors else 'timeout'}") from None
+    if errors:
+        raise RuntimeError(f"bench worker failed: {errors[0]}")
+    stop_hook()
+    return arrays, t0_ns, t1_ns, (m1 - m0) / 1e9, reports
+
+
+def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple[int, int]],
+                   start_hook: Callable[[], None], stop_hook: Callable[[], None], keep: bool) -> _Outcome:
+    ctx = mp.get_context("fork")
+    shared, maps = _shared_arrays(kernel, spec.elements)
+    n = spec.threads
+    ready, go = ctx.Barrier(n + 1), ctx.Barrier(n + 1)
+    pipes = [ctx.Pipe(duplex=False) for _ in range(n)]
+
+    def body(i: int) -> None:
+        send = pipes[i][1]
+        try:
+            _worker(kernel, shared, *ranges[i], spec.repeat, cpus[i], ready, go, send.send)
+        except BaseException:
+            ready.abort()
+            go.abort()
+            raise
+        finally:
+            send.close()
+
+    procs = [ctx.Process(target=body, args=(i,), daemon=True) for i in range(n)]
+    for proc in procs:
+        proc.start()
+    for _, send in pipes:
+        send.close()  # the parent keeps only the read ends: a dead worker reads as EOF
+    try:
+        ready.wait(WORKER_TIMEOUT_S)
+        start_hook()
+        t0_ns, m0 = time.time_ns(), time.perf_counter_ns()
+        go.wait(WORKER_TIMEOUT_S)
+        reports = [recv.recv() for recv, _ in pipes]
+        m1, t1_ns = time.perf_counter_ns(), time.time_ns()
+    except (threading.BrokenBarrierError, EOFError):
+        raise RuntimeError("bench worker process failed") from None
+    finally:
+        for proc in procs:
+            proc.join(5.0)
+            if proc.is_alive():
+                proc.kill()
+    stop_hook()
+    # Copy out of the shared maps (only if asked) so they can be closed.
+    out = {name: np.array(a) for name, a in shared.items()} if keep else {}
+    shared.clear()
+    for mm in maps:
+        with contextlib.suppress(BufferError):  # a view still alive elsewhere: GC unmaps it later
+            mm.close()
+    return out, t0_ns, t1_ns, (m1 - m0) / 1e9, reports
