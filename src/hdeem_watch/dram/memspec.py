@@ -1,0 +1,345 @@
+"""DDR4 memory specifications in DRAMPower's JSON format (read, validate, write back).
+
+A memspec describes one channel: ``nbr_of_ranks`` ranks of ``nbr_of_devices`` identical devices.
+Units are SI as in DRAMPower v6: currents in amperes *per device*, voltages in volts, ``tCK`` in
+seconds, every other timing in clock cycles.
+
+The file's whole JSON tree is kept, so :meth:`MemSpec.to_json_dict` writes back exactly what was
+read (original key spelling, unknown extra sections and fields preserved) with only the values that
+were changed (e.g. calibrated currents from :meth:`MemSpec.with_currents`) replaced: the result is a
+memspec real DRAMPower reads.
+
+Example:
+    >>> spec = preset("ddr4-2133-x8-4gb")
+    >>> spec.nbr_of_ranks, spec.nbr_of_devices, spec.timings["RAS"], spec.currents["idd0"]
+    (2, 8, 36, 0.0585)
+    >>> spec.with_currents({"idd0": 0.04}).to_json_dict()["memspec"]["mempowerspec"]["idd0"]
+    0.04
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from hdeem_watch.errors import InputError
+
+#: memarchitecturespec: JSON key -> attribute (all positive integers).
+ARCH_FIELDS: dict[str, str] = {
+    "nbrOfChannels": "nbr_of_channels",
+    "nbrOfDevices": "nbr_of_devices",
+    "nbrOfRanks": "nbr_of_ranks",
+    "nbrOfBanks": "nbr_of_banks",
+    "nbrOfBankGroups": "nbr_of_bankgroups",
+    "nbrOfRows": "nbr_of_rows",
+    "nbrOfColumns": "nbr_of_columns",
+    "burstLength": "burst_length",
+    "dataRate": "data_rate",
+    "width": "width",
+}
+#: Optional memarchitecturespec fields: JSON key -> (attribute, default).
+ARCH_OPTIONAL: dict[str, tuple[str, int]] = {"maxBurstLength": ("max_burst_length", 0), "RefMode": ("ref_mode", 1)}
+
+#: memtimingspec fields (cycles, non-negative integers) every DRAMPower DDR4 memspec has.
+TIMING_FIELDS: tuple[str, ...] = (
+    "CKE", "CKESR", "RAS", "RC", "RCD", "RL", "RPRE", "RTP", "WL", "WPRE", "WR", "XP", "XS", "REFM",
+    "REFI", "RFC1", "RFC2", "RFC4", "RP", "DQSCK", "CCD_S", "CCD_L", "FAW", "RRD_S", "RRD_L", "WTR_S",
+    "WTR_L", "XPDLL", "XSDLL", "AL", "ACTPDEN", "PRPDEN", "REFPDEN", "RTRS",
+)
+
+#: Required currents (JSON spelling) of mempowerspec, amperes per device.
+REQUIRED_CURRENTS: tuple[str, ...] = (
+    "idd0", "idd2n", "idd3n", "idd4r", "idd4w", "idd5B", "idd6n", "idd2p", "idd3p",
+    "ipp0", "ipp2n", "ipp3n", "ipp4r", "ipp4w", "ipp5B", "ipp6n", "ipp2p", "ipp3p",
+)
+#: Fine-granularity refresh currents: required only when ``RefMode`` selects them, else 0 A.
+REFRESH_MODE_CURRENTS: tuple[str, ...] = ("idd5F2", "ipp5F2", "idd5F4", "ipp5F4")
+#: Optional bank-wise model currents (default: Iβ = IDD0 resp. IPP0, as in DRAMPower).
+BETA_CURRENTS: tuple[str, ...] = ("iBeta_vdd", "iBeta_vpp")
+VOLTAGES: tuple[str, ...] = ("vdd", "vpp", "vddq")
+
+#: A per-device DDR4 current above this is almost surely milliamperes typed as amperes.
+MAX_DEVICE_CURRENT_A = 1.0
+#: A supply voltage above this is almost surely millivolts.
+MAX_VOLTAGE_V = 5.0
+#: A clock period above this is almost surely nanoseconds typed as seconds.
+MAX_TCK_S = 1e-6
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+@dataclass(frozen=True)
+class MemSpec:
+    """A validated DDR4 memspec (one channel).
+
+    Attributes:
+        memory_id: ``memoryId``.
+        memory_type: ``memoryType`` (always ``"DDR4"``).
+        nbr_of_channels, nbr_of_devices, nbr_of_ranks, nbr_of_banks, nbr_of_bankgroups,
+        nbr_of_rows, nbr_of_columns, burst_length, data_rate, width: memarchitecturespec;
+            ``nbr_of_banks`` is per rank, ``nbr_of_devices`` per rank.
+        max_burst_length, ref_mode: optional memarchitecturespec fields (0 resp. 1 when absent).
+        tck_s: clock period ``tCK`` in seconds.
+        timings: every other memtimingspec field, in cycles, JSON key spelling ("RAS", "RFC1", ...).
+        currents: amperes per device, keys = mempowerspec keys lower-cased ("idd0", "idd5b",
+            "ipp5b", ...; "ibeta_vdd"/"ibeta_vpp" only when the file gives them).
+        vdd, vpp, vddq: supply voltages in volts.
+        fact_rho: ``bankwisespec.factRho`` (1 when absent).
+    """
+
+    memory_id: str
+    memory_type: str
+    nbr_of_channels: int
+    nbr_of_devices: int
+    nbr_of_ranks: int
+    nbr_of_banks: int
+    nbr_of_bankgroups: int
+    nbr_of_rows: int
+    nbr_of_columns: int
+    burst_length: int
+    data_rate: int
+    width: int
+    max_burst_length: int
+    ref_mode: int
+    tck_s: float
+    timings: Mapping[str, int]
+    currents: Mapping[str, float]
+    vdd: float
+    vpp: float
+    vddq: float
+    fact_rho: float = 1.0
+    _raw: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    _current_keys: Mapping[str, str] = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def trfc(self) -> int:
+        """Refresh cycle time in cycles for the memspec's ``RefMode`` (RFC1, RFC2 or RFC4)."""
+        return int(self.timings[{2: "RFC2", 4: "RFC4"}.get(self.ref_mode, "RFC1")])
+
+    @property
+    def refresh_currents(self) -> tuple[str, str]:
+        """Names of the (VDD, VPP) refresh currents the ``RefMode`` selects, e.g. ("idd5b", "ipp5b")."""
+        suffix = {2: "5f2", 4: "5f4"}.get(self.ref_mode, "5b")
+        return f"idd{suffix}", f"ipp{suffix}"
+
+    @property
+    def burst_cycles(self) -> float:
+        """Clock cycles of one burst on the data bus: BL / dataRate."""
+        return self.burst_length / self.data_rate
+
+    def with_currents(self, currents: Mapping[str, float]) -> MemSpec:
+        """A copy with some currents replaced (e.g. calibrated ones), validated like a file.
+
+        Args:
+            currents: amperes per device by lower-case name ("idd0", "ipp5b", "ibeta_vdd", ...).
+
+        Raises:
+            InputError: an unknown name or a value that is not a plausible current in amperes.
+        """
+        known = {key.lower(): key for key in (*REQUIRED_CURRENTS, *REFRESH_MODE_CURRENTS, *BETA_CURRENTS)}
+        merged = dict(self.currents)
+        keys = dict(self._current_keys)
+        for name, value in currents.items():
+            lower = name.lower()
+            if lower not in known:
+                raise InputError(f"with_currents: unknown current {name!r}; expected one of {sorted(known)}")
+            merged[lower] = _check_current(f"with_currents: {lower}", value)
+            keys.setdefault(lower, known[lower])
+        return replace(self, currents=merged, _current_keys=keys)
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """The DRAMPower JSON tree (``{"memspec": {...}}``) with this spec's values, original spelling."""
+        tree = copy.deepcopy(dict(self._raw)) if self._raw else {"memspec": {}}
+        spec = tree.setdefault("memspec", {})
+        spec["memoryId"] = self.memory_id
+        spec["memoryType"] = self.memory_type
+        arch = spec.setdefault("memarchitecturespec", {})
+        for key, attr in ARCH_FIELDS.items():
+            arch[key] = getattr(self, attr)
+        for key, (attr, _default) in ARCH_OPTIONAL.items():
+            if key in arch or getattr(self, attr) != _default:
+                arch[key] = getattr(self, attr)
+        timing = spec.setdefault("memtimingspec", {})
+        timing["tCK"] = self.tck_s
+        for key, value in self.timings.items():
+            timing[key] = int(value)
+        power = spec.setdefault("mempowerspec", {})
+        for key in VOLTAGES:
+            power[key] = getattr(self, key)
+        for lower, key in self._current_keys.items():
+            power[key] = float(self.currents[lower])
+        if "bankwisespec" in spec or self.fact_rho != 1.0:
+            spec.setdefault("bankwisespec", {})["factRho"] = self.fact_rho
+        return tree
+
+
+def _check_current(where: str, value: Any) -> float:
+    if not _is_number(value) or not math.isfinite(value):
+        raise InputError(f"{where} = {value!r}: not a number; expected a current in amperes")
+    if value < 0:
+        raise InputError(f"{where} = {value!r}: negative; expected a current >= 0 A")
+    if value > MAX_DEVICE_CURRENT_A:
+        raise InputError(f"{where} = {value!r} looks like mA; expected amperes per device ({value / 1000:g})")
+    return float(value)
+
+
+def _section(spec: Mapping[str, Any], name: str, where: str) -> Mapping[str, Any]:
+    section = spec.get(name)
+    if section is None:
+        raise InputError(f"{where}: memspec.{name}: missing section")
+    if not isinstance(section, Mapping):
+        raise InputError(f"{where}: memspec.{name}: expected an object, got {type(section).__name__}")
+    return section
+
+
+def _int_field(section: Mapping[str, Any], key: str, where: str, *, positive: bool) -> int:
+    if key not in section:
+        raise InputError(f"{where}: missing field {key}")
+    value = section[key]
+    if not _is_number(value) or not math.isfinite(value) or value != int(value):
+        raise InputError(f"{where}.{key} = {value!r}: expected an integer")
+    if value < 0 or (positive and value == 0):
+        raise InputError(f"{where}.{key} = {value!r}: expected a {'positive' if positive else 'non-negative'} integer")
+    return int(value)
+
+
+def parse_memspec(data: Any, where: str = "memspec") -> MemSpec:
+    """Validate a parsed DRAMPower DDR4 memspec JSON tree.
+
+    Args:
+        data: the parsed JSON (``{"memspec": {...}}``; a bare inner object is accepted too).
+        where: the file name (or other origin) used in error messages.
+
+    Raises:
+        InputError: one line naming ``where``, the field and what was wrong.
+    """
+    if isinstance(data, Mapping) and "memspec" in data:
+        spec = data["memspec"]
+        raw: dict[str, Any] = copy.deepcopy(dict(data))
+    else:
+        spec = data
+        raw = {"memspec": copy.deepcopy(dict(data))} if isinstance(data, Mapping) else {}
+    if not isinstance(spec, Mapping):
+        raise InputError(f"{where}: expected a JSON object with a 'memspec' object")
+    memory_type = spec.get("memoryType")
+    if not isinstance(memory_type, str) or memory_type.upper() != "DDR4":
+        raise InputError(f"{where}: memspec.memoryType = {memory_type!r}; expected 'DDR4'")
+    memory_id = spec.get("memoryId", "")
+    if not isinstance(memory_id, str):
+        raise InputError(f"{where}: memspec.memoryId = {memory_id!r}: expected a string")
+
+    arch = _section(spec, "memarchitecturespec", where)
+    at = f"{where}: memspec.memarchitecturespec"
+    values: dict[str, Any] = {attr: _int_field(arch, key, at, positive=True) for key, attr in ARCH_FIELDS.items()}
+    for key, (attr, default) in ARCH_OPTIONAL.items():
+        values[attr] = _int_field(arch, key, at, positive=True) if key in arch else default
+    if values["ref_mode"] not in (1, 2, 4):
+        raise InputError(f"{at}.RefMode = {values['ref_mode']!r}: expected 1, 2 or 4")
+    if values["nbr_of_banks"] % values["nbr_of_bankgroups"]:
+        raise InputError(f"{at}: nbrOfBanks = {values['nbr_of_banks']} is not a multiple of "
+                         f"nbrOfBankGroups = {values['nbr_of_bankgroups']}")
+
+    timing = _section(spec, "memtimingspec", where)
+    tt = f"{where}: memspec.memtimingspec"
+    tck: Any = timing.get("tCK")
+    if "tCK" not in timing:
+        raise InputError(f"{tt}: missing field tCK")
+    if not _is_number(tck) or not math.isfinite(tck) or tck <= 0:
+        raise InputError(f"{tt}.tCK = {tck!r}: expected a positive clock period in seconds")
+    if tck > MAX_TCK_S:
+        raise InputError(f"{tt}.tCK = {tck!r} looks like ns; expected seconds ({tck * 1e-9:g})")
+    timings = {key: _int_field(timing, key, tt, positive=False) for key in TIMING_FIELDS}
+    for key in timing:  # extra integer timings are kept, non-numbers are errors
+        if key != "tCK" and key not in timings:
+            timings[key] = _int_field(timing, key, tt, positive=False)
+
+    power = _section(spec, "mempowerspec", where)
+    pt = f"{where}: memspec.mempowerspec"
+    volts: dict[str, Any] = {}
+    for key in VOLTAGES:
+        if key not in power:
+            raise InputError(f"{pt}: missing field {key}")
+        value = power[key]
+        if not _is_number(value) or not math.isfinite(value) or value <= 0:
+            raise InputError(f"{pt}.{key} = {value!r}: expected a positive voltage in volts")
+        if value > MAX_VOLTAGE_V:
+            raise InputError(f"{pt}.{key} = {value!r} looks like mV; expected volts ({value / 1000:g})")
+        volts[key] = float(value)
+    currents: dict[str, float] = {}
+    current_keys: dict[str, str] = {}
+    mode_currents = {2: ("idd5F2", "ipp5F2"), 4: ("idd5F4", "ipp5F4")}.get(values["ref_mode"], ())
+    for key in (*REQUIRED_CURRENTS, *REFRESH_MODE_CURRENTS, *BETA_CURRENTS):
+        # accept any capitalisation in the file, remember the file's spelling for writing back
+        found = next((k for k in power if k.lower() == key.lower()), None)
+        if found is None:
+            if key in REQUIRED_CURRENTS or key in mode_currents:
+                raise InputError(f"{pt}: missing field {key}")
+            if key in REFRESH_MODE_CURRENTS:
+                currents[key.lower()] = 0.0  # not used by this RefMode; not written back
+            continue
+        currents[key.lower()] = _check_current(f"{pt}.{found}", power[found])
+        current_keys[key.lower()] = found
+
+    fact_rho = 1.0
+    if "bankwisespec" in spec:
+        bankwise = _section(spec, "bankwisespec", where)
+        if "factRho" in bankwise:
+            rho = bankwise["factRho"]
+            if not _is_number(rho) or not 0.0 <= rho <= 1.0:
+                raise InputError(f"{where}: memspec.bankwisespec.factRho = {rho!r}: expected a number in [0, 1]")
+            fact_rho = float(rho)
+    for name in ("memimpedancespec", "prepostamble"):
+        if name in spec and not isinstance(spec[name], Mapping):
+            raise InputError(f"{where}: memspec.{name}: expected an object")
+
+    return MemSpec(memory_id=memory_id, memory_type=memory_type, tck_s=float(tck), timings=timings,
+                   currents=currents, fact_rho=fact_rho, _raw=raw, _current_keys=current_keys,
+                   **volts, **values)
+
+
+def load_memspec(path: str | Path) -> MemSpec:
+    """Read and validate a DRAMPower DDR4 memspec file.
+
+    Raises:
+        InputError: unreadable file, invalid JSON, or an invalid field (named, one line).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as error:
+        raise InputError(f"{path}: cannot read memspec: {error.strerror or error}") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a UTF-8 text file; expected a DRAMPower JSON memspec") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise InputError(f"{path}: invalid JSON at line {error.lineno} column {error.colno}: {error.msg}") from None
+    return parse_memspec(data, where=str(path))
+
+
+def save_memspec(spec: MemSpec, path: str | Path) -> None:
+    """Write ``spec`` as a DRAMPower JSON memspec (readable by DRAMPower and :func:`load_memspec`)."""
+    Path(path).write_text(json.dumps(spec.to_json_dict(), indent=2) + "\n", encoding="utf-8")
+
+
+def preset(name: str) -> MemSpec:
+    """A built-in memspec by name (see :mod:`hdeem_watch.dram.presets` for the sources of each value).
+
+    Args:
+        name: ``"ddr4-2133-x8-4gb"`` or ``"samsung-m393a1g43db0-cpb"``.
+
+    Raises:
+        InputError: an unknown name.
+    """
+    from hdeem_watch.dram.presets import PRESETS, preset_path
+
+    if name not in PRESETS:
+        raise InputError(f"unknown memspec preset {name!r}; expected one of {sorted(PRESETS)}")
+    return load_memspec(preset_path(name))
