@@ -1,18 +1,109 @@
-"""``hdeem-watch tui``: not built yet (its issue is open)."""
+"""``hdeem-watch tui``: the live terminal UI for one or more node daemons.
+
+``--connect ENDPOINT`` (repeatable) names a daemon's *control* endpoint; the UI asks it for the
+stream endpoint. Without it the UI connects to the local daemon's default endpoint. ``--slurm``
+connects to every node of the current SLURM allocation at ``tcp://<node>:<port>`` (port
+:data:`SLURM_CONTROL_PORT` unless ``--port`` or ``$HDEEM_WATCH_CONTROL_PORT`` says otherwise; the
+daemons must listen there, e.g. ``--control tcp://*:5591``).
+"""
 
 from __future__ import annotations
 
 import argparse
-import sys
+import os
 from typing import Any
+
+from hdeem_watch.errors import InputError
+
+#: Documented TCP port of a daemon's control endpoint on cluster nodes (``--slurm``).
+SLURM_CONTROL_PORT = 5591
+PORT_ENV = "HDEEM_WATCH_CONTROL_PORT"
+ENDPOINT_SCHEMES = ("ipc://", "tcp://", "inproc://")
 
 
 def register(subparsers: Any) -> None:
     """Add the ``tui`` subcommand."""
-    parser = subparsers.add_parser("tui", help="(not built yet)")
+    parser = subparsers.add_parser(
+        "tui",
+        help="live terminal UI: power per DIMM pair, baselines, runs, calibration",
+        description="Live terminal UI of one or more hdeem-watch daemons (keys: p pause, n node, "
+        "+/- zoom, b baseline, ? help, q quit).",
+    )
+    parser.add_argument(
+        "--connect",
+        metavar="ENDPOINT",
+        action="append",
+        default=[],
+        help="a daemon's control endpoint (repeatable); default: the local daemon",
+    )
+    parser.add_argument("--slurm", action="store_true", help="connect to every node of the SLURM allocation")
+    parser.add_argument(
+        "--port",
+        type=int,
+        default=None,
+        help=f"control port of the daemons for --slurm (default ${PORT_ENV} or {SLURM_CONTROL_PORT})",
+    )
+    parser.add_argument("--fps", type=float, default=10.0, help="frames per second (lower it over slow ssh)")
+    parser.add_argument("--window", type=float, default=60.0, help="initial plot window in seconds")
     parser.set_defaults(func=_run)
 
 
+def check_endpoint(endpoint: str) -> str:
+    """Validate an endpoint given on the command line.
+
+    Raises:
+        InputError: when it has no ZeroMQ transport prefix.
+    """
+    if not endpoint.startswith(ENDPOINT_SCHEMES):
+        raise InputError(f"--connect {endpoint!r}: expected a ZeroMQ endpoint such as tcp://node7:{SLURM_CONTROL_PORT} or ipc:///path")
+    return endpoint
+
+
+def slurm_endpoints(port: int | None = None, env: dict[str, str] | None = None) -> list[str]:
+    """Control endpoints of every node of the allocation.
+
+    Raises:
+        InputError: outside an allocation, or for a bad port.
+    """
+    from hdeem_watch import slurm
+
+    environ = dict(os.environ if env is None else env)
+    if port is None:
+        raw = environ.get(PORT_ENV, str(SLURM_CONTROL_PORT))
+        try:
+            port = int(raw)
+        except ValueError:
+            raise InputError(f"${PORT_ENV} = {raw!r}: expected a TCP port number") from None
+    if not 0 < port < 65536:
+        raise InputError(f"--port {port}: expected 1..65535")
+    nodes = slurm.allocation_nodes(environ)
+    if not nodes:
+        raise InputError("--slurm: no SLURM allocation here (SLURM_JOB_NODELIST is not set); use --connect")
+    return [f"tcp://{node}:{port}" for node in nodes]
+
+
+def resolve_endpoints(args: argparse.Namespace) -> list[str]:
+    """The control endpoints the UI connects to."""
+    endpoints = [check_endpoint(e) for e in args.connect]
+    if args.slurm:
+        endpoints += slurm_endpoints(args.port)
+    if not endpoints:
+        from hdeem_watch.daemon.client import default_endpoints
+
+        endpoints = [default_endpoints()[1]]
+    return list(dict.fromkeys(endpoints))
+
+
 def _run(args: argparse.Namespace) -> int:
-    print("hdeem-watch tui: not built yet", file=sys.stderr)
-    return 1
+    if not args.fps > 0:
+        raise InputError(f"--fps {args.fps}: expected a positive number of frames per second")
+    if not args.window > 0:
+        raise InputError(f"--window {args.window}: expected a positive number of seconds")
+    endpoints = resolve_endpoints(args)
+    from hdeem_watch.tui.app import HdeemWatchApp
+    from hdeem_watch.tui.feed import FeedHub
+
+    hub = FeedHub(endpoints, snapshot_hz=min(10.0, max(1.0, args.fps)))
+    app = HdeemWatchApp(hub, fps=args.fps, window_s=args.window)
+    app.run()
+    return 0

@@ -1,0 +1,182 @@
+"""The Textual app: paints the newest snapshots at a fixed rate; keys for pause, node, zoom,
+baseline and help.
+
+The app never reads sockets. A :class:`~hdeem_watch.tui.provider.Provider` (live:
+:class:`~hdeem_watch.tui.feed.FeedHub`) builds immutable snapshots in the background; a timer at
+``fps`` takes the newest and repaints every widget inside ``batch_update()`` (memray's live-TUI
+pattern). Pause stops repainting the data (the health bar keeps saying ``PAUSED``), so a paused
+screen never looks live, and a feed that stops producing shows ``UI STALLED``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import ClassVar
+
+from textual.app import App, ComposeResult
+from textual.binding import Binding, BindingType
+from textual.containers import Horizontal, Vertical
+from textual.screen import ModalScreen
+from textual.widgets import Static
+
+from hdeem_watch.tui.provider import Provider
+from hdeem_watch.tui.widgets import CalibPanel, ChannelTable, HealthBar, PowerPlots, RunsPanel
+
+#: Plot windows the +/- keys step through, in seconds.
+WINDOWS_S = (5.0, 10.0, 30.0, 60.0, 120.0, 300.0, 600.0)
+#: A snapshot older than this means its feed stopped producing.
+STALLED_AFTER_S = 3.0
+#: Seconds of the idle baseline measurement the ``b`` key asks for.
+BASELINE_SECONDS = 10.0
+
+KEYS_LINE = " p pause  n/N/tab node  +/- zoom  b baseline  ? help  q quit"
+
+HELP_TEXT = f"""[b]hdeem-watch[/b] — live DRAM power and model calibration
+
+[b]p[/b]        pause / resume painting (data keeps arriving)
+[b]n[/b] [b]tab[/b]    next node      [b]N[/b] [b]shift+tab[/b]  previous node
+[b]+[/b] [b]-[/b]      zoom the time window ({", ".join(f"{w:g}" for w in WINDOWS_S)} s)
+[b]b[/b]        measure the idle baseline on this node ({BASELINE_SECONDS:g} s)
+[b]?[/b]        this help         [b]q[/b]  quit
+
+Plots show the min/max envelope of each column, so short spikes stay
+visible. [b]STALE[/b]: no message for 3 s. [b]RECONNECTING[/b]: daemon unreachable.
+gaps: messages lost on the wire (sequence numbers). sim: the simulated
+node's hidden true currents. Press any key to close."""
+
+
+class HelpScreen(ModalScreen[None]):
+    """Key help; any key closes it."""
+
+    def compose(self) -> ComposeResult:
+        yield Static(HELP_TEXT)
+
+    def on_key(self) -> None:
+        self.dismiss()
+
+
+class HdeemWatchApp(App[int]):
+    """Live view of one or more hdeem-watch daemons.
+
+    Args:
+        provider: the snapshot source (started on mount, stopped on exit).
+        fps: repaint rate (frames per second).
+        clock: monotonic clock in ns (injectable for deterministic screenshots).
+
+    Example:
+        >>> from hdeem_watch.tui.provider import StaticProvider
+        >>> from hdeem_watch.tui.snapshot import NodeSnapshot
+        >>> app = HdeemWatchApp(StaticProvider([NodeSnapshot(node="n1", built_mono_ns=1, window_s=60)]))
+    """
+
+    CSS_PATH = Path(__file__).with_name("app.tcss")
+    TITLE = "hdeem-watch"
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding("q", "quit", "quit"),
+        Binding("p", "pause", "pause"),
+        Binding("n,tab", "node(1)", "next node", priority=True),
+        Binding("N,shift+tab", "node(-1)", "previous node", priority=True),
+        Binding("plus,equals_sign", "zoom(-1)", "zoom in"),
+        Binding("minus,underscore", "zoom(1)", "zoom out"),
+        Binding("b", "baseline", "baseline"),
+        Binding("question_mark", "help", "help"),
+    ]
+
+    def __init__(
+        self,
+        provider: Provider,
+        *,
+        fps: float = 10.0,
+        clock: Callable[[], int] = time.monotonic_ns,
+        window_s: float = 60.0,
+    ) -> None:
+        super().__init__()
+        self.provider = provider
+        self.fps = max(0.2, float(fps))
+        self._clock = clock
+        self.window_s = min(WINDOWS_S, key=lambda w: abs(w - window_s))
+        self.focus_index = 0
+        self.paused = False
+        self.frames = 0
+        self._n_nodes = max(1, len(provider.snapshots()))
+        self._painted: object = None
+
+    def compose(self) -> ComposeResult:
+        yield HealthBar()
+        with Horizontal(id="body"):
+            with Vertical(id="left"):
+                yield ChannelTable()
+                yield PowerPlots()
+            with Vertical(id="right"):
+                yield CalibPanel()
+                yield RunsPanel()
+        yield Static(KEYS_LINE, id="keys")
+
+    def on_mount(self) -> None:
+        self.provider.start()
+        self._push_view()
+        self.paint()
+        self.set_interval(1.0 / self.fps, self.paint)
+
+    def on_unmount(self) -> None:
+        self.provider.stop()
+
+    def _push_view(self) -> None:
+        width = self.query_one(PowerPlots).data_columns()
+        self.provider.set_view(focus=self.focus_index, window_s=self.window_s, width=width)
+
+    def paint(self) -> None:
+        """Repaint from the newest snapshots (one frame)."""
+        snapshots = self.provider.snapshots()
+        if not snapshots:
+            return
+        self._n_nodes = len(snapshots)
+        self.focus_index %= self._n_nodes
+        self._push_view()
+        snap = snapshots[self.focus_index]
+        age_s = (self._clock() - snap.built_mono_ns) / 1e9
+        stalled = age_s > STALLED_AFTER_S
+        with self.batch_update():
+            self.query_one(HealthBar).show(
+                snapshots, self.focus_index, paused=self.paused, stalled=stalled, window_s=self.window_s
+            )
+            if not self.paused and snap is not self._painted:
+                self._painted = snap
+                self.query_one(ChannelTable).show(snap)
+                self.query_one(PowerPlots).show(snap)
+                self.query_one(CalibPanel).show(snap.calib)
+                self.query_one(RunsPanel).show(snap)
+        self.frames += 1
+
+    # ------------------------------------------------------------------ actions
+
+    def action_pause(self) -> None:
+        """Toggle pause."""
+        self.paused = not self.paused
+        self._painted = None
+        self.paint()
+
+    def action_node(self, step: int) -> None:
+        """Focus the next/previous node."""
+        self.focus_index = (self.focus_index + step) % self._n_nodes
+        self._painted = None
+        self.paint()
+
+    def action_zoom(self, step: int) -> None:
+        """Step the time window through :data:`WINDOWS_S`."""
+        i = WINDOWS_S.index(self.window_s)
+        self.window_s = WINDOWS_S[max(0, min(len(WINDOWS_S) - 1, i + step))]
+        self._push_view()
+        self._painted = None
+        self.paint()
+
+    def action_baseline(self) -> None:
+        """Ask the focused node's daemon to measure its idle baseline."""
+        self.provider.request(self.focus_index, "baseline.measure", {"seconds": BASELINE_SECONDS})
+        self.notify(f"baseline: measuring {BASELINE_SECONDS:g} s of idle power", timeout=3)
+
+    def action_help(self) -> None:
+        """Show the key help."""
+        self.push_screen(HelpScreen())

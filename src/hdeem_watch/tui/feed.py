@@ -1,0 +1,323 @@
+"""Background subscribers: one thread per daemon turns the wire stream into snapshots.
+
+Each :class:`NodeFeed` asks the daemon's control endpoint for ``status`` (which names its PUB
+endpoint), subscribes to the node's topics, fetches what a late joiner needs (``runs.list``,
+``calib.get``, ``baseline.get``), and then feeds every message into a
+:class:`~hdeem_watch.tui.model.NodeModel`. A few times a second it builds an immutable
+:class:`~hdeem_watch.tui.snapshot.NodeSnapshot` and stores it as :attr:`NodeFeed.latest`
+(replaceable: only the newest matters). The app never touches sockets.
+
+When the stream goes quiet the feed probes the control endpoint: unreachable → ``reconnecting``
+(ZeroMQ reconnects the SUB socket by itself when the daemon comes back on the same endpoint; a
+different PUB endpoint is re-subscribed); back again → the late-join state is fetched anew.
+
+Control requests from the UI (e.g. ``baseline.measure``) are queued to the feed's thread, because
+ZeroMQ sockets belong to one thread; their outcome is shown as the health bar's notice.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import zmq
+
+from hdeem_watch.daemon import protocol
+from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
+from hdeem_watch.tui.model import NodeModel
+from hdeem_watch.tui.snapshot import NodeSnapshot
+
+#: How many queued messages one wake-up handles before building a snapshot (bounds latency).
+DRAIN_LIMIT = 5000
+
+
+@dataclass
+class ViewSettings:
+    """What the app currently shows; written by the app thread, read by the feeds.
+
+    Attributes:
+        window_s: the plot's time window.
+        width: plot columns per channel.
+        focus: index of the node whose plots are computed (others get table values only).
+    """
+
+    window_s: float = 60.0
+    width: int = 120
+    focus: int = 0
+
+
+def pub_endpoint_for(control_endpoint: str, pub: str) -> str:
+    """The PUB endpoint to connect to: a wildcard bind host is replaced by the control endpoint's host."""
+    if not pub.startswith("tcp://"):
+        return pub
+    host, _, port = pub[len("tcp://") :].rpartition(":")
+    if host in ("*", "0.0.0.0", "[::]", "::", ""):
+        control_host = control_endpoint[len("tcp://") :].rpartition(":")[0] if control_endpoint.startswith("tcp://") else ""
+        return f"tcp://{control_host or '127.0.0.1'}:{port}"
+    return pub
+
+
+class NodeFeed(threading.Thread):
+    """Subscriber thread of one daemon.
+
+    Args:
+        endpoint: the daemon's control endpoint.
+        index: this feed's position (compared with :attr:`ViewSettings.focus`).
+        view: shared view settings.
+        context: ZeroMQ context (default: the process's shared one).
+        snapshot_hz: how often a snapshot is built.
+        stale_after_s: silence after which the node is stale and the daemon is probed.
+        control_timeout_s: timeout of each control call.
+        clock: monotonic clock in ns (injectable).
+        wall_clock: wall clock in ns (injectable).
+    """
+
+    def __init__(
+        self,
+        endpoint: str,
+        *,
+        index: int = 0,
+        view: ViewSettings | None = None,
+        context: zmq.Context[Any] | None = None,
+        snapshot_hz: float = 10.0,
+        stale_after_s: float = 3.0,
+        control_timeout_s: float = 1.0,
+        clock: Callable[[], int] = time.monotonic_ns,
+        wall_clock: Callable[[], int] = time.time_ns,
+    ) -> None:
+        super().__init__(name=f"hdeem-watch-feed-{index}", daemon=True)
+        self.endpoint = endpoint
+        self.index = index
+        self.view = view or ViewSettings()
+        self._context = context or zmq.Context.instance()
+        self._period_ns = int(1e9 / max(snapshot_hz, 0.5))
+        self._stale_ns = int(stale_after_s * 1e9)
+        self._clock = clock
+        self._wall = wall_clock
+        self.model = NodeModel(endpoint, stale_after_s=stale_after_s)
+        self._control = ControlClient(endpoint, timeout_s=control_timeout_s, context=self._context)
+        self._sub: zmq.Socket[Any] | None = None
+        self._pub_endpoint = ""
+        self._halt = threading.Event()
+        self._requests: queue.Queue[tuple[str, dict[str, Any]]] = queue.Queue()
+        self._last_probe_ns = 0
+        self._reachable = False
+        self.latest: NodeSnapshot = self._build(self._clock())
+        self.messages = 0
+        self.decode_errors = 0
+
+    # ------------------------------------------------------------------ public
+
+    def request(self, op: str, args: dict[str, Any] | None = None) -> None:
+        """Queue a control request; its outcome becomes the health bar's notice."""
+        self._requests.put((op, dict(args or {})))
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Stop the thread and close its sockets."""
+        self._halt.set()
+        if self.is_alive():
+            self.join(timeout_s)
+
+    # ------------------------------------------------------------------ thread
+
+    def run(self) -> None:
+        next_snapshot = self._clock()
+        try:
+            while not self._halt.is_set():
+                now = self._clock()
+                if self._sub is None or self._is_quiet(now):
+                    self._probe(now)
+                self._handle_requests()
+                wait_ms = max(0, (next_snapshot - self._clock()) // 1_000_000)
+                if self._sub is not None:
+                    if self._sub.poll(wait_ms, zmq.POLLIN):
+                        self._drain()
+                else:
+                    self._halt.wait(wait_ms / 1000)
+                now = self._clock()
+                if now >= next_snapshot:
+                    self.latest = self._build(now)
+                    next_snapshot = max(next_snapshot + self._period_ns, now)
+        finally:
+            self._close_sub()
+            self._control.close()
+
+    def _is_quiet(self, now: int) -> bool:
+        last = self.model.last_rx_mono_ns
+        return last is None or now - last > self._stale_ns
+
+    def _build(self, now: int) -> NodeSnapshot:
+        view = self.view
+        return self.model.snapshot(
+            now_mono_ns=now,
+            now_wall_ns=self._wall(),
+            window_s=view.window_s,
+            width=view.width if view.focus == self.index else None,
+        )
+
+    def _drain(self) -> None:
+        sub = self._sub
+        assert sub is not None
+        for _ in range(DRAIN_LIMIT):
+            try:
+                frames = sub.recv_multipart(zmq.NOBLOCK, copy=True)
+            except zmq.Again:
+                return
+            try:
+                msg = protocol.decode(frames)
+            except protocol.ProtocolError:
+                self.decode_errors += 1
+                continue
+            self.messages += 1
+            self.model.apply(msg, self._clock())
+
+    def _probe(self, now: int) -> None:
+        """Ask the daemon for status (at most every second while quiet); (re)subscribe as needed."""
+        if now - self._last_probe_ns < 1_000_000_000 and self._last_probe_ns:
+            return
+        self._last_probe_ns = now
+        try:
+            status = self._control.call("status")
+        except (DaemonUnreachable, ControlError) as error:
+            was = self.model.connection
+            self._reachable = False
+            state = "connecting" if was == "connecting" and self._sub is None else "reconnecting"
+            self.model.set_connection(state, _reason(error, self.endpoint))
+            return
+        if not isinstance(status, dict):
+            return
+        endpoints = status.get("endpoints") if isinstance(status.get("endpoints"), dict) else {}
+        assert isinstance(endpoints, dict)
+        pub = pub_endpoint_for(self.endpoint, str(endpoints.get("pub", "")))
+        node = status.get("node")
+        if pub and (self._sub is None or pub != self._pub_endpoint):
+            self._subscribe(pub, node if isinstance(node, str) else None)
+        self.model.apply_status(status)
+        if not self._reachable:
+            self._reachable = True
+            self._late_join()
+        if self.model.connection == "reconnecting":
+            self.model.set_connection("connecting", "daemon back; waiting for its stream")
+
+    def _subscribe(self, pub: str, node: str | None) -> None:
+        self._close_sub()
+        sub = self._context.socket(zmq.SUB)
+        sub.setsockopt(zmq.LINGER, 0)
+        sub.setsockopt(zmq.RCVHWM, 100_000)
+        sub.setsockopt(zmq.RECONNECT_IVL, 100)
+        sub.setsockopt(zmq.RECONNECT_IVL_MAX, 1000)
+        sub.setsockopt(zmq.SUBSCRIBE, protocol.subscription(node))
+        sub.connect(pub)
+        self._sub = sub
+        self._pub_endpoint = pub
+
+    def _close_sub(self) -> None:
+        if self._sub is not None:
+            self._sub.close(linger=0)
+            self._sub = None
+
+    def _late_join(self) -> None:
+        """Fetch what the stream only sends on change: runs, calibration, baselines."""
+        for op, apply in (
+            ("runs.list", self._apply_runs),
+            ("calib.get", self.model.apply_calib),
+            ("baseline.get", self.model.apply_baselines),
+        ):
+            try:
+                result = self._control.call(op)
+            except (DaemonUnreachable, ControlError):
+                continue
+            if result is not None:
+                apply(result)
+
+    def _apply_runs(self, result: Any) -> None:
+        runs = result.get("runs") if isinstance(result, dict) else result
+        if isinstance(runs, list):
+            self.model.add_runs([r for r in runs if isinstance(r, dict) and not _running(r)])
+
+    def _handle_requests(self) -> None:
+        while True:
+            try:
+                op, args = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                result = self._control.call(op, args)
+            except ControlError as error:
+                self.model.notice = f"{op}: {error.code}: {error.message}"[:120]
+            except DaemonUnreachable:
+                self.model.notice = f"{op}: daemon unreachable"
+            else:
+                self.model.notice = f"{op}: ok" + (f" ({_short(result)})" if result else "")
+
+
+def _running(run: dict[str, Any]) -> bool:
+    stop = run.get("t_stop_ns", run.get("stop_ns", 0))
+    return run.get("state") == "running" or stop is None
+
+
+def _short(result: Any) -> str:
+    if isinstance(result, dict):
+        items = [f"{k}={v}" for k, v in result.items() if isinstance(v, str | int | float)][:3]
+        return ", ".join(items)
+    return str(result)[:60]
+
+
+class FeedHub:
+    """All feeds of one UI, with their shared view settings.
+
+    Args:
+        endpoints: control endpoints, one per daemon.
+        snapshot_hz: how often each feed builds a snapshot.
+        **options: passed on to each :class:`NodeFeed`.
+    """
+
+    def __init__(self, endpoints: Sequence[str], *, snapshot_hz: float = 10.0, **options: Any) -> None:
+        self.view = ViewSettings()
+        self.feeds = [
+            NodeFeed(ep, index=i, view=self.view, snapshot_hz=snapshot_hz, **options) for i, ep in enumerate(endpoints)
+        ]
+
+    def start(self) -> None:
+        """Start every feed thread."""
+        for feed in self.feeds:
+            feed.start()
+
+    def stop(self) -> None:
+        """Stop every feed thread."""
+        for feed in self.feeds:
+            feed._halt.set()
+        for feed in self.feeds:
+            feed.stop()
+
+    def snapshots(self) -> list[NodeSnapshot]:
+        """The newest snapshot of every node, in endpoint order."""
+        return [feed.latest for feed in self.feeds]
+
+    def set_view(self, *, focus: int, window_s: float, width: int) -> None:
+        """Tell the feeds what the app shows."""
+        self.view.focus = focus
+        self.view.window_s = window_s
+        self.view.width = width
+
+    def request(self, index: int, op: str, args: dict[str, Any] | None = None) -> None:
+        """Queue a control request to daemon ``index``."""
+        self.feeds[index].request(op, args)
+
+
+def snapshot_age_s(snapshot: NodeSnapshot, now_mono_ns: int) -> float:
+    """How old a snapshot is (the app flags a feed that stopped producing)."""
+    return (now_mono_ns - snapshot.built_mono_ns) / 1e9 if snapshot.built_mono_ns else math.nan
+
+
+def _reason(error: Exception, endpoint: str) -> str:
+    """A short reason without the endpoint (the health bar shows that already)."""
+    text = str(error)
+    if text.startswith(endpoint):
+        text = text[len(endpoint) :].lstrip(": ")
+    return text[:80] or "unreachable"

@@ -1,0 +1,182 @@
+"""Reading the daemon's JSON records (runs, fits, baselines) into the UI's snapshot views.
+
+The wire protocol carries runs, fits and baselines as JSON objects (docs/protocol.md). These
+functions turn them into :mod:`hdeem_watch.tui.snapshot` views, tolerating missing fields (shown as
+unknown) so that a newer daemon with more fields, or an older one with fewer, still displays.
+Pure functions; no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+from hdeem_watch.tui.snapshot import CalibView, CurrentView, RunView
+
+DRAM_CHANNELS = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
+
+
+def num(value: Any) -> float:
+    """A JSON number as float; None, strings and other types are NaN (unknown)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return math.nan
+    return float(value)
+
+
+def first_num(record: Mapping[str, Any], *keys: str) -> float:
+    """The first of ``keys`` that holds a number (dotted keys descend into objects), else NaN."""
+    for key in keys:
+        value: Any = record
+        for part in key.split("."):
+            value = value.get(part) if isinstance(value, Mapping) else None
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+    return math.nan
+
+
+def measured_dram_j(record: Mapping[str, Any]) -> float:
+    """The run's measured DRAM energy: an explicit total, else the sum over the DIMM-pair channels."""
+    total = first_num(record, "measured_j", "dram_energy_j", "measured.dram_j", "energy.dram_j")
+    if math.isfinite(total):
+        return total
+    per_channel = record.get("energy_j")
+    if isinstance(per_channel, Mapping):
+        values = [num(per_channel.get(name)) for name in DRAM_CHANNELS if name in per_channel]
+        if values and all(math.isfinite(v) for v in values):
+            return float(sum(values))
+    return math.nan
+
+
+def run_view(record: Mapping[str, Any], *, running: bool = False, elapsed_s: float = math.nan) -> RunView:
+    """A :class:`RunView` from a run record of the ``run`` topic or ``runs.list``."""
+    metadata = record.get("metadata") if isinstance(record.get("metadata"), Mapping) else {}
+    assert isinstance(metadata, Mapping)
+    duration = first_num(record, "duration_s", "window_s", "seconds")
+    if running and math.isfinite(elapsed_s):
+        duration = elapsed_s
+    threads = first_num(record, "threads")
+    return RunView(
+        run_id=str(record.get("run_id", record.get("id", "?"))),
+        name=str(record.get("name") or record.get("kernel") or "?"),
+        kernel=str(record.get("kernel") or "?"),
+        threads=int(threads) if math.isfinite(threads) else 0,
+        duration_s=duration,
+        measured_j=math.nan if running else measured_dram_j(record),
+        model_datasheet_j=first_num(
+            record, "model_datasheet_j", "model.datasheet_j", "model_j.datasheet", "model.datasheet"
+        ),
+        model_calibrated_j=first_num(
+            record, "model_calibrated_j", "model.calibrated_j", "model_j.calibrated", "model.calibrated"
+        ),
+        running=running,
+        simulated=bool(metadata.get("simulated", False) or record.get("simulated", False)),
+    )
+
+
+def _current_values(obj: Any) -> dict[str, float]:
+    """``{name: amperes}`` from ``{name: number}``, ``{name: {"calibrated": x}}`` or per-DIMM nesting."""
+    if not isinstance(obj, Mapping):
+        return {}
+    if isinstance(obj.get("currents"), Mapping):
+        return _current_values(obj["currents"])
+    out: dict[str, float] = {}
+    nested: list[dict[str, float]] = []
+    for key, value in obj.items():
+        if isinstance(value, int | float) and not isinstance(value, bool) and str(key).lower().startswith(("idd", "ipp")):
+            out[str(key).lower()] = float(value)
+        elif isinstance(value, Mapping):
+            if "calibrated" in value:
+                out[str(key).lower()] = num(value.get("calibrated"))
+            else:
+                inner = _current_values(value)
+                if inner:
+                    nested.append(inner)
+    if not out and nested:  # per DIMM: the mean over DIMMs
+        names = set().union(*nested)
+        for name in names:
+            values = [d[name] for d in nested if name in d and math.isfinite(d[name])]
+            out[name] = sum(values) / len(values) if values else math.nan
+    return out
+
+
+def history_series(history: Iterable[Any]) -> dict[str, list[float]]:
+    """Per current, the fitted values over time (oldest first) from the calib ``history`` list."""
+    series: dict[str, list[float]] = {}
+    for entry in history:
+        fit: Any = entry
+        if isinstance(entry, Sequence) and not isinstance(entry, str) and len(entry) == 2:
+            fit = entry[1]
+        elif isinstance(entry, Mapping) and isinstance(entry.get("fit"), Mapping):
+            fit = entry["fit"]
+        for name, value in _current_values(fit).items():
+            series.setdefault(name, []).append(value)
+    return series
+
+
+def _suggestion(value: Any) -> str:
+    if isinstance(value, str):
+        return value
+    if isinstance(value, Sequence) and value:
+        head = value[0]
+        if isinstance(head, Sequence) and not isinstance(head, str) and head:
+            return str(head[0])
+        if isinstance(head, Mapping):
+            return str(head.get("name", ""))
+        return str(head)
+    if isinstance(value, Mapping):
+        return str(value.get("name", ""))
+    return ""
+
+
+def calib_view(body: Mapping[str, Any], *, history_len: int = 40) -> CalibView:
+    """A :class:`CalibView` from a ``calib`` message body (or the ``calib.get`` result)."""
+    fit = body.get("fit") if isinstance(body.get("fit"), Mapping) else None
+    truth_raw = body.get("truth")
+    truth = _current_values(truth_raw) if isinstance(truth_raw, Mapping) else {}
+    simulated = bool(truth) or bool(isinstance(truth_raw, Mapping) and truth_raw.get("simulated"))
+    history_raw = body.get("history")
+    series = history_series(history_raw if isinstance(history_raw, list) else [])
+    suggestion = _suggestion(
+        body.get("suggested_next") or body.get("suggest") or body.get("next") or (fit or {}).get("suggested_next")
+    )
+    if fit is None:
+        return CalibView(simulated=simulated, suggested_next=suggestion)
+    currents_raw = fit.get("currents") if isinstance(fit.get("currents"), Mapping) else {}
+    assert isinstance(currents_raw, Mapping)
+    currents = []
+    for name, entry in currents_raw.items():
+        if not isinstance(entry, Mapping):
+            continue
+        key = str(name).lower()
+        currents.append(
+            CurrentView(
+                name=key,
+                datasheet_a=num(entry.get("datasheet")),
+                calibrated_a=num(entry.get("calibrated")),
+                ci95_a=_ci_half_width(entry.get("ci95"), num(entry.get("calibrated"))),
+                identifiable=bool(entry.get("identifiable", False)),
+                truth_a=truth.get(key, math.nan),
+                history_a=tuple(series.get(key, [])[-history_len:]),
+            )
+        )
+    error = fit.get("error") if isinstance(fit.get("error"), Mapping) else {}
+    assert isinstance(error, Mapping)
+    n_runs = first_num(fit, "n_runs", "runs", "n_observations", "observability.n_runs")
+    return CalibView(
+        currents=tuple(currents),
+        error_before=num(error.get("before")),
+        error_after=num(error.get("after")),
+        error_loo=num(error.get("loo")),
+        n_runs=int(n_runs) if math.isfinite(n_runs) else 0,
+        suggested_next=suggestion,
+        simulated=simulated,
+    )
+
+
+def _ci_half_width(ci: Any, value: float) -> float:
+    """The 95 % interval as a half-width: from a number, or from ``[low, high]``."""
+    if isinstance(ci, Sequence) and not isinstance(ci, str) and len(ci) == 2:
+        low, high = num(ci[0]), num(ci[1])
+        return (high - low) / 2.0
+    return num(ci)

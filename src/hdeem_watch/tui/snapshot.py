@@ -1,0 +1,203 @@
+"""Immutable snapshots of what the UI shows about one node.
+
+A background feed builds a :class:`NodeSnapshot` with a pure function (``model.NodeModel.snapshot``)
+a few times per second; the app paints the newest one at a fixed rate. Nothing here refers to
+sockets or to Textual, so tests build snapshots by hand (the snapshot tests use frozen ones).
+
+Unknown values are NaN (floats) or None, never 0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from hdeem_watch.tui.downsample import Columns
+
+#: Connection states shown in the health bar.
+CONNECTION_STATES = ("connecting", "live", "stale", "reconnecting", "paused")
+
+
+@dataclass(frozen=True, eq=False)
+class ChannelView:
+    """One channel of one node.
+
+    Attributes:
+        name: channel name (``DDR_AB``, ``CPU0``, ``BLADE``, ...).
+        kind: ``dram``, ``cpu``, ``blade`` or ``other``.
+        rate_hz: native sample rate (NaN if not yet known).
+        power_w: current value (mean of the last half second of samples; NaN if none).
+        baseline_w: idle baseline (NaN if none yet).
+        spread_w: the baseline's spread (NaN if none).
+        baseline_origin: ``idle-run``, ``quiet`` or ``""``.
+        energy_j: cumulative energy reported by the daemon (NaN if unknown).
+        status: the daemon's channel status (``ok``, ``stale``, ...).
+        source_gaps: gaps the daemon counted at the sensor.
+        columns: the plot envelope of the time window (None when not computed).
+    """
+
+    name: str
+    kind: str
+    rate_hz: float
+    power_w: float
+    baseline_w: float
+    spread_w: float
+    baseline_origin: str
+    energy_j: float
+    status: str
+    source_gaps: int
+    columns: Columns | None = None
+
+    @property
+    def above_w(self) -> float:
+        """Power above the idle baseline (NaN when either is unknown)."""
+        return self.power_w - self.baseline_w
+
+
+@dataclass(frozen=True)
+class RunView:
+    """One benchmark run (finished or in progress).
+
+    Attributes:
+        run_id: the daemon's run id.
+        name: run name.
+        kernel: kernel name (``idle`` for an idle run).
+        threads: thread count (0 if unknown).
+        duration_s: measured window (elapsed so far while running).
+        measured_j: measured DRAM energy over the window (NaN while running or unknown).
+        model_datasheet_j: the model's energy with datasheet currents.
+        model_calibrated_j: the model's energy with the calibration of the time.
+        running: True for the run in progress.
+        simulated: the run was on a simulated node.
+    """
+
+    run_id: str
+    name: str
+    kernel: str
+    threads: int
+    duration_s: float
+    measured_j: float
+    model_datasheet_j: float
+    model_calibrated_j: float
+    running: bool = False
+    simulated: bool = False
+
+    @property
+    def error_datasheet(self) -> float:
+        """Relative error of the datasheet model against the measurement (NaN if unknown)."""
+        return _rel(self.model_datasheet_j, self.measured_j)
+
+    @property
+    def error_calibrated(self) -> float:
+        """Relative error of the calibrated model against the measurement (NaN if unknown)."""
+        return _rel(self.model_calibrated_j, self.measured_j)
+
+
+def _rel(model: float, measured: float) -> float:
+    if not (math.isfinite(model) and math.isfinite(measured)) or measured == 0:
+        return math.nan
+    return (model - measured) / measured
+
+
+@dataclass(frozen=True)
+class CurrentView:
+    """One calibrated current.
+
+    Attributes:
+        name: current name (``idd0``, ...).
+        datasheet_a: datasheet value.
+        calibrated_a: fitted value (NaN before the first fit).
+        ci95_a: half-width of its 95 % interval (NaN if unknown).
+        identifiable: whether the runs so far determine it.
+        truth_a: the simulation's hidden value (NaN off the simulator).
+        history_a: the fitted value over time (oldest first), for the aging sparkline.
+    """
+
+    name: str
+    datasheet_a: float
+    calibrated_a: float
+    ci95_a: float
+    identifiable: bool
+    truth_a: float = math.nan
+    history_a: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True)
+class CalibView:
+    """The node's calibration state.
+
+    Attributes:
+        currents: per current, in the fit's order.
+        error_before: mean relative error with datasheet currents.
+        error_after: mean relative error after the fit.
+        error_loo: leave-one-out error.
+        n_runs: runs in the fit.
+        suggested_next: the run the calibrator suggests next ("" if none).
+        simulated: the truth values come from the simulator.
+    """
+
+    currents: tuple[CurrentView, ...] = ()
+    error_before: float = math.nan
+    error_after: float = math.nan
+    error_loo: float = math.nan
+    n_runs: int = 0
+    suggested_next: str = ""
+    simulated: bool = False
+
+
+@dataclass(frozen=True)
+class HealthView:
+    """Connection and daemon health.
+
+    Attributes:
+        state: one of :data:`CONNECTION_STATES`.
+        endpoint: the control endpoint.
+        detail: a short reason (the last error, "daemon restarted", ...).
+        last_rx_age_s: seconds since the last message (NaN if none yet).
+        gaps: messages missed on the wire (from sequence numbers).
+        restarts: daemon restarts seen.
+        source_kind: ``sim``, ``hdeem``, ``rapl``, ``replay`` ("" if unknown).
+        source_health: the source's own health string.
+        cpu_percent: the daemon's CPU share (NaN if unknown).
+        rss_bytes: the daemon's resident memory (0 if unknown).
+        uptime_s: the daemon's uptime (NaN if unknown).
+        notice: the last control result or error to show the user.
+    """
+
+    state: str
+    endpoint: str
+    detail: str = ""
+    last_rx_age_s: float = math.nan
+    gaps: int = 0
+    restarts: int = 0
+    source_kind: str = ""
+    source_health: str = ""
+    cpu_percent: float = math.nan
+    rss_bytes: int = 0
+    uptime_s: float = math.nan
+    notice: str = ""
+
+
+@dataclass(frozen=True)
+class NodeSnapshot:
+    """Everything the UI shows about one node at one instant.
+
+    Attributes:
+        node: node name ("?" before the first status).
+        built_mono_ns: monotonic time the snapshot was built (the app flags an old one).
+        window_s: the plot's time window.
+        channels: channels in display order.
+        runs: finished runs, newest last.
+        current_run: the run in progress, if any.
+        calib: calibration state.
+        health: connection and daemon health.
+    """
+
+    node: str
+    built_mono_ns: int
+    window_s: float
+    channels: tuple[ChannelView, ...] = ()
+    runs: tuple[RunView, ...] = ()
+    current_run: RunView | None = None
+    calib: CalibView = field(default_factory=CalibView)
+    health: HealthView = field(default_factory=lambda: HealthView(state="connecting", endpoint=""))

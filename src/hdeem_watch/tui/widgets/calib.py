@@ -1,0 +1,68 @@
+"""The calibration panel: datasheet vs calibrated currents, intervals, identifiability, errors,
+the history of each current (aging), the suggested next run, and the simulator's hidden truth
+(marked "simulation")."""
+
+from __future__ import annotations
+
+import math
+
+from rich.text import Text
+from textual.widgets import Static
+
+from hdeem_watch.tui.braille import sparkline
+from hdeem_watch.tui.snapshot import CalibView
+from hdeem_watch.tui.widgets.fmt import fixed
+
+
+def _ma(value_a: float, width: int) -> str:
+    return fixed(value_a * 1000.0, width, 1)
+
+
+def calib_text(calib: CalibView, width: int) -> Text:
+    """The panel's lines (currents in mA)."""
+    text = Text(no_wrap=True, overflow="ellipsis")
+    title = f"calibration ({calib.n_runs} runs)" if calib.n_runs else "calibration"
+    text.append(title, style="bold")
+    if calib.simulated:
+        text.append("  sim = simulation truth", style="dim italic")
+    if not calib.currents:
+        text.append("\n(no fit yet: waiting for runs)", style="dim italic")
+        return text
+    show_truth = calib.simulated
+    spark_width = max(0, width - (6 + 7 + 7 + 6 + 3 + (7 if show_truth else 0)) - 1)
+    text.append("\n")
+    header = "mA     datash  calib.  ±ci95 id" + ("    sim" if show_truth else "")
+    if spark_width >= 4:
+        header += " history"
+    text.append(header[:width], style="bold underline")
+    for c in calib.currents:
+        text.append("\n")
+        text.append(f"{c.name:<6.6}", style="bold")
+        text.append(_ma(c.datasheet_a, 7), style="dim")
+        ratio = c.calibrated_a / c.datasheet_a if c.datasheet_a else math.nan
+        text.append(_ma(c.calibrated_a, 7), style="bold green" if ratio < 0.95 else "bold")
+        text.append(_ma(c.ci95_a, 7) if math.isfinite(c.ci95_a) else "      –")
+        text.append(" ✓ " if c.identifiable else " ? ", style="green" if c.identifiable else "yellow")
+        if show_truth:
+            text.append(_ma(c.truth_a, 7), style="italic")
+        if spark_width >= 4 and c.history_a:
+            text.append(" " + sparkline(c.history_a[-(spark_width - 1) :]), style="cyan")
+    text.append("\n")
+    text.append("error ", style="bold")
+    text.append(f"before {_pct(calib.error_before)}  after {_pct(calib.error_after)}  loo {_pct(calib.error_loo)}")
+    if calib.suggested_next:
+        text.append("\nnext run: ", style="bold")
+        text.append(calib.suggested_next)
+    return text
+
+
+def _pct(value: float) -> str:
+    return f"{value * 100:.1f}%" if math.isfinite(value) else "–"
+
+
+class CalibPanel(Static):
+    """Calibration state of the focused node."""
+
+    def show(self, calib: CalibView) -> None:
+        """Paint the panel."""
+        self.update(calib_text(calib, self.size.width or 40))

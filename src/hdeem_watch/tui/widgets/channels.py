@@ -1,0 +1,46 @@
+"""The channel table: current value, idle baseline ± spread, power above baseline, status."""
+
+from __future__ import annotations
+
+import math
+
+from rich.text import Text
+from textual.widgets import Static
+
+from hdeem_watch.tui.snapshot import NodeSnapshot
+from hdeem_watch.tui.widgets.fmt import fixed
+
+KIND_STYLE = {"dram": "bold cyan", "cpu": "bold magenta", "blade": "bold yellow", "other": "bold"}
+
+
+def channel_table_text(snapshot: NodeSnapshot, width: int) -> Text:
+    """Header plus one line per channel."""
+    text = Text(no_wrap=True, overflow="ellipsis")
+    wide = width >= 48
+    text.append("channel    now W  baseline±spr  above" + ("  status" if wide else ""), style="bold underline")
+    if not snapshot.channels:
+        text.append("\n(waiting for samples)", style="dim italic")
+    for ch in snapshot.channels:
+        text.append("\n")
+        text.append(f"{ch.name:<7.7}", style=KIND_STYLE.get(ch.kind, "bold"))
+        text.append(fixed(ch.power_w, 8, 2))
+        if math.isfinite(ch.baseline_w):
+            base = f"{ch.baseline_w:.1f}±{ch.spread_w:.1f}" if math.isfinite(ch.spread_w) else f"{ch.baseline_w:.1f}"
+        else:
+            base = "–"
+        text.append(f"{base:>14.14}", style="dim" if not math.isfinite(ch.baseline_w) else "")
+        above = ch.above_w
+        style = "bold green" if math.isfinite(above) and above > max(0.5, 2 * (ch.spread_w or 0)) else ""
+        text.append(fixed(above, 7, 1, sign=True), style=style)
+        if wide:
+            status_style = "green" if ch.status == "ok" else "bold red"
+            text.append(f"  {ch.status[:12]}", style=status_style)
+    return text
+
+
+class ChannelTable(Static):
+    """Per-channel values of the focused node."""
+
+    def show(self, snapshot: NodeSnapshot) -> None:
+        """Paint the table."""
+        self.update(channel_table_text(snapshot, self.size.width or 40))
