@@ -12,8 +12,9 @@ write lose ``WRITE_FACTOR`` = 12 % to read/write turnarounds. Threads fill socke
 
 Energy of a run (:func:`plan_run`): the command counts are those the daemon's calibrator uses —
 ``kernel_stats(spec, kernel, elements, threads, repeat=repeat, channels=8)`` — the counts of a
-channel scaled by the traffic share of its socket (×2 for socket 0's channels with ≤ 12 threads,
-×0 for socket 1's), the background residency and refresh stretched to the modelled duration, and
+channel scaled by the traffic share of its socket (×2 for socket 0's channels with ≤ 12 threads),
+the background residency and refresh stretched to the modelled duration (a DIMM whose socket gets
+no traffic stays idle: precharge standby and refresh), and
 the energy is ``energy_columns(spec, stats) @ truth_currents + constant`` per DIMM (identical to
 ``core_energy`` by the model's linearity). Until the DRAM model modules exist, a private classic
 DRAMPower model stands in (:class:`FallbackModel`).
@@ -346,9 +347,8 @@ def plan_run(model: Model, currents: np.ndarray, run_id: str, t0_ns: int, kernel
     shares = socket_shares(threads)
     bg, dyn, io = zeros.copy(), zeros.copy(), zeros.copy()
     for socket in (0, 1):
-        scale = shares[socket] * 8 / CHANNELS_PER_SOCKET
-        c1, k1 = model.linear(stretch_stats(stats8, scale, duration_s, model.tck_s))
-        c2, k2 = model.linear(stretch_stats(stats8, scale, 2 * duration_s, model.tck_s))
+        c1, k1 = _dimm_linear(model, stats8, shares[socket], duration_s)
+        c2, k2 = _dimm_linear(model, stats8, shares[socket], 2 * duration_s)
         for d in range(len(DIMMS)):
             if DIMM_SOCKET[d] != socket:
                 continue
@@ -368,7 +368,17 @@ def run_truth_energy_j(model: Model, currents: np.ndarray, kernel: str, elements
     shares = socket_shares(threads)
     total = 0.0
     for d in range(len(DIMMS)):
-        scale = shares[DIMM_SOCKET[d]] * 8 / CHANNELS_PER_SOCKET
-        cols, const = model.linear(stretch_stats(stats8, scale, window_s, model.tck_s))
+        cols, const = _dimm_linear(model, stats8, shares[DIMM_SOCKET[d]], window_s)
         total += float(currents[d] @ cols + const)
     return total
+
+
+def _dimm_linear(model: Model, stats8: CommandStats, share: float, window_s: float) -> tuple[np.ndarray, float]:
+    """Linear energy of a DIMM on a socket carrying ``share`` of the run's traffic, over ``window_s``.
+
+    A DIMM without traffic stays idle (precharge standby + refresh), as on the real node where the
+    DIMM pairs of an unused socket stay flat.
+    """
+    if share <= 0:
+        return model.linear(model.idle_stats(window_s))
+    return model.linear(stretch_stats(stats8, share * 8 / CHANNELS_PER_SOCKET, window_s, model.tck_s))
