@@ -239,10 +239,18 @@ Model = DramModel | FallbackModel
 
 
 def load_model() -> Model:
-    """The real DRAM model if its modules import, else the private fallback."""
+    """The real DRAM model if its modules import and work, else the private fallback.
+
+    A smoke test (a tiny kernel through ``kernel_stats`` and ``energy_columns``) guards against
+    half-finished model modules: any failure selects :class:`FallbackModel`.
+    """
     try:
-        return DramModel()
-    except (ImportError, AttributeError, KeyError):
+        model = DramModel()
+        model.linear(model.kernel_stats8("triad", 4096, 2, 1))
+        model.linear(model.idle_stats(0.01))
+        model._cache.clear()
+        return model
+    except Exception:  # the DRAM model is not (fully) there: fall back, never fail the source
         return FallbackModel()
 
 
