@@ -30,7 +30,7 @@ Example:
     >>> energy = core_energy(spec, stats)
     >>> linear = energy_columns(spec, stats)
     >>> currents = [spec.currents[n] for n in linear.names]
-    >>> abs(linear.columns @ currents + linear.constant_j - energy.core_j) < 1e-20
+    >>> bool(abs(linear.columns @ currents + linear.constant_j - energy.core_j) < 1e-20)
     True
 """
 
