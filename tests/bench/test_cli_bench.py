@@ -1,0 +1,180 @@
+"""Tests of ``hdeem-watch bench`` as a real subprocess: JSON lines, table, errors, CPUs, daemon calls."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zmq
+
+SRC = Path(__file__).resolve().parents[2] / "src"
+REQUIRED = ("kernel", "threads", "elements", "seconds", "lines_per_s", "dram_bytes_per_s")
+
+
+def bench(*args: str, cpus: set[int] | None = None, timeout: float = 60) -> subprocess.CompletedProcess[str]:
+    """Run ``python -m hdeem_watch bench ARGS`` (optionally restricted to ``cpus``)."""
+    env = {**os.environ, "PYTHONPATH": f"{SRC}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    env = {k: v for k, v in env.items() if not k.startswith("SLURM_")}
+
+    def restrict() -> None:
+        if cpus is not None:
+            os.sched_setaffinity(0, cpus)
+
+    return subprocess.run([sys.executable, "-m", "hdeem_watch", "bench", *args], capture_output=True,
+                          text=True, env=env, timeout=timeout, preexec_fn=restrict)
+
+
+def test_json_lines_one_object_per_run() -> None:
+    """--json prints one strict JSON object per run and line, with the contract's keys and values
+    consistent with the DRAM model's traffic; nothing else on stdout."""
+    threads = "1-2" if len(os.sched_getaffinity(0)) >= 2 else "1"
+    proc = bench("--kernels", "read,addition,idle", "--threads", threads, "--elements", "65536",
+                 "--repeat", "2", "--json")
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    n_threads = 2 if threads == "1-2" else 1
+    assert len(lines) == 3 * n_threads
+    records = [json.loads(line) for line in lines]
+    assert [r["kernel"] for r in records] == ["read"] * n_threads + ["add"] * n_threads + ["idle"] * n_threads
+    for record in records:
+        assert all(key in record for key in REQUIRED)
+        assert record["elements"] == 65536 and record["repeat"] == 2
+        assert record["seconds"] > 0
+        moved = (record["lines_read_per_pass"] + record["lines_written_per_pass"]) * 64 * 2
+        assert record["dram_bytes_per_s"] == pytest.approx(moved / record["seconds"])
+        assert record["t_end_ns"] >= record["t_start_ns"]
+        assert len(record["cpus"]) == record["threads"]
+    add = records[n_threads]
+    assert (add["lines_read_per_pass"], add["lines_written_per_pass"]) == (3 * 8192, 8192)
+    assert add["lines_per_s"] == pytest.approx(8192 * 2 / add["seconds"])
+    assert records[-1]["dram_bytes_per_s"] == 0
+
+
+def test_table_without_json() -> None:
+    """Without --json the runs are printed as a table with a header and one row per run."""
+    proc = bench("--kernels", "copy,triad", "--threads", "1", "--elements", "4096", "--repeat", "1")
+    assert proc.returncode == 0, proc.stderr
+    rows = proc.stdout.splitlines()
+    assert rows[0].split()[:3] == ["kernel", "threads", "elements"]
+    assert [row.split()[0] for row in rows[1:]] == ["copy", "triad"]
+    assert "last-level cache" in proc.stderr  # 64 KiB arrays: the LLC warning
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    (("--elements", "1e15", "--kernels", "add"), "--elements"),
+    (("--threads", "0"), "--threads"),
+    (("--threads", "4-2"), "--threads"),
+    (("--kernels", "stream"), "kernel 'stream'"),
+    (("--elements", "abc"), "--elements"),
+    (("--repeat", "0"), "--repeat"),
+])
+def test_bad_input_exits_2_with_one_line(args: tuple[str, ...], needle: str) -> None:
+    """Bad input (impossible memory, bad thread spec, unknown kernel...) exits 2 with one line."""
+    proc = bench(*args, "--json")
+    assert proc.returncode == 2
+    assert proc.stdout == ""
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert needle in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_respects_the_cpus_it_was_given() -> None:
+    """Started with an affinity of one CPU, the bench pins there and refuses two threads."""
+    cpu = max(os.sched_getaffinity(0))
+    proc = bench("--kernels", "read", "--threads", "1", "--elements", "8192", "--repeat", "1", "--json",
+                 cpus={cpu})
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["cpus"] == [cpu]
+    proc = bench("--kernels", "read", "--threads", "2", "--elements", "8192", "--json", cpus={cpu})
+    assert proc.returncode == 2 and "only 1 CPUs" in proc.stderr
+
+
+class FakeRouter:
+    """A real ROUTER socket answering the control protocol, recording each request with its time."""
+
+    def __init__(self, endpoint: str) -> None:
+        self.endpoint = endpoint
+        self.requests: list[tuple[int, dict[str, Any]]] = []
+        self._stop = threading.Event()
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+        self._ready.wait(5)
+
+    def _serve(self) -> None:
+        ctx = zmq.Context.instance()
+        sock = ctx.socket(zmq.ROUTER)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.bind(self.endpoint)
+        self._ready.set()
+        runs = 0
+        while not self._stop.is_set():
+            if not sock.poll(50):
+                continue
+            frames = sock.recv_multipart()
+            request = json.loads(frames[-1])
+            self.requests.append((time.time_ns(), request))
+            op = request["op"]
+            if op == "status":
+                result: Any = {"node": "fake", "endpoints": {}, "source": {}, "channels": {}}
+            elif op == "run.start":
+                runs += 1
+                result = {"run_id": f"r{runs}"}
+            elif op == "run.stop":
+                result = {"run_id": request["args"]["run_id"], "energy_j": {"DDR_AB": 1.5}}
+            else:
+                reply = {"id": request["id"], "ok": False, "error": {"code": "unknown-op", "message": op}}
+                sock.send_multipart([*frames[:-1], json.dumps(reply).encode()])
+                continue
+            reply = {"id": request["id"], "ok": True, "result": result}
+            sock.send_multipart([*frames[:-1], json.dumps(reply).encode()])
+        sock.close(linger=0)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+
+@pytest.fixture
+def router(tmp_path: Path) -> Iterator[FakeRouter]:
+    server = FakeRouter(f"ipc://{tmp_path / 'control.sock'}")
+    yield server
+    server.close()
+
+
+def test_announcements_bracket_each_run(router: FakeRouter) -> None:
+    """With --daemon, the bench asks status once, then per run sends run.start (name, kernel,
+    threads, elements, repeat, metadata) before its window and run.stop {run_id} after it."""
+    proc = bench("--kernels", "copy,scale", "--threads", "1", "--elements", "16384", "--repeat", "2",
+                 "--daemon", router.endpoint, "--json")
+    assert proc.returncode == 0, proc.stderr
+    records = [json.loads(line) for line in proc.stdout.splitlines()]
+    ops = [r["op"] for _, r in router.requests]
+    assert ops == ["status", "run.start", "run.stop", "run.start", "run.stop"]
+    starts = [(t, r) for t, r in router.requests if r["op"] == "run.start"]
+    stops = [(t, r) for t, r in router.requests if r["op"] == "run.stop"]
+    for (t_start, start), (t_stop, stop), record in zip(starts, stops, records, strict=True):
+        args = start["args"]
+        assert {k: args[k] for k in ("kernel", "threads", "elements", "repeat")} == \
+            {k: record[k] for k in ("kernel", "threads", "elements", "repeat")}
+        assert args["name"] == f"{record['kernel']}-1t"
+        assert isinstance(args["metadata"], dict) and args["metadata"]["tool"] == "hdeem-watch bench"
+        assert stop["args"] == {"run_id": record["run_id"]}
+        assert t_start <= record["t_start_ns"] <= record["t_end_ns"] <= t_stop
+        assert record["daemon"]["energy_j"] == {"DDR_AB": 1.5}
+    assert [r["run_id"] for r in records] == ["r1", "r2"]
+
+
+def test_unreachable_daemon_is_bad_input(tmp_path: Path) -> None:
+    """--daemon pointing at nothing exits 2 with one line before running anything."""
+    proc = bench("--kernels", "read", "--elements", "4096", "--daemon", f"ipc://{tmp_path}/none.sock",
+                 "--timeout", "0.5", "--json")
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert "--daemon" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1

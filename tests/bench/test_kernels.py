@@ -1,0 +1,180 @@
+"""Tests of the bench kernels: arithmetic, which lines they touch, and their DRAM traffic."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from hdeem_watch.bench import kernels as K
+from hdeem_watch.bench.runner import pass_traffic, run_one
+from hdeem_watch.bench.schedule import KERNELS, RunSpec
+from hdeem_watch.dram.kernels import ARRAY_BASES, kernel_requests, kernel_traffic
+
+#: Reference semantics per kernel, one line k at a time: new values of the destination (or the
+#: sum contribution for read), written as plain Python.
+REFERENCE = {
+    "read": lambda v: {},
+    "assign": lambda v: {"a": 2.0},
+    "scale": lambda v: {"b": 2.0 * v["a"]},
+    "add": lambda v: {"c": v["a"] + v["b"]},
+    "triad": lambda v: {"a": v["b"] + 2.0 * v["a"]},
+    "copy": lambda v: {"b": v["a"]},
+    "selfscale": lambda v: {"a": 2.0 * v["a"]},
+}
+
+
+def _reference_run(kernel: str, arrays: dict[str, np.ndarray], repeat: int) -> float:
+    """Run the kernel with a Python loop over k = 0, 8, 16, ...; return the last pass's sum."""
+    total = 0.0
+    n = len(next(iter(arrays.values())))
+    for _ in range(repeat):
+        total = 0.0
+        for k in range(0, n, 8):
+            values = {name: float(a[k]) for name, a in arrays.items()}
+            total += values.get("a", 0.0)
+            for name, value in REFERENCE[kernel](values).items():
+                arrays[name][k] = value
+    return total
+
+
+def _filled(kernel: str, elements: int) -> dict[str, np.ndarray]:
+    arrays = K.make_arrays(kernel, elements)
+    K.init_arrays(arrays, 0, K.lines_of(elements))
+    return arrays
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+@pytest.mark.parametrize("backend", ["thread", "process"])
+def test_kernel_arithmetic_matches_reference(kernel: str, backend: str) -> None:
+    """Each kernel computes its STREAM formula at every 8th double, over all workers' ranges."""
+    elements, repeat = 8 * 1001 + 3, 3  # an odd line count, a partial last line, 2 workers
+    threads = 2
+    result = run_one(RunSpec(kernel, threads, elements, repeat), backend=backend, keep_arrays=True,
+                     oversubscribe=True)
+    expected = _filled(kernel, elements)
+    expected_sum = _reference_run(kernel, expected, repeat)
+    assert result.arrays is not None
+    assert set(result.arrays) == set(expected)
+    for name in expected:
+        np.testing.assert_array_equal(result.arrays[name], expected[name], err_msg=f"{kernel}: array {name}")
+    if kernel == "read":
+        assert result.checksum == expected_sum == K.lines_of(elements) * K.INIT_VALUES["a"]
+    else:
+        assert math.isnan(result.checksum)
+
+
+def _probe(kernel: str, elements: int) -> tuple[set[str], set[str]]:
+    """Find which arrays a pass reads (NaN poisoning) and writes (changed values).
+
+    Also checks that only stride-8 elements are read or written and each written line is written
+    with the value of its own line's operands.
+    """
+    names = K.KERNEL_ARRAYS[kernel]
+    lines = K.lines_of(elements)
+    scratch = np.zeros(K.scratch_size(kernel))
+    stride = np.zeros(elements, dtype=bool)
+    stride[::8] = True
+
+    def fresh(poison: str | None, poison_gaps: bool) -> dict[str, np.ndarray]:
+        arrays = {}
+        for i, name in enumerate(names):
+            a = np.full(elements, np.nan if poison_gaps else -7.0)
+            a[stride] = 3.0 + i + np.arange(lines) % 5  # distinct, non-fixed points of every kernel
+            if name == poison:
+                a[stride] = np.nan
+            arrays[name] = a
+        return arrays
+
+    # Writes: stride elements that changed; gaps must be untouched (NaN gaps stay NaN).
+    before = fresh(None, poison_gaps=True)
+    after = {n: a.copy() for n, a in before.items()}
+    checksum = K.run_pass(kernel, after, 0, lines, scratch)
+    assert math.isfinite(checksum), f"{kernel} read a non-stride element"
+    written = set()
+    for name in names:
+        changed = ~((after[name] == before[name]) | (np.isnan(after[name]) & np.isnan(before[name])))
+        assert not (changed & ~stride).any(), f"{kernel} wrote a non-stride element of {name}"
+        if changed[stride].any():
+            assert changed[stride].all(), f"{kernel} wrote only some lines of {name}"
+            assert np.isfinite(after[name][stride]).all(), f"{kernel} read a gap element into {name}"
+            written.add(name)
+    # Reads: an array is a source if poisoning its stride elements poisons the result.
+    read = set()
+    for name in names:
+        arrays = fresh(name, poison_gaps=False)
+        checksum = K.run_pass(kernel, arrays, 0, lines, scratch)
+        outputs = [arrays[w][stride] for w in written]
+        poisoned = math.isnan(checksum) if kernel == "read" else any(np.isnan(o).all() for o in outputs)
+        partial = any(np.isnan(o).any() and not np.isnan(o).all() for o in outputs)
+        assert not partial, f"{kernel}: only some lines depend on {name}"
+        if poisoned:
+            read.add(name)
+    return read, written
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_kernel_traffic_matches_dram_model_requests(kernel: str) -> None:
+    """The arrays a kernel reads and writes, line by line, are those of the DRAM model's request
+    stream, and the lines per pass (write-allocate included) equal kernel_traffic's count."""
+    elements, threads = 8 * 257, 3
+    read, written = _probe(kernel, elements)
+    lines = K.lines_of(elements)
+
+    addresses, is_write = kernel_requests(kernel, elements, threads)
+    by_base = {base: name for name, base in ARRAY_BASES.items()}
+    model_read: dict[str, np.ndarray] = {}
+    model_written: dict[str, np.ndarray] = {}
+    for name in ("a", "b", "c"):
+        base = ARRAY_BASES[name]
+        inside = (addresses >= base) & (addresses < base + (1 << 30))
+        model_read[name] = (addresses[inside & ~is_write] - base) // 64
+        model_written[name] = (addresses[inside & is_write] - base) // 64
+    assert set(by_base.values()) >= set(model_read)
+    # Every line of a written array is written exactly once, and read once (source or RFO).
+    for name in ("a", "b", "c"):
+        if name in written:
+            np.testing.assert_array_equal(np.sort(model_written[name]), np.arange(lines))
+            np.testing.assert_array_equal(np.sort(model_read[name]), np.arange(lines))
+        else:
+            assert model_written[name].size == 0, f"model writes {name}, the kernel does not"
+        if name in read and name not in written:
+            np.testing.assert_array_equal(np.sort(model_read[name]), np.arange(lines))
+        if name not in read and name not in written:
+            assert model_read[name].size == 0, f"model reads {name}, the kernel does not"
+    # Counted traffic: sources + RFO of a destination that is not a source; one write-back each.
+    ours = (lines * len(read | written), lines * len(written))
+    traffic = kernel_traffic(kernel, elements)
+    assert ours == (traffic.lines_read, traffic.lines_written) == (int((~is_write).sum()), int(is_write.sum()))
+    assert K.local_traffic(kernel, elements) == ours
+    reads, writes, origin = pass_traffic(kernel, elements)
+    assert (reads, writes, origin) == (*ours, "dram-model")
+
+
+def test_split_lines_covers_range_once() -> None:
+    """Workers' line ranges are contiguous, disjoint and cover every line (OpenMP static split)."""
+    for lines in (0, 1, 7, 1000, 1001):
+        for workers in (1, 2, 3, 24):
+            ranges = K.split_lines(lines, workers)
+            assert len(ranges) == workers
+            covered = [k for lo, hi in ranges for k in range(lo, hi)]
+            assert covered == list(range(lines))
+            sizes = [hi - lo for lo, hi in ranges]
+            assert max(sizes) - min(sizes) <= 1
+
+
+def test_triad_chunks_stay_in_cache_budget() -> None:
+    """Triad's per-chunk working set (lines of a and b plus scratch) fits a 1 MiB L2."""
+    working_set = 2 * K.TRIAD_CHUNK_LINES * K.LINE_BYTES + K.TRIAD_CHUNK_LINES * 8
+    assert working_set <= 1 << 20
+
+
+def test_idle_kernel_moves_no_dram_lines() -> None:
+    """The idle kernel allocates no arrays, reports zero DRAM traffic, and still takes time."""
+    result = run_one(RunSpec("idle", 1, 8 * 200_000, 2))
+    assert K.array_bytes("idle", 10**9) == 0
+    assert (result.lines_read_per_pass, result.lines_written_per_pass) == (0, 0)
+    assert result.dram_bytes_per_s == 0.0 and result.lines_per_s == 0.0
+    assert result.seconds > 0
+    assert result.t_end_ns >= result.t_start_ns

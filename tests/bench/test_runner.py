@@ -1,0 +1,120 @@
+"""Tests of the bench runner: pinning, first touch, memory and LLC checks, CPU order."""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+
+import pytest
+
+from hdeem_watch.bench import system
+from hdeem_watch.bench.runner import choose_cpus, run_one, validate
+from hdeem_watch.bench.schedule import RunSpec
+from hdeem_watch.errors import InputError
+
+ALLOWED = sorted(os.sched_getaffinity(0))
+
+
+@pytest.mark.parametrize("backend", ["thread", "process"])
+def test_workers_are_pinned_to_distinct_allowed_cpus(backend: str) -> None:
+    """Each worker runs pinned to exactly one allowed CPU, a different one per worker."""
+    threads = min(2, len(ALLOWED))
+    result = run_one(RunSpec("copy", threads, 8 * 4096, 2), backend=backend)
+    assert len(result.cpus) == threads
+    assert set(result.cpus) <= set(ALLOWED)
+    assert len(set(result.cpus)) == threads
+    assert result.worker_affinity == tuple((cpu,) for cpu in result.cpus)
+
+
+def test_thread_affinity_seen_from_outside_while_running() -> None:
+    """While the window is about to open, the kernel sees each worker thread's single-CPU mask."""
+    seen: dict[str, set[int]] = {}
+
+    def on_start(spec: RunSpec) -> dict[str, object]:
+        for thread in threading.enumerate():
+            if thread.name.startswith("bench-") and thread.native_id is not None:
+                seen[thread.name] = os.sched_getaffinity(thread.native_id)
+        return {"observed": len(seen)}
+
+    threads = min(2, len(ALLOWED))
+    result = run_one(RunSpec("read", threads, 8 * 4096, 1), on_start=on_start)
+    assert result.announce["observed"] == threads
+    assert sorted(seen) == [f"bench-{i}" for i in range(threads)]
+    assert [seen[f"bench-{i}"] for i in range(threads)] == [{cpu} for cpu in result.cpus]
+    assert os.sched_getaffinity(0) == set(ALLOWED)  # the main thread is not pinned
+
+
+def test_restricted_cpu_set_is_respected() -> None:
+    """With an allowed set of one CPU the worker uses that CPU; two threads are refused."""
+    cpu = ALLOWED[-1]
+    result = run_one(RunSpec("assign", 1, 8 * 1024, 1), allowed=[cpu])
+    assert result.cpus == (cpu,) and result.worker_affinity == ((cpu,),)
+    with pytest.raises(InputError, match="only 1 CPUs"):
+        run_one(RunSpec("assign", 2, 8 * 1024, 1), allowed=[cpu])
+    assert choose_cpus(3, [cpu], oversubscribe=True) == [cpu, cpu, cpu]
+
+
+def test_memory_check_refuses_before_allocating() -> None:
+    """Arrays larger than the available memory are an InputError naming --elements, not an OOM."""
+    with pytest.raises(InputError) as info:
+        run_one(RunSpec("add", 1, 10**9, 1), available_bytes=1 << 30)
+    message = str(info.value)
+    assert "--elements 1000000000" in message and "GiB" in message and "\n" not in message
+    with pytest.raises(InputError):
+        validate([RunSpec("read", 1, 1024, 1), RunSpec("add", 1, 10**15, 1)])
+    # 3 arrays x 8 MB fit in 1 GiB: no error.
+    system.check_memory(3 * 8 * 10**6, "x", available_bytes=1 << 30)
+
+
+def _fake_sys(root: Path, layout: list[tuple[int, int, int]], llc: str = "32768K") -> Path:
+    """A sysfs CPU tree: layout = [(cpu, package, core)], L1d/L2/L3 caches on each CPU."""
+    for cpu, package, core in layout:
+        topo = root / f"cpu{cpu}" / "topology"
+        topo.mkdir(parents=True)
+        (topo / "physical_package_id").write_text(f"{package}\n")
+        (topo / "core_id").write_text(f"{core}\n")
+        for index, (level, kind, size) in enumerate([(1, "Data", "32K"), (1, "Instruction", "32K"),
+                                                      (2, "Unified", "1024K"), (3, "Unified", llc)]):
+            d = root / f"cpu{cpu}" / "cache" / f"index{index}"
+            d.mkdir(parents=True)
+            (d / "level").write_text(f"{level}\n")
+            (d / "type").write_text(f"{kind}\n")
+            (d / "size").write_text(f"{size}\n")
+    return root
+
+
+def test_cpu_order_fills_socket0_cores_before_smt(tmp_path: Path) -> None:
+    """Pinning order: socket 0's physical cores, then socket 1's, then the hyper-threads."""
+    # 2 sockets x 2 cores x 2 SMT; Linux numbering: 0-3 first threads, 4-7 siblings.
+    layout = [(0, 0, 0), (1, 0, 1), (2, 1, 0), (3, 1, 1), (4, 0, 0), (5, 0, 1), (6, 1, 0), (7, 1, 1)]
+    root = _fake_sys(tmp_path / "cpu", layout)
+    assert system.cpu_order(range(8), root) == [0, 1, 2, 3, 4, 5, 6, 7]
+    assert system.cpu_order([7, 6, 5, 4, 3, 2, 1, 0], root) == [0, 1, 2, 3, 4, 5, 6, 7]
+    # Interleaved numbering (siblings adjacent): cores first anyway.
+    layout2 = [(0, 0, 0), (1, 0, 0), (2, 0, 1), (3, 0, 1)]
+    root2 = _fake_sys(tmp_path / "cpu2", layout2)
+    assert system.cpu_order(range(4), root2) == [0, 2, 1, 3]
+    assert system.cpu_order([5, 9], tmp_path / "missing") == [5, 9]
+
+
+def test_llc_size_and_warning(tmp_path: Path) -> None:
+    """The LLC is the highest-level data cache, one per package; small arrays get a warning."""
+    root = _fake_sys(tmp_path / "cpu", [(0, 0, 0), (1, 1, 0)], llc="30M")
+    assert system.llc_bytes(root, 0) == 30 << 20
+    assert system.llc_total_bytes([0, 1], root) == 60 << 20
+    assert system.llc_total_bytes([0], root) == 30 << 20
+    warning = system.llc_warning(100 << 20, [0, 1], root)
+    assert warning is not None and "last-level cache" in warning
+    assert system.llc_warning(240 << 20, [0, 1], root) is None
+    assert system.llc_warning(1, [0], tmp_path / "none") is None
+
+
+def test_small_run_warns_about_llc() -> None:
+    """A run whose arrays fit in the cache carries the LLC warning in its result."""
+    llc = system.llc_total_bytes(ALLOWED)
+    result = run_one(RunSpec("copy", 1, 8 * 1024, 1))
+    if llc is None:
+        assert result.warnings == ()
+    else:
+        assert any("last-level cache" in w for w in result.warnings)
