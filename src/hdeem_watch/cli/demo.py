@@ -1,18 +1,125 @@
-"""``hdeem-watch demo``: not built yet (its issue is open)."""
+"""``hdeem-watch demo``: the embedded default — a simulated node, its daemon, a benchmark schedule
+and the live TUI, in one command.
+
+It starts ``hdeem-watch daemon --source sim`` as a subprocess on ipc endpoints in a temporary
+runtime directory, a schedule thread that announces runs (idle + the seven kernels at 24 threads,
+then other thread counts) and the TUI connected to the daemon through the wire protocol. Within a
+minute the calibration panel converges from the datasheet currents (about 2× too much energy)
+toward the simulation's hidden truth. ``--headless`` prints the same progress as text lines. The
+daemon is stopped on exit, on Ctrl-C and on SIGTERM.
+"""
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import time
+from types import FrameType
 from typing import Any
+
+from hdeem_watch.errors import InputError
 
 
 def register(subparsers: Any) -> None:
     """Add the ``demo`` subcommand."""
-    parser = subparsers.add_parser("demo", help="(not built yet)")
+    parser = subparsers.add_parser(
+        "demo",
+        help="simulated node + daemon + benchmark schedule + live TUI (the embedded default)",
+        description="Run a simulated Haswell node with its daemon, a benchmark schedule and the live TUI; "
+        "watch the DRAM model's currents calibrate. Ctrl-C or q stops everything.",
+    )
+    parser.add_argument("--headless", action="store_true", help="print progress as text lines instead of the TUI")
+    parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
+    parser.add_argument("--state-dir", default=None, metavar="DIR", help="daemon state directory (default: temporary)")
+    parser.add_argument("--speed", type=float, default=1.0, help="time factor of the simulated node (default 1)")
+    parser.add_argument("--fps", type=float, default=10.0, help="TUI frames per second")
     parser.set_defaults(func=_run)
 
 
+def _check(args: argparse.Namespace) -> None:
+    if args.duration is not None and not args.duration > 0:
+        raise InputError(f"--duration {args.duration}: expected a positive number of seconds")
+    if not args.speed > 0:
+        raise InputError(f"--speed {args.speed}: expected a positive time factor")
+    if not args.fps > 0:
+        raise InputError(f"--fps {args.fps}: expected a positive number of frames per second")
+
+
 def _run(args: argparse.Namespace) -> int:
-    print("hdeem-watch demo: not built yet", file=sys.stderr)
-    return 1
+    _check(args)
+    from hdeem_watch.tui.demo_daemon import DaemonFailed, DemoDaemon
+    from hdeem_watch.tui.demo_schedule import DemoSchedule
+
+    daemon = DemoDaemon(state_dir=args.state_dir, speed=args.speed)
+    previous = signal.getsignal(signal.SIGTERM)
+
+    def _terminate(signum: int, frame: FrameType | None) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _terminate)
+    try:
+        if args.headless:
+            print(f"demo: starting a simulated node (daemon log: {daemon.log_path})", flush=True)
+        try:
+            daemon.start()
+        except DaemonFailed as error:
+            print(f"hdeem-watch demo: {error}", file=sys.stderr)
+            return 1
+        if args.headless:
+            return _headless(daemon.control_endpoint, args)
+        return _tui(daemon.control_endpoint, args, DemoSchedule)
+    except KeyboardInterrupt:
+        return 130 if args.headless else 0
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        daemon.stop()
+
+
+def _tui(control: str, args: argparse.Namespace, schedule_cls: Any) -> int:
+    from hdeem_watch.tui.app import HdeemWatchApp
+    from hdeem_watch.tui.feed import FeedHub
+
+    schedule = schedule_cls(control, speed=args.speed)
+    hub = FeedHub([control], snapshot_hz=min(10.0, max(1.0, args.fps)))
+    app = HdeemWatchApp(hub, fps=args.fps, window_s=30.0, exit_after_s=args.duration)
+    schedule.start()
+    try:
+        app.run()
+    finally:
+        schedule.stop()
+    return 0
+
+
+def _headless(control: str, args: argparse.Namespace) -> int:
+    from hdeem_watch.tui.demo_schedule import DemoSchedule, ScheduleEvent
+    from hdeem_watch.tui.feed import FeedHub
+    from hdeem_watch.tui.headless import ProgressPrinter
+
+    def on_event(event: ScheduleEvent) -> None:
+        if event.event == "error":
+            print(f"error  run {event.index} {event.spec.kernel} {event.spec.threads}t: {event.detail}", flush=True)
+
+    print(
+        f"demo: daemon at {control}; schedule: idle + 7 kernels at 24 threads, then 12, 6/18, 1-8 threads; "
+        "Ctrl-C stops",
+        flush=True,
+    )
+    hub = FeedHub([control], snapshot_hz=4.0)
+    hub.set_view(focus=-1, window_s=10.0, width=0)
+    schedule = DemoSchedule(control, speed=args.speed, on_event=on_event)
+    printer = ProgressPrinter(power_every_s=5.0)
+    hub.start()
+    schedule.start()
+    start = time.monotonic()
+    try:
+        while args.duration is None or time.monotonic() - start < args.duration:
+            time.sleep(0.5)
+            for line in printer.lines(hub.snapshots()[0], time.monotonic() - start):
+                print(line, flush=True)
+    finally:
+        schedule.stop()
+        hub.stop()
+    snap = hub.snapshots()[0]
+    print(f"demo: done after {time.monotonic() - start:.0f} s, {len(snap.runs)} runs", flush=True)
+    return 0

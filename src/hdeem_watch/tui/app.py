@@ -64,6 +64,8 @@ class HdeemWatchApp(App[int]):
         provider: the snapshot source (started on mount, stopped on exit).
         fps: repaint rate (frames per second).
         clock: monotonic clock in ns (injectable for deterministic screenshots).
+        window_s: the initial plot window (snapped to one of :data:`WINDOWS_S`).
+        exit_after_s: quit by itself after this many seconds (None: run until ``q``).
 
     Example:
         >>> from hdeem_watch.tui.provider import StaticProvider
@@ -75,6 +77,7 @@ class HdeemWatchApp(App[int]):
     TITLE = "hdeem-watch"
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("q", "quit", "quit"),
+        Binding("ctrl+c", "quit", "quit", priority=True, show=False),
         Binding("p", "pause", "pause"),
         Binding("n,tab", "node(1)", "next node", priority=True),
         Binding("N,shift+tab", "node(-1)", "previous node", priority=True),
@@ -91,6 +94,7 @@ class HdeemWatchApp(App[int]):
         fps: float = 10.0,
         clock: Callable[[], int] = time.monotonic_ns,
         window_s: float = 60.0,
+        exit_after_s: float | None = None,
     ) -> None:
         super().__init__()
         self.provider = provider
@@ -102,6 +106,7 @@ class HdeemWatchApp(App[int]):
         self.frames = 0
         self._n_nodes = max(1, len(provider.snapshots()))
         self._painted: object = None
+        self._exit_after_s = exit_after_s
 
     def compose(self) -> ComposeResult:
         yield HealthBar()
@@ -119,6 +124,8 @@ class HdeemWatchApp(App[int]):
         self._push_view()
         self.paint()
         self.set_interval(1.0 / self.fps, self.paint)
+        if self._exit_after_s is not None:
+            self.set_timer(self._exit_after_s, self.exit)
 
     def on_unmount(self) -> None:
         self.provider.stop()

@@ -78,8 +78,9 @@ def _current_values(obj: Any) -> dict[str, float]:
     """``{name: amperes}`` from ``{name: number}``, ``{name: {"calibrated": x}}`` or per-DIMM nesting."""
     if not isinstance(obj, Mapping):
         return {}
-    if isinstance(obj.get("currents"), Mapping):
-        return _current_values(obj["currents"])
+    for key in ("mean_currents_a", "currents_a", "currents"):
+        if isinstance(obj.get(key), Mapping):
+            return _current_values(obj[key])
     out: dict[str, float] = {}
     nested: list[dict[str, float]] = []
     for key, value in obj.items():

@@ -1,0 +1,155 @@
+"""The demo's benchmark schedule: announces runs to the sim node and holds each for its modelled time.
+
+The simulated node does the memory traffic itself; the schedule only tells the daemon what runs
+(``run.start`` with kernel, threads, elements, repeat and ``metadata.simulated = true``), waits the
+time the modelled node needs for it, and says ``run.stop``. ``repeat`` is chosen so a run lasts
+about :data:`TARGET_RUN_S` with :func:`hdeem_watch.sources.sim.modelled_line_rate`. Idle runs
+(kernel ``idle``) pin the standby currents. Rounds go on until stopped: all kernels at 24 threads
+first (what the calibration needs), then other thread counts.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from hdeem_watch.bench.schedule import IDLE_KERNEL, KERNELS, RunSpec, sweep
+from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
+from hdeem_watch.dram.kernels import kernel_traffic
+from hdeem_watch.sources.sim import modelled_line_rate
+
+#: Wanted duration of one run, seconds.
+TARGET_RUN_S = 1.5
+#: Doubles per array (128 MiB arrays: far larger than any last-level cache).
+ELEMENTS = 1 << 24
+#: Thread counts of the rounds after the first (the first is all kernels at 24 threads).
+THREAD_ROUNDS = ("24", "12", "6,18", "1,2,4,8")
+#: Pause between runs, seconds (the plots show the steps).
+GAP_S = 0.4
+
+
+def repeat_for(kernel: str, threads: int, elements: int = ELEMENTS, target_s: float = TARGET_RUN_S) -> int:
+    """Passes that make a run last about ``target_s`` on the modelled node (1 for idle)."""
+    rate = modelled_line_rate(kernel, threads)
+    if kernel == IDLE_KERNEL or rate <= 0:
+        return 1
+    traffic = kernel_traffic(kernel, elements)
+    lines = traffic.lines_read + traffic.lines_written
+    return max(1, round(target_s * rate / lines))
+
+
+def run_seconds(spec: RunSpec) -> float:
+    """How long the modelled node needs for ``spec`` (``TARGET_RUN_S`` for an idle run)."""
+    rate = modelled_line_rate(spec.kernel, spec.threads)
+    if spec.kernel == IDLE_KERNEL or rate <= 0:
+        return TARGET_RUN_S
+    traffic = kernel_traffic(spec.kernel, spec.elements)
+    return (traffic.lines_read + traffic.lines_written) * spec.repeat / rate
+
+
+def demo_round(threads_spec: str) -> list[RunSpec]:
+    """One round: an idle run, then every kernel at each thread count of ``threads_spec``."""
+    runs = [RunSpec(kernel=IDLE_KERNEL, threads=24, elements=0, repeat=1)]
+    for spec in sweep(list(KERNELS), threads_spec, ELEMENTS, 1):
+        runs.append(RunSpec(spec.kernel, spec.threads, spec.elements, repeat_for(spec.kernel, spec.threads)))
+    return runs
+
+
+def demo_plan(rounds: int) -> list[RunSpec]:
+    """The first ``rounds`` rounds, cycling through :data:`THREAD_ROUNDS`."""
+    plan: list[RunSpec] = []
+    for i in range(rounds):
+        plan.extend(demo_round(THREAD_ROUNDS[i % len(THREAD_ROUNDS)]))
+    return plan
+
+
+@dataclass(frozen=True)
+class ScheduleEvent:
+    """What the schedule did (for the headless printer and tests).
+
+    Attributes:
+        index: run number (from 1).
+        spec: the run.
+        event: ``start``, ``stop`` or ``error``.
+        detail: the run id, or the error.
+        result: the ``run.stop`` result (None otherwise).
+    """
+
+    index: int
+    spec: RunSpec
+    event: str
+    detail: str = ""
+    result: Any = None
+
+
+class DemoSchedule(threading.Thread):
+    """Announces the demo's runs to one daemon until stopped.
+
+    Args:
+        control_endpoint: the daemon's control endpoint.
+        speed: the sim's time factor (a run is held ``modelled time / speed``).
+        on_event: called (in this thread) for each start/stop/error.
+        max_runs: stop after this many runs (None: go on until :meth:`stop`).
+    """
+
+    def __init__(
+        self,
+        control_endpoint: str,
+        *,
+        speed: float = 1.0,
+        on_event: Callable[[ScheduleEvent], None] | None = None,
+        max_runs: int | None = None,
+    ) -> None:
+        super().__init__(name="hdeem-watch-demo-schedule", daemon=True)
+        self.control_endpoint = control_endpoint
+        self.speed = speed if speed > 0 else 1.0
+        self.on_event = on_event or (lambda _event: None)
+        self.max_runs = max_runs
+        self._halt = threading.Event()
+        self.completed = 0
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop after the current run (which is stopped at once)."""
+        self._halt.set()
+        if self.is_alive():
+            self.join(timeout_s)
+
+    def run(self) -> None:
+        client = ControlClient(self.control_endpoint, timeout_s=10.0)
+        index = 0
+        round_no = 0
+        try:
+            while not self._halt.is_set():
+                for spec in demo_round(THREAD_ROUNDS[round_no % len(THREAD_ROUNDS)]):
+                    if self._halt.is_set() or (self.max_runs is not None and index >= self.max_runs):
+                        return
+                    index += 1
+                    self._one(client, index, spec)
+                    self._halt.wait(GAP_S / self.speed)
+                round_no += 1
+        finally:
+            client.close()
+
+    def _one(self, client: ControlClient, index: int, spec: RunSpec) -> None:
+        args = {
+            "name": f"{spec.kernel}-{spec.threads}t",
+            "kernel": spec.kernel,
+            "threads": spec.threads,
+            "elements": spec.elements,
+            "repeat": spec.repeat,
+            "metadata": {"simulated": True, "source": "demo", "modelled_s": round(run_seconds(spec), 4)},
+        }
+        try:
+            started = client.call("run.start", args)
+            run_id = started.get("run_id") if isinstance(started, dict) else started
+            self.on_event(ScheduleEvent(index, spec, "start", str(run_id)))
+            self._halt.wait(run_seconds(spec) / self.speed)
+            result = client.call("run.stop", {"run_id": run_id})
+        except (ControlError, DaemonUnreachable) as error:
+            self.on_event(ScheduleEvent(index, spec, "error", str(error)))
+            self._halt.wait(1.0)
+            return
+        self.completed += 1
+        self.on_event(ScheduleEvent(index, spec, "stop", str(run_id), result))
