@@ -1,1 +1,32 @@
-"""hdeem_watch.calibrate."""
+"""Calibration of the DRAM model's currents against measured energies (DESIGN.md §4).
+
+Public names (the contract other areas build on):
+
+- :class:`Observation`, :func:`observation_from_run` — a measured run as a linear equation;
+- :func:`fit` → :class:`FitResult` (``to_dict()`` is the JSON contract of ``calibrate --json``);
+- :class:`OnlineCalibrator` — refit per run, half-life forgetting, drift, persistence;
+- :func:`suggest_next` — which candidate run best determines the weakest current.
+
+Pure: nothing in this package reads files or clocks except :mod:`~hdeem_watch.calibrate.runs_file`
+(the RUNS.json reader used by the command line).
+"""
+
+from hdeem_watch.calibrate.fit import FitResult, FitSettings, fit
+from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS, Observation
+from hdeem_watch.calibrate.observe import posterior_relative_sd, suggest_next, weakest_current
+from hdeem_watch.calibrate.online import OnlineCalibrator
+from hdeem_watch.calibrate.rows import observation_from_run, stretch_stats
+
+__all__ = [
+    "DEFAULT_CURRENTS",
+    "FitResult",
+    "FitSettings",
+    "Observation",
+    "OnlineCalibrator",
+    "fit",
+    "observation_from_run",
+    "posterior_relative_sd",
+    "stretch_stats",
+    "suggest_next",
+    "weakest_current",
+]

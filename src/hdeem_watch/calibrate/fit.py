@@ -1,0 +1,440 @@
+"""Batch calibration: fit chosen DRAM currents (and an intercept) to measured run energies.
+
+Rows are :class:`~hdeem_watch.calibrate.observation.Observation` s. The currents not chosen stay at
+their memspec values and move into each row's constant. The problem solved is
+
+    minimise  Σ_i w_i ((Σ_j c_ij I_j + k_i + b − m_i) / m_i)²   (+ prior)
+    subject to lower_j ≤ I_j ≤ upper_j (default 0..datasheet),  b ≥ 0
+
+i.e. *relative* residuals (measurement error grows with the energy; every run counts alike
+whatever its length), on columns scaled by the datasheet value, so every unknown is a fraction of
+its datasheet value and the condition number speaks about relative changes. The intercept ``b`` (J
+per run) stands for what the model does not cover. See :mod:`hdeem_watch.calibrate.solve` for the
+solver, covariance and leave-one-out, and :mod:`hdeem_watch.calibrate.observe` for what the data
+determine.
+
+Example:
+    >>> import numpy as np
+    >>> spec = type("Spec", (), {"currents": {"a": 2.0, "b": 1.0}})()
+    >>> truth = np.array([1.0, 0.5])
+    >>> rows = [Observation(f"r{i}", np.array(c), 0.0, float(np.dot(c, truth)))
+    ...         for i, c in enumerate([[1.0, 2.0], [3.0, 1.0], [2.0, 2.0]])]
+    >>> result = fit(rows, spec, currents=("a", "b"), intercept=False, names=("a", "b"))
+    >>> [round(float(v), 6) for v in result.calibrated_a]
+    [1.0, 0.5]
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats as sps
+
+from hdeem_watch.calibrate import solve
+from hdeem_watch.calibrate.observation import (
+    DEFAULT_CURRENTS,
+    Observation,
+    SpecLike,
+    current_names,
+    stack,
+)
+from hdeem_watch.errors import InputError
+
+#: ``loo="auto"`` refits exactly up to this many runs and uses the hat-matrix identity above.
+LOO_EXACT_MAX_RUNS = 60
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """Thresholds that turn the fit's numbers into verdicts (all documented in docs/calibration.md).
+
+    Attributes:
+        noise_floor: relative noise assumed at least (the sensor's accuracy) when judging
+            identifiability, so a noise-free synthetic fit does not call everything determined.
+        max_rel_ci: a current is identifiable if its 95 % half-width (at ``max(s, noise_floor)``)
+            is at most this fraction of its datasheet value ...
+        min_sensitivity: ... and it carries at least this RMS fraction of the runs' energies.
+        rank_tol: singular values below ``rank_tol·σ_max`` count as zero.
+    """
+
+    noise_floor: float = 0.01
+    max_rel_ci: float = 0.2
+    min_sensitivity: float = 0.002
+    rank_tol: float = 1e-9
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """A calibration: currents with 95 % intervals, what is determined, and errors.
+
+    Arrays are over :attr:`currents`. Use :meth:`to_dict` for the JSON contract (DESIGN.md §7).
+    """
+
+    currents: tuple[str, ...]
+    datasheet_a: np.ndarray
+    calibrated_a: np.ndarray
+    ci95_a: np.ndarray
+    identifiable: np.ndarray
+    at_bound: tuple[str | None, ...]
+    sensitivity: np.ndarray
+    intercept_fitted: bool
+    intercept_j: float
+    intercept_ci95_j: tuple[float, float]
+    error_before: float
+    error_after: float
+    error_loo: float
+    singular_values: np.ndarray
+    condition_number: float
+    rank: int
+    correlation: np.ndarray
+    n_runs: int
+    dof: int
+    noise_rel: float
+    status: str
+    uncertainty: str
+    runs: tuple[dict[str, Any], ...] = ()
+    time_ns: int = 0
+    #: Everything :func:`~hdeem_watch.calibrate.observe.suggest_next` needs (absent after from_dict).
+    model: FitModel | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def calibrated(self) -> dict[str, float]:
+        """Calibrated currents by name (A)."""
+        return {n: float(v) for n, v in zip(self.currents, self.calibrated_a)}
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON contract: ``currents.<name>.{datasheet, calibrated, ci95, identifiable}``, ...
+
+        Non-finite numbers are ``null`` (see ``status``).
+        """
+        currents = {}
+        for j, name in enumerate(self.currents):
+            currents[name] = {
+                "datasheet": _num(self.datasheet_a[j]),
+                "calibrated": _num(self.calibrated_a[j]),
+                "ci95": [_num(self.ci95_a[j, 0]), _num(self.ci95_a[j, 1])],
+                "identifiable": bool(self.identifiable[j]),
+                "at_bound": self.at_bound[j],
+                "sensitivity": _num(self.sensitivity[j]),
+            }
+        params = [*self.currents, *(["intercept"] if self.intercept_fitted else [])]
+        return {
+            "currents": currents,
+            "intercept_j": _num(self.intercept_j),
+            "intercept_ci95_j": [_num(self.intercept_ci95_j[0]), _num(self.intercept_ci95_j[1])],
+            "intercept_fitted": self.intercept_fitted,
+            "error": {"before": _num(self.error_before), "after": _num(self.error_after),
+                      "loo": _num(self.error_loo)},
+            "observability": {
+                "condition_number": _num(self.condition_number),
+                "singular_values": [_num(s) for s in self.singular_values],
+                "rank": self.rank,
+                "parameters": params,
+                "rank_deficient": self.rank < len(params),
+                "correlation": [[_num(c) for c in row] for row in self.correlation],
+            },
+            "n_runs": self.n_runs,
+            "dof": self.dof,
+            "noise_rel": _num(self.noise_rel),
+            "status": self.status,
+            "uncertainty": self.uncertainty,
+            "time_ns": self.time_ns,
+            "runs": [dict(run) for run in self.runs],
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> FitResult:
+        """Rebuild the reported part of a fit from :meth:`to_dict` (no ``model``).
+
+        Raises:
+            InputError: a missing or malformed field.
+        """
+        try:
+            names = tuple(data["currents"])
+            cur = data["currents"]
+            obs = data["observability"]
+            return cls(
+                currents=names,
+                datasheet_a=np.array([_flt(cur[n]["datasheet"]) for n in names]),
+                calibrated_a=np.array([_flt(cur[n]["calibrated"]) for n in names]),
+                ci95_a=np.array([[_flt(v) for v in cur[n]["ci95"]] for n in names]).reshape(len(names), 2),
+                identifiable=np.array([bool(cur[n]["identifiable"]) for n in names]),
+                at_bound=tuple(cur[n].get("at_bound") for n in names),
+                sensitivity=np.array([_flt(cur[n].get("sensitivity")) for n in names]),
+                intercept_fitted=bool(data.get("intercept_fitted", True)),
+                intercept_j=_flt(data["intercept_j"]),
+                intercept_ci95_j=tuple(_flt(v) for v in data.get("intercept_ci95_j", [None, None])),  # type: ignore[arg-type]
+                error_before=_flt(data["error"]["before"]),
+                error_after=_flt(data["error"]["after"]),
+                error_loo=_flt(data["error"]["loo"]),
+                singular_values=np.array([_flt(s) for s in obs["singular_values"]]),
+                condition_number=_flt(obs["condition_number"]),
+                rank=int(obs.get("rank", len(obs["singular_values"]))),
+                correlation=np.array([[_flt(c) for c in row] for row in obs.get("correlation", [])]),
+                n_runs=int(data.get("n_runs", 0)),
+                dof=int(data.get("dof", 0)),
+                noise_rel=_flt(data.get("noise_rel")),
+                status=str(data.get("status", "ok")),
+                uncertainty=str(data.get("uncertainty", "analytic")),
+                runs=tuple(dict(r) for r in data.get("runs", [])),
+                time_ns=int(data.get("time_ns", 0)),
+            )
+        except (KeyError, TypeError, ValueError) as error:
+            raise InputError(f"fit: malformed fit record ({error!r})") from None
+
+
+@dataclass(frozen=True, eq=False)
+class FitModel:
+    """The prepared problem behind a fit, kept for experiment design (not serialised).
+
+    Attributes:
+        spec: the memspec the fit started from.
+        names: the order of the observation columns.
+        index: positions of the calibrated currents in ``names``.
+        scales_a: column scale of each calibrated current (A; its datasheet value).
+        intercept_scale_j: column scale of the intercept (J), 0 if not fitted.
+        info: ``p × p`` information matrix of the prepared design (incl. penalty).
+        params: the fitted parameters in amperes (then the intercept in J).
+    """
+
+    spec: Any
+    names: tuple[str, ...]
+    index: np.ndarray
+    scales_a: np.ndarray
+    intercept_scale_j: float
+    info: np.ndarray
+    params: np.ndarray
+
+
+def fit(observations: Sequence[Observation], spec: SpecLike, *,
+        currents: Sequence[str] = DEFAULT_CURRENTS,
+        bounds: Mapping[str, tuple[float, float]] | None = None,
+        intercept: bool = True,
+        prior_weight: float = 0.0,
+        uncertainty: str = "analytic",
+        loo: str = "auto",
+        names: Sequence[str] | None = None,
+        bootstrap_samples: int = 200,
+        seed: int = 0,
+        require_overdetermined: bool = True,
+        settings: FitSettings | None = None,
+        time_ns: int = 0) -> FitResult:
+    """Fit ``currents`` (and an intercept ≥ 0) to the measured energies of ``observations``.
+
+    Args:
+        observations: the runs (at least as many as unknowns unless ``require_overdetermined``
+            is False).
+        spec: the memspec (its ``currents`` are the datasheet values and the fixed currents).
+        currents: names of the currents to calibrate (lower-case memspec keys).
+        bounds: ``{name: (lower_a, upper_a)}`` overriding the default ``(0, datasheet)``.
+        intercept: fit a per-run energy ``≥ 0`` the model does not cover (else it is 0).
+        prior_weight: λ of a Gaussian prior toward the datasheet on the relative currents; 1 means
+            a 100 % deviation costs as much as a 100 % error on one run. 0 = off.
+        uncertainty: ``"analytic"`` (active-set covariance, t quantile) or ``"bootstrap"``.
+        loo: ``"auto"``, ``"exact"`` (n refits), ``"hat"`` (hat-matrix identity) or ``"none"``.
+        names: the order of the observation columns (default ``energy.CURRENT_NAMES``).
+        bootstrap_samples, seed: for ``uncertainty="bootstrap"``.
+        require_overdetermined: raise if there are fewer runs than unknowns.
+        settings: identifiability thresholds.
+        time_ns: time stamp recorded in the result.
+
+    Raises:
+        InputError: an unknown current, bad bounds, no runs, or fewer runs than unknowns.
+    """
+    settings = settings or FitSettings()
+    names = tuple(names) if names is not None else current_names()
+    chosen = _check_currents(currents, names, spec)
+    if uncertainty not in ("analytic", "bootstrap"):
+        raise InputError(f"uncertainty: {uncertainty!r}; expected 'analytic' or 'bootstrap'")
+    if loo not in ("auto", "exact", "hat", "none"):
+        raise InputError(f"loo: {loo!r}; expected auto, exact, hat or none")
+    if not observations:
+        raise InputError("runs: no runs to calibrate on")
+    k = len(chosen)
+    p = k + int(intercept)
+    n = len(observations)
+    if require_overdetermined and n < p:
+        raise InputError(f"runs: {n} runs for {p} unknowns ({', '.join(chosen)}"
+                         f"{', intercept' if intercept else ''}); need at least {p}")
+    cols, const, measured, weight = stack(observations, len(names))
+    if not np.any(weight > 0):
+        raise InputError("runs: every run has weight 0")
+    weight = weight / weight[weight > 0].mean()
+
+    index = np.array([names.index(c) for c in chosen], dtype=int)
+    all_a = np.array([float(spec.currents.get(nm, 0.0)) for nm in names])
+    datasheet = all_a[index]
+    lower_a, upper_a = _bounds(chosen, datasheet, bounds)
+    scales = np.where(datasheet > 0, datasheet, np.where(np.isfinite(upper_a) & (upper_a > 0), upper_a, 1.0))
+    fixed = np.ones(len(names), dtype=bool)
+    fixed[index] = False
+    const_eff = const + cols[:, fixed] @ all_a[fixed]
+    x_a = cols[:, index]
+    y = measured - const_eff
+    b_scale = float(np.median(measured)) if intercept else 0.0
+
+    row = np.sqrt(weight) / measured
+    raw = np.hstack([x_a * scales, np.ones((n, 1)) * b_scale]) if intercept else x_a * scales
+    design = raw * row[:, None]
+    target = y * row
+    lower = np.concatenate([lower_a / scales, [0.0] if intercept else []])
+    upper = np.concatenate([upper_a / scales, [np.inf] if intercept else []])
+    x0 = np.concatenate([datasheet / scales, [0.0] if intercept else []])
+    lam = np.concatenate([np.full(k, float(prior_weight)), [0.0] if intercept else []])
+    x0 = np.clip(x0, lower, upper)
+
+    sol = solve.solve_bounded(design, target, lower, upper, prior_weight=lam, prior_target=x0)
+    ridge = solve.ridge_strength(design)
+    penalty = lam + ridge
+    free = sol.active == 0
+    n_eff = int(np.count_nonzero(weight > 0))
+    dof = n_eff - int(free.sum())
+    s2 = sol.rss / dof if dof > 0 else math.nan
+    cov_active, cov_full = solve.active_set_covariance(design, free, 1.0 if math.isnan(s2) else s2, penalty)
+    ci = _intervals(sol, lower, upper, cov_active, cov_full, s2, dof)
+    method = "analytic-active-set"
+    if uncertainty == "bootstrap" and dof > 0:
+        ci = solve.bootstrap(design, target, lower, upper, sol, samples=bootstrap_samples, seed=seed,
+                             dof=dof, prior_weight=lam, prior_target=x0)
+        method = f"residual-bootstrap-{bootstrap_samples}"
+    param_scale = np.concatenate([scales, [b_scale] if intercept else []])
+    params = sol.x * param_scale
+    ci_units = ci * param_scale[:, None]
+
+    # Observability of the prepared design (relative rows, datasheet-scaled columns).
+    sv = np.linalg.svd(design, compute_uv=False) if n else np.zeros(0)
+    sv = np.concatenate([sv, np.zeros(max(0, p - sv.size))])
+    rank = int(np.count_nonzero(sv > settings.rank_tol * (sv.max() if sv.size else 0.0)))
+    cond = float(sv.max() / sv.min()) if sv.size and sv.min() > 0 else math.inf
+    norms = np.linalg.norm(design, axis=0)
+    safe = np.where(norms > 0, norms, 1.0)
+    correlation = (design.T @ design) / np.outer(safe, safe)
+    correlation[norms == 0, :] = np.nan
+    correlation[:, norms == 0] = np.nan
+    rel_cols = raw[:, :k] / measured[:, None]
+    sensitivity = np.sqrt(np.mean(rel_cols ** 2, axis=0))
+    sigma = max(math.sqrt(s2) if not math.isnan(s2) else 0.0, settings.noise_floor)
+    unit_cov = np.linalg.inv(solve.information(design, penalty))
+    half_rel = 1.96 * sigma * np.sqrt(np.diag(unit_cov)[:k]) * scales / np.where(datasheet > 0, datasheet,
+                                                                                   scales)
+    identifiable = (sensitivity >= settings.min_sensitivity) & (half_rel <= settings.max_rel_ci)
+
+    # Errors: datasheet model, calibrated model, leave-one-out.
+    before_j = cols @ all_a + const
+    after_j = x_a @ params[:k] + const_eff + (params[k] if intercept else 0.0)
+    if loo == "none" or n < 2:
+        loo_j = np.full(n, np.nan)
+    else:
+        exact = loo == "exact" or (loo == "auto" and n <= LOO_EXACT_MAX_RUNS)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            loo_prep = solve.loo_residuals(design, target, lower, upper, sol, exact=exact,
+                                           prior_weight=lam, prior_target=x0)
+            loo_j = np.where(row > 0, measured + loo_prep / np.where(row > 0, row, 1.0), np.nan)
+    status = "ok"
+    if n < p:
+        status = "underdetermined"
+    elif rank < p:
+        status = "rank-deficient"
+    at_bound = tuple({-1: "lower", 1: "upper"}.get(int(a)) for a in sol.active[:k])
+    runs = tuple(
+        {"name": obs.name, "measured_j": float(measured[i]), "before_j": float(before_j[i]),
+         "after_j": float(after_j[i]), "loo_j": _num(loo_j[i]), "weight": float(weight[i])}
+        for i, obs in enumerate(observations))
+    return FitResult(
+        currents=chosen,
+        datasheet_a=datasheet,
+        calibrated_a=params[:k],
+        ci95_a=ci_units[:k],
+        identifiable=identifiable,
+        at_bound=at_bound,
+        sensitivity=sensitivity,
+        intercept_fitted=intercept,
+        intercept_j=float(params[k]) if intercept else 0.0,
+        intercept_ci95_j=(float(ci_units[k, 0]), float(ci_units[k, 1])) if intercept else (0.0, 0.0),
+        error_before=_mare(before_j, measured),
+        error_after=_mare(after_j, measured),
+        error_loo=_mare(loo_j, measured),
+        singular_values=sv,
+        condition_number=cond,
+        rank=rank,
+        correlation=correlation,
+        n_runs=n,
+        dof=dof,
+        noise_rel=math.sqrt(s2) if not math.isnan(s2) else math.nan,
+        status=status,
+        uncertainty=method,
+        runs=runs,
+        time_ns=time_ns,
+        model=FitModel(spec=spec, names=names, index=index, scales_a=scales, intercept_scale_j=b_scale,
+                       info=solve.information(design, penalty), params=params),
+    )
+
+
+def _check_currents(currents: Sequence[str], names: tuple[str, ...], spec: SpecLike) -> tuple[str, ...]:
+    chosen: list[str] = []
+    if isinstance(currents, str):
+        currents = [currents]
+    for raw in currents:
+        name = str(raw).strip().lower()
+        if name not in names or name not in spec.currents:
+            known = [nm for nm in names if nm in spec.currents]
+            raise InputError(f"currents: unknown current {raw!r}; expected some of {', '.join(known)}")
+        if name not in chosen:
+            chosen.append(name)
+    if not chosen:
+        raise InputError("currents: no current chosen to calibrate")
+    return tuple(chosen)
+
+
+def _bounds(chosen: tuple[str, ...], datasheet: np.ndarray,
+            bounds: Mapping[str, tuple[float, float]] | None) -> tuple[np.ndarray, np.ndarray]:
+    lower = np.zeros(len(chosen))
+    upper = datasheet.astype(float).copy()
+    for name in bounds or {}:
+        if name not in chosen:
+            raise InputError(f"bounds: {name!r} is not a calibrated current ({', '.join(chosen)})")
+    for j, name in enumerate(chosen):
+        if bounds and name in bounds:
+            try:
+                lo, hi = (float(v) for v in bounds[name])
+            except (TypeError, ValueError):
+                raise InputError(f"bounds.{name}: {bounds[name]!r}; expected (lower_a, upper_a)") from None
+            lower[j], upper[j] = lo, hi
+        if not (lower[j] < upper[j]) or math.isnan(lower[j]) or math.isnan(upper[j]):
+            raise InputError(f"bounds.{name}: lower {lower[j]!r} A must be < upper {upper[j]!r} A"
+                             f"{' (datasheet value is 0: give explicit bounds)' if datasheet[j] == 0 else ''}")
+    return lower, upper
+
+
+def _intervals(sol: solve.BoundedSolution, lower: np.ndarray, upper: np.ndarray, cov_active: np.ndarray,
+               cov_full: np.ndarray, s2: float, dof: int) -> np.ndarray:
+    p = sol.x.size
+    if math.isnan(s2) or dof <= 0:
+        return np.full((p, 2), np.nan)
+    q = float(sps.t.ppf(0.975, dof))
+    se_free = np.sqrt(np.maximum(np.diag(cov_active), 0.0))
+    se_full = np.sqrt(np.maximum(np.diag(cov_full), 0.0))
+    lo = np.where(sol.active == 0, sol.x - q * se_free, np.where(sol.active == 1, sol.x - q * se_full, sol.x))
+    hi = np.where(sol.active == 0, sol.x + q * se_free, np.where(sol.active == -1, sol.x + q * se_full, sol.x))
+    return np.column_stack([np.clip(lo, lower, upper), np.clip(hi, lower, upper)])
+
+
+def _mare(predicted: np.ndarray, measured: np.ndarray) -> float:
+    rel = np.abs(predicted - measured) / measured
+    rel = rel[np.isfinite(rel)]
+    return float(rel.mean()) if rel.size else math.nan
+
+
+def _num(value: Any) -> float | None:
+    if value is None:
+        return None
+    v = float(value)
+    return v if math.isfinite(v) else None
+
+
+def _flt(value: Any) -> float:
+    return math.nan if value is None else float(value)

@@ -1,0 +1,98 @@
+"""Synthetic DDR4 rows for the calibrator's tests (no energy model needed).
+
+A small stand-in for the model's linear decomposition with ρ = 1, Iβ = I0 (DESIGN.md §3), in units
+of J per A for one rank of ``devices`` devices, so the numerical core can be tested on its own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+NAMES = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w", "idd5b", "idd6n", "idd2p", "idd3p")
+DATASHEET = {"idd0": 0.0585, "idd2n": 0.036, "idd3n": 0.04175, "idd4r": 0.171, "idd4w": 0.151875,
+             "idd5b": 0.118, "idd6n": 0.02025, "idd2p": 0.017, "idd3p": 0.0225}
+TCK_S = 0.9375e-9
+RAS, RP, RFC, REFI, BURST = 36, 15, 278, 8320, 4
+VDD = 1.2
+
+
+@dataclass(frozen=True)
+class Spec:
+    """Just what the fit reads of a memspec."""
+
+    currents: dict
+
+
+def spec(currents: dict | None = None) -> Spec:
+    """A spec-like object with the synthetic datasheet currents."""
+    return Spec(dict(DATASHEET if currents is None else currents))
+
+
+def columns(acts: float, reads: float, writes: float, seconds: float, active_frac: float, *,
+            ranks: int = 2, devices: int = 8) -> np.ndarray:
+    """J per A over NAMES for a window of ``seconds`` with these command totals (split over ranks)."""
+    t = seconds / TCK_S / 1.0
+    unit = VDD * TCK_S * devices
+    out = np.zeros(len(NAMES))
+    for _ in range(ranks):
+        a, r, w = acts / ranks, reads / ranks, writes / ranks
+        refs = t / REFI
+        t_act = max(active_frac * t, RAS * a + BURST * (r + w) + RFC * refs)
+        t_pre = t - t_act
+        c = dict.fromkeys(NAMES, 0.0)
+        c["idd0"] = (RAS + RP) * a
+        c["idd4r"] = BURST * r
+        c["idd4w"] = BURST * w
+        c["idd5b"] = RFC * refs
+        c["idd3n"] = t_act - RAS * a - BURST * (r + w) - RFC * refs
+        c["idd2n"] = t_pre - RP * a
+        out += np.array([c[n] for n in NAMES]) * unit
+    return out
+
+
+def kernel_mix(rng: np.random.Generator, n: int, *, idle: int = 2,
+               writes: bool = True) -> list[tuple[np.ndarray, float]]:
+    """``n`` varied runs ``(columns, seconds)``: kernels with different read/write/activation mixes
+    and durations; the first ``idle`` are idle (no commands)."""
+    rows = []
+    ratios = [(1, 0), (1, 1), (2, 1), (1, 2), (0, 1), (3, 1)] if writes else [(1, 0)]
+    for i in range(n):
+        seconds = float(rng.uniform(0.5, 4.0))
+        if i < idle:
+            rows.append((columns(0, 0, 0, seconds, 0.0), seconds))
+            continue
+        rd, wr = ratios[i % len(ratios)]
+        bw = rng.uniform(0.1, 1.0) * 5e8  # bursts per second per channel at most
+        total = bw * seconds
+        reads = total * rd / (rd + wr)
+        writes_n = total * wr / (rd + wr)
+        hit = rng.uniform(0.0, 0.95)  # row-buffer hit rate
+        acts = total * (1 - hit) / 4 + 1
+        rows.append((columns(acts, reads, writes_n, seconds, rng.uniform(0.2, 0.95)), seconds))
+    return rows
+
+
+TRUTH_RATIOS = {"idd0": 0.52, "idd2n": 0.58, "idd3n": 0.35, "idd4r": 0.55, "idd4w": 0.45}
+
+
+def truth_vector(truth: dict) -> np.ndarray:
+    """``truth`` in NAMES order."""
+    return np.array([truth[n] for n in NAMES])
+
+
+def observations(rng: np.random.Generator, runs: list, truth: dict, *, noise: float = 0.0,
+                 offset_j: float = 0.0, offset_w: float = 0.0, t0_ns: int = 0, dt_ns: int = 0):
+    """Observations of ``runs`` (from :func:`kernel_mix`) measured on ``truth`` with relative
+    Gaussian ``noise``, a constant ``offset_j`` per run and a constant ``offset_w`` power."""
+    from hdeem_watch.calibrate import Observation
+
+    current = truth_vector(truth)
+    out = []
+    for i, (cols, seconds) in enumerate(runs):
+        energy = cols @ current + offset_j + offset_w * seconds
+        measured = energy * (1.0 + noise * rng.standard_normal())
+        out.append(Observation(f"run{i}", cols, 0.0, float(measured), time_ns=t0_ns + i * dt_ns,
+                               window_s=seconds))
+    return out

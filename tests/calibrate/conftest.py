@@ -1,0 +1,43 @@
+"""Fixtures of the calibrator's tests: synthetic rows (no energy model) and a truth generator."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+_HERE = Path(__file__).resolve().parent
+
+
+def _load(name: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(f"calib_tests_{name}", _HERE / f"{name}.py")
+    assert spec and spec.loader
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+SYNTH = _load("calib_synth")
+
+#: Hidden truth / datasheet ratios (in the range the seed paper reports for this kind of module).
+TRUTH_RATIOS = SYNTH.TRUTH_RATIOS
+
+
+@pytest.fixture
+def synth() -> ModuleType:
+    """The synthetic DDR4 column generator (tests/calibrate/calib_synth.py)."""
+    return SYNTH
+
+
+@pytest.fixture
+def truth_a() -> dict[str, float]:
+    """Hidden true currents: the datasheet scaled by :data:`TRUTH_RATIOS`."""
+    truth = dict(SYNTH.DATASHEET)
+    for name, ratio in TRUTH_RATIOS.items():
+        truth[name] *= ratio
+    return truth
+
