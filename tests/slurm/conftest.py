@@ -1,0 +1,186 @@
+"""A real single-node SLURM (munged + slurmctld + slurmd) for the SLURM tests.
+
+Follows ../shared/notes/slurm-single-node.md: needs root and the Debian packages slurmctld, slurmd,
+slurm-client and munge (``.ci/run`` installs them). The cluster runs from a scratch directory with
+its own free ports, with the hdeem-watch Prolog/Epilog hooks of ``daemon/slurm/`` wired in through
+small wrappers that set the hooks' settings. Tests get a :class:`Slurm` with ``run(args)`` that
+sets ``SLURM_CONF``.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+HOOKS = REPO / "daemon" / "slurm"
+BINARIES = ("munged", "slurmctld", "slurmd", "srun", "sbatch", "scontrol", "sinfo", "squeue")
+
+
+@dataclass
+class Slurm:
+    """A running single-node cluster."""
+
+    root: Path
+    conf: Path
+    node: str
+    cpus: int
+    hook_dir: Path
+    env: dict[str, str]
+
+    def run(self, args: list[str], timeout: float = 60, **kwargs: object) -> subprocess.CompletedProcess[str]:
+        """Run a SLURM client command against this cluster."""
+        return subprocess.run(args, capture_output=True, text=True, env=self.env, timeout=timeout,
+                              check=False, **kwargs)  # type: ignore[call-overload]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _wait(predicate, timeout: float, what: str) -> None:  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.1)
+    raise RuntimeError(f"SLURM fixture: timed out waiting for {what}")
+
+
+def _munge_ok() -> bool:
+    try:
+        cred = subprocess.run(["munge", "-n"], capture_output=True, timeout=5, check=False)
+        if cred.returncode != 0:
+            return False
+        return subprocess.run(["unmunge"], input=cred.stdout, capture_output=True, timeout=5,
+                              check=False).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+
+
+def _start_munge() -> int | None:
+    """Start munged if no working one is running; return its pid if we started it."""
+    if _munge_ok():
+        return None
+    key = Path("/etc/munge/munge.key")
+    if not key.exists():
+        subprocess.run(["runuser", "-u", "munge", "--", "mungekey", "--create"], check=True)
+    run_dir = Path("/run/munge")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    shutil.chown(run_dir, "munge", "munge")
+    subprocess.run(["runuser", "-u", "munge", "--", "/usr/sbin/munged"], check=True)
+    _wait(_munge_ok, 10, "munged")
+    pid_file = run_dir / "munged.pid"
+    return int(pid_file.read_text()) if pid_file.exists() else None
+
+
+def _hook_wrapper(path: Path, hook: Path, env: dict[str, str]) -> Path:
+    """A Prolog/Epilog wrapper that exports the hooks' settings, then runs the real hook."""
+    exports = "".join(f"export {k}='{v}'\n" for k, v in env.items())
+    path.write_text(f"#!/bin/sh\n{exports}exec {hook}\n")
+    path.chmod(0o755)
+    return path
+
+
+def _detected() -> tuple[int, int]:
+    """CPUs and RealMemory (MB) as slurmd -C reports them."""
+    out = subprocess.run(["slurmd", "-C"], capture_output=True, text=True, check=True).stdout
+    fields = dict(item.split("=", 1) for item in out.split() if "=" in item)
+    return int(fields["CPUs"]), int(fields["RealMemory"])
+
+
+def _kill_pidfile(pid_file: Path) -> None:
+    try:
+        pid = int(pid_file.read_text())
+    except (OSError, ValueError):
+        return
+    try:
+        os.kill(pid, signal.SIGTERM)
+    except ProcessLookupError:
+        return
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.1)
+    try:
+        os.kill(pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+
+
+@pytest.fixture(scope="session")
+def slurm(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Slurm]:
+    """Start munged (if needed), slurmctld and slurmd; stop what we started afterwards."""
+    missing = [b for b in BINARIES if shutil.which(b) is None and not Path("/usr/sbin", b).exists()]
+    if missing or os.geteuid() != 0:
+        pytest.skip(f"real SLURM needs root and {', '.join(missing) or 'the SLURM packages'} "
+                    "(apt-get install slurmctld slurmd slurm-client munge; .ci/run does)")
+    root = tmp_path_factory.mktemp("slurm")
+    os.chmod(root, 0o755)
+    node = socket.gethostname().split(".")[0]
+    cpus, memory = _detected()
+    hook_dir = root / "hooks"
+    hook_env = {"HDEEM_WATCH_HOOK_DIR": str(hook_dir), "HDEEM_WATCH_PYTHON": sys.executable,
+                "HDEEM_WATCH_HOOK_CONF": str(root / "none.env"),
+                "PYTHONPATH": str(REPO / "src"), "HDEEM_WATCH_RUNTIME_DIR": str(root / "run")}
+    prolog = _hook_wrapper(root / "prolog.sh", HOOKS / "prolog.sh", hook_env)
+    epilog = _hook_wrapper(root / "epilog.sh", HOOKS / "epilog.sh", hook_env)
+    conf = root / "slurm.conf"
+    conf.write_text("\n".join([
+        "ClusterName=hdeemwatch", "SlurmctldHost=localhost", "SlurmUser=root", "SlurmdUser=root",
+        "AuthType=auth/munge", f"SlurmctldPort={_free_port()}", f"SlurmdPort={_free_port()}",
+        f"StateSaveLocation={root}/state", f"SlurmdSpoolDir={root}/spool",
+        f"SlurmctldPidFile={root}/slurmctld.pid", f"SlurmdPidFile={root}/slurmd.pid",
+        f"SlurmctldLogFile={root}/slurmctld.log", f"SlurmdLogFile={root}/slurmd.log",
+        "ProctrackType=proctrack/linuxproc", "TaskPlugin=task/none", "JobAcctGatherType=jobacct_gather/none",
+        "AccountingStorageType=accounting_storage/none", "SelectType=select/cons_tres",
+        "SelectTypeParameters=CR_Core", "SchedulerParameters=batch_sched_delay=0", "ReturnToService=2",
+        "MpiDefault=none", f"Prolog={prolog}", f"Epilog={epilog}", "PrologFlags=Alloc",
+        f"NodeName={node} NodeAddr=127.0.0.1 CPUs={cpus} RealMemory={max(1, memory - 512)} State=UNKNOWN",
+        f"PartitionName=debug Nodes={node} Default=YES MaxTime=INFINITE State=UP", ""]))
+    for sub in ("state", "spool"):
+        (root / sub).mkdir()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("SLURM_")}
+    env["SLURM_CONF"] = str(conf)
+    env["PYTHONPATH"] = f"{REPO / 'src'}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"
+    cluster = Slurm(root=root, conf=conf, node=node, cpus=cpus, hook_dir=hook_dir, env=env)
+    munge_pid = _start_munge()
+    try:
+        subprocess.run(["slurmctld", "-f", str(conf), "-c"], check=True, env=env)
+        _wait(lambda: "UP" in cluster.run(["scontrol", "ping"]).stdout, 30, "slurmctld")
+        subprocess.run(["slurmd", "-f", str(conf), "-N", node], check=True, env=env)
+
+        def idle() -> bool:
+            state = cluster.run(["sinfo", "-h", "-n", node, "-o", "%t"]).stdout.strip()
+            if state.startswith(("drain", "down")):
+                cluster.run(["scontrol", "update", f"NodeName={node}", "State=RESUME"])
+            return state == "idle"
+
+        _wait(idle, 60, "the node to become idle")
+        yield cluster
+    finally:
+        jobs = cluster.run(["squeue", "-h", "-o", "%i"]).stdout.split()
+        if jobs:
+            cluster.run(["scancel", *jobs])
+        _kill_pidfile(root / "slurmd.pid")
+        _kill_pidfile(root / "slurmctld.pid")
+        if munge_pid is not None:
+            try:
+                os.kill(munge_pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass

@@ -1,0 +1,139 @@
+"""Tests of the SLURM adapter: hostlists, CPUs of a task, and the bench under a real SLURM."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+import pytest
+
+from hdeem_watch.errors import InputError
+from hdeem_watch.slurm import (
+    allocation_nodes,
+    allowed_cpus,
+    expand_hostlist,
+    in_allocation,
+    job_metadata,
+)
+
+HOSTLISTS = {
+    "node[01-03,07],other": ["node01", "node02", "node03", "node07", "other"],
+    "n[8-11]": ["n8", "n9", "n10", "n11"],
+    "n[098-101]": ["n098", "n099", "n100", "n101"],
+    "taurusi[6001,6003-6004]": ["taurusi6001", "taurusi6003", "taurusi6004"],
+    "r[1-2]n[1-2]": ["r1n1", "r1n2", "r2n1", "r2n2"],
+    "a,b,a": ["a", "b"],
+    "single": ["single"],
+    "": [],
+}
+
+
+@pytest.mark.parametrize(("hostlist", "hosts"), list(HOSTLISTS.items()))
+def test_expand_hostlist(hostlist: str, hosts: list[str]) -> None:
+    """Hostlists expand in order with zero padding, lists, several groups, and no duplicates."""
+    assert expand_hostlist(hostlist) == hosts
+
+
+@pytest.mark.parametrize("bad", ["n[1-2", "n1-2]", "n[[1]]", "n[2-1]", "n[a-b]", "n[1-99999999]", "n[]"])
+def test_expand_hostlist_rejects_malformed(bad: str) -> None:
+    """Malformed hostlists raise a one-line InputError naming the hostlist."""
+    with pytest.raises(InputError) as info:
+        expand_hostlist(bad)
+    assert "hostlist" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_allocation_from_environment() -> None:
+    """The job's nodes come from SLURM_JOB_NODELIST (else SLURM_NODELIST); none outside a job."""
+    assert allocation_nodes({"SLURM_JOB_NODELIST": "c[1-2]", "SLURM_NODELIST": "x"}) == ["c1", "c2"]
+    assert allocation_nodes({"SLURM_NODELIST": "x[3]"}) == ["x3"]
+    assert allocation_nodes({}) == []
+    assert in_allocation({"SLURM_JOB_ID": "42"}) and not in_allocation({})
+    assert job_metadata({}) == {}
+    meta = job_metadata({"SLURM_JOB_ID": "42", "SLURM_STEP_ID": "0", "SLURM_JOB_NODELIST": "c1"})
+    assert meta == {"slurm_job_id": "42", "slurm_step_id": "0", "slurm_nodelist": "c1"}
+
+
+def test_allowed_cpus_follows_the_task_share() -> None:
+    """Outside SLURM all CPUs of the mask; in a task SLURM_CPUS_PER_TASK cuts an unbound mask;
+    a mask SLURM already narrowed is kept."""
+    mask = {0, 1, 2, 3, 4, 5, 6, 7}
+    assert allowed_cpus({}, mask) == list(range(8))
+    assert allowed_cpus({"SLURM_JOB_ID": "1", "SLURM_CPUS_PER_TASK": "2"}, mask) == [0, 1]
+    assert allowed_cpus({"SLURM_JOB_ID": "1", "SLURM_CPUS_ON_NODE": "3"}, mask) == [0, 1, 2]
+    assert allowed_cpus({"SLURM_JOB_ID": "1", "SLURM_CPUS_PER_TASK": "4"}, {5, 6}) == [5, 6]
+    assert allowed_cpus({"SLURM_CPUS_PER_TASK": "1"}, mask) == list(range(8))  # not in a job
+
+
+# ------------------------------------------------------------------------------------ real SLURM
+@pytest.mark.slurm
+def test_hostlist_matches_scontrol(slurm) -> None:  # type: ignore[no-untyped-def]
+    """Our expander gives what SLURM's own `scontrol show hostnames` gives."""
+    for hostlist, hosts in HOSTLISTS.items():
+        if not hostlist:
+            continue
+        proc = slurm.run(["scontrol", "show", "hostnames", hostlist])
+        assert proc.returncode == 0, proc.stderr
+        ours = expand_hostlist(hostlist)
+        theirs = proc.stdout.split()
+        if hostlist == "a,b,a":  # scontrol keeps duplicates; we list each host once
+            theirs = list(dict.fromkeys(theirs))
+        assert ours == theirs == hosts
+
+
+@pytest.mark.slurm
+def test_allocation_nodes_inside_a_real_allocation(slurm) -> None:  # type: ignore[no-untyped-def]
+    """Inside srun, allocation_nodes() expands the real SLURM_JOB_NODELIST to this node."""
+    code = ("import json, os; from hdeem_watch import slurm; "
+            "print(json.dumps([slurm.allocation_nodes(), os.environ['SLURM_JOB_NODELIST'], "
+            "slurm.in_allocation(), slurm.job_metadata()]))")
+    proc = slurm.run(["srun", "-n1", "-c1", sys.executable, "-c", code])
+    assert proc.returncode == 0, proc.stderr
+    nodes, nodelist, inside, meta = json.loads(proc.stdout)
+    assert nodes == [slurm.node] and nodelist == slurm.node and inside
+    assert meta["slurm_nodelist"] == slurm.node and meta["slurm_job_id"].isdigit()
+
+
+@pytest.mark.slurm
+def test_bench_under_srun_respects_given_cpus(slurm) -> None:  # type: ignore[no-untyped-def]
+    """`srun -n1 -c1 hdeem-watch bench` runs one worker on one CPU and refuses a second thread;
+    with -c2 it may use two distinct CPUs."""
+    args = [sys.executable, "-m", "hdeem_watch", "bench", "--kernels", "copy", "--elements", "65536",
+            "--repeat", "2", "--json"]
+    proc = slurm.run(["srun", "-n1", "-c1", *args, "--threads", "1"])
+    assert proc.returncode == 0, proc.stderr
+    record = json.loads(proc.stdout)
+    assert record["threads"] == 1 and len(record["cpus"]) == 1 and record["seconds"] > 0
+    proc = slurm.run(["srun", "-n1", "-c1", *args, "--threads", "2"])
+    assert proc.returncode == 2
+    assert "only 1 CPUs" in proc.stderr
+    if slurm.cpus >= 2:
+        proc = slurm.run(["srun", "-n1", "-c2", *args, "--threads", "2"])
+        assert proc.returncode == 0, proc.stderr
+        assert len(set(json.loads(proc.stdout)["cpus"])) == 2
+
+
+@pytest.mark.slurm
+def test_prolog_and_epilog_record_the_job(slurm) -> None:  # type: ignore[no-untyped-def]
+    """The hooks of daemon/slurm/ run for a job: the Epilog appends the job (start < end, user,
+    node, exit code) to jobs.jsonl and removes the Prolog's per-job record."""
+    proc = slurm.run(["srun", "-n1", "-c1", "true"])
+    assert proc.returncode == 0, proc.stderr
+    job_id = None
+    jobs = slurm.hook_dir / "jobs.jsonl"
+    deadline = time.monotonic() + 20
+    records: list[dict[str, object]] = []
+    while time.monotonic() < deadline:
+        if jobs.exists():
+            records = [json.loads(line) for line in jobs.read_text().splitlines()]
+            if records:
+                break
+        time.sleep(0.1)
+    assert records, f"no jobs.jsonl written; slurmd log: {(slurm.root / 'slurmd.log').read_text()[-2000:]}"
+    record = records[-1]
+    job_id = record["job_id"]
+    assert str(job_id).isdigit()
+    assert record["node"] == slurm.node and record["user"] == "root"
+    assert int(record["t_start_ns"]) <= int(record["t_end_ns"])  # type: ignore[call-overload]
+    assert record["daemon"] == "none" and record["exit_code"] is not None
+    assert not (slurm.hook_dir / f"job-{job_id}.json").exists()
