@@ -9,6 +9,7 @@ sets ``SLURM_CONF``.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
@@ -117,10 +118,8 @@ def _kill_pidfile(pid_file: Path) -> None:
         except ProcessLookupError:
             return
         time.sleep(0.1)
-    try:
+    with contextlib.suppress(ProcessLookupError):
         os.kill(pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
 
 
 @pytest.fixture(scope="session")
@@ -180,7 +179,5 @@ def slurm(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Slurm]:
         _kill_pidfile(root / "slurmd.pid")
         _kill_pidfile(root / "slurmctld.pid")
         if munge_pid is not None:
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.kill(munge_pid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
