@@ -1,18 +1,73 @@
-"""``hdeem-watch daemon``: not built yet (its issue is open)."""
+"""``hdeem-watch daemon``: run the node daemon (DESIGN.md §6–7).
+
+Works without a config file: ``hdeem-watch daemon --source sim --pub EP --control EP --state-dir DIR``.
+Settings come from ``--config FILE`` (TOML), then ``HDEEM_WATCH_*`` variables, then these flags
+(see :mod:`hdeem_watch.config`). SIGTERM and SIGINT end it cleanly (exit 0). Bad input (a bad flag,
+config key, busy endpoint or state directory, an unavailable source with its reason) is one line
+on stderr and exit code 2.
+"""
 
 from __future__ import annotations
 
 import argparse
+import logging
+import signal
 import sys
 from typing import Any
+
+from hdeem_watch.config import SOURCE_KINDS, load_settings
 
 
 def register(subparsers: Any) -> None:
     """Add the ``daemon`` subcommand."""
-    parser = subparsers.add_parser("daemon", help="(not built yet)")
+    parser = subparsers.add_parser(
+        "daemon",
+        help="run the node daemon (sources → ZeroMQ stream, runs, baselines, calibration)",
+        description="Run the node daemon. Without flags: the simulated node, ipc endpoints in the "
+        "runtime directory, state in the state directory.",
+    )
+    parser.add_argument("--config", metavar="FILE", help="TOML settings file (see daemon/hdeem-watchd.toml)")
+    parser.add_argument("--source", choices=SOURCE_KINDS, help="power source (default sim)")
+    parser.add_argument("--pub", metavar="ENDPOINT", help="stream endpoint (default ipc://RUNTIME/pub.sock)")
+    parser.add_argument("--control", metavar="ENDPOINT", help="control endpoint (default ipc://RUNTIME/control.sock)")
+    parser.add_argument("--state-dir", metavar="DIR", help="directory of state.db")
+    parser.add_argument("--runtime-dir", metavar="DIR", help="directory of the default ipc sockets")
+    parser.add_argument("--node", metavar="NAME", help="node name (default: short host name)")
+    parser.add_argument("--speed", type=float, metavar="X", help="sim/replay speed factor (default 1)")
+    parser.add_argument("--seed", type=int, metavar="N", help="sim random seed")
+    parser.add_argument("--replay-file", metavar="FILE", help="recording for --source replay")
+    parser.add_argument("--prometheus", type=int, metavar="PORT", help="serve Prometheus metrics on PORT")
+    parser.add_argument("--poll-interval", type=float, metavar="S", help="source poll period in s (default 0.025)")
+    parser.add_argument("--memspec", metavar="PRESET|FILE", help="memspec of one DIMM for the run model")
+    parser.add_argument("--log-level", choices=("debug", "info", "warning", "error"))
     parser.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
-    print("hdeem-watch daemon: not built yet", file=sys.stderr)
-    return 1
+    from hdeem_watch.daemon.service import Daemon
+
+    settings = load_settings(
+        args.config,
+        overrides={
+            "source": args.source, "pub": args.pub, "control": args.control, "state_dir": args.state_dir,
+            "runtime_dir": args.runtime_dir, "node": args.node, "speed": args.speed, "seed": args.seed,
+            "replay_file": args.replay_file, "prometheus_port": args.prometheus,
+            "poll_interval_s": args.poll_interval, "memspec": args.memspec, "log_level": args.log_level,
+        },
+    )
+    logging.basicConfig(level=settings.log_level.upper(), stream=sys.stderr,
+                        format="%(asctime)s hdeem-watchd %(levelname)s %(message)s")
+    daemon = Daemon(settings)
+    daemon.start()
+
+    def stop(signum: int, frame: Any) -> None:
+        daemon.request_stop()
+
+    previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        daemon.run()
+    finally:
+        daemon.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 0

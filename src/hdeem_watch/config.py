@@ -1,0 +1,254 @@
+"""The daemon's settings: one typed object, from a TOML file, then the environment, then flags.
+
+Precedence, lowest to highest: the defaults below, the TOML file (``--config FILE``; keys at the
+top level or in a ``[daemon]`` table), ``HDEEM_WATCH_<FIELD>`` environment variables (e.g.
+``HDEEM_WATCH_SOURCE=rapl``, ``HDEEM_WATCH_POLL_INTERVAL_S=0.05``), then command-line flags.
+Unknown keys and values of the wrong type are :class:`~hdeem_watch.errors.InputError` naming the
+file, key and value. Every field is documented in :class:`DaemonSettings` (and in
+``daemon/hdeem-watchd.toml``).
+
+Example:
+    >>> s = load_settings(env={"HDEEM_WATCH_SPEED": "4"}, overrides={"node": "n7"})
+    >>> s.source, s.speed, s.node
+    ('sim', 4.0, 'n7')
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import socket
+import tomllib
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hdeem_watch.errors import InputError
+
+ENV_PREFIX = "HDEEM_WATCH_"
+SOURCE_KINDS = ("sim", "hdeem", "rapl", "replay")
+
+
+def default_node() -> str:
+    """The short host name (``node123`` of ``node123.cluster.example``)."""
+    return socket.gethostname().split(".")[0] or "localhost"
+
+
+def default_state_dir() -> str:
+    """``$STATE_DIRECTORY`` (systemd), else ``$XDG_STATE_HOME/hdeem-watch``, else ``~/.local/state/hdeem-watch``."""
+    systemd = os.environ.get("STATE_DIRECTORY")
+    if systemd:
+        return systemd.split(":")[0]
+    xdg = os.environ.get("XDG_STATE_HOME")
+    base = Path(xdg) if xdg else Path.home() / ".local" / "state"
+    return str(base / "hdeem-watch")
+
+
+@dataclass(frozen=True)
+class DaemonSettings:
+    """Everything the node daemon can be told.
+
+    Attributes:
+        source: ``sim`` (modelled node, the default), ``hdeem``, ``rapl`` or ``replay``.
+        node: node name used in topics and records (default: the short host name).
+        pub: stream (PUB) endpoint; default ``ipc://<runtime_dir>/pub.sock``. ``tcp://host:port`` for
+            remote subscribers.
+        control: control (ROUTER) endpoint; default ``ipc://<runtime_dir>/control.sock``.
+        runtime_dir: directory of the default ipc sockets (created mode 0750, sockets 0660); default
+            ``$RUNTIME_DIRECTORY``, ``$XDG_RUNTIME_DIR/hdeem-watch`` or ``/tmp/hdeem-watch-<uid>``.
+        state_dir: directory of ``state.db`` (runs, fits, baselines); default ``$STATE_DIRECTORY``,
+            ``$XDG_STATE_HOME/hdeem-watch`` or ``~/.local/state/hdeem-watch``.
+        poll_interval_s: period of the source poll and of the sample batches (smaller = lower latency,
+            more CPU).
+        heartbeat_s: period of the ``status`` heartbeat.
+        republish_s: period at which ``calib`` and ``baseline`` are re-published for late joiners.
+        speed: time factor of the ``sim`` and ``replay`` sources (1 = real time).
+        seed: random seed of the ``sim`` source (None = fixed default of the sim).
+        replay_file: recording played by the ``replay`` source.
+        replay_loop: start the recording again at its end.
+        rapl_root: powercap root of the ``rapl`` source (default ``/sys/class/powercap``).
+        hdeem_include_dir: directory of the real ``hdeem.h`` (``hdeem`` source).
+        hdeem_lib_dir: directory of ``libhdeem.so`` (``hdeem`` source).
+        memspec: preset name or DRAMPower JSON file of one DIMM, used for the run model.
+        dimms: DIMMs on the node (the measured DRAM energy is the sum of all DRAM channels).
+        currents: the currents the embedded calibrator fits.
+        half_life_s: forgetting half-life of the online calibrator (0 = no forgetting).
+        model_max_requests: request-prefix size of the kernel model (None = the model's default).
+        prometheus_port: serve Prometheus metrics on this port (None = off).
+        prometheus_addr: address of the Prometheus endpoint.
+        sndhwm: per-subscriber send queue in messages; a slower subscriber loses messages (seen as
+            gaps in ``seq``) instead of stalling the daemon.
+        quiet_window_s: length of a quiet period taken as an idle baseline.
+        quiet_max_spread_w: largest standard deviation of a quiet window (absolute, W).
+        quiet_history_s: seconds of samples kept per DRAM channel to look for quiet periods.
+        log_level: ``debug``, ``info``, ``warning`` or ``error``.
+    """
+
+    source: str = "sim"
+    node: str = field(default_factory=default_node)
+    pub: str | None = None
+    control: str | None = None
+    runtime_dir: str | None = None
+    state_dir: str = field(default_factory=default_state_dir)
+    poll_interval_s: float = 0.025
+    heartbeat_s: float = 1.0
+    republish_s: float = 10.0
+    speed: float = 1.0
+    seed: int | None = None
+    replay_file: str | None = None
+    replay_loop: bool = False
+    rapl_root: str | None = None
+    hdeem_include_dir: str | None = None
+    hdeem_lib_dir: str | None = None
+    memspec: str = "samsung-m393a1g43db0-cpb"
+    dimms: int = 8
+    currents: tuple[str, ...] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
+    half_life_s: float = 0.0
+    model_max_requests: int | None = None
+    prometheus_port: int | None = None
+    prometheus_addr: str = "127.0.0.1"
+    sndhwm: int = 20_000
+    quiet_window_s: float = 5.0
+    quiet_max_spread_w: float = 0.5
+    quiet_history_s: float = 60.0
+    log_level: str = "info"
+
+    def __post_init__(self) -> None:
+        if self.source not in SOURCE_KINDS:
+            raise InputError(f"source = {self.source!r}; expected one of {', '.join(SOURCE_KINDS)}")
+        for name in ("poll_interval_s", "heartbeat_s", "republish_s", "speed", "quiet_window_s", "quiet_history_s"):
+            if not getattr(self, name) > 0:
+                raise InputError(f"{name} = {getattr(self, name)!r}; expected a number > 0")
+        if self.half_life_s < 0:
+            raise InputError(f"half_life_s = {self.half_life_s!r}; expected >= 0 (0 = no forgetting)")
+        if self.dimms < 1:
+            raise InputError(f"dimms = {self.dimms!r}; expected >= 1")
+        if self.sndhwm < 1:
+            raise InputError(f"sndhwm = {self.sndhwm!r}; expected >= 1")
+        if self.prometheus_port is not None and not 0 <= self.prometheus_port <= 65535:
+            raise InputError(f"prometheus_port = {self.prometheus_port!r}; expected 0..65535")
+        if self.log_level not in ("debug", "info", "warning", "error"):
+            raise InputError(f"log_level = {self.log_level!r}; expected debug, info, warning or error")
+        if not self.node or "/" in self.node:
+            raise InputError(f"node = {self.node!r}; expected a non-empty name without '/'")
+        if self.source == "replay" and not self.replay_file:
+            raise InputError("source = 'replay' needs replay_file (--replay-file FILE)")
+
+    def source_options(self) -> dict[str, Any]:
+        """Keyword options for ``make_source(self.source, ...)``."""
+        if self.source == "sim":
+            options: dict[str, Any] = {"speed": self.speed}
+            if self.seed is not None:
+                options["seed"] = self.seed
+            return options
+        if self.source == "replay":
+            return {"path": self.replay_file, "speed": self.speed, "loop": self.replay_loop}
+        if self.source == "rapl":
+            return {} if self.rapl_root is None else {"root": self.rapl_root}
+        options = {}
+        if self.hdeem_include_dir:
+            options["include_dir"] = self.hdeem_include_dir
+        if self.hdeem_lib_dir:
+            options["lib_dir"] = self.hdeem_lib_dir
+        return options
+
+
+_FIELDS = {f.name: f for f in dataclasses.fields(DaemonSettings)}
+
+
+def _coerce(name: str, value: Any, where: str) -> Any:
+    """``value`` converted to the type of field ``name`` (strings from the environment parsed)."""
+    hint = typing.get_type_hints(DaemonSettings)[name]
+    args = typing.get_args(hint)
+    optional = isinstance(hint, types.UnionType) and type(None) in args
+    base = next((a for a in args if a is not type(None)), hint) if optional else hint
+    if value is None or (optional and isinstance(value, str) and value.lower() in ("", "none", "null")):
+        if optional:
+            return None
+        raise InputError(f"{where}: {name} must not be empty")
+    try:
+        if base is bool:
+            if isinstance(value, bool):
+                return value
+            if isinstance(value, str) and value.lower() in ("1", "true", "yes", "on", "0", "false", "no", "off"):
+                return value.lower() in ("1", "true", "yes", "on")
+            raise ValueError
+        if base is int:
+            if isinstance(value, bool | float):
+                raise ValueError
+            return int(value)
+        if base is float:
+            if isinstance(value, bool):
+                raise ValueError
+            return float(value)
+        if base is str:
+            if not isinstance(value, str | int | float) or isinstance(value, bool):
+                raise ValueError
+            return str(value)
+        if typing.get_origin(base) is tuple:
+            items = value.split(",") if isinstance(value, str) else value
+            if not isinstance(items, list | tuple) or not all(isinstance(i, str) for i in items):
+                raise ValueError
+            return tuple(i.strip().lower() for i in items if i.strip())
+    except (TypeError, ValueError):
+        pass
+    else:
+        return value
+    raise InputError(f"{where}: {name} = {value!r}; expected {getattr(base, '__name__', str(base))}")
+
+
+def _apply(values: dict[str, Any], data: Mapping[str, Any], where: str) -> None:
+    for key, value in data.items():
+        name = key.replace("-", "_")
+        if name not in _FIELDS:
+            raise InputError(f"{where}: unknown setting {key!r}; expected one of {', '.join(sorted(_FIELDS))}")
+        values[name] = _coerce(name, value, where)
+
+
+def load_settings(
+    config: str | os.PathLike[str] | None = None,
+    *,
+    env: Mapping[str, str] | None = None,
+    overrides: Mapping[str, Any] | None = None,
+) -> DaemonSettings:
+    """Settings from defaults, the TOML file, ``HDEEM_WATCH_*`` variables and ``overrides`` (flags).
+
+    Args:
+        config: TOML file (top-level keys or a ``[daemon]`` table), or None.
+        env: the environment (default ``os.environ``); only ``HDEEM_WATCH_<FIELD>`` names are read,
+            other ``HDEEM_WATCH_`` variables (e.g. ``HDEEM_WATCH_RUNTIME_DIR``) map to fields too.
+        overrides: command-line values; None values are ignored (flag not given).
+
+    Raises:
+        InputError: unreadable file, bad TOML, unknown key, value of the wrong type or range.
+    """
+    values: dict[str, Any] = {}
+    if config is not None:
+        path = Path(config)
+        try:
+            data = tomllib.loads(path.read_text())
+        except OSError as error:
+            raise InputError(f"{path}: cannot read the config file ({error.strerror})") from None
+        except tomllib.TOMLDecodeError as error:
+            raise InputError(f"{path}: not valid TOML ({error})") from None
+        if "daemon" in data and isinstance(data["daemon"], dict):
+            rest = {k: v for k, v in data.items() if k != "daemon"}
+            _apply(values, rest, str(path))
+            _apply(values, data["daemon"], f"{path} [daemon]")
+        else:
+            _apply(values, data, str(path))
+    environment = os.environ if env is None else env
+    for name in _FIELDS:
+        key = ENV_PREFIX + name.upper()
+        if key in environment:
+            values[name] = _coerce(name, environment[key], f"environment {key}")
+    if overrides:
+        for name, value in overrides.items():
+            if value is not None:
+                if name not in _FIELDS:
+                    raise InputError(f"unknown setting {name!r}")
+                values[name] = _coerce(name, value, f"--{name.replace('_', '-')}")
+    return DaemonSettings(**values)

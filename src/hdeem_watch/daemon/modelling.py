@@ -1,0 +1,236 @@
+"""The model side of a finished run, and the embedded online calibrator.
+
+For a run of kernel K with T threads over N elements, repeated R times, the command statistics of
+one DIMM come from :func:`hdeem_watch.dram.kernels.kernel_stats` (``channels = dimms``: every DIMM
+carries 1/dimms of the traffic); :func:`hdeem_watch.calibrate.observation_from_run` stretches the
+background residency and refresh to the measured window and scales the row by the number of DIMMs,
+against the node's total measured DRAM energy. An idle run is a row with no commands. The row is
+added to the :class:`~hdeem_watch.calibrate.OnlineCalibrator`, which refits.
+
+This class does no I/O and is used from ONE worker thread of the daemon (the fit and the kernel
+model can take tens of milliseconds; the poll loop must not wait for them).
+
+Example:
+    >>> m = RunModeller("samsung-m393a1g43db0-cpb", dimms=8)   # doctest: +SKIP
+    >>> model, fit, _ = m.evaluate({"run_id": "r1", "kernel": "idle", "threads": 1, "elements": 0,
+    ...                             "repeat": 1, "window_s": 10.0, "dram_energy_j": 200.0,
+    ...                             "t_stop_ns": 0})              # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hdeem_watch.daemon.runs import IDLE_KERNELS
+from hdeem_watch.errors import InputError
+
+#: Compact fit-history entries kept for the ``calib`` topic.
+MAX_HISTORY = 200
+
+
+def load_spec(memspec: str) -> Any:
+    """A preset by name, or a DRAMPower JSON file.
+
+    Raises:
+        InputError: unknown preset / unreadable file.
+    """
+    from hdeem_watch.dram.memspec import load_memspec, preset
+
+    if memspec.endswith(".json") or Path(memspec).is_file():
+        return load_memspec(memspec)
+    return preset(memspec)
+
+
+def idle_stats(spec: Any) -> Any:
+    """Command statistics with no commands (one empty rank per rank of ``spec``)."""
+    from hdeem_watch.dram.stats import CommandStats, RankStats
+
+    return CommandStats(ranks=tuple(RankStats() for _ in range(int(spec.nbr_of_ranks))))
+
+
+def compact_fit(t_ns: int, fit: Mapping[str, Any] | None) -> dict[str, Any]:
+    """One ``history`` entry of the ``calib`` topic."""
+    if fit is None:
+        return {"t_ns": int(t_ns), "runs": 0, "error_after": None, "currents": {}}
+    currents = {name: entry.get("calibrated") for name, entry in (fit.get("currents") or {}).items()}
+    return {
+        "t_ns": int(t_ns),
+        "runs": fit.get("n_runs"),
+        "error_after": (fit.get("error") or {}).get("after"),
+        "currents": currents,
+    }
+
+
+class RunModeller:
+    """Kernel model + calibrator of one node.
+
+    Args:
+        memspec: preset name or memspec file of one DIMM.
+        dimms: DIMMs the node's DRAM channels cover.
+        currents: currents to calibrate.
+        half_life_s: forgetting half-life (0 or None = never forget).
+        max_requests: prefix size of the kernel model (None = its default).
+        state: a saved calibrator state (``OnlineCalibrator.to_dict()``) to continue from.
+        history: saved compact history entries.
+
+    Attributes:
+        error: why runs cannot be modelled (None = they can).
+    """
+
+    def __init__(
+        self,
+        memspec: str,
+        *,
+        dimms: int = 8,
+        currents: Sequence[str] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w"),
+        half_life_s: float | None = None,
+        max_requests: int | None = None,
+        state: Mapping[str, Any] | None = None,
+        history: Sequence[Mapping[str, Any]] = (),
+    ) -> None:
+        self.memspec = memspec
+        self.dimms = int(dimms)
+        self.currents = tuple(currents)
+        self.half_life_s = half_life_s if half_life_s else None
+        self.max_requests = max_requests
+        self.error: str | None = None
+        self.restore_error: str | None = None
+        self.spec: Any = None
+        self.calibrator: Any = None
+        self.history: list[dict[str, Any]] = [dict(h) for h in history][-MAX_HISTORY:]
+        try:
+            self.spec = load_spec(memspec)
+            from hdeem_watch.calibrate import OnlineCalibrator
+
+            if state:
+                try:
+                    self.calibrator = OnlineCalibrator.from_dict(state, self.spec)
+                except InputError as error:  # a state this version cannot read: start afresh
+                    self.restore_error = str(error)
+            if self.calibrator is None:
+                self.calibrator = OnlineCalibrator(self.spec, currents=self.currents, half_life_s=self.half_life_s)
+        except ImportError as error:  # a model module not installed yet
+            self.error = f"model not available: {error}"
+        except InputError as error:
+            self.error = str(error)
+        self._stats_cache = functools.lru_cache(maxsize=64)(self._kernel_stats)
+
+    def _kernel_stats(self, kernel: str, elements: int, threads: int, repeat: int) -> Any:
+        from hdeem_watch.dram.kernels import kernel_stats
+
+        options: dict[str, Any] = {"repeat": repeat, "channels": self.dimms}
+        if self.max_requests:
+            options["max_requests"] = self.max_requests
+        return kernel_stats(self.spec, kernel, elements, threads, **options).stats
+
+    def stats_for(self, kernel: str, elements: int, threads: int, repeat: int) -> Any:
+        """Modelled statistics of one DIMM for a run (cached; idle kernels have no commands)."""
+        if kernel in IDLE_KERNELS or elements == 0:
+            return idle_stats(self.spec)
+        return self._stats_cache(kernel, int(elements), int(threads), int(repeat))
+
+    def latest_fit(self) -> dict[str, Any] | None:
+        """``FitResult.to_dict()`` of the latest fit, or None."""
+        if self.calibrator is None or self.calibrator.latest is None:
+            return None
+        return dict(self.calibrator.latest.to_dict())
+
+    def _currents_vector(self, fit: Mapping[str, Any] | None) -> tuple[np.ndarray, float]:
+        from hdeem_watch.calibrate.observation import current_names
+
+        names = current_names()
+        values = {n: float(self.spec.currents.get(n, 0.0)) for n in names}
+        intercept = 0.0
+        if fit is not None:
+            for name, entry in (fit.get("currents") or {}).items():
+                value = entry.get("calibrated")
+                if name in values and isinstance(value, int | float) and math.isfinite(value):
+                    values[name] = float(value)
+            value = fit.get("intercept_j")
+            intercept = float(value) if isinstance(value, int | float) and math.isfinite(value) else 0.0
+        return np.array([values[n] for n in names]), intercept
+
+    def evaluate(self, record: Mapping[str, Any]) -> tuple[dict[str, Any] | None, dict[str, Any] | None, str | None]:
+        """Model a finished run, add it to the calibrator and refit.
+
+        Returns:
+            ``(model, fit, error)``: ``model`` = ``{"memspec", "dimms", "datasheet_j", "predicted_j",
+            "calibrated_j", "counts", "observation"}`` (None when the run cannot be modelled),
+            ``fit`` = the refit's ``to_dict()`` (None without a refit) and ``error`` = why not.
+        """
+        if self.error is not None:
+            return None, None, self.error
+        name = str(record.get("name") or record.get("run_id"))
+        measured = record.get("dram_energy_j")
+        window_s = record.get("window_s")
+        if not isinstance(measured, int | float) or not math.isfinite(measured) or measured <= 0:
+            return None, None, f"run {name!r}: no measured DRAM energy ({measured!r})"
+        if not isinstance(window_s, int | float) or not window_s > 0:
+            return None, None, f"run {name!r}: empty window"
+        from hdeem_watch.calibrate import observation_from_run
+
+        try:
+            stats = self.stats_for(str(record["kernel"]), int(record["elements"]), int(record["threads"]),
+                                   int(record["repeat"]))
+            obs = observation_from_run(self.spec, stats, float(window_s), float(measured), scale=float(self.dimms),
+                                       name=f"{record.get('run_id')}:{name}", time_ns=int(record.get("t_stop_ns") or 0))
+        except InputError as error:
+            return None, None, str(error)
+        before = self.latest_fit()
+        datasheet_vec, _ = self._currents_vector(None)
+        model: dict[str, Any] = {
+            "memspec": getattr(self.spec, "memory_id", self.memspec),
+            "dimms": self.dimms,
+            "datasheet_j": obs.predicted_j(datasheet_vec),
+            "predicted_j": None,
+            "calibrated_j": None,
+            "counts": {f: stats.total(f) * self.dimms for f in ("act", "pre", "rd", "wr", "ref")},
+            "observation": obs.to_dict(),
+        }
+        if before is not None:
+            vec, intercept = self._currents_vector(before)
+            model["predicted_j"] = obs.predicted_j(vec, intercept)
+        try:
+            result = self.calibrator.add_run(obs)
+        except InputError as error:
+            return model, None, str(error)
+        fit = dict(result.to_dict())
+        vec, intercept = self._currents_vector(fit)
+        model["calibrated_j"] = obs.predicted_j(vec, intercept)
+        self.history.append(compact_fit(int(result.time_ns or obs.time_ns), fit))
+        del self.history[:-MAX_HISTORY]
+        return model, fit, None
+
+    def reset(self) -> None:
+        """Forget every run and fit."""
+        if self.calibrator is not None:
+            self.calibrator.reset()
+        self.history.clear()
+
+    def state(self) -> dict[str, Any] | None:
+        """The calibrator's persistent state (None when there is no calibrator)."""
+        return None if self.calibrator is None else dict(self.calibrator.to_dict())
+
+    def body(self, truth: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """The ``calib`` topic body (``truth`` only from a simulated source)."""
+        drift = {}
+        if self.calibrator is not None:
+            try:
+                drift = dict(self.calibrator.drift())
+            except Exception:
+                drift = {}
+        return {
+            "fit": self.latest_fit(),
+            "history": list(self.history),
+            "runs": 0 if self.calibrator is None else len(self.calibrator.observations),
+            "drift": drift,
+            "memspec": self.memspec,
+            "model_error": self.error,
+            "truth": dict(truth) if truth is not None else None,
+        }

@@ -1,0 +1,154 @@
+"""The daemon's stream socket: sequence numbers, never-blocking sends, a last-value cache.
+
+An XPUB socket behaves like PUB for subscribers and additionally tells the daemon about new
+subscriptions. Sends never block: each subscriber has its own queue of ``sndhwm`` messages and a
+subscriber that does not keep up loses messages (it sees the gap in ``seq``) while the others go
+on at full rate. When a subscription arrives that covers the ``calib`` or ``baseline`` topic, the
+latest message of that topic is published again at once, so a late joiner has the current
+calibration and baselines without waiting for the periodic re-publication (a last-value cache).
+
+Example:
+    >>> import zmq
+    >>> pub = Publisher(zmq.Context.instance(), "inproc://doc", node="n1")
+    >>> pub.publish("status", {"uptime_s": 1.0})
+    True
+    >>> pub.close()
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import zmq
+
+from hdeem_watch.daemon import protocol
+from hdeem_watch.daemon.client import ipc_path
+
+#: Topics whose latest message is cached and re-sent to new subscribers.
+CACHED_KINDS = ("calib", "baseline")
+
+
+def bind_endpoint(sock: zmq.Socket[Any], endpoint: str) -> str:
+    """Bind ``sock``; for ipc, create the directory (0750) and make the socket file 0660.
+
+    Returns:
+        The endpoint actually bound (``tcp://*:0`` resolves to its port).
+
+    Raises:
+        OSError: the directory cannot be created.
+        zmq.ZMQError: the endpoint cannot be bound (in use, bad address).
+    """
+    path = ipc_path(endpoint)
+    if path is not None:
+        if len(str(path)) > 107:
+            raise OSError(f"ipc path longer than 107 bytes: {path}")
+        if not path.parent.exists():
+            path.parent.mkdir(parents=True, mode=0o750)
+    sock.bind(endpoint)
+    bound = sock.getsockopt(zmq.LAST_ENDPOINT)
+    if path is not None:
+        os.chmod(path, stat.S_IRUSR | stat.S_IWUSR | stat.S_IRGRP | stat.S_IWGRP)
+    return bound.decode() if isinstance(bound, bytes) else str(bound)
+
+
+class Publisher:
+    """Publishes protocol-v1 messages of one node on an XPUB socket.
+
+    Args:
+        context: the ZeroMQ context.
+        endpoint: where to bind.
+        node: node name used in every topic and header.
+        sndhwm: per-subscriber queue length in messages.
+
+    Attributes:
+        sent: messages handed to ZeroMQ.
+        dropped: messages ZeroMQ refused at once (``EAGAIN``; not expected with XPUB).
+        subscriptions: subscription messages seen.
+    """
+
+    def __init__(self, context: zmq.Context[Any], endpoint: str, *, node: str, sndhwm: int = 20_000) -> None:
+        self.node = node
+        self.socket = context.socket(zmq.XPUB)
+        self.socket.setsockopt(zmq.SNDHWM, int(sndhwm))
+        self.socket.setsockopt(zmq.LINGER, 0)
+        self.socket.setsockopt(zmq.XPUB_VERBOSE, 1)
+        self.endpoint = bind_endpoint(self.socket, endpoint)
+        self._seq = protocol.SequenceCounter()
+        self._cache: dict[str, list[bytes]] = {}
+        self.sent = 0
+        self.dropped = 0
+        self.subscriptions = 0
+
+    def _send(self, frames: list[bytes]) -> bool:
+        try:
+            self.socket.send_multipart(frames, flags=zmq.NOBLOCK, copy=len(frames[2]) < 65536)
+        except zmq.Again:
+            self.dropped += 1
+            return False
+        self.sent += 1
+        return True
+
+    def publish(self, kind: str, body: Mapping[str, Any], *, t_ns: int | None = None) -> bool:
+        """Publish a non-sample message (``status``, ``run``, ``calib``, ``baseline``)."""
+        topic = protocol.topic(self.node, kind)
+        header = dict(body)
+        header.update(
+            {"v": protocol.VERSION, "seq": self._seq.next(topic), "node": self.node,
+             "t_ns": protocol.now_ns() if t_ns is None else int(t_ns)}
+        )
+        frames = protocol.encode(topic, header)
+        if kind in CACHED_KINDS:
+            self._cache[topic] = frames
+        return self._send(frames)
+
+    def publish_samples(
+        self,
+        channel: str,
+        *,
+        rate_hz: float,
+        t_wall_ns: np.ndarray,
+        power_w: np.ndarray,
+        energy_j: float,
+        status: str,
+        t_ns: int | None = None,
+    ) -> bool:
+        """Publish one samples batch of one channel."""
+        topic = protocol.samples_topic(self.node, channel)
+        frames = protocol.encode_samples(
+            self.node, channel, seq=self._seq.next(topic), rate_hz=rate_hz, t_wall_ns=t_wall_ns,
+            power_w=power_w, energy_j=energy_j, status=status, t_ns=t_ns,
+        )
+        return self._send(frames)
+
+    def handle_subscriptions(self) -> int:
+        """Read pending subscription messages; re-send cached topics a new subscription covers."""
+        handled = 0
+        resend: set[str] = set()
+        while True:
+            try:
+                message = self.socket.recv(flags=zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            handled += 1
+            if not message or message[0] != 1:
+                continue
+            self.subscriptions += 1
+            prefix = message[1:]
+            for topic in self._cache:
+                if topic.encode().startswith(prefix):
+                    resend.add(topic)
+        for topic in sorted(resend):
+            frames = list(self._cache[topic])
+            # A re-send is a new message of its topic: fresh sequence number, same body.
+            header = protocol.loads_object(frames[1])
+            header["seq"] = self._seq.next(topic)
+            self._send([frames[0], protocol.dumps(header), frames[2]])
+        return handled
+
+    def close(self) -> None:
+        """Close the socket (pending messages are dropped: LINGER 0)."""
+        self.socket.close(linger=0)

@@ -1,0 +1,413 @@
+"""The node daemon process: sockets, the poll loop, heartbeat, persistence and the model worker.
+
+One thread runs everything that touches sockets, the source and SQLite: a ZeroMQ poll loop that
+wakes for control requests, new subscriptions and three fixed-rate deadlines (poll the source,
+heartbeat, re-publish calibration/baselines and look for quiet periods). The kernel model and the
+refit run in one worker thread (:class:`~hdeem_watch.daemon.modelling.RunModeller`); their results
+are picked up by the loop, stored and published. The control operations are in
+:mod:`hdeem_watch.daemon.operations`.
+
+Example:
+    >>> from hdeem_watch.config import DaemonSettings
+    >>> daemon = Daemon(DaemonSettings(state_dir="/tmp/x"))       # doctest: +SKIP
+    >>> daemon.start(); daemon.run()                              # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import fcntl
+import logging
+import math
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import psutil
+import zmq
+
+from hdeem_watch import __version__
+from hdeem_watch.config import DaemonSettings
+from hdeem_watch.daemon import baselines as bl
+from hdeem_watch.daemon.channels import ChannelAccount
+from hdeem_watch.daemon.client import default_endpoints, ipc_path
+from hdeem_watch.daemon.control import ControlServer, Pending
+from hdeem_watch.daemon.metrics import DaemonMetrics
+from hdeem_watch.daemon.modelling import MAX_HISTORY, RunModeller, compact_fit
+from hdeem_watch.daemon.operations import Operations
+from hdeem_watch.daemon.poller import IntervalTimer, wait_ms
+from hdeem_watch.daemon.publisher import Publisher
+from hdeem_watch.daemon.store import Store, StoreError
+from hdeem_watch.daemon.windows import Window
+from hdeem_watch.errors import InputError
+
+log = logging.getLogger("hdeem_watch.daemon")
+
+Clock = Callable[[], int]
+
+
+class Daemon:
+    """One node daemon.
+
+    Args:
+        settings: the configuration.
+        source: a ready source object (default: ``make_source(settings.source, ...)``).
+        clock: monotonic clock in ns (shared with the source's ``on_run`` events).
+        context: ZeroMQ context.
+    """
+
+    def __init__(self, settings: DaemonSettings, *, source: Any = None, clock: Clock = time.monotonic_ns,
+                 context: zmq.Context[Any] | None = None) -> None:
+        self.settings = settings
+        self.node = settings.node
+        self.clock = clock
+        self.context = context or zmq.Context.instance()
+        self.source = source
+        default_pub, default_control = default_endpoints(settings.runtime_dir)
+        self.pub_endpoint = settings.pub or default_pub
+        self.control_endpoint = settings.control or default_control
+        self.accounts: dict[str, ChannelAccount] = {}
+        self.dram_channels: tuple[str, ...] = ()
+        self.baselines: dict[str, bl.Baseline] = {}
+        self.windows: list[Window] = []
+        self.calib_body: dict[str, Any] = {}
+        self.worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="hdeem-model")
+        self.jobs: list[tuple[concurrent.futures.Future[Any], Callable[[Any], None]]] = []
+        self.publisher: Publisher | None = None
+        self.control: ControlServer | None = None
+        self.store: Store | None = None
+        self.modeller: RunModeller | None = None
+        self.metrics: DaemonMetrics | None = None
+        self.metrics_port: int | None = None
+        self.operations = Operations(self)
+        self._stop = False
+        self._lock_file: Any = None
+        self._process = psutil.Process()
+        self._t_open_mono = 0
+        self._last_health = "ok"
+        self._metric_last: dict[str, tuple[float, int, int]] = {}
+        self.polls = 0
+        self.poll_errors = 0
+
+    # -- lifecycle -------------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Lock the state directory, load state, open the source, bind the sockets.
+
+        Raises:
+            InputError: another daemon uses the state directory, an endpoint cannot be bound, the
+                source is unavailable (with its reason) or the state database is unusable.
+        """
+        state_dir = Path(self.settings.state_dir)
+        try:
+            state_dir.mkdir(parents=True, exist_ok=True, mode=0o750)
+            self._lock_file = open(state_dir / "daemon.lock", "w")  # noqa: SIM115 - held for the process life
+            fcntl.flock(self._lock_file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError(f"state dir {state_dir}: another hdeem-watch daemon is using it") from None
+        except OSError as error:
+            raise InputError(f"state dir {state_dir}: {error.strerror}") from None
+        try:
+            self.store = Store(state_dir / "state.db")
+        except StoreError as error:
+            raise InputError(str(error)) from None
+        self.store.close_interrupted_runs(time.time_ns())
+        self._load_state()
+        if self.source is None:
+            from hdeem_watch.sources.base import SourceUnavailable, make_source
+
+            try:
+                self.source = make_source(self.settings.source, **self.settings.source_options())
+                self.source.open()
+            except SourceUnavailable as error:
+                raise InputError(f"source {self.settings.source}: {error.reason}") from None
+        else:
+            self.source.open()
+        infos = self.source.channels()
+        self.accounts = {
+            i.name: ChannelAccount(i.name, i.rate_hz, i.kind, history_s=self.settings.quiet_history_s) for i in infos
+        }
+        self.dram_channels = tuple(i.name for i in infos if i.kind == "dram")
+        try:
+            self.publisher = Publisher(self.context, self.pub_endpoint, node=self.node, sndhwm=self.settings.sndhwm)
+            self.control = ControlServer(self.context, self.control_endpoint, self.operations.handlers())
+        except (zmq.ZMQError, OSError) as error:
+            self._close_sockets()
+            raise InputError(f"cannot bind {self.pub_endpoint} / {self.control_endpoint}: {error}") from None
+        self.pub_endpoint, self.control_endpoint = self.publisher.endpoint, self.control.endpoint
+        if self.settings.prometheus_port is not None:
+            self.metrics = DaemonMetrics(self.node)
+            try:
+                self.metrics_port = self.metrics.serve(self.settings.prometheus_port, self.settings.prometheus_addr)
+            except OSError as error:
+                self._close_sockets()
+                raise InputError(f"prometheus port {self.settings.prometheus_port}: {error.strerror}") from None
+        self._t_open_mono = self.clock()
+        self._process.cpu_percent(None)
+        log.info("hdeem-watch daemon %s: node %s, source %s, pub %s, control %s", __version__, self.node,
+                 self.settings.source, self.pub_endpoint, self.control_endpoint)
+
+    def _load_state(self) -> None:
+        assert self.store is not None
+        for channel, record in self.store.load_baselines().items():
+            try:
+                self.baselines[channel] = bl.Baseline.from_dict(record)
+            except (ValueError, TypeError):
+                log.warning("ignoring a malformed stored baseline of %s", channel)
+        history: list[dict[str, Any]] = []
+        for t_ns, _run_id, fit in self.store.fit_history(MAX_HISTORY):
+            if fit is None:
+                history.clear()  # a calib.reset
+            else:
+                history.append(compact_fit(t_ns, fit))
+        self.modeller = RunModeller(
+            self.settings.memspec, dimms=self.settings.dimms, currents=self.settings.currents,
+            half_life_s=self.settings.half_life_s or None, max_requests=self.settings.model_max_requests,
+            state=self.store.load_calibrator(), history=history,
+        )
+        if self.modeller.restore_error:
+            log.warning("calibrator state not restored: %s", self.modeller.restore_error)
+        self.calib_body = self.modeller.body()
+
+    def request_stop(self) -> None:
+        """Ask the loop to end (safe from a signal handler)."""
+        self._stop = True
+
+    def close(self) -> None:
+        """Finish the model jobs, close the sockets, the source and the database."""
+        self.worker.shutdown(wait=True)
+        self._collect_jobs()
+        self._close_sockets()
+        if self.metrics is not None:
+            self.metrics.close()
+        if self.source is not None:
+            try:
+                self.source.close()
+            except Exception as error:
+                log.warning("source close failed: %s", error)
+        if self.store is not None:
+            self.store.close()
+            self.store = None
+        if self._lock_file is not None:
+            self._lock_file.close()
+            self._lock_file = None
+        log.info("hdeem-watch daemon stopped (%d polls)", self.polls)
+
+    def _close_sockets(self) -> None:
+        for part in (self.publisher, self.control):
+            if part is not None:
+                part.close()
+                path = ipc_path(part.endpoint)
+                if path is not None:
+                    path.unlink(missing_ok=True)
+        self.publisher = self.control = None
+
+    # -- the loop --------------------------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Serve until :meth:`request_stop` (or SIGTERM/SIGINT via the command line)."""
+        assert self.publisher is not None and self.control is not None
+        interval = round(self.settings.poll_interval_s * 1e9)
+        poll_timer = IntervalTimer(interval, clock=self.clock)
+        heartbeat = IntervalTimer(round(self.settings.heartbeat_s * 1e9), clock=self.clock)
+        republish = IntervalTimer(round(self.settings.republish_s * 1e9), clock=self.clock,
+                                  start_ns=self.clock())
+        poller = zmq.Poller()
+        poller.register(self.control.socket, zmq.POLLIN)
+        poller.register(self.publisher.socket, zmq.POLLIN)
+        self.poll_once()
+        while not self._stop:
+            events = dict(poller.poll(wait_ms([poll_timer, heartbeat, republish], cap_ms=100)))
+            if self.control.socket in events:
+                self.control.handle()
+            if self.publisher.socket in events:
+                self.publisher.handle_subscriptions()
+            if poll_timer.due():
+                poll_timer.advance()
+                self.poll_once()
+            if heartbeat.due():
+                heartbeat.advance()
+                self.publish_status()
+            if republish.due():
+                republish.advance()
+                self.look_for_quiet_periods()
+                self.publish_calib()
+                self.publish_baselines()
+            self._collect_jobs()
+
+    def submit(self, job: Callable[[], Any], done: Callable[[Any], None]) -> None:
+        """Run ``job`` on the model worker; call ``done(result)`` in the loop when it finished."""
+        self.jobs.append((self.worker.submit(job), done))
+
+    def _collect_jobs(self) -> None:
+        if not self.jobs:
+            return
+        remaining = []
+        for future, done in self.jobs:
+            if not future.done():
+                remaining.append((future, done))
+                continue
+            try:
+                done(future.result())
+            except Exception:
+                log.exception("model job failed")
+        self.jobs = remaining
+
+    # -- polling ---------------------------------------------------------------------------------------
+
+    def poll_once(self) -> Any:
+        """Poll the source, account and publish every channel, advance the windows; return the batch."""
+        assert self.publisher is not None
+        self.polls += 1
+        try:
+            batch = self.source.poll()
+        except Exception as error:  # a sensor failure must not end the daemon
+            self.poll_errors += 1
+            message = f"error: {type(error).__name__}: {error}"
+            if message != self._last_health:
+                log.warning("source poll failed: %s", message)
+            self._last_health = message
+            for failed in self.accounts.values():
+                failed.status = message
+            return None
+        running = any(w.kind == "run" for w in self.windows)
+        for name, (t_ns, power_w) in batch.samples.items():
+            found = self.accounts.get(name)
+            if found is None:
+                continue
+            account = found
+            energy = batch.energy_j.get(name, math.nan)
+            status = batch.status.get(name, "ok")
+            account.update(t_ns, power_w, energy_j=energy, status=status,
+                           reported_missing=int(batch.gaps.get(name, 0)) if batch.gaps else 0,
+                           keep_history=not running)
+            for window in self.windows:
+                window.add_samples(name, power_w)
+            self.publisher.publish_samples(name, rate_hz=account.rate_hz, t_wall_ns=t_ns, power_w=power_w,
+                                           energy_j=energy, status=status)
+        self.operations.advance_windows(self.clock())
+        return batch
+
+    def last_sample_times(self) -> dict[str, int | None]:
+        """The last sample time of every channel."""
+        return {name: a.last_t_ns for name, a in self.accounts.items()}
+
+    def energies(self) -> dict[str, float]:
+        """The cumulative energy of every channel."""
+        return {name: a.energy_j for name, a in self.accounts.items()}
+
+    @property
+    def speed(self) -> float:
+        """Source seconds per monotonic second (sim/replay speed; 1 for real sensors)."""
+        value = getattr(self.source, "speed", 1.0)
+        return float(value) if isinstance(value, int | float) and value > 0 else 1.0
+
+    # -- publishing ------------------------------------------------------------------------------------
+
+    def status_body(self) -> dict[str, Any]:
+        """The heartbeat body (also the base of the ``status`` op)."""
+        try:
+            health = str(self.source.health())
+        except Exception as error:
+            health = f"error: {error}"
+        if self._last_health.startswith("error") and health == "ok":
+            health = self._last_health
+        memory = self._process.memory_info()
+        run = next((w.context.get("record") for w in self.windows if w.kind == "run"), None)
+        return {
+            "source": {"kind": getattr(self.source, "kind", self.settings.source), "health": health},
+            "channels": {name: a.status_entry() for name, a in self.accounts.items()},
+            "process": {"cpu_percent": self._cpu_percent, "rss_bytes": int(memory.rss), "pid": os.getpid()},
+            "run": run,
+            "uptime_s": (self.clock() - self._t_open_mono) / 1e9,
+            "endpoints": {"pub": self.pub_endpoint, "control": self.control_endpoint},
+            "speed": self.speed,
+            "prometheus_port": self.metrics_port,
+        }
+
+    _cpu_percent = math.nan
+
+    def publish_status(self) -> None:
+        """Publish the heartbeat (and update the Prometheus metrics once a second)."""
+        assert self.publisher is not None
+        self._cpu_percent = float(self._process.cpu_percent(None))
+        self._last_health = "ok" if self.poll_errors == 0 else self._last_health
+        for account in self.accounts.values():
+            account.close_rate_window()
+        self.publisher.publish("status", self.status_body())
+        if self.metrics is not None:
+            for name, account in self.accounts.items():
+                energy0, samples0, gaps0 = self._metric_last.get(name, (0.0, 0, 0))
+                energy = account.energy_j
+                self.metrics.observe_channel(name, power_w=account.power_w, energy_delta_j=energy - energy0,
+                                             samples=account.samples - samples0, missing=account.gaps - gaps0)
+                self._metric_last[name] = (energy if math.isfinite(energy) else energy0, account.samples,
+                                           account.gaps)
+        self.poll_errors = 0
+
+    def truth(self) -> dict[str, Any] | None:
+        """The simulated source's hidden truth, or None for real sensors."""
+        getter = getattr(self.source, "truth", None)
+        if getter is None:
+            return None
+        try:
+            return dict(getter())
+        except Exception:
+            return None
+
+    def publish_calib(self) -> None:
+        """Publish the ``calib`` body (cached by the publisher for late joiners)."""
+        if self.publisher is not None:
+            self.publisher.publish("calib", self.calib_with_truth())
+
+    def calib_with_truth(self) -> dict[str, Any]:
+        """The latest ``calib`` body with the sim's truth now."""
+        body = dict(self.calib_body)
+        body["truth"] = self.truth()
+        return body
+
+    def publish_baselines(self) -> None:
+        """Publish the ``baseline`` body (cached for late joiners)."""
+        if self.publisher is not None:
+            self.publisher.publish("baseline", bl.baselines_body(self.baselines))
+        if self.metrics is not None:
+            self.metrics.observe_baselines({c: b.power_w for c, b in self.baselines.items()})
+
+    def update_baseline(self, channel: str, baseline: bl.Baseline) -> bool:
+        """Merge a new baseline; store it if it was kept. Returns whether it changed."""
+        kept = bl.merge(self.baselines.get(channel), baseline)
+        if kept is self.baselines.get(channel):
+            return False
+        self.baselines[channel] = kept
+        if self.store is not None:
+            self.store.save_baseline(channel, kept.to_dict())
+        return True
+
+    def look_for_quiet_periods(self) -> None:
+        """Baselines from quiet periods of the recent samples (only while no window is open)."""
+        if self.windows:
+            return
+        changed = False
+        for name in self.dram_channels:
+            account = self.accounts[name]
+            ring = account.history
+            if ring is None or len(ring) == 0:
+                continue
+            values = ring.values()
+            found = bl.quiet_window(values, rate_hz=account.rate_hz, window_s=self.settings.quiet_window_s,
+                                    max_spread_w=self.settings.quiet_max_spread_w)
+            if found is None:
+                continue
+            baseline = bl.baseline_from_samples(values[found[0]:found[1]], t_ns=account.last_t_ns or 0,
+                                                origin="quiet")
+            changed |= self.update_baseline(name, baseline)
+        if changed:
+            self.publish_baselines()
+
+    def complete(self, pending: Pending, result: Any = None, error: tuple[str, str] | None = None) -> None:
+        """Send a deferred control reply."""
+        if self.control is not None:
+            self.control.complete(pending, result, error=error)
+
