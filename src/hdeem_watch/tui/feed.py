@@ -130,7 +130,7 @@ class NodeFeed(threading.Thread):
         try:
             while not self._halt.is_set():
                 now = self._clock()
-                if self._sub is None or self._is_quiet(now):
+                if self._sub is None or not self._reachable or self._is_quiet(now):
                     self._probe(now)
                 self._handle_requests()
                 wait_ms = max(0, (next_snapshot - self._clock()) // 1_000_000)
@@ -197,7 +197,7 @@ class NodeFeed(threading.Thread):
         node = status.get("node")
         if pub and (self._sub is None or pub != self._pub_endpoint):
             self._subscribe(pub, node if isinstance(node, str) else None)
-        self.model.apply_status(status)
+        self.model.apply_status(status, wall_ns=self._wall())
         if not self._reachable:
             self._reachable = True
             self._late_join()

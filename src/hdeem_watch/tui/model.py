@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.daemon.protocol import GapTracker, Message
+from hdeem_watch.daemon.protocol import Message
 from hdeem_watch.tui.downsample import minmax_columns
 from hdeem_watch.tui.records import calib_view, first_num, num, run_view
 from hdeem_watch.tui.ring import SampleRing
@@ -39,6 +39,8 @@ CHANNEL_ORDER = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH", "CPU0", "CPU1", "BLADE"
 STALE_AFTER_S = 3.0
 #: The "current value" is the mean over this trailing span of samples.
 CURRENT_SPAN_NS = 500_000_000
+#: Two status messages whose implied daemon start times differ by more than this are two daemons.
+BOOT_TOLERANCE_S = 1.0
 #: How many finished runs to keep.
 MAX_RUNS = 200
 
@@ -86,7 +88,9 @@ class NodeModel:
         self.max_window_s = max_window_s
         self.stale_after_s = stale_after_s
         self.node = "?"
-        self.gaps = GapTracker()
+        self.gaps = 0
+        self.restarts = 0
+        self._last_seq: dict[str, int] = {}
         self.connection = "connecting"
         self.detail = ""
         self.notice = ""
@@ -99,7 +103,7 @@ class NodeModel:
         self._calib_body: Mapping[str, Any] = {}
         self._calib_cache: tuple[int, CalibView] | None = None
         self._calib_version = 0
-        self._last_uptime_s = math.nan
+        self._boot_s = math.nan
 
     # ------------------------------------------------------------------ feeding
 
@@ -112,14 +116,13 @@ class NodeModel:
 
     def apply(self, msg: Message, recv_mono_ns: int) -> None:
         """Take one decoded stream message received at ``recv_mono_ns`` (monotonic)."""
+        if self.last_rx_mono_ns is not None and recv_mono_ns - self.last_rx_mono_ns > self.stale_after_s * 1e9:
+            self._last_seq.clear()  # after a silence a jump is not countable as loss (the silence showed)
         self.last_rx_mono_ns = recv_mono_ns
         if self.connection in ("connecting", "stale", "reconnecting"):
             self.connection = "live"
         self.node = msg.node
-        restarts = self.gaps.restarts
-        self.gaps.observe(msg.topic, msg.seq)
-        if self.gaps.restarts != restarts:
-            self.detail = "daemon restarted"
+        self._observe_seq(msg.topic, msg.seq)
         header = msg.header
         if msg.kind == "samples" and msg.channel is not None:
             channel = self._channel(msg.channel, num(header.get("rate_hz")))
@@ -136,13 +139,38 @@ class NodeModel:
         elif msg.kind == "baseline":
             self.apply_baselines(header)
 
-    def apply_status(self, body: Mapping[str, Any]) -> None:
-        """Take a status heartbeat (or the ``status`` control result)."""
+    def _observe_seq(self, topic: str, seq: int) -> None:
+        """Count missed messages per topic; a sequence going backwards is a daemon restart."""
+        last = self._last_seq.get(topic)
+        self._last_seq[topic] = seq
+        if last is None:
+            return
+        if seq <= last:
+            self._restarted()
+            self._last_seq[topic] = seq
+        else:
+            self.gaps += seq - last - 1
+
+    def _restarted(self) -> None:
+        """A new daemon instance: count it once and start the sequence bookkeeping afresh."""
+        self.restarts += 1
+        self.detail = "daemon restarted"
+        self._last_seq.clear()
+        self._boot_s = math.nan
+
+    def apply_status(self, body: Mapping[str, Any], wall_ns: int | None = None) -> None:
+        """Take a status heartbeat (or the ``status`` control result received at ``wall_ns``).
+
+        The daemon's start time (wall clock minus uptime) tells a restart even when no sequence
+        number went backwards (the first messages of the new daemon were missed).
+        """
         uptime = num(body.get("uptime_s"))
-        if math.isfinite(uptime) and math.isfinite(self._last_uptime_s) and uptime + 0.5 < self._last_uptime_s:
-            self.detail = "daemon restarted"
-        if math.isfinite(uptime):
-            self._last_uptime_s = uptime
+        t_ns = num(body.get("t_ns")) if body.get("t_ns") is not None else num(wall_ns)
+        if math.isfinite(uptime) and math.isfinite(t_ns):
+            boot_s = t_ns / 1e9 - uptime
+            if math.isfinite(self._boot_s) and abs(boot_s - self._boot_s) > BOOT_TOLERANCE_S:
+                self._restarted()
+            self._boot_s = boot_s
         if isinstance(body.get("node"), str):
             self.node = body["node"]
         self._status = body
@@ -217,8 +245,8 @@ class NodeModel:
             endpoint=self.endpoint,
             detail=self.detail,
             last_rx_age_s=age,
-            gaps=self.gaps.missed,
-            restarts=self.gaps.restarts,
+            gaps=self.gaps,
+            restarts=self.restarts,
             source_kind=str(source.get("kind", "")),
             source_health=str(source.get("health", "")),
             cpu_percent=num(process.get("cpu_percent")),

@@ -1,0 +1,97 @@
+"""The feed thread over real ZeroMQ sockets (ipc), against a small wire-protocol publisher."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from hdeem_watch.tui.fakenode import FakeNode
+from hdeem_watch.tui.feed import FeedHub, NodeFeed, ViewSettings, pub_endpoint_for
+from hdeem_watch.tui.snapshot import NodeSnapshot
+
+
+def wait_for(feed: NodeFeed, cond: Callable[[NodeSnapshot], bool], timeout_s: float = 8.0) -> NodeSnapshot:
+    """The first snapshot satisfying ``cond`` (fails with the last one otherwise)."""
+    deadline = time.monotonic() + timeout_s
+    snap = feed.latest
+    while time.monotonic() < deadline:
+        snap = feed.latest
+        if cond(snap):
+            return snap
+        time.sleep(0.05)
+    raise AssertionError(f"condition not met within {timeout_s} s; last health: {snap.health}")
+
+
+def test_feed_learns_stream_endpoint_and_values_update(fake_node: FakeNode) -> None:
+    """From only the control endpoint the feed finds the stream, and the DRAM values change over time."""
+    feed = NodeFeed(fake_node.control_endpoint, view=ViewSettings(window_s=5, width=40))
+    feed.start()
+    try:
+        first = wait_for(feed, lambda s: s.health.state == "live" and len(s.channels) == 7)
+        assert first.node == "fake1" and first.health.source_kind == "fake"
+        assert [c.name for c in first.channels][:4] == ["DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"]
+        time.sleep(0.6)
+        later = wait_for(feed, lambda s: s.built_mono_ns > first.built_mono_ns)
+        assert any(a.power_w != b.power_w for a, b in zip(first.channels, later.channels))
+        blade = next(c for c in later.channels if c.name == "BLADE")
+        assert blade.rate_hz == 1000.0 and blade.columns is not None and blade.columns.width == 40
+    finally:
+        feed.stop()
+
+
+def test_feed_counts_wire_gaps(fake_node: FakeNode) -> None:
+    """Messages the publisher skips (sequence numbers jump) show up as gaps in the health view."""
+    feed = NodeFeed(fake_node.control_endpoint)
+    feed.start()
+    try:
+        wait_for(feed, lambda s: s.health.state == "live")
+        assert feed.latest.health.gaps == 0
+        fake_node.skip_seq = 3
+        snap = wait_for(feed, lambda s: s.health.gaps >= 3)
+        assert snap.health.gaps == 3
+    finally:
+        feed.stop()
+
+
+def test_feed_goes_stale_then_reconnects_to_a_restarted_daemon(sock_dir: Path) -> None:
+    """A vanished daemon turns the node stale/reconnecting; a new one on the same endpoints is picked up again."""
+    pub, ctl = f"ipc://{sock_dir}/r-pub", f"ipc://{sock_dir}/r-ctl"
+    node = FakeNode("rn", pub, ctl).start_and_wait()
+    feed = NodeFeed(ctl, stale_after_s=1.0, control_timeout_s=0.3)
+    feed.start()
+    try:
+        wait_for(feed, lambda s: s.health.state == "live")
+        node.stop()
+        (sock_dir / "r-ctl").unlink(missing_ok=True)
+        down = wait_for(feed, lambda s: s.health.state in ("stale", "reconnecting"))
+        wait_for(feed, lambda s: s.health.state == "reconnecting")
+        assert down.health.state != "live"
+        node = FakeNode("rn", pub, ctl).start_and_wait()
+        back = wait_for(feed, lambda s: s.health.state == "live" and s.health.restarts >= 1)
+        assert back.health.restarts == 1 and back.health.last_rx_age_s < 1.0
+    finally:
+        feed.stop()
+        node.stop()
+
+
+def test_control_request_reaches_daemon_and_notice_shows_reply(fake_node: FakeNode) -> None:
+    """A UI request (baseline.measure) is sent by the feed's thread; the reply and the new baseline show up."""
+    hub = FeedHub([fake_node.control_endpoint])
+    hub.start()
+    try:
+        wait_for(hub.feeds[0], lambda s: s.health.state == "live")
+        hub.request(0, "baseline.measure", {"seconds": 2.0})
+        snap = wait_for(hub.feeds[0], lambda s: "baseline.measure: ok" in s.health.notice)
+        assert ("baseline.measure", {"seconds": 2.0}) in fake_node.requests
+        snap = wait_for(hub.feeds[0], lambda s: all(c.baseline_w == c.baseline_w for c in s.channels))
+        assert snap.channels[0].baseline_w == 6.0
+    finally:
+        hub.stop()
+
+
+def test_wildcard_pub_endpoint_uses_control_host() -> None:
+    """A daemon bound to tcp://*:port is reached at the host of its control endpoint."""
+    assert pub_endpoint_for("tcp://node7:5591", "tcp://*:5592") == "tcp://node7:5592"
+    assert pub_endpoint_for("tcp://node7:5591", "tcp://10.0.0.7:5592") == "tcp://10.0.0.7:5592"
+    assert pub_endpoint_for("ipc:///a", "ipc:///b") == "ipc:///b"
