@@ -1,0 +1,342 @@
+"""HDEEM source: libhdeem through the C shim, honouring the library's quirks.
+
+Two methods:
+
+* ``"energy"`` (default, the MetricQ HDEEM source's way): every poll reads the energy totals since
+  power-on (``hdeem_get_stats_total``) and publishes, per sensor, one sample ``ΔE/Δt`` over the
+  interval between the BMC's read times, stamped at the read time. No energy is lost between polls:
+  after a missed or failed poll the next good one covers the whole interval. ``rate_hz`` of every
+  channel is then the poll rate (``1/interval_s``).
+* ``"global"``: every poll reads the sample buffer since start (``hdeem_get_global``) and publishes
+  the new samples at the native rates (BLADE 1000 Sa/s, VR 100 Sa/s; timestamps reconstructed from
+  the first blade sample's time, since the buffer has none per sample). The buffer is re-armed
+  (stop, wait, clear, start) after ``rearm_s`` to keep reads short.
+
+Quirks: ``hdeem_start`` fails while a measurement runs (clear, then start again); ``hdeem_stop`` is
+asynchronous (poll the status until neither BMC nor FPGA polls, then read the overflow flags);
+``get_stats`` latency is irregular (a call slower than ``slow_s`` counts as missing data: NaN and
+status ``"stale"``, and the next good poll covers the interval); connections fail (NaN samples with
+``"error: ..."``, reconnect with exponential back-off ``backoff_s`` doubling up to ``backoff_max_s``);
+sensor names vary in case and ``_``/space (normalised onto :data:`~hdeem_watch.sources.base.CHANNELS`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from hdeem_watch.sources.base import (
+    STATUS_GAP,
+    STATUS_OK,
+    STATUS_OVERFLOW,
+    STATUS_STALE,
+    ChannelInfo,
+    ChannelKind,
+    SourceBatch,
+    SourceUnavailable,
+    normalise_channel_name,
+)
+from hdeem_watch.sources.hdeem_lib import (
+    BLADE_OVERFLOW,
+    BMC_OVERFLOW,
+    BMC_POLLING,
+    DEFAULT_LIBS,
+    FPGA_POLLING,
+    PERMISSION_CODES,
+    VR_OVERFLOW,
+    HdeemError,
+    ShimLib,
+    build_shim,
+    find_compiler,
+    find_header,
+    find_library,
+)
+
+PERMISSION_FIX = ("run the daemon as the privileged collector (root, or the service user with access to "
+                  "/dev/ipmi0 / the BMC credentials), e.g. the hdeem-watchd systemd unit")
+
+
+def probe(include_dir: str | None = None, lib_dir: str | None = None) -> str | None:
+    """``None`` if an HDEEM source can be built here, else why not (without touching the BMC)."""
+    if find_compiler() is None:
+        return "hdeem: no C compiler (cc/gcc/clang) to build the libhdeem shim; install gcc"
+    if find_header(include_dir) is None:
+        return "hdeem: hdeem.h not found (libhdeem is present only on Bull/Atos HDEEM nodes); set include_dir"
+    if find_library(lib_dir) is None:
+        return "hdeem: libhdeem not found (present only on Bull/Atos HDEEM nodes); set lib_dir"
+    if os.path.exists("/dev/ipmi0") and not os.access("/dev/ipmi0", os.R_OK | os.W_OK):
+        return f"hdeem: permission denied on /dev/ipmi0; {PERMISSION_FIX}"
+    return None
+
+
+class HdeemSource:
+    """HDEEM through libhdeem.
+
+    Args:
+        host, user, password: BMC for out-of-band access (``None`` = in-band).
+        include_dir, lib_dir, cache_dir, cc, libs: how to build the shim (see ``build_shim``).
+        method: ``"energy"`` or ``"global"``.
+        interval_s: the daemon's poll period (nominal ``rate_hz`` of the ``"energy"`` method).
+        slow_s: a ``get_stats`` call slower than this is missing data.
+        backoff_s, backoff_max_s: reconnect back-off (doubling).
+        stop_timeout_s: how long to wait for an asynchronous stop.
+        status_every_s: how often to read the status flags.
+        rearm_s: ``"global"``: re-arm the buffer after this long.
+        clock: monotonic clock (ns) for back-off and status timing.
+        wall_clock: wall clock (ns) for NaN samples' timestamps.
+        sleep: ``time.sleep`` (injectable).
+    """
+
+    kind = "hdeem"
+
+    def __init__(self, host: str | None = None, user: str | None = None, password: str | None = None, *,
+                 include_dir: str | None = None, lib_dir: str | None = None, cache_dir: str | None = None,
+                 cc: str | None = None, libs: Sequence[str] = DEFAULT_LIBS, method: str = "energy",
+                 interval_s: float = 0.1, slow_s: float = 0.25, backoff_s: float = 0.5,
+                 backoff_max_s: float = 30.0, stop_timeout_s: float = 2.0, status_every_s: float = 1.0,
+                 rearm_s: float = 600.0, clock: Callable[[], int] = time.monotonic_ns,
+                 wall_clock: Callable[[], int] = time.time_ns, sleep: Callable[[float], Any] = time.sleep) -> None:
+        if method not in ("energy", "global"):
+            from hdeem_watch.errors import InputError
+
+            raise InputError(f"hdeem: method = {method!r}; expected 'energy' or 'global'")
+        self._conn = (host, user, password)
+        self._build = dict(include_dir=include_dir, lib_dir=lib_dir, cache_dir=cache_dir, cc=cc, libs=tuple(libs))
+        self.method = method
+        self.interval_s = interval_s
+        self.slow_s = slow_s
+        self.backoff_s = backoff_s
+        self.backoff_max_s = backoff_max_s
+        self.stop_timeout_s = stop_timeout_s
+        self.status_every_ns = int(status_every_s * 1e9)
+        self.rearm_ns = int(rearm_s * 1e9)
+        self._clock, self._wall, self._sleep = clock, wall_clock, sleep
+        self.lib: ShimLib | None = None
+        self._handle: int | None = None
+        self._names: list[str] = []
+        self._nblade = 1
+        self._error: str | None = None
+        self._retry_at = 0
+        self._delay = backoff_s
+        self._last_status_ns = -(1 << 62)
+        self._flags = 0
+        self.overflow_at_stop: int | None = None
+        self._e0: np.ndarray | None = None
+        self._e_last: np.ndarray | None = None
+        self._read_last: list[int] = [0, 0]
+        self._global_next = [0, 0]
+        self._global_first_ns = 0
+        self._armed_at = 0
+        self._energy_j: dict[str, float] = {}
+        self.reconnects = 0
+
+    # -- lifecycle -----------------------------------------------------------------------------------
+    def channels(self) -> list[ChannelInfo]:
+        """The sensors (normalised names); rates per method (see the module docstring)."""
+        names = self._names or ["BLADE", "CPU0", "CPU1", "DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"]
+        infos = []
+        for i, name in enumerate(names):
+            kind: ChannelKind = "blade" if i < self._nblade else ("dram" if name.startswith("DDR") else "cpu")
+            native = 1000.0 if i < self._nblade else 100.0
+            infos.append(ChannelInfo(name, native if self.method == "global" else 1.0 / self.interval_s, kind))
+        return infos
+
+    def open(self) -> None:
+        """Build/load the shim, connect, and start a measurement (clear-then-start if one runs).
+
+        Raises:
+            SourceUnavailable: the shim cannot be built/loaded, permission denied (with the fix), or the
+                BMC does not answer.
+        """
+        if self.lib is None:
+            self.lib = ShimLib(build_shim(**self._build))  # type: ignore[arg-type]
+        try:
+            self._connect()
+        except HdeemError as exc:
+            if exc.code in PERMISSION_CODES:
+                raise SourceUnavailable(f"hdeem: hdeem_init: permission denied (code {exc.code}); "
+                                        f"{PERMISSION_FIX}") from None
+            raise SourceUnavailable(f"hdeem: hdeem_init failed with code {exc.code} (BMC unreachable or "
+                                    "HDEEM disabled in the BIOS?)") from None
+        assert self._e_last is not None
+        self._e0 = self._e_last.copy()
+        self._energy_j = dict.fromkeys(self._names, 0.0)
+
+    def _connect(self) -> None:
+        assert self.lib is not None
+        self._handle = self.lib.open(*self._conn)
+        self._nblade, _ = self.lib.sensor_count(self._handle)
+        self._names = [normalise_channel_name(n) for n in self.lib.sensor_names(self._handle)]
+        self._start()
+        reading = self.lib.stats(self._handle, True, len(self._names))
+        if self._e_last is None:  # on a reconnect keep the baseline: totals since power-on go on
+            self._e_last = reading.energy_j.copy()
+            self._read_last = list(reading.read_ns)
+        self._error = None
+        self._delay = self.backoff_s
+
+    def _start(self) -> None:
+        """``hdeem_start``; it fails while a measurement runs, so clear and start again."""
+        assert self.lib is not None and self._handle is not None
+        if self.lib.start(self._handle) != 0:
+            self.lib.clear(self._handle)
+            rc = self.lib.start(self._handle)
+            if rc != 0:
+                raise HdeemError("hdeem_start", rc)
+        self._armed_at = int(self._clock())
+        self._global_next = [0, 0]
+
+    def stop(self) -> int:
+        """Stop the measurement and wait until neither BMC nor FPGA polls; returns the overflow flags."""
+        assert self.lib is not None and self._handle is not None
+        self.lib.stop(self._handle)
+        deadline = time.monotonic() + self.stop_timeout_s
+        flags = self.lib.status(self._handle)
+        while flags & (BMC_POLLING | FPGA_POLLING) and time.monotonic() < deadline:
+            self._sleep(0.005)
+            flags = self.lib.status(self._handle)
+        self.overflow_at_stop = flags & (BMC_OVERFLOW | BLADE_OVERFLOW | VR_OVERFLOW)
+        return self.overflow_at_stop
+
+    def close(self) -> None:
+        """Stop (waiting for the asynchronous stop), read the overflow flags, disconnect (idempotent)."""
+        if self.lib is None or self._handle is None:
+            return
+        with contextlib.suppress(HdeemError):
+            self.stop()
+        self.lib.close(self._handle)
+        self._handle = None
+
+    def health(self) -> str:
+        """``"ok"``, the connection error, or the overflow flags."""
+        if self._handle is None and self._error is None:
+            return "closed"
+        if self._error:
+            return f"error: {self._error}"
+        if self._flags & (BMC_OVERFLOW | BLADE_OVERFLOW | VR_OVERFLOW):
+            return f"overflow (flags 0x{self._flags:02x})"
+        return "ok"
+
+    # -- polling ---------------------------------------------------------------------------------------
+    def poll(self) -> SourceBatch:
+        """New samples (see the module docstring); NaN samples with a status when the BMC fails."""
+        if self.lib is None:
+            raise RuntimeError("HdeemSource.poll() before open()")
+        now = int(self._clock())
+        if self._handle is None:
+            if now < self._retry_at:
+                return self._failed_batch(now, f"error: {self._error}; retry in {(self._retry_at - now) / 1e9:.1f} s")
+            try:
+                self.reconnects += 1
+                self._connect()
+            except HdeemError as exc:
+                return self._lost(now, exc)
+        try:
+            self._check_status(now)
+            if self.method == "global":
+                return self._poll_global(now)
+            return self._poll_energy(now)
+        except HdeemError as exc:
+            return self._lost(now, exc)
+
+    def _lost(self, now: int, exc: HdeemError) -> SourceBatch:
+        """Connection failure: drop the handle, schedule a reconnect with exponential back-off."""
+        assert self.lib is not None
+        if self._handle is not None:
+            with contextlib.suppress(Exception):  # the connection is already broken
+                self.lib.close(self._handle)
+            self._handle = None
+        self._error = f"{exc.call} failed (code {exc.code})"
+        self._retry_at = now + int(self._delay * 1e9)
+        self._delay = min(self._delay * 2, self.backoff_max_s)
+        return self._failed_batch(now, f"error: {self._error}")
+
+    def _failed_batch(self, now: int, status: str) -> SourceBatch:
+        wall = int(self._wall())
+        nan = {n: (np.array([wall], dtype=np.int64), np.array([math.nan])) for n in self._names}
+        return SourceBatch(now, wall, nan, {n: math.nan for n in self._names}, dict.fromkeys(self._names, status))
+
+    def _check_status(self, now: int) -> None:
+        assert self.lib is not None and self._handle is not None
+        if now - self._last_status_ns >= self.status_every_ns:
+            self._flags = self.lib.status(self._handle)
+            self._last_status_ns = now
+
+    def _group_status(self, i: int) -> str:
+        blade = i < self._nblade
+        bits = BLADE_OVERFLOW if blade else VR_OVERFLOW
+        return STATUS_OVERFLOW if self._flags & (bits | BMC_OVERFLOW) else STATUS_OK
+
+    def _poll_energy(self, now: int) -> SourceBatch:
+        assert self.lib is not None and self._handle is not None
+        assert self._e_last is not None and self._e0 is not None
+        t0 = time.perf_counter()
+        reading = self.lib.stats(self._handle, True, len(self._names))
+        slow = time.perf_counter() - t0 > self.slow_s
+        wall = int(self._wall())
+        samples: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        status: dict[str, str] = {}
+        for i, name in enumerate(self._names):
+            g = 0 if i < self._nblade else 1
+            if slow:
+                samples[name] = (np.array([wall], dtype=np.int64), np.array([math.nan]))
+                status[name] = STATUS_STALE
+                continue
+            t_read, t_last = reading.read_ns[g], self._read_last[g]
+            de = float(reading.energy_j[i] - self._e_last[i])
+            if t_read <= t_last:
+                samples[name] = (np.zeros(0, dtype=np.int64), np.zeros(0))
+                status[name] = self._group_status(i)
+            elif de < 0:  # the counter went backwards (BMC reset): restart the baseline
+                samples[name] = (np.array([t_read], dtype=np.int64), np.array([math.nan]))
+                status[name] = "error: energy counter reset"
+                self._e0[i] -= self._e_last[i] - reading.energy_j[i]
+            else:
+                samples[name] = (np.array([t_read], dtype=np.int64), np.array([de / ((t_read - t_last) * 1e-9)]))
+                status[name] = self._group_status(i)
+        if not slow:
+            self._e_last = reading.energy_j.copy()
+            self._read_last = [max(a, b) for a, b in zip(reading.read_ns, self._read_last)]
+            self._energy_j = {n: float(self._e_last[i] - self._e0[i]) for i, n in enumerate(self._names)}
+        return SourceBatch(now, wall, samples, dict(self._energy_j), status)
+
+    def _poll_global(self, now: int) -> SourceBatch:
+        assert self.lib is not None and self._handle is not None
+        samples = self._collect_global()
+        gaps: dict[str, int] = {}
+        if now - self._armed_at >= self.rearm_ns:  # re-arm: take what is left, then clear and start
+            self.stop()
+            rest = self._collect_global()
+            samples = {n: (np.concatenate([samples[n][0], rest[n][0]]), np.concatenate([samples[n][1], rest[n][1]]))
+                       for n in samples}
+            t_stop = int(self._clock())
+            self.lib.clear(self._handle)
+            self._start()
+            lost_s = (int(self._clock()) - t_stop) * 1e-9
+            gaps = {n: max(1, round(lost_s * (1000 if i < self._nblade else 100)))
+                    for i, n in enumerate(self._names)}
+        status = {n: STATUS_GAP if gaps else self._group_status(i) for i, n in enumerate(self._names)}
+        return SourceBatch(now, int(self._wall()), samples, dict(self._energy_j), status, gaps)
+
+    def _collect_global(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """The samples of the global buffer not published yet (native rates)."""
+        assert self.lib is not None and self._handle is not None
+        counts, first_ns = self.lib.global_fetch(self._handle)
+        samples: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        for i, name in enumerate(self._names):
+            g = 0 if i < self._nblade else 1
+            period = 1_000_000 if g == 0 else 10_000_000
+            start = self._global_next[g]
+            values = self.lib.global_copy(self._handle, i, start, counts[g] - start)
+            # the buffer has no per-sample times: sample k ends k periods after the start of the first
+            t = first_ns - 1_000_000 + (np.arange(start, start + len(values), dtype=np.int64) + 1) * period
+            samples[name] = (t, values)
+            self._energy_j[name] = self._energy_j.get(name, 0.0) + float(values.sum()) * period * 1e-9
+        self._global_next = [counts[0], counts[1]]
+        return samples

@@ -1,0 +1,202 @@
+"""The HDEEM source on a fake libhdeem written in C: shim build, ΔE/Δt, and every documented quirk."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from hdeem_watch.sources.base import CHANNELS, SourceUnavailable, available_sources, make_source
+from hdeem_watch.sources.hdeem import HdeemSource
+from hdeem_watch.sources.hdeem_lib import BMC_POLLING, VR_OVERFLOW, ShimLib, build_shim
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 0
+
+    def __call__(self) -> int:
+        return self.t
+
+
+def opened(fake, **kw) -> HdeemSource:
+    src = HdeemSource(**fake.options(**kw))
+    src.open()
+    return src
+
+
+def test_shim_builds_once_and_reads_names(fake_hdeem):
+    """The shim compiles against hdeem.h with the documented link line, is cached, and reads the sensors."""
+    path = build_shim(**fake_hdeem.options(libs=("hdeem", "freeipmi", "rt")))
+    again = build_shim(**fake_hdeem.options(libs=("hdeem", "freeipmi", "rt")))
+    assert path == again and path.stat().st_size > 0
+    lib = ShimLib(path)
+    handle = lib.open()
+    try:
+        assert lib.sensor_names(handle) == list(CHANNELS)
+        assert lib.sensor_count(handle) == (1, 6)
+    finally:
+        lib.close(handle)
+
+
+def test_missing_header_is_unavailable(tmp_path):
+    """No hdeem.h → SourceUnavailable naming it; available_sources reports why."""
+    with pytest.raises(SourceUnavailable, match=r"hdeem\.h not found"):
+        make_source("hdeem", include_dir=str(tmp_path), lib_dir=str(tmp_path), cache_dir=str(tmp_path)).open()
+    reason = available_sources(hdeem_include_dir=str(tmp_path))["hdeem"]
+    assert reason and "hdeem.h" in reason
+
+
+def test_energy_method_publishes_delta_e_over_delta_t(fake_hdeem):
+    """Each poll publishes ΔE/Δt between the BMC's read times; the sum of sample energies equals the totals."""
+    src = opened(fake_hdeem)
+    try:
+        fake_hdeem.set_power(3, 2.5)       # DDR_AB
+        fake_hdeem.set_power(0, 150.0)     # BLADE
+        fake_hdeem.advance(1.0)
+        b1 = src.poll()
+        fake_hdeem.set_power(3, 4.0)
+        fake_hdeem.advance(2.0)
+        b2 = src.poll()
+        t1, p1 = b1.samples["DDR_AB"]
+        t2, p2 = b2.samples["DDR_AB"]
+        assert len(p1) == 1 and len(p2) == 1
+        assert p2[0] == pytest.approx(4.0, abs=0.02)
+        assert b2.samples["BLADE"][1][0] == pytest.approx(150.0, abs=0.2)
+        dt = (t2[0] - t1[0]) * 1e-9
+        assert dt == pytest.approx(2.0, abs=0.02)
+        # no energy lost between polls: cumulative energy = Σ P·Δt of the published samples (+ first interval)
+        assert b2.energy_j["DDR_AB"] - b1.energy_j["DDR_AB"] == pytest.approx(p2[0] * dt, rel=1e-9)
+        assert all(s == "ok" for s in b2.status.values())
+    finally:
+        src.close()
+
+
+def test_start_while_running_clears_then_starts(fake_hdeem):
+    """A measurement left running makes hdeem_start fail; the source clears and starts again."""
+    path = build_shim(**fake_hdeem.options(libs=("hdeem", "freeipmi", "rt")))
+    lib = ShimLib(path)
+    handle = lib.open()
+    lib.clear(handle)
+    assert lib.start(handle) == 0
+    assert lib.start(handle) != 0          # the quirk itself
+    lib.close(handle)
+    src = opened(fake_hdeem)               # still running from above: must clear, then start
+    try:
+        assert fake_hdeem.control("running") == 1
+        assert src.health() == "ok"
+    finally:
+        src.close()
+
+
+def test_stop_is_asynchronous_and_overflow_is_read_after(fake_hdeem):
+    """close() waits until the status stops polling, then reads the overflow flags."""
+    src = opened(fake_hdeem)
+    fake_hdeem.control("stop_ms", 150)
+    fake_hdeem.control("overflow", VR_OVERFLOW)
+    flags = src.stop()
+    assert flags & VR_OVERFLOW
+    assert not src.lib.status(src._handle) & BMC_POLLING
+    src.close()
+
+
+def test_slow_get_stats_is_missing_data_without_energy_loss(fake_hdeem):
+    """A get_stats slower than slow_s gives NaN + 'stale'; the next good poll covers the interval."""
+    src = opened(fake_hdeem, slow_s=0.1)
+    try:
+        fake_hdeem.set_power(4, 3.0)       # DDR_CD
+        fake_hdeem.advance(1.0)
+        good = src.poll()
+        fake_hdeem.control("slow_ms", 150)
+        fake_hdeem.control("slow_calls", 1)
+        fake_hdeem.advance(1.0)
+        slow = src.poll()
+        assert math.isnan(slow.samples["DDR_CD"][1][0]) and slow.status["DDR_CD"] == "stale"
+        fake_hdeem.advance(1.0)
+        after = src.poll()
+        t_good, t_after = good.samples["DDR_CD"][0][0], after.samples["DDR_CD"][0][0]
+        assert (t_after - t_good) * 1e-9 == pytest.approx(2.15, abs=0.1)   # one sample over both intervals
+        assert after.samples["DDR_CD"][1][0] == pytest.approx(3.0, abs=0.02)
+        assert after.energy_j["DDR_CD"] - good.energy_j["DDR_CD"] == pytest.approx(
+            3.0 * (t_after - t_good) * 1e-9, rel=0.01)
+    finally:
+        src.close()
+
+
+def test_connection_loss_reconnects_with_backoff(fake_hdeem):
+    """A failing BMC gives NaN + 'error: ...'; reconnects follow an exponential back-off; energy continues."""
+    clock = Clock()
+    src = opened(fake_hdeem, clock=clock, backoff_s=0.5, backoff_max_s=4.0)
+    try:
+        fake_hdeem.set_power(5, 2.0)        # DDR_EF
+        fake_hdeem.advance(1.0)
+        before = src.poll()
+        fake_hdeem.control("fail_calls", 1)
+        fake_hdeem.control("fail_init", 2)
+        failed = src.poll()
+        assert failed.status["DDR_EF"].startswith("error:") and math.isnan(failed.samples["DDR_EF"][1][0])
+        assert src.health().startswith("error")
+        attempts = []
+        recovered = False
+        for _ in range(40):                       # 0.1 s steps of the injected clock
+            clock.t += 100_000_000
+            n = src.reconnects
+            batch = src.poll()
+            if src.reconnects > n:
+                attempts.append(clock.t)
+            if batch.status["DDR_EF"] == "ok":
+                recovered = True
+                break
+        gaps = np.diff([0, *attempts]) / 1e9
+        assert len(attempts) == 3                     # two failed inits, then success
+        assert gaps[0] == pytest.approx(0.5, abs=0.11)
+        assert gaps[1] == pytest.approx(1.0, abs=0.11) and gaps[2] == pytest.approx(2.0, abs=0.11)
+        assert recovered and src.health() == "ok"
+        fake_hdeem.advance(1.0)
+        after = src.poll()
+        # the first good reading after the outage covers it: energy since open keeps growing at 2 W
+        total_s = (after.samples["DDR_EF"][0][0] - before.samples["DDR_EF"][0][0]) * 1e-9
+        assert after.energy_j["DDR_EF"] - before.energy_j["DDR_EF"] == pytest.approx(2.0 * total_s, rel=0.01)
+    finally:
+        src.close()
+
+
+@pytest.mark.parametrize("style", [1, 2])
+def test_sensor_names_are_normalised(fake_hdeem, style):
+    """'ddr ab' and 'Ddr_Ab' spellings map onto the canonical channel names."""
+    fake_hdeem.control("names_style", style)
+    src = opened(fake_hdeem)
+    try:
+        assert [c.name for c in src.channels()] == list(CHANNELS)
+        assert {c.kind for c in src.channels()} == {"blade", "cpu", "dram"}
+    finally:
+        src.close()
+
+
+def test_permission_denied_names_the_fix(fake_hdeem):
+    """hdeem_init failing with EACCES → SourceUnavailable telling to run as the privileged collector."""
+    fake_hdeem.control("deny", 1)
+    with pytest.raises(SourceUnavailable, match="privileged collector"):
+        opened(fake_hdeem)
+
+
+def test_global_method_native_rates(fake_hdeem):
+    """The global readout gives BLADE at 1000 Sa/s and VR sensors at 100 Sa/s in 0.125 W steps."""
+    src = opened(fake_hdeem, method="global")
+    try:
+        fake_hdeem.set_power(6, 1.3)          # quantised to 1.25
+        fake_hdeem.advance(0.5)
+        batch = src.poll()
+        nb, nv = len(batch.samples["BLADE"][0]), len(batch.samples["DDR_GH"][0])
+        assert nb == pytest.approx(500, abs=3) and nv == pytest.approx(50, abs=1)
+        assert np.all(np.diff(batch.samples["BLADE"][0]) == 1_000_000)
+        assert np.all(np.diff(batch.samples["CPU0"][0]) == 10_000_000)
+        values = batch.samples["DDR_GH"][1]
+        assert np.allclose(values / 0.125, np.round(values / 0.125))
+        assert values[-1] == 1.25
+        fake_hdeem.advance(0.2)
+        nxt = src.poll()
+        assert nxt.samples["DDR_GH"][0][0] == batch.samples["DDR_GH"][0][-1] + 10_000_000   # no repeats
+    finally:
+        src.close()
