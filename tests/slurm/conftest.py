@@ -30,7 +30,11 @@ BINARIES = ("munged", "slurmctld", "slurmd", "srun", "sbatch", "scontrol", "sinf
 
 @dataclass
 class Slurm:
-    """A running single-node cluster."""
+    """A running single-node cluster.
+
+    ``hook_conf`` is the hooks' settings file (``HDEEM_WATCH_HOOK_CONF``): tests may write it and
+    must remove it afterwards.
+    """
 
     root: Path
     conf: Path
@@ -38,6 +42,11 @@ class Slurm:
     cpus: int
     hook_dir: Path
     env: dict[str, str]
+
+    @property
+    def hook_conf(self) -> Path:
+        """The hooks' settings file."""
+        return self.root / "hooks.env"
 
     def run(self, args: list[str], timeout: float = 60, **kwargs: object) -> subprocess.CompletedProcess[str]:
         """Run a SLURM client command against this cluster."""
@@ -135,7 +144,7 @@ def slurm(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Slurm]:
     cpus, memory = _detected()
     hook_dir = root / "hooks"
     hook_env = {"HDEEM_WATCH_HOOK_DIR": str(hook_dir), "HDEEM_WATCH_PYTHON": sys.executable,
-                "HDEEM_WATCH_HOOK_CONF": str(root / "none.env"),
+                "HDEEM_WATCH_HOOK_CONF": str(root / "hooks.env"),
                 "PYTHONPATH": str(REPO / "src"), "HDEEM_WATCH_RUNTIME_DIR": str(root / "run")}
     prolog = _hook_wrapper(root / "prolog.sh", HOOKS / "prolog.sh", hook_env)
     epilog = _hook_wrapper(root / "epilog.sh", HOOKS / "epilog.sh", hook_env)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -66,6 +67,21 @@ def test_allowed_cpus_follows_the_task_share() -> None:
 
 
 # ------------------------------------------------------------------------------------ real SLURM
+def _finished_job(slurm, job_id: str, timeout: float = 30) -> dict[str, object]:  # type: ignore[no-untyped-def]
+    """Wait for the Epilog's record of ``job_id`` in jobs.jsonl (Epilogs finish after srun returns)."""
+    jobs = slurm.hook_dir / "jobs.jsonl"
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if jobs.exists():
+            for line in jobs.read_text().splitlines():
+                record = json.loads(line)
+                if record.get("job_id") == job_id:
+                    return record  # type: ignore[no-any-return]
+        time.sleep(0.1)
+    log = (slurm.root / "slurmd.log").read_text()[-2000:]
+    raise AssertionError(f"no Epilog record of job {job_id}; slurmd log tail: {log}")
+
+
 @pytest.mark.slurm
 def test_hostlist_matches_scontrol(slurm) -> None:  # type: ignore[no-untyped-def]
     """Our expander gives what SLURM's own `scontrol show hostnames` gives."""
@@ -117,23 +133,38 @@ def test_bench_under_srun_respects_given_cpus(slurm) -> None:  # type: ignore[no
 def test_prolog_and_epilog_record_the_job(slurm) -> None:  # type: ignore[no-untyped-def]
     """The hooks of daemon/slurm/ run for a job: the Epilog appends the job (start < end, user,
     node, exit code) to jobs.jsonl and removes the Prolog's per-job record."""
-    proc = slurm.run(["srun", "-n1", "-c1", "true"])
+    proc = slurm.run(["srun", "-n1", "-c1", "sh", "-c", "echo $SLURM_JOB_ID"])
     assert proc.returncode == 0, proc.stderr
-    job_id = None
-    jobs = slurm.hook_dir / "jobs.jsonl"
-    deadline = time.monotonic() + 20
-    records: list[dict[str, object]] = []
-    while time.monotonic() < deadline:
-        if jobs.exists():
-            records = [json.loads(line) for line in jobs.read_text().splitlines()]
-            if records:
-                break
-        time.sleep(0.1)
-    assert records, f"no jobs.jsonl written; slurmd log: {(slurm.root / 'slurmd.log').read_text()[-2000:]}"
-    record = records[-1]
-    job_id = record["job_id"]
-    assert str(job_id).isdigit()
+    job_id = proc.stdout.strip()
+    record = _finished_job(slurm, job_id)
+    assert job_id.isdigit()
     assert record["node"] == slurm.node and record["user"] == "root"
     assert int(record["t_start_ns"]) <= int(record["t_end_ns"])  # type: ignore[call-overload]
     assert record["daemon"] == "none" and record["exit_code"] is not None
     assert not (slurm.hook_dir / f"job-{job_id}.json").exists()
+
+
+@pytest.mark.slurm
+def test_prolog_starts_a_daemon_the_job_announces_to(slurm) -> None:  # type: ignore[no-untyped-def]
+    """With HDEEM_WATCH_START_DAEMON=1 the Prolog starts a sim daemon for the job, the bench in the
+    job announces its run to it, and the Epilog stops that daemon and records it."""
+    control = f"ipc://{slurm.root}/job-run/control.sock"
+    slurm.hook_conf.write_text(f"HDEEM_WATCH_START_DAEMON=1\nHDEEM_WATCH_SOURCE=sim\n"
+                               f"HDEEM_WATCH_CONTROL={control}\nHDEEM_WATCH_PUB=ipc://{slurm.root}/job-run/pub.sock\n")
+    (slurm.root / "job-run").mkdir(exist_ok=True)
+    try:
+        proc = slurm.run(["srun", "-n1", "-c1", sys.executable, "-m", "hdeem_watch", "bench", "--kernels", "copy",
+                          "--threads", "1", "--elements", "65536", "--repeat", "2", "--daemon", control, "--json"],
+                         timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        record = json.loads(proc.stdout)
+        assert record["run_id"] and record["daemon"]["kernel"] == "copy"
+        assert record["daemon"]["metadata"]["slurm_job_id"].isdigit()
+        job = _finished_job(slurm, record["daemon"]["metadata"]["slurm_job_id"])
+        assert job["daemon"] == "stopped" and isinstance(job["pid"], int)
+        deadline = time.monotonic() + 15
+        while time.monotonic() < deadline and Path(f"/proc/{job['pid']}").exists():
+            time.sleep(0.1)
+        assert not Path(f"/proc/{job['pid']}").exists(), "the job's daemon still runs after the Epilog"
+    finally:
+        slurm.hook_conf.unlink(missing_ok=True)

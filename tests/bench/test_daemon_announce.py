@@ -1,0 +1,81 @@
+"""The bench's run announcements against a REAL daemon process (sim source, ipc sockets)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+
+SRC = Path(__file__).resolve().parents[2] / "src"
+
+
+def _env() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("SLURM_")}
+    env["PYTHONPATH"] = f"{SRC}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"
+    return env
+
+
+@pytest.fixture
+def daemon(tmp_path: Path) -> Iterator[str]:
+    """Start `python -m hdeem_watch daemon --source sim` on ipc sockets; yield its control endpoint."""
+    pub, control = f"ipc://{tmp_path / 'pub.sock'}", f"ipc://{tmp_path / 'control.sock'}"
+    log = open(tmp_path / "daemon.log", "wb")  # noqa: SIM115 - closed below
+    proc = subprocess.Popen([sys.executable, "-m", "hdeem_watch", "daemon", "--source", "sim", "--pub", pub,
+                             "--control", control, "--state-dir", str(tmp_path / "state")],
+                            stdout=log, stderr=subprocess.STDOUT, env=_env())
+    try:
+        deadline = time.monotonic() + 30
+        with ControlClient(control, timeout_s=1.0) as client:
+            while True:
+                try:
+                    client.call("status")
+                    break
+                except DaemonUnreachable:
+                    if proc.poll() is not None or time.monotonic() > deadline:
+                        raise RuntimeError("daemon did not come up: "
+                                           + (tmp_path / "daemon.log").read_text()[-2000:]) from None
+                    time.sleep(0.1)
+        yield control
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        log.close()
+
+
+def test_runs_are_announced_to_a_real_daemon(daemon: str) -> None:
+    """Each bench run becomes a daemon run with the same parameters, whose window encloses the
+    bench's measured window, with DRAM energy integrated over it; runs.list lists them."""
+    proc = subprocess.run([sys.executable, "-m", "hdeem_watch", "bench", "--kernels", "triad,idle", "--threads",
+                           "1", "--elements", "262144", "--repeat", "3", "--daemon", daemon, "--json"],
+                          capture_output=True, text=True, timeout=120, env=_env())
+    assert proc.returncode == 0, proc.stderr
+    records = [json.loads(line) for line in proc.stdout.splitlines()]
+    assert [r["kernel"] for r in records] == ["triad", "idle"]
+    for record in records:
+        run = record["daemon"]
+        assert run["run_id"] == record["run_id"]
+        for key in ("kernel", "threads", "elements", "repeat"):
+            assert run[key] == record[key], key
+        assert run["name"] == f"{record['kernel']}-1t"
+        assert run["t_start_ns"] <= record["t_start_ns"] <= record["t_end_ns"] <= run["t_stop_ns"]
+        dram = [v for k, v in run["energy_j"].items() if k.startswith("DDR_")]
+        assert len(dram) == 4 and all(v is not None and math.isfinite(v) and v > 0 for v in dram)
+    with ControlClient(daemon, timeout_s=5.0) as client:
+        listed = client.call("runs.list", {"limit": 10})["runs"]
+    by_id = {run["run_id"]: run for run in listed}
+    assert {r["run_id"] for r in records} <= set(by_id)
+    assert [by_id[r["run_id"]]["kernel"] for r in records] == ["triad", "idle"]
