@@ -41,3 +41,20 @@ def truth_a() -> dict[str, float]:
         truth[name] *= ratio
     return truth
 
+
+
+@pytest.fixture
+def samsung():
+    """The 8 GB DDR4-2133 RDIMM of the seed paper (one channel = one DIMM, 2 ranks × 9 devices)."""
+    from hdeem_watch.dram.memspec import preset
+
+    return preset("samsung-m393a1g43db0-cpb")
+
+
+@pytest.fixture
+def paper_truth(samsung) -> dict[str, float]:
+    """Hidden per-device currents: the datasheet scaled by the seed paper's calibrated/datasheet
+    ratios (IDD0 605/1120, IDD2N 599/1040, IDD3N 539/1540, IDD4R 967/1750, IDD4W 684/1590)."""
+    ratios = {"idd0": 605 / 1120, "idd2n": 599 / 1040, "idd3n": 539 / 1540, "idd4r": 967 / 1750,
+              "idd4w": 684 / 1590}
+    return {name: samsung.currents[name] * ratio for name, ratio in ratios.items()}

@@ -55,8 +55,9 @@ class FitSettings:
     Attributes:
         noise_floor: relative noise assumed at least (the sensor's accuracy) when judging
             identifiability, so a noise-free synthetic fit does not call everything determined.
-        max_rel_ci: a current is identifiable if its 95 % half-width (at ``max(s, noise_floor)``)
-            is at most this fraction of its datasheet value ...
+        max_rel_ci: a current is identifiable if its 95 % half-width (at ``max(s, noise_floor)``,
+            bounds ignored) is at most this fraction of its calibrated value (at least 5 % of its
+            datasheet value) ...
         min_sensitivity: ... and it carries at least this RMS fraction of the runs' energies.
         rank_tol: singular values below ``rank_tol·σ_max`` count as zero.
     """
@@ -222,7 +223,8 @@ def fit(observations: Sequence[Observation], spec: SpecLike, *,
         seed: int = 0,
         require_overdetermined: bool = True,
         settings: FitSettings | None = None,
-        time_ns: int = 0) -> FitResult:
+        time_ns: int = 0,
+        weights: np.ndarray | None = None) -> FitResult:
     """Fit ``currents`` (and an intercept ≥ 0) to the measured energies of ``observations``.
 
     Args:
@@ -241,6 +243,7 @@ def fit(observations: Sequence[Observation], spec: SpecLike, *,
         require_overdetermined: raise if there are fewer runs than unknowns.
         settings: identifiability thresholds.
         time_ns: time stamp recorded in the result.
+        weights: extra per-run factors on top of each observation's ``weight`` (e.g. forgetting).
 
     Raises:
         InputError: an unknown current, bad bounds, no runs, or fewer runs than unknowns.
@@ -261,6 +264,8 @@ def fit(observations: Sequence[Observation], spec: SpecLike, *,
         raise InputError(f"runs: {n} runs for {p} unknowns ({', '.join(chosen)}"
                          f"{', intercept' if intercept else ''}); need at least {p}")
     cols, const, measured, weight = stack(observations, len(names))
+    if weights is not None:
+        weight = weight * np.asarray(weights, dtype=float)
     if not np.any(weight > 0):
         raise InputError("runs: every run has weight 0")
     weight = weight / weight[weight > 0].mean()
@@ -319,8 +324,8 @@ def fit(observations: Sequence[Observation], spec: SpecLike, *,
     sensitivity = np.sqrt(np.mean(rel_cols ** 2, axis=0))
     sigma = max(math.sqrt(s2) if not math.isnan(s2) else 0.0, settings.noise_floor)
     unit_cov = np.linalg.inv(solve.information(design, penalty))
-    half_rel = 1.96 * sigma * np.sqrt(np.diag(unit_cov)[:k]) * scales / np.where(datasheet > 0, datasheet,
-                                                                                   scales)
+    reference = np.maximum(np.abs(sol.x[:k]), 0.05)  # relative to the calibrated value (≥ 5 % of scale)
+    half_rel = 1.96 * sigma * np.sqrt(np.diag(unit_cov)[:k]) / reference
     identifiable = (sensitivity >= settings.min_sensitivity) & (half_rel <= settings.max_rel_ci)
 
     # Errors: datasheet model, calibrated model, leave-one-out.

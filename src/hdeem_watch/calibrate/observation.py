@@ -27,19 +27,10 @@ from hdeem_watch.errors import InputError
 #: The currents the seed paper calibrates, and the default of :func:`~hdeem_watch.calibrate.fit`.
 DEFAULT_CURRENTS: tuple[str, ...] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
 
-#: Every current of a DDR4 memspec, used only when the energy model is not importable.
-_FALLBACK_CURRENT_NAMES: tuple[str, ...] = (
-    "idd0", "idd2n", "idd3n", "idd4r", "idd4w", "idd5b", "idd6n", "idd2p", "idd3p",
-    "ipp0", "ipp2n", "ipp3n", "ipp4r", "ipp4w", "ipp5b", "ipp6n", "ipp2p", "ipp3p",
-)
-
-
 def current_names() -> tuple[str, ...]:
     """The current order of the energy model's columns (``energy.CURRENT_NAMES``)."""
-    try:
-        from hdeem_watch.dram.energy import CURRENT_NAMES
-    except ImportError:  # pragma: no cover - the model is part of the package
-        return _FALLBACK_CURRENT_NAMES
+    from hdeem_watch.dram.energy import CURRENT_NAMES
+
     return tuple(CURRENT_NAMES)
 
 

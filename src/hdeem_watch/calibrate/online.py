@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -105,9 +104,8 @@ class OnlineCalibrator:
         return self._refit(self.weights()) if self.observations else None
 
     def _refit(self, decay: np.ndarray) -> FitResult:
-        rows = [replace(o, weight=o.weight * float(d)) for o, d in zip(self.observations, decay)]
         now = max(o.time_ns for o in self.observations)
-        result = fit(rows, self.spec, currents=self.currents, bounds=self.bounds, intercept=self.intercept,
+        result = fit(self.observations, self.spec, weights=decay, currents=self.currents, bounds=self.bounds, intercept=self.intercept,
                      prior_weight=self.prior_weight, loo=self.loo, names=self.names,
                      require_overdetermined=False, settings=self.settings, time_ns=now)
         self.latest = result
@@ -194,9 +192,7 @@ class OnlineCalibrator:
         except (KeyError, TypeError, ValueError, AttributeError) as error:
             raise InputError(f"calibrator state: malformed ({error!r})") from None
         if calib.observations:
-            decay = calib.weights()
-            rows = [replace(o, weight=o.weight * float(d)) for o, d in zip(calib.observations, decay)]
-            calib.latest = fit(rows, spec, currents=calib.currents, bounds=calib.bounds,
+            calib.latest = fit(calib.observations, spec, weights=calib.weights(), currents=calib.currents, bounds=calib.bounds,
                                intercept=calib.intercept, prior_weight=calib.prior_weight, loo=calib.loo,
                                names=calib.names, require_overdetermined=False, settings=calib.settings,
                                time_ns=max(o.time_ns for o in calib.observations))
