@@ -264,7 +264,11 @@ class Operations:
         assert modeller is not None
 
         def job() -> tuple[Any, ...]:
-            model, fit, error = modeller.evaluate(record)
+            try:
+                model, fit, error = modeller.evaluate(record)
+            except Exception as exc:  # a model bug must not lose the run or its reply
+                log.exception("modelling run %s failed", record["run_id"])
+                model, fit, error = None, None, f"model failed: {type(exc).__name__}: {exc}"
             return model, fit, error, modeller.body(), (modeller.state() if fit is not None else None)
 
         d.submit(job, lambda result: self._finish_run(record, waiters, result))
@@ -279,12 +283,13 @@ class Operations:
             if fit is not None and state is not None:
                 d.store.save_calibration(int(record.get("t_stop_ns") or 0), state, fit, record["run_id"])
             d.calib_body = body
-            d.publish_calib()
             if d.metrics is not None:
                 d.metrics.observe_fit(fit)
         if d.metrics is not None:
             d.metrics.observe_run()
         d.publisher.publish("run", {"event": "stop", "run": record})
+        if result is not None:
+            d.publish_calib()
         for pending in waiters:
             d.complete(pending, record)
 

@@ -1,0 +1,139 @@
+"""Runs through the real daemon: window energy, model, refit, idle baselines, persistence across kill -9."""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import pytest
+
+from hdeem_watch.daemon import protocol
+from hdeem_watch.daemon.client import ControlError
+
+SPEED = 20.0
+FAST_MODEL = {"HDEEM_WATCH_MODEL_MAX_REQUESTS": "100000", "HDEEM_WATCH_MEMSPEC": "ddr4-2133-x8-4gb"}
+KERNELS = ("idle", "read", "triad", "copy", "assign", "add", "scale")
+
+
+def _run(client: Any, kernel: str, seconds: float, elements: int = 2**26) -> dict[str, Any]:
+    started = client.call("run.start", {"kernel": kernel, "name": f"t-{kernel}", "threads": 24,
+                                        "elements": 0 if kernel == "idle" else elements, "repeat": 20,
+                                        "metadata": {"test": True}})
+    time.sleep(seconds)
+    return client.call("run.stop", {"run_id": started["run_id"]}, timeout_s=60.0)
+
+
+def test_run_energy_model_and_refit(daemon_factory: Any, receive: Any) -> None:
+    """Each stopped run has its window energy per channel, the model energies and a refit; the fit improves."""
+    d = daemon_factory("--speed", str(SPEED), **FAST_MODEL).start()
+    sub = d.subscriber(protocol.subscription(d.node))
+    with d.client(timeout_s=30.0) as client:
+        records = [_run(client, kernel, 0.15) for kernel in KERNELS]
+        listed = client.call("runs.list")["runs"]
+        calib = client.call("calib.get")
+        with pytest.raises(ControlError) as info:
+            client.call("run.stop", {"run_id": "r999"})
+        assert info.value.code == "not-found"
+    stream = receive(sub, 1.0)
+    sub.close()
+    for i, rec in enumerate(records):
+        assert rec["state"] == "done" and rec["kernel"] in KERNELS
+        assert 0.9 * 0.15 * SPEED < rec["window_s"] < 30.0  # the sleep, plus the stop latency on a loaded machine
+        dram = [rec["energy_j"][c] for c in ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")]
+        assert all(e > 0 for e in dram)
+        assert rec["dram_energy_j"] == pytest.approx(sum(dram), rel=1e-12)
+        for channel, energy in rec["energy_j"].items():
+            assert rec["mean_power_w"][channel] * rec["window_s"] == pytest.approx(energy, rel=0.05)
+        assert rec["model_error"] is None, rec["model_error"]
+        assert rec["model"]["datasheet_j"] > 0 and rec["model"]["calibrated_j"] > 0
+        assert rec["fit"]["n_runs"] == i + 1
+    assert [r["run_id"] for r in listed] == [r["run_id"] for r in reversed(records)]
+    final = records[-1]["fit"]
+    assert final["error"]["after"] < final["error"]["before"]
+    assert calib["fit"]["n_runs"] == len(KERNELS) and len(calib["history"]) == len(KERNELS)
+    run_events = [(m.header["event"], m.header["run"]["run_id"]) for m in stream if m.kind == "run"]
+    assert run_events == [] or all(e in ("start", "stop") for e, _ in run_events)
+
+
+def test_run_events_and_refit_are_published(daemon_factory: Any, receive: Any) -> None:
+    """run.start/run.stop publish run events, and the refit is published on the calib topic."""
+    d = daemon_factory("--speed", str(SPEED), **FAST_MODEL).start()
+    sub = d.subscriber(protocol.subscription(d.node))
+    time.sleep(0.3)
+    with d.client(timeout_s=30.0) as client:
+        rec = _run(client, "triad", 0.1)
+    stream = receive(sub, 2.0, until=lambda ms: any(m.kind == "calib" and m.header["fit"] for m in ms))
+    sub.close()
+    events = [(m.header["event"], m.header["run"]["run_id"]) for m in stream if m.kind == "run"]
+    assert events == [("start", rec["run_id"]), ("stop", rec["run_id"])]
+    stop = next(m for m in stream if m.kind == "run" and m.header["event"] == "stop").header["run"]
+    assert stop["dram_energy_j"] == pytest.approx(rec["dram_energy_j"])
+    fits = [m.header["fit"] for m in stream if m.kind == "calib" and m.header["fit"]]
+    assert fits and fits[-1]["n_runs"] == 1
+
+
+def test_conflicts_and_bad_run_arguments(daemon_factory: Any) -> None:
+    """A second run.start while a run is open is a conflict; unknown kernels and bad numbers are bad-args."""
+    d = daemon_factory("--speed", str(SPEED), **FAST_MODEL).start()
+    with d.client() as client:
+        for args in ({"kernel": "nope"}, {"kernel": "triad", "threads": 0}, {"kernel": "triad", "elements": -1},
+                     {"kernel": 5}, {"kernel": "triad", "metadata": [1]}, {}):
+            with pytest.raises(ControlError) as info:
+                client.call("run.start", args)
+            assert info.value.code == "bad-args", args
+        run_id = client.call("run.start", {"kernel": "read", "elements": 2**20})["run_id"]
+        with pytest.raises(ControlError) as info:
+            client.call("run.start", {"kernel": "read"})
+        assert info.value.code == "conflict"
+        with pytest.raises(ControlError) as info:
+            client.call("baseline.measure", {"seconds": 1})
+        assert info.value.code == "conflict"
+        stopped = client.call("run.stop", {"run_id": run_id, "abort": True})
+        assert stopped["state"] == "aborted" and stopped["fit"] is None
+        assert client.call("run.stop", {"run_id": run_id})["state"] == "aborted"  # idempotent
+
+
+def test_idle_baseline_measure(daemon_factory: Any) -> None:
+    """baseline.measure replies after its window with each channel's idle power, spread and sample count."""
+    d = daemon_factory("--speed", str(SPEED), **FAST_MODEL).start()
+    with d.client(timeout_s=10.0) as client:
+        t0 = time.monotonic()
+        body = client.call("baseline.measure", {"seconds": 4.0})
+        elapsed = time.monotonic() - t0
+        stored = client.call("baseline.get")
+    assert elapsed < 4.0  # 4 s of sim time at speed 20
+    assert body["window_s"] == pytest.approx(4.0, abs=0.05)
+    for name, entry in body["channels"].items():
+        assert entry["origin"] == "idle-run"
+        rate = 1000 if name == "BLADE" else 100
+        assert entry["n"] == pytest.approx(4.0 * rate, abs=rate * 0.1)
+        assert entry["power_w"] > 0 and 0 <= entry["spread_w"] < entry["power_w"]
+        assert stored["channels"][name] == entry
+
+
+def test_restart_after_kill9_keeps_history(daemon_factory: Any) -> None:
+    """After kill -9 a restarted daemon has every run, the fit, the baselines; an open run is marked aborted."""
+    d = daemon_factory("--speed", str(SPEED), **FAST_MODEL).start()
+    with d.client(timeout_s=30.0) as client:
+        client.call("baseline.measure", {"seconds": 2.0})
+        done = [_run(client, k, 0.1) for k in ("idle", "triad", "read")]
+        open_run = client.call("run.start", {"kernel": "copy", "elements": 2**20})["run_id"]
+        before = {op: client.call(op) for op in ("calib.get", "baseline.get")}
+    d.kill9()
+    d.start()
+    with d.client(timeout_s=30.0) as client:
+        runs = {r["run_id"]: r for r in client.call("runs.list")["runs"]}
+        calib = client.call("calib.get")
+        baselines = client.call("baseline.get")
+        new = client.call("run.start", {"kernel": "idle"})["run_id"]
+    for rec in done:
+        assert runs[rec["run_id"]]["dram_energy_j"] == rec["dram_energy_j"]
+        assert runs[rec["run_id"]]["fit"] == rec["fit"]
+    assert runs[open_run]["state"] == "aborted"
+    assert calib["fit"]["n_runs"] == before["calib.get"]["fit"]["n_runs"] == 3
+    for name, value in before["calib.get"]["fit"]["currents"].items():
+        assert math.isclose(calib["fit"]["currents"][name]["calibrated"], value["calibrated"], rel_tol=1e-9)
+    assert calib["history"] == before["calib.get"]["history"]
+    assert baselines["channels"].keys() == before["baseline.get"]["channels"].keys()
+    assert int(new[1:]) == int(open_run[1:]) + 1

@@ -1,0 +1,101 @@
+"""The daemon as a real process: sample stream rates, gaps, energy accounting, heartbeat, late joiners."""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from typing import Any
+
+import numpy as np
+
+from hdeem_watch.daemon import protocol
+from hdeem_watch.sources.base import hdeem_channel_infos
+
+NOMINAL = {info.name: info.rate_hz for info in hdeem_channel_infos()}
+
+
+def _by_channel(messages: list[protocol.Message]) -> dict[str, list[protocol.Message]]:
+    out: dict[str, list[protocol.Message]] = defaultdict(list)
+    for m in messages:
+        if m.kind == "samples":
+            out[m.channel or ""].append(m)
+    return out
+
+
+def test_every_channel_at_its_native_rate_without_gaps(shared_daemon: Any, receive: Any) -> None:
+    """Each HDEEM channel arrives at its native rate (sample time), consecutive seq, no missing sample."""
+    sub = shared_daemon.subscriber(protocol.subscription(shared_daemon.node, "samples"))
+    messages = receive(sub, 2.5)
+    sub.close()
+    channels = _by_channel(messages)
+    assert set(channels) == set(NOMINAL)
+    for name, batches in channels.items():
+        seqs = [m.seq for m in batches]
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), f"{name}: sequence gap"
+        t = np.concatenate([m.samples()[0] for m in batches])
+        period = round(1e9 / NOMINAL[name])
+        steps = np.diff(t)
+        assert np.all(steps == period), f"{name}: irregular or missing samples {np.unique(steps)[:5]}"
+        rate = (len(t) - 1) / ((t[-1] - t[0]) / 1e9)
+        assert abs(rate - NOMINAL[name]) / NOMINAL[name] < 1e-6
+        assert all(m.header["rate_hz"] == NOMINAL[name] and m.header["unit"] == "W" for m in batches)
+        # At speed 10 the sim produces 10 × the native rate per wall second: the daemon keeps up.
+        assert len(t) > 0.5 * 10 * NOMINAL[name] * 2.0
+
+
+def test_stream_energy_is_the_sum_of_the_samples(shared_daemon: Any, receive: Any) -> None:
+    """The cumulative energy_j in the headers (the source's own totals) grows by exactly Σ power × period."""
+    sub = shared_daemon.subscriber(protocol.subscription(shared_daemon.node, "samples"))
+    messages = receive(sub, 1.5)
+    sub.close()
+    for name, batches in _by_channel(messages).items():
+        period_s = 1.0 / NOMINAL[name]
+        integrated = sum(float(m.samples()[1].sum()) * period_s for m in batches[1:])
+        booked = batches[-1].header["energy_j"] - batches[0].header["energy_j"]
+        assert booked > 0
+        assert math.isclose(integrated, booked, rel_tol=1e-9, abs_tol=1e-9), name
+
+
+def test_heartbeat_reports_rates_health_and_process(shared_daemon: Any, receive: Any) -> None:
+    """A status heartbeat arrives every second with measured rates, no gaps, source health, CPU and RSS."""
+    sub = shared_daemon.subscriber(protocol.subscription(shared_daemon.node, "status"))
+    beats = receive(sub, 3.5, until=lambda ms: len(ms) >= 3)
+    sub.close()
+    assert len(beats) >= 3
+    seqs = [b.seq for b in beats]
+    assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+    gaps_s = np.diff([b.t_ns for b in beats]) / 1e9
+    assert np.all(np.abs(gaps_s - 1.0) < 0.3)
+    last = beats[-1].header
+    assert last["source"] == {"kind": "sim", "health": "ok"}
+    assert last["process"]["rss_bytes"] > 10_000_000
+    assert 0 <= last["process"]["cpu_percent"] < 100
+    assert last["uptime_s"] > 0 and last["speed"] == 10.0
+    for name, entry in last["channels"].items():
+        assert entry["gaps"] == 0 and entry["status"] == "ok"
+        assert abs(entry["rate_hz"] - NOMINAL[name]) / NOMINAL[name] < 0.01
+        assert entry["nominal_hz"] == NOMINAL[name]
+        assert entry["energy_j"] > 0 and entry["power_w"] >= 0
+
+
+def test_late_joiner_gets_calibration_and_baselines_at_once(shared_daemon: Any, receive: Any) -> None:
+    """A subscriber that connects late receives calib and baseline within a fraction of the re-publish period."""
+    sub = shared_daemon.subscriber(protocol.subscription(shared_daemon.node))
+    got = receive(sub, 3.0, until=lambda ms: {"calib", "baseline"} <= {m.kind for m in ms})
+    sub.close()
+    kinds = {m.kind for m in got}
+    assert {"calib", "baseline"} <= kinds
+    calib = next(m for m in got if m.kind == "calib").header
+    assert {"fit", "history", "runs", "truth"} <= set(calib)
+    assert calib["truth"]["simulated"] is True
+    assert "channels" in next(m for m in got if m.kind == "baseline").header
+
+
+def test_status_op_names_node_endpoints_source_and_channels(shared_daemon: Any, receive: Any) -> None:
+    """The status op answers with node, endpoints, source and every channel."""
+    with shared_daemon.client() as client:
+        status = client.call("status")
+    assert status["node"] == shared_daemon.node
+    assert status["endpoints"] == {"pub": shared_daemon.pub, "control": shared_daemon.control}
+    assert status["source"]["kind"] == "sim"
+    assert set(status["channels"]) == set(NOMINAL)
