@@ -161,11 +161,11 @@ def validate(specs: list[RunSpec], allowed: list[int] | None = None, *, oversubs
 
 
 def _worker(kernel: str, arrays: Mapping[str, np.ndarray], lo: int, hi: int, repeat: int, cpu: int,
-            ready: Any, go: Any, report: Callable[[tuple[tuple[int, ...], float]], None]) -> None:
+            scratch_n: int, ready: Any, go: Any, report: Callable[[tuple[tuple[int, ...], float]], None]) -> None:
     os.sched_setaffinity(0, {cpu})
     affinity = tuple(sorted(os.sched_getaffinity(0)))
     K.init_arrays(arrays, lo, hi)
-    scratch = np.zeros(K.scratch_size(kernel))
+    scratch = np.zeros(scratch_n)
     ready.wait()
     go.wait()
     checksum = 0.0
@@ -212,10 +212,12 @@ def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None
     system.check_memory(needed, f"--elements {spec.elements} ({kernel}, {len(K.KERNEL_ARRAYS[kernel])} arrays)",
                         available_bytes)
     warnings = []
+    llc = system.llc_total_bytes(sorted(set(cpus)))
     if kernel != IDLE_KERNEL:
         message = system.llc_warning(needed, cpus)
         if message:
             warnings.append(message)
+    scratch_n = K.scratch_size(kernel, K.triad_chunk_lines(llc, spec.threads))
     lines = K.lines_of(spec.elements)
     ranges = K.split_lines(lines, spec.threads)
     runner = _run_threads if backend == "thread" else _run_processes
@@ -230,7 +232,7 @@ def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None
             announce.update(on_stop(spec) or {})
 
     arrays, t0_ns, t1_ns, seconds, reports = runner(kernel, spec, cpus, ranges, start_hook, stop_hook,
-                                                          keep_arrays)
+                                                          keep_arrays, scratch_n)
     reads, writes, origin = pass_traffic(kernel, spec.elements)
     seconds = max(seconds, 1e-9)
     return RunResult(
@@ -248,7 +250,8 @@ _Outcome = tuple[dict[str, np.ndarray], int, int, float, list[tuple[tuple[int, .
 
 
 def _run_threads(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple[int, int]],
-                 start_hook: Callable[[], None], stop_hook: Callable[[], None], keep: bool) -> _Outcome:
+                 start_hook: Callable[[], None], stop_hook: Callable[[], None], keep: bool,
+                 scratch_n: int) -> _Outcome:
     arrays = K.make_arrays(kernel, spec.elements)
     n = spec.threads
     ready, go = threading.Barrier(n + 1), threading.Barrier(n + 1)
@@ -257,7 +260,7 @@ def _run_threads(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple
 
     def body(i: int) -> None:
         try:
-            _worker(kernel, arrays, *ranges[i], spec.repeat, cpus[i], ready, go,
+            _worker(kernel, arrays, *ranges[i], spec.repeat, cpus[i], scratch_n, ready, go,
                     lambda r: reports.__setitem__(i, r))
         except BaseException as error:  # surfaced below; the barriers must not hang
             errors.append(error)
@@ -286,7 +289,8 @@ def _run_threads(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple
 
 
 def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple[int, int]],
-                   start_hook: Callable[[], None], stop_hook: Callable[[], None], keep: bool) -> _Outcome:
+                   start_hook: Callable[[], None], stop_hook: Callable[[], None], keep: bool,
+                   scratch_n: int) -> _Outcome:
     ctx = mp.get_context("fork")
     shared, maps = _shared_arrays(kernel, spec.elements)
     n = spec.threads
@@ -296,7 +300,7 @@ def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tup
     def body(i: int) -> None:
         send = pipes[i][1]
         try:
-            _worker(kernel, shared, *ranges[i], spec.repeat, cpus[i], ready, go, send.send)
+            _worker(kernel, shared, *ranges[i], spec.repeat, cpus[i], scratch_n, ready, go, send.send)
         except BaseException:
             ready.abort()
             go.abort()
