@@ -178,3 +178,35 @@ def test_unreachable_daemon_is_bad_input(tmp_path: Path) -> None:
                  "--timeout", "0.5", "--json")
     assert proc.returncode == 2 and proc.stdout == ""
     assert "--daemon" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_progress_bar_on_a_terminal_only() -> None:
+    """On a terminal stderr shows a progress bar (carriage-return updates ending at n/n); stdout
+    keeps only the JSON lines. Without a terminal there is no bar."""
+    import pty
+
+    master, slave = pty.openpty()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("SLURM_")}
+    env["PYTHONPATH"] = f"{SRC}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"
+    try:
+        proc = subprocess.run([sys.executable, "-m", "hdeem_watch", "bench", "--kernels", "read,copy", "--threads",
+                               "1", "--elements", "4096", "--repeat", "1", "--json"], stdout=subprocess.PIPE,
+                              stderr=slave, env=env, timeout=60, text=True)
+        os.close(slave)
+        chunks = []
+        while True:
+            try:
+                data = os.read(master, 65536)
+            except OSError:
+                break
+            if not data:
+                break
+            chunks.append(data)
+    finally:
+        os.close(master)
+    assert proc.returncode == 0
+    terminal = b"".join(chunks).decode(errors="replace")
+    assert "\r[" in terminal and "0/2" in terminal and "2/2" in terminal
+    assert len(proc.stdout.splitlines()) == 2
+    plain = bench("--kernels", "read", "--threads", "1", "--elements", "4096", "--repeat", "1", "--json")
+    assert "\r[" not in plain.stderr
