@@ -1,9 +1,115 @@
-"""Placeholder: not built yet (its issue is open)."""
+"""``hdeem-watch model energy``: DRAM energy of a DRAMPower command trace (DESIGN.md section 7).
+
+Usage::
+
+    hdeem-watch model energy --memspec M.json --trace T.csv [--json]
+
+``--memspec`` takes a DRAMPower JSON memspec file or a preset name (``ddr4-2133-x8-4gb``,
+``samsung-m393a1g43db0-cpb``). The default output is a table; ``--json`` prints one JSON object:
+``total_j``, ``core_j``, ``interface_j`` (null: the interface is not modelled, see
+``interface_status``), ``components`` (``act_j`` ... ``sref_j``), per-rank ``counts`` (``act, pre,
+rd, wr, rda, wra, ref``) and ``cycles`` (``act, pre, pdna, pdnp, sref``) as lists indexed by rank,
+and ``ranks`` (per rank: ``rank``, ``core_j``, ``components``, ``bank_active_cycles``). Bad input
+(memspec or trace) is one line on stderr and exit code 2.
+"""
 
 from __future__ import annotations
 
+import argparse
+import json
+import sys
+from pathlib import Path
 from typing import Any
+
+from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+from hdeem_watch.dram.energy import COMPONENTS, EnergyBreakdown, core_energy
+from hdeem_watch.dram.memspec import MemSpec, load_memspec, preset
+from hdeem_watch.dram.presets import PRESETS
+from hdeem_watch.dram.stats import COUNT_FIELDS, CYCLE_FIELDS, CommandStats
 
 
 def register(subparsers: Any) -> None:
-    """Add nothing yet."""
+    """Add ``model energy`` to the ``model`` subcommand's subparsers."""
+    parser = subparsers.add_parser(
+        "energy", help="DRAM core energy of a DRAMPower command trace (DRAMPower v6 DDR4 model)",
+        description="Energy of a DRAMPower CSV command trace for a DDR4 memspec (one channel).")
+    parser.add_argument("--memspec", required=True, metavar="M.json",
+                        help=f"DRAMPower JSON memspec, or a preset name: {', '.join(sorted(PRESETS))}")
+    parser.add_argument("--trace", required=True, metavar="T.csv",
+                        help="DRAMPower CLI command trace: cycle,CMD,rank,bankgroup,bank,row,column[,data]")
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    parser.set_defaults(func=run)
+
+
+def resolve_memspec(value: str) -> MemSpec:
+    """A memspec file, or a preset when no such file exists and the name is a preset."""
+    if value in PRESETS and not Path(value).exists():
+        return preset(value)
+    return load_memspec(value)
+
+
+def report(spec: MemSpec, stats: CommandStats, energy: EnergyBreakdown, *, trace_path: str,
+           commands: int, memspec: str) -> dict[str, Any]:
+    """The ``--json`` object (pure: no I/O)."""
+    end = stats.ranks[0].cycles_total if stats.ranks else 0.0
+    duration_s = end * spec.tck_s
+    return {
+        "memspec": memspec,
+        "memory_id": spec.memory_id,
+        "trace": trace_path,
+        "commands": commands,
+        "end_cycle": end,
+        "duration_s": duration_s,
+        "total_j": energy.core_j,
+        "core_j": energy.core_j,
+        "interface_j": None,
+        "interface_status": "not modelled (total_j is the core energy)",
+        "average_power_w": energy.core_j / duration_s if duration_s > 0 else None,
+        "components": dict(energy.components),
+        "counts": [{name: getattr(rank, name) for name in COUNT_FIELDS} for rank in stats.ranks],
+        "cycles": [{name: getattr(rank, f"cycles_{name}") for name in CYCLE_FIELDS} for rank in stats.ranks],
+        "ranks": [{"rank": r, "core_j": sum(parts.values()), "components": parts,
+                   "bank_active_cycles": stats.ranks[r].bank_active_cycles}
+                  for r, parts in enumerate(energy.ranks)],
+    }
+
+
+def format_table(data: dict[str, Any], spec: MemSpec) -> str:
+    """The human-readable report."""
+    lines = [
+        f"memspec   {data['memory_id']}  ({spec.nbr_of_ranks} ranks x {spec.nbr_of_devices} devices, "
+        f"tCK {spec.tck_s * 1e9:g} ns)",
+        f"trace     {data['trace']}  ({data['commands']:,} commands, T = {data['end_cycle']:,.0f} cycles "
+        f"= {data['duration_s'] * 1e3:.6g} ms)",
+        "",
+        f"{'component':<12}{'energy [J]':>14}{'share':>9}",
+    ]
+    core = data["core_j"]
+    for name in COMPONENTS:
+        value = data["components"][name]
+        share = f"{100 * value / core:7.2f} %" if core else ""
+        lines.append(f"{name.removesuffix('_j'):<12}{value:>14.6e}{share:>9}")
+    lines += [f"{'core':<12}{core:>14.6e}", f"{'interface':<12}{'not modelled':>14}",
+              f"{'total':<12}{data['total_j']:>14.6e}"]
+    if data["average_power_w"] is not None:
+        lines.append(f"{'avg power':<12}{data['average_power_w']:>14.6f} W")
+    lines += ["", "rank " + "".join(f"{n:>10}" for n in COUNT_FIELDS) + " | cycles "
+              + "".join(f"{n:>12}" for n in CYCLE_FIELDS)]
+    for r, (counts, cycles) in enumerate(zip(data["counts"], data["cycles"])):
+        lines.append(f"{r:<5}" + "".join(f"{counts[n]:>10.0f}" for n in COUNT_FIELDS) + " |        "
+                     + "".join(f"{cycles[n]:>12.0f}" for n in CYCLE_FIELDS))
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Compute and print; InputError propagates to the CLI (one line, exit code 2)."""
+    spec = resolve_memspec(args.memspec)
+    trace = read_command_trace(args.trace)
+    stats = trace_stats(spec, trace)
+    energy = core_energy(spec, stats)
+    data = report(spec, stats, energy, trace_path=str(args.trace), commands=len(trace), memspec=str(args.memspec))
+    if args.json:
+        sys.stdout.write(json.dumps(data) + "\n")
+    else:
+        sys.stdout.write(format_table(data, spec) + "\n")
+    return 0
