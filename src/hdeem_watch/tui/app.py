@@ -33,18 +33,20 @@ BASELINE_SECONDS = 10.0
 
 KEYS_LINE = " p pause  n/N/tab node  +/- zoom  b baseline  ? help  q quit"
 
-HELP_TEXT = f"""[b]hdeem-watch[/b] — live DRAM power and model calibration
+HELP_TEXT = f"""[b]hdeem-watch[/b]: live DRAM power and model calibration
 
-[b]p[/b]        pause / resume painting (data keeps arriving)
-[b]n[/b] [b]tab[/b]    next node      [b]N[/b] [b]shift+tab[/b]  previous node
-[b]+[/b] [b]-[/b]      zoom the time window ({", ".join(f"{w:g}" for w in WINDOWS_S)} s)
-[b]b[/b]        measure the idle baseline on this node ({BASELINE_SECONDS:g} s)
-[b]?[/b]        this help         [b]q[/b]  quit
+[b]p[/b]          pause / resume painting (data keeps arriving)
+[b]n[/b] [b]tab[/b]      next node   [b]N[/b] [b]shift+tab[/b]  previous node
+[b]+[/b] [b]-[/b]        zoom the time window ({"/".join(f"{w:g}" for w in WINDOWS_S)} s)
+[b]b[/b]          measure this node's idle baseline ({BASELINE_SECONDS:g} s)
+[b]?[/b]          this help   [b]q[/b] [b]ctrl+c[/b]  quit
 
-Plots show the min/max envelope of each column, so short spikes stay
-visible. [b]STALE[/b]: no message for 3 s. [b]RECONNECTING[/b]: daemon unreachable.
-gaps: messages lost on the wire (sequence numbers). sim: the simulated
-node's hidden true currents. Press any key to close."""
+Plots: min/max envelope per column (short spikes stay visible).
+STALE: no message for 3 s.  RECONNECTING: daemon unreachable.
+gaps: messages lost on the wire (from sequence numbers).
+sim: the simulated node's hidden true currents.
+Currents in mA per device; id ✓ = determined by the runs so far.
+Press any key to close."""
 
 
 class HelpScreen(ModalScreen[None]):

@@ -11,14 +11,14 @@ When the stream goes quiet the feed probes the control endpoint: unreachable →
 (ZeroMQ reconnects the SUB socket by itself when the daemon comes back on the same endpoint; a
 different PUB endpoint is re-subscribed); back again → the late-join state is fetched anew.
 
-Control requests from the UI (e.g. ``baseline.measure``) are queued to the feed's thread, because
-ZeroMQ sockets belong to one thread; their outcome is shown as the health bar's notice.
+Control requests from the UI (e.g. ``baseline.measure``, whose reply comes only when the
+measurement ends) run in short-lived threads with their own sockets (a ZeroMQ socket belongs to
+one thread), so the stream never waits for them; their outcome is shown as the health bar's notice.
 """
 
 from __future__ import annotations
 
 import math
-import queue
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -32,6 +32,8 @@ from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreach
 from hdeem_watch.tui.model import NodeModel
 from hdeem_watch.tui.snapshot import NodeSnapshot
 
+#: Timeout of a control request from the UI (plus its ``seconds`` argument, if any).
+REQUEST_TIMEOUT_S = 5.0
 #: How many queued messages one wake-up handles before building a snapshot (bounds latency).
 DRAIN_LIMIT = 5000
 
@@ -104,7 +106,7 @@ class NodeFeed(threading.Thread):
         self._sub: zmq.Socket[Any] | None = None
         self._pub_endpoint = ""
         self._halt = threading.Event()
-        self._requests: queue.Queue[tuple[str, dict[str, Any]]] = queue.Queue()
+        self._workers: list[threading.Thread] = []
         self._last_probe_ns = 0
         self._reachable = False
         self.latest: NodeSnapshot = self._build(self._clock())
@@ -114,8 +116,31 @@ class NodeFeed(threading.Thread):
     # ------------------------------------------------------------------ public
 
     def request(self, op: str, args: dict[str, Any] | None = None) -> None:
-        """Queue a control request; its outcome becomes the health bar's notice."""
-        self._requests.put((op, dict(args or {})))
+        """Send a control request from a short-lived thread of its own (replies such as
+        ``baseline.measure`` come only after the measurement); the outcome becomes the health
+        bar's notice."""
+        args = dict(args or {})
+        seconds = args.get("seconds")
+        timeout_s = REQUEST_TIMEOUT_S + (float(seconds) if isinstance(seconds, int | float) else 0.0)
+        self.model.notice = f"{op}: sent" + (f" ({seconds:g} s)" if isinstance(seconds, int | float) else "")
+        worker = threading.Thread(
+            target=self._request, args=(op, args, timeout_s), name=f"hdeem-watch-request-{op}", daemon=True
+        )
+        self._workers.append(worker)
+        worker.start()
+
+    def _request(self, op: str, args: dict[str, Any], timeout_s: float) -> None:
+        client = ControlClient(self.endpoint, timeout_s=timeout_s, context=self._context)
+        try:
+            result = client.call(op, args)
+        except ControlError as error:
+            self.model.notice = f"{op}: {error.code}: {error.message}"[:120]
+        except DaemonUnreachable:
+            self.model.notice = f"{op}: no reply within {timeout_s:g} s"
+        else:
+            self.model.notice = f"{op}: ok" + (f" ({_short(result)})" if result else "")
+        finally:
+            client.close()
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Stop the thread and close its sockets."""
@@ -132,7 +157,6 @@ class NodeFeed(threading.Thread):
                 now = self._clock()
                 if self._sub is None or not self._reachable or self._is_quiet(now):
                     self._probe(now)
-                self._handle_requests()
                 wait_ms = max(0, (next_snapshot - self._clock()) // 1_000_000)
                 if self._sub is not None:
                     if self._sub.poll(wait_ms, zmq.POLLIN):
@@ -239,22 +263,6 @@ class NodeFeed(threading.Thread):
         runs = result.get("runs") if isinstance(result, dict) else result
         if isinstance(runs, list):
             self.model.add_runs([r for r in runs if isinstance(r, dict) and not _running(r)])
-
-    def _handle_requests(self) -> None:
-        while True:
-            try:
-                op, args = self._requests.get_nowait()
-            except queue.Empty:
-                return
-            try:
-                result = self._control.call(op, args)
-            except ControlError as error:
-                self.model.notice = f"{op}: {error.code}: {error.message}"[:120]
-            except DaemonUnreachable:
-                self.model.notice = f"{op}: daemon unreachable"
-            else:
-                self.model.notice = f"{op}: ok" + (f" ({_short(result)})" if result else "")
-
 
 def _running(run: dict[str, Any]) -> bool:
     stop = run.get("t_stop_ns", run.get("stop_ns", 0))

@@ -141,8 +141,9 @@ def calib_view(body: Mapping[str, Any], *, history_len: int = 40) -> CalibView:
     suggestion = _suggestion(
         body.get("suggested_next") or body.get("suggest") or body.get("next") or (fit or {}).get("suggested_next")
     )
+    model_error = str(body.get("model_error") or "")
     if fit is None:
-        return CalibView(simulated=simulated, suggested_next=suggestion)
+        return CalibView(simulated=simulated, suggested_next=suggestion, model_error=model_error)
     currents_raw = fit.get("currents") if isinstance(fit.get("currents"), Mapping) else {}
     assert isinstance(currents_raw, Mapping)
     currents = []
@@ -172,6 +173,7 @@ def calib_view(body: Mapping[str, Any], *, history_len: int = 40) -> CalibView:
         n_runs=int(n_runs) if math.isfinite(n_runs) else 0,
         suggested_next=suggestion,
         simulated=simulated,
+        model_error=model_error,
     )
 
 

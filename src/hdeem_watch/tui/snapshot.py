@@ -134,6 +134,7 @@ class CalibView:
         n_runs: runs in the fit.
         suggested_next: the run the calibrator suggests next ("" if none).
         simulated: the truth values come from the simulator.
+        model_error: why the daemon cannot model runs, if it cannot ("" otherwise).
     """
 
     currents: tuple[CurrentView, ...] = ()
@@ -143,6 +144,7 @@ class CalibView:
     n_runs: int = 0
     suggested_next: str = ""
     simulated: bool = False
+    model_error: str = ""
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from textual.widgets import Static
 
 from hdeem_watch.tui.braille import sparkline
 from hdeem_watch.tui.snapshot import CalibView
-from hdeem_watch.tui.widgets.fmt import fixed
+from hdeem_watch.tui.widgets.fmt import crop, fixed
 
 
 def _ma(value_a: float, width: int) -> str:
@@ -24,9 +24,11 @@ def calib_text(calib: CalibView, width: int) -> Text:
     title = f"calibration ({calib.n_runs} runs)" if calib.n_runs else "calibration"
     text.append(title, style="bold")
     if calib.simulated:
-        text.append("  sim = simulation truth", style="dim italic")
+        text.append("  sim: simulation truth" if width >= 44 else "  sim=simulation", style="dim italic")
     if not calib.currents:
         text.append("\n(no fit yet: waiting for runs)", style="dim italic")
+        if calib.model_error:
+            text.append(f"\nmodel: {calib.model_error}", style="yellow")
         return text
     show_truth = calib.simulated
     spark_width = max(0, width - (6 + 7 + 7 + 6 + 3 + (7 if show_truth else 0)) - 1)
@@ -53,6 +55,8 @@ def calib_text(calib: CalibView, width: int) -> Text:
     if calib.suggested_next:
         text.append("\nnext run: ", style="bold")
         text.append(calib.suggested_next)
+    if calib.model_error:
+        text.append(f"\nmodel: {calib.model_error}", style="yellow")
     return text
 
 
@@ -65,4 +69,4 @@ class CalibPanel(Static):
 
     def show(self, calib: CalibView) -> None:
         """Paint the panel."""
-        self.update(calib_text(calib, self.size.width or 40))
+        self.update(crop(calib_text(calib, self.size.width or 40), self.size.width or 40))

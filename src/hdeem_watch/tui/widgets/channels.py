@@ -8,7 +8,7 @@ from rich.text import Text
 from textual.widgets import Static
 
 from hdeem_watch.tui.snapshot import NodeSnapshot
-from hdeem_watch.tui.widgets.fmt import fixed
+from hdeem_watch.tui.widgets.fmt import crop, fixed
 
 KIND_STYLE = {"dram": "bold cyan", "cpu": "bold magenta", "blade": "bold yellow", "other": "bold"}
 
@@ -43,4 +43,4 @@ class ChannelTable(Static):
 
     def show(self, snapshot: NodeSnapshot) -> None:
         """Paint the table."""
-        self.update(channel_table_text(snapshot, self.size.width or 40))
+        self.update(crop(channel_table_text(snapshot, self.size.width or 40), self.size.width or 40))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+from rich.text import Text
+
 UNKNOWN = "–"
 
 
@@ -49,3 +51,11 @@ def duration(seconds: float) -> str:
     if seconds < 600:
         return f"{seconds:.0f}s"
     return f"{int(seconds // 60)}m{int(seconds % 60):02d}"
+
+
+def crop(text: Text, width: int) -> Text:
+    """Every line of ``text`` cut to ``width`` cells (the panels never wrap)."""
+    lines = text.split("\n", allow_blank=True)
+    for line in lines:
+        line.truncate(max(1, width), overflow="crop")
+    return Text("\n", no_wrap=True).join(lines)

@@ -9,7 +9,7 @@ from hdeem_watch.tui.braille import braille_envelope
 from hdeem_watch.tui.downsample import finite_range
 from hdeem_watch.tui.snapshot import ChannelView, NodeSnapshot
 from hdeem_watch.tui.widgets.channels import KIND_STYLE
-from hdeem_watch.tui.widgets.fmt import fixed
+from hdeem_watch.tui.widgets.fmt import crop, fixed
 
 #: Characters left of each strip (channel name, value, axis).
 LABEL_WIDTH = 8
@@ -86,4 +86,4 @@ class PowerPlots(Static):
 
     def show(self, snapshot: NodeSnapshot) -> None:
         """Paint the strips."""
-        self.update(plots_text(snapshot, self.size.width or 80, self.size.height or 14))
+        self.update(crop(plots_text(snapshot, self.size.width or 80, self.size.height or 14), self.size.width or 80))

@@ -7,7 +7,7 @@ from rich.text import Text
 from textual.widgets import Static
 
 from hdeem_watch.tui.snapshot import NodeSnapshot, RunView
-from hdeem_watch.tui.widgets.fmt import duration, energy, percent
+from hdeem_watch.tui.widgets.fmt import crop, duration, energy, percent
 
 
 def _row(run: RunView, wide: bool) -> Text:
@@ -18,23 +18,28 @@ def _row(run: RunView, wide: bool) -> Text:
     if run.running:
         text.append("  running…", style="bold yellow")
         return text
-    text.append(energy(run.measured_j, 8))
+    text.append(energy(run.measured_j, 7))
     if wide:
         text.append(energy(run.model_datasheet_j, 8), style="dim")
         text.append(energy(run.model_calibrated_j, 8))
-    text.append(percent(run.error_datasheet, 7), style="red")
-    text.append(percent(run.error_calibrated, 7), style="green")
+    text.append(percent(run.error_datasheet, 7 if wide else 6), style="red")
+    text.append(percent(run.error_calibrated, 7 if wide else 6), style="green")
     return text
+
+
+HEADER_NARROW = f"{'kernel':<9}{'thr':>3}{'dur':>6}{'meas J':>7}{'ds %':>6}{'cal %':>6}"
+HEADER_WIDE = f"{'kernel':<9}{'thr':>3}{'dur':>6}{'meas J':>7}{'ds J':>8}{'cal J':>8}{'ds err':>7}{'cal err':>7}"
 
 
 def runs_text(snapshot: NodeSnapshot, width: int, rows: int) -> Text:
     """Header, the run in progress, then finished runs newest first, cut to ``rows`` lines."""
-    wide = width >= 62
+    wide = width >= len(HEADER_WIDE)
     text = Text(no_wrap=True, overflow="ellipsis")
-    header = "kernel   thr   dur  meas J" + ("   ds J   cal J" if wide else "") + "  ds err cal err"
+    header = HEADER_WIDE if wide else HEADER_NARROW
     text.append(f"runs ({len(snapshot.runs)})", style="bold")
     if any(r.simulated for r in snapshot.runs) or (snapshot.current_run and snapshot.current_run.simulated):
         text.append("  simulated node", style="dim italic")
+    text.append("  (model: datasheet vs calibrated currents)" if wide else "", style="dim")
     text.append("\n")
     text.append(header, style="bold underline")
     lines: list[Text] = []
@@ -55,4 +60,4 @@ class RunsPanel(Static):
 
     def show(self, snapshot: NodeSnapshot) -> None:
         """Paint the panel."""
-        self.update(runs_text(snapshot, self.size.width or 40, self.size.height or 10))
+        self.update(crop(runs_text(snapshot, self.size.width or 40, self.size.height or 10), self.size.width or 40))
