@@ -1,0 +1,123 @@
+"""The replay source and the recording format: round trip, playback speed, looping, malformed input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hdeem_watch.errors import InputError
+from hdeem_watch.sources.base import make_source
+from hdeem_watch.sources.replay import RecordingWriter, ReplaySource, read_recording, write_recording
+from hdeem_watch.sources.sim import SimSource
+
+S = 1_000_000_000
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 0
+
+    def __call__(self) -> int:
+        return self.t
+
+
+def sim_recording(path: Path, seconds: float = 2.0) -> dict:
+    """Record a sim for `seconds` in irregular polls; returns the samples per channel."""
+    clock = Clock()
+    sim = SimSource(seed=11, clock=clock, wall_clock=lambda: 1_600_000_000 * S)
+    sim.open()
+    writer = RecordingWriter(path, node="sim", rate_hz={c.name: c.rate_hz for c in sim.channels()})
+    got: dict[str, list] = {}
+    while clock.t < seconds * S:
+        clock.t += 37_000_000
+        batch = sim.poll()
+        writer.write_batch(batch)
+        for ch, (t, p) in batch.samples.items():
+            got.setdefault(ch, []).append((t, p))
+    writer.close()
+    return {ch: (np.concatenate([t for t, _ in v]), np.concatenate([p for _, p in v])) for ch, v in got.items()}
+
+
+def test_round_trip_of_a_sim_recording(tmp_path):
+    """What the writer records from a live source reads back identically, with rates from the metadata."""
+    path = tmp_path / "rec.csv"
+    samples = sim_recording(path)
+    rec = read_recording(path)
+    assert rec.meta["node"] == "sim" and rec.rate_hz["BLADE"] == 1000.0
+    for ch, (t, p) in samples.items():
+        assert np.array_equal(rec.channels[ch][0], t)
+        assert np.array_equal(rec.channels[ch][1], p)
+
+
+def test_playback_at_recorded_speed_returns_each_sample_once(tmp_path):
+    """Polled at any pace, playback yields every recorded sample exactly once, when its time has come."""
+    path = tmp_path / "rec.csv"
+    samples = sim_recording(path, seconds=1.0)
+    clock = Clock()
+    src = ReplaySource(path, clock=clock, wall_clock=lambda: 5 * S)
+    src.open()
+    clock.t = S // 2
+    half = src.poll()
+    n_half = len(half.samples["DDR_AB"][0])
+    assert 49 <= n_half <= 51
+    parts = [half]
+    for _ in range(30):
+        clock.t += 23_000_000
+        parts.append(src.poll())
+    blade = np.concatenate([b.samples["BLADE"][1] for b in parts])
+    assert np.array_equal(blade, samples["BLADE"][1])
+    t = np.concatenate([b.samples["BLADE"][0] for b in parts])
+    assert np.all(np.diff(t) == 1_000_000) and t[0] == 5 * S   # restamped from the open
+    assert src.health() == "ended"
+    assert parts[-1].energy_j["DDR_AB"] == pytest.approx(samples["DDR_AB"][1].sum() * 0.01)
+
+
+def test_faster_and_looping(tmp_path):
+    """At speed 4 one clock second plays four recorded seconds; with loop the recording repeats seamlessly."""
+    path = tmp_path / "r.csv"
+    t = np.arange(1, 101, dtype=np.int64) * 10_000_000 + 7 * S     # 1 s at 100 Sa/s
+    write_recording(path, {"DDR_CD": (t, np.linspace(1.0, 2.0, 100))})
+    clock = Clock()
+    src = make_source("replay", path=path, speed=4.0, loop=True, clock=clock, wall_clock=lambda: 0)
+    src.open()
+    clock.t = S
+    batch = src.poll()
+    times, values = batch.samples["DDR_CD"]
+    assert len(times) == 400
+    assert np.all(np.diff(times) == 10_000_000)                    # no seam at the loop boundary
+    assert np.array_equal(values[:100], values[300:])
+    assert src.health() == "ok"
+
+
+def test_original_timestamps_without_restamp(tmp_path):
+    """restamp=False publishes the recorded wall-clock timestamps (post-mortem analysis)."""
+    path = tmp_path / "r.csv"
+    t = np.array([100, 200, 300], dtype=np.int64) * 1_000_000
+    write_recording(path, {"CPU0": (t, np.array([10.0, np.nan, 12.0]))})
+    clock = Clock()
+    src = ReplaySource(path, restamp=False, clock=clock)
+    src.open()
+    clock.t = S
+    batch = src.poll()
+    assert np.array_equal(batch.samples["CPU0"][0], t)
+    assert batch.status["CPU0"] == "stale"           # an unknown (NaN) sample is flagged
+    assert batch.energy_j["CPU0"] == pytest.approx(22.0 * 0.1)
+
+
+@pytest.mark.parametrize(("text", "line", "what"), [
+    ("# hdeem-watch recording v2\nt_ns,channel,power_w\n1,BLADE,1\n", 1, "version"),
+    ("t_ns,channel,power_w\n1,BLADE,1\n", 1, "expected"),
+    ("# hdeem-watch recording v1\ntime,ch,p\n", 2, "header"),
+    ("# hdeem-watch recording v1\nt_ns,channel,power_w\n1,BLADE,1\n2,BLADE\n", 4, "3 fields"),
+    ("# hdeem-watch recording v1\nt_ns,channel,power_w\n1.5,BLADE,1\n", 3, "integer"),
+    ("# hdeem-watch recording v1\nt_ns,channel,power_w\n1,BLADE,watt\n", 3, "not a number"),
+    ("# hdeem-watch recording v1\nt_ns,channel,power_w\n5,BLADE,1\n5,BLADE,1\n", 4, "does not increase"),
+])
+def test_malformed_recording_names_the_line(tmp_path, text, line, what):
+    """Each malformed recording is an InputError naming the file, the line and what was wrong."""
+    path = tmp_path / "bad.csv"
+    path.write_text(text)
+    with pytest.raises(InputError, match=f"bad.csv:{line}: .*{what}"):
+        ReplaySource(path)
