@@ -201,9 +201,9 @@ def parse_recording(lines: Iterable[str], where: str = "recording") -> Recording
             rates[normalise_channel_name(key)] = float(value)
         except ValueError:
             raise InputError(f"{where}: metadata rate_hz {item!r}; expected NAME=number") from None
-    for name, (t, _) in channels.items():
+    for name, (times, _) in channels.items():
         if name not in rates:
-            rates[name] = 1e9 / float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+            rates[name] = 1e9 / float(np.median(np.diff(times))) if len(times) > 1 else 1.0
     return Recording(channels, meta, rates)
 
 
