@@ -2,7 +2,7 @@
 
 Everything here works on a *prepared* design matrix ``D`` (rows already weighted, columns already
 scaled so that each unknown is of order one) and a target ``t``: minimise ``½‖D·x − t‖²`` subject to
-``lower ≤ x ≤ upper``, optionally plus a Gaussian prior ``½λ‖x − x0‖²``. A tiny ridge (``1e-10`` of
+``lower ≤ x ≤ upper``, optionally plus a Gaussian prior ``½λ‖x − x0‖²``. A tiny ridge (``1e-12`` of
 the largest squared singular value, toward ``x0``) is always added, so a rank-deficient system still
 has one answer: directions the data do not determine stay at the prior target.
 
@@ -31,7 +31,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 #: Relative size of the always-present ridge (times the largest squared singular value of ``D``).
-RIDGE_RELATIVE = 1e-10
+RIDGE_RELATIVE = 1e-12
 
 
 @dataclass(frozen=True)

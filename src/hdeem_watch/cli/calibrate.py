@@ -1,18 +1,110 @@
-"""``hdeem-watch calibrate``: not built yet (its issue is open)."""
+"""``hdeem-watch calibrate``: fit DRAM currents to measured run energies (DESIGN.md §4, §7).
+
+``hdeem-watch calibrate --runs RUNS.json [--memspec M.json] [--currents idd0,idd2n,...] [--json]
+[--write-memspec OUT.json]`` reads the runs (see :mod:`hdeem_watch.calibrate.runs_file`), fits the
+chosen currents and an intercept by bounded least squares, and prints a table (or, with
+``--json``, one JSON object: ``currents.<name>.{datasheet, calibrated, ci95, identifiable}``,
+``intercept_j``, ``error.{before, after, loo}``, ``observability.{condition_number,
+singular_values}``, ...). ``--write-memspec`` writes the memspec with the calibrated currents.
+"""
 
 from __future__ import annotations
 
 import argparse
-import sys
+import json
+import math
 from typing import Any
+
+from hdeem_watch.calibrate.fit import FitResult, fit
+from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS
+from hdeem_watch.calibrate.runs_file import read_runs_file
+from hdeem_watch.errors import InputError
 
 
 def register(subparsers: Any) -> None:
     """Add the ``calibrate`` subcommand."""
-    parser = subparsers.add_parser("calibrate", help="(not built yet)")
+    parser = subparsers.add_parser(
+        "calibrate", help="fit DRAM currents to measured run energies (bounded least squares)",
+        description="Fit memspec currents (and an intercept >= 0) to the measured energies of runs "
+                    "given as DRAMPower command traces or command statistics.")
+    parser.add_argument("--runs", required=True, metavar="RUNS.json",
+                        help='{"memspec": path, "runs": [{"name", "measured_j", "trace"|"stats", "scale"}]}')
+    parser.add_argument("--memspec", metavar="M.json",
+                        help="memspec overriding the one RUNS.json names (a path or preset:NAME)")
+    parser.add_argument("--currents", default=",".join(DEFAULT_CURRENTS), metavar="LIST",
+                        help=f"comma-separated currents to calibrate (default {','.join(DEFAULT_CURRENTS)})")
+    parser.add_argument("--no-intercept", action="store_true", help="do not fit a per-run energy offset")
+    parser.add_argument("--prior-weight", type=float, default=0.0, metavar="W",
+                        help="weight of a prior toward the datasheet values (0 = off)")
+    parser.add_argument("--uncertainty", choices=("analytic", "bootstrap"), default="analytic",
+                        help="95%% intervals from the active-set covariance or a residual bootstrap")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--write-memspec", metavar="OUT.json", help="write the calibrated memspec here")
     parser.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
-    print("hdeem-watch calibrate: not built yet", file=sys.stderr)
-    return 1
+    currents = [c.strip() for c in args.currents.split(",") if c.strip()]
+    if not currents:
+        raise InputError("--currents: expected a comma-separated list of current names")
+    if not math.isfinite(args.prior_weight) or args.prior_weight < 0:
+        raise InputError(f"--prior-weight: {args.prior_weight!r}; expected a number >= 0")
+    spec, observations = read_runs_file(args.runs, args.memspec)
+    result = fit(observations, spec, currents=currents, intercept=not args.no_intercept,
+                 prior_weight=args.prior_weight, uncertainty=args.uncertainty)
+    written = None
+    if args.write_memspec:
+        from hdeem_watch.dram.memspec import save_memspec
+
+        try:
+            save_memspec(spec.with_currents(result.calibrated), args.write_memspec)
+        except OSError as error:
+            raise InputError(f"--write-memspec {args.write_memspec}: cannot write: "
+                             f"{error.strerror or error}") from None
+        written = str(args.write_memspec)
+    if args.json:
+        out = result.to_dict()
+        out["memspec"] = spec.memory_id
+        out["written_memspec"] = written
+        print(json.dumps(out, allow_nan=False))
+    else:
+        print(format_table(result, spec.memory_id))
+        if written:
+            print(f"calibrated memspec written to {written}")
+    return 0
+
+
+def _ma(value: float) -> str:
+    return "—" if not math.isfinite(value) else f"{value * 1e3:.2f}"
+
+
+def _pct(value: float) -> str:
+    return "—" if not math.isfinite(value) else f"{value * 100:.2f} %"
+
+
+def format_table(result: FitResult, memory_id: str) -> str:
+    """The human-readable report of a fit."""
+    lines = [f"calibrated {len(result.currents)} currents of {memory_id} on {result.n_runs} runs "
+             f"(status {result.status}, intervals: {result.uncertainty})",
+             f"{'current':<8} {'datasheet mA':>12} {'calibrated mA':>13} {'ratio':>6}  {'95 % interval mA':<20} "
+             f"{'sensitivity':>11}  determined"]
+    for j, name in enumerate(result.currents):
+        ds, cal = result.datasheet_a[j], result.calibrated_a[j]
+        lo, hi = result.ci95_a[j]
+        ratio = f"{cal / ds:.3f}" if ds > 0 else "—"
+        bound = f" (at {result.at_bound[j]} bound)" if result.at_bound[j] else ""
+        lines.append(f"{name:<8} {_ma(ds):>12} {_ma(cal):>13} {ratio:>6}  {'[' + _ma(lo) + ', ' + _ma(hi) + ']':<20} "
+                     f"{result.sensitivity[j]:>11.3f}  {'yes' if result.identifiable[j] else 'NO (weak)'}{bound}")
+    if result.intercept_fitted:
+        lo, hi = result.intercept_ci95_j
+        lines.append(f"intercept {result.intercept_j:.4g} J per run  [{lo:.4g}, {hi:.4g}]")
+    lines.append(f"mean |relative error|: datasheet {_pct(result.error_before)}, calibrated "
+                 f"{_pct(result.error_after)}, leave-one-out {_pct(result.error_loo)}")
+    sv = ", ".join(f"{s:.3g}" for s in result.singular_values)
+    cond = "inf" if not math.isfinite(result.condition_number) else f"{result.condition_number:.3g}"
+    lines.append(f"observability: condition number {cond}, rank {result.rank}, singular values {sv}")
+    weak = [n for n, ok in zip(result.currents, result.identifiable) if not ok]
+    if weak:
+        lines.append(f"not determined by these runs: {', '.join(weak)} (kept near the datasheet; add runs "
+                     "that exercise them)")
+    return "\n".join(lines)

@@ -1,0 +1,149 @@
+"""Read RUNS.json, the input of ``hdeem-watch calibrate`` (DESIGN.md §7) — the I/O shell.
+
+Format (paths relative to the RUNS.json file)::
+
+    {"memspec": "M.json",                      # or "preset:samsung-m393a1g43db0-cpb"
+     "runs": [
+       {"name": "triad-24", "measured_j": 41.7, "trace": "triad.csv"},
+       {"name": "idle", "measured_j": 12.1, "stats": {"ranks": [{...RankStats...}, ...]},
+        "window_s": 2.0, "scale": 8}
+     ]}
+
+Per run: ``name`` (default ``run[i]``), ``measured_j`` (> 0), exactly one of ``trace`` (a DRAMPower
+command trace CSV) or ``stats`` (:meth:`CommandStats.to_dict` form), and optionally ``scale`` (how
+many such channels the measured energy covers, default 1), ``window_s`` (the measured window; the
+model's residency and refresh are stretched to it; default: the trace's/statistics' own window),
+``time_ns`` and ``weight``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from hdeem_watch.calibrate.observation import Observation, check_measured
+from hdeem_watch.calibrate.rows import observation_from_run, stats_window_s
+from hdeem_watch.dram.stats import CommandStats
+from hdeem_watch.errors import InputError
+
+_RUN_KEYS = {"name", "measured_j", "trace", "stats", "scale", "window_s", "time_ns", "weight"}
+
+
+def load_spec(value: str, base: Path, where: str) -> Any:
+    """The memspec named by ``value``: a file (relative to ``base``) or ``preset:NAME``."""
+    from hdeem_watch.dram.memspec import load_memspec, preset
+
+    if value.startswith("preset:"):
+        return preset(value.removeprefix("preset:"))
+    path = Path(value)
+    if not path.is_absolute():
+        path = base / path
+    if not path.exists():
+        raise InputError(f"{where}: memspec file {str(path)!r} does not exist")
+    return load_memspec(path)
+
+
+def read_runs_file(path: str | Path, memspec: str | Path | None = None) -> tuple[Any, list[Observation]]:
+    """Read RUNS.json into the memspec and one :class:`Observation` per run.
+
+    Args:
+        path: the RUNS.json file.
+        memspec: a memspec overriding the file's ``memspec`` (path, or ``preset:NAME``).
+
+    Raises:
+        InputError: an unreadable or malformed file, a missing or malformed trace, a bad energy,
+            scale or window — one line naming the file, the run and the field.
+    """
+    path = Path(path)
+    where = str(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as error:
+        raise InputError(f"{where}: cannot read runs file: {error.strerror or error}") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{where}: not a UTF-8 text file; expected RUNS.json") from None
+    except json.JSONDecodeError as error:
+        raise InputError(f"{where}: invalid JSON at line {error.lineno} column {error.colno}: {error.msg}") from None
+    if not isinstance(data, Mapping):
+        raise InputError(f"{where}: expected an object with 'memspec' and 'runs'")
+    base = path.resolve().parent
+    if memspec is not None:
+        spec = load_spec(str(memspec), Path.cwd(), "--memspec")
+    else:
+        value = data.get("memspec")
+        if not isinstance(value, str) or not value:
+            raise InputError(f"{where}: memspec: expected a path (or give --memspec)")
+        spec = load_spec(value, base, f"{where}: memspec")
+    runs = data.get("runs")
+    if not isinstance(runs, list) or not runs:
+        raise InputError(f"{where}: runs: expected a non-empty list of runs")
+    return spec, [_observation(spec, run, i, base, where) for i, run in enumerate(runs)]
+
+
+def _number(run: Mapping[str, Any], key: str, name: str, default: float) -> float:
+    value = run.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
+        raise InputError(f"run {name!r}: {key} = {value!r}; expected a number > 0")
+    return float(value)
+
+
+def _observation(spec: Any, run: Any, i: int, base: Path, where: str) -> Observation:
+    if not isinstance(run, Mapping):
+        raise InputError(f"{where}: runs[{i}]: expected an object")
+    name = run.get("name", f"run[{i}]")
+    if not isinstance(name, str) or not name:
+        raise InputError(f"{where}: runs[{i}].name: {name!r}; expected a non-empty string")
+    unknown = sorted(set(run) - _RUN_KEYS)
+    if unknown:
+        raise InputError(f"run {name!r}: unknown field {unknown[0]!r}; expected some of {sorted(_RUN_KEYS)}")
+    if "measured_j" not in run:
+        raise InputError(f"run {name!r}: measured_j missing; expected the measured energy in J")
+    measured = check_measured(name, run["measured_j"])
+    has_trace, has_stats = "trace" in run, "stats" in run
+    if has_trace == has_stats:
+        raise InputError(f"run {name!r}: expected exactly one of 'trace' (a path) or 'stats' (an object)")
+    if has_trace:
+        stats = _trace_stats(spec, run["trace"], name, base)
+    else:
+        try:
+            stats = CommandStats.from_dict(run["stats"], where=f"run {name!r}: stats")
+        except InputError:
+            raise
+        except (TypeError, AttributeError):
+            raise InputError(f"run {name!r}: stats: expected an object with a list 'ranks'") from None
+        if len(stats.ranks) != spec.nbr_of_ranks:
+            raise InputError(f"run {name!r}: stats has {len(stats.ranks)} ranks; memspec "
+                             f"{spec.memory_id!r} has {spec.nbr_of_ranks}")
+    scale = _number(run, "scale", name, 1.0)
+    weight = run.get("weight", 1.0)
+    time_ns = run.get("time_ns", 0)
+    if isinstance(time_ns, bool) or not isinstance(time_ns, int):
+        raise InputError(f"run {name!r}: time_ns = {time_ns!r}; expected an integer (ns)")
+    default_window = stats_window_s(spec, stats)
+    if "window_s" in run:
+        window = _number(run, "window_s", name, 1.0)
+    elif math.isnan(default_window):
+        raise InputError(f"run {name!r}: the statistics have no window (cycles_total = 0); give window_s")
+    else:
+        window = default_window
+    return observation_from_run(spec, stats, window, measured, scale=scale, name=name, time_ns=time_ns,
+                                weight=weight)
+
+
+def _trace_stats(spec: Any, value: Any, name: str, base: Path) -> CommandStats:
+    from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+
+    if not isinstance(value, str) or not value:
+        raise InputError(f"run {name!r}: trace = {value!r}; expected a path to a DRAMPower CSV trace")
+    path = Path(value)
+    if not path.is_absolute():
+        path = base / path
+    if not path.is_file():
+        raise InputError(f"run {name!r}: trace {str(path)!r} does not exist")
+    try:
+        return trace_stats(spec, read_command_trace(path))
+    except InputError as error:
+        raise InputError(f"run {name!r}: {error}") from None
