@@ -1,0 +1,277 @@
+"""A vectorised DDR4 memory-controller model: request stream → per-rank command statistics.
+
+The Ramulator step of the seed pipeline, as array operations (no Python loop per request). The
+model, in the order it is computed (details and the comparison with Ramulator in
+``docs/dram-stats.md``):
+
+1. **Mapping**: every request is split into rank, bank group, bank, row, column
+   (:mod:`hdeem_watch.dram.mapping`).
+2. **Service order** (:mod:`hdeem_watch.dram.scheduler`): reads and writes sit in separate queues;
+   writes are drained in batches between the high and low watermarks while the read queue stays
+   full; within a read phase or a write batch, requests to the same open row are served together
+   (FR-FCFS), at most ``hit_cap`` in a row before the oldest other request gets its turn.
+3. **Row-buffer outcome** per bank in service order: hit, miss (bank precharged) or conflict
+   (another row open); a closed-page policy precharges a bank when no queued request hits it.
+4. **Timing**: column commands in service order are spaced by the DDR4 column-to-column rules
+   (tCCD_S/L, read↔write turnaround, tWTR_S/L, rank switch) and by the bank rules of each miss or
+   conflict (PRE after tRAS/tRTP/write recovery, tRP, ACT, tRCD; ACT no earlier than the request
+   enters the queue). Both are max-plus recurrences solved with cumulative maxima.
+5. **Refresh**: every tREFI each rank is closed (PREA) and refreshed; traffic stalls for
+   tRP + tRFC + tRCD. The stall windows are inserted in closed form; rows a refresh closes cost an
+   extra activation (including rows that were activated ahead of their first column command).
+6. **Statistics** from the resulting command set: ACT, PRE (explicit, PREA-closed banks, auto),
+   RD/WR (RDA/WRA under the closed policy), REF; per rank the cycles with a bank open (refresh
+   included) and with all banks precharged, and the sum of bank-open cycles. The same command set
+   can be written as a DRAMPower trace (:mod:`hdeem_watch.dram.command_emit`), so both give the
+   same energy.
+
+Example:
+    >>> from hdeem_watch.dram.memspec import preset
+    >>> from hdeem_watch.dram.kernels import kernel_requests
+    >>> addresses, is_write = kernel_requests("read", 8 * 4096)
+    >>> result = simulate(preset("ddr4-2133-x8-4gb"), addresses, is_write)
+    >>> result.reads, result.writes, result.row_hits + result.row_misses + result.row_conflicts
+    (4096, 0, 4096)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hdeem_watch.dram.mapping import AddressMapping, Geometry
+from hdeem_watch.dram.scheduler import SchedulerConfig, service_order
+from hdeem_watch.dram.stats import CommandStats, RankStats
+from hdeem_watch.errors import InputError
+
+POLICIES = ("open", "closed")
+
+
+@dataclass(frozen=True)
+class Timing:
+    """The DDR4 timings the model uses, in clock cycles (from ``MemSpec.timings``)."""
+
+    ras: int
+    rcd: int
+    rp: int
+    rl: int
+    wl: int
+    al: int
+    rtp: int
+    wr: int
+    ccd_s: int
+    ccd_l: int
+    wtr_s: int
+    wtr_l: int
+    rtrs: int
+    rfc: int
+    refi: int
+    burst: int
+
+    @classmethod
+    def from_spec(cls, spec: Any) -> Timing:
+        """Read the timings of a memspec.
+
+        Raises:
+            InputError: naming a missing timing.
+        """
+        t = spec.timings
+        def get(key: str, default: int | None = None) -> int:
+            if key in t:
+                return int(t[key])
+            if default is None:
+                raise InputError(f"memspec: memtimingspec.{key} missing; the controller model needs it")
+            return default
+        rfc = int(spec.trfc) if hasattr(spec, "trfc") else get("RFC1")
+        return cls(ras=get("RAS"), rcd=get("RCD"), rp=get("RP"), rl=get("RL"), wl=get("WL"), al=get("AL", 0),
+                   rtp=get("RTP"), wr=get("WR"), ccd_s=get("CCD_S"), ccd_l=get("CCD_L"),
+                   wtr_s=get("WTR_S"), wtr_l=get("WTR_L"), rtrs=get("RTRS", 1), rfc=rfc, refi=get("REFI"),
+                   burst=max(1, int(spec.burst_length) // int(spec.data_rate)))
+
+
+@dataclass(frozen=True)
+class Commands:
+    """The command set the model issued (all arrays of one length per kind, cycles as int64).
+
+    Attributes:
+        act_cycle, act_rank, act_bank, act_row: activations (``act_bank`` flat in the rank).
+        pre_cycle, pre_rank, pre_bank: explicit single-bank precharges.
+        col_cycle, col_rank, col_bank, col_row, col_column, col_write, col_auto: column commands
+            (``col_auto``: with auto-precharge, RDA/WRA).
+        ref_cycle: refresh times (PREA of every rank at ``ref_cycle``, REFA at ``+ tRP``).
+        end_cycle: the evaluation time T.
+    """
+
+    act_cycle: np.ndarray
+    act_rank: np.ndarray
+    act_bank: np.ndarray
+    act_row: np.ndarray
+    pre_cycle: np.ndarray
+    pre_rank: np.ndarray
+    pre_bank: np.ndarray
+    col_cycle: np.ndarray
+    col_rank: np.ndarray
+    col_bank: np.ndarray
+    col_row: np.ndarray
+    col_column: np.ndarray
+    col_write: np.ndarray
+    col_auto: np.ndarray
+    ref_cycle: np.ndarray
+    end_cycle: int
+
+
+@dataclass(frozen=True)
+class ControllerResult:
+    """What :func:`simulate` returns.
+
+    Attributes:
+        stats: per-rank statistics of the channel (the energy model's input).
+        requests, reads, writes: requests served.
+        row_hits, row_misses, row_conflicts: outcome of each request at its first command.
+        cycles: total DRAM cycles (the END of the emitted trace).
+        commands: the issued command set (for :func:`hdeem_watch.dram.command_emit.write_drampower_trace`).
+        geometry: the organisation simulated.
+    """
+
+    stats: CommandStats
+    requests: int
+    reads: int
+    writes: int
+    row_hits: int
+    row_misses: int
+    row_conflicts: int
+    cycles: int
+    commands: Commands
+    geometry: Geometry
+
+
+def _column_gaps(timing: Timing, rank: np.ndarray, bankgroup: np.ndarray, write: np.ndarray) -> np.ndarray:
+    """Minimum spacing of each column command after the previous one (first entry 0)."""
+    n = rank.size
+    gaps = np.zeros(n, dtype=np.int64)
+    if n < 2:
+        return gaps
+    b = timing.burst
+    same_rank = rank[1:] == rank[:-1]
+    same_group = same_rank & (bankgroup[1:] == bankgroup[:-1])
+    prev_w, cur_w = write[:-1], write[1:]
+    rank_switch = max(timing.ccd_s, b + timing.rtrs + 1)  # + 1 cycle of read/write preamble
+    same_kind = np.where(same_group, timing.ccd_l, np.where(same_rank, timing.ccd_s, rank_switch))
+    read_to_write = max(timing.ccd_s, timing.rl + b + 2 - timing.wl)
+    write_to_read = np.where(same_group, timing.wl + b + timing.wtr_l,
+                             np.where(same_rank, timing.wl + b + timing.wtr_s,
+                                      max(timing.ccd_s, timing.wl + b + timing.rtrs - timing.rl)))
+    gaps[1:] = np.where(prev_w == cur_w, same_kind, np.where(cur_w, read_to_write, write_to_read))
+    return gaps
+
+
+def simulate(
+    spec: Any,
+    addresses: np.ndarray,
+    is_write: np.ndarray,
+    *,
+    policy: str = "open",
+    mapping: str = "RoBaRaCoCh",
+    xor_bank: bool = False,
+    channel: int = 0,
+    scheduler: SchedulerConfig | None = None,
+) -> ControllerResult:
+    """Serve a request stream on one channel and count the commands.
+
+    Args:
+        spec: memspec of the channel (:class:`hdeem_watch.dram.memspec.MemSpec`).
+        addresses: physical byte addresses (``uint64``), in arrival order.
+        is_write: write flags, same length.
+        policy: ``"open"`` (rows stay open until a conflict or refresh) or ``"closed"`` (a row is
+            precharged, by RDA/WRA, when no queued request hits it).
+        mapping: address-mapping scheme (:mod:`hdeem_watch.dram.mapping`).
+        xor_bank: XOR bank hashing.
+        channel: which channel to simulate when the memspec has several (others' requests are
+            ignored).
+        scheduler: queue sizes, watermarks and hit cap (defaults: Ramulator's).
+
+    Raises:
+        InputError: for a bad policy, mapping, memspec or mismatched arrays.
+    """
+    if policy not in POLICIES:
+        raise InputError(f"policy {policy!r}: expected one of {', '.join(POLICIES)}")
+    addresses = np.asarray(addresses, dtype=np.uint64)
+    is_write = np.asarray(is_write, dtype=bool)
+    if addresses.shape != is_write.shape or addresses.ndim != 1:
+        raise InputError(f"requests: {addresses.size} addresses but {is_write.size} write flags")
+    geometry = Geometry.from_spec(spec)
+    timing = Timing.from_spec(spec)
+    config = scheduler or SchedulerConfig()
+    fields = AddressMapping(geometry, mapping, xor_bank=xor_bank).decode(addresses)
+    if geometry.channels > 1:
+        keep = fields.channel == channel
+        if not keep.all():
+            fields = type(fields)(**{k: v[keep] for k, v in vars(fields).items()})
+            is_write = is_write[keep]
+    order = service_order(fields.rank * geometry.banks + fields.flat_bank, fields.row, is_write, config)
+    from hdeem_watch.dram.timing_model import run_timing
+
+    return run_timing(geometry, timing, config, policy,
+                      rank=fields.rank[order], bank=fields.flat_bank[order], bankgroup=fields.bankgroup[order],
+                      row=fields.row[order], column=fields.column[order], write=is_write[order])
+
+
+def stats_from_commands(geometry: Geometry, timing: Timing, commands: Commands,
+                        run_rank: np.ndarray, run_open: np.ndarray, run_close: np.ndarray,
+                        closed_by_prea: np.ndarray) -> CommandStats:
+    """Per-rank statistics of a command set, given the bank-open intervals it implies.
+
+    Args:
+        geometry, timing: the channel.
+        commands: the command set.
+        run_rank: rank of each bank-open interval.
+        run_open, run_close: the interval (ACT cycle, precharge cycle or END).
+        closed_by_prea: intervals closed by a refresh's PREA.
+    """
+    ranks = []
+    end = commands.end_cycle
+    refreshes = commands.ref_cycle.size
+    for r in range(geometry.ranks):
+        mine = run_rank == r
+        opened, closed = run_open[mine], run_close[mine]
+        ref_start = commands.ref_cycle + timing.rp
+        ref_stop = np.minimum(ref_start + timing.rfc, end)
+        starts = np.concatenate((opened, ref_start))
+        stops = np.concatenate((closed, ref_stop))
+        union = _union_length(starts, stops)
+        col_r = commands.col_rank == r
+        auto = commands.col_auto[col_r]
+        write = commands.col_write[col_r]
+        explicit_pre = int(np.count_nonzero(commands.pre_rank == r))
+        ranks.append(RankStats(
+            act=float(np.count_nonzero(commands.act_rank == r)),
+            pre=float(explicit_pre + np.count_nonzero(closed_by_prea[mine]) + np.count_nonzero(auto)),
+            rd=float(np.count_nonzero(~write & ~auto)), wr=float(np.count_nonzero(write & ~auto)),
+            rda=float(np.count_nonzero(~write & auto)), wra=float(np.count_nonzero(write & auto)),
+            ref=float(refreshes), cycles_total=float(end), cycles_act=float(union),
+            cycles_pre=float(end - union),
+            bank_active_cycles=float(np.sum(closed - opened) + geometry.banks * np.sum(ref_stop - ref_start)),
+        ))
+    return CommandStats(ranks=tuple(ranks))
+
+
+def _union_length(starts: np.ndarray, stops: np.ndarray) -> int:
+    """Total length of the union of half-open intervals ``[start, stop)``."""
+    valid = stops > starts
+    starts, stops = starts[valid], stops[valid]
+    if starts.size == 0:
+        return 0
+    order = np.argsort(starts, kind="stable")
+    starts, stops = starts[order], stops[order]
+    reach = np.maximum.accumulate(stops)
+    # a new merged block starts where an interval begins after everything before it ended
+    new_block = np.empty(starts.size, dtype=bool)
+    new_block[0] = True
+    new_block[1:] = starts[1:] > reach[:-1]
+    block_id = np.cumsum(new_block) - 1
+    block_start = starts[new_block]
+    block_stop = np.zeros(block_start.size, dtype=np.int64)
+    np.maximum.at(block_stop, block_id, stops)
+    return int(np.sum(block_stop - block_start))

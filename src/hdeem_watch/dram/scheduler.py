@@ -1,0 +1,160 @@
+"""Service order of a request stream: write-drain batches and FR-FCFS row grouping, vectorised.
+
+The controller keeps reads and writes in separate queues (Ramulator: 32 entries each). Writes
+wait until the write queue holds more than ``high × size`` entries, then are drained until fewer
+than ``low × size`` remain; meanwhile the read queue is full, so the reads that arrived in the
+last ``read_queue`` places before the drain started are served after it. The drain batches and
+read phases are computed in closed form from the arrival positions.
+
+Within a read phase (cut into windows of at most ``window`` reads) and within a write batch,
+FR-FCFS serves the requests to an open row before older requests to other rows: requests are
+grouped by (bank, row) in order of first appearance, each group in arrival order, at most
+``hit_cap`` requests per turn (Ramulator 1 caps hits at 16; ``None`` = uncapped, Ramulator 2).
+
+Example:
+    >>> import numpy as np
+    >>> bank = np.zeros(6, dtype=np.int64); row = np.array([1, 2, 1, 2, 1, 2])
+    >>> service_order(bank, row, np.zeros(6, dtype=bool)).tolist()
+    [0, 2, 4, 1, 3, 5]
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hdeem_watch.errors import InputError
+
+
+@dataclass(frozen=True)
+class SchedulerConfig:
+    """Queue and scheduling parameters (defaults: Ramulator's controller).
+
+    Attributes:
+        read_queue: read-queue entries.
+        write_queue: write-queue entries.
+        high: write-drain high watermark (fraction of ``write_queue``).
+        low: write-drain low watermark.
+        hit_cap: most row hits served in a row before the oldest request; ``None`` = no cap.
+        window: longest stretch of reads regrouped at once (the reordering horizon).
+    """
+
+    read_queue: int = 32
+    write_queue: int = 32
+    high: float = 0.8
+    low: float = 0.2
+    hit_cap: int | None = 16
+    window: int = 64
+    hidden_turnaround: int = 5
+    hidden_bank: int = 12
+
+    def __post_init__(self) -> None:
+        if self.read_queue < 1 or self.write_queue < 2 or self.window < 1:
+            raise InputError("scheduler: queue sizes and window must be positive")
+        if not 0.0 <= self.low < self.high <= 1.0:
+            raise InputError(f"scheduler: watermarks low={self.low}, high={self.high}; expected 0 <= low < high <= 1")
+        if self.hit_cap is not None and self.hit_cap < 1:
+            raise InputError(f"scheduler: hit_cap {self.hit_cap}; expected >= 1 or None")
+
+    @property
+    def drain_batch(self) -> int:
+        """Writes served per drain (from above ``high`` to below ``low``)."""
+        return self.drain_trigger - (int(self.low * self.write_queue) - 1)
+
+    @property
+    def drain_trigger(self) -> int:
+        """Write-queue occupancy that starts a drain."""
+        return int(self.high * self.write_queue) + 1
+
+
+def phases(is_write: np.ndarray, config: SchedulerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Position of every request in the served sequence, and the segment it is regrouped within.
+
+    Returns:
+        ``(position, segment)``: a permutation target (``served[position[i]] = i``) and a
+        non-decreasing segment id along the served sequence (read windows and write batches).
+    """
+    n = is_write.size
+    write_pos = np.flatnonzero(is_write)
+    n_writes = write_pos.size
+    n_reads = n - n_writes
+    batch = config.drain_batch
+    trigger = config.drain_trigger
+    full = max(0, (n_writes - trigger) // batch + 1) if n_writes >= trigger else 0
+    # the write that fills the queue to the trigger level starts drain k
+    trigger_write = trigger - 1 + batch * np.arange(full, dtype=np.int64)
+    reads_before = write_pos[trigger_write] - trigger_write
+    cut = np.maximum(0, reads_before - config.read_queue)
+    cut = np.maximum.accumulate(cut) if cut.size else cut
+    position = np.empty(n, dtype=np.int64)
+    segment = np.empty(n, dtype=np.int64)
+    read_ordinal = np.arange(n_reads, dtype=np.int64)
+    phase = np.searchsorted(cut, read_ordinal, side="right")
+    read_index = np.flatnonzero(~is_write)
+    position[read_index] = read_ordinal + phase * batch
+    # a read phase is regrouped in windows of at most ``window`` reads
+    phase_start = np.concatenate(([0], cut))[phase]
+    window = (read_ordinal - phase_start) // config.window
+    write_ordinal = np.arange(n_writes, dtype=np.int64)
+    k = write_ordinal // batch
+    in_full = k < full
+    position[write_pos[in_full]] = cut[k[in_full]] + write_ordinal[in_full]
+    position[write_pos[~in_full]] = n_reads + write_ordinal[~in_full]
+    # segment ids: ordered along the served sequence
+    span = n // config.window + 2
+    segment[read_index] = phase * (span + 1) * 2 + window
+    segment[write_pos] = np.minimum(k, full) * (span + 1) * 2 + (span + 1)
+    return position, segment
+
+
+def service_order(bank: np.ndarray, row: np.ndarray, is_write: np.ndarray,
+                  config: SchedulerConfig | None = None) -> np.ndarray:
+    """Indices of the requests in the order the controller serves them.
+
+    Args:
+        bank: global bank index of each request (rank × banks + bank), arrival order.
+        row: row of each request.
+        is_write: write flags.
+        config: scheduler parameters.
+    """
+    config = config or SchedulerConfig()
+    n = is_write.size
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    position, segment = phases(is_write, config)
+    served = np.empty(n, dtype=np.int64)
+    served[position] = np.arange(n, dtype=np.int64)
+    seg = segment[served]
+    group = bank[served].astype(np.int64) * (int(row.max()) + 1) + row[served]
+    # FR-FCFS: group by (bank, row) within a segment, in order of first appearance
+    seg_id = np.cumsum(np.concatenate(([True], seg[1:] != seg[:-1]))) - 1
+    same_as_prev = np.concatenate(([False], (group[1:] == group[:-1]) & (seg_id[1:] == seg_id[:-1])))
+    runs_start = ~same_as_prev
+    if np.count_nonzero(runs_start) == seg_id[-1] + 1 and config.hit_cap is None:
+        return served  # every segment is one run per group already
+    groups_max = int(group.max()) + 1
+    key = seg_id * groups_max + group
+    by_group = np.argsort(key, kind="stable")
+    sorted_key = key[by_group]
+    new = np.concatenate(([True], sorted_key[1:] != sorted_key[:-1]))
+    start_of = np.flatnonzero(new)
+    run_index = np.cumsum(new) - 1
+    rank_in_group = np.arange(n, dtype=np.int64) - start_of[run_index]
+    first = np.empty(n, dtype=np.int64)
+    first[by_group] = by_group[start_of[run_index]]
+    seg_start = np.flatnonzero(np.concatenate(([True], seg_id[1:] != seg_id[:-1])))
+    local_first = first - seg_start[seg_id]
+    # the row left open by the previous segment (its last request) is served first: a hit
+    carried = np.zeros(n, dtype=bool)
+    carried[seg_start[1:]] = False
+    open_group = np.full(seg_start.size, -1, dtype=np.int64)
+    open_group[1:] = group[seg_start[1:] - 1]
+    carried = group == open_group[seg_id]
+    local_first = np.where(carried, -1, local_first)
+    chunk = np.zeros(n, dtype=np.int64)
+    if config.hit_cap is not None:
+        chunk[by_group] = rank_in_group // (config.hit_cap + 1)
+    seg_len = int(np.diff(np.append(seg_start, n)).max())
+    order_key = seg_id * ((seg_len + 1) * (seg_len + 2)) + chunk * (seg_len + 1) + local_first + 1
+    return served[np.argsort(order_key, kind="stable")]

@@ -1,0 +1,207 @@
+"""Timing, row-buffer outcomes and refresh of a served request sequence (vectorised core).
+
+Used by :func:`hdeem_watch.dram.controller.simulate`, which explains the model. All cycle figures
+are int64. Every step is an array operation; the bank constraints make the issue times a max-plus
+recurrence, solved by a few rounds of ``t = G + cummax(release − G)`` over the requests that need
+an activation (``G`` = cumulative column spacing), which converges from below.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hdeem_watch.dram.controller import (
+    Commands,
+    ControllerResult,
+    Timing,
+    _column_gaps,
+    stats_from_commands,
+)
+from hdeem_watch.dram.mapping import Geometry
+from hdeem_watch.dram.scheduler import SchedulerConfig
+
+_MAX_ROUNDS = 8
+
+
+def _previous_same(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each element, the index of the previous and next element with the same key (-1 if none).
+
+    Also returns the stable order by key.
+    """
+    n = key.size
+    small = key.astype(np.int16) if key.size and key.max() < 32767 else key
+    order = np.argsort(small, kind="stable")
+    sorted_key = key[order]
+    same = sorted_key[1:] == sorted_key[:-1]
+    prev = np.full(n, -1, dtype=np.int64)
+    nxt = np.full(n, -1, dtype=np.int64)
+    prev[order[1:][same]] = order[:-1][same]
+    nxt[order[:-1][same]] = order[1:][same]
+    return prev, nxt, order
+
+
+class _Refresh:
+    """Closed-form insertion of the refresh stall windows.
+
+    Refresh ``k >= 1`` starts at real cycle ``k × tREFI`` (PREA, then REFA after tRP) and the
+    traffic resumes ``S = tRP + tRFC + tRCD`` later. A virtual (refresh-free) time ``t`` maps to
+    ``t + S × k(t)``, ``k(t)`` = the refreshes that started before it.
+    """
+
+    def __init__(self, timing: Timing) -> None:
+        self.refi = timing.refi
+        self.stall = timing.rp + timing.rfc + timing.rcd
+        if self.stall >= self.refi:
+            self.stall = self.refi - 1
+
+    def count(self, virtual: np.ndarray) -> np.ndarray:
+        period = self.refi - self.stall
+        return np.maximum(0, (virtual - self.stall) // period)
+
+    def real(self, virtual: np.ndarray) -> np.ndarray:
+        return virtual + self.stall * self.count(virtual)
+
+
+def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, policy: str, *,
+               rank: np.ndarray, bank: np.ndarray, bankgroup: np.ndarray, row: np.ndarray,
+               column: np.ndarray, write: np.ndarray) -> ControllerResult:
+    """Time a request sequence already in service order and collect its commands and statistics."""
+    n = rank.size
+    rank = rank.astype(np.int64)
+    bank = bank.astype(np.int64)
+    gbank = rank * geometry.banks + bank
+    prev, nxt, by_bank = _previous_same(gbank)
+    has_prev = prev >= 0
+    prev_safe = np.where(has_prev, prev, 0)
+    same_row = has_prev & (row[prev_safe] == row)
+    queue = config.read_queue
+    if policy == "closed":
+        nxt_safe = np.where(nxt >= 0, nxt, 0)
+        auto = (nxt < 0) | (row[nxt_safe] != row) | (nxt - np.arange(n) > queue)
+        hit = same_row & ~auto[prev_safe]
+    else:
+        auto = np.zeros(n, dtype=bool)
+        hit = same_row
+    conflict = has_prev & ~same_row & ~auto[prev_safe]
+    need = ~hit
+    b = timing.burst
+    recovery = np.where(write, timing.wl + b + timing.wr, timing.al + timing.rtp)
+
+    gaps = _column_gaps(timing, rank, bankgroup, write)
+    if config.hidden_turnaround:
+        switch = np.zeros(n, dtype=bool)
+        switch[1:] = write[1:] != write[:-1]
+        gaps = np.where(switch, np.maximum(gaps - config.hidden_turnaround, timing.ccd_s), gaps)
+    cum = np.cumsum(gaps)
+    # the activation that opened each request's row: cummax of ACT positions in bank order
+    sorted_need = need[by_bank]
+    last = np.maximum.accumulate(np.where(sorted_need, np.arange(n), 0)) if n else np.zeros(0, np.int64)
+    run_start = np.empty(n, dtype=np.int64)
+    run_start[by_bank] = by_bank[last]
+
+    idx = np.flatnonzero(need)
+    p = prev[idx]
+    p_has = p >= 0
+    p_safe = np.where(p_has, p, 0)
+    p_conflict = conflict[idx]
+    # Each request that needs an activation may lift the column sequence: it must wait for its
+    # bank (t_p + recovery + tRP + tRCD after the previous access p, and tRAS + tRP after the
+    # ACT that opened p's row). Lifts of requests in between count towards that distance, so the
+    # lifts are a recurrence over the activating requests; a few Jacobi rounds solve it.
+    q = run_start[p_safe]
+    need_before = count_before = np.cumsum(need) - need  # activating requests strictly before i
+    del count_before
+    wait_p = recovery[p_safe] + timing.rp + timing.rcd - config.hidden_bank - (cum[idx] - cum[p_safe])
+    wait_q = timing.ras + timing.rp - (cum[idx] - cum[q])
+    rank_p = need_before[p_safe] + need[p_safe]  # activating requests up to and including p
+    rank_q = need_before[q] + need[q]
+    rank_i = need_before[idx]  # up to i - 1
+    lam = np.where(p_has, np.maximum(0, np.maximum(wait_p, wait_q)), 0)
+    for _ in range(_MAX_ROUNDS):
+        total = np.concatenate(([0], np.cumsum(lam)))
+        between_p = total[rank_i] - total[rank_p]
+        between_q = total[rank_i] - total[rank_q]
+        new_lam = np.where(p_has, np.maximum(0, np.maximum(wait_p - between_p, wait_q - between_q)), 0)
+        if np.array_equal(new_lam, lam):
+            break
+        lam = new_lam
+    lifts = np.zeros(n, dtype=np.int64)
+    lifts[idx] = lam
+    t = cum + np.cumsum(lifts) + timing.rcd
+    # activation times: as early as the bank and the queue allow, at the latest tRCD before the column
+    enter = np.where(idx >= queue, t[np.maximum(idx - queue, 0)], 0)
+    ready = np.where(p_has, np.maximum(t[q] - timing.rcd + timing.ras, t[p_safe] + recovery[p_safe]), 0)
+    act = np.zeros(n, dtype=np.int64)
+    act[idx] = np.minimum(np.maximum(np.where(p_has, ready + timing.rp, 0), enter), t[idx] - timing.rcd)
+    pre_t = act[idx] - timing.rp
+
+    refresh = _Refresh(timing)
+    k_col = refresh.count(t)
+    col_real = refresh.real(t)
+    # refresh closes the row: a hit or conflict whose previous same-bank access precedes a refresh
+    refreshed = has_prev & (k_col > k_col[prev_safe])
+    k_pre = refresh.count(pre_t)
+    explicit_pre = p_conflict & ~(k_pre > k_col[p_safe])
+    outcome_conflict = conflict.copy()
+    outcome_conflict[idx] = explicit_pre
+    outcome_hit = hit & ~refreshed
+    outcome_miss = ~outcome_hit & ~outcome_conflict
+
+    # activations: the model's own, a second one when a refresh fell between an early ACT and its
+    # column command, and one for each hit turned into a miss by a refresh
+    act_virtual = act[idx]
+    k_act = refresh.count(act_virtual)
+    first_act_real = refresh.real(act_virtual)
+    again = k_act < k_col[idx]
+    lost_hits = np.flatnonzero(hit & refreshed)
+    act_req = np.concatenate((idx, idx[again], lost_hits))
+    act_cycle = np.concatenate((first_act_real, col_real[idx[again]] - timing.rcd, col_real[lost_hits] - timing.rcd))
+    pre_req = idx[explicit_pre]
+    pre_cycle = refresh.real(pre_t[explicit_pre])
+
+    last_real = int(col_real[-1]) + (np.where(write[-1], timing.wl, timing.rl) + b) if n else 0
+    auto_cycle = np.zeros(0, dtype=np.int64)
+    auto_req = np.flatnonzero(auto)
+    if auto_req.size:
+        act_real_of = np.zeros(n, dtype=np.int64)
+        act_real_of[act_req] = act_cycle  # the latest ACT of a request wins (the re-activation)
+        opened = act_real_of[run_start[auto_req]]
+        auto_cycle = np.maximum(opened + timing.ras, col_real[auto_req] + recovery[auto_req])
+    end = int(max(last_real, int(act_cycle.max()) if act_cycle.size else 0,
+                  int(auto_cycle.max()) + 1 if auto_cycle.size else 0))
+    n_ref = end // timing.refi
+    ref_cycle = timing.refi * np.arange(1, n_ref + 1, dtype=np.int64)
+
+    # bank-open intervals: each ACT until the first of: the next precharge of its bank (explicit or
+    # auto), the next refresh's PREA, the end
+    act_bank = gbank[act_req]
+    close_key_bank = np.concatenate((gbank[pre_req], gbank[auto_req]))
+    close_time = np.concatenate((pre_cycle, auto_cycle))
+    shift = np.int64(1) << np.int64(42)
+    close_keys = np.sort(close_key_bank * shift + close_time)
+    act_keys = act_bank * shift + act_cycle
+    pos = np.searchsorted(close_keys, act_keys, side="left")
+    found = pos < close_keys.size
+    padded = np.append(close_keys, np.int64(-1))
+    candidate = padded[np.minimum(pos, close_keys.size)]
+    found &= (candidate // shift) == act_bank
+    next_close = np.where(found, candidate % shift, np.iinfo(np.int64).max)
+    next_refresh = (act_cycle // timing.refi + 1) * timing.refi
+    next_refresh = np.where(next_refresh <= end, next_refresh, np.iinfo(np.int64).max)
+    close = np.minimum(np.minimum(next_close, next_refresh), end)
+    by_prea = (next_refresh < next_close) & (next_refresh <= end)
+
+    commands = Commands(
+        act_cycle=act_cycle, act_rank=rank[act_req], act_bank=bank[act_req], act_row=row[act_req],
+        pre_cycle=pre_cycle, pre_rank=rank[pre_req], pre_bank=bank[pre_req],
+        col_cycle=col_real, col_rank=rank, col_bank=bank, col_row=row, col_column=column,
+        col_write=write, col_auto=auto, ref_cycle=ref_cycle, end_cycle=end,
+    )
+    stats = stats_from_commands(geometry, timing, commands, rank[act_req], act_cycle, close, by_prea)
+    writes = int(np.count_nonzero(write))
+    return ControllerResult(
+        stats=stats, requests=n, reads=n - writes, writes=writes,
+        row_hits=int(np.count_nonzero(outcome_hit)), row_misses=int(np.count_nonzero(outcome_miss)),
+        row_conflicts=int(np.count_nonzero(outcome_conflict)), cycles=end, commands=commands,
+        geometry=geometry,
+    )
