@@ -107,7 +107,6 @@ class HdeemWatchApp(App[int]):
         self.paused = False
         self.frames = 0
         self._n_nodes = max(1, len(provider.snapshots()))
-        self._painted: object = None
         self._exit_after_s = exit_after_s
 
     def compose(self) -> ComposeResult:
@@ -124,7 +123,7 @@ class HdeemWatchApp(App[int]):
     def on_mount(self) -> None:
         self.provider.start()
         self._push_view()
-        self.paint()
+        self.call_after_refresh(self.paint)
         self.set_interval(1.0 / self.fps, self.paint)
         if self._exit_after_s is not None:
             self.set_timer(self._exit_after_s, self.exit)
@@ -151,8 +150,8 @@ class HdeemWatchApp(App[int]):
             self.query_one(HealthBar).show(
                 snapshots, self.focus_index, paused=self.paused, stalled=stalled, window_s=self.window_s
             )
-            if not self.paused and snap is not self._painted:
-                self._painted = snap
+            self.screen.set_class(stalled or snap.health.state in ("stale", "reconnecting"), "-stale")
+            if not self.paused:
                 self.query_one(ChannelTable).show(snap)
                 self.query_one(PowerPlots).show(snap)
                 self.query_one(CalibPanel).show(snap.calib)
@@ -164,13 +163,11 @@ class HdeemWatchApp(App[int]):
     def action_pause(self) -> None:
         """Toggle pause."""
         self.paused = not self.paused
-        self._painted = None
         self.paint()
 
     def action_node(self, step: int) -> None:
         """Focus the next/previous node."""
         self.focus_index = (self.focus_index + step) % self._n_nodes
-        self._painted = None
         self.paint()
 
     def action_zoom(self, step: int) -> None:
@@ -178,7 +175,6 @@ class HdeemWatchApp(App[int]):
         i = WINDOWS_S.index(self.window_s)
         self.window_s = WINDOWS_S[max(0, min(len(WINDOWS_S) - 1, i + step))]
         self._push_view()
-        self._painted = None
         self.paint()
 
     def action_baseline(self) -> None:

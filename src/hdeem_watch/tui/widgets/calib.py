@@ -51,7 +51,7 @@ def calib_text(calib: CalibView, width: int) -> Text:
             text.append(" " + sparkline(c.history_a[-(spark_width - 1) :]), style="cyan")
     text.append("\n")
     text.append("error ", style="bold")
-    text.append(f"before {_pct(calib.error_before)}  after {_pct(calib.error_after)}  loo {_pct(calib.error_loo)}")
+    text.append(f"before {_pct(calib.error_before)} after {_pct(calib.error_after)} loo {_pct(calib.error_loo)}")
     if calib.suggested_next:
         text.append("\nnext run: ", style="bold")
         text.append(calib.suggested_next)
@@ -61,7 +61,9 @@ def calib_text(calib: CalibView, width: int) -> Text:
 
 
 def _pct(value: float) -> str:
-    return f"{value * 100:.1f}%" if math.isfinite(value) else "–"
+    if not math.isfinite(value):
+        return "–"
+    return f"{value * 100:.0f}%" if abs(value) >= 0.995 else f"{value * 100:.1f}%"
 
 
 class CalibPanel(Static):
@@ -69,4 +71,8 @@ class CalibPanel(Static):
 
     def show(self, calib: CalibView) -> None:
         """Paint the panel."""
+        key = (id(calib), self.size)
+        if key == getattr(self, "_shown", None):
+            return
+        self._shown = key
         self.update(crop(calib_text(calib, self.size.width or 40), self.size.width or 40))

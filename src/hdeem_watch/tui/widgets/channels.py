@@ -43,4 +43,8 @@ class ChannelTable(Static):
 
     def show(self, snapshot: NodeSnapshot) -> None:
         """Paint the table."""
+        key = (id(snapshot), self.size)
+        if key == getattr(self, "_shown", None):
+            return
+        self._shown = key
         self.update(crop(channel_table_text(snapshot, self.size.width or 40), self.size.width or 40))

@@ -86,4 +86,8 @@ class PowerPlots(Static):
 
     def show(self, snapshot: NodeSnapshot) -> None:
         """Paint the strips."""
+        key = (id(snapshot), self.size)
+        if key == getattr(self, "_shown", None):
+            return
+        self._shown = key
         self.update(crop(plots_text(snapshot, self.size.width or 80, self.size.height or 14), self.size.width or 80))

@@ -60,4 +60,8 @@ class RunsPanel(Static):
 
     def show(self, snapshot: NodeSnapshot) -> None:
         """Paint the panel."""
+        key = (id(snapshot), self.size)
+        if key == getattr(self, "_shown", None):
+            return
+        self._shown = key
         self.update(crop(runs_text(snapshot, self.size.width or 40, self.size.height or 10), self.size.width or 40))

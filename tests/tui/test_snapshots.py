@@ -1,0 +1,31 @@
+"""Screenshots of the app from frozen snapshots (no live data), compared with pytest-textual-snapshot."""
+
+from __future__ import annotations
+
+from hdeem_watch.tui.app import HdeemWatchApp
+from hdeem_watch.tui.provider import StaticProvider
+
+
+def frozen_app(build, *, nodes: int = 1, stale: bool = False) -> HdeemWatchApp:  # type: ignore[no-untyped-def]
+    snaps = [build(f"taurusi600{i + 1}", stale=stale and i == 0) for i in range(nodes)]
+    return HdeemWatchApp(StaticProvider(snaps), fps=2, clock=lambda: snaps[0].built_mono_ns)
+
+
+def test_snapshot_80x24(snap_compare, frozen_snapshot) -> None:  # type: ignore[no-untyped-def]
+    """At 80×24 every panel is readable: channels, plots, calibration, runs, health and keys."""
+    assert snap_compare(frozen_app(frozen_snapshot), terminal_size=(80, 24))
+
+
+def test_snapshot_100x30_two_nodes(snap_compare, frozen_snapshot) -> None:  # type: ignore[no-untyped-def]
+    """At 100×30 with two nodes the health bar shows the node dots and n selects the second node."""
+    assert snap_compare(frozen_app(frozen_snapshot, nodes=2), terminal_size=(100, 30), press=["n"])
+
+
+def test_snapshot_stale(snap_compare, frozen_snapshot) -> None:  # type: ignore[no-untyped-def]
+    """A node silent for 10 s says STALE with its age (never a frozen screen that looks live)."""
+    assert snap_compare(frozen_app(frozen_snapshot, stale=True), terminal_size=(80, 24))
+
+
+def test_snapshot_paused_help(snap_compare, frozen_snapshot) -> None:  # type: ignore[no-untyped-def]
+    """p says PAUSED in the health bar; ? opens the key help over the dashboard."""
+    assert snap_compare(frozen_app(frozen_snapshot), terminal_size=(80, 24), press=["p", "question_mark"])
