@@ -292,8 +292,9 @@ def fit(observations: Sequence[Observation], spec: SpecLike, *,
     lam = np.concatenate([np.full(k, float(prior_weight)), [0.0] if intercept else []])
     x0 = np.clip(x0, lower, upper)
 
-    sol = solve.solve_bounded(design, target, lower, upper, prior_weight=lam, prior_target=x0)
-    ridge = solve.ridge_strength(design)
+    sv = np.linalg.svd(design, compute_uv=False) if n else np.zeros(0)
+    ridge = solve.RIDGE_RELATIVE * max(float(sv.max()) ** 2 if sv.size else 0.0, 1e-300)
+    sol = solve.solve_bounded(design, target, lower, upper, prior_weight=lam, prior_target=x0, ridge=ridge)
     penalty = lam + ridge
     free = sol.active == 0
     n_eff = int(np.count_nonzero(weight > 0))
@@ -304,14 +305,13 @@ def fit(observations: Sequence[Observation], spec: SpecLike, *,
     method = "analytic-active-set"
     if uncertainty == "bootstrap" and dof > 0:
         ci = solve.bootstrap(design, target, lower, upper, sol, samples=bootstrap_samples, seed=seed,
-                             dof=dof, prior_weight=lam, prior_target=x0)
+                             dof=dof, prior_weight=lam, prior_target=x0, ridge=ridge)
         method = f"residual-bootstrap-{bootstrap_samples}"
     param_scale = np.concatenate([scales, [b_scale] if intercept else []])
     params = sol.x * param_scale
     ci_units = ci * param_scale[:, None]
 
     # Observability of the prepared design (relative rows, datasheet-scaled columns).
-    sv = np.linalg.svd(design, compute_uv=False) if n else np.zeros(0)
     sv = np.concatenate([sv, np.zeros(max(0, p - sv.size))])
     rank = int(np.count_nonzero(sv > settings.rank_tol * (sv.max() if sv.size else 0.0)))
     cond = float(sv.max() / sv.min()) if sv.size and sv.min() > 0 else math.inf
@@ -337,7 +337,7 @@ def fit(observations: Sequence[Observation], spec: SpecLike, *,
         exact = loo == "exact" or (loo == "auto" and n <= LOO_EXACT_MAX_RUNS)
         with np.errstate(divide="ignore", invalid="ignore"):
             loo_prep = solve.loo_residuals(design, target, lower, upper, sol, exact=exact,
-                                           prior_weight=lam, prior_target=x0)
+                                           prior_weight=lam, prior_target=x0, ridge=ridge)
             loo_j = np.where(row > 0, measured + loo_prep / np.where(row > 0, row, 1.0), np.nan)
     status = "ok"
     if n < p:
@@ -345,10 +345,11 @@ def fit(observations: Sequence[Observation], spec: SpecLike, *,
     elif rank < p:
         status = "rank-deficient"
     at_bound = tuple({-1: "lower", 1: "upper"}.get(int(a)) for a in sol.active[:k])
+    loo_list = [v if v == v and abs(v) != math.inf else None for v in loo_j.tolist()]
     runs = tuple(
-        {"name": obs.name, "measured_j": float(measured[i]), "before_j": float(before_j[i]),
-         "after_j": float(after_j[i]), "loo_j": _num(loo_j[i]), "weight": float(weight[i])}
-        for i, obs in enumerate(observations))
+        {"name": obs.name, "measured_j": m, "before_j": b, "after_j": a, "loo_j": lo, "weight": w}
+        for obs, m, b, a, lo, w in zip(observations, measured.tolist(), before_j.tolist(), after_j.tolist(),
+                                       loo_list, weight.tolist()))
     return FitResult(
         currents=chosen,
         datasheet_a=datasheet,

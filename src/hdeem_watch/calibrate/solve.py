@@ -166,18 +166,18 @@ def hat_diagonal(design: np.ndarray, free: np.ndarray, penalty: np.ndarray | flo
 
 def loo_residuals(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upper: np.ndarray,
                   solution: BoundedSolution, *, exact: bool, prior_weight: np.ndarray | float = 0.0,
-                  prior_target: np.ndarray | None = None) -> np.ndarray:
+                  prior_target: np.ndarray | None = None, ridge: float | None = None) -> np.ndarray:
     """Leave-one-out residuals in prepared units: row i predicted by the fit without row i.
 
     Args:
-        design, target, lower, upper, prior_weight, prior_target: as for :func:`solve_bounded`.
+        design, target, lower, upper, prior_weight, prior_target, ridge: as for :func:`solve_bounded`.
         solution: the fit on all rows (used by the hat-matrix form).
         exact: refit without each row (``n`` solves) instead of the hat-matrix identity.
     """
     n = design.shape[0]
     if n < 2:
         return np.full(n, np.nan)
-    ridge = ridge_strength(design)
+    ridge = ridge_strength(design) if ridge is None else ridge
     if not exact:
         resid = design @ solution.x - target
         lam = np.broadcast_to(np.asarray(prior_weight, dtype=float), (design.shape[1],)) + ridge
@@ -197,7 +197,7 @@ def loo_residuals(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upp
 def bootstrap(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upper: np.ndarray,
               solution: BoundedSolution, *, samples: int, seed: int, dof: int,
               prior_weight: np.ndarray | float = 0.0,
-              prior_target: np.ndarray | None = None) -> np.ndarray:
+              prior_target: np.ndarray | None = None, ridge: float | None = None) -> np.ndarray:
     """Residual-bootstrap 95 % percentile intervals, ``p × 2`` (prepared units).
 
     The residuals of the fit are centred, inflated by ``sqrt(n/dof)`` and resampled with
@@ -208,7 +208,7 @@ def bootstrap(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upper: 
     fitted = design @ solution.x
     resid = target - fitted
     resid = (resid - resid.mean()) * np.sqrt(n / max(dof, 1))
-    ridge = ridge_strength(design)
+    ridge = ridge_strength(design) if ridge is None else ridge
     draws = np.empty((samples, p))
     for k in range(samples):
         sample = fitted + resid[rng.integers(0, n, n)]
