@@ -69,20 +69,33 @@ def test_table_without_json() -> None:
 
 
 @pytest.mark.parametrize(("args", "needle"), [
-    (("--elements", "1e15", "--kernels", "add"), "--elements"),
     (("--threads", "0"), "--threads"),
     (("--threads", "4-2"), "--threads"),
     (("--kernels", "stream"), "kernel 'stream'"),
     (("--elements", "abc"), "--elements"),
     (("--repeat", "0"), "--repeat"),
+    (("--threads", "4096", "--elements", "64"), "CPUs are allowed"),
 ])
-def test_bad_input_exits_2_with_one_line(args: tuple[str, ...], needle: str) -> None:
-    """Bad input (impossible memory, bad thread spec, unknown kernel...) exits 2 with one line."""
-    proc = bench(*args, "--json")
-    assert proc.returncode == 2
-    assert proc.stdout == ""
+def test_bad_input_exits_2_with_one_line(args: tuple[str, ...], needle: str,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """Bad input (bad thread spec, unknown kernel, bad sizes, too many threads) exits 2 with one
+    line on stderr and nothing on stdout (in-process through the CLI entry point)."""
+    from hdeem_watch.cli import main
+
+    assert main(["bench", *args, "--json"]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert len(err.strip().splitlines()) == 1
+    assert needle in err and "Traceback" not in err
+
+
+def test_impossible_size_exits_2_before_allocating() -> None:
+    """An array size beyond the available memory exits 2 with one line (a real process: no OOM
+    kill, no traceback)."""
+    proc = bench("--elements", "1e15", "--kernels", "add", "--json")
+    assert proc.returncode == 2 and proc.stdout == ""
     assert len(proc.stderr.strip().splitlines()) == 1
-    assert needle in proc.stderr and "Traceback" not in proc.stderr
+    assert "--elements 1000000000000000" in proc.stderr and "GiB" in proc.stderr
 
 
 def test_respects_the_cpus_it_was_given() -> None:
