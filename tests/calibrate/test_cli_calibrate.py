@@ -169,3 +169,15 @@ def test_real_process_exit_codes(tmp_path, synth) -> None:
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and done.stdout == ""
     assert len(done.stderr.strip().splitlines()) == 1 and "measured_j" in done.stderr
+
+
+def test_bounds_option(tmp_path, synth, capsys) -> None:
+    """--bounds caps a current (reported at its upper bound); a malformed item is exit 2."""
+    runs, truth = _write_runs(tmp_path, synth, traces=False)
+    cap = truth["idd4r"] * 0.9
+    assert main(["calibrate", "--runs", str(runs), "--json", "--bounds", f"idd4r=0:{cap}"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["currents"]["idd4r"]["calibrated"] == pytest.approx(cap)
+    assert data["currents"]["idd4r"]["at_bound"] == "upper"
+    assert main(["calibrate", "--runs", str(runs), "--bounds", "idd4r=zero:1"]) == 2
+    assert "--bounds" in capsys.readouterr().err

@@ -122,3 +122,12 @@ def test_row_of_the_wrong_width_is_rejected(synth) -> None:
     calib = OnlineCalibrator(synth.spec(), names=synth.NAMES)
     with pytest.raises(InputError, match="run 'short'"):
         calib.add_run(Observation("short", np.ones(3), 0.0, 1.0))
+
+
+def test_max_runs_keeps_the_newest(synth, truth_a) -> None:
+    """Without a half-life, max_runs bounds the kept runs, dropping the oldest."""
+    calib = OnlineCalibrator(synth.spec(), names=synth.NAMES, half_life_s=None, max_runs=20)
+    for obs, _ in _aging_stream(synth, truth_a, days=3, per_day=10, seed=6):
+        calib.add_run(obs)
+    assert len(calib.observations) == 20
+    assert [o.name for o in calib.observations] == [f"run{i}" for i in range(10, 30)]

@@ -68,11 +68,12 @@ class FitSettings:
     rank_tol: float = 1e-9
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class FitResult:
     """A calibration: currents with 95 % intervals, what is determined, and errors.
 
     Arrays are over :attr:`currents`. Use :meth:`to_dict` for the JSON contract (DESIGN.md §7).
+    Compared by identity (it holds arrays); compare ``to_dict()`` for equal content.
     """
 
     currents: tuple[str, ...]

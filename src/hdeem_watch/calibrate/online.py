@@ -45,6 +45,7 @@ class OnlineCalibrator:
         bounds, intercept, prior_weight, settings: as for :func:`~hdeem_watch.calibrate.fit.fit`.
         names: the observation column order (default ``energy.CURRENT_NAMES``).
         min_weight: runs whose forgetting weight falls below this are dropped.
+        max_runs: at most this many runs are kept (the oldest are dropped first).
         max_history: fits kept in :attr:`history` (oldest dropped first).
         drift_lag_s: how far back the reference fit of :meth:`drift` is (default half-life).
         loo: leave-one-out mode of each refit (``"hat"``: cheap).
@@ -55,6 +56,7 @@ class OnlineCalibrator:
                  bounds: Mapping[str, tuple[float, float]] | None = None, intercept: bool = True,
                  prior_weight: float = 0.0, settings: FitSettings | None = None,
                  names: Sequence[str] | None = None, min_weight: float = 1e-4, max_history: int = 1000,
+                 max_runs: int = 5000,
                  drift_lag_s: float | None = None, loo: str = "hat") -> None:
         if half_life_s is not None and not (half_life_s > 0):
             raise InputError(f"half_life_s: {half_life_s!r}; expected a duration > 0 s (or None)")
@@ -67,6 +69,7 @@ class OnlineCalibrator:
         self.settings = settings or FitSettings()
         self.names = tuple(names) if names is not None else current_names()
         self.min_weight = min_weight
+        self.max_runs = max_runs
         self.max_history = max_history
         self.drift_lag_s = drift_lag_s
         self.loo = loo
@@ -94,6 +97,9 @@ class OnlineCalibrator:
         self.observations.append(obs)
         decay = self.weights()
         keep = decay >= self.min_weight
+        if len(self.observations) > self.max_runs:
+            order = np.argsort([o.time_ns for o in self.observations], kind="stable")
+            keep[order[: len(self.observations) - self.max_runs]] = False
         if not keep.all():
             self.observations = [o for o, k in zip(self.observations, keep) if k]
             decay = decay[keep]
@@ -159,7 +165,7 @@ class OnlineCalibrator:
                 "currents": list(self.currents), "half_life_s": self.half_life_s,
                 "bounds": {k: list(v) for k, v in self.bounds.items()} if self.bounds else None,
                 "intercept": self.intercept, "prior_weight": self.prior_weight, "names": list(self.names),
-                "min_weight": self.min_weight, "max_history": self.max_history,
+                "min_weight": self.min_weight, "max_history": self.max_history, "max_runs": self.max_runs,
                 "drift_lag_s": self.drift_lag_s, "loo": self.loo,
                 "noise_floor": self.settings.noise_floor, "max_rel_ci": self.settings.max_rel_ci,
                 "min_sensitivity": self.settings.min_sensitivity,
@@ -186,6 +192,7 @@ class OnlineCalibrator:
                         settings=FitSettings(noise_floor=float(s["noise_floor"]), max_rel_ci=float(s["max_rel_ci"]),
                                              min_sensitivity=float(s["min_sensitivity"])),
                         names=s["names"], min_weight=float(s["min_weight"]), max_history=int(s["max_history"]),
+                        max_runs=int(s.get("max_runs", 5000)),
                         drift_lag_s=s["drift_lag_s"], loo=str(s["loo"]))
             calib.observations = [Observation.from_dict(o) for o in data["observations"]]
             calib.history = [(int(h["time_ns"]), FitResult.from_dict(h["fit"])) for h in data["history"]]

@@ -33,6 +33,8 @@ def register(subparsers: Any) -> None:
                         help="memspec overriding the one RUNS.json names (a path or preset:NAME)")
     parser.add_argument("--currents", default=",".join(DEFAULT_CURRENTS), metavar="LIST",
                         help=f"comma-separated currents to calibrate (default {','.join(DEFAULT_CURRENTS)})")
+    parser.add_argument("--bounds", default="", metavar="NAME=LO:HI,...",
+                        help="bounds in A overriding 0..datasheet, e.g. idd4r=0:0.2")
     parser.add_argument("--no-intercept", action="store_true", help="do not fit a per-run energy offset")
     parser.add_argument("--prior-weight", type=float, default=0.0, metavar="W",
                         help="weight of a prior toward the datasheet values (0 = off)")
@@ -49,8 +51,9 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError("--currents: expected a comma-separated list of current names")
     if not math.isfinite(args.prior_weight) or args.prior_weight < 0:
         raise InputError(f"--prior-weight: {args.prior_weight!r}; expected a number >= 0")
+    bounds = parse_bounds(args.bounds)
     spec, observations = read_runs_file(args.runs, args.memspec)
-    result = fit(observations, spec, currents=currents, intercept=not args.no_intercept,
+    result = fit(observations, spec, currents=currents, bounds=bounds, intercept=not args.no_intercept,
                  prior_weight=args.prior_weight, uncertainty=args.uncertainty)
     written = None
     if args.write_memspec:
@@ -72,6 +75,25 @@ def _run(args: argparse.Namespace) -> int:
         if written:
             print(f"calibrated memspec written to {written}")
     return 0
+
+
+def parse_bounds(text: str) -> dict[str, tuple[float, float]] | None:
+    """``"idd4r=0:0.2,idd0=0.01:0.1"`` → ``{"idd4r": (0.0, 0.2), ...}`` (None if empty).
+
+    Raises:
+        InputError: a malformed item.
+    """
+    out: dict[str, tuple[float, float]] = {}
+    for item in (part.strip() for part in text.split(",")):
+        if not item:
+            continue
+        name, _, rest = item.partition("=")
+        lo, _, hi = rest.partition(":")
+        try:
+            out[name.strip().lower()] = (float(lo), float(hi))
+        except ValueError:
+            raise InputError(f"--bounds: {item!r}; expected NAME=LOWER:UPPER in amperes") from None
+    return out or None
 
 
 def _ma(value: float) -> str:
