@@ -147,6 +147,7 @@ def _power_during_run(threads: int) -> dict[str, float]:
     clock.t = S
     idle = {ch: float(np.mean(v[1])) for ch, v in sim.poll().samples.items()}
     sim.on_run(RunEvent("start", "r", "read", threads, 400_000_000, 50, clock.t))
+    sim.run_plan("r", timeout_s=120)
     clock.t += S // 2
     busy = {ch: float(np.mean(v[1])) for ch, v in sim.poll().samples.items()}
     return {ch: busy[ch] - idle[ch] for ch in CHANNELS}
@@ -172,7 +173,7 @@ def test_completed_run_energy_equals_truth_model(threads):
     clock.t = S // 10
     sim.poll()
     sim.on_run(RunEvent("start", "r", kernel, threads, elements, repeat, clock.t))
-    plan = sim._plans["r"]
+    plan = sim.run_plan("r", timeout_s=120)
     lines = sum(kernel_traffic_lines(kernel, elements)) * repeat
     duration_s = lines / modelled_line_rate(kernel, threads)
     assert plan.duration_ns == round(duration_s * 1e9)
@@ -196,7 +197,7 @@ def test_early_stop_conserves_energy():
     sim = quiet_sim(clock)
     kernel, elements, threads, repeat = "copy", 4_000_000, 24, 40
     sim.on_run(RunEvent("start", "r", kernel, threads, elements, repeat, 0))
-    plan = sim._plans["r"]
+    plan = sim.run_plan("r", timeout_s=120)
     stop = (plan.duration_ns // 2) // 10_000_000 * 10_000_000
     clock.t = stop - 30_000_000
     first = sim.poll()
@@ -240,3 +241,35 @@ def test_speed_and_factory():
     clock.t = S
     assert len(sim.poll().samples["DDR_GH"][0]) == 1000
     assert DIMM_PAIR.count("DDR_AB") == 2
+
+
+def test_background_plan_holds_samples_back_without_loss(monkeypatch):
+    """While a run's plan is computed in the background, samples after its start wait; none are lost."""
+    import threading
+
+    import hdeem_watch.sources.sim as sim_module
+
+    gate = threading.Event()
+    real_plan_run = sim_module.plan_run
+
+    def slow_plan_run(*args):
+        gate.wait(30)
+        return real_plan_run(*args)
+
+    monkeypatch.setattr(sim_module, "plan_run", slow_plan_run)
+    clock = Clock()
+    sim = quiet_sim(clock)
+    clock.t = S // 10
+    sim.poll()
+    sim.on_run(RunEvent("start", "r", "add", 4, 1_000_000, 10, clock.t))   # returns at once
+    clock.t = S // 2
+    held = sim.poll()
+    assert len(held.samples["DDR_AB"][0]) == 0 and len(held.samples["CPU0"][0]) == 0
+    sim.on_run(RunEvent("stop", "r", "add", 4, 1_000_000, 10, clock.t))     # a stop while pending is kept
+    gate.set()
+    plan = sim.run_plan("r", timeout_s=30)
+    assert plan.cpu_end_ns == S // 2
+    clock.t = S
+    after = sim.poll()
+    t = after.samples["DDR_AB"][0]
+    assert len(t) == 90 and t[0] == 1_700_000_000 * S + 110_000_000   # 0.1 s .. 1.0 s, nothing lost

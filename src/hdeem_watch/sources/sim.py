@@ -29,9 +29,13 @@ Example:
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -61,6 +65,8 @@ from hdeem_watch.sources.sim_model import (
 
 __all__ = ["SimSource", "modelled_line_rate", "socket_shares", "threads_per_socket"]
 
+log = logging.getLogger(__name__)
+
 #: Idle CPU package power (W) per socket and the extra power per busy core / hyper-thread.
 CPU_IDLE_W = (12.0, 8.0)
 CPU_CORE_W = 1.5
@@ -69,6 +75,16 @@ CPU_HT_W = 0.3
 BLADE_BASE_W = 45.0
 #: Noise σ (W) per channel kind.
 NOISE_W = {"blade": 0.8, "cpu": 0.25, "dram": 0.05}
+
+
+@dataclass
+class _Pending:
+    """A run whose plan a worker thread is computing."""
+
+    future: Future[RunPlan]
+    t0_ns: int
+    event: RunEvent
+    stop_ns: int | None = None
 
 
 class SimSource:
@@ -87,6 +103,9 @@ class SimSource:
         temp_amp_c: amplitude of the DIMM temperature swing (°C, period 1 sim hour).
         dimm_spread: relative spread of the true currents between DIMMs.
         buffer_s: sensor buffer (sim s): samples older than this at a poll are lost.
+        background_plans: compute a run's energy plan (``kernel_stats``, seconds for big runs) in a
+            worker thread; until it is ready the sim's sensors lag (samples after the run's start are
+            held back, then delivered), so ``on_run`` never blocks the daemon's poll loop.
 
     Example:
         >>> sim = SimSource(seed=1)
@@ -99,7 +118,8 @@ class SimSource:
     def __init__(self, seed: int = 0, clock: Callable[[], int] = time.monotonic_ns, speed: float = 1.0,
                  wall_clock: Callable[[], int] = time.time_ns, *, noise: bool = True, quantum_w: float = 0.125,
                  io_j_per_line: float = 2.0e-9, offsets: bool = True, aging_per_h: float = 0.005,
-                 temp_amp_c: float = 3.0, dimm_spread: float = 0.10, buffer_s: float = 60.0) -> None:
+                 temp_amp_c: float = 3.0, dimm_spread: float = 0.10, buffer_s: float = 60.0,
+                 background_plans: bool = True) -> None:
         if not speed > 0 or not math.isfinite(speed):
             from hdeem_watch.errors import InputError
 
@@ -130,8 +150,12 @@ class SimSource:
         self._next_k: dict[str, int] = {}
         self._energy_j: dict[str, float] = {}
         self._plans: dict[str, RunPlan] = {}
+        self.background_plans = background_plans
+        self._executor: ThreadPoolExecutor | None = None
+        self._pending: dict[str, _Pending] = {}
         self._owed: dict[str, list[tuple[int, float]]] = {}  # channel -> [(sim ns, J)] to deposit
         self._sim_ns = 0
+        self._generated_ns = 0
 
     # -- Source protocol -------------------------------------------------------------------------------
     def channels(self) -> list[ChannelInfo]:
@@ -147,13 +171,18 @@ class SimSource:
         self._next_k = {name: 1 for name in CHANNELS}
         self._energy_j = {name: 0.0 for name in CHANNELS}
         self._sim_ns = 0
+        self._generated_ns = 0
         self._open = True
 
     def close(self) -> None:
         """Stop (idempotent); a closed sim can be opened again and starts afresh."""
         self._open = False
         self._plans.clear()
+        self._pending.clear()
         self._owed = {}
+        if self._executor is not None:
+            self._executor.shutdown(wait=False, cancel_futures=True)
+            self._executor = None
 
     def health(self) -> str:
         """``"ok"`` when open, else ``"closed"``."""
@@ -168,8 +197,12 @@ class SimSource:
         if not self._open:
             raise RuntimeError("SimSource.poll() before open()")
         now = int(self._clock())
-        sim_now = max(self._sim_ns, self.sim_time_ns(now))
-        self._sim_ns = sim_now
+        self._sim_ns = max(self._sim_ns, self.sim_time_ns(now))
+        self._resolve_plans()
+        # while a run's plan is being computed, the sensors lag: nothing after its start is generated
+        sim_now = min([self._sim_ns, *(p.t0_ns for p in self._pending.values())])
+        sim_now = max(sim_now, self._generated_ns)
+        self._generated_ns = sim_now
         t_s = sim_now * 1e-9
         currents = self.truth_model.currents(t_s)
         idle = idle_power_w(self.model, currents)
@@ -212,24 +245,61 @@ class SimSource:
             raise RuntimeError("SimSource.on_run() before open()")
         t = max(0, self.sim_time_ns(event.t_mono_ns))
         if event.kind == "start":
+            t = max(t, self._generated_ns)   # samples already published cannot change
             currents = self.truth_model.currents(t * 1e-9)
-            self._plans[event.run_id] = plan_run(self.model, currents, event.run_id, t, event.kernel,
-                                                 int(event.elements), int(event.threads), int(event.repeat),
-                                                 self.io_j_per_line)
-        elif event.kind == "stop":
-            plan = self._plans.get(event.run_id)
-            if plan is None or plan.cpu_end_ns is not None:
+            args = (self.model, currents, event.run_id, t, event.kernel, int(event.elements), int(event.threads),
+                    int(event.repeat), self.io_j_per_line)
+            if not self.background_plans:
+                self._plans[event.run_id] = plan_run(*args)
                 return
-            stopped, owed = plan.stopped(t)
-            self._plans[event.run_id] = stopped
-            if np.any(owed > 0):
-                for d, pair in enumerate(DIMM_PAIR):
-                    self._add_owed(pair, t, float(owed[d]))
-                self._add_owed("BLADE", t, float(owed.sum()))
+            if self._executor is None:
+                self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-plan")
+            self._pending[event.run_id] = _Pending(self._executor.submit(plan_run, *args), t, event)
+        elif event.kind == "stop":
+            t = max(t, self._generated_ns)   # the run's power is in what was published up to here
+            pending = self._pending.get(event.run_id)
+            if pending is not None:
+                pending.stop_ns = t
+                return
+            self._stop(event.run_id, t)
+
+    def _stop(self, run_id: str, t: int) -> None:
+        plan = self._plans.get(run_id)
+        if plan is None or plan.cpu_end_ns is not None:
+            return
+        stopped, owed = plan.stopped(t)
+        self._plans[run_id] = stopped
+        if np.any(owed > 0):
+            for d, pair in enumerate(DIMM_PAIR):
+                self._add_owed(pair, t, float(owed[d]))
+            self._add_owed("BLADE", t, float(owed.sum()))
+
+    def _resolve_plans(self, timeout_s: float | None = 0.0) -> None:
+        """Move finished background plans into the active set (a failed plan = compute-only run)."""
+        for run_id, pending in list(self._pending.items()):
+            try:
+                plan = pending.future.result(timeout=timeout_s)
+            except FutureTimeout:
+                continue
+            except Exception as error:  # never let a model failure stop the sensors
+                log.warning("sim: modelling run %s failed (%s); treating it as compute-only", run_id, error)
+                ev = pending.event
+                plan = plan_run(self.model, self.truth_model.currents(pending.t0_ns * 1e-9), run_id, pending.t0_ns,
+                                "idle", 0, int(ev.threads), 1, 0.0)
+            del self._pending[run_id]
+            self._plans[run_id] = plan
+            if pending.stop_ns is not None:
+                self._stop(run_id, pending.stop_ns)
+
+    def run_plan(self, run_id: str, timeout_s: float | None = None) -> RunPlan:
+        """The energy plan of a run (waiting up to ``timeout_s`` for a background plan)."""
+        if run_id in self._pending:
+            self._resolve_plans(timeout_s)
+        return self._plans[run_id]
 
     def expected_run_energy_j(self, run_id: str) -> dict[str, float]:
         """Per DIMM-pair channel, the energy (J) the run adds above idle-at-start (for tests/demo)."""
-        plan = self._plans[run_id]
+        plan = self.run_plan(run_id)
         out = dict.fromkeys(DRAM_CHANNELS, 0.0)
         for d in range(len(DIMMS)):
             out[DIMM_PAIR[d]] += float(plan.excess_w[d] * plan.duration_ns * 1e-9)
