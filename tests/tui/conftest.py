@@ -100,3 +100,15 @@ def build_frozen_snapshot(node: str = "taurusi6001", *, stale: bool = False):  #
 def frozen_snapshot():  # type: ignore[no-untyped-def]
     """The builder of deterministic snapshots (``frozen_snapshot(node, stale=False)``)."""
     return build_frozen_snapshot
+
+
+@pytest.fixture
+def sim_daemon():  # type: ignore[no-untyped-def]
+    """A real ``hdeem-watch daemon --source sim`` subprocess on ipc endpoints (stopped afterwards)."""
+    from hdeem_watch.tui.demo_daemon import DemoDaemon
+
+    daemon = DemoDaemon(node="pilot", start_timeout_s=60.0).start()
+    try:
+        yield daemon
+    finally:
+        daemon.stop()

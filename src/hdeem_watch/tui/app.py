@@ -68,6 +68,7 @@ class HdeemWatchApp(App[int]):
         clock: monotonic clock in ns (injectable for deterministic screenshots).
         window_s: the initial plot window (snapped to one of :data:`WINDOWS_S`).
         exit_after_s: quit by itself after this many seconds (None: run until ``q``).
+        baseline_s: length of the idle baseline measurement the ``b`` key asks for.
 
     Example:
         >>> from hdeem_watch.tui.provider import StaticProvider
@@ -97,6 +98,7 @@ class HdeemWatchApp(App[int]):
         clock: Callable[[], int] = time.monotonic_ns,
         window_s: float = 60.0,
         exit_after_s: float | None = None,
+        baseline_s: float = BASELINE_SECONDS,
     ) -> None:
         super().__init__()
         self.provider = provider
@@ -108,6 +110,7 @@ class HdeemWatchApp(App[int]):
         self.frames = 0
         self._n_nodes = max(1, len(provider.snapshots()))
         self._exit_after_s = exit_after_s
+        self.baseline_s = baseline_s
 
     def compose(self) -> ComposeResult:
         yield HealthBar()
@@ -179,8 +182,8 @@ class HdeemWatchApp(App[int]):
 
     def action_baseline(self) -> None:
         """Ask the focused node's daemon to measure its idle baseline."""
-        self.provider.request(self.focus_index, "baseline.measure", {"seconds": BASELINE_SECONDS})
-        self.notify(f"baseline: measuring {BASELINE_SECONDS:g} s of idle power", timeout=3)
+        self.provider.request(self.focus_index, "baseline.measure", {"seconds": self.baseline_s})
+        self.notify(f"baseline: measuring {self.baseline_s:g} s of idle power", timeout=3)
 
     def action_help(self) -> None:
         """Show the key help."""

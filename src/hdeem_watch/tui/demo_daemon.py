@@ -122,6 +122,14 @@ class DemoDaemon:
         self.process = None
         shutil.rmtree(self.runtime_dir, ignore_errors=True)
 
+    def kill(self) -> None:
+        """Kill the subprocess with SIGKILL (a crash), keeping the directory so it can start again."""
+        proc = self.process
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        self.process = None
+
     def __enter__(self) -> DemoDaemon:
         return self.start()
 
