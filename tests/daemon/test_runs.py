@@ -103,11 +103,12 @@ def test_idle_baseline_measure(daemon_factory: Any) -> None:
         elapsed = time.monotonic() - t0
         stored = client.call("baseline.get")
     assert elapsed < 4.0  # 4 s of sim time at speed 20
-    assert body["window_s"] == pytest.approx(4.0, abs=0.05)
+    # It closes at the first poll after 4 s of sim time: at speed 20 a 25 ms poll is 0.5 sim seconds.
+    assert 4.0 <= body["window_s"] < 6.0
     for name, entry in body["channels"].items():
         assert entry["origin"] == "idle-run"
         rate = 1000 if name == "BLADE" else 100
-        assert entry["n"] == pytest.approx(4.0 * rate, abs=rate * 0.1)
+        assert entry["n"] == pytest.approx(body["window_s"] * rate, abs=2)
         assert entry["power_w"] > 0 and 0 <= entry["spread_w"] < entry["power_w"]
         assert stored["channels"][name] == entry
 

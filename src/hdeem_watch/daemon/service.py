@@ -100,6 +100,13 @@ class Daemon:
             InputError: another daemon uses the state directory, an endpoint cannot be bound, the
                 source is unavailable (with its reason) or the state database is unusable.
         """
+        try:
+            self._start()
+        except BaseException:
+            self.close()
+            raise
+
+    def _start(self) -> None:
         state_dir = Path(self.settings.state_dir)
         try:
             state_dir.mkdir(parents=True, exist_ok=True, mode=0o750)

@@ -1,0 +1,229 @@
+"""Pure parts of the daemon: deadlines, gaps, baselines, windows, run records, store, control dispatch, metrics."""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from hdeem_watch.daemon import baselines as bl
+from hdeem_watch.daemon.channels import ChannelAccount, SampleRing, count_missing
+from hdeem_watch.daemon.control import OpError, Pending, dispatch
+from hdeem_watch.daemon.metrics import DaemonMetrics
+from hdeem_watch.daemon.poller import IntervalTimer, next_deadline, wait_ms
+from hdeem_watch.daemon.protocol import ProtocolError, decode_reply
+from hdeem_watch.daemon.runs import finish_record, new_record, parse_run_args, window_energy
+from hdeem_watch.daemon.store import SCHEMA_VERSION, Store, StoreError
+from hdeem_watch.daemon.windows import Window
+
+
+@given(st.integers(0, 10**12), st.integers(1, 10**9), st.integers(0, 10**12))
+def test_next_deadline_skips_missed_ticks(start: int, interval: int, now: int) -> None:
+    """The next deadline is on the start's grid, strictly after now, and at most one interval away."""
+    deadline, skipped = next_deadline(start, interval, now)
+    assert (deadline - start) % interval == 0
+    assert deadline > now or (now < start and deadline == start + interval)
+    if now >= start:
+        assert deadline - now <= interval
+        assert skipped == (deadline - start) // interval - 1
+
+
+def test_interval_timer_never_bursts() -> None:
+    """After a stall of many periods the timer serves one tick and moves to the next future deadline."""
+    now = [0]
+    timer = IntervalTimer(10, clock=lambda: now[0])
+    now[0] = 1005
+    assert timer.due() and timer.advance() == 99 and timer.next_ns == 1010
+    assert not timer.due() and timer.remaining_ns() == 5
+    assert wait_ms([timer]) == 1 and wait_ms([]) == 1000
+
+
+def test_count_missing_from_timestamps() -> None:
+    """Missing samples are counted from steps larger than 1.5 periods, also across batches."""
+    period = 10_000_000
+    t = np.array([1, 2, 3, 6, 7], dtype=np.int64) * period
+    assert count_missing(t, rate_hz=100.0, prev_t_ns=None) == 2
+    assert count_missing(t, rate_hz=100.0, prev_t_ns=-2 * period) == 4
+    assert count_missing(t[:3], rate_hz=100.0, prev_t_ns=0) == 0
+
+
+def test_channel_account_energy_rate_and_gaps() -> None:
+    """The account tracks cumulative energy deltas, the rate in sample time and reported gaps."""
+    acc = ChannelAccount("DDR_AB", 100.0, "dram", history_s=1.0)
+    t = np.arange(1, 51, dtype=np.int64) * 10_000_000
+    assert acc.update(t, np.full(50, 2.0), energy_j=1.0, status="ok") == (50, 0, 1.0)
+    n, missing, delta = acc.update(t[-1] + np.arange(2, 52) * 10_000_000, np.full(50, 3.0), energy_j=2.5,
+                                   status="gap", reported_missing=1)
+    assert (n, missing, delta) == (50, 1, 1.5)
+    assert acc.close_rate_window() == pytest.approx(100.0, rel=0.02)
+    assert acc.gaps == 1 and acc.status == "gap" and len(acc.history) == 100
+
+
+def test_sample_ring_keeps_the_newest() -> None:
+    """The ring returns the last capacity values, oldest first, across wrap-arounds."""
+    ring = SampleRing(5)
+    ring.extend(np.arange(3.0))
+    ring.extend(np.arange(3.0, 7.0))
+    assert ring.values().tolist() == [2.0, 3.0, 4.0, 5.0, 6.0]
+    ring.extend(np.arange(100.0))
+    assert ring.values().tolist() == [95.0, 96.0, 97.0, 98.0, 99.0]
+
+
+def test_quiet_window_prefers_the_lowest_quiet_level() -> None:
+    """Among windows with a small spread the lowest mean wins; noisy or NaN windows are never quiet."""
+    rng = np.random.default_rng(1)
+    p = np.r_[np.full(300, 8.0), 3.0 + rng.normal(0, 0.05, 300), 1.0 + rng.normal(0, 2.0, 300), [np.nan] * 50]
+    start, stop = bl.quiet_window(p, rate_hz=100.0, window_s=1.0, max_spread_w=0.2)
+    assert start >= 300 and stop <= 600
+    assert bl.quiet_window(rng.normal(5, 3, 500), rate_hz=100.0, window_s=1.0, max_spread_w=0.2) is None
+    b = bl.baseline_from_samples(p[start:stop], t_ns=7, origin="quiet")
+    assert b.power_w == pytest.approx(3.0, abs=0.05) and b.spread_w == pytest.approx(0.05, rel=0.3)
+
+
+def test_window_stats_match_numpy() -> None:
+    """The O(n) sliding mean/std equals numpy's per-window figures."""
+    rng = np.random.default_rng(2)
+    p = 1000.0 + rng.normal(0, 1, 1000)
+    starts, mean, std = bl.window_stats(p, 100, 37)
+    for s, m, d in zip(starts, mean, std):
+        assert m == pytest.approx(p[s:s + 100].mean(), rel=1e-12)
+        assert d == pytest.approx(p[s:s + 100].std(), rel=1e-6)
+
+
+def test_baseline_merge_policy() -> None:
+    """Idle runs replace anything; a quiet level replaces a higher quiet one or a stale idle run only."""
+    idle = bl.Baseline(5.0, 0.1, 100, 0, "idle-run")
+    quiet_low = bl.Baseline(4.0, 0.1, 100, 10, "quiet")
+    assert bl.merge(idle, quiet_low) is idle
+    assert bl.merge(None, quiet_low) is quiet_low
+    assert bl.merge(quiet_low, bl.Baseline(4.5, 0.1, 100, 20, "quiet")) is quiet_low
+    newer_idle = bl.Baseline(6.0, 0.1, 100, 30, "idle-run")
+    assert bl.merge(quiet_low, newer_idle) is newer_idle
+    stale = bl.Baseline(7.0, 0.1, 100, 10**13, "quiet")
+    assert bl.merge(idle, stale) is stale
+    assert bl.merge(idle, bl.Baseline(math.nan, math.nan, 0, 50, "idle-run")) is idle
+    assert bl.Baseline.from_dict(json.loads(json.dumps(idle.to_dict()))) == idle
+
+
+def test_idle_baseline_mean_from_exact_energy() -> None:
+    """With the window's energy the mean is energy / duration, not the (possibly gappy) sample mean."""
+    b = bl.baseline_from_samples(np.array([1.0, 3.0]), t_ns=0, origin="idle-run", energy_j=10.0, window_s=4.0)
+    assert b.power_w == 2.5 and b.spread_w == 1.0 and b.n == 2
+
+
+def test_window_closes_at_target_or_deadline_and_integrates_exactly() -> None:
+    """A window closes once DRAM samples reach the target (or at the deadline); energy = total difference."""
+    w = Window(kind="run", start_energy_j={"DDR_AB": 10.0, "BLADE": 100.0}, start_t_ns={"DDR_AB": 0, "BLADE": 0},
+               dram_channels=("DDR_AB",), t_start_mono_ns=0)
+    assert not w.ready({"DDR_AB": 10**9}, 0)
+    w.request_close(target_t_ns=2 * 10**9, deadline_mono_ns=5 * 10**9)
+    assert not w.ready({"DDR_AB": 10**9}, 10**9)
+    assert w.ready({"DDR_AB": 2 * 10**9}, 10**9)
+    assert w.ready({"DDR_AB": None}, 5 * 10**9)
+    energy, window_s, spans = w.result({"DDR_AB": 14.0, "BLADE": 150.0}, {"DDR_AB": 2 * 10**9, "BLADE": 2 * 10**9},
+                                       now_mono_ns=10**8, speed=20.0)
+    assert energy == {"DDR_AB": 4.0, "BLADE": 50.0} and window_s == 2.0 and spans["BLADE"] == 2.0
+
+
+def test_run_records() -> None:
+    """run.start arguments are validated; a finished record has energies, mean powers and the DRAM sum."""
+    args = parse_run_args({"kernel": " Triad ", "threads": 24.0, "elements": 10, "metadata": {"a": 1}})
+    assert (args.kernel, args.threads, args.repeat, args.name) == ("triad", 24, 1, "triad")
+    for bad in ({"kernel": ""}, {"kernel": "x", "threads": 1.5}, {"kernel": "x", "repeat": 0},
+                {"kernel": "x", "elements": True}, {"kernel": "x", "name": 5}):
+        with pytest.raises(ProtocolError) as info:
+            parse_run_args(bad)
+        assert info.value.code == "bad-args"
+    record = new_record("r3", args, t_wall_ns=1, node="n")
+    energy = window_energy({"DDR_AB": 1.0, "DDR_CD": 1.0, "CPU0": math.nan}, {"DDR_AB": 3.0, "DDR_CD": 5.0, "CPU0": 9.0})
+    done = finish_record(record, energy_j=energy, window_s=2.0, dram_channels=("DDR_AB", "DDR_CD"), t_wall_ns=9)
+    assert done["dram_energy_j"] == 6.0 and done["mean_power_w"]["DDR_CD"] == 2.0 and done["state"] == "done"
+    assert math.isnan(done["energy_j"]["CPU0"]) and record["state"] == "running"
+
+
+def test_dispatch_answers_everything() -> None:
+    """Handler errors become error replies with their codes; a crashing handler is an internal error."""
+
+    def boom(args: dict) -> None:
+        raise ZeroDivisionError("x")
+
+    def refuse(args: dict) -> None:
+        raise OpError("conflict", "busy")
+
+    handlers = {"boom": boom, "refuse": refuse, "later": lambda args: Pending("later")}
+    assert decode_reply(dispatch(b'{"id": 1, "op": "boom"}', handlers)).code == "internal"  # type: ignore[arg-type]
+    assert decode_reply(dispatch(b'{"id": 1, "op": "refuse"}', handlers)).code == "conflict"  # type: ignore[arg-type]
+    pending = dispatch(b'{"id": "p", "op": "later"}', handlers)
+    assert isinstance(pending, Pending) and pending.request_id == "p"
+
+
+def test_metrics_follow_prometheus_naming() -> None:
+    """Power is a gauge in watts, energy a counter in joules with _total; NaN deltas are not counted."""
+    m = DaemonMetrics("n1")
+    m.observe_channel("DDR_AB", power_w=4.0, energy_delta_j=2.0, samples=5, missing=1)
+    m.observe_channel("DDR_AB", power_w=math.nan, energy_delta_j=math.nan, samples=0, missing=0)
+    m.observe_fit({"currents": {"idd0": {"calibrated": 0.05}}, "error": {"after": 0.03}})
+    text = m.exposition().decode()
+    assert 'hdeem_watch_energy_joules_total{channel="DDR_AB",node="n1"} 2.0' in text
+    assert 'hdeem_watch_missing_samples_total{channel="DDR_AB",node="n1"} 1.0' in text
+    assert 'hdeem_watch_calibrated_current_amperes{current="idd0",node="n1"} 0.05' in text
+    assert "# TYPE hdeem_watch_power_watts gauge" in text
+
+
+def test_store_round_trip_and_schema_guard(tmp_path: Path) -> None:
+    """Runs, calibration and baselines round-trip with NaN as null; a newer schema is refused."""
+    store = Store(tmp_path / "s.db")
+    assert store.next_run_id() == "r1"
+    store.save_run({"run_id": "r1", "kernel": "read", "state": "running", "t_start_ns": 5, "x": math.nan})
+    store.save_run({"run_id": "r2", "kernel": "idle", "state": "done", "t_start_ns": 6})
+    assert store.next_run_id() == "r3" and store.get_run("r1") == {"run_id": "r1", "kernel": "read",
+                                                                    "state": "running", "t_start_ns": 5, "x": None}
+    assert store.close_interrupted_runs(9) == 1 and store.get_run("r1")["state"] == "aborted"
+    assert [r["run_id"] for r in store.list_runs(kernel="idle")] == ["r2"]
+    store.save_calibration(7, {"state": 1}, {"n_runs": 1}, "r2")
+    store.clear_calibrator(8)
+    assert store.load_calibrator() is None and [f for _, _, f in store.fit_history()] == [{"n_runs": 1}, None]
+    store.save_baseline("DDR_AB", {"power_w": 3.0, "t_ns": 4})
+    assert store.load_baselines() == {"DDR_AB": {"power_w": 3.0, "t_ns": 4}}
+    assert store.schema_version == SCHEMA_VERSION
+    store._db.execute("UPDATE meta SET value = '99' WHERE key = 'schema_version'")
+    store.close()
+    with pytest.raises(StoreError):
+        Store(tmp_path / "s.db")
+
+
+WRITER = """
+import sys
+from hdeem_watch.daemon.store import Store
+store = Store(sys.argv[1])
+i = 0
+while True:
+    i += 1
+    store.save_run({"run_id": f"r{i}", "kernel": "triad", "state": "done", "t_start_ns": i})
+    print(i, flush=True)
+"""
+
+
+def test_store_survives_kill9_mid_write(tmp_path: Path) -> None:
+    """Every run a writer reported as saved is readable after the writer is killed with SIGKILL mid-stream."""
+    path = tmp_path / "state.db"
+    proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path)], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    acknowledged = 0
+    deadline = time.monotonic() + 20
+    while acknowledged < 50 and time.monotonic() < deadline:
+        acknowledged = int(proc.stdout.readline())
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    store = Store(path)
+    assert store.count_runs() >= acknowledged >= 50
+    assert store.get_run(f"r{acknowledged}") is not None
