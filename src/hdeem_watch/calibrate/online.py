@@ -55,8 +55,8 @@ class OnlineCalibrator:
                  half_life_s: float | None = 30 * 86400.0,
                  bounds: Mapping[str, tuple[float, float]] | None = None, intercept: bool = True,
                  prior_weight: float = 0.0, settings: FitSettings | None = None,
-                 names: Sequence[str] | None = None, min_weight: float = 1e-4, max_history: int = 1000,
-                 max_runs: int = 5000,
+                 names: Sequence[str] | None = None, min_weight: float = 1e-4, max_history: int = 256,
+                 max_runs: int = 2000,
                  drift_lag_s: float | None = None, loo: str = "hat") -> None:
         if half_life_s is not None and not (half_life_s > 0):
             raise InputError(f"half_life_s: {half_life_s!r}; expected a duration > 0 s (or None)")
@@ -151,13 +151,14 @@ class OnlineCalibrator:
         self.latest = None
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready state: settings, kept runs and the fit history (per-run details only in the
-        latest fit)."""
+        """JSON-ready state: settings, kept runs and the fit history (per-run details and the
+        correlation matrix only in the latest fit)."""
         history = []
         for t, result in self.history:
             record = result.to_dict()
-            if result is not self.latest:
+            if result is not self.latest:  # compact: no per-run details, no correlation matrix
                 record["runs"] = []
+                record["observability"].pop("correlation", None)
             history.append({"time_ns": int(t), "fit": record})
         return {
             "version": _STATE_VERSION,
@@ -192,7 +193,7 @@ class OnlineCalibrator:
                         settings=FitSettings(noise_floor=float(s["noise_floor"]), max_rel_ci=float(s["max_rel_ci"]),
                                              min_sensitivity=float(s["min_sensitivity"])),
                         names=s["names"], min_weight=float(s["min_weight"]), max_history=int(s["max_history"]),
-                        max_runs=int(s.get("max_runs", 5000)),
+                        max_runs=int(s.get("max_runs", 2000)),
                         drift_lag_s=s["drift_lag_s"], loo=str(s["loo"]))
             calib.observations = [Observation.from_dict(o) for o in data["observations"]]
             calib.history = [(int(h["time_ns"]), FitResult.from_dict(h["fit"])) for h in data["history"]]
