@@ -1,6 +1,7 @@
 """A real single-node SLURM (munged + slurmctld + slurmd) for the SLURM tests.
 
-Follows ../shared/notes/slurm-single-node.md: needs root and the Debian packages slurmctld, slurmd,
+Follows ../shared/notes/slurm-single-node.md, with ``TaskPlugin=task/affinity`` instead of
+task/none so srun really binds tasks to CPUs (``--cpu-bind=none`` gives the unbound case). Needs root and the Debian packages slurmctld, slurmd,
 slurm-client and munge (``.ci/run`` installs them). The cluster runs from a scratch directory with
 its own free ports, with the hdeem-watch Prolog/Epilog hooks of ``daemon/slurm/`` wired in through
 small wrappers that set the hooks' settings. Tests get a :class:`Slurm` with ``run(args)`` that
@@ -155,7 +156,7 @@ def slurm(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Slurm]:
         f"StateSaveLocation={root}/state", f"SlurmdSpoolDir={root}/spool",
         f"SlurmctldPidFile={root}/slurmctld.pid", f"SlurmdPidFile={root}/slurmd.pid",
         f"SlurmctldLogFile={root}/slurmctld.log", f"SlurmdLogFile={root}/slurmd.log",
-        "ProctrackType=proctrack/linuxproc", "TaskPlugin=task/none", "JobAcctGatherType=jobacct_gather/none",
+        "ProctrackType=proctrack/linuxproc", "TaskPlugin=task/affinity", "JobAcctGatherType=jobacct_gather/none",
         "AccountingStorageType=accounting_storage/none", "SelectType=select/cons_tres",
         "SelectTypeParameters=CR_Core", "SchedulerParameters=batch_sched_delay=0", "ReturnToService=2",
         "MpiDefault=none", f"Prolog={prolog}", f"Epilog={epilog}", "PrologFlags=Alloc",

@@ -112,21 +112,43 @@ def test_allocation_nodes_inside_a_real_allocation(slurm) -> None:  # type: igno
 
 @pytest.mark.slurm
 def test_bench_under_srun_respects_given_cpus(slurm) -> None:  # type: ignore[no-untyped-def]
-    """`srun -n1 -c1 hdeem-watch bench` runs one worker on one CPU and refuses a second thread;
-    with -c2 it may use two distinct CPUs."""
-    args = [sys.executable, "-m", "hdeem_watch", "bench", "--kernels", "copy", "--elements", "65536",
-            "--repeat", "2", "--json"]
-    proc = slurm.run(["srun", "-n1", "-c1", *args, "--threads", "1"])
+    """`srun -n1 -c1 hdeem-watch bench` runs its worker on the one CPU SLURM bound the task to and
+    refuses a second thread; with -c2 it uses two distinct CPUs of the task's mask."""
+    bench = f"{sys.executable} -m hdeem_watch bench --kernels copy --elements 65536 --repeat 2 --json"
+    mask = f"{sys.executable} -c 'import os; print(sorted(os.sched_getaffinity(0)))'"
+    proc = slurm.run(["srun", "-n1", "-c1", "sh", "-c", f"{mask} && {bench} --threads 1"])
     assert proc.returncode == 0, proc.stderr
-    record = json.loads(proc.stdout)
-    assert record["threads"] == 1 and len(record["cpus"]) == 1 and record["seconds"] > 0
-    proc = slurm.run(["srun", "-n1", "-c1", *args, "--threads", "2"])
+    mask_line, record_line = proc.stdout.splitlines()
+    task_cpus = json.loads(mask_line)
+    record = json.loads(record_line)
+    assert len(task_cpus) == 1  # task/affinity bound the task to one CPU
+    assert record["threads"] == 1 and record["cpus"] == task_cpus and record["seconds"] > 0
+    proc = slurm.run(["srun", "-n1", "-c1", "sh", "-c", f"{bench} --threads 2"])
     assert proc.returncode == 2
     assert "only 1 CPUs" in proc.stderr
     if slurm.cpus >= 2:
-        proc = slurm.run(["srun", "-n1", "-c2", *args, "--threads", "2"])
+        proc = slurm.run(["srun", "-n1", "-c2", "sh", "-c", f"{mask} && {bench} --threads 2"])
         assert proc.returncode == 0, proc.stderr
-        assert len(set(json.loads(proc.stdout)["cpus"])) == 2
+        mask_line, record_line = proc.stdout.splitlines()
+        cpus = json.loads(record_line)["cpus"]
+        assert len(set(cpus)) == 2 and set(cpus) <= set(json.loads(mask_line))
+
+
+@pytest.mark.slurm
+def test_bench_under_unbound_srun_uses_its_cpu_share(slurm) -> None:  # type: ignore[no-untyped-def]
+    """When the task's mask is the whole node (no binding, as under TaskPlugin=task/none; here
+    the task widens its own mask with taskset), the bench still limits itself to the -c1 share
+    SLURM gave it (SLURM_CPUS_PER_TASK from the real srun)."""
+    widen = ["taskset", "-c", f"0-{slurm.cpus - 1}"]
+    code = ("import json, os; from hdeem_watch import slurm; "
+            "print(json.dumps([sorted(os.sched_getaffinity(0)), slurm.allowed_cpus()]))")
+    proc = slurm.run(["srun", "-n1", "-c1", *widen, sys.executable, "-c", code])
+    assert proc.returncode == 0, proc.stderr
+    mask, allowed = json.loads(proc.stdout)
+    assert len(mask) == slurm.cpus and len(allowed) == 1 and set(allowed) <= set(mask)
+    proc = slurm.run(["srun", "-n1", "-c1", *widen, sys.executable, "-m", "hdeem_watch", "bench",
+                      "--kernels", "read", "--threads", "2", "--elements", "8192", "--json"])
+    assert proc.returncode == 2 and "only 1 CPUs" in proc.stderr
 
 
 @pytest.mark.slurm
