@@ -200,3 +200,41 @@ def test_global_method_native_rates(fake_hdeem):
         assert nxt.samples["DDR_GH"][0][0] == batch.samples["DDR_GH"][0][-1] + 10_000_000   # no repeats
     finally:
         src.close()
+
+
+def test_overflow_flags_while_polling_mark_the_group(fake_hdeem):
+    """A VR overflow flag read during polling marks the VR channels 'overflow', not the blade."""
+    clock = Clock()
+    src = opened(fake_hdeem, clock=clock, status_every_s=1.0)
+    try:
+        fake_hdeem.control("overflow", VR_OVERFLOW)
+        clock.t += 2_000_000_000
+        fake_hdeem.advance(0.5)
+        batch = src.poll()
+        assert batch.status["DDR_AB"] == "overflow" and batch.status["CPU1"] == "overflow"
+        assert batch.status["BLADE"] == "ok"
+        assert src.health().startswith("overflow")
+    finally:
+        fake_hdeem.control("overflow", 0)
+        src.close()
+
+
+def test_global_rearm_drains_then_restarts(fake_hdeem):
+    """Re-arming the global buffer drains it, clears, starts again and reports the samples missed."""
+    clock = Clock()
+    src = opened(fake_hdeem, method="global", rearm_s=1.0, clock=clock)
+    try:
+        fake_hdeem.advance(0.3)
+        first = src.poll()
+        clock.t += 1_500_000_000
+        fake_hdeem.advance(0.3)
+        rearmed = src.poll()
+        assert rearmed.status["DDR_AB"] == "gap" and rearmed.gaps["BLADE"] >= 1
+        t_first, t_re = first.samples["BLADE"][0], rearmed.samples["BLADE"][0]
+        assert len(t_re) == pytest.approx(300, abs=3) and t_re[0] == t_first[-1] + 1_000_000
+        fake_hdeem.advance(0.2)
+        after = src.poll()
+        assert len(after.samples["BLADE"][0]) == pytest.approx(200, abs=3)
+        assert after.samples["BLADE"][0][0] > t_re[-1]          # a fresh buffer, later times
+    finally:
+        src.close()

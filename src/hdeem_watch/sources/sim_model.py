@@ -335,7 +335,11 @@ class RunPlan:
 
 def idle_power_w(model: Model, currents: np.ndarray) -> np.ndarray:
     """Idle power (W) per DIMM for per-DIMM ``currents`` (8 × names)."""
-    cols, const = model.linear(model.idle_stats(1.0))
+    cached = getattr(model, "_idle_per_s", None)
+    if cached is None:
+        cached = model.linear(model.idle_stats(1.0))
+        model._idle_per_s = cached  # type: ignore[union-attr]
+    cols, const = cached
     return np.asarray(currents @ cols + const, dtype=float)
 
 
@@ -359,6 +363,9 @@ def plan_run(model: Model, currents: np.ndarray, run_id: str, t0_ns: int, kernel
         c2, k2 = _dimm_linear(model, stats8, shares[socket], 2 * duration_s)
         for d in range(len(DIMMS)):
             if DIMM_SOCKET[d] != socket:
+                continue
+            if shares[socket] <= 0:   # no traffic on this socket: the DIMM stays idle
+                bg[d] = idle[d]
                 continue
             e1 = float(currents[d] @ c1 + k1)
             e2 = float(currents[d] @ c2 + k2)
