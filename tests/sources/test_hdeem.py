@@ -21,6 +21,7 @@ class Clock:
 
 
 def opened(fake, **kw) -> HdeemSource:
+    kw.setdefault("interval_s", 0.0)
     src = HdeemSource(**fake.options(**kw))
     src.open()
     return src
@@ -236,5 +237,21 @@ def test_global_rearm_drains_then_restarts(fake_hdeem):
         after = src.poll()
         assert len(after.samples["BLADE"][0]) == pytest.approx(200, abs=3)
         assert after.samples["BLADE"][0][0] > t_re[-1]          # a fresh buffer, later times
+    finally:
+        src.close()
+
+
+def test_bmc_is_read_at_most_every_interval(fake_hdeem):
+    """Polled faster than interval_s, the source reads the BMC once per interval; the rest are empty."""
+    clock = Clock()
+    src = opened(fake_hdeem, clock=clock, interval_s=0.5)
+    try:
+        counts = []
+        for _ in range(10):
+            clock.t += 100_000_000
+            fake_hdeem.advance(0.1)
+            counts.append(len(src.poll().samples["DDR_AB"][0]))
+        assert counts == [1, 0, 0, 0, 0, 1, 0, 0, 0, 0]
+        assert src.channels()[3].rate_hz == 2.0
     finally:
         src.close()

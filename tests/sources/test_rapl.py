@@ -68,7 +68,7 @@ def test_power_is_delta_e_over_delta_t_across_a_wrap(tree):
 def test_unmoved_counter_gives_no_sample_not_zero(tree):
     """A counter that did not move since the last poll yields no sample (never a 0 W sample)."""
     clock = Clock()
-    src = RaplSource(root=tree, clock=clock)
+    src = RaplSource(root=tree, clock=clock, interval_s=0.0)
     src.open()
     clock.t += 1_000_000
     batch = src.poll()
@@ -116,3 +116,16 @@ def test_no_dram_zone_and_missing_root(tmp_path):
         make_source("rapl", root=FIXTURES / "powercap_laptop").open()
     reason = available_sources(rapl_root=str(tmp_path / "nope"))["rapl"]
     assert reason and "does not exist" in reason
+
+
+def test_counters_read_at_most_every_interval(tree):
+    """Polled at 40 Hz with interval_s = 0.1, the zones are read ten times a second (nominal rate)."""
+    clock = Clock()
+    src = RaplSource(root=tree, clock=clock, interval_s=0.1)
+    src.open()
+    n = 0
+    for _ in range(40):
+        clock.t += 25_000_000
+        bump(dram(tree, 1), 25_000)
+        n += len(src.poll().samples["DRAM1"][0])
+    assert n == 10 and src.channels()[1].rate_hz == 10.0

@@ -82,7 +82,8 @@ class HdeemSource:
         host, user, password: BMC for out-of-band access (``None`` = in-band).
         include_dir, lib_dir, cache_dir, cc, libs: how to build the shim (see ``build_shim``).
         method: ``"energy"`` or ``"global"``.
-        interval_s: the daemon's poll period (nominal ``rate_hz`` of the ``"energy"`` method).
+        interval_s: the BMC is read at most this often (polls in between return no samples); the
+            nominal ``rate_hz`` of the ``"energy"`` method is ``1/interval_s``.
         slow_s: a ``get_stats`` call slower than this is missing data.
         backoff_s, backoff_max_s: reconnect back-off (doubling).
         stop_timeout_s: how long to wait for an asynchronous stop.
@@ -110,6 +111,11 @@ class HdeemSource:
         self._build = dict(include_dir=include_dir, lib_dir=lib_dir, cache_dir=cache_dir, cc=cc, libs=tuple(libs))
         self.method = method
         self.interval_s = interval_s
+        self.interval_ns = int(interval_s * 1e9)
+        #: samples/s of the ΔE/Δt channels (10 when polled without a limit)
+        self.nominal_rate_hz = 1.0 / interval_s if interval_s > 0 else 10.0
+        self._last_poll_ns: int | None = None
+        self._last_status: dict[str, str] = {}
         self.slow_s = slow_s
         self.backoff_s = backoff_s
         self.backoff_max_s = backoff_max_s
@@ -144,7 +150,7 @@ class HdeemSource:
         for i, name in enumerate(names):
             kind: ChannelKind = "blade" if i < self._nblade else ("dram" if name.startswith("DDR") else "cpu")
             native = 1000.0 if i < self._nblade else 100.0
-            infos.append(ChannelInfo(name, native if self.method == "global" else 1.0 / self.interval_s, kind))
+            infos.append(ChannelInfo(name, native if self.method == "global" else self.nominal_rate_hz, kind))
         return infos
 
     def open(self) -> None:
@@ -229,6 +235,20 @@ class HdeemSource:
         if self.lib is None:
             raise RuntimeError("HdeemSource.poll() before open()")
         now = int(self._clock())
+        if self._last_poll_ns is not None and now - self._last_poll_ns < self.interval_ns:
+            return self._empty_batch(now)   # the BMC is read at most every interval_s
+        self._last_poll_ns = now
+        batch = self._poll_now(now)
+        self._last_status = dict(batch.status)
+        return batch
+
+    def _empty_batch(self, now: int) -> SourceBatch:
+        empty = {n: (np.zeros(0, dtype=np.int64), np.zeros(0)) for n in self._names}
+        energy = dict(self._energy_j) if self._error is None else {n: math.nan for n in self._names}
+        status = self._last_status or dict.fromkeys(self._names, STATUS_OK)
+        return SourceBatch(now, int(self._wall()), empty, energy, dict(status))
+
+    def _poll_now(self, now: int) -> SourceBatch:
         if self._handle is None:
             if now < self._retry_at:
                 return self._failed_batch(now, f"error: {self._error}; retry in {(self._retry_at - now) / 1e9:.1f} s")

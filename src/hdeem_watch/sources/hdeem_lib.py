@@ -69,7 +69,10 @@ class StatsReading:
 
 
 def cache_root() -> Path:
-    """``$XDG_CACHE_HOME/hdeem-watch`` (or ``~/.cache/hdeem-watch``)."""
+    """Where the shim is built: ``$CACHE_DIRECTORY`` (systemd ``CacheDirectory=``), else
+    ``$XDG_CACHE_HOME/hdeem-watch``, else ``~/.cache/hdeem-watch``."""
+    if os.environ.get("CACHE_DIRECTORY"):
+        return Path(os.environ["CACHE_DIRECTORY"].split(":")[0])
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "hdeem-watch"
 
@@ -125,7 +128,13 @@ def build_shim(include_dir: str | os.PathLike[str] | None = None, lib_dir: str |
     target = out_dir / f"shim-{key}" / "libhdeem_shim.so"
     if target.is_file():
         return target
-    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError:  # e.g. no writable home under a hardened unit: fall back to a private temp dir
+        target = Path(tempfile.gettempdir()) / f"hdeem-watch-{os.getuid()}" / f"shim-{key}" / "libhdeem_shim.so"
+        if target.is_file():
+            return target
+        target.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
     with tempfile.NamedTemporaryFile(dir=target.parent, suffix=".so", delete=False) as tmp:
         tmp_path = Path(tmp.name)
     cmd = [compiler, "-shared", "-fPIC", "-O2", "-Wall", "-o", str(tmp_path), str(SHIM_SOURCE),

@@ -118,7 +118,8 @@ class RaplSource:
 
     Args:
         root: the powercap directory (``/sys/class/powercap``; tests pass a fixture tree).
-        interval_s: the daemon's poll period (nominal ``rate_hz``).
+        interval_s: the counters are read at most this often (polls in between return no samples);
+            the nominal ``rate_hz`` is ``1/interval_s``.
         max_power_w: a delta implying more than this per socket is dropped (multiple wraps / reset).
         clock: monotonic clock (ns); Δt is measured on it.
         wall_clock: wall clock (ns) for sample timestamps.
@@ -139,6 +140,11 @@ class RaplSource:
                  read_text: Callable[[Path], str] = _read_text) -> None:
         self.root = Path(root)
         self.interval_s = interval_s
+        self.interval_ns = int(interval_s * 1e9)
+        #: samples/s of the ΔE/Δt channels (10 when polled without a limit)
+        self.nominal_rate_hz = 1.0 / interval_s if interval_s > 0 else 10.0
+        self._last_poll_ns: int | None = None
+        self._last_status: dict[str, str] = {}
         self.max_power_w = max_power_w
         self._clock, self._wall, self._read = clock, wall_clock, read_text
         self.zones: list[DramZone] = []
@@ -149,7 +155,7 @@ class RaplSource:
 
     def channels(self) -> list[ChannelInfo]:
         """``DRAM<socket>`` per DRAM zone (after :meth:`open`)."""
-        return [ChannelInfo(z.channel, 1.0 / self.interval_s, "dram") for z in self.zones]
+        return [ChannelInfo(z.channel, self.nominal_rate_hz, "dram") for z in self.zones]
 
     def _energy_uj(self, zone: DramZone) -> int:
         try:
@@ -185,6 +191,10 @@ class RaplSource:
         wall = int(self._wall())
         samples: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         status: dict[str, str] = {}
+        if self._last_poll_ns is not None and now - self._last_poll_ns < self.interval_ns:
+            nothing = {z.channel: (np.zeros(0, dtype=np.int64), np.zeros(0)) for z in self.zones}
+            return SourceBatch(now, wall, nothing, dict(self._energy_j), dict(self._last_status))
+        self._last_poll_ns = now
         for zone in self.zones:
             ch = zone.channel
             empty = (np.zeros(0, dtype=np.int64), np.zeros(0))
@@ -209,4 +219,5 @@ class RaplSource:
             self._energy_j[ch] += delta * 1e-6
             samples[ch] = (np.array([wall], dtype=np.int64), np.array([power]))
             status[ch] = STATUS_OK
+        self._last_status = status
         return SourceBatch(now, wall, samples, dict(self._energy_j), status)
