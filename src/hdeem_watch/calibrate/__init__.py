@@ -11,10 +11,11 @@ Pure: nothing in this package reads files or clocks except :mod:`~hdeem_watch.ca
 (the RUNS.json reader used by the command line).
 """
 
-from hdeem_watch.calibrate.fit import FitResult, FitSettings, fit
+from hdeem_watch.calibrate.fit import fit
 from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS, Observation
 from hdeem_watch.calibrate.observe import posterior_relative_sd, suggest_next, weakest_current
 from hdeem_watch.calibrate.online import OnlineCalibrator
+from hdeem_watch.calibrate.result import FitResult, FitSettings
 from hdeem_watch.calibrate.rows import observation_from_run, stretch_stats
 
 __all__ = [

@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from scipy import stats as sps
@@ -42,174 +40,13 @@ from hdeem_watch.calibrate.observation import (
     current_names,
     stack,
 )
+from hdeem_watch.calibrate.result import FitModel, FitResult, FitSettings
 from hdeem_watch.errors import InputError
+
+__all__ = ["LOO_EXACT_MAX_RUNS", "FitModel", "FitResult", "FitSettings", "fit"]
 
 #: ``loo="auto"`` refits exactly up to this many runs and uses the hat-matrix identity above.
 LOO_EXACT_MAX_RUNS = 60
-
-
-@dataclass(frozen=True)
-class FitSettings:
-    """Thresholds that turn the fit's numbers into verdicts (all documented in docs/calibration.md).
-
-    Attributes:
-        noise_floor: relative noise assumed at least (the sensor's accuracy) when judging
-            identifiability, so a noise-free synthetic fit does not call everything determined.
-        max_rel_ci: a current is identifiable if its 95 % half-width (at ``max(s, noise_floor)``,
-            bounds ignored) is at most this fraction of its calibrated value (at least 5 % of its
-            datasheet value) ...
-        min_sensitivity: ... and it carries at least this RMS fraction of the runs' energies.
-        rank_tol: singular values below ``rank_tol·σ_max`` count as zero.
-    """
-
-    noise_floor: float = 0.01
-    max_rel_ci: float = 0.2
-    min_sensitivity: float = 0.002
-    rank_tol: float = 1e-9
-
-
-@dataclass(frozen=True, eq=False)
-class FitResult:
-    """A calibration: currents with 95 % intervals, what is determined, and errors.
-
-    Arrays are over :attr:`currents`. Use :meth:`to_dict` for the JSON contract (DESIGN.md §7).
-    Compared by identity (it holds arrays); compare ``to_dict()`` for equal content.
-    """
-
-    currents: tuple[str, ...]
-    datasheet_a: np.ndarray
-    calibrated_a: np.ndarray
-    ci95_a: np.ndarray
-    identifiable: np.ndarray
-    at_bound: tuple[str | None, ...]
-    sensitivity: np.ndarray
-    intercept_fitted: bool
-    intercept_j: float
-    intercept_ci95_j: tuple[float, float]
-    error_before: float
-    error_after: float
-    error_loo: float
-    singular_values: np.ndarray
-    condition_number: float
-    rank: int
-    correlation: np.ndarray
-    n_runs: int
-    dof: int
-    noise_rel: float
-    status: str
-    uncertainty: str
-    runs: tuple[dict[str, Any], ...] = ()
-    time_ns: int = 0
-    #: Everything :func:`~hdeem_watch.calibrate.observe.suggest_next` needs (absent after from_dict).
-    model: FitModel | None = field(default=None, compare=False, repr=False)
-
-    @property
-    def calibrated(self) -> dict[str, float]:
-        """Calibrated currents by name (A)."""
-        return {n: float(v) for n, v in zip(self.currents, self.calibrated_a)}
-
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON contract: ``currents.<name>.{datasheet, calibrated, ci95, identifiable}``, ...
-
-        Non-finite numbers are ``null`` (see ``status``).
-        """
-        currents = {}
-        for j, name in enumerate(self.currents):
-            currents[name] = {
-                "datasheet": _num(self.datasheet_a[j]),
-                "calibrated": _num(self.calibrated_a[j]),
-                "ci95": [_num(self.ci95_a[j, 0]), _num(self.ci95_a[j, 1])],
-                "identifiable": bool(self.identifiable[j]),
-                "at_bound": self.at_bound[j],
-                "sensitivity": _num(self.sensitivity[j]),
-            }
-        params = [*self.currents, *(["intercept"] if self.intercept_fitted else [])]
-        return {
-            "currents": currents,
-            "intercept_j": _num(self.intercept_j),
-            "intercept_ci95_j": [_num(self.intercept_ci95_j[0]), _num(self.intercept_ci95_j[1])],
-            "intercept_fitted": self.intercept_fitted,
-            "error": {"before": _num(self.error_before), "after": _num(self.error_after),
-                      "loo": _num(self.error_loo)},
-            "observability": {
-                "condition_number": _num(self.condition_number),
-                "singular_values": [_num(s) for s in self.singular_values],
-                "rank": self.rank,
-                "parameters": params,
-                "rank_deficient": self.rank < len(params),
-                "correlation": [[_num(c) for c in row] for row in self.correlation],
-            },
-            "n_runs": self.n_runs,
-            "dof": self.dof,
-            "noise_rel": _num(self.noise_rel),
-            "status": self.status,
-            "uncertainty": self.uncertainty,
-            "time_ns": self.time_ns,
-            "runs": [dict(run) for run in self.runs],
-        }
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> FitResult:
-        """Rebuild the reported part of a fit from :meth:`to_dict` (no ``model``).
-
-        Raises:
-            InputError: a missing or malformed field.
-        """
-        try:
-            names = tuple(data["currents"])
-            cur = data["currents"]
-            obs = data["observability"]
-            return cls(
-                currents=names,
-                datasheet_a=np.array([_flt(cur[n]["datasheet"]) for n in names]),
-                calibrated_a=np.array([_flt(cur[n]["calibrated"]) for n in names]),
-                ci95_a=np.array([[_flt(v) for v in cur[n]["ci95"]] for n in names]).reshape(len(names), 2),
-                identifiable=np.array([bool(cur[n]["identifiable"]) for n in names]),
-                at_bound=tuple(cur[n].get("at_bound") for n in names),
-                sensitivity=np.array([_flt(cur[n].get("sensitivity")) for n in names]),
-                intercept_fitted=bool(data.get("intercept_fitted", True)),
-                intercept_j=_flt(data["intercept_j"]),
-                intercept_ci95_j=tuple(_flt(v) for v in data.get("intercept_ci95_j", [None, None])),  # type: ignore[arg-type]
-                error_before=_flt(data["error"]["before"]),
-                error_after=_flt(data["error"]["after"]),
-                error_loo=_flt(data["error"]["loo"]),
-                singular_values=np.array([_flt(s) for s in obs["singular_values"]]),
-                condition_number=_flt(obs["condition_number"]),
-                rank=int(obs.get("rank", len(obs["singular_values"]))),
-                correlation=np.array([[_flt(c) for c in row] for row in obs.get("correlation", [])]),
-                n_runs=int(data.get("n_runs", 0)),
-                dof=int(data.get("dof", 0)),
-                noise_rel=_flt(data.get("noise_rel")),
-                status=str(data.get("status", "ok")),
-                uncertainty=str(data.get("uncertainty", "analytic")),
-                runs=tuple(dict(r) for r in data.get("runs", [])),
-                time_ns=int(data.get("time_ns", 0)),
-            )
-        except (KeyError, TypeError, ValueError) as error:
-            raise InputError(f"fit: malformed fit record ({error!r})") from None
-
-
-@dataclass(frozen=True, eq=False)
-class FitModel:
-    """The prepared problem behind a fit, kept for experiment design (not serialised).
-
-    Attributes:
-        spec: the memspec the fit started from.
-        names: the order of the observation columns.
-        index: positions of the calibrated currents in ``names``.
-        scales_a: column scale of each calibrated current (A; its datasheet value).
-        intercept_scale_j: column scale of the intercept (J), 0 if not fitted.
-        info: ``p × p`` information matrix of the prepared design (incl. penalty).
-        params: the fitted parameters in amperes (then the intercept in J).
-    """
-
-    spec: Any
-    names: tuple[str, ...]
-    index: np.ndarray
-    scales_a: np.ndarray
-    intercept_scale_j: float
-    info: np.ndarray
-    params: np.ndarray
 
 
 def fit(observations: Sequence[Observation], spec: SpecLike, *,
@@ -434,14 +271,3 @@ def _mare(predicted: np.ndarray, measured: np.ndarray) -> float:
     rel = np.abs(predicted - measured) / measured
     rel = rel[np.isfinite(rel)]
     return float(rel.mean()) if rel.size else math.nan
-
-
-def _num(value: Any) -> float | None:
-    if value is None:
-        return None
-    v = float(value)
-    return v if math.isfinite(v) else None
-
-
-def _flt(value: Any) -> float:
-    return math.nan if value is None else float(value)

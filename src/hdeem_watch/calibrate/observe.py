@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.calibrate import solve
-from hdeem_watch.calibrate.fit import FitModel, FitResult
 from hdeem_watch.calibrate.observation import Observation
+from hdeem_watch.calibrate.result import FitModel, FitResult
 from hdeem_watch.errors import InputError
 
 

@@ -28,8 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.calibrate.fit import FitResult, FitSettings, fit
+from hdeem_watch.calibrate.fit import fit
 from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS, Observation, current_names
+from hdeem_watch.calibrate.result import FitResult, FitSettings
 from hdeem_watch.errors import InputError
 
 _STATE_VERSION = 1

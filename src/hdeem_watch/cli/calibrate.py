@@ -15,8 +15,9 @@ import json
 import math
 from typing import Any
 
-from hdeem_watch.calibrate.fit import FitResult, fit
+from hdeem_watch.calibrate.fit import fit
 from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS
+from hdeem_watch.calibrate.result import FitResult
 from hdeem_watch.calibrate.runs_file import read_runs_file
 from hdeem_watch.errors import InputError
 
