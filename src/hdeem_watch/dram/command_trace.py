@@ -48,7 +48,6 @@ OTHER_STANDARD = ("PRESB", "REFB", "REFSB", "REFP2B", "REFDB", "DSMEN", "DSMEX")
 
 #: Bytes read per chunk (whole lines are parsed per chunk; bounds the temporary arrays).
 CHUNK_BYTES = 1 << 24
-_MAX_DIGITS = 18
 
 
 def _pack(name: str) -> int:
@@ -92,18 +91,55 @@ class CommandTrace:
         return int(np.count_nonzero(self.cmd == CODE[name]))
 
 
+#: Bytes of ``"0"`` in front of every chunk, so 16-byte windows before any field stay in the buffer.
+_PAD = b"0" * 16
+_ZEROS = np.uint64(0x3030303030303030)
+_HIGH_BYTES = np.array([((1 << (8 * n)) - 1) << (8 * (8 - n)) for n in range(9)], dtype=np.uint64)
+_LOW_BYTES = np.array([(1 << (8 * n)) - 1 for n in range(9)], dtype=np.uint64)
+
+
+def _words(buf: np.ndarray) -> np.ndarray:
+    """The little-endian 8-byte word starting at every byte offset of ``buf`` (a strided view)."""
+    return np.ndarray(shape=(buf.size - 7,), dtype="<u8", buffer=buf, strides=(1,))
+
+
+def _eight_digits(word: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Value and validity of the last ``length`` (0..8) bytes of each word as decimal digits.
+
+    SWAR ("SIMD within a register"): the bytes before the field are replaced by "0", every byte is
+    checked to be a digit without carries between bytes, and the eight digits are combined with
+    three multiplications (the method of simdjson's ``parse_eight_digits_unrolled``).
+    """
+    keep = _HIGH_BYTES[length]
+    word = (word & keep) | (_ZEROS & ~keep)
+    ok = ((word & np.uint64(0xF0F0F0F0F0F0F0F0))
+          | (((word + np.uint64(0x0606060606060606)) & np.uint64(0xF0F0F0F0F0F0F0F0)) >> np.uint64(4))
+          ) == np.uint64(0x3333333333333333)
+    word = word - _ZEROS
+    word = word * np.uint64(10) + (word >> np.uint64(8))
+    word = ((word & np.uint64(0x000000FF000000FF)) * np.uint64(100 + (1000000 << 32))
+            + ((word >> np.uint64(16)) & np.uint64(0x000000FF000000FF)) * np.uint64(1 + (10000 << 32))
+            ) >> np.uint64(32)
+    return word, ok
+
+
 def _parse_uint(buf: np.ndarray, start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Decimal integers in ``buf[start:end]`` per line; returns (values int64, ok mask)."""
+    """Decimal integers in ``buf[start:end]`` per line (up to 16 digits); returns (int64 values, ok).
+
+    ``buf`` must begin with :data:`_PAD`. The 8 bytes ending at each field's end are read as one
+    word (and the 8 before them for longer fields), then decoded by :func:`_eight_digits`.
+    """
+    words = _words(buf)
     length = end - start
-    ok = (length >= 1) & (length <= _MAX_DIGITS)
-    value = np.zeros(start.size, dtype=np.int64)
-    last = buf.size - 1
-    for k in range(int(length.max(initial=0)) if start.size else 0):
-        inside = k < length
-        digit = buf[np.minimum(start + k, last)].astype(np.int64) - 48
-        ok &= ~inside | ((digit >= 0) & (digit <= 9))
-        value = np.where(inside, value * 10 + digit, value)
-    return value, ok
+    ok = (length >= 1) & (length <= 16)
+    low = np.clip(length, 0, 8)
+    value, good = _eight_digits(words[end - 8], low)
+    ok &= good
+    if (length > 8).any():
+        high, good = _eight_digits(words[end - 16], np.clip(length - 8, 0, 8))
+        ok &= good
+        value = value + high * np.uint64(100_000_000)
+    return value.astype(np.int64), ok
 
 
 def _fail(where: str, line: int, message: str) -> NoReturn:
@@ -115,14 +151,18 @@ def _line_text(buf: np.ndarray, start: int, end: int) -> str:
 
 
 def _parse_chunk(buf: np.ndarray, first_line: int, where: str) -> dict[str, np.ndarray]:
-    """Parse whole lines (``buf`` ends with a newline); ``first_line`` is the 1-based line number."""
-    ends = np.flatnonzero(buf == 10)
+    """Parse whole lines (``buf`` = :data:`_PAD` + lines ending with a newline); ``first_line`` is 1-based."""
+    delim = np.flatnonzero((buf == 44) | (buf == 10))  # every comma and line end, in order
+    at_end = np.flatnonzero(buf[delim] == 10)  # index in delim of each line end
+    if np.count_nonzero(buf < 44) != at_end.size:  # spaces, tabs or CR (trimmed, as DRAMPower does)
+        clean = buf[(buf != 32) & (buf != 9) & (buf != 13)]
+        if clean.size != buf.size:
+            return _parse_chunk(clean, first_line, where)
+    ends = delim[at_end]
     starts = np.empty_like(ends)
-    starts[:1] = 0
+    starts[:1] = len(_PAD)
     starts[1:] = ends[:-1] + 1
-    commas = np.flatnonzero(buf == 44)
-    upto = np.searchsorted(commas, ends)  # commas before each line end
-    ncomma = np.diff(upto, prepend=0)
+    ncomma = np.diff(at_end, prepend=-1) - 1
     bad = (ncomma < 6) | (ncomma > 7)
     if bad.any():
         i = int(np.argmax(bad))
@@ -130,10 +170,9 @@ def _parse_chunk(buf: np.ndarray, first_line: int, where: str) -> dict[str, np.n
             _fail(where, first_line + i, "empty line; expected cycle,CMD,rank,bankgroup,bank,row,column[,data]")
         _fail(where, first_line + i, f"{ncomma[i] + 1} fields in {_line_text(buf, starts[i], ends[i])!r}; "
               "expected cycle,CMD,rank,bankgroup,bank,row,column[,data]")
-    first = upto - ncomma
-    c = [commas[first + j] for j in range(6)]
-    has_data = ncomma == 7
-    c6 = np.where(has_data, commas[np.minimum(first + 6, commas.size - 1)], ends)
+    first = at_end - ncomma
+    c = [delim[first + j] for j in range(7)]  # c[6]: the data comma or the line end
+    c6 = c[6]
     bounds = [(starts, c[0]), None, (c[1] + 1, c[2]), (c[2] + 1, c[3]), (c[3] + 1, c[4]),
               (c[4] + 1, c[5]), (c[5] + 1, c6)]
     names = ("cycle", "CMD", "rank", "bankgroup", "bank", "row", "column")
@@ -145,15 +184,12 @@ def _parse_chunk(buf: np.ndarray, first_line: int, where: str) -> dict[str, np.n
         if not ok.all():
             i = int(np.argmin(ok))
             text = bytes(buf[bound[0][i]:bound[1][i]]).decode("ascii", "replace")
-            _fail(where, first_line + i, f"{name} = {text!r} is not a non-negative integer")
+            _fail(where, first_line + i, f"{name} = {text!r} is not a non-negative integer of at most 16 digits")
         out[name] = value
     # command names: pack up to 6 bytes into an int64 and look them up
     s, e = c[0] + 1, c[1]
-    length = e - s
-    packed = np.zeros(s.size, dtype=np.int64)
-    last = buf.size - 1
-    for k in range(6):
-        packed |= np.where(k < length, buf[np.minimum(s + k, last)].astype(np.int64) << (8 * k), 0)
+    length = np.clip(e - s, 0, 8)
+    packed = (_words(buf)[s] & _LOW_BYTES[length]).astype(np.int64)
     pos = np.minimum(np.searchsorted(_PACKED, packed), _PACKED.size - 1)
     known = (_PACKED[pos] == packed) & (length >= 2) & (length <= 6)
     if not known.all():
@@ -162,7 +198,27 @@ def _parse_chunk(buf: np.ndarray, first_line: int, where: str) -> dict[str, np.n
         hint = " (a command of another DRAM standard)" if text in OTHER_STANDARD else ""
         _fail(where, first_line + i, f"unknown command {text!r}{hint}; expected one of {', '.join(COMMANDS)}")
     out["cmd"] = _PACKED_CODE[pos]
+    for name, dtype in (("rank", np.uint16), ("bankgroup", np.uint16), ("bank", np.uint16),
+                        ("row", np.uint32), ("column", np.uint32)):
+        over = out[name] > np.iinfo(dtype).max
+        if over.any():
+            i = int(np.argmax(over))
+            _fail(where, first_line + i, f"{name} {out[name][i]} out of range")
+        out[name] = out[name].astype(dtype)
     return out
+
+
+def _after_last_newline(store: np.ndarray, lo: int, hi: int) -> int:
+    """Index just after the last newline in ``store[lo:hi]`` (``lo`` if there is none)."""
+    window = 1 << 16
+    while True:
+        start = max(lo, hi - window)
+        found = np.flatnonzero(store[start:hi] == 10)
+        if found.size:
+            return start + int(found[-1]) + 1
+        if start == lo:
+            return lo
+        window *= 16
 
 
 def read_command_trace(path: str | Path, spec: MemSpec | None = None) -> CommandTrace:
@@ -191,26 +247,31 @@ def read_command_trace(path: str | Path, spec: MemSpec | None = None) -> Command
         tail = handle.read()
         remaining = size - (len(tail) - len(tail.rstrip(b" \t\r\n")))  # trailing blank lines are fine
         handle.seek(0)
-        carry = b""
+        pad = len(_PAD)
+        store = np.empty(pad + CHUNK_BYTES + 1, dtype=np.uint8)  # reused for every chunk
+        store[:pad] = np.frombuffer(_PAD, dtype=np.uint8)
+        view = memoryview(store)  # type: ignore[arg-type]
+        carry = 0  # bytes of an incomplete last line kept for the next chunk
         while remaining > 0:
-            block = handle.read(min(CHUNK_BYTES, remaining))
-            if not block:
+            want = min(CHUNK_BYTES - carry, remaining)
+            if want <= 0:
+                _fail(where, line, f"line longer than {CHUNK_BYTES} bytes")
+            got = handle.readinto(view[pad + carry:pad + carry + want])
+            if not got:
                 break
-            remaining -= len(block)
-            data = carry + block
+            remaining -= got
+            end = pad + carry + got
             if remaining <= 0:
-                data += b"\n"
-            cut = data.rfind(b"\n") + 1
-            carry = data[cut:]
-            if cut == 0:
-                continue
-            buf = np.frombuffer(data, dtype=np.uint8, count=cut)
-            if np.count_nonzero((buf == 32) | (buf == 9) | (buf == 13)):
-                buf = buf[(buf != 32) & (buf != 9) & (buf != 13)]
-            chunk = _parse_chunk(buf, line, where)
-            for key in parts:
-                parts[key].append(chunk[key])
-            line += chunk["cmd"].size
+                store[end] = 10
+                end += 1
+            cut = _after_last_newline(store, pad, end)
+            if cut > pad:
+                chunk = _parse_chunk(store[:cut], line, where)
+                for key in parts:
+                    parts[key].append(chunk[key])
+                line += chunk["cmd"].size
+            carry = end - cut
+            store[pad:pad + carry] = store[cut:end].copy()
     if not parts["cmd"]:
         raise InputError(f"{where}: empty trace; expected cycle,CMD,rank,bankgroup,bank,row,column lines")
     cycle = np.concatenate(parts["cycle"])
@@ -225,16 +286,7 @@ def read_command_trace(path: str | Path, spec: MemSpec | None = None) -> Command
     if ends.size and ends[0] != cmd.size - 1:
         _fail(where, int(ends[0]) + 2, f"{COMMANDS[cmd[ends[0] + 1]]} after END (line {ends[0] + 1}); "
               "expected END to be the last command")
-    for key, limit in (("rank", 65535), ("bankgroup", 65535), ("bank", 65535)):
-        over = arrays[key] > limit
-        if over.any():
-            i = int(np.argmax(over))
-            _fail(where, i + 1, f"{key} {arrays[key][i]} out of range")
-    trace = CommandTrace(
-        path=where, cycle=cycle, cmd=cmd,
-        rank=arrays["rank"].astype(np.uint16), bankgroup=arrays["bankgroup"].astype(np.uint16),
-        bank=arrays["bank"].astype(np.uint16), row=arrays["row"].astype(np.uint32),
-        column=arrays["column"].astype(np.uint32), end_cycle=int(cycle[-1]))
+    trace = CommandTrace(path=where, cycle=cycle, cmd=cmd, end_cycle=int(cycle[-1]), **arrays)
     if spec is not None:
         check_ranges(spec, trace, full=True)
     return trace
