@@ -255,3 +255,66 @@ def test_bmc_is_read_at_most_every_interval(fake_hdeem):
         assert src.channels()[3].rate_hz == 2.0
     finally:
         src.close()
+
+
+DRIVER = r"""
+#include <stdio.h>
+void *hws_open(const char *, const char *, const char *, int *);
+int hws_close(void *);
+int hws_sensor_count(void *, int *, int *);
+int hws_sensor_name(void *, int, char *, int);
+int hws_start(void *); int hws_stop(void *); int hws_clear(void *);
+int hws_status(void *, int *);
+int hws_stats(void *, int, int, double *, double *, double *, double *, double *, long long *, long long *);
+int hws_global_fetch(void *, long long *, long long *);
+long long hws_global_copy(void *, int, long long, long long, double *);
+long long hdeem_fake_control(const char *, long long);
+int main(void) {
+    int err = 0, nb = 0, nv = 0, flags = 0;
+    char name[64];
+    double e[7], a[7], mx[7], mn[7], in[7], out[400];
+    long long counts[2], read[2], first;
+    for (int round = 0; round < 3; round++) {
+        void *h = hws_open(NULL, NULL, NULL, &err);
+        if (!h) return 10;
+        hws_sensor_count(h, &nb, &nv);
+        for (int i = 0; i < nb + nv; i++) hws_sensor_name(h, i, name, sizeof name);
+        hws_clear(h);
+        if (hws_start(h)) return 11;
+        hdeem_fake_control("advance_ns", 300000000LL);
+        if (hws_stats(h, 0, 7, e, a, mx, mn, in, counts, read)) return 12;
+        if (hws_stats(h, 1, 7, e, a, mx, mn, in, counts, read)) return 13;
+        for (int k = 0; k < 2; k++) {
+            if (hws_global_fetch(h, counts, &first)) return 14;
+            if (hws_global_copy(h, 0, 0, 300, out) < 290) return 15;
+            if (hws_global_copy(h, 3, 0, 400, out) != counts[1]) return 16;
+        }
+        hws_stop(h);
+        hws_status(h, &flags);
+        hws_close(h);
+    }
+    printf("ok %d %d\n", nb, nv);
+    return 0;
+}
+"""
+
+
+def test_shim_has_no_memory_errors_or_leaks(fake_hdeem, tmp_path):
+    """The shim's C (open/names/stats/global/close, three rounds) runs clean under valgrind."""
+    import shutil
+    import subprocess
+
+    shim = build_shim(**fake_hdeem.options(libs=("hdeem", "freeipmi", "rt")))
+    (tmp_path / "driver.c").write_text(DRIVER)
+    exe = tmp_path / "driver"
+    cc = shutil.which("gcc") or shutil.which("cc")
+    subprocess.run([cc, "-O1", "-g", "-o", str(exe), str(tmp_path / "driver.c"), str(shim),
+                    f"-L{fake_hdeem.lib_dir}", "-lhdeem", f"-Wl,-rpath,{fake_hdeem.lib_dir}:{shim.parent}"],
+                   check=True, capture_output=True)
+    cmd = [str(exe)]
+    if shutil.which("valgrind"):
+        cmd = ["valgrind", "-q", "--leak-check=full", "--errors-for-leak-kinds=definite,indirect",
+               "--error-exitcode=99", *cmd]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "ok 1 6"
