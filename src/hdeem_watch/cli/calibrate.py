@@ -128,6 +128,6 @@ def format_table(result: FitResult, memory_id: str) -> str:
     lines.append(f"observability: condition number {cond}, rank {result.rank}, singular values {sv}")
     weak = [n for n, ok in zip(result.currents, result.identifiable) if not ok]
     if weak:
-        lines.append(f"not determined by these runs: {', '.join(weak)} (kept near the datasheet; add runs "
-                     "that exercise them)")
+        lines.append(f"not determined by these runs: {', '.join(weak)} (see their intervals; add runs that "
+                     "exercise them, or calibrate fewer currents)")
     return "\n".join(lines)
