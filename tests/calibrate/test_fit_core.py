@@ -102,15 +102,15 @@ def test_interval_covers_truth_at_its_stated_rate(synth, truth_a) -> None:
 
 
 def test_bootstrap_interval_also_covers(synth, truth_a) -> None:
-    """The residual-bootstrap percentile interval covers the truth at roughly its rate (40 sets)."""
+    """The residual-bootstrap percentile interval covers the truth at roughly its rate (30 sets)."""
     rng = np.random.default_rng(77)
     runs = synth.kernel_mix(rng, 18, idle=3)
     hits = 0
     total = 0
-    for _ in range(40):
+    for _ in range(30):
         obs = synth.observations(rng, runs, truth_a, noise=0.015)
         result = _fit(synth, obs, intercept=False, loo="none", uncertainty="bootstrap",
-                      bootstrap_samples=150, seed=int(rng.integers(1 << 30)))
+                      bootstrap_samples=120, seed=int(rng.integers(1 << 30)))
         assert result.uncertainty.startswith("residual-bootstrap")
         truth = np.array([truth_a[n] for n in result.currents])
         hits += int(np.sum((result.ci95_a[:, 0] <= truth) & (truth <= result.ci95_a[:, 1])))
