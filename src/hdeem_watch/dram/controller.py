@@ -100,8 +100,9 @@ class Commands:
         pre_cycle, pre_rank, pre_bank: explicit single-bank precharges.
         col_cycle, col_rank, col_bank, col_row, col_column, col_write, col_auto: column commands
             (``col_auto``: with auto-precharge, RDA/WRA).
-        ref_cycle: refresh times (PREA of every rank at ``ref_cycle``, REFA at ``+ tRP``).
+        ref_cycle: refresh times (PREA of every rank at ``ref_cycle``, REFA ``refa_delay`` later).
         end_cycle: the evaluation time T.
+        refa_delay: cycles from a refresh's PREA to its REFA (tRP).
     """
 
     act_cycle: np.ndarray
@@ -120,6 +121,7 @@ class Commands:
     col_auto: np.ndarray
     ref_cycle: np.ndarray
     end_cycle: int
+    refa_delay: int = 0
 
 
 @dataclass(frozen=True)
@@ -220,7 +222,7 @@ def simulate(
 
 def stats_from_commands(geometry: Geometry, timing: Timing, commands: Commands,
                         run_rank: np.ndarray, run_open: np.ndarray, run_close: np.ndarray,
-                        closed_by_prea: np.ndarray) -> CommandStats:
+                        closed_by_prea: np.ndarray, auto_pre_rank: np.ndarray) -> CommandStats:
     """Per-rank statistics of a command set, given the bank-open intervals it implies.
 
     Args:
@@ -229,6 +231,7 @@ def stats_from_commands(geometry: Geometry, timing: Timing, commands: Commands,
         run_rank: rank of each bank-open interval.
         run_open, run_close: the interval (ACT cycle, precharge cycle or END).
         closed_by_prea: intervals closed by a refresh's PREA.
+        auto_pre_rank: rank of each implicit precharge of an RDA/WRA that closed its bank.
     """
     ranks = []
     end = commands.end_cycle
@@ -247,7 +250,7 @@ def stats_from_commands(geometry: Geometry, timing: Timing, commands: Commands,
         explicit_pre = int(np.count_nonzero(commands.pre_rank == r))
         ranks.append(RankStats(
             act=float(np.count_nonzero(commands.act_rank == r)),
-            pre=float(explicit_pre + np.count_nonzero(closed_by_prea[mine]) + np.count_nonzero(auto)),
+            pre=float(explicit_pre + np.count_nonzero(closed_by_prea[mine]) + np.count_nonzero(auto_pre_rank == r)),
             rd=float(np.count_nonzero(~write & ~auto)), wr=float(np.count_nonzero(write & ~auto)),
             rda=float(np.count_nonzero(~write & auto)), wra=float(np.count_nonzero(write & auto)),
             ref=float(refreshes), cycles_total=float(end), cycles_act=float(union),

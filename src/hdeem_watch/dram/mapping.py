@@ -7,7 +7,8 @@ Without an explicit ``Bg`` the ``Ba`` field holds the bank-group bits below the 
 Ramulator's DDR4 (so consecutive banks of the flat index alternate bank groups). Field widths come
 from the memspec: ``log2`` of channels, ranks, bank groups, banks per group, rows, and of the
 columns per burst (``nbrOfColumns / burstLength``); the offset is ``log2`` of the transaction size
-(``width × devices × burstLength / 8`` bytes, 64 for a 64-bit BL8 channel). Address bits above the
+(``width × devices × burstLength / 8`` bytes, 64 for a 64-bit BL8 channel; the ECC devices of
+a 72-bit rank carry no address bits). Address bits above the
 mapped ones are ignored (the address wraps), as in Ramulator.
 
 ``xor_bank=True`` XORs the flat bank index with the XOR-fold of the row bits (permutation-based
@@ -80,7 +81,10 @@ class Geometry:
         """
         bankgroups = int(getattr(spec, "nbr_of_bankgroups", 1) or 1)
         banks = int(spec.nbr_of_banks)
-        transaction = int(spec.width) * int(spec.nbr_of_devices) * int(spec.burst_length) // 8
+        # an ECC rank (e.g. 9 x8 devices, 72 bits) carries 64 data bits: round down to a power of two
+        bus_bits = int(spec.width) * int(spec.nbr_of_devices)
+        bus_bits = 1 << (bus_bits.bit_length() - 1) if bus_bits > 0 else 0
+        transaction = bus_bits * int(spec.burst_length) // 8
         geometry = cls(
             channels=int(channels if channels is not None else spec.nbr_of_channels),
             ranks=int(spec.nbr_of_ranks),

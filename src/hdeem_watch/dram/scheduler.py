@@ -7,15 +7,19 @@ last ``read_queue`` places before the drain started are served after it. The dra
 read phases are computed in closed form from the arrival positions.
 
 Within a read phase (cut into windows of at most ``window`` reads) and within a write batch,
-FR-FCFS serves the requests to an open row before older requests to other rows: requests are
-grouped by (bank, row) in order of first appearance, each group in arrival order, at most
-``hit_cap`` requests per turn (Ramulator 1 caps hits at 16; ``None`` = uncapped, Ramulator 2).
+FR-FCFS serves the requests to an open row before older requests to other rows of that bank:
+within each bank, requests are grouped by row in order of first appearance (the row left open by
+the previous segment first), each group in arrival order, at most ``hit_cap + 1`` per turn
+(Ramulator 1 caps hits at 16; ``None`` = uncapped, as Ramulator 2). Different banks keep the
+places their requests had in arrival order, so bank groups and ranks stay interleaved.
 
 Example:
     >>> import numpy as np
     >>> bank = np.zeros(6, dtype=np.int64); row = np.array([1, 2, 1, 2, 1, 2])
     >>> service_order(bank, row, np.zeros(6, dtype=bool)).tolist()
     [0, 2, 4, 1, 3, 5]
+    >>> service_order(np.array([0, 1, 0, 1]), np.array([1, 1, 2, 1]), np.zeros(4, dtype=bool)).tolist()
+    [0, 1, 2, 3]
 """
 
 from __future__ import annotations
@@ -46,8 +50,8 @@ class SchedulerConfig:
     low: float = 0.2
     hit_cap: int | None = 16
     window: int = 64
-    hidden_turnaround: int = 5
-    hidden_bank: int = 12
+    hidden_turnaround: int = 3
+    hidden_bank: int = 13
 
     def __post_init__(self) -> None:
         if self.read_queue < 1 or self.write_queue < 2 or self.window < 1:
@@ -156,5 +160,14 @@ def service_order(bank: np.ndarray, row: np.ndarray, is_write: np.ndarray,
     if config.hit_cap is not None:
         chunk[by_group] = rank_in_group // (config.hit_cap + 1)
     seg_len = int(np.diff(np.append(seg_start, n)).max())
-    order_key = seg_id * ((seg_len + 1) * (seg_len + 2)) + chunk * (seg_len + 1) + local_first + 1
-    return served[np.argsort(order_key, kind="stable")]
+    # Each bank keeps the places its requests had (banks interleave as they arrived, e.g. across
+    # bank groups); within a bank the places are refilled in row-grouped order.
+    banks = int(bank.max()) + 1
+    bank_s = bank[served].astype(np.int64)
+    slot_key = seg_id * banks + bank_s
+    slots = np.argsort(slot_key, kind="stable")
+    width = (seg_len + 1) * (seg_len + 2)
+    grouped = np.argsort(slot_key * width + chunk * (seg_len + 1) + local_first + 1, kind="stable")
+    out = np.empty(n, dtype=np.int64)
+    out[slots] = served[grouped]
+    return out

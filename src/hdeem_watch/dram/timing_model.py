@@ -160,15 +160,24 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     pre_cycle = refresh.real(pre_t[explicit_pre])
 
     last_real = int(col_real[-1]) + (np.where(write[-1], timing.wl, timing.rl) + b) if n else 0
+    shift = np.int64(1) << np.int64(42)
+    act_keys = gbank[act_req] * shift + act_cycle
     auto_cycle = np.zeros(0, dtype=np.int64)
     auto_req = np.flatnonzero(auto)
     if auto_req.size:
-        act_real_of = np.zeros(n, dtype=np.int64)
-        act_real_of[act_req] = act_cycle  # the latest ACT of a request wins (the re-activation)
-        opened = act_real_of[run_start[auto_req]]
+        # the implicit precharge of RDA/WRA: after tRAS from the ACT that opened the row and after
+        # the read (tRTP) or write recovery
+        sorted_acts = np.sort(act_keys)
+        latest = np.searchsorted(sorted_acts, gbank[auto_req] * shift + col_real[auto_req], side="right") - 1
+        opened = sorted_acts[np.maximum(latest, 0)] % shift
         auto_cycle = np.maximum(opened + timing.ras, col_real[auto_req] + recovery[auto_req])
     end = int(max(last_real, int(act_cycle.max()) if act_cycle.size else 0,
                   int(auto_cycle.max()) + 1 if auto_cycle.size else 0))
+    # an implicit precharge after a refresh's PREA closes nothing (the PREA did)
+    next_ref = (col_real[auto_req] // timing.refi + 1) * timing.refi
+    preempted = (next_ref < auto_cycle) & (next_ref <= end)
+    auto_req = auto_req[~preempted]
+    auto_cycle = auto_cycle[~preempted]
     n_ref = end // timing.refi
     ref_cycle = timing.refi * np.arange(1, n_ref + 1, dtype=np.int64)
 
@@ -177,9 +186,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     act_bank = gbank[act_req]
     close_key_bank = np.concatenate((gbank[pre_req], gbank[auto_req]))
     close_time = np.concatenate((pre_cycle, auto_cycle))
-    shift = np.int64(1) << np.int64(42)
     close_keys = np.sort(close_key_bank * shift + close_time)
-    act_keys = act_bank * shift + act_cycle
     pos = np.searchsorted(close_keys, act_keys, side="left")
     found = pos < close_keys.size
     padded = np.append(close_keys, np.int64(-1))
@@ -195,9 +202,10 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
         act_cycle=act_cycle, act_rank=rank[act_req], act_bank=bank[act_req], act_row=row[act_req],
         pre_cycle=pre_cycle, pre_rank=rank[pre_req], pre_bank=bank[pre_req],
         col_cycle=col_real, col_rank=rank, col_bank=bank, col_row=row, col_column=column,
-        col_write=write, col_auto=auto, ref_cycle=ref_cycle, end_cycle=end,
+        col_write=write, col_auto=auto, ref_cycle=ref_cycle, end_cycle=end, refa_delay=timing.rp,
     )
-    stats = stats_from_commands(geometry, timing, commands, rank[act_req], act_cycle, close, by_prea)
+    stats = stats_from_commands(geometry, timing, commands, rank[act_req], act_cycle, close, by_prea,
+                                 rank[auto_req])
     writes = int(np.count_nonzero(write))
     return ControllerResult(
         stats=stats, requests=n, reads=n - writes, writes=writes,
