@@ -171,10 +171,9 @@ class FallbackModel:
         return CommandStats(ranks=(rank,) * self.ranks)
 
     def idle_stats(self, window_s: float) -> CommandStats:
-        """All banks precharged, refresh every REFI."""
+        """No commands: all banks precharged, a refresh every REFI (the calibrator's idle row)."""
         total = window_s / self.tck_s
-        ref = total / self.refi
-        rank = RankStats(ref=ref, cycles_total=total, cycles_act=ref * self.rfc, cycles_pre=total - ref * self.rfc)
+        rank = RankStats(ref=total / self.refi, cycles_total=total, cycles_pre=total)
         return CommandStats(ranks=(rank,) * self.ranks)
 
     def linear(self, stats: CommandStats) -> tuple[np.ndarray, float]:
@@ -218,13 +217,10 @@ class DramModel:
         return self._cache[key]
 
     def idle_stats(self, window_s: float) -> CommandStats:
-        """All banks precharged, refresh every REFI."""
+        """No commands: all banks precharged, a refresh every REFI — the form the calibrator gives an
+        idle run (``calibrate.rows.stretch_stats`` of empty statistics), so idle energy matches it."""
         total = window_s / self.tck_s
-        refi = float(self.spec.timings["REFI"])
-        rfc = float(self.spec.timings.get("RFC1", self.spec.timings.get("RFC", 0)))
-        ref = total / refi
-        rank = RankStats(ref=ref, cycles_total=total, cycles_act=ref * rfc, cycles_pre=total - ref * rfc,
-                         bank_active_cycles=ref * rfc * self.spec.nbr_of_banks)
+        rank = RankStats(ref=total / float(self.spec.timings["REFI"]), cycles_total=total, cycles_pre=total)
         return CommandStats(ranks=(rank,) * self.spec.nbr_of_ranks)
 
     def linear(self, stats: CommandStats) -> tuple[np.ndarray, float]:
