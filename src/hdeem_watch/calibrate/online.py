@@ -50,6 +50,13 @@ class OnlineCalibrator:
         max_history: fits kept in :attr:`history` (oldest dropped first).
         drift_lag_s: how far back the reference fit of :meth:`drift` is (default half-life).
         loo: leave-one-out mode of each refit (``"hat"``: cheap).
+
+    Example::
+
+        calib = OnlineCalibrator(spec, half_life_s=14 * 86400)
+        fit_now = calib.add_run(observation_from_run(spec, stats, window_s, measured_j, time_ns=t))
+        state = calib.to_dict()                         # persist (JSON)
+        calib = OnlineCalibrator.from_dict(state, spec) # after a restart
     """
 
     def __init__(self, spec: Any, *, currents: Sequence[str] = DEFAULT_CURRENTS,

@@ -40,6 +40,13 @@ class FitResult:
 
     Arrays are over :attr:`currents`. Use :meth:`to_dict` for the JSON contract (DESIGN.md §7).
     Compared by identity (it holds arrays); compare ``to_dict()`` for equal content.
+
+    Example::
+
+        result = fit(rows, spec)
+        result.calibrated["idd3n"]                      # amperes
+        result.to_dict()["currents"]["idd3n"]["ci95"]   # [low, high] amperes
+        spec.with_currents(result.calibrated)           # the calibrated memspec
     """
 
     currents: tuple[str, ...]
