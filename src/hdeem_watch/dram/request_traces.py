@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -112,3 +113,267 @@ def write_requests(path: str | Path, addresses: np.ndarray, is_write: np.ndarray
     with open(path, "wb") as handle:
         for chunk in iter_formatted(addresses, is_write, fmt):
             handle.write(chunk)
+
+
+# ----------------------------------------------------------------------------------------- readers
+
+@dataclass(frozen=True)
+class RequestTrace:
+    """DRAM requests read from a trace.
+
+    Attributes:
+        addresses: physical byte addresses (``uint64``), in order.
+        is_write: write flags.
+        cpu_accesses: CPU accesses before the cache filter (0 for DRAM-level traces).
+    """
+
+    addresses: np.ndarray
+    is_write: np.ndarray
+    cpu_accesses: int = 0
+
+
+@dataclass(frozen=True)
+class CacheConfig:
+    """A last-level cache in front of a CPU trace: set-associative, LRU, write-allocate, write-back.
+
+    Attributes:
+        size_bytes: capacity.
+        ways: associativity.
+        line_bytes: line size (the DRAM request size).
+        flush: write back the dirty lines still cached at the end of the trace.
+    """
+
+    size_bytes: int = 8 << 20
+    ways: int = 16
+    line_bytes: int = 64
+    flush: bool = False
+
+    def __post_init__(self) -> None:
+        sets = self.size_bytes // max(1, self.ways * self.line_bytes)
+        if self.ways < 1 or self.line_bytes < 1 or sets < 1 or sets * self.ways * self.line_bytes != self.size_bytes:
+            raise InputError(f"cache: {self.size_bytes} bytes, {self.ways} ways, {self.line_bytes}-byte lines "
+                             "do not make a whole number of sets")
+        if self.line_bytes & (self.line_bytes - 1):
+            raise InputError(f"cache: line size {self.line_bytes} is not a power of two")
+
+    @property
+    def sets(self) -> int:
+        """Number of sets."""
+        return self.size_bytes // (self.ways * self.line_bytes)
+
+
+def cache_filter(line_addresses: np.ndarray, is_write: np.ndarray, cache: CacheConfig) -> tuple[np.ndarray, np.ndarray]:
+    """DRAM requests caused by CPU accesses to cache lines (line-aligned byte addresses).
+
+    A miss reads the line (a write allocates it too); evicting a dirty line writes it back, right
+    after the read that replaced it. Consecutive accesses to one line are merged first (they are
+    hits that only set the dirty bit), so the per-access loop runs on the line sequence only.
+    """
+    lines = np.asarray(line_addresses, dtype=np.uint64)
+    writes = np.asarray(is_write, dtype=bool)
+    if lines.size == 0:
+        return np.zeros(0, dtype=np.uint64), np.zeros(0, dtype=bool)
+    # merge runs of the same line (vectorised)
+    start = np.concatenate(([True], lines[1:] != lines[:-1]))
+    run_id = np.cumsum(start) - 1
+    run_lines = lines[start]
+    run_write = np.zeros(run_lines.size, dtype=bool)
+    np.logical_or.at(run_write, run_id, writes)
+    line_bytes = np.uint64(cache.line_bytes)
+    set_index = ((run_lines // line_bytes) % np.uint64(cache.sets)).astype(np.int64).tolist()
+    ways = cache.ways
+    sets: dict[int, dict[int, bool]] = {}
+    out_addr: list[int] = []
+    out_write: list[bool] = []
+    for address, write, index in zip(run_lines.tolist(), run_write.tolist(), set_index):
+        content = sets.get(index)
+        if content is None:
+            content = sets[index] = {}
+        dirty = content.pop(address, None)
+        if dirty is None:  # miss: fetch the line, evict the least recently used
+            out_addr.append(address)
+            out_write.append(False)
+            if len(content) >= ways:
+                victim = next(iter(content))
+                if content.pop(victim):
+                    out_addr.append(victim)
+                    out_write.append(True)
+            dirty = False
+        content[address] = dirty or write  # most recently used last (dict keeps insertion order)
+    if cache.flush:
+        for content in sets.values():
+            for address, dirty in content.items():
+                if dirty:
+                    out_addr.append(address)
+                    out_write.append(True)
+    return np.array(out_addr, dtype=np.uint64), np.array(out_write, dtype=bool)
+
+
+_HEX_VALUE = np.full(256, 255, dtype=np.uint8)
+for _i, _c in enumerate(b"0123456789abcdef"):
+    _HEX_VALUE[_c] = _i
+for _i, _c in enumerate(b"ABCDEF"):
+    _HEX_VALUE[_c] = 10 + _i
+
+
+def _fail(path: str | Path, line: int, text: bytes, expected: str) -> InputError:
+    shown = text[:60].decode("utf-8", "replace")
+    return InputError(f"{path}:{line}: {shown!r} is not a valid request; expected {expected}")
+
+
+def _lines(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    buf = np.frombuffer(data, dtype=np.uint8)
+    newline = np.flatnonzero(buf == 10)
+    ends = newline if (buf.size == 0 or buf[-1] == 10) else np.append(newline, buf.size)
+    starts = np.concatenate(([0], ends[:-1] + 1)) if ends.size else np.zeros(0, dtype=np.int64)
+    ends = ends - ((ends > starts) & (buf[np.maximum(ends - 1, 0)] == 13))  # tolerate CRLF
+    return buf, starts.astype(np.int64), ends.astype(np.int64)
+
+
+def _parse_hex(buf: np.ndarray, begin: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Values of the hex fields ``buf[begin:end]`` and a per-field validity mask."""
+    length = end - begin
+    valid = (length >= 1) & (length <= 16)
+    length = np.where(valid, length, 1)
+    begin = np.where(valid, begin, 0)
+    total = int(length.sum())
+    offsets = np.cumsum(length) - length
+    within = np.arange(total, dtype=np.int64) - np.repeat(offsets, length)
+    digits = _HEX_VALUE[buf[np.repeat(begin, length) + within]]
+    bad = digits == 255
+    if bad.any():
+        valid &= ~np.logical_or.reduceat(bad, offsets)
+    shift = (4 * (np.repeat(length, length) - 1 - within)).astype(np.uint64)
+    values = np.add.reduceat(np.where(bad, 0, digits).astype(np.uint64) << shift, offsets)
+    return values, valid
+
+
+def _read_dram_trace(path: str | Path, fmt: str) -> RequestTrace:
+    data = Path(path).read_bytes()
+    addresses: list[np.ndarray] = []
+    writes: list[np.ndarray] = []
+    buf, starts, ends = _lines(data)
+    keep = ends > starts  # blank lines are skipped
+    line_no = np.flatnonzero(keep) + 1
+    starts, ends = starts[keep], ends[keep]
+    chunk = 1 << 20
+    expected = "'0x<hex address> R|W'" if fmt == "ramulator" else "'LD|ST 0x<hex address>'"
+    for first in range(0, starts.size, chunk):
+        s, e = starts[first:first + chunk], ends[first:first + chunk]
+        if fmt == "ramulator":
+            kind = buf[np.maximum(e - 1, 0)]
+            ok = (e - s >= 6) & (buf[s] == ord("0")) & (buf[np.minimum(s + 1, buf.size - 1)] == ord("x"))
+            ok &= (buf[np.maximum(e - 2, 0)] == ord(" ")) & ((kind == ord("R")) | (kind == ord("W")))
+            values, valid = _parse_hex(buf, s + 2, e - 2)
+            is_write = kind == ord("W")
+        else:
+            head = buf[s].astype(np.int64) * 256 + buf[np.minimum(s + 1, buf.size - 1)]
+            load, store = ord("L") * 256 + ord("D"), ord("S") * 256 + ord("T")
+            ok = (e - s >= 6) & ((head == load) | (head == store))
+            ok &= (buf[np.minimum(s + 2, buf.size - 1)] == ord(" ")) & (buf[np.minimum(s + 3, buf.size - 1)] == ord("0"))
+            ok &= buf[np.minimum(s + 4, buf.size - 1)] == ord("x")
+            values, valid = _parse_hex(buf, s + 5, e)
+            is_write = head == store
+        ok &= valid
+        if not ok.all():
+            bad = int(np.flatnonzero(~ok)[0])
+            raise _fail(path, int(line_no[first + bad]), data[s[bad]:e[bad]], expected)
+        addresses.append(values)
+        writes.append(is_write)
+    if not addresses:
+        return RequestTrace(np.zeros(0, dtype=np.uint64), np.zeros(0, dtype=bool))
+    return RequestTrace(np.concatenate(addresses), np.concatenate(writes))
+
+
+def _split_access(address: int, size: int, line_bytes: int) -> range:
+    first = address - address % line_bytes
+    return range(first, address + max(size, 1), line_bytes)
+
+
+def _read_pinatrace(path: str | Path) -> tuple[list[int], list[bool], int]:
+    addresses: list[int] = []
+    writes: list[bool] = []
+    count = 0
+    with open(path, "rb") as handle:
+        for number, raw in enumerate(handle, 1):
+            text = raw.strip()
+            if not text or text.startswith(b"#"):
+                continue
+            parts = text.split()
+            try:
+                if len(parts) != 3 or not parts[0].endswith(b":") or parts[1] not in (b"R", b"W"):
+                    raise ValueError
+                int(parts[0][:-1], 16)
+                address = int(parts[2], 16)
+            except ValueError:
+                raise _fail(path, number, text, "'0x<ip>: R|W 0x<address>' (Pin pinatrace)") from None
+            addresses.append(address)
+            writes.append(parts[1] == b"W")
+            count += 1
+    return addresses, writes, count
+
+
+def _read_lackey(path: str | Path, instructions: bool) -> tuple[list[int], list[int], list[bool], int]:
+    addresses: list[int] = []
+    sizes: list[int] = []
+    writes: list[bool] = []
+    count = 0
+    kinds = {b"L": (False,), b"S": (True,), b"M": (False, True), b"I": (False,)}
+    with open(path, "rb") as handle:
+        for number, raw in enumerate(handle, 1):
+            text = raw.rstrip(b"\r\n")
+            if not text.strip() or text.startswith(b"=="):
+                continue
+            parts = text.split()
+            try:
+                if len(parts) != 2 or parts[0] not in kinds:
+                    raise ValueError
+                field, _, size = parts[1].partition(b",")
+                address, length = int(field, 16), int(size)
+            except ValueError:
+                raise _fail(path, number, text, "' L|S|M <hex address>,<size>' or 'I  <hex address>,<size>' "
+                                                "(valgrind lackey --trace-mem=yes)") from None
+            count += 1
+            if parts[0] == b"I" and not instructions:
+                continue
+            for write in kinds[parts[0]]:
+                addresses.append(address)
+                sizes.append(length)
+                writes.append(write)
+    return addresses, sizes, writes, count
+
+
+def read_request_trace(path: str | Path, fmt: str, *, cache: CacheConfig | None = None,
+                       instructions: bool = False) -> RequestTrace:
+    """Read a request trace.
+
+    Args:
+        path: the file.
+        fmt: one of :data:`FORMATS`.
+        cache: the last-level cache CPU traces (``pinatrace``, ``lackey``) go through
+            (default: 8 MiB, 16 ways, 64-byte lines).
+        instructions: also feed lackey's instruction fetches (``I`` lines) to the cache.
+
+    Raises:
+        InputError: ``file:line`` and what was wrong, for a malformed line; or a bad format.
+    """
+    if fmt not in FORMATS:
+        raise InputError(f"--format {fmt!r}: expected one of {', '.join(FORMATS)}")
+    if not Path(path).is_file():
+        raise InputError(f"{path}: no such trace file")
+    if fmt in ("ramulator", "ramulator2"):
+        return _read_dram_trace(path, fmt)
+    cache = cache or CacheConfig()
+    if fmt == "pinatrace":
+        addresses, writes, count = _read_pinatrace(path)
+        sizes = [1] * len(addresses)  # pinatrace records no size
+    else:
+        addresses, sizes, writes, count = _read_lackey(path, instructions)
+    line_addresses: list[int] = []
+    line_writes: list[bool] = []
+    for address, size, write in zip(addresses, sizes, writes):
+        for line in _split_access(address, size, cache.line_bytes):
+            line_addresses.append(line)
+            line_writes.append(write)
+    dram, dram_writes = cache_filter(np.array(line_addresses, dtype=np.uint64), np.array(line_writes, dtype=bool), cache)
+    return RequestTrace(dram, dram_writes, cpu_accesses=count)
