@@ -1,9 +1,187 @@
-"""Placeholder: not built yet (its issue is open)."""
+"""``hdeem-watch model stats`` and ``hdeem-watch model kernel``: DRAM command statistics.
+
+Usage::
+
+    hdeem-watch model stats --trace FILE --format ramulator|ramulator2|pinatrace|lackey|drampower
+                            --memspec M.json [--mapping SCHEME] [--xor-bank] [--policy open|closed]
+                            [--llc-bytes N --llc-ways W] [--emit-drampower OUT.csv] [--json]
+    hdeem-watch model kernel --kernel NAME --elements N --threads T --memspec M.json
+                             [--repeat K] [--channels C] [--mapping SCHEME] [--policy P] [--json]
+
+``stats`` runs a request trace through the controller model (``drampower``: reads a command trace
+directly); ``kernel`` models a STREAM-like kernel run. ``--json`` prints one object with
+``requests, reads, writes, act, pre, ref, row_hits, row_misses, row_conflicts, cycles`` (totals
+over the ranks), ``ranks`` (per-rank statistics), and ``energy`` (``core_j`` and ``components``
+from the DRAMPower-equivalent model). Bad input: one line on stderr, exit code 2.
+"""
 
 from __future__ import annotations
 
+import argparse
+import json
+import sys
+from pathlib import Path
 from typing import Any
+
+from hdeem_watch.dram.kernels import KERNELS
+from hdeem_watch.dram.mapping import SCHEMES
+from hdeem_watch.dram.stats import CommandStats
+from hdeem_watch.errors import InputError
+
+STATS_FORMATS = ("ramulator", "ramulator2", "pinatrace", "lackey", "drampower")
+
+
+def _spec(value: str) -> Any:
+    from hdeem_watch.cli.model_energy import resolve_memspec
+
+    return resolve_memspec(value)
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} is negative")
+    return value
 
 
 def register(subparsers: Any) -> None:
-    """Add nothing yet."""
+    """Add ``model stats`` and ``model kernel`` to the ``model`` subcommand's subparsers."""
+    stats = subparsers.add_parser(
+        "stats", help="DRAM command statistics of a memory-request trace (the Ramulator step)",
+        description="Run a request trace through the vectorised DDR4 controller model.")
+    stats.add_argument("--trace", required=True, metavar="FILE", help="request or command trace")
+    stats.add_argument("--format", required=True, choices=STATS_FORMATS, help="trace format")
+    stats.add_argument("--memspec", required=True, metavar="M.json", help="DRAMPower JSON memspec or preset name")
+    _controller_options(stats)
+    stats.add_argument("--llc-bytes", type=_positive, default=8 << 20, metavar="N",
+                       help="last-level cache in front of pinatrace/lackey traces (default 8 MiB)")
+    stats.add_argument("--llc-ways", type=_positive, default=16, metavar="W", help="its associativity (default 16)")
+    stats.add_argument("--llc-flush", action="store_true", help="write back the dirty lines left at the end")
+    stats.add_argument("--emit-drampower", metavar="OUT.csv", help="also write the commands as a DRAMPower trace")
+    stats.add_argument("--json", action="store_true", help="print one JSON object")
+    stats.set_defaults(func=run_stats)
+
+    kernel = subparsers.add_parser(
+        "kernel", help="DRAM command statistics of a STREAM-like kernel run",
+        description="Model the DRAM traffic of a kernel (stride 8 doubles, write-allocate) on one channel.")
+    kernel.add_argument("--kernel", required=True, metavar="NAME", help=f"one of {', '.join(KERNELS)}")
+    kernel.add_argument("--elements", required=True, type=_positive, metavar="N", help="doubles per array")
+    kernel.add_argument("--threads", required=True, type=_positive, metavar="T", help="threads")
+    kernel.add_argument("--memspec", required=True, metavar="M.json", help="DRAMPower JSON memspec or preset name")
+    kernel.add_argument("--repeat", type=_positive, default=1, metavar="K", help="passes (default 1)")
+    kernel.add_argument("--channels", type=_positive, default=1, metavar="C",
+                        help="channels sharing the traffic; statistics are for one of them (default 1)")
+    _controller_options(kernel)
+    kernel.add_argument("--json", action="store_true", help="print one JSON object")
+    kernel.set_defaults(func=run_kernel)
+
+
+def _controller_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--mapping", default="RoBaRaCoCh", metavar="SCHEME",
+                        help=f"address mapping, MSB to LSB (default RoBaRaCoCh; e.g. {', '.join(SCHEMES)})")
+    parser.add_argument("--xor-bank", action="store_true", help="XOR bank hashing")
+    parser.add_argument("--policy", choices=("open", "closed"), default="open", help="row-buffer policy")
+
+
+def _energy(spec: Any, stats: CommandStats) -> dict[str, Any] | None:
+    try:
+        from hdeem_watch.dram.energy import core_energy
+    except ImportError:  # pragma: no cover - the energy model ships with the package
+        return None
+    energy = core_energy(spec, stats)
+    return {"core_j": energy.core_j, "components": dict(energy.components)}
+
+
+def summary(stats: CommandStats, *, requests: float, reads: float, writes: float, row_hits: float | None,
+            row_misses: float | None, row_conflicts: float | None, cycles: float) -> dict[str, Any]:
+    """The ``--json`` keys of DESIGN.md section 7 (pure)."""
+    return {
+        "requests": requests, "reads": reads, "writes": writes,
+        "act": stats.total("act"), "pre": stats.total("pre"), "ref": stats.total("ref"),
+        "rd": stats.total("rd") + stats.total("rda"), "wr": stats.total("wr") + stats.total("wra"),
+        "row_hits": row_hits, "row_misses": row_misses, "row_conflicts": row_conflicts,
+        "cycles": cycles, "ranks": [rank.to_dict() for rank in stats.ranks],
+    }
+
+
+def _print(data: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        sys.stdout.write(json.dumps(data) + "\n")
+        return
+    lines = []
+    for key in ("trace", "kernel", "requests", "reads", "writes", "act", "pre", "ref", "row_hits",
+                "row_misses", "row_conflicts", "cycles"):
+        if key in data and data[key] is not None:
+            value = data[key]
+            lines.append(f"{key:<14}{value:>16,.0f}" if isinstance(value, int | float) else f"{key:<14}{value:>16}")
+    if data.get("energy"):
+        lines.append(f"{'core energy':<14}{data['energy']['core_j']:>16.6e} J")
+    for r, rank in enumerate(data["ranks"]):
+        lines.append(f"rank {r}: act {rank['act']:.0f} pre {rank['pre']:.0f} rd {rank['rd'] + rank['rda']:.0f} "
+                     f"wr {rank['wr'] + rank['wra']:.0f} ref {rank['ref']:.0f} cycles act/pre "
+                     f"{rank['cycles_act']:.0f}/{rank['cycles_pre']:.0f}")
+    sys.stdout.write("\n".join(lines) + "\n")
+
+
+def run_stats(args: argparse.Namespace) -> int:
+    """``model stats``."""
+    spec = _spec(args.memspec)
+    if args.format == "drampower":
+        if args.emit_drampower:
+            raise InputError("--emit-drampower: the input already is a DRAMPower trace")
+        from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+
+        trace = read_command_trace(args.trace)
+        stats = trace_stats(spec, trace)
+        rd, wr = stats.total("rd") + stats.total("rda"), stats.total("wr") + stats.total("wra")
+        data = summary(stats, requests=rd + wr, reads=rd, writes=wr, row_hits=None, row_misses=None,
+                       row_conflicts=None, cycles=stats.ranks[0].cycles_total if stats.ranks else 0.0)
+    else:
+        from hdeem_watch.dram.controller import simulate
+        from hdeem_watch.dram.request_traces import CacheConfig, read_request_trace
+
+        cache = CacheConfig(size_bytes=args.llc_bytes, ways=args.llc_ways, flush=args.llc_flush)
+        requests = read_request_trace(args.trace, args.format, cache=cache)
+        result = simulate(spec, requests.addresses, requests.is_write, policy=args.policy, mapping=args.mapping,
+                          xor_bank=args.xor_bank)
+        stats = result.stats
+        data = summary(stats, requests=result.requests, reads=result.reads, writes=result.writes,
+                       row_hits=result.row_hits, row_misses=result.row_misses,
+                       row_conflicts=result.row_conflicts, cycles=result.cycles)
+        if requests.cpu_accesses:
+            data["cpu_accesses"] = requests.cpu_accesses
+        if args.emit_drampower:
+            from hdeem_watch.dram.command_emit import write_drampower_trace
+
+            try:
+                data["drampower_commands"] = write_drampower_trace(Path(args.emit_drampower), result)
+            except OSError as error:
+                raise InputError(f"--emit-drampower {args.emit_drampower}: {error.strerror}") from None
+            data["drampower_trace"] = str(args.emit_drampower)
+    data["trace"] = str(args.trace)
+    data["energy"] = _energy(spec, stats)
+    _print(data, args.json)
+    return 0
+
+
+def run_kernel(args: argparse.Namespace) -> int:
+    """``model kernel``."""
+    from hdeem_watch.dram.kernels import canonical_kernel, kernel_stats
+
+    spec = _spec(args.memspec)
+    name = canonical_kernel(args.kernel)
+    if args.threads < 1 or args.channels < 1:
+        raise InputError("--threads and --channels must be at least 1")
+    model = kernel_stats(spec, name, args.elements, args.threads, repeat=args.repeat, channels=args.channels,
+                         mapping=args.mapping, policy=args.policy, xor_bank=args.xor_bank)
+    data = summary(model.stats, requests=model.reads + model.writes, reads=model.reads, writes=model.writes,
+                   row_hits=model.row_hits, row_misses=model.row_misses, row_conflicts=model.row_conflicts,
+                   cycles=model.cycles)
+    data.update(kernel=name, elements=args.elements, threads=args.threads, repeat=args.repeat,
+                channels=args.channels, seconds=model.cycles * spec.tck_s, prefix_scale=model.scale)
+    data["energy"] = _energy(spec, model.stats)
+    _print(data, args.json)
+    return 0

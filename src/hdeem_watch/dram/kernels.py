@@ -193,7 +193,7 @@ _CACHE: dict[tuple[Any, ...], Any] = {}
 
 
 def _simulate_prefix(spec: Any, name: str, lines: int, threads: int, steps: int, policy: str,
-                     mapping: str) -> Any:
+                     mapping: str, xor_bank: bool = False) -> Any:
     """Simulate each thread's first ``steps`` iterations over ``lines`` lines (cached: the daemon
     asks for the same runs again)."""
     from hdeem_watch.dram.controller import simulate
@@ -202,13 +202,13 @@ def _simulate_prefix(spec: Any, name: str, lines: int, threads: int, steps: int,
         key: tuple[Any, ...] | None = (
             getattr(spec, "memory_id", None), tuple(sorted(spec.timings.items())), spec.nbr_of_ranks,
             spec.nbr_of_banks, spec.nbr_of_bankgroups, spec.nbr_of_rows, spec.nbr_of_columns,
-            spec.burst_length, spec.width, spec.nbr_of_devices, name, lines, threads, steps, policy, mapping)
+            spec.burst_length, spec.width, spec.nbr_of_devices, name, lines, threads, steps, policy, mapping, xor_bank)
     except (AttributeError, TypeError):
         key = None
     if key is not None and key in _CACHE:
         return _CACHE[key]
     addresses, is_write = kernel_requests(name, lines * STRIDE_DOUBLES, threads, max_steps=steps)
-    result = simulate(spec, addresses, is_write, policy=policy, mapping=mapping)
+    result = simulate(spec, addresses, is_write, policy=policy, mapping=mapping, xor_bank=xor_bank)
     if key is not None:
         if len(_CACHE) > 256:
             _CACHE.clear()
@@ -227,6 +227,7 @@ def kernel_stats(
     mapping: str = "RoBaRaCoCh",
     max_requests: int = 2_000_000,
     policy: str = "open",
+    xor_bank: bool = False,
 ) -> KernelModel:
     """Command statistics of ``repeat`` passes of ``kernel`` on ONE of ``channels`` channels.
 
@@ -245,6 +246,7 @@ def kernel_stats(
         mapping: address-mapping scheme of the channel.
         max_requests: the largest prefix simulated.
         policy: row-buffer policy, ``"open"`` or ``"closed"``.
+        xor_bank: XOR bank hashing in the mapping.
 
     Raises:
         InputError: for a bad kernel, size, thread count, repeat, channel count or mapping.
@@ -265,7 +267,7 @@ def kernel_stats(
     steps = max(1, budget // threads)
     if total_lines == 0 or repeat == 0:
         channel_lines = 0
-    result = _simulate_prefix(spec, name, channel_lines, threads, steps, policy, mapping)
+    result = _simulate_prefix(spec, name, channel_lines, threads, steps, policy, mapping, xor_bank)
     factor = full_requests / result.requests if result.requests else 0.0
     return KernelModel(
         stats=result.stats.scaled(factor),
