@@ -217,6 +217,9 @@ def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None
         message = system.llc_warning(needed, cpus)
         if message:
             warnings.append(message)
+    cores = system.physical_cores()
+    if cores is not None and spec.threads > cores:
+        warnings.append(f"{spec.threads} threads on {cores} physical cores: workers share cores (SMT)")
     scratch_n = K.scratch_size(kernel, K.triad_chunk_lines(llc, spec.threads))
     lines = K.lines_of(spec.elements)
     ranges = K.split_lines(lines, spec.threads)
