@@ -41,7 +41,7 @@ FROZEN_WALL_NS = 1_700_000_000_000_000_000
 FROZEN_MONO_NS = 5_000_000_000
 
 
-def build_frozen_snapshot(node: str = "taurusi6001", *, stale: bool = False):  # type: ignore[no-untyped-def]
+def build_frozen_snapshot(node: str = "taurusi6001", *, stale: bool = False, plot_cells: int = 32):  # type: ignore[no-untyped-def]
     """A deterministic snapshot: 60 s of HDEEM-shaped samples, baselines, runs and a fit, no live data."""
     import numpy as np
 
@@ -93,7 +93,7 @@ def build_frozen_snapshot(node: str = "taurusi6001", *, stale: bool = False):  #
                   "suggest": [["idle-24t", 0.4]]})
     now_mono = FROZEN_MONO_NS + (10 * 10**9 if stale else 0)
     model.last_rx_mono_ns = FROZEN_MONO_NS
-    return model.snapshot(now_mono_ns=now_mono, now_wall_ns=FROZEN_WALL_NS, window_s=60.0, width=2 * (50 - 8))
+    return model.snapshot(now_mono_ns=now_mono, now_wall_ns=FROZEN_WALL_NS, window_s=60.0, width=2 * plot_cells)
 
 
 @pytest.fixture

@@ -69,7 +69,7 @@ def test_demo_in_a_real_terminal() -> None:
         children = psutil.Process(pane_pid).children(recursive=True)
         assert any("daemon" in " ".join(p.cmdline()) for p in children)
         subprocess.run(["tmux", "send-keys", "-t", session, "q"], check=True)
-        gone, alive = psutil.wait_procs([psutil.Process(pane_pid), *children], timeout=20)
+        _, alive = psutil.wait_procs([psutil.Process(pane_pid), *children], timeout=20)
         assert not alive, f"still running after q: {[p.cmdline() for p in alive]}"
     finally:
         subprocess.run(["tmux", "kill-session", "-t", session], capture_output=True, check=False)
@@ -105,7 +105,7 @@ def test_demo_headless_prints_progress_and_stops_the_daemon() -> None:
 def test_demo_schedule_runs_last_about_the_target() -> None:
     """Each demo run is sized with the modelled line rate to last about 1.5 s; a round has idle + 7 kernels at 24 threads."""
     runs = demo_round("24")
-    assert [r.kernel for r in runs][0] == "idle" and len(runs) == 8
+    assert runs[0].kernel == "idle" and len(runs) == 8
     assert all(r.threads == 24 for r in runs)
     for spec in runs:
         assert abs(run_seconds(spec) - TARGET_RUN_S) < 0.2 * TARGET_RUN_S

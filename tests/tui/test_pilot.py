@@ -15,7 +15,7 @@ from hdeem_watch.tui.widgets import ChannelTable, HealthBar
 
 def shown(app: HdeemWatchApp, widget_type: type) -> str:
     """The text a widget currently shows."""
-    return str(app.query_one(widget_type).content)
+    return app.query_one(widget_type).plain
 
 
 async def until(cond: Callable[[], bool], timeout_s: float = 15.0) -> None:

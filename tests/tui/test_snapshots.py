@@ -6,8 +6,9 @@ from hdeem_watch.tui.app import HdeemWatchApp
 from hdeem_watch.tui.provider import StaticProvider
 
 
-def frozen_app(build, *, nodes: int = 1, stale: bool = False) -> HdeemWatchApp:  # type: ignore[no-untyped-def]
-    snaps = [build(f"taurusi600{i + 1}", stale=stale and i == 0) for i in range(nodes)]
+def frozen_app(build, *, nodes: int = 1, stale: bool = False, columns: int = 80) -> HdeemWatchApp:  # type: ignore[no-untyped-def]
+    plot_cells = columns // 2 - 8  # the plot area of the left half
+    snaps = [build(f"taurusi600{i + 1}", stale=stale and i == 0, plot_cells=plot_cells) for i in range(nodes)]
     return HdeemWatchApp(StaticProvider(snaps), fps=2, clock=lambda: snaps[0].built_mono_ns)
 
 
@@ -18,7 +19,7 @@ def test_snapshot_80x24(snap_compare, frozen_snapshot) -> None:  # type: ignore[
 
 def test_snapshot_100x30_two_nodes(snap_compare, frozen_snapshot) -> None:  # type: ignore[no-untyped-def]
     """At 100×30 with two nodes the health bar shows the node dots and n selects the second node."""
-    assert snap_compare(frozen_app(frozen_snapshot, nodes=2), terminal_size=(100, 30), press=["n"])
+    assert snap_compare(frozen_app(frozen_snapshot, nodes=2, columns=100), terminal_size=(100, 30), press=["n"])
 
 
 def test_snapshot_stale(snap_compare, frozen_snapshot) -> None:  # type: ignore[no-untyped-def]

@@ -45,6 +45,9 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("--fps", type=float, default=10.0, help="frames per second (lower it over slow ssh)")
     parser.add_argument("--window", type=float, default=60.0, help="initial plot window in seconds")
+    parser.add_argument(
+        "--stats", metavar="FILE", default=None, help="append frames/CPU/messages each second as JSON lines (benchmarks)"
+    )
     parser.set_defaults(func=_run)
 
 
@@ -105,5 +108,15 @@ def _run(args: argparse.Namespace) -> int:
 
     hub = FeedHub(endpoints, snapshot_hz=min(10.0, max(1.0, args.fps)))
     app = HdeemWatchApp(hub, fps=args.fps, window_s=args.window)
-    app.run()
+    stats = None
+    if args.stats:
+        from hdeem_watch.tui.stats import StatsWriter
+
+        stats = StatsWriter(args.stats, lambda: app.frames, hub)
+        stats.start()
+    try:
+        app.run()
+    finally:
+        if stats is not None:
+            stats.stop()
     return 0

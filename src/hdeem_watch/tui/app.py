@@ -23,6 +23,7 @@ from textual.widgets import Static
 
 from hdeem_watch.tui.provider import Provider
 from hdeem_watch.tui.widgets import CalibPanel, ChannelTable, HealthBar, PowerPlots, RunsPanel
+from hdeem_watch.tui.widgets.lines import LinesWidget
 
 #: Plot windows the +/- keys step through, in seconds.
 WINDOWS_S = (5.0, 10.0, 30.0, 60.0, 120.0, 300.0, 600.0)
@@ -111,6 +112,7 @@ class HdeemWatchApp(App[int]):
         self._n_nodes = max(1, len(provider.snapshots()))
         self._exit_after_s = exit_after_s
         self.baseline_s = baseline_s
+        self._shown_once = False
 
     def compose(self) -> ComposeResult:
         yield HealthBar()
@@ -153,8 +155,14 @@ class HdeemWatchApp(App[int]):
             self.query_one(HealthBar).show(
                 snapshots, self.focus_index, paused=self.paused, stalled=stalled, window_s=self.window_s
             )
-            self.screen.set_class(stalled or snap.health.state in ("stale", "reconnecting"), "-stale")
-            if not self.paused:
+            stale = stalled or snap.health.state in ("stale", "reconnecting")
+            if stale != self.screen.has_class("-stale"):
+                self.screen.set_class(stale, "-stale")
+                self.refresh(repaint=True)
+                for widget in self.query(LinesWidget):
+                    widget.refresh()
+            if not self.paused or not self._shown_once:
+                self._shown_once = self.query_one(PowerPlots).size.width > 0
                 self.query_one(ChannelTable).show(snap)
                 self.query_one(PowerPlots).show(snap)
                 self.query_one(CalibPanel).show(snap.calib)

@@ -32,6 +32,8 @@ from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreach
 from hdeem_watch.tui.model import NodeModel
 from hdeem_watch.tui.snapshot import NodeSnapshot
 
+#: Snapshot period of a node that is not focused (its snapshot only feeds the health bar).
+BACKGROUND_PERIOD_NS = 500_000_000
 #: Timeout of a control request from the UI (plus its ``seconds`` argument, if any).
 REQUEST_TIMEOUT_S = 5.0
 #: How many queued messages one wake-up handles before building a snapshot (bounds latency).
@@ -166,7 +168,9 @@ class NodeFeed(threading.Thread):
                 now = self._clock()
                 if now >= next_snapshot:
                     self.latest = self._build(now)
-                    next_snapshot = max(next_snapshot + self._period_ns, now)
+                    # a node in the background only feeds the health bar's dot: fewer snapshots
+                    period = self._period_ns if self.view.focus == self.index else max(self._period_ns, BACKGROUND_PERIOD_NS)
+                    next_snapshot = max(next_snapshot + period, now)
         finally:
             self._close_sub()
             self._control.close()

@@ -1,6 +1,6 @@
 """A fixed-capacity ring buffer of timed samples (int64 ns, float64 W) for one channel.
 
-Appending is O(batch) with numpy slices; reading a time window returns copies in time order.
+Appending is O(batch) with numpy slices; reading a time window returns its samples in time order.
 The buffer forgets the oldest samples when full, so memory stays bounded however long the UI runs.
 
 Example:
@@ -64,23 +64,35 @@ class SampleRing:
         else:
             self._size += n
 
-    def _ordered(self) -> tuple[np.ndarray, np.ndarray]:
-        if self._start + self._size <= self.capacity:
-            sl = slice(self._start, self._start + self._size)
-            return self._t_ns[sl], self._power_w[sl]
-        return (
-            np.concatenate((self._t_ns[self._start :], self._t_ns[: (self._start + self._size) % self.capacity])),
-            np.concatenate(
-                (self._power_w[self._start :], self._power_w[: (self._start + self._size) % self.capacity])
-            ),
-        )
+    def _segments(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The stored samples as one or two time-ordered views (no copy)."""
+        end = self._start + self._size
+        if end <= self.capacity:
+            return [(self._t_ns[self._start : end], self._power_w[self._start : end])]
+        wrap = end - self.capacity
+        return [
+            (self._t_ns[self._start :], self._power_w[self._start :]),
+            (self._t_ns[:wrap], self._power_w[:wrap]),
+        ]
 
     def window(self, t_from_ns: int, t_to_ns: int) -> tuple[np.ndarray, np.ndarray]:
-        """Samples with ``t_from_ns <= t < t_to_ns`` in time order (copies)."""
-        t, p = self._ordered()
-        lo = int(np.searchsorted(t, t_from_ns, side="left"))
-        hi = int(np.searchsorted(t, t_to_ns, side="left"))
-        return t[lo:hi].copy(), p[lo:hi].copy()
+        """Samples with ``t_from_ns <= t < t_to_ns`` in time order.
+
+        The result may be a view into the ring: read it before the next :meth:`extend`.
+        """
+        parts_t = []
+        parts_p = []
+        for t, p in self._segments():
+            lo = int(np.searchsorted(t, t_from_ns, side="left"))
+            hi = int(np.searchsorted(t, t_to_ns, side="left"))
+            if hi > lo:
+                parts_t.append(t[lo:hi])
+                parts_p.append(p[lo:hi])
+        if not parts_t:
+            return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.float64)
+        if len(parts_t) == 1:
+            return parts_t[0], parts_p[0]
+        return np.concatenate(parts_t), np.concatenate(parts_p)
 
     def last(self) -> tuple[int, float] | None:
         """The newest sample ``(t_ns, power_w)``, None when empty."""

@@ -7,11 +7,11 @@ from __future__ import annotations
 import math
 
 from rich.text import Text
-from textual.widgets import Static
 
 from hdeem_watch.tui.braille import sparkline
 from hdeem_watch.tui.snapshot import CalibView
-from hdeem_watch.tui.widgets.fmt import crop, fixed
+from hdeem_watch.tui.widgets.fmt import fixed
+from hdeem_watch.tui.widgets.lines import LinesWidget
 
 
 def _ma(value_a: float, width: int) -> str:
@@ -66,7 +66,7 @@ def _pct(value: float) -> str:
     return f"{value * 100:.0f}%" if abs(value) >= 0.995 else f"{value * 100:.1f}%"
 
 
-class CalibPanel(Static):
+class CalibPanel(LinesWidget):
     """Calibration state of the focused node."""
 
     def show(self, calib: CalibView) -> None:
@@ -75,4 +75,4 @@ class CalibPanel(Static):
         if key == getattr(self, "_shown", None):
             return
         self._shown = key
-        self.update(crop(calib_text(calib, self.size.width or 40), self.size.width or 40))
+        self.set_text(calib_text(calib, self.size.width or 40))

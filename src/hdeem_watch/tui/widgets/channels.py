@@ -5,10 +5,10 @@ from __future__ import annotations
 import math
 
 from rich.text import Text
-from textual.widgets import Static
 
 from hdeem_watch.tui.snapshot import NodeSnapshot
-from hdeem_watch.tui.widgets.fmt import crop, fixed
+from hdeem_watch.tui.widgets.fmt import fixed
+from hdeem_watch.tui.widgets.lines import LinesWidget
 
 KIND_STYLE = {"dram": "bold cyan", "cpu": "bold magenta", "blade": "bold yellow", "other": "bold"}
 
@@ -38,7 +38,7 @@ def channel_table_text(snapshot: NodeSnapshot, width: int) -> Text:
     return text
 
 
-class ChannelTable(Static):
+class ChannelTable(LinesWidget):
     """Per-channel values of the focused node."""
 
     def show(self, snapshot: NodeSnapshot) -> None:
@@ -47,4 +47,4 @@ class ChannelTable(Static):
         if key == getattr(self, "_shown", None):
             return
         self._shown = key
-        self.update(crop(channel_table_text(snapshot, self.size.width or 40), self.size.width or 40))
+        self.set_text(channel_table_text(snapshot, self.size.width or 40))

@@ -11,10 +11,10 @@ import math
 from collections.abc import Sequence
 
 from rich.text import Text
-from textual.widgets import Static
 
 from hdeem_watch.tui.snapshot import NodeSnapshot
 from hdeem_watch.tui.widgets.fmt import megabytes
+from hdeem_watch.tui.widgets.lines import LinesWidget
 
 _STATE_STYLE = {
     "live": "bold black on green",
@@ -84,7 +84,7 @@ def health_text(
     return text
 
 
-class HealthBar(Static):
+class HealthBar(LinesWidget):
     """One line at the top of the screen."""
 
     DEFAULT_CSS = "HealthBar { height: 1; }"
@@ -93,7 +93,7 @@ class HealthBar(Static):
         self, snapshots: Sequence[NodeSnapshot], focus: int, *, paused: bool, stalled: bool, window_s: float
     ) -> None:
         """Paint the bar."""
-        self.update(
+        self.set_text(
             health_text(
                 snapshots, focus, paused=paused, stalled=stalled, window_s=window_s, width=self.size.width or 80
             )

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-from rich.text import Text
-from textual.widgets import Static
-
 from hdeem_watch.tui.braille import braille_envelope
 from hdeem_watch.tui.downsample import finite_range
 from hdeem_watch.tui.snapshot import ChannelView, NodeSnapshot
 from hdeem_watch.tui.widgets.channels import KIND_STYLE
-from hdeem_watch.tui.widgets.fmt import crop, fixed
+from hdeem_watch.tui.widgets.fmt import fixed
+from hdeem_watch.tui.widgets.lines import LinesWidget, Run
 
 #: Characters left of each strip (channel name, value, axis).
 LABEL_WIDTH = 8
@@ -32,53 +30,49 @@ def strip_heights(n_channels: int, rows: int, kinds: list[str]) -> list[int]:
     return heights
 
 
-def _strip(ch: ChannelView, height: int, plot_width: int) -> list[Text]:
+def _strip(ch: ChannelView, height: int, plot_width: int) -> list[list[Run]]:
     columns = ch.columns
-    lines = [Text(no_wrap=True) for _ in range(height)]
-    lines[0].append(f"{ch.name:<{LABEL_WIDTH}.{LABEL_WIDTH - 1}}", style=KIND_STYLE.get(ch.kind, "bold"))
+    name = (f"{ch.name:<{LABEL_WIDTH}.{LABEL_WIDTH - 1}}", KIND_STYLE.get(ch.kind, "bold"))
+    blank = (" " * LABEL_WIDTH, "")
     if columns is None:
-        for line in lines[1:]:
-            line.append(" " * LABEL_WIDTH)
-        for line in lines:
-            line.append("·" * plot_width, style="dim")
-        return lines
+        return [[name if i == 0 else blank, ("·" * plot_width, "dim")] for i in range(height)]
     bounds = finite_range(columns.min_w, columns.max_w)
     lo, hi = bounds if bounds is not None else (0.0, 1.0)
     pad = max((hi - lo) * 0.05, 0.25)
     lo, hi = lo - pad, hi + pad
     rows = braille_envelope(columns.min_w, columns.max_w, lo=lo, hi=hi, height=height)
-    labels = [fixed(hi, LABEL_WIDTH - 1, 1) + " ", fixed(lo, LABEL_WIDTH - 1, 1) + " "]
-    for i, line in enumerate(lines):
+    style = _STRIP_STYLE.get(ch.kind, "white")
+    lines: list[list[Run]] = []
+    for i in range(height):
         if i == 0:
-            pass  # the channel name is already there
+            label = name
         elif i == height - 1:
-            line.append(labels[1], style="dim")
-        elif i == 1 and height > 2:
-            line.append(labels[0], style="dim")
+            label = (fixed(lo, LABEL_WIDTH - 1, 1) + " ", "dim")
+        elif i == 1:
+            label = (fixed(hi, LABEL_WIDTH - 1, 1) + " ", "dim")
         else:
-            line.append(" " * LABEL_WIDTH)
-        row = rows[i][:plot_width]
-        line.append(row.ljust(plot_width, "⠀"), style=_STRIP_STYLE.get(ch.kind, "white"))
+            label = blank
+        lines.append([label, (rows[i][:plot_width].ljust(plot_width, "⠀"), style)])
     return lines
 
 
-def plots_text(snapshot: NodeSnapshot, width: int, rows: int) -> Text:
-    """All strips of the focused node, filling ``rows`` lines of ``width`` characters."""
+def plot_lines(snapshot: NodeSnapshot, width: int, rows: int) -> list[list[Run]]:
+    """All strips of the focused node as ``(text, style)`` runs, at most ``rows`` lines."""
     plot_width = max(4, width - LABEL_WIDTH)
     channels = list(snapshot.channels)
-    text = Text(no_wrap=True, overflow="crop")
     if not channels:
-        text.append("(no samples yet)", style="dim italic")
-        return text
+        return [[("(no samples yet)", "dim italic")]]
     heights = strip_heights(len(channels), max(rows, len(channels)), [c.kind for c in channels])
-    lines: list[Text] = []
+    lines: list[list[Run]] = []
     for ch, height in zip(channels, heights):
         lines.extend(_strip(ch, height, plot_width))
-    return Text("\n", no_wrap=True).join(lines[: max(rows, 1)])
+    return lines[: max(rows, 1)]
 
 
-class PowerPlots(Static):
+class PowerPlots(LinesWidget):
     """The plot area; its width decides how many columns the feed downsamples to."""
+
+    DEFAULT_CSS = "PowerPlots { height: 1fr; }"
 
     def data_columns(self) -> int:
         """Data columns the feed should compute (two Braille dots per character)."""
@@ -90,4 +84,4 @@ class PowerPlots(Static):
         if key == getattr(self, "_shown", None):
             return
         self._shown = key
-        self.update(crop(plots_text(snapshot, self.size.width or 80, self.size.height or 14), self.size.width or 80))
+        self.set_runs(plot_lines(snapshot, self.size.width or 80, self.size.height or 14))

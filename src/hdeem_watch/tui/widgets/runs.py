@@ -4,10 +4,10 @@ modelled energy (datasheet and calibrated currents) and the model's errors."""
 from __future__ import annotations
 
 from rich.text import Text
-from textual.widgets import Static
 
 from hdeem_watch.tui.snapshot import NodeSnapshot, RunView
-from hdeem_watch.tui.widgets.fmt import crop, duration, energy, percent
+from hdeem_watch.tui.widgets.fmt import duration, energy, percent
+from hdeem_watch.tui.widgets.lines import LinesWidget
 
 
 def _row(run: RunView, wide: bool) -> Text:
@@ -55,7 +55,7 @@ def runs_text(snapshot: NodeSnapshot, width: int, rows: int) -> Text:
     return text
 
 
-class RunsPanel(Static):
+class RunsPanel(LinesWidget):
     """Runs of the focused node."""
 
     def show(self, snapshot: NodeSnapshot) -> None:
@@ -64,4 +64,4 @@ class RunsPanel(Static):
         if key == getattr(self, "_shown", None):
             return
         self._shown = key
-        self.update(crop(runs_text(snapshot, self.size.width or 40, self.size.height or 10), self.size.width or 40))
+        self.set_text(runs_text(snapshot, self.size.width or 40, self.size.height or 10))

@@ -1,0 +1,67 @@
+"""A widget that shows prepared lines: the cheapest way to repaint text at a fixed rate.
+
+The panels build Rich :class:`~rich.text.Text` (or plain ``(text, style)`` runs) from a snapshot;
+:class:`LinesWidget` turns each line into a Textual :class:`~textual.strip.Strip` once and
+serves them from ``render_line`` — no markup parsing, no wrapping, no layout work per frame.
+Lines are cropped to the widget's width; missing lines are blank; when the screen has the
+``-stale`` class (the node went silent) every line is dimmed.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+from rich.segment import Segment
+from rich.style import Style
+from rich.text import Text
+from textual.strip import Strip
+from textual.widget import Widget
+
+Run = tuple[str, str]
+_DIM = Style(dim=True)
+
+
+@lru_cache(maxsize=256)
+def style_of(spec: str) -> Style:
+    """A parsed Rich style (cached: the panels use a handful)."""
+    return Style.parse(spec) if spec else Style()
+
+
+class LinesWidget(Widget):
+    """Shows a list of prepared lines; :attr:`plain` gives their text (for tests)."""
+
+    DEFAULT_CSS = "LinesWidget { height: auto; }"
+
+    def __init__(self, *, id: str | None = None, classes: str | None = None) -> None:
+        super().__init__(id=id, classes=classes)
+        self._strips: list[Strip] = []
+        self.plain = ""
+
+    def set_text(self, text: Text) -> None:
+        """Show ``text`` (one Strip per line)."""
+        console = self.app.console
+        lines = text.split("\n", allow_blank=True)
+        self._strips = [Strip(list(line.render(console))) for line in lines]
+        self.plain = text.plain
+        self._changed()
+
+    def set_runs(self, lines: list[list[Run]]) -> None:
+        """Show lines given as ``(text, style)`` runs (the fast path of the plots)."""
+        self._strips = [Strip([Segment(t, style_of(s)) for t, s in line]) for line in lines]
+        self.plain = "\n".join("".join(t for t, _ in line) for line in lines)
+        self._changed()
+
+    def _changed(self) -> None:
+        if self.styles.height is not None and self.styles.height.is_auto:
+            self.refresh(layout=len(self._strips) != self.virtual_size.height)
+        self.refresh()
+
+    def get_content_height(self, container, viewport, width: int) -> int:  # type: ignore[no-untyped-def]
+        return len(self._strips)
+
+    def render_line(self, y: int) -> Strip:
+        width = self.size.width
+        base = self.rich_style + _DIM if self.screen.has_class("-stale") else self.rich_style
+        if 0 <= y < len(self._strips):
+            return self._strips[y].crop(0, width).apply_style(base).extend_cell_length(width, base)
+        return Strip.blank(width, base)
