@@ -28,7 +28,7 @@ def _write(tmp_path: Path, text: str, name: str = "t.csv") -> Path:
 
 def test_fields_parsed(tmp_path: Path) -> None:
     """Every field of every line is parsed; the data field is optional; END gives T."""
-    trace = read_command_trace(_write(tmp_path, GOOD), preset("ddr4-2133-x8-4gb"))
+    trace = read_command_trace(_write(tmp_path, GOOD), preset("ddr4-2133-x8-4gb"), addresses=True)
     assert len(trace) == 6 and trace.end_cycle == 100
     assert trace.cycle.tolist() == [0, 15, 40, 41, 60, 100]
     assert [COMMANDS[c] for c in trace.cmd] == ["ACT", "RD", "PRE", "ACT", "WRA", "END"]
@@ -43,8 +43,8 @@ def test_fields_parsed(tmp_path: Path) -> None:
 def test_whitespace_crlf_and_trailing_blank_lines(tmp_path: Path) -> None:
     """Spaces, tabs and CRLF line ends are ignored (DRAMPower trims); trailing blank lines are fine."""
     messy = GOOD.replace(",", " , ").replace("\n", "\r\n").replace("RD", "\tRD") + "\r\n\n  \n"
-    a = read_command_trace(_write(tmp_path, GOOD, "a.csv"))
-    b = read_command_trace(_write(tmp_path, messy, "b.csv"))
+    a = read_command_trace(_write(tmp_path, GOOD, "a.csv"), addresses=True)
+    b = read_command_trace(_write(tmp_path, messy, "b.csv"), addresses=True)
     for field in ("cycle", "cmd", "rank", "bank", "row", "column"):
         assert np.array_equal(getattr(a, field), getattr(b, field)), field
 
@@ -66,9 +66,9 @@ def test_chunk_boundaries_do_not_matter(tmp_path: Path, monkeypatch: pytest.Monk
                    for c, n, r, b, row, col in zip(t, names, rng.integers(0, 2, 3000), rng.integers(0, 16, 3000),
                                                    rng.integers(0, 32768, 3000), rng.integers(0, 1024, 3000)))
     path = _write(tmp_path, text)
-    whole = read_command_trace(path)
+    whole = read_command_trace(path, addresses=True)
     monkeypatch.setattr(command_trace, "CHUNK_BYTES", 997)
-    pieces = read_command_trace(path)
+    pieces = read_command_trace(path, addresses=True)
     for field in ("cycle", "cmd", "rank", "bank", "row", "column"):
         assert np.array_equal(getattr(whole, field), getattr(pieces, field)), field
     assert whole.cycle.tolist() == t.tolist()
@@ -123,3 +123,16 @@ def test_unreadable_file(tmp_path: Path) -> None:
     """A missing file is an InputError, not a traceback."""
     with pytest.raises(InputError, match="cannot read trace"):
         read_command_trace(tmp_path / "nope.csv")
+
+
+def test_addresses_optional_and_backwards_across_chunks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Addresses are kept only on request; a decreasing cycle is caught across a chunk boundary too."""
+    trace = read_command_trace(_write(tmp_path, GOOD))
+    assert trace.row is None and trace.column is None and trace.bankgroup is None
+    lines = [f"{10 * i},RD,0,0,0,0,0" for i in range(400)]
+    lines[300] = "2985,RD,0,0,0,0,0"
+    path = _write(tmp_path, "\n".join(lines) + "\n", "b.csv")
+    for chunk in (1 << 24, 97, 64):
+        monkeypatch.setattr(command_trace, "CHUNK_BYTES", chunk)
+        with pytest.raises(InputError, match="line 301: cycle 2985 is before the previous command's cycle 2990"):
+            read_command_trace(path)

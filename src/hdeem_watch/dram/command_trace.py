@@ -67,21 +67,21 @@ class CommandTrace:
         cycle: command cycle (int64, non-decreasing).
         cmd: command code (uint8, index into :data:`COMMANDS`).
         rank: rank (uint16).
-        bankgroup: bank group (uint16; informational, DRAMPower ignores it).
         bank: flat bank index within the rank (uint16).
-        row, column: addresses (uint32; informational).
         end_cycle: the evaluation time T (END's cycle, else the last command's cycle).
+        bankgroup: bank group (uint16; DRAMPower ignores it), None unless read with ``addresses=True``.
+        row, column: addresses (uint32), None unless read with ``addresses=True``.
     """
 
     path: str
     cycle: np.ndarray
     cmd: np.ndarray
     rank: np.ndarray
-    bankgroup: np.ndarray
     bank: np.ndarray
-    row: np.ndarray
-    column: np.ndarray
     end_cycle: int
+    bankgroup: np.ndarray | None = None
+    row: np.ndarray | None = None
+    column: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.cycle.size)
@@ -103,7 +103,7 @@ def _words(buf: np.ndarray) -> np.ndarray:
     return np.ndarray(shape=(buf.size - 7,), dtype="<u8", buffer=buf, strides=(1,))
 
 
-def _eight_digits(word: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _eight_digits(word: np.ndarray, length: np.ndarray, values: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Value and validity of the last ``length`` (0..8) bytes of each word as decimal digits.
 
     SWAR ("SIMD within a register"): the bytes before the field are replaced by "0", every byte is
@@ -115,6 +115,8 @@ def _eight_digits(word: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.
     ok = ((word & np.uint64(0xF0F0F0F0F0F0F0F0))
           | (((word + np.uint64(0x0606060606060606)) & np.uint64(0xF0F0F0F0F0F0F0F0)) >> np.uint64(4))
           ) == np.uint64(0x3333333333333333)
+    if not values:
+        return word, ok
     word = word - _ZEROS
     word = word * np.uint64(10) + (word >> np.uint64(8))
     word = ((word & np.uint64(0x000000FF000000FF)) * np.uint64(100 + (1000000 << 32))
@@ -123,22 +125,25 @@ def _eight_digits(word: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.
     return word, ok
 
 
-def _parse_uint(buf: np.ndarray, start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _parse_uint(buf: np.ndarray, start: np.ndarray, end: np.ndarray,
+                values: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Decimal integers in ``buf[start:end]`` per line (up to 16 digits); returns (int64 values, ok).
 
     ``buf`` must begin with :data:`_PAD`. The 8 bytes ending at each field's end are read as one
-    word (and the 8 before them for longer fields), then decoded by :func:`_eight_digits`.
+    word (and the 8 before them for longer fields), then decoded by :func:`_eight_digits`. With
+    ``values=False`` only the validity is computed (the returned values are meaningless).
     """
     words = _words(buf)
     length = end - start
     ok = (length >= 1) & (length <= 16)
     low = np.clip(length, 0, 8)
-    value, good = _eight_digits(words[end - 8], low)
+    value, good = _eight_digits(words[end - 8], low, values)
     ok &= good
     if (length > 8).any():
-        high, good = _eight_digits(words[end - 16], np.clip(length - 8, 0, 8))
+        high, good = _eight_digits(words[end - 16], np.clip(length - 8, 0, 8), values)
         ok &= good
-        value = value + high * np.uint64(100_000_000)
+        if values:
+            value = value + high * np.uint64(100_000_000)
     return value.astype(np.int64), ok
 
 
@@ -150,14 +155,19 @@ def _line_text(buf: np.ndarray, start: int, end: int) -> str:
     return bytes(buf[start:min(end, start + 80)]).decode("ascii", "replace")
 
 
-def _parse_chunk(buf: np.ndarray, first_line: int, where: str) -> dict[str, np.ndarray]:
+def _parse_chunk(buf: np.ndarray, first_line: int, where: str, limits: dict[str, int] | None = None,
+                 memory_id: str = "", addresses: bool = True) -> dict[str, np.ndarray]:
     """Parse whole lines (``buf`` = :data:`_PAD` + lines ending with a newline); ``first_line`` is 1-based."""
-    delim = np.flatnonzero((buf == 44) | (buf == 10))  # every comma and line end, in order
-    at_end = np.flatnonzero(buf[delim] == 10)  # index in delim of each line end
-    if np.count_nonzero(buf < 44) != at_end.size:  # spaces, tabs or CR (trimmed, as DRAMPower does)
-        clean = buf[(buf != 32) & (buf != 9) & (buf != 13)]
-        if clean.size != buf.size:
-            return _parse_chunk(clean, first_line, where)
+    delim = np.flatnonzero(buf < 45)  # commas, line ends (and any whitespace), in order
+    kind = buf[delim]
+    newline = kind == 10
+    is_delim = newline | (kind == 44)
+    if not is_delim.all():
+        if np.isin(kind, (32, 9, 13)).any():  # spaces, tabs, CR: trimmed, as DRAMPower does
+            return _parse_chunk(buf[(buf != 32) & (buf != 9) & (buf != 13)], first_line, where, limits, memory_id,
+                                addresses)
+        delim, newline = delim[is_delim], newline[is_delim]  # other bytes are caught by the field checks
+    at_end = np.flatnonzero(newline)  # index in delim of each line end
     ends = delim[at_end]
     starts = np.empty_like(ends)
     starts[:1] = len(_PAD)
@@ -170,8 +180,14 @@ def _parse_chunk(buf: np.ndarray, first_line: int, where: str) -> dict[str, np.n
             _fail(where, first_line + i, "empty line; expected cycle,CMD,rank,bankgroup,bank,row,column[,data]")
         _fail(where, first_line + i, f"{ncomma[i] + 1} fields in {_line_text(buf, starts[i], ends[i])!r}; "
               "expected cycle,CMD,rank,bankgroup,bank,row,column[,data]")
-    first = at_end - ncomma
-    c = [delim[first + j] for j in range(7)]  # c[6]: the data comma or the line end
+    # drop the line end of lines with a data field: then every line has exactly 7 delimiters
+    # (c0..c5 and the end of the column field) and the table is a free reshape
+    if (ncomma == 7).any():
+        keep = np.ones(delim.size, dtype=bool)
+        keep[at_end[ncomma == 7]] = False
+        delim = delim[keep]
+    table = delim.reshape(-1, 7)
+    c = [table[:, j] for j in range(7)]
     c6 = c[6]
     bounds = [(starts, c[0]), None, (c[1] + 1, c[2]), (c[2] + 1, c[3]), (c[3] + 1, c[4]),
               (c[4] + 1, c[5]), (c[5] + 1, c6)]
@@ -180,12 +196,14 @@ def _parse_chunk(buf: np.ndarray, first_line: int, where: str) -> dict[str, np.n
     for name, bound in zip(names, bounds):
         if bound is None:
             continue
-        value, ok = _parse_uint(buf, *bound)
+        needed = addresses or limits is not None or name in ("cycle", "rank", "bank")
+        value, ok = _parse_uint(buf, *bound, values=needed)
         if not ok.all():
             i = int(np.argmin(ok))
             text = bytes(buf[bound[0][i]:bound[1][i]]).decode("ascii", "replace")
             _fail(where, first_line + i, f"{name} = {text!r} is not a non-negative integer of at most 16 digits")
-        out[name] = value
+        if needed:
+            out[name] = value
     # command names: pack up to 6 bytes into an int64 and look them up
     s, e = c[0] + 1, c[1]
     length = np.clip(e - s, 0, 8)
@@ -200,11 +218,14 @@ def _parse_chunk(buf: np.ndarray, first_line: int, where: str) -> dict[str, np.n
     out["cmd"] = _PACKED_CODE[pos]
     for name, dtype in (("rank", np.uint16), ("bankgroup", np.uint16), ("bank", np.uint16),
                         ("row", np.uint32), ("column", np.uint32)):
-        over = out[name] > np.iinfo(dtype).max
+        if name not in out:
+            continue
+        limit = limits[name] if limits else int(np.iinfo(dtype).max) + 1
+        over = out[name] >= limit
         if over.any():
             i = int(np.argmax(over))
-            _fail(where, first_line + i, f"{name} {out[name][i]} out of range")
-        out[name] = out[name].astype(dtype)
+            _fail(where, first_line + i, f"{name} {out[name][i]} out of range" + (
+                f"; memspec {memory_id!r} has {limit} ({name} 0..{limit - 1})" if limits else ""))
     return out
 
 
@@ -221,13 +242,21 @@ def _after_last_newline(store: np.ndarray, lo: int, hi: int) -> int:
         window *= 16
 
 
-def read_command_trace(path: str | Path, spec: MemSpec | None = None) -> CommandTrace:
+_FIELDS = {"cycle": np.int64, "cmd": np.uint8, "rank": np.uint16, "bank": np.uint16}
+_ADDRESS_FIELDS = {"bankgroup": np.uint16, "row": np.uint32, "column": np.uint32}
+#: No valid line is shorter than this ("0,RD,0,0,0,0,0" and its line end).
+_MIN_LINE_BYTES = 15
+
+
+def read_command_trace(path: str | Path, spec: MemSpec | None = None, *, addresses: bool = False) -> CommandTrace:
     """Read a DRAMPower CSV command trace.
 
     Args:
         path: the CSV file.
         spec: if given, ranks, bank groups, banks, rows and columns are range-checked against it
             here (else :func:`trace_stats` checks ranks and banks).
+        addresses: also keep the bank group, row and column of every command (they are always
+            parsed and validated, but not needed by the energy model).
 
     Raises:
         InputError: unreadable file, a malformed line, an unknown command, a cycle smaller than
@@ -235,8 +264,10 @@ def read_command_trace(path: str | Path, spec: MemSpec | None = None) -> Command
             one line with the line number.
     """
     where = str(path)
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("cycle", "cmd", "rank", "bankgroup", "bank", "row", "column")}
-    line = 1
+    limits = None
+    if spec is not None:
+        limits = {"rank": spec.nbr_of_ranks, "bankgroup": spec.nbr_of_bankgroups, "bank": spec.nbr_of_banks,
+                  "row": spec.nbr_of_rows, "column": spec.nbr_of_columns}
     try:
         handle = open(path, "rb")  # noqa: SIM115 (closed by the with below)
     except OSError as error:
@@ -247,6 +278,10 @@ def read_command_trace(path: str | Path, spec: MemSpec | None = None) -> Command
         tail = handle.read()
         remaining = size - (len(tail) - len(tail.rstrip(b" \t\r\n")))  # trailing blank lines are fine
         handle.seek(0)
+        # outputs sized for the most lines the file can hold: pages never written stay unused
+        wanted = {**_FIELDS, **(_ADDRESS_FIELDS if addresses else {})}
+        out = {name: np.empty(remaining // _MIN_LINE_BYTES + 2, dtype=dtype) for name, dtype in wanted.items()}
+        count = 0
         pad = len(_PAD)
         store = np.empty(pad + CHUNK_BYTES + 1, dtype=np.uint8)  # reused for every chunk
         store[:pad] = np.frombuffer(_PAD, dtype=np.uint8)
@@ -255,7 +290,7 @@ def read_command_trace(path: str | Path, spec: MemSpec | None = None) -> Command
         while remaining > 0:
             want = min(CHUNK_BYTES - carry, remaining)
             if want <= 0:
-                _fail(where, line, f"line longer than {CHUNK_BYTES} bytes")
+                _fail(where, count + 1, f"line longer than {CHUNK_BYTES} bytes")
             got = handle.readinto(view[pad + carry:pad + carry + want])
             if not got:
                 break
@@ -266,43 +301,49 @@ def read_command_trace(path: str | Path, spec: MemSpec | None = None) -> Command
                 end += 1
             cut = _after_last_newline(store, pad, end)
             if cut > pad:
-                chunk = _parse_chunk(store[:cut], line, where)
-                for key in parts:
-                    parts[key].append(chunk[key])
-                line += chunk["cmd"].size
+                chunk = _parse_chunk(store[:cut], count + 1, where, limits, spec.memory_id if spec else "",
+                                     addresses=addresses)
+                n = chunk["cmd"].size
+                cycle = chunk["cycle"]
+                back = np.flatnonzero(np.diff(cycle) < 0)
+                if count and cycle[0] < out["cycle"][count - 1]:
+                    back = np.array([-1])
+                if back.size:
+                    i = int(back[0]) + 1
+                    before = cycle[i - 1] if i else out["cycle"][count - 1]
+                    _fail(where, count + i + 1, f"cycle {cycle[i]} is before the previous command's cycle "
+                          f"{before}; expected non-decreasing cycles")
+                if count + n > out["cmd"].size:  # only if a line were shorter than _MIN_LINE_BYTES
+                    out = {k: np.resize(v, 2 * (count + n)) for k, v in out.items()}
+                for name in out:
+                    out[name][count:count + n] = chunk[name]
+                count += n
             carry = end - cut
             store[pad:pad + carry] = store[cut:end].copy()
-    if not parts["cmd"]:
+    if not count:
         raise InputError(f"{where}: empty trace; expected cycle,CMD,rank,bankgroup,bank,row,column lines")
-    cycle = np.concatenate(parts["cycle"])
-    cmd = np.concatenate(parts["cmd"])
-    arrays = {k: np.concatenate(parts[k]) for k in ("rank", "bankgroup", "bank", "row", "column")}
-    back = np.flatnonzero(np.diff(cycle) < 0)
-    if back.size:
-        i = int(back[0]) + 1
-        _fail(where, i + 1, f"cycle {cycle[i]} is before the previous command's cycle {cycle[i - 1]}; "
-              "expected non-decreasing cycles")
+    arrays = {name: values[:count] for name, values in out.items()}
+    cmd = arrays["cmd"]
     ends = np.flatnonzero(cmd == CODE["END"])
     if ends.size and ends[0] != cmd.size - 1:
         _fail(where, int(ends[0]) + 2, f"{COMMANDS[cmd[ends[0] + 1]]} after END (line {ends[0] + 1}); "
               "expected END to be the last command")
-    trace = CommandTrace(path=where, cycle=cycle, cmd=cmd, end_cycle=int(cycle[-1]), **arrays)
-    if spec is not None:
-        check_ranges(spec, trace, full=True)
-    return trace
+    return CommandTrace(path=where, end_cycle=int(arrays["cycle"][-1]), **arrays)
 
 
 def check_ranges(spec: MemSpec, trace: CommandTrace, *, full: bool = False) -> None:
     """Raise an InputError (with the line number) for a rank or bank beyond the memspec.
 
     Args:
-        full: also check bank groups, rows and columns.
+        full: also check bank groups, rows and columns (when the trace kept them).
     """
     limits = [("rank", trace.rank, spec.nbr_of_ranks), ("bank", trace.bank, spec.nbr_of_banks)]
     if full:
         limits += [("bankgroup", trace.bankgroup, spec.nbr_of_bankgroups), ("row", trace.row, spec.nbr_of_rows),
                    ("column", trace.column, spec.nbr_of_columns)]
     for name, values, limit in limits:
+        if values is None:
+            continue
         over = values >= limit
         if over.any():
             i = int(np.argmax(over))

@@ -52,8 +52,11 @@ def _bank_events(spec: MemSpec, trace: CommandTrace) -> tuple[np.ndarray, ...]:
     """All bank-state events, each with (time, bank key, exec position, type, counted-pre, delta)."""
     t, cmd = trace.cycle, trace.cmd
     n, banks, end = t.size, spec.nbr_of_banks, trace.end_cycle
-    key = trace.rank.astype(np.int64) * banks + trace.bank
     tm = spec.timings
+
+    def key(idx: np.ndarray) -> np.ndarray:
+        return trace.rank[idx].astype(np.int64) * banks + trace.bank[idx]
+
     off_rd = tm["AL"] + tm["RTP"]
     off_wr = spec.burst_length // spec.data_rate + tm["WL"] + tm["WR"]
     every_bank = np.arange(banks, dtype=np.int64)
@@ -70,23 +73,24 @@ def _bank_events(spec: MemSpec, trace: CommandTrace) -> tuple[np.ndarray, ...]:
 
     prea_idx, prea_key = per_bank(prea)
     ref_idx, ref_key = per_bank(ref)
-    commands = [_ev(t[act], key[act], act, _OPEN_RESTART, 1), _ev(t[pre], key[pre], pre, _CLOSE_COUNT, 1),
+    commands = [_ev(t[act], key(act), act, _OPEN_RESTART, 1), _ev(t[pre], key(pre), pre, _CLOSE_COUNT, 1),
                 _ev(t[prea_idx], prea_key, prea_idx, _CLOSE_COUNT, 1),
                 _ev(t[ref_idx], ref_key, ref_idx, _OPEN_IFNOT, 1)]
 
     # auto-precharge of RDA/WRA: max(last ACT of the bank + RAS, t + offset)
-    sel = np.union1d(act, auto)
-    order = sel[np.argsort(key[sel], kind="stable")]
+    sel = np.sort(np.concatenate([act, auto])) if auto.size else auto
+    order = sel[np.argsort(key(sel), kind="stable")]
     is_act = cmd[order] == CODE["ACT"]
     pos = np.arange(order.size)
     last = np.maximum.accumulate(np.where(is_act, pos, -1)) if order.size else pos
-    valid = (last >= 0) & (key[order][np.maximum(last, 0)] == key[order])
+    okey = key(order)
+    valid = (last >= 0) & (okey[np.maximum(last, 0)] == okey)
     start = np.where(valid, t[order][np.maximum(last, 0)], 0)
     mine = ~is_act
     a_idx = order[mine]
     offset = np.where(cmd[a_idx] == CODE["RDA"], off_rd, off_wr)
     a_time = np.maximum(start[mine] + tm["RAS"], t[a_idx] + offset)
-    implicit = [(a_time, key[a_idx], a_idx, _CLOSE_COUNT), (t[ref_idx] + spec.trfc, ref_key, ref_idx, _CLOSE_REF)]
+    implicit = [(a_time, key(a_idx), a_idx, _CLOSE_COUNT), (t[ref_idx] + spec.trfc, ref_key, ref_idx, _CLOSE_REF)]
 
     i_time = np.concatenate([x[0] for x in implicit]).astype(np.int64)
     i_key = np.concatenate([x[1] for x in implicit]).astype(np.int64)
@@ -136,7 +140,10 @@ def command_stats(spec: MemSpec, trace: CommandTrace) -> CommandStats:
     t, cmd = trace.cycle, trace.cmd
     n, ranks, end = t.size, spec.nbr_of_ranks, trace.end_cycle
     tm = spec.timings
-    counts = np.bincount(cmd.astype(np.int64) * ranks + trace.rank, minlength=len(CODE) * ranks)
+    counts = np.zeros(len(CODE) * ranks, dtype=np.int64)
+    for lo in range(0, n, 1 << 20):  # in slices: bounded temporaries
+        code = cmd[lo:lo + (1 << 20)].astype(np.intp) * ranks + trace.rank[lo:lo + (1 << 20)]
+        counts += np.bincount(code, minlength=len(CODE) * ranks)
     counts = counts.reshape(len(CODE), ranks)
 
     ev_time, ev_rank, ev_pos, ev_counted, ev_delta = _bank_events(spec, trace)
