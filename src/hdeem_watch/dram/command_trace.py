@@ -337,7 +337,8 @@ def check_ranges(spec: MemSpec, trace: CommandTrace, *, full: bool = False) -> N
     Args:
         full: also check bank groups, rows and columns (when the trace kept them).
     """
-    limits = [("rank", trace.rank, spec.nbr_of_ranks), ("bank", trace.bank, spec.nbr_of_banks)]
+    limits: list[tuple[str, np.ndarray | None, int]] = [
+        ("rank", trace.rank, spec.nbr_of_ranks), ("bank", trace.bank, spec.nbr_of_banks)]
     if full:
         limits += [("bankgroup", trace.bankgroup, spec.nbr_of_bankgroups), ("row", trace.row, spec.nbr_of_rows),
                    ("column", trace.column, spec.nbr_of_columns)]

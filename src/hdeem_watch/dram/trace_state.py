@@ -140,11 +140,11 @@ def command_stats(spec: MemSpec, trace: CommandTrace) -> CommandStats:
     t, cmd = trace.cycle, trace.cmd
     n, ranks, end = t.size, spec.nbr_of_ranks, trace.end_cycle
     tm = spec.timings
-    counts = np.zeros(len(CODE) * ranks, dtype=np.int64)
+    flat = np.zeros(len(CODE) * ranks, dtype=np.int64)
     for lo in range(0, n, 1 << 20):  # in slices: bounded temporaries
         code = cmd[lo:lo + (1 << 20)].astype(np.intp) * ranks + trace.rank[lo:lo + (1 << 20)]
-        counts += np.bincount(code, minlength=len(CODE) * ranks)
-    counts = counts.reshape(len(CODE), ranks)
+        flat += np.bincount(code, minlength=len(CODE) * ranks)
+    counts = flat.reshape(len(CODE), ranks)
 
     ev_time, ev_rank, ev_pos, ev_counted, ev_delta = _bank_events(spec, trace)
     pre_counts = np.bincount(ev_rank[ev_counted], minlength=ranks)
