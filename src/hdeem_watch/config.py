@@ -69,6 +69,8 @@ class DaemonSettings:
         seed: random seed of the ``sim`` source (None = fixed default of the sim).
         replay_file: recording played by the ``replay`` source.
         replay_loop: start the recording again at its end.
+        record_file: append every sample the daemon receives to this recording (the replay
+            source's CSV format), for post-mortem analysis and demos (None = off).
         rapl_root: powercap root of the ``rapl`` source (default ``/sys/class/powercap``).
         hdeem_include_dir: directory of the real ``hdeem.h`` (``hdeem`` source).
         hdeem_lib_dir: directory of ``libhdeem.so`` (``hdeem`` source).
@@ -100,6 +102,7 @@ class DaemonSettings:
     seed: int | None = None
     replay_file: str | None = None
     replay_loop: bool = False
+    record_file: str | None = None
     rapl_root: str | None = None
     hdeem_include_dir: str | None = None
     hdeem_lib_dir: str | None = None

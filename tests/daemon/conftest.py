@@ -124,10 +124,22 @@ def daemon_factory(tmp_path: Path) -> Iterator[object]:
             d.proc.wait(timeout=10)
 
 
-@pytest.fixture(scope="module")
+def free_port() -> int:
+    """A free TCP port on the loopback interface."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture(scope="session")
 def shared_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
-    """One sim daemon at speed 10 shared by the read-mostly tests of a module."""
-    d = make_daemon(tmp_path_factory.mktemp("shared"), "--speed", "10", HDEEM_WATCH_SNDHWM="2000")
+    """One sim daemon at speed 10 (with a Prometheus endpoint) shared by the read-mostly tests."""
+    port = free_port()
+    d = make_daemon(tmp_path_factory.mktemp("shared"), "--speed", "10", "--prometheus", str(port),
+                    HDEEM_WATCH_SNDHWM="2000")
+    d.prometheus_port = port  # type: ignore[attr-defined]
     d.start()
     yield d
     code = d.terminate()

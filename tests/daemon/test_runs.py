@@ -12,7 +12,7 @@ from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.client import ControlError
 
 SPEED = 20.0
-FAST_MODEL = {"HDEEM_WATCH_MODEL_MAX_REQUESTS": "100000", "HDEEM_WATCH_MEMSPEC": "ddr4-2133-x8-4gb"}
+FAST_MODEL = {"HDEEM_WATCH_MODEL_MAX_REQUESTS": "100000"}
 KERNELS = ("idle", "read", "triad", "copy", "assign", "add", "scale")
 
 

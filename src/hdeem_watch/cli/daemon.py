@@ -36,6 +36,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--speed", type=float, metavar="X", help="sim/replay speed factor (default 1)")
     parser.add_argument("--seed", type=int, metavar="N", help="sim random seed")
     parser.add_argument("--replay-file", metavar="FILE", help="recording for --source replay")
+    parser.add_argument("--record", metavar="FILE", help="record every sample to FILE (replayable CSV)")
     parser.add_argument("--prometheus", type=int, metavar="PORT", help="serve Prometheus metrics on PORT")
     parser.add_argument("--poll-interval", type=float, metavar="S", help="source poll period in s (default 0.025)")
     parser.add_argument("--memspec", metavar="PRESET|FILE", help="memspec of one DIMM for the run model")
@@ -51,7 +52,7 @@ def _run(args: argparse.Namespace) -> int:
         overrides={
             "source": args.source, "pub": args.pub, "control": args.control, "state_dir": args.state_dir,
             "runtime_dir": args.runtime_dir, "node": args.node, "speed": args.speed, "seed": args.seed,
-            "replay_file": args.replay_file, "prometheus_port": args.prometheus,
+            "replay_file": args.replay_file, "record_file": args.record, "prometheus_port": args.prometheus,
             "poll_interval_s": args.poll_interval, "memspec": args.memspec, "log_level": args.log_level,
         },
     )

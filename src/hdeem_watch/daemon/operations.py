@@ -85,11 +85,11 @@ class Operations:
 
     def op_calib_reset(self, args: dict[str, Any]) -> Pending:
         """Forget every calibration run (on the worker, after any refit in progress)."""
-        modeller = self.d.modeller
-        assert modeller is not None
         pending = Pending("calib.reset")
 
         def job() -> dict[str, Any]:
+            modeller = self.d.modeller  # read on the worker, after the job that built it
+            assert modeller is not None
             modeller.reset()
             return modeller.body()
 
@@ -260,10 +260,9 @@ class Operations:
         if aborted:
             self._finish_run(record, waiters, None)
             return
-        modeller = d.modeller
-        assert modeller is not None
-
         def job() -> tuple[Any, ...]:
+            modeller = d.modeller  # read on the worker, after the job that built it
+            assert modeller is not None
             try:
                 model, fit, error = modeller.evaluate(record)
             except Exception as exc:  # a model bug must not lose the run or its reply

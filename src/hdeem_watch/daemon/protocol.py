@@ -239,7 +239,7 @@ def pack_samples(t_wall_ns: np.ndarray, power_w: np.ndarray) -> bytes:
     p = np.ascontiguousarray(power_w, dtype=SAMPLE_DTYPE)
     if t.ndim != 1 or p.shape != t.shape:
         raise ProtocolError(f"samples: times {t.shape} and powers {p.shape} must be equal 1-D arrays")
-    return t.tobytes() + p.tobytes()
+    return b"".join((t.data, p.data))
 
 
 def unpack_samples(payload: bytes, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -253,6 +253,28 @@ def unpack_samples(payload: bytes, n: int) -> tuple[np.ndarray, np.ndarray]:
     t = np.frombuffer(payload, dtype=TIME_DTYPE, count=n)
     p = np.frombuffer(payload, dtype=SAMPLE_DTYPE, count=n, offset=8 * n)
     return t, p
+
+
+_SAMPLES_HEADER = (
+    '{"v":%d,"seq":%d,"node":%s,"t_ns":%d,"channel":%s,"unit":"W","rate_hz":%s,"n":%d,"dtype":"<f8",'
+    '"t0_ns":%s,"dt_ns":%s,"energy_j":%s,"status":%s}'
+)
+_QUOTED: dict[str, str] = {}
+
+
+def _quoted(text: str) -> str:
+    """``text`` as a JSON string literal (memoised: node, channel and status names repeat)."""
+    quoted = _QUOTED.get(text)
+    if quoted is None:
+        quoted = json.dumps(str(text))
+        if len(_QUOTED) < 4096:
+            _QUOTED[text] = quoted
+    return quoted
+
+
+def _json_number(value: float) -> str:
+    value = float(value)
+    return repr(value) if math.isfinite(value) else "null"
 
 
 def encode_samples(
@@ -269,6 +291,9 @@ def encode_samples(
 ) -> list[bytes]:
     """Frames of one samples batch of one channel.
 
+    The header is formatted directly (this is the daemon's hot path); it is the same JSON object
+    the generic :func:`encode` would produce.
+
     Args:
         node: node name.
         channel: channel name, e.g. ``"DDR_AB"``.
@@ -282,23 +307,21 @@ def encode_samples(
     """
     payload = pack_samples(t_wall_ns, power_w)
     n = len(payload) // 16
-    t0 = int(t_wall_ns[0]) if n else None
-    header = {
-        "v": VERSION,
-        "seq": int(seq),
-        "node": node,
-        "t_ns": now_ns() if t_ns is None else int(t_ns),
-        "channel": channel,
-        "unit": "W",
-        "rate_hz": float(rate_hz),
-        "n": n,
-        "dtype": SAMPLE_DTYPE,
-        "t0_ns": t0,
-        "dt_ns": round(1e9 / rate_hz) if rate_hz > 0 else None,
-        "energy_j": energy_j,
-        "status": status,
-    }
-    return [samples_topic(node, channel).encode(), dumps(header), payload]
+    rate = float(rate_hz)
+    header = _SAMPLES_HEADER % (
+        VERSION,
+        int(seq),
+        _quoted(node),
+        now_ns() if t_ns is None else int(t_ns),
+        _quoted(channel),
+        _json_number(rate),
+        n,
+        str(int(t_wall_ns[0])) if n else "null",
+        str(round(1e9 / rate)) if rate > 0 and math.isfinite(rate) else "null",
+        _json_number(energy_j),
+        _quoted(status),
+    )
+    return [f"{TOPIC_PREFIX}/{node}/samples/{channel}".encode(), header.encode(), payload]
 
 
 @dataclass(frozen=True)

@@ -81,6 +81,7 @@ class Daemon:
         self.modeller: RunModeller | None = None
         self.metrics: DaemonMetrics | None = None
         self.metrics_port: int | None = None
+        self.recorder: Any = None
         self.operations = Operations(self)
         self._stop = False
         self._lock_file: Any = None
@@ -137,6 +138,14 @@ class Daemon:
             i.name: ChannelAccount(i.name, i.rate_hz, i.kind, history_s=self.settings.quiet_history_s) for i in infos
         }
         self.dram_channels = tuple(i.name for i in infos if i.kind == "dram")
+        if self.settings.record_file:
+            from hdeem_watch.sources.replay import RecordingWriter
+
+            try:
+                self.recorder = RecordingWriter(self.settings.record_file, node=self.node,
+                                                rate_hz={i.name: i.rate_hz for i in infos})
+            except OSError as error:
+                raise InputError(f"record file {self.settings.record_file}: {error.strerror}") from None
         try:
             self.publisher = Publisher(self.context, self.pub_endpoint, node=self.node, sndhwm=self.settings.sndhwm)
             self.control = ControlServer(self.context, self.control_endpoint, self.operations.handlers())
@@ -169,14 +178,33 @@ class Daemon:
                 history.clear()  # a calib.reset
             else:
                 history.append(compact_fit(t_ns, fit))
-        self.modeller = RunModeller(
-            self.settings.memspec, dimms=self.settings.dimms, currents=self.settings.currents,
-            half_life_s=self.settings.half_life_s or None, max_requests=self.settings.model_max_requests,
-            state=self.store.load_calibrator(), history=history,
-        )
-        if self.modeller.restore_error:
-            log.warning("calibrator state not restored: %s", self.modeller.restore_error)
-        self.calib_body = self.modeller.body()
+        state = self.store.load_calibrator()
+        latest = next((fit for _t, _r, fit in reversed(self.store.fit_history(1))), None)
+        # Until the worker has built the model (importing the calibrator takes seconds), late
+        # joiners get the stored fit.
+        self.calib_body = {"fit": latest, "history": history, "runs": len((state or {}).get("observations", [])),
+                           "drift": {}, "memspec": self.settings.memspec, "model_error": None, "truth": None,
+                           "loading": True}
+        settings = self.settings
+
+        def build() -> dict[str, Any]:
+            modeller = RunModeller(
+                settings.memspec, dimms=settings.dimms, currents=settings.currents,
+                half_life_s=settings.half_life_s or None, max_requests=settings.model_max_requests,
+                state=state, history=history,
+            )
+            if modeller.restore_error:
+                log.warning("calibrator state not restored: %s", modeller.restore_error)
+            if modeller.error:
+                log.warning("runs will not be modelled: %s", modeller.error)
+            self.modeller = modeller  # set on the worker: every later model job runs after this one
+            return modeller.body()
+
+        def built(body: dict[str, Any]) -> None:
+            self.calib_body = body
+            self.publish_calib()
+
+        self.submit(build, built)
 
     def request_stop(self) -> None:
         """Ask the loop to end (safe from a signal handler)."""
@@ -189,6 +217,9 @@ class Daemon:
         self._close_sockets()
         if self.metrics is not None:
             self.metrics.close()
+        if self.recorder is not None:
+            self.recorder.close()
+            self.recorder = None
         if self.source is not None:
             try:
                 self.source.close()
@@ -280,6 +311,7 @@ class Daemon:
                 failed.status = message
             return None
         running = any(w.kind == "run" for w in self.windows)
+        header_t_ns = time.time_ns()
         for name, (t_ns, power_w) in batch.samples.items():
             found = self.accounts.get(name)
             if found is None:
@@ -293,7 +325,9 @@ class Daemon:
             for window in self.windows:
                 window.add_samples(name, power_w)
             self.publisher.publish_samples(name, rate_hz=account.rate_hz, t_wall_ns=t_ns, power_w=power_w,
-                                           energy_j=energy, status=status)
+                                           energy_j=energy, status=status, t_ns=header_t_ns)
+        if self.recorder is not None:
+            self.recorder.write_batch(batch)
         self.operations.advance_windows(self.clock())
         return batch
 
@@ -344,6 +378,8 @@ class Daemon:
         for account in self.accounts.values():
             account.close_rate_window()
         self.publisher.publish("status", self.status_body())
+        if self.recorder is not None:
+            self.recorder.flush()
         if self.metrics is not None:
             for name, account in self.accounts.items():
                 energy0, samples0, gaps0 = self._metric_last.get(name, (0.0, 0, 0))

@@ -1,0 +1,276 @@
+"""Benchmark of the node daemon: CPU share, lost samples and latency at full HDEEM rate; publishing ceiling.
+
+Phases:
+
+1. **steady**: the daemon as a real process with the simulated node at speed 1 — HDEEM's full rate,
+   BLADE at 1000 Sa/s and six channels at 100 Sa/s — and 4 subscriber processes for ``--seconds``
+   (default 60, ``--quick`` 10). Reported: the daemon's CPU share of one core (target ≤ 1 %), beside
+   an idle Python process with the same imports (the baseline); samples lost by the subscribers
+   (sequence gaps and missing timestamps; target 0); p50/p99 sensor→subscriber latency (receive wall
+   time minus the sample's own timestamp, the end of its interval; target p99 ≤ 50 ms).
+2. **ceiling (publisher)**: the daemon's publisher (protocol encoding + XPUB) flooding batches of
+   ``--batch`` samples to 4 subscriber processes for a few seconds: samples/s received by every
+   subscriber (target ≥ 1 M/s).
+3. **ceiling (daemon)**: the whole daemon with the sim at ``--flood-speed`` (1 600 Sa/s × speed
+   generated) and one subscriber: samples/s delivered and lost.
+
+Usage: ``python3 benchmarks/bench_daemon.py [--quick] [--seconds S] [--json]``. Prints each figure,
+its target and the ratio (figure/target, or target/figure for "at most" targets: ≥ 1 is met).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import psutil
+import zmq
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from hdeem_watch.daemon import protocol  # noqa: E402
+from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable  # noqa: E402
+
+
+def _env() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("HDEEM_WATCH_")}
+    env["PYTHONPATH"] = str(ROOT / "src") + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    return env
+
+
+def start_daemon(directory: Path, speed: float, *extra: str) -> tuple[subprocess.Popen[bytes], str, str]:
+    """Start ``hdeem-watch daemon --source sim`` on ipc sockets in ``directory``; wait until it answers."""
+    pub, control = f"ipc://{directory}/p.sock", f"ipc://{directory}/c.sock"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hdeem_watch", "daemon", "--source", "sim", "--speed", str(speed), "--pub", pub,
+         "--control", control, "--state-dir", str(directory / "state"), "--node", "bench", "--log-level",
+         "warning", *extra],
+        env=_env(), stdout=subprocess.DEVNULL, stderr=open(directory / "daemon.err", "ab"),  # noqa: SIM115
+    )
+    deadline = time.monotonic() + 60
+    with ControlClient(control, timeout_s=1.0) as client:
+        while True:
+            try:
+                client.call("ping")
+                return proc, pub, control
+            except DaemonUnreachable:
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError((directory / "daemon.err").read_text()) from None
+                time.sleep(0.1)
+
+
+def subscriber(pub: str, seconds: float, ready: Any, results: Any, prefix: bytes) -> None:
+    """A subscriber process: counts samples, gaps, missing timestamps and per-sample latency."""
+    sock = zmq.Context.instance().socket(zmq.SUB)
+    sock.setsockopt(zmq.RCVHWM, 1_000_000)
+    sock.connect(pub)
+    sock.setsockopt(zmq.SUBSCRIBE, prefix)
+    ready.put(os.getpid())
+    tracker = protocol.GapTracker()
+    last_t: dict[str, int] = {}
+    missing = 0
+    samples = 0
+    latencies: list[np.ndarray] = []
+    first = None
+    poller = zmq.Poller()
+    poller.register(sock, zmq.POLLIN)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        if not poller.poll(100):
+            continue
+        frames = sock.recv_multipart(copy=True)
+        now = time.time_ns()
+        msg = protocol.decode(frames)
+        if msg.kind != "samples":
+            continue
+        if first is None:
+            first = time.monotonic()
+        tracker.observe(msg.topic, msg.seq)
+        t, _ = msg.samples()
+        if t.size:
+            period = int(msg.header["dt_ns"])
+            previous = last_t.get(msg.topic)
+            steps = np.diff(t, prepend=previous) if previous is not None else np.diff(t)
+            missing += int(np.sum(np.maximum(np.rint(steps / period) - 1, 0)))
+            last_t[msg.topic] = int(t[-1])
+            latencies.append((now - t) / 1e6)
+            samples += int(t.size)
+    elapsed = time.monotonic() - first if first is not None else float("nan")
+    lat = np.concatenate(latencies) if latencies else np.array([np.nan])
+    results.put({"samples": samples, "seconds": elapsed, "missed_messages": tracker.missed,
+                 "missing_samples": missing, "p50_ms": float(np.percentile(lat, 50)),
+                 "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(np.max(lat))})
+    sock.close(0)
+
+
+def run_subscribers(pub: str, n: int, seconds: float, prefix: bytes = b"hw1/") -> tuple[list[Any], Any, Any]:
+    ctx = mp.get_context("spawn")
+    ready, results = ctx.Queue(), ctx.Queue()
+    procs = [ctx.Process(target=subscriber, args=(pub, seconds, ready, results, prefix)) for _ in range(n)]
+    for p in procs:
+        p.start()
+    for _ in procs:
+        ready.get(timeout=60)
+    return procs, ready, results
+
+
+def cpu_seconds(proc: psutil.Process) -> float:
+    times = proc.cpu_times()
+    return float(times.user + times.system)
+
+
+def idle_baseline_cpu(seconds: float) -> float:
+    """CPU share (% of one core) of an idle Python process holding the daemon's imports."""
+    code = "import time, numpy, scipy, zmq, psutil, hdeem_watch.daemon.service\nprint('up', flush=True)\ntime.sleep(1e6)"
+    proc = subprocess.Popen([sys.executable, "-c", code], env=_env(), stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    proc.stdout.readline()
+    ps = psutil.Process(proc.pid)
+    c0, t0 = cpu_seconds(ps), time.monotonic()
+    time.sleep(seconds)
+    share = 100 * (cpu_seconds(ps) - c0) / (time.monotonic() - t0)
+    proc.kill()
+    proc.wait()
+    return share
+
+
+def steady(seconds: float, subscribers: int) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory(prefix="hwb-") as tmp:
+        proc, pub, _ = start_daemon(Path(tmp), 1.0)
+        try:
+            procs, _ready, results = run_subscribers(pub, subscribers, seconds + 4)
+            time.sleep(2.0)  # warm-up
+            ps = psutil.Process(proc.pid)
+            c0, t0 = cpu_seconds(ps), time.monotonic()
+            time.sleep(seconds)
+            cpu = 100 * (cpu_seconds(ps) - c0) / (time.monotonic() - t0)
+            rss = ps.memory_info().rss
+            subs = [results.get(timeout=60) for _ in procs]
+            for p in procs:
+                p.join(timeout=30)
+        finally:
+            proc.terminate()
+            proc.wait(timeout=30)
+    return {
+        "cpu_percent": cpu, "rss_bytes": rss,
+        "lost_samples": sum(s["missing_samples"] for s in subs),
+        "lost_messages": sum(s["missed_messages"] for s in subs),
+        "p50_ms": max(s["p50_ms"] for s in subs), "p99_ms": max(s["p99_ms"] for s in subs),
+        "max_ms": max(s["max_ms"] for s in subs),
+        "rate_per_subscriber": float(np.mean([s["samples"] / s["seconds"] for s in subs])),
+    }
+
+
+def publisher_ceiling(seconds: float, batch: int, subscribers: int) -> dict[str, Any]:
+    """Flood the daemon's Publisher with large batches; samples/s every subscriber received."""
+    from hdeem_watch.daemon.publisher import Publisher
+
+    with tempfile.TemporaryDirectory(prefix="hwc-") as tmp:
+        endpoint = f"ipc://{tmp}/flood.sock"
+        ctx = zmq.Context()
+        publisher = Publisher(ctx, endpoint, node="bench", sndhwm=1000)
+        procs, _ready, results = run_subscribers(endpoint, subscribers, seconds + 2.0)
+        time.sleep(0.5)
+        t = np.arange(batch, dtype=np.int64)
+        p = np.random.default_rng(0).normal(5.0, 0.5, batch)
+        sent = 0
+        energy = 0.0
+        end = time.monotonic() + seconds
+        start = time.monotonic()
+        while time.monotonic() < end:
+            for channel in ("BLADE", "CPU0", "DDR_AB"):
+                energy += 1.0
+                publisher.publish_samples(channel, rate_hz=1e6, t_wall_ns=t + sent, power_w=p, energy_j=energy,
+                                          status="ok")
+                sent += batch
+        elapsed = time.monotonic() - start
+        subs = [results.get(timeout=60) for _ in procs]
+        for proc in procs:
+            proc.join(timeout=30)
+        publisher.close()
+        ctx.term()
+    received = [s["samples"] / s["seconds"] for s in subs]
+    return {"sent_per_s": sent / elapsed, "received_per_s_min": min(received),
+            "received_per_s_total": sum(received), "lost_messages": sum(s["missed_messages"] for s in subs)}
+
+
+def daemon_ceiling(seconds: float, speed: float) -> dict[str, Any]:
+    """The whole daemon with a sped-up sim and one subscriber."""
+    with tempfile.TemporaryDirectory(prefix="hwf-") as tmp:
+        proc, pub, _ = start_daemon(Path(tmp), speed)
+        try:
+            procs, _ready, results = run_subscribers(pub, 1, seconds + 2.0)
+            ps = psutil.Process(proc.pid)
+            c0, t0 = cpu_seconds(ps), time.monotonic()
+            time.sleep(seconds)
+            cpu = 100 * (cpu_seconds(ps) - c0) / (time.monotonic() - t0)
+            sub = results.get(timeout=60)
+            procs[0].join(timeout=30)
+        finally:
+            proc.terminate()
+            proc.wait(timeout=30)
+    return {"speed": speed, "generated_per_s": 1600.0 * speed, "delivered_per_s": sub["samples"] / sub["seconds"],
+            "lost_samples": sub["missing_samples"], "cpu_percent": cpu}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="10 s steady phase, short ceilings")
+    parser.add_argument("--seconds", type=float, help="steady phase length (default 60; quick 10)")
+    parser.add_argument("--subscribers", type=int, default=4)
+    parser.add_argument("--batch", type=int, default=100_000, help="samples per flood batch")
+    parser.add_argument("--flood-speed", type=float, default=1000.0, help="sim speed of the daemon ceiling")
+    parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    args = parser.parse_args(argv)
+    seconds = args.seconds or (10.0 if args.quick else 60.0)
+    flood_s = 3.0 if args.quick else 10.0
+
+    results: dict[str, Any] = {"seconds": seconds, "subscribers": args.subscribers, "cpus": os.cpu_count(),
+                               "load_average": os.getloadavg()}
+    results["idle_process_cpu_percent"] = idle_baseline_cpu(min(seconds, 10.0))
+    results["steady"] = steady(seconds, args.subscribers)
+    results["publisher_ceiling"] = publisher_ceiling(flood_s, args.batch, args.subscribers)
+    results["daemon_ceiling"] = daemon_ceiling(flood_s, args.flood_speed)
+
+    s, pc, dc = results["steady"], results["publisher_ceiling"], results["daemon_ceiling"]
+    rows = [
+        ("daemon CPU at full HDEEM rate, % of one core", s["cpu_percent"], "<= 1.0",
+         1.0 / s["cpu_percent"] if s["cpu_percent"] > 0 else float("inf")),
+        ("  idle Python process with the same imports (baseline), %", results["idle_process_cpu_percent"], "-",
+         None),
+        ("lost samples (all subscribers)", s["lost_samples"] + s["lost_messages"], "0", None),
+        ("p99 sensor->subscriber latency, ms", s["p99_ms"], "<= 50", 50.0 / s["p99_ms"]),
+        ("  p50 latency, ms", s["p50_ms"], "-", None),
+        ("samples/s per subscriber (1000 + 6 x 100 nominal)", s["rate_per_subscriber"], "1600",
+         s["rate_per_subscriber"] / 1600.0),
+        (f"publishing ceiling, samples/s received by each of {args.subscribers} subscribers",
+         pc["received_per_s_min"], ">= 1e6", pc["received_per_s_min"] / 1e6),
+        ("  publisher send rate, samples/s", pc["sent_per_s"], "-", None),
+        (f"whole daemon, sim at speed {dc['speed']:g}: samples/s delivered", dc["delivered_per_s"],
+         f"{dc['generated_per_s']:.0f} generated", dc["delivered_per_s"] / dc["generated_per_s"]),
+        ("  its lost samples / CPU %", f"{dc['lost_samples']} / {dc['cpu_percent']:.0f}", "-", None),
+    ]
+    if args.json:
+        print(json.dumps(results))
+        return 0
+    print(f"bench_daemon: {seconds:g} s steady, {args.subscribers} subscribers, {os.cpu_count()} CPUs, "
+          f"load average {results['load_average'][0]:.2f}")
+    for name, value, target, ratio in rows:
+        shown = f"{value:,.3f}" if isinstance(value, float) else str(value)
+        ratio_text = f"ratio {ratio:.2f}" if ratio is not None else ""
+        print(f"{name:<72} {shown:>16}  target {target:<16} {ratio_text}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
