@@ -20,6 +20,15 @@ from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
 SRC = Path(__file__).resolve().parents[2] / "src"
 
 
+def free_port() -> int:
+    """A free TCP port on the loopback interface."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
 @dataclass
 class DaemonProcess:
     """A daemon started by a test: its process, endpoints and state directory."""
@@ -28,19 +37,24 @@ class DaemonProcess:
     args: list[str]
     env: dict[str, str]
     node: str = "testnode"
+    tcp: bool = False
     proc: subprocess.Popen[bytes] | None = None
     stderr_path: Path = field(init=False)
 
     def __post_init__(self) -> None:
         self.stderr_path = self.directory / "daemon.err"
+        if self.tcp:
+            self._pub, self._control = f"tcp://127.0.0.1:{free_port()}", f"tcp://127.0.0.1:{free_port()}"
+        else:
+            self._pub, self._control = f"ipc://{self.directory}/p.sock", f"ipc://{self.directory}/c.sock"
 
     @property
     def pub(self) -> str:
-        return f"ipc://{self.directory}/p.sock"
+        return self._pub
 
     @property
     def control(self) -> str:
-        return f"ipc://{self.directory}/c.sock"
+        return self._control
 
     @property
     def state_dir(self) -> Path:
@@ -102,9 +116,9 @@ def daemon_env(**extra: str) -> dict[str, str]:
     return env
 
 
-def make_daemon(directory: Path, *args: str, **env: str) -> DaemonProcess:
+def make_daemon(directory: Path, *args: str, tcp: bool = False, **env: str) -> DaemonProcess:
     directory.mkdir(parents=True, exist_ok=True)
-    return DaemonProcess(directory=directory, args=list(args), env=daemon_env(**env))
+    return DaemonProcess(directory=directory, args=list(args), env=daemon_env(**env), tcp=tcp)
 
 
 @pytest.fixture
@@ -112,8 +126,8 @@ def daemon_factory(tmp_path: Path) -> Iterator[object]:
     """Build (not start) daemons in ``tmp_path``; every one still running is terminated at the end."""
     made: list[DaemonProcess] = []
 
-    def factory(*args: str, name: str = "d", **env: str) -> DaemonProcess:
-        d = make_daemon(tmp_path / name, *args, **env)
+    def factory(*args: str, name: str = "d", tcp: bool = False, **env: str) -> DaemonProcess:
+        d = make_daemon(tmp_path / name, *args, tcp=tcp, **env)
         made.append(d)
         return d
 
@@ -122,15 +136,6 @@ def daemon_factory(tmp_path: Path) -> Iterator[object]:
         if d.proc is not None and d.proc.poll() is None:
             d.proc.kill()
             d.proc.wait(timeout=10)
-
-
-def free_port() -> int:
-    """A free TCP port on the loopback interface."""
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @pytest.fixture(scope="session")

@@ -1,4 +1,4 @@
-"""The daemon records what it streams, and a daemon with the replay source plays the recording back.
+"""The daemon records what it streams, and a daemon with the replay source (on TCP) plays the recording back.
 
 The recorder is stopped with SIGTERM, which also checks the clean shutdown (exit 0, sockets removed).
 """
@@ -36,7 +36,10 @@ def test_record_then_replay(daemon_factory: Any, receive: Any) -> None:
     assert np.array_equal(t_rec[first:first + t_live.size], t_live)
     assert np.array_equal(p_rec[first:first + p_live.size], p_live)
 
-    player = daemon_factory("--source", "replay", "--replay-file", str(path), "--speed", "4", name="play").start()
+    # The player listens on loopback TCP: remote subscribers connect the same way.
+    player = daemon_factory("--source", "replay", "--replay-file", str(path), "--speed", "4", name="play",
+                            tcp=True).start()
+    assert player.pub.startswith("tcp://")
     sub = player.subscriber(protocol.subscription(player.node, "samples") + b"DDR_AB")
     replayed = receive(sub, 1.0)
     sub.close()
