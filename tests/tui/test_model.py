@@ -171,3 +171,25 @@ def test_headless_printer_reports_new_runs_and_calibration_once() -> None:
     assert any(line.startswith("run ") and "copy" in line and "10.00 J" in line for line in lines)
     assert any(line.startswith("calib ") and "idd0 50.0->30.0" in line and "after 2.0%" in line for line in lines)
     assert [line for line in printer.lines(snap, now_s=1.0) if not line.startswith("power")] == []
+
+
+def test_column_cache_matches_a_fresh_computation_as_data_arrives() -> None:
+    """Cached complete columns plus fresh ones equal a full recomputation over the same aligned window."""
+    from hdeem_watch.tui.downsample import ColumnCache
+
+    rng = np.random.default_rng(1)
+    ring = SampleRing(capacity=100_000)
+    cache = ColumnCache()
+    t_all = np.arange(30_000, dtype=np.int64) * 1_000_000 + 7  # 1 kHz, 30 s
+    p_all = rng.normal(10.0, 2.0, len(t_all))
+    p_all[rng.integers(0, len(p_all), 50)] = np.nan
+    for lo in range(0, len(t_all), 100):  # batches of 100 ms
+        ring.extend(t_all[lo : lo + 100], p_all[lo : lo + 100])
+        newest = ring.newest_t_ns()
+        got = cache.columns(ring.window, t1_ns=newest, window_ns=10 * S, width=37, newest_ns=newest)
+    fresh_t, fresh_p = ring.window(got.t0_ns, got.t1_ns)
+    want = minmax_columns(fresh_t, fresh_p, t0_ns=got.t0_ns, t1_ns=got.t1_ns, width=37)
+    assert got.t1_ns > t_all[-1] and got.t1_ns - got.t0_ns >= 10 * S
+    np.testing.assert_array_equal(got.min_w, want.min_w)
+    np.testing.assert_array_equal(got.max_w, want.max_w)
+    np.testing.assert_allclose(got.mean_w, want.mean_w)

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.daemon.protocol import Message
-from hdeem_watch.tui.downsample import minmax_columns
+from hdeem_watch.tui.downsample import ColumnCache
 from hdeem_watch.tui.records import calib_view, first_num, num, run_view
 from hdeem_watch.tui.ring import SampleRing
 from hdeem_watch.tui.snapshot import CalibView, ChannelView, HealthView, NodeSnapshot, RunView
@@ -72,6 +72,7 @@ class _Channel:
         self.status = "?"
         self.source_gaps = 0
         self.status_power_w = math.nan
+        self.columns = ColumnCache()
 
 
 class NodeModel:
@@ -269,8 +270,9 @@ class NodeModel:
             finite = recent[np.isfinite(recent)]
             power = float(finite.mean()) if len(finite) else math.nan
         if width is not None:
-            t, p = channel.ring.window(t0_ns, t1_ns)
-            columns = minmax_columns(t, p, t0_ns=t0_ns, t1_ns=t1_ns, width=width)
+            columns = channel.columns.columns(
+                channel.ring.window, t1_ns=t1_ns, window_ns=t1_ns - t0_ns, width=width, newest_ns=newest
+            )
         baseline = self._baselines.get(channel.name, {})
         return ChannelView(
             name=channel.name,

@@ -35,26 +35,31 @@ class LinesWidget(Widget):
     def __init__(self, *, id: str | None = None, classes: str | None = None) -> None:
         super().__init__(id=id, classes=classes)
         self._strips: list[Strip] = []
+        self._last: object = None
         self.plain = ""
 
     def set_text(self, text: Text) -> None:
-        """Show ``text`` (one Strip per line)."""
+        """Show ``text`` (one Strip per line); nothing happens when it did not change."""
+        if text == self._last:
+            return
+        self._last = text
         console = self.app.console
         lines = text.split("\n", allow_blank=True)
-        self._strips = [Strip(list(line.render(console))) for line in lines]
-        self.plain = text.plain
-        self._changed()
+        self._set_strips([Strip(list(line.render(console))) for line in lines], text.plain)
 
     def set_runs(self, lines: list[list[Run]]) -> None:
         """Show lines given as ``(text, style)`` runs (the fast path of the plots)."""
-        self._strips = [Strip([Segment(t, style_of(s)) for t, s in line]) for line in lines]
-        self.plain = "\n".join("".join(t for t, _ in line) for line in lines)
-        self._changed()
+        if lines == self._last:
+            return
+        self._last = lines
+        strips = [Strip([Segment(t, style_of(s)) for t, s in line]) for line in lines]
+        self._set_strips(strips, "\n".join("".join(t for t, _ in line) for line in lines))
 
-    def _changed(self) -> None:
-        if self.styles.height is not None and self.styles.height.is_auto:
-            self.refresh(layout=len(self._strips) != self.virtual_size.height)
-        self.refresh()
+    def _set_strips(self, strips: list[Strip], plain: str) -> None:
+        relayout = len(strips) != len(self._strips)
+        self._strips = strips
+        self.plain = plain
+        self.refresh(layout=relayout)
 
     def get_content_height(self, container, viewport, width: int) -> int:  # type: ignore[no-untyped-def]
         return len(self._strips)
