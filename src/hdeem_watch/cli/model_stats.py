@@ -146,7 +146,7 @@ def run_stats(args: argparse.Namespace) -> int:
         cache = CacheConfig(size_bytes=args.llc_bytes, ways=args.llc_ways, flush=args.llc_flush)
         requests = read_request_trace(args.trace, args.format, cache=cache)
         result = simulate(spec, requests.addresses, requests.is_write, policy=args.policy, mapping=args.mapping,
-                          xor_bank=args.xor_bank)
+                          xor_bank=args.xor_bank, keep_commands=bool(args.emit_drampower))
         stats = result.stats
         data = summary(stats, requests=result.requests, reads=result.reads, writes=result.writes,
                        row_hits=result.row_hits, row_misses=result.row_misses,

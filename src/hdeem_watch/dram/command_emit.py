@@ -11,7 +11,7 @@ Example:
     >>> from hdeem_watch.dram.memspec import preset
     >>> from hdeem_watch.dram.kernels import kernel_requests
     >>> from hdeem_watch.dram.controller import simulate
-    >>> result = simulate(preset("ddr4-2133-x8-4gb"), *kernel_requests("read", 64))
+    >>> result = simulate(preset("ddr4-2133-x8-4gb"), *kernel_requests("read", 64), keep_commands=True)
     >>> drampower_lines(result)[:2]
     ['0,ACT,0,0,0,4096,0', '15,RD,0,0,0,4096,0']
 """
@@ -31,6 +31,8 @@ _PREA, _PRE, _REFA, _ACT, _RD, _WR, _RDA, _WRA = range(len(_NAMES))
 def _columns(result: Any) -> tuple[np.ndarray, ...]:
     """Every command as parallel arrays (cycle, kind, rank, bankgroup, bank, row, column), time-ordered."""
     commands = result.commands
+    if commands is None:
+        raise ValueError("the result holds no commands: simulate(..., keep_commands=True)")
     geometry = result.geometry
     per_group = geometry.banks_per_group
     ranks = np.arange(geometry.ranks, dtype=np.int64)

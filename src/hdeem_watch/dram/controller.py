@@ -36,7 +36,8 @@ Example:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from dataclasses import fields as fields_of
 from typing import Any
 
 import numpy as np
@@ -47,6 +48,8 @@ from hdeem_watch.dram.stats import CommandStats, RankStats
 from hdeem_watch.errors import InputError
 
 POLICIES = ("open", "closed")
+#: Requests served per chunk by :func:`simulate`.
+CHUNK_REQUESTS = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -103,6 +106,7 @@ class Commands:
         ref_cycle: refresh times (PREA of every rank at ``ref_cycle``, REFA ``refa_delay`` later).
         end_cycle: the evaluation time T.
         refa_delay: cycles from a refresh's PREA to its REFA (tRP).
+        start_cycle: where the window starts (0 unless this is a later chunk).
     """
 
     act_cycle: np.ndarray
@@ -122,6 +126,7 @@ class Commands:
     ref_cycle: np.ndarray
     end_cycle: int
     refa_delay: int = 0
+    start_cycle: int = 0
 
 
 @dataclass(frozen=True)
@@ -133,7 +138,8 @@ class ControllerResult:
         requests, reads, writes: requests served.
         row_hits, row_misses, row_conflicts: outcome of each request at its first command.
         cycles: total DRAM cycles (the END of the emitted trace).
-        commands: the issued command set (for :func:`hdeem_watch.dram.command_emit.write_drampower_trace`).
+        commands: the issued command set (for :func:`hdeem_watch.dram.command_emit.write_drampower_trace`),
+            ``None`` unless :func:`simulate` was asked to keep it.
         geometry: the organisation simulated.
     """
 
@@ -145,7 +151,7 @@ class ControllerResult:
     row_misses: int
     row_conflicts: int
     cycles: int
-    commands: Commands
+    commands: Commands | None
     geometry: Geometry
 
 
@@ -179,6 +185,7 @@ def simulate(
     xor_bank: bool = False,
     channel: int = 0,
     scheduler: SchedulerConfig | None = None,
+    keep_commands: bool = False,
 ) -> ControllerResult:
     """Serve a request stream on one channel and count the commands.
 
@@ -193,6 +200,12 @@ def simulate(
         channel: which channel to simulate when the memspec has several (others' requests are
             ignored).
         scheduler: queue sizes, watermarks and hit cap (defaults: Ramulator's).
+        keep_commands: keep the issued commands in ``result.commands`` (for
+            :func:`hdeem_watch.dram.command_emit.write_drampower_trace`); off by default to save memory.
+
+    Long streams are served in chunks of about :data:`CHUNK_REQUESTS` requests (bounded memory,
+    cache-friendly); each chunk but the last ends by precharging the banks left open (one PRE per
+    open bank every million requests: a negligible deviation).
 
     Raises:
         InputError: for a bad policy, mapping, memspec or mismatched arrays.
@@ -206,18 +219,55 @@ def simulate(
     geometry = Geometry.from_spec(spec)
     timing = Timing.from_spec(spec)
     config = scheduler or SchedulerConfig()
-    fields = AddressMapping(geometry, mapping, xor_bank=xor_bank).decode(addresses)
-    if geometry.channels > 1:
-        keep = fields.channel == channel
-        if not keep.all():
-            fields = type(fields)(**{k: v[keep] for k, v in vars(fields).items()})
-            is_write = is_write[keep]
-    order = service_order(fields.rank * geometry.banks + fields.flat_bank, fields.row, is_write, config)
+    address_mapping = AddressMapping(geometry, mapping, xor_bank=xor_bank)
     from hdeem_watch.dram.timing_model import run_timing
 
-    return run_timing(geometry, timing, config, policy,
-                      rank=fields.rank[order], bank=fields.flat_bank[order], bankgroup=fields.bankgroup[order],
-                      row=fields.row[order], column=fields.column[order], write=is_write[order])
+    n = addresses.size
+    pieces = max(1, n // CHUNK_REQUESTS)
+    bounds = [n * i // pieces for i in range(pieces + 1)]
+    parts: list[ControllerResult] = []
+    start = 0
+    for i in range(pieces):
+        fields = address_mapping.decode(addresses[bounds[i]:bounds[i + 1]])
+        writes = is_write[bounds[i]:bounds[i + 1]]
+        if geometry.channels > 1:
+            keep = fields.channel == channel
+            if not keep.all():
+                fields = type(fields)(**{k: v[keep] for k, v in vars(fields).items()})
+                writes = writes[keep]
+        order = service_order(fields.rank * geometry.banks + fields.flat_bank, fields.row, writes, config)
+        part = run_timing(geometry, timing, config, policy,
+                          rank=fields.rank[order], bank=fields.flat_bank[order],
+                          bankgroup=fields.bankgroup[order], row=fields.row[order],
+                          column=fields.column[order], write=writes[order],
+                          start=start, close_at_end=i < pieces - 1)
+        start = part.cycles
+        if not keep_commands:
+            part = replace(part, commands=None)
+        parts.append(part)
+    return parts[0] if len(parts) == 1 else _merge(parts)
+
+
+def _merge(parts: list[ControllerResult]) -> ControllerResult:
+    """One result from consecutive chunks (counts and residency add up; windows are contiguous)."""
+    ranks = []
+    for r in range(len(parts[0].stats.ranks)):
+        totals = {f.name: sum(getattr(p.stats.ranks[r], f.name) for p in parts) for f in fields_of(RankStats)}
+        ranks.append(RankStats(**totals))
+    commands = None
+    if all(p.commands is not None for p in parts):
+        chunks = [p.commands for p in parts if p.commands is not None]
+        arrays = {f.name: np.concatenate([getattr(c, f.name) for c in chunks])
+                  for f in fields_of(Commands) if f.name not in ("end_cycle", "refa_delay", "start_cycle")}
+        commands = Commands(**arrays, end_cycle=chunks[-1].end_cycle, refa_delay=chunks[-1].refa_delay,
+                            start_cycle=chunks[0].start_cycle)
+    return ControllerResult(
+        stats=CommandStats(ranks=tuple(ranks)), requests=sum(p.requests for p in parts),
+        reads=sum(p.reads for p in parts), writes=sum(p.writes for p in parts),
+        row_hits=sum(p.row_hits for p in parts), row_misses=sum(p.row_misses for p in parts),
+        row_conflicts=sum(p.row_conflicts for p in parts), cycles=parts[-1].cycles, commands=commands,
+        geometry=parts[0].geometry,
+    )
 
 
 def stats_from_commands(geometry: Geometry, timing: Timing, commands: Commands,
@@ -235,6 +285,7 @@ def stats_from_commands(geometry: Geometry, timing: Timing, commands: Commands,
     """
     ranks = []
     end = commands.end_cycle
+    window = end - commands.start_cycle
     refreshes = commands.ref_cycle.size
     for r in range(geometry.ranks):
         mine = run_rank == r
@@ -253,8 +304,8 @@ def stats_from_commands(geometry: Geometry, timing: Timing, commands: Commands,
             pre=float(explicit_pre + np.count_nonzero(closed_by_prea[mine]) + np.count_nonzero(auto_pre_rank == r)),
             rd=float(np.count_nonzero(~write & ~auto)), wr=float(np.count_nonzero(write & ~auto)),
             rda=float(np.count_nonzero(~write & auto)), wra=float(np.count_nonzero(write & auto)),
-            ref=float(refreshes), cycles_total=float(end), cycles_act=float(union),
-            cycles_pre=float(end - union),
+            ref=float(refreshes), cycles_total=float(window), cycles_act=float(union),
+            cycles_pre=float(window - union),
             bank_active_cycles=float(np.sum(closed - opened) + geometry.banks * np.sum(ref_stop - ref_start)),
         ))
     return CommandStats(ranks=tuple(ranks))

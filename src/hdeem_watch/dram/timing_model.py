@@ -48,24 +48,30 @@ class _Refresh:
     ``t + S × k(t)``, ``k(t)`` = the refreshes that started before it.
     """
 
-    def __init__(self, timing: Timing) -> None:
+    def __init__(self, timing: Timing, start: int = 0) -> None:
         self.refi = timing.refi
-        self.stall = timing.rp + timing.rfc + timing.rcd
-        if self.stall >= self.refi:
-            self.stall = self.refi - 1
+        self.stall = min(timing.rp + timing.rfc + timing.rcd, self.refi - 1)
+        self.start = start
+        # virtual time of the first refresh at or after ``start`` (none at cycle 0)
+        self.first = max(self.refi, -(-start // self.refi) * self.refi) - start
 
     def count(self, virtual: np.ndarray) -> np.ndarray:
         period = self.refi - self.stall
-        return np.maximum(0, (virtual - self.stall) // period)
+        return np.where(virtual >= self.first, (virtual - self.first) // period + 1, 0)
 
     def real(self, virtual: np.ndarray) -> np.ndarray:
-        return virtual + self.stall * self.count(virtual)
+        return self.start + virtual + self.stall * self.count(virtual)
 
 
 def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, policy: str, *,
                rank: np.ndarray, bank: np.ndarray, bankgroup: np.ndarray, row: np.ndarray,
-               column: np.ndarray, write: np.ndarray) -> ControllerResult:
-    """Time a request sequence already in service order and collect its commands and statistics."""
+               column: np.ndarray, write: np.ndarray, start: int = 0, close_at_end: bool = False) -> ControllerResult:
+    """Time a request sequence already in service order and collect its commands and statistics.
+
+    ``start`` is the cycle the sequence starts at (a chunk after earlier ones); ``close_at_end``
+    precharges the banks left open and ends the window ``tRP`` later, so the next chunk starts
+    with every bank precharged.
+    """
     n = rank.size
     rank = rank.astype(np.int64)
     bank = bank.astype(np.int64)
@@ -135,7 +141,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     act[idx] = np.minimum(np.maximum(np.where(p_has, ready + timing.rp, 0), enter), t[idx] - timing.rcd)
     pre_t = act[idx] - timing.rp
 
-    refresh = _Refresh(timing)
+    refresh = _Refresh(timing, start)
     k_col = refresh.count(t)
     col_real = refresh.real(t)
     # refresh closes the row: a hit or conflict whose previous same-bank access precedes a refresh
@@ -159,7 +165,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     pre_req = idx[explicit_pre]
     pre_cycle = refresh.real(pre_t[explicit_pre])
 
-    last_real = int(col_real[-1]) + (np.where(write[-1], timing.wl, timing.rl) + b) if n else 0
+    last_real = int(col_real[-1]) + (np.where(write[-1], timing.wl, timing.rl) + b) if n else start
     shift = np.int64(1) << np.int64(42)
     act_keys = gbank[act_req] * shift + act_cycle
     auto_cycle = np.zeros(0, dtype=np.int64)
@@ -178,8 +184,9 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     preempted = (next_ref < auto_cycle) & (next_ref <= end)
     auto_req = auto_req[~preempted]
     auto_cycle = auto_cycle[~preempted]
-    n_ref = end // timing.refi
-    ref_cycle = timing.refi * np.arange(1, n_ref + 1, dtype=np.int64)
+    window_end = end + timing.rp if close_at_end else end
+    first_ref = max(1, -(-start // timing.refi))
+    ref_cycle = timing.refi * np.arange(first_ref, (window_end - 1) // timing.refi + 1, dtype=np.int64)
 
     # bank-open intervals: each ACT until the first of: the next precharge of its bank (explicit or
     # auto), the next refresh's PREA, the end
@@ -197,12 +204,18 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     next_refresh = np.where(next_refresh <= end, next_refresh, np.iinfo(np.int64).max)
     close = np.minimum(np.minimum(next_close, next_refresh), end)
     by_prea = (next_refresh < next_close) & (next_refresh <= end)
+    if close_at_end:  # precharge what is still open
+        still_open = (next_close > end) & ~by_prea
+        pre_req = np.concatenate((pre_req, act_req[still_open]))
+        pre_cycle = np.concatenate((pre_cycle, np.full(int(still_open.sum()), end, dtype=np.int64)))
+        end = window_end
 
     commands = Commands(
         act_cycle=act_cycle, act_rank=rank[act_req], act_bank=bank[act_req], act_row=row[act_req],
         pre_cycle=pre_cycle, pre_rank=rank[pre_req], pre_bank=bank[pre_req],
         col_cycle=col_real, col_rank=rank, col_bank=bank, col_row=row, col_column=column,
         col_write=write, col_auto=auto, ref_cycle=ref_cycle, end_cycle=end, refa_delay=timing.rp,
+        start_cycle=start,
     )
     stats = stats_from_commands(geometry, timing, commands, rank[act_req], act_cycle, close, by_prea,
                                  rank[auto_req])
