@@ -133,9 +133,15 @@ def _parse_uint(buf: np.ndarray, start: np.ndarray, end: np.ndarray,
     word (and the 8 before them for longer fields), then decoded by :func:`_eight_digits`. With
     ``values=False`` only the validity is computed (the returned values are meaningless).
     """
-    words = _words(buf)
     length = end - start
     ok = (length >= 1) & (length <= 16)
+    if length.size and length.max() <= 2:  # ranks, bank groups, banks: one or two bytes
+        last = buf[end - 1] - np.uint8(48)  # non-digits wrap to > 9
+        first = buf[end - 2] - np.uint8(48)
+        two = length == 2
+        ok &= (last <= 9) & ((first <= 9) | ~two)
+        return last + np.where(two, first.astype(np.int64) * 10, 0), ok
+    words = _words(buf)
     low = np.clip(length, 0, 8)
     value, good = _eight_digits(words[end - 8], low, values)
     ok &= good
