@@ -6,7 +6,7 @@ runtime directory, a schedule thread that announces runs (idle + the seven kerne
 then other thread counts) and the TUI connected to the daemon through the wire protocol. Within a
 minute the calibration panel converges from the datasheet currents (about 2× too much energy)
 toward the simulation's hidden truth. ``--headless`` prints the same progress as text lines. The
-daemon is stopped on exit, on Ctrl-C and on SIGTERM.
+daemon is stopped on exit, on Ctrl-C, on SIGTERM and when the terminal hangs up (SIGHUP).
 """
 
 from __future__ import annotations
@@ -52,12 +52,16 @@ def _run(args: argparse.Namespace) -> int:
     from hdeem_watch.tui.demo_schedule import DemoSchedule
 
     daemon = DemoDaemon(state_dir=args.state_dir, speed=args.speed)
-    previous = signal.getsignal(signal.SIGTERM)
+    handled = (signal.SIGTERM, signal.SIGHUP)
+    previous = {sig: signal.getsignal(sig) for sig in handled}
 
     def _terminate(signum: int, frame: FrameType | None) -> None:
+        for sig in handled:  # a second signal must not interrupt the clean-up
+            signal.signal(sig, signal.SIG_IGN)
         raise KeyboardInterrupt
 
-    signal.signal(signal.SIGTERM, _terminate)
+    for sig in handled:
+        signal.signal(sig, _terminate)
     try:
         if args.headless:
             print(f"demo: starting a simulated node (daemon log: {daemon.log_path})", flush=True)
@@ -72,7 +76,8 @@ def _run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         return 130 if args.headless else 0
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         daemon.stop()
 
 

@@ -81,9 +81,9 @@ class DemoDaemon:
         """
         self.state_dir.mkdir(parents=True, exist_ok=True)
         with open(self.log_path, "wb") as log:
+            # same process group: a hang-up of the terminal (or Ctrl-C outside the TUI) reaches it too
             self.process = subprocess.Popen(
                 self.command(), stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
-                start_new_session=True,
             )  # fmt: skip
         client = ControlClient(self.control_endpoint, timeout_s=1.0)
         deadline = time.monotonic() + self.start_timeout_s
