@@ -49,7 +49,7 @@ from hdeem_watch.errors import InputError
 
 POLICIES = ("open", "closed")
 #: Requests served per chunk by :func:`simulate`.
-CHUNK_REQUESTS = 1 << 20
+CHUNK_REQUESTS = 1 << 19
 
 
 @dataclass(frozen=True)

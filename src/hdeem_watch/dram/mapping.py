@@ -193,10 +193,12 @@ class AddressMapping:
 
     def decode(self, addresses: np.ndarray) -> Fields:
         """Split physical byte addresses into their fields (vectorised)."""
-        addresses = np.asarray(addresses, dtype=np.uint64)
+        # above the offset, every field fits a signed 64-bit integer: shift once, then slice
+        line = (np.asarray(addresses, dtype=np.uint64) >> np.uint64(self.offset_bits)).view(np.int64)
         values: dict[str, np.ndarray] = {}
         for token, shift, width in self._slices:
-            values[token] = ((addresses >> np.uint64(shift)) & np.uint64((1 << width) - 1)).astype(np.int64)
+            field = line >> (shift - self.offset_bits) if shift > self.offset_bits else line
+            values[token] = field & ((1 << width) - 1)
         geometry = self.geometry
         flat = values["Bg"] * geometry.banks_per_group + values["Ba"]
         if self.xor_bank:

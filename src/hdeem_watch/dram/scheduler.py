@@ -94,7 +94,7 @@ def phases(is_write: np.ndarray, config: SchedulerConfig) -> tuple[np.ndarray, n
     position = np.empty(n, dtype=np.int64)
     segment = np.empty(n, dtype=np.int64)
     read_ordinal = np.arange(n_reads, dtype=np.int64)
-    phase = np.searchsorted(cut, read_ordinal, side="right")
+    phase = np.cumsum(np.bincount(np.minimum(cut, n_reads), minlength=n_reads + 1)[:n_reads]) if n_reads else read_ordinal
     read_index = np.flatnonzero(~is_write)
     position[read_index] = read_ordinal + phase * batch
     # a read phase is regrouped in windows of at most ``window`` reads

@@ -73,8 +73,6 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     with every bank precharged.
     """
     n = rank.size
-    rank = rank.astype(np.int64)
-    bank = bank.astype(np.int64)
     gbank = rank * geometry.banks + bank
     prev, nxt, by_bank = _previous_same(gbank)
     has_prev = prev >= 0
@@ -143,7 +141,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
 
     refresh = _Refresh(timing, start)
     k_col = refresh.count(t)
-    col_real = refresh.real(t)
+    col_real = refresh.start + t + refresh.stall * k_col
     # refresh closes the row: a hit or conflict whose previous same-bank access precedes a refresh
     refreshed = has_prev & (k_col > k_col[prev_safe])
     k_pre = refresh.count(pre_t)
