@@ -89,3 +89,11 @@ def test_malformed_row_names_the_line():
         parse_printout(text, where="p.txt")
     with pytest.raises(InputError, match="no HDEEM statistics"):
         parse_printout("hello\n", where="p.txt")
+
+
+def test_dram_energy_for_import():
+    """A checkHdeem block gives the DIMM pairs' energy (sum of the four printed energies) for import."""
+    (block,) = [b for b in read_printout(TAURUS / "6485taurus.txt").of_kind("stats") if b.blade_samples]
+    assert block.dram_energy_j() == pytest.approx(1.996 + 0.802 + 1.580 + 4.130)
+    first = read_printout(TAURUS / "6485taurus.txt").blocks[1]      # get_stats lines: no duration
+    assert math.isnan(first.dram_energy_j())

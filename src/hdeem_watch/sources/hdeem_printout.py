@@ -28,7 +28,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from hdeem_watch.errors import InputError
-from hdeem_watch.sources.base import normalise_channel_name
+from hdeem_watch.sources.base import DRAM_CHANNELS, normalise_channel_name
 
 NAN = math.nan
 _NUM = r"[-+]?\d+(?:\.\d+)?"
@@ -83,6 +83,20 @@ class StatsBlock:
     time_blade: str = ""
     time_vr: str = ""
     real_s: float = NAN
+
+    def dram_energy_j(self) -> float:
+        """Energy of the four DIMM pairs (J): printed energies, else average × duration; NaN if neither.
+
+        This is the ``measured_j`` of a calibration run (RUNS.json) imported from a printout.
+        """
+        rows = [self.sensors[c] for c in DRAM_CHANNELS if c in self.sensors]
+        if len(rows) != len(DRAM_CHANNELS):
+            return NAN
+        if all(math.isfinite(r.energy_j) for r in rows):
+            return float(sum(r.energy_j for r in rows))
+        if math.isfinite(self.duration_s) and all(math.isfinite(r.average_w) for r in rows):
+            return float(sum(r.average_w for r in rows) * self.duration_s)
+        return NAN
 
 
 @dataclass(frozen=True)
