@@ -8,6 +8,8 @@ import time
 from pathlib import Path
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from hdeem_watch.errors import InputError
 from hdeem_watch.slurm import (
@@ -190,3 +192,19 @@ def test_prolog_starts_a_daemon_the_job_announces_to(slurm) -> None:  # type: ig
         assert not Path(f"/proc/{job['pid']}").exists(), "the job's daemon still runs after the Epilog"
     finally:
         slurm.hook_conf.unlink(missing_ok=True)
+
+
+@given(st.lists(st.tuples(st.sampled_from(["n", "node", "rack-", "x1y"]),
+                          st.lists(st.tuples(st.integers(0, 300), st.integers(0, 20), st.integers(1, 4)),
+                                   min_size=1, max_size=4)), min_size=1, max_size=3))
+def test_expand_hostlist_property(items: list[tuple[str, list[tuple[int, int, int]]]]) -> None:
+    """Any comma list of prefix[lo-hi,...] groups expands to the zero-padded names in order."""
+    parts, expected = [], []
+    for prefix, ranges in items:
+        body = []
+        for lo, span, width in ranges:
+            hi = lo + span
+            body.append(f"{lo:0{width}d}-{hi:0{width}d}" if span else f"{lo:0{width}d}")
+            expected.extend(f"{prefix}{n:0{width}d}" for n in range(lo, hi + 1))
+        parts.append(f"{prefix}[{','.join(body)}]")
+    assert expand_hostlist(",".join(parts)) == list(dict.fromkeys(expected))
