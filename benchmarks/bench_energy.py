@@ -160,23 +160,23 @@ _WARM = """
 import io, sys, time, contextlib
 from hdeem_watch.cli import build_parser, main
 build_parser()
-t0 = time.perf_counter()
+t0, c0 = time.perf_counter(), time.process_time()
 with contextlib.redirect_stdout(io.StringIO()):
     code = main(sys.argv[1:])
-print(time.perf_counter() - t0, file=sys.stderr)
+print(time.perf_counter() - t0, time.process_time() - c0, file=sys.stderr)
 sys.exit(code)
 """
 
 
-def _run_measured(argv: list[str], stdout_path: Path) -> tuple[int, float, int]:
-    """Run ``argv`` with stdout to a file; (exit status, wall seconds, that child's peak RSS bytes)."""
+def _run_measured(argv: list[str], stdout_path: Path) -> tuple[int, float, int, float]:
+    """Run ``argv`` with stdout to a file; (exit status, wall s, that child's peak RSS bytes, its CPU s)."""
     with open(stdout_path, "wb") as out:
         t0 = time.perf_counter()
         child = subprocess.Popen(argv, stdout=out, stderr=subprocess.PIPE)
         _, status, usage = os.wait4(child.pid, 0)
         wall_s = time.perf_counter() - t0
         child.returncode = os.waitstatus_to_exitcode(status)
-    return child.returncode, wall_s, usage.ru_maxrss * 1024
+    return child.returncode, wall_s, usage.ru_maxrss * 1024, usage.ru_utime + usage.ru_stime
 
 
 def main() -> int:
@@ -202,11 +202,11 @@ def main() -> int:
         print(f"trace: {lines:,} commands, {size / 1e6:.0f} MB, built in {built_s:.1f} s")
         argv = [sys.executable, "-m", "hdeem_watch", "model", "energy", "--memspec", "ddr4-2133-x8-4gb",
                 "--trace", str(path), "--json"]
-        _, startup_s, _ = _run_measured([*argv[:5], "--help"], Path(tmp) / "help.txt")
-        code, wall_s, rss = _run_measured(argv, Path(tmp) / "out.json")
+        _, startup_s, _, startup_cpu_s = _run_measured([*argv[:5], "--help"], Path(tmp) / "help.txt")
+        code, wall_s, rss, cpu_s = _run_measured(argv, Path(tmp) / "out.json")
         # the same CLI call in a process whose imports are already done: the model's own rate
         warm = subprocess.run([sys.executable, "-c", _WARM, *argv[3:]], capture_output=True, text=True, check=True)
-        warm_s = float(warm.stderr.strip().splitlines()[-1])
+        warm_s, warm_cpu_s = map(float, warm.stderr.strip().splitlines()[-1].split())
         if code != 0:
             print(f"model energy failed with exit code {code}", file=sys.stderr)
             return 1
@@ -216,10 +216,13 @@ def main() -> int:
     rate = lines / wall_s
     print(f"end to end (subprocess, incl. start-up): {wall_s:.2f} s -> {rate / 1e6:.2f} M commands/s "
           f"(target >= {TARGET_CMD_PER_S / 1e6:.0f} M/s: {'met' if rate >= TARGET_CMD_PER_S else 'NOT met'})")
-    print(f"  of which CLI start-up (interpreter + imports of every subcommand; --help alone takes "
-          f"{startup_s:.2f} s)")
-    print(f"same CLI call with imports done (hdeem_watch.cli.main in a warm process): {warm_s:.2f} s -> "
-          f"{lines / warm_s / 1e6:.2f} M commands/s")
+    print(f"  CPU time of that process: {cpu_s:.2f} s -> {lines / cpu_s / 1e6:.2f} M commands per CPU-second "
+          "(what an idle machine would approach)")
+    print(f"  CLI start-up alone (interpreter + imports of every subcommand, --help): {startup_s:.2f} s wall, "
+          f"{startup_cpu_s:.2f} s CPU")
+    print(f"same CLI call with imports done (hdeem_watch.cli.main in a warm process): {warm_s:.2f} s wall "
+          f"-> {lines / warm_s / 1e6:.2f} M commands/s; {warm_cpu_s:.2f} s CPU -> "
+          f"{lines / warm_cpu_s / 1e6:.2f} M commands per CPU-second")
     print(f"peak RSS of the CLI process: {rss / 2**20:.0f} MiB "
           f"(target < 1 GiB: {'met' if rss < TARGET_RSS_BYTES else 'NOT met'})")
     print(f"ratio to DRAMPower v6.2 CLI (0.6 M commands/s, 1.7 GB for 10 M): {rate / DRAMPOWER_CMD_PER_S:.1f}x")

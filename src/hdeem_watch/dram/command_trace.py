@@ -275,7 +275,7 @@ def read_command_trace(path: str | Path, spec: MemSpec | None = None, *, address
         limits = {"rank": spec.nbr_of_ranks, "bankgroup": spec.nbr_of_bankgroups, "bank": spec.nbr_of_banks,
                   "row": spec.nbr_of_rows, "column": spec.nbr_of_columns}
     try:
-        handle = open(path, "rb")  # noqa: SIM115 (closed by the with below)
+        handle = open(path, "rb", buffering=0)  # noqa: SIM115 (closed by the with below)
     except OSError as error:
         raise InputError(f"{where}: cannot read trace: {error.strerror or error}") from None
     with handle:
