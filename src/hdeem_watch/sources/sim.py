@@ -297,14 +297,6 @@ class SimSource:
             self._resolve_plans(timeout_s)
         return self._plans[run_id]
 
-    def expected_run_energy_j(self, run_id: str) -> dict[str, float]:
-        """Per DIMM-pair channel, the energy (J) the run adds above idle-at-start (for tests/demo)."""
-        plan = self.run_plan(run_id)
-        out = dict.fromkeys(DRAM_CHANNELS, 0.0)
-        for d in range(len(DIMMS)):
-            out[DIMM_PAIR[d]] += float(plan.excess_w[d] * plan.duration_ns * 1e-9)
-        return out
-
     def truth(self) -> dict:
         """The hidden true currents now (A per device), per DIMM and averaged — simulation only."""
         t_s = self._sim_ns * 1e-9
