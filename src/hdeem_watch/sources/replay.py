@@ -20,9 +20,10 @@ timestamp time, as in the sim), or the recorded timestamps with ``restamp=False`
 recording repeats (each pass shifted by its length plus one sample period).
 
 Example:
-    >>> import io, tempfile, os, numpy as np
+    >>> import tempfile, os, numpy as np
     >>> path = os.path.join(tempfile.mkdtemp(), "r.csv")
     >>> write_recording(path, {"DDR_AB": (np.array([10, 20, 30]), np.array([1.0, 1.5, 2.0]))})
+    3
     >>> read_recording(path).channels["DDR_AB"][1].tolist()
     [1.0, 1.5, 2.0]
 """
