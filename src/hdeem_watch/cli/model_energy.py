@@ -19,13 +19,15 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
-from hdeem_watch.dram.energy import COMPONENTS, EnergyBreakdown, core_energy
-from hdeem_watch.dram.memspec import MemSpec, load_memspec, preset
-from hdeem_watch.dram.presets import PRESETS
-from hdeem_watch.dram.stats import COUNT_FIELDS, CYCLE_FIELDS, CommandStats
+from hdeem_watch.dram.presets import PRESETS  # no numpy: the model itself is imported when it runs
+from hdeem_watch.dram.stats import COUNT_FIELDS, CYCLE_FIELDS
+
+if TYPE_CHECKING:
+    from hdeem_watch.dram.energy import EnergyBreakdown
+    from hdeem_watch.dram.memspec import MemSpec
+    from hdeem_watch.dram.stats import CommandStats
 
 
 def register(subparsers: Any) -> None:
@@ -43,6 +45,8 @@ def register(subparsers: Any) -> None:
 
 def resolve_memspec(value: str) -> MemSpec:
     """A memspec file, or a preset when no such file exists and the name is a preset."""
+    from hdeem_watch.dram.memspec import load_memspec, preset
+
     if value in PRESETS and not Path(value).exists():
         return preset(value)
     return load_memspec(value)
@@ -76,6 +80,8 @@ def report(spec: MemSpec, stats: CommandStats, energy: EnergyBreakdown, *, trace
 
 def format_table(data: dict[str, Any], spec: MemSpec) -> str:
     """The human-readable report."""
+    from hdeem_watch.dram.energy import COMPONENTS
+
     lines = [
         f"memspec   {data['memory_id']}  ({spec.nbr_of_ranks} ranks x {spec.nbr_of_devices} devices, "
         f"tCK {spec.tck_s * 1e9:g} ns)",
@@ -103,6 +109,9 @@ def format_table(data: dict[str, Any], spec: MemSpec) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Compute and print; InputError propagates to the CLI (one line, exit code 2)."""
+    from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+    from hdeem_watch.dram.energy import core_energy
+
     spec = resolve_memspec(args.memspec)
     trace = read_command_trace(args.trace)
     stats = trace_stats(spec, trace)
