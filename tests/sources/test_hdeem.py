@@ -319,3 +319,30 @@ def test_shim_has_no_memory_errors_or_leaks(fake_hdeem, tmp_path):
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.strip() == "ok 1 6"
+
+
+def test_failures_from_the_environment_in_a_real_process(fake_hdeem):
+    """In a separate process, HDEEM_FAKE_NAMES_STYLE / HDEEM_FAKE_DENY set the fake's behaviour."""
+    import os
+    import subprocess
+    import sys
+
+    script = (
+        "import json, sys\n"
+        "from hdeem_watch.sources.base import SourceUnavailable, make_source\n"
+        f"opts = {fake_hdeem.options(interval_s=0.0)!r}\n"
+        "src = make_source('hdeem', **opts)\n"
+        "try:\n"
+        "    src.open()\n"
+        "except SourceUnavailable as exc:\n"
+        "    print(json.dumps({'unavailable': exc.reason})); sys.exit(0)\n"
+        "print(json.dumps({'channels': [c.name for c in src.channels()]})); src.close()\n"
+    )
+    out = {}
+    for name, env in (("styled", {"HDEEM_FAKE_NAMES_STYLE": "1"}), ("denied", {"HDEEM_FAKE_DENY": "1"})):
+        proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
+                              env={**os.environ, **env})
+        assert proc.returncode == 0, proc.stderr
+        out[name] = proc.stdout
+    assert '"channels": ["BLADE", "CPU0", "CPU1", "DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"]' in out["styled"]
+    assert "privileged collector" in out["denied"]

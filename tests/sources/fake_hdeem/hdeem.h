@@ -90,7 +90,8 @@ void hdeem_stats_free(hdeem_stats_reading_t *stats);
  * "stop_ms" (stop takes this long: status stays polling), "overflow" (status overflow bits),
  * "names_style" (0 canonical, 1 "ddr ab" lower case with spaces, 2 "Ddr_Ab"), "advance_ns" (adds to
  * the fake clock), "deny" (init fails with permission denied), "clock_ns" (read: current fake
- * monotonic ns). Returns the value read or 0. */
+ * monotonic ns). Returns the value read or 0. The same keys, upper-cased with the prefix HDEEM_FAKE_
+ * (e.g. HDEEM_FAKE_DENY=1, HDEEM_FAKE_NAMES_STYLE=1), are read from the environment at first use. */
 long long hdeem_fake_control(const char *key, long long value);
 /* set sensor index s (0 = BLADE, 1.. = VR in name order) to watts from the current fake time on */
 int hdeem_fake_set_power(int sensor, double watts);

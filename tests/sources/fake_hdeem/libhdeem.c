@@ -9,6 +9,7 @@
 #include "hdeem.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -74,6 +75,17 @@ static void setup(void) {
     }
     S.stop_ms = 20;
     S.slow_ms = 300;
+    /* failures on demand from the environment too (for tests that run a real daemon process) */
+    static const char *keys[] = {"FAIL_INIT", "FAIL_CALLS", "SLOW_CALLS", "SLOW_MS", "STOP_MS",
+                                 "OVERFLOW", "NAMES_STYLE", "DENY"};
+    long long *slots[] = {&S.fail_init, &S.fail_calls, &S.slow_calls, &S.slow_ms, &S.stop_ms,
+                          &S.overflow, &S.names_style, &S.deny};
+    for (size_t i = 0; i < sizeof keys / sizeof keys[0]; i++) {
+        char name[64];
+        snprintf(name, sizeof name, "HDEEM_FAKE_%s", keys[i]);
+        const char *v = getenv(name);
+        if (v && *v) *slots[i] = atoll(v);
+    }
 }
 
 static long long now_ns(void) { return raw_mono() + S.offset_ns; }
