@@ -9,11 +9,12 @@ ignored); ``bank`` is the flat bank index within the rank; ``cycle`` must not de
 cycle (else the last cycle) is the evaluation time T. Spaces, tabs and carriage returns are ignored
 (DRAMPower trims them). The data field is optional and not used by the core model.
 
-The whole file is parsed with numpy on its raw bytes, in chunks of whole lines (no Python code per
-line): delimiter positions come from ``flatnonzero``, integer fields are accumulated digit by digit
-over all lines at once, command names are packed into integers and looked up with
-``searchsorted``. Every malformed line raises a one-line :class:`~hdeem_watch.errors.InputError`
-with its line number.
+The whole file is parsed with numpy on its raw bytes, in 16 MB chunks of whole lines read into one
+reused buffer (no Python code per line): delimiter positions come from one ``flatnonzero``, the
+seven field boundaries of every line form a ``reshape`` of them, integer fields are decoded eight
+digits at a time with SWAR arithmetic on unaligned 64-bit words, command names are packed into
+integers and looked up with ``searchsorted``. Every malformed line raises a one-line
+:class:`~hdeem_watch.errors.InputError` with its line number.
 
 Example:
     >>> import tempfile, pathlib
