@@ -95,3 +95,23 @@ def test_wildcard_pub_endpoint_uses_control_host() -> None:
     assert pub_endpoint_for("tcp://node7:5591", "tcp://*:5592") == "tcp://node7:5592"
     assert pub_endpoint_for("tcp://node7:5591", "tcp://10.0.0.7:5592") == "tcp://10.0.0.7:5592"
     assert pub_endpoint_for("ipc:///a", "ipc:///b") == "ipc:///b"
+
+
+def test_a_malformed_message_does_not_end_the_feed(fake_node: FakeNode) -> None:
+    """Garbage and protocol-valid but nonsensical messages are counted and skipped; the feed goes on."""
+    from hdeem_watch.daemon import protocol
+
+    feed = NodeFeed(fake_node.control_endpoint)
+    feed.start()
+    try:
+        wait_for(feed, lambda s: s.health.state == "live")
+        fake_node.inject([b"hw1/fake1/status", b"not json", b""])
+        fake_node.inject([b"hw1/fake1/samples/DDR_AB", b'{"v":1,"seq":0,"node":"fake1","t_ns":0,"n":3}', b"x"])
+        fake_node.inject(protocol.encode(protocol.topic("fake1", "run"), {"seq": 0, "node": "fake1", "t_ns": 0,
+                                                                           "event": "stop", "run": {"threads": "many"}}))
+        wait_for(feed, lambda s: feed.decode_errors >= 2)
+        count = feed.messages
+        snap = wait_for(feed, lambda s: feed.messages > count + 20)
+        assert feed.is_alive() and snap.health.state == "live"
+    finally:
+        feed.stop()

@@ -6,12 +6,13 @@ publishes HDEEM-shaped data (``BLADE`` at 1000 Sa/s and six regulator channels a
 (``status``, ``runs.list``, ``calib.get``, ``baseline.get``, ``baseline.measure``). It has no
 model, no calibrator and no storage: it is not the daemon (``hdeem-watch daemon --source sim`` is),
 only a cheap load generator with the daemon's wire format. ``skip_seq`` lets a test drop sequence
-numbers on purpose.
+numbers on purpose, :meth:`FakeNode.inject` publish malformed frames.
 """
 
 from __future__ import annotations
 
 import math
+import queue
 import threading
 import time
 from typing import Any
@@ -69,6 +70,7 @@ class FakeNode(threading.Thread):
         self._energy_j = dict.fromkeys(HDEEM_RATES_HZ, 0.0)
         self._t0 = time.monotonic()
         self.skip_seq = 0
+        self._inject: queue.Queue[list[bytes]] = queue.Queue()
         self.requests: list[tuple[str, dict[str, Any]]] = []
         self.baselines: dict[str, dict[str, Any]] = {}
 
@@ -83,6 +85,10 @@ class FakeNode(threading.Thread):
         """Stop publishing and unbind."""
         self._halt.set()
         self.join(5.0)
+
+    def inject(self, frames: list[bytes]) -> None:
+        """Publish raw frames (e.g. malformed ones) from the node's thread at its next wake-up."""
+        self._inject.put(list(frames))
 
     def _send(self, pub: zmq.Socket[Any], frames: list[bytes]) -> None:
         pub.send_multipart(frames, copy=False)
@@ -113,6 +119,8 @@ class FakeNode(threading.Thread):
                 timeout = max(0.0, min(next_batch, next_status) - time.monotonic())
                 if poller.poll(int(timeout * 1000)):
                     self._serve(ctl, pub)
+                while not self._inject.empty():
+                    self._send(pub, self._inject.get_nowait())
                 now = time.monotonic()
                 if now >= next_batch:
                     wall = time.time_ns()

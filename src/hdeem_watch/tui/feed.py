@@ -198,11 +198,12 @@ class NodeFeed(threading.Thread):
                 return
             try:
                 msg = protocol.decode(frames)
-            except protocol.ProtocolError:
+                self.model.apply(msg, self._clock())
+            except Exception as error:  # a bad message must not end the feed
                 self.decode_errors += 1
+                self.model.detail = f"bad message: {error}"[:100]
                 continue
             self.messages += 1
-            self.model.apply(msg, self._clock())
 
     def _probe(self, now: int) -> None:
         """Ask the daemon for status (at most every second while quiet); (re)subscribe as needed."""
