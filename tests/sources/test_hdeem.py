@@ -346,3 +346,12 @@ def test_failures_from_the_environment_in_a_real_process(fake_hdeem):
         out[name] = proc.stdout
     assert '"channels": ["BLADE", "CPU0", "CPU1", "DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"]' in out["styled"]
     assert "privileged collector" in out["denied"]
+
+
+def test_shim_sets_inband_access_fields(fake_hdeem):
+    """In-band init needs hasGPIO/hasPCIe set (the fake refuses otherwise); the shim sets them by default."""
+    src = opened(fake_hdeem)
+    src.close()
+    bare = HdeemSource(**fake_hdeem.options(cflags=("-DHWS_NO_GPIO_FIELDS",)))
+    with pytest.raises(SourceUnavailable, match="code -22"):
+        bare.open()

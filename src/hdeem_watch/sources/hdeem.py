@@ -80,13 +80,13 @@ class HdeemSource:
 
     Args:
         host, user, password: BMC for out-of-band access (``None`` = in-band).
-        include_dir, lib_dir, cache_dir, cc, libs: how to build the shim (see ``build_shim``).
+        include_dir, lib_dir, cache_dir, cc, libs, cflags: how to build the shim (see ``build_shim``).
         method: ``"energy"`` or ``"global"``.
         interval_s: the BMC is read at most this often (polls in between return no samples); the
             nominal ``rate_hz`` of the ``"energy"`` method is ``1/interval_s``.
         slow_s: a ``get_stats`` call slower than this is missing data.
         backoff_s, backoff_max_s: reconnect back-off (doubling).
-        stop_timeout_s: how long to wait for an asynchronous stop.
+        stop_timeout_s: how long to wait for an asynchronous stop (public wrappers allow 10 s).
         status_every_s: how often to read the status flags.
         rearm_s: ``"global"``: re-arm the buffer after this long.
         clock: monotonic clock (ns) for back-off and status timing.
@@ -98,9 +98,9 @@ class HdeemSource:
 
     def __init__(self, host: str | None = None, user: str | None = None, password: str | None = None, *,
                  include_dir: str | None = None, lib_dir: str | None = None, cache_dir: str | None = None,
-                 cc: str | None = None, libs: Sequence[str] = DEFAULT_LIBS, method: str = "energy",
-                 interval_s: float = 0.1, slow_s: float = 0.25, backoff_s: float = 0.5,
-                 backoff_max_s: float = 30.0, stop_timeout_s: float = 2.0, status_every_s: float = 1.0,
+                 cc: str | None = None, libs: Sequence[str] = DEFAULT_LIBS, cflags: Sequence[str] = (),
+                 method: str = "energy", interval_s: float = 0.1, slow_s: float = 0.25, backoff_s: float = 0.5,
+                 backoff_max_s: float = 30.0, stop_timeout_s: float = 10.0, status_every_s: float = 1.0,
                  rearm_s: float = 600.0, clock: Callable[[], int] = time.monotonic_ns,
                  wall_clock: Callable[[], int] = time.time_ns, sleep: Callable[[float], Any] = time.sleep) -> None:
         if method not in ("energy", "global"):
@@ -108,7 +108,8 @@ class HdeemSource:
 
             raise InputError(f"hdeem: method = {method!r}; expected 'energy' or 'global'")
         self._conn = (host, user, password)
-        self._build = dict(include_dir=include_dir, lib_dir=lib_dir, cache_dir=cache_dir, cc=cc, libs=tuple(libs))
+        self._build = dict(include_dir=include_dir, lib_dir=lib_dir, cache_dir=cache_dir, cc=cc, libs=tuple(libs),
+                           cflags=tuple(cflags))
         self.method = method
         self.interval_s = interval_s
         self.interval_ns = int(interval_s * 1e9)

@@ -106,8 +106,11 @@ def find_compiler(cc: str | None = None) -> str | None:
 
 def build_shim(include_dir: str | os.PathLike[str] | None = None, lib_dir: str | os.PathLike[str] | None = None,
                cache_dir: str | os.PathLike[str] | None = None, cc: str | None = None,
-               libs: Sequence[str] = DEFAULT_LIBS) -> Path:
+               libs: Sequence[str] = DEFAULT_LIBS, cflags: Sequence[str] = ()) -> Path:
     """Compile the shim (once per header/link line) and return the path of the shared object.
+
+    ``cflags`` adds compiler options, e.g. ``("-DHWS_NO_GPIO_FIELDS",)`` for a header whose
+    ``hdeem_bmc_data_t`` has no ``hasGPIO``/``hasPCIe`` fields.
 
     Raises:
         SourceUnavailable: no compiler, no ``hdeem.h``, or the compile/link failed (reason quotes it).
@@ -123,7 +126,9 @@ def build_shim(include_dir: str | os.PathLike[str] | None = None, lib_dir: str |
     source = SHIM_SOURCE.read_bytes()
     link = [f"-L{lib_dir}", f"-Wl,-rpath,{lib_dir}"] if lib_dir else []
     link += [f"-l{lib}" for lib in libs]
-    key = hashlib.sha256(source + header.read_bytes() + repr((compiler, str(header), link)).encode()).hexdigest()[:16]
+    flags = [str(f) for f in cflags]
+    key = hashlib.sha256(source + header.read_bytes()
+                         + repr((compiler, str(header), link, flags)).encode()).hexdigest()[:16]
     out_dir = Path(cache_dir) if cache_dir else cache_root()
     target = out_dir / f"shim-{key}" / "libhdeem_shim.so"
     if target.is_file():
@@ -137,7 +142,7 @@ def build_shim(include_dir: str | os.PathLike[str] | None = None, lib_dir: str |
         target.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
     with tempfile.NamedTemporaryFile(dir=target.parent, suffix=".so", delete=False) as tmp:
         tmp_path = Path(tmp.name)
-    cmd = [compiler, "-shared", "-fPIC", "-O2", "-Wall", "-o", str(tmp_path), str(SHIM_SOURCE),
+    cmd = [compiler, "-shared", "-fPIC", "-O2", "-Wall", *flags, "-o", str(tmp_path), str(SHIM_SOURCE),
            f"-I{header.parent}", *link]
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if proc.returncode != 0:

@@ -10,8 +10,10 @@
  * name_vr_sensors[i]}; stats.{max,min,average,instant}_{blade,vr}_values.value[s] (W),
  * stats.energy_{blade,vr}_values.value[s] (J), stats.nb_{blade,vr}_values, stats.read_time_{blade,vr}
  * (struct timespec); global.nb_{blade,vr}_values, global.{blade,vr}_power[i].value[s],
- * global.first_blade_value (struct timespec); the status macros IsBmcPolling, IsFpgaPolling,
- * IsBmcOverflow, IsFpgaBladeOverflow, IsFpgaVrOverflow taking a pointer to hdeem_status_t.
+ * global.first_blade_value (struct timespec); bmc.hasGPIO/hasPCIe (1 for in-band, 0 for
+ * out-of-band; build with -DHWS_NO_GPIO_FIELDS if the header lacks them); the status macros
+ * IsBmcPolling, IsFpgaPolling, IsBmcOverflow, IsFpgaBladeOverflow, IsFpgaVrOverflow taking the int
+ * status word status.status; hdeem_data_free() is safe (and needed) after a failed get_global.
  *
  * Sensors are numbered blade sensors first, then VR sensors. Times are wall-clock ns.
  */
@@ -53,6 +55,10 @@ void *hws_open(const char *host, const char *user, const char *password, int *er
     h->bmc.host = h->host;
     h->bmc.user = h->user;
     h->bmc.password = h->password;
+#ifndef HWS_NO_GPIO_FIELDS
+    h->bmc.hasGPIO = h->host ? 0 : 1;   /* in-band: through GPIO/PCIe; out-of-band: IPMI over LAN */
+    h->bmc.hasPCIe = h->host ? 0 : 1;
+#endif
     int rc = hdeem_init(&h->bmc);
     if (rc != 0) {
         free(h->host);
@@ -110,12 +116,12 @@ int hws_status(void *handle, int *flags) {
     memset(&st, 0, sizeof(st));
     int rc = hdeem_check_status(&h->bmc, &st);
     if (rc != 0) return rc;
-    int f = 0;
-    if (IsBmcPolling(&st)) f |= HWS_BMC_POLLING;
-    if (IsFpgaPolling(&st)) f |= HWS_FPGA_POLLING;
-    if (IsBmcOverflow(&st)) f |= HWS_BMC_OVERFLOW;
-    if (IsFpgaBladeOverflow(&st)) f |= HWS_BLADE_OVERFLOW;
-    if (IsFpgaVrOverflow(&st)) f |= HWS_VR_OVERFLOW;
+    int f = 0, s = st.status;
+    if (IsBmcPolling(s)) f |= HWS_BMC_POLLING;
+    if (IsFpgaPolling(s)) f |= HWS_FPGA_POLLING;
+    if (IsBmcOverflow(s)) f |= HWS_BMC_OVERFLOW;
+    if (IsFpgaBladeOverflow(s)) f |= HWS_BLADE_OVERFLOW;
+    if (IsFpgaVrOverflow(s)) f |= HWS_VR_OVERFLOW;
     *flags = f;
     return 0;
 }
@@ -158,7 +164,10 @@ int hws_global_fetch(void *handle, long long *counts, long long *first_ns) {
     }
     memset(&h->global, 0, sizeof(h->global));
     int rc = hdeem_get_global(&h->bmc, &h->global);
-    if (rc != 0) return rc;
+    if (rc != 0) {
+        hdeem_data_free(&h->global);   /* pointers are NULL or allocated even on error */
+        return rc;
+    }
     h->have_global = 1;
     counts[0] = (long long)h->global.nb_blade_values;
     counts[1] = (long long)h->global.nb_vr_values;

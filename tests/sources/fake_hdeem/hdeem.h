@@ -23,16 +23,19 @@
 #define HDEEM_FPGA_BLADE_OVERFLOW 0x08
 #define HDEEM_FPGA_VR_OVERFLOW   0x10
 
-#define IsBmcPolling(s)        (((s)->status & HDEEM_BMC_POLLING) != 0)
-#define IsFpgaPolling(s)       (((s)->status & HDEEM_FPGA_POLLING) != 0)
-#define IsBmcOverflow(s)       (((s)->status & HDEEM_BMC_OVERFLOW) != 0)
-#define IsFpgaBladeOverflow(s) (((s)->status & HDEEM_FPGA_BLADE_OVERFLOW) != 0)
-#define IsFpgaVrOverflow(s)    (((s)->status & HDEEM_FPGA_VR_OVERFLOW) != 0)
+/* the macros take the int status word (hdeem_status_t.status), as public wrappers use them */
+#define IsBmcPolling(s)        (((s) & HDEEM_BMC_POLLING) != 0)
+#define IsFpgaPolling(s)       (((s) & HDEEM_FPGA_POLLING) != 0)
+#define IsBmcOverflow(s)       (((s) & HDEEM_BMC_OVERFLOW) != 0)
+#define IsFpgaBladeOverflow(s) (((s) & HDEEM_FPGA_BLADE_OVERFLOW) != 0)
+#define IsFpgaVrOverflow(s)    (((s) & HDEEM_FPGA_VR_OVERFLOW) != 0)
 
 typedef struct {
     char *host;           /* NULL or "" = in-band */
     char *user;
     char *password;
+    int hasGPIO;          /* in-band access: 1; out-of-band: 0 (the caller must set it) */
+    int hasPCIe;
     int nb_blade_sensors;
     int nb_vr_sensors;
     char *name_blade_sensors[HDEEM_MAX_SENSORS];

@@ -154,6 +154,8 @@ static int check_link(hdeem_bmc_data_t *bmc) {
 int hdeem_init(hdeem_bmc_data_t *bmc) {
     setup();
     if (!bmc) return -1;
+    int inband = !bmc->host || !*bmc->host;
+    if (inband && (!bmc->hasGPIO || !bmc->hasPCIe)) return -22;   /* in-band needs GPIO/PCIe access */
     if (S.deny) return -13;
     if (S.fail_init > 0) {
         S.fail_init--;
