@@ -303,3 +303,18 @@ def test_run_energy_equals_the_calibrators_row_at_the_truth(kernel, threads):
         expected = run_truth_energy_j(model, sim.truth_model.currents(0.0), kernel, elements, threads, repeat,
                                       window_ns * 1e-9)
     assert measured == pytest.approx(expected, rel=1e-6)
+
+
+def test_fallback_model_is_consistent():
+    """The private stand-in model keeps the plan identity: dyn + background × D = truth energy over D."""
+    from hdeem_watch.sources.sim_model import FallbackModel, TruthModel, plan_run
+
+    model = FallbackModel()
+    truth = TruthModel(model.names, model.datasheet, seed=3, aging_per_h=0.0, temp_amp_c=0.0)
+    currents = truth.currents(0.0)
+    plan = plan_run(model, currents, "r", 0, "copy", 8_000_000, 16, 5, 0.0)
+    d_s = plan.duration_ns * 1e-9
+    planned = float((plan.bg_w * d_s + plan.dyn_j).sum())
+    assert planned == pytest.approx(run_truth_energy_j(model, currents, "copy", 8_000_000, 16, 5, d_s), rel=1e-6)
+    assert np.all(plan.dyn_j[:4] > 0) and np.all(plan.dyn_j[4:] > 0)       # 16 threads: both sockets
+    assert plan.dyn_j[0] > plan.dyn_j[4]                                      # 12 of 16 on socket 0
