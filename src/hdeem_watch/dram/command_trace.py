@@ -128,20 +128,27 @@ def _eight_digits(word: np.ndarray, length: np.ndarray, values: bool = True) -> 
 
 def _parse_uint(buf: np.ndarray, start: np.ndarray, end: np.ndarray,
                 values: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Decimal integers in ``buf[start:end]`` per line (up to 16 digits); returns (int64 values, ok).
+    """Decimal integers in ``buf[start:end]`` per line (up to 16 digits); returns (values, ok).
+
+    Values are uint8 when every field has at most two digits, else int64.
 
     ``buf`` must begin with :data:`_PAD`. The 8 bytes ending at each field's end are read as one
     word (and the 8 before them for longer fields), then decoded by :func:`_eight_digits`. With
     ``values=False`` only the validity is computed (the returned values are meaningless).
     """
     length = end - start
-    ok = (length >= 1) & (length <= 16)
-    if length.size and length.max() <= 2:  # ranks, bank groups, banks: one or two bytes
+    longest = int(length.max(initial=0))
+    if longest <= 2:  # ranks, bank groups, banks: one or two bytes, plain uint8 arithmetic
+        ok = length >= 1
         last = buf[end - 1] - np.uint8(48)  # non-digits wrap to > 9
-        first = buf[end - 2] - np.uint8(48)
-        two = length == 2
-        ok &= (last <= 9) & ((first <= 9) | ~two)
-        return last + np.where(two, first.astype(np.int64) * 10, 0), ok
+        ok &= last <= 9
+        if longest == 2:
+            first = buf[end - 2] - np.uint8(48)
+            two = length == 2
+            ok &= (first <= 9) | ~two
+            last += first * np.uint8(10) * two
+        return last, ok
+    ok = (length >= 1) & (length <= 16)
     words = _words(buf)
     low = np.clip(length, 0, 8)
     value, good = _eight_digits(words[end - 8], low, values)
@@ -193,8 +200,8 @@ def _parse_chunk(buf: np.ndarray, first_line: int, where: str, limits: dict[str,
         keep = np.ones(delim.size, dtype=bool)
         keep[at_end[ncomma == 7]] = False
         delim = delim[keep]
-    table = delim.reshape(-1, 7)
-    c = [table[:, j] for j in range(7)]
+    table = delim.reshape(-1, 7).T.copy()  # one row per delimiter: contiguous for what follows
+    c = list(table)
     c6 = c[6]
     bounds = [(starts, c[0]), None, (c[1] + 1, c[2]), (c[2] + 1, c[3]), (c[3] + 1, c[4]),
               (c[4] + 1, c[5]), (c[5] + 1, c6)]
@@ -210,7 +217,7 @@ def _parse_chunk(buf: np.ndarray, first_line: int, where: str, limits: dict[str,
             text = bytes(buf[bound[0][i]:bound[1][i]]).decode("ascii", "replace")
             _fail(where, first_line + i, f"{name} = {text!r} is not a non-negative integer of at most 16 digits")
         if needed:
-            out[name] = value
+            out[name] = value.astype(np.int64, copy=False) if name == "cycle" else value
     # command names: pack up to 6 bytes into an int64 and look them up
     s, e = c[0] + 1, c[1]
     length = np.clip(e - s, 0, 8)
