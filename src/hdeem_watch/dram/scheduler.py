@@ -130,44 +130,57 @@ def service_order(bank: np.ndarray, row: np.ndarray, is_write: np.ndarray,
     served = np.empty(n, dtype=np.int64)
     served[position] = np.arange(n, dtype=np.int64)
     seg = segment[served]
-    group = bank[served].astype(np.int64) * (int(row.max()) + 1) + row[served]
-    # FR-FCFS: group by (bank, row) within a segment, in order of first appearance
-    seg_id = np.cumsum(np.concatenate(([True], seg[1:] != seg[:-1]))) - 1
-    same_as_prev = np.concatenate(([False], (group[1:] == group[:-1]) & (seg_id[1:] == seg_id[:-1])))
-    runs_start = ~same_as_prev
-    if np.count_nonzero(runs_start) == seg_id[-1] + 1 and config.hit_cap is None:
-        return served  # every segment is one run per group already
-    groups_max = int(group.max()) + 1
-    key = seg_id * groups_max + group
+    bank_s = bank[served].astype(np.int64)
+    group = bank_s * (int(row.max()) + 1) + row[served]
+    boundary = np.empty(n, dtype=bool)
+    boundary[0] = True
+    boundary[1:] = seg[1:] != seg[:-1]
+    seg_start = np.flatnonzero(boundary)
+    seg_id = np.cumsum(boundary) - 1
+    # a segment whose requests all go to one row is served as it is
+    uniform = np.logical_and.reduceat(group == group[seg_start][seg_id], seg_start)
+    if uniform.all():
+        return served
+    open_group = np.full(seg_start.size, -1, dtype=np.int64)
+    open_group[1:] = group[seg_start[1:] - 1]  # the row the previous segment left open
+    sub = np.flatnonzero(~uniform[seg_id])
+    permutation = _regroup(seg_id[sub], group[sub], bank_s[sub], open_group[seg_id[sub]], config.hit_cap)
+    out = served.copy()
+    out[sub] = served[sub][permutation]
+    return out
+
+
+def _regroup(seg_id: np.ndarray, group: np.ndarray, bank: np.ndarray, open_group: np.ndarray,
+             hit_cap: int | None) -> np.ndarray:
+    """FR-FCFS order within whole segments (a permutation of ``range(len(seg_id))``)."""
+    m = seg_id.size
+    boundary = np.concatenate(([True], seg_id[1:] != seg_id[:-1]))
+    seg_start = np.flatnonzero(boundary)
+    sid = np.cumsum(boundary) - 1
+    key = sid * (int(group.max()) + 1) + group
     by_group = np.argsort(key, kind="stable")
     sorted_key = key[by_group]
     new = np.concatenate(([True], sorted_key[1:] != sorted_key[:-1]))
     start_of = np.flatnonzero(new)
     run_index = np.cumsum(new) - 1
-    rank_in_group = np.arange(n, dtype=np.int64) - start_of[run_index]
-    first = np.empty(n, dtype=np.int64)
+    first = np.empty(m, dtype=np.int64)
     first[by_group] = by_group[start_of[run_index]]
-    seg_start = np.flatnonzero(np.concatenate(([True], seg_id[1:] != seg_id[:-1])))
-    local_first = first - seg_start[seg_id]
-    # the row left open by the previous segment (its last request) is served first: a hit
-    carried = np.zeros(n, dtype=bool)
-    carried[seg_start[1:]] = False
-    open_group = np.full(seg_start.size, -1, dtype=np.int64)
-    open_group[1:] = group[seg_start[1:] - 1]
-    carried = group == open_group[seg_id]
-    local_first = np.where(carried, -1, local_first)
-    chunk = np.zeros(n, dtype=np.int64)
-    if config.hit_cap is not None:
-        chunk[by_group] = rank_in_group // (config.hit_cap + 1)
-    seg_len = int(np.diff(np.append(seg_start, n)).max())
+    # rows in order of first appearance, the row left open by the previous segment first (a hit)
+    local_first = np.where(group == open_group, -1, first - seg_start[sid])
+    chunk = np.zeros(m, dtype=np.int64)
+    if hit_cap is not None:
+        chunk[by_group] = (np.arange(m, dtype=np.int64) - start_of[run_index]) // (hit_cap + 1)
+    seg_len = int(np.diff(np.append(seg_start, m)).max())
+    width = (seg_len + 1) * (seg_len + 2)
+    banks = int(bank.max()) + 1
+    slot_key = sid * banks + bank
+    grouped = np.argsort(slot_key * width + chunk * (seg_len + 1) + local_first + 1, kind="stable")
     # Each bank keeps the places its requests had (banks interleave as they arrived, e.g. across
     # bank groups); within a bank the places are refilled in row-grouped order.
-    banks = int(bank.max()) + 1
-    bank_s = bank[served].astype(np.int64)
-    slot_key = seg_id * banks + bank_s
+    single_bank = np.logical_and.reduceat(bank == bank[seg_start][sid], seg_start)
+    if single_bank.all():
+        return grouped
     slots = np.argsort(slot_key, kind="stable")
-    width = (seg_len + 1) * (seg_len + 2)
-    grouped = np.argsort(slot_key * width + chunk * (seg_len + 1) + local_first + 1, kind="stable")
-    out = np.empty(n, dtype=np.int64)
-    out[slots] = served[grouped]
-    return out
+    permutation = np.empty(m, dtype=np.int64)
+    permutation[slots] = grouped
+    return permutation
