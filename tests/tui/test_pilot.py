@@ -74,7 +74,8 @@ async def test_keys_zoom_node_switch_and_baseline_request(sim_daemon, fake_node)
         with ControlClient(sim_daemon.control_endpoint) as client:
             before = client.call("baseline.get")["channels"].get("DDR_AB", {}).get("t_ns", 0)
         await pilot.press("b")
-        await until(lambda: "baseline.measure: ok" in shown(app, HealthBar), timeout_s=20)
+        await until(lambda: "baseline.measure: sent" in app.key_line)
+        await until(lambda: "baseline.measure: ok" in app.key_line, timeout_s=20)
         assert not any(op == "baseline.measure" for op, _ in fake_node.requests)
         with ControlClient(sim_daemon.control_endpoint) as client:
             baselines = client.call("baseline.get")["channels"]

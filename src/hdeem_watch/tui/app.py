@@ -32,6 +32,9 @@ STALLED_AFTER_S = 3.0
 #: Seconds of the idle baseline measurement the ``b`` key asks for.
 BASELINE_SECONDS = 10.0
 
+#: Seconds a control reply stays on the key line.
+NOTICE_S = 8.0
+
 KEYS_LINE = " p pause  n/N/tab node  +/- zoom  b baseline  ? help  q quit"
 
 HELP_TEXT = f"""[b]hdeem-watch[/b]: live DRAM power and model calibration
@@ -113,6 +116,9 @@ class HdeemWatchApp(App[int]):
         self._exit_after_s = exit_after_s
         self.baseline_s = baseline_s
         self._shown_once = False
+        self._notice = ""
+        self._notice_until = 0
+        self._keys_text = KEYS_LINE
 
     def compose(self) -> ComposeResult:
         yield HealthBar()
@@ -167,7 +173,26 @@ class HdeemWatchApp(App[int]):
                 self.query_one(PowerPlots).show(snap)
                 self.query_one(CalibPanel).show(snap.calib)
                 self.query_one(RunsPanel).show(snap)
+            self._show_notice(snap.health.notice)
         self.frames += 1
+
+    @property
+    def key_line(self) -> str:
+        """What the bottom line shows now: the key hints, or a fresh control reply."""
+        return self._keys_text
+
+    def _show_notice(self, notice: str) -> None:
+        """The last control reply replaces the key line for :data:`NOTICE_S` seconds."""
+        now = self._clock()
+        if notice != self._notice:
+            self._notice = notice
+            self._notice_until = now + int(NOTICE_S * 1e9) if notice else 0
+        text = f" {notice}" if notice and now < self._notice_until else KEYS_LINE
+        keys = self.query_one("#keys", Static)
+        if text != self._keys_text:
+            self._keys_text = text
+            keys.update(text)
+            keys.set_class(text != KEYS_LINE, "-notice")
 
     # ------------------------------------------------------------------ actions
 

@@ -55,7 +55,7 @@ def health_text(
     word, style = state_label(snap, paused=paused, stalled=stalled)
     text = Text(no_wrap=True, overflow="ellipsis")
     text.append(f" {word} ", style=style)
-    text.append(f" {snap.node}", style="bold")
+    text.append(f" {snap.node if snap.node != '?' else health.endpoint}", style="bold")
     if len(snapshots) > 1:
         text.append(f" {focus + 1}/{len(snapshots)} ")
         for i, other in enumerate(snapshots):
@@ -75,9 +75,9 @@ def health_text(
     cpu = f"{health.cpu_percent:.1f}%" if math.isfinite(health.cpu_percent) else "–"
     text.append(f"{cpu} {megabytes(health.rss_bytes)}")
     text.append(f"  win {window_s:g}s", style="dim")
-    detail = health.notice or health.detail
-    if health.state in ("reconnecting", "connecting") and health.detail:
-        detail = health.detail
+    detail = health.detail if health.state != "live" or health.detail.startswith("bad message") else ""
+    if snap.node == "?" and detail.startswith("no daemon socket"):
+        detail = "no daemon socket"
     if detail and width > len(text) + 6:
         text.append("  " + detail, style="italic")
     text.truncate(max(1, width), overflow="ellipsis")
