@@ -175,6 +175,21 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
         latest = np.searchsorted(sorted_acts, gbank[auto_req] * shift + col_real[auto_req], side="right") - 1
         opened = sorted_acts[np.maximum(latest, 0)] % shift
         auto_cycle = np.maximum(opened + timing.ras, col_real[auto_req] + recovery[auto_req])
+        # A row re-activated after a refresh restarts tRAS, which the refresh-free timing did not
+        # see: where the implicit precharge would come after the bank's next ACT, the column
+        # command is a plain RD/WR and an explicit PRE precedes that ACT instead.
+        following = np.searchsorted(sorted_acts, gbank[auto_req] * shift + col_real[auto_req], side="right")
+        padded_acts = np.append(sorted_acts, np.int64(-1))
+        candidate = padded_acts[np.minimum(following, sorted_acts.size)]
+        next_act = np.where(candidate // shift == gbank[auto_req], candidate % shift, np.iinfo(np.int64).max)
+        late = auto_cycle > next_act - timing.rp
+        if late.any():
+            fixed = auto_req[late]
+            auto = auto.copy()
+            auto[fixed] = False
+            pre_req = np.concatenate((pre_req, fixed))
+            pre_cycle = np.concatenate((pre_cycle, np.maximum(next_act[late] - timing.rp, col_real[fixed] + 1)))
+            auto_req, auto_cycle = auto_req[~late], auto_cycle[~late]
     end = int(max(last_real, int(act_cycle.max()) if act_cycle.size else 0,
                   int(auto_cycle.max()) + 1 if auto_cycle.size else 0))
     # an implicit precharge after a refresh's PREA closes nothing (the PREA did)
