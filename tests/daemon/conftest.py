@@ -140,10 +140,13 @@ def daemon_factory(tmp_path: Path) -> Iterator[object]:
 
 @pytest.fixture(scope="session")
 def shared_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
-    """One sim daemon at speed 10 (with a Prometheus endpoint) shared by the read-mostly tests."""
+    """One sim daemon at speed 10 (with a Prometheus endpoint) shared by the read-mostly tests.
+
+    It re-publishes calib/baseline and looks for quiet periods every 0.5 s, with 2 s quiet windows.
+    """
     port = free_port()
     d = make_daemon(tmp_path_factory.mktemp("shared"), "--speed", "10", "--prometheus", str(port),
-                    HDEEM_WATCH_SNDHWM="2000")
+                    HDEEM_WATCH_SNDHWM="2000", HDEEM_WATCH_REPUBLISH_S="0.5", HDEEM_WATCH_QUIET_WINDOW_S="2")
     d.prometheus_port = port  # type: ignore[attr-defined]
     d.start()
     yield d

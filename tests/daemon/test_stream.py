@@ -99,3 +99,25 @@ def test_status_op_names_node_endpoints_source_and_channels(shared_daemon: Any, 
     assert status["endpoints"] == {"pub": shared_daemon.pub, "control": shared_daemon.control}
     assert status["source"]["kind"] == "sim"
     assert set(status["channels"]) == set(NOMINAL)
+
+
+def test_quiet_periods_become_baselines(shared_daemon: Any) -> None:
+    """An idle node yields a quiet-period baseline per DRAM channel: mean, small spread, enough samples."""
+    import time
+
+    deadline = time.monotonic() + 10.0
+    with shared_daemon.client() as client:
+        while True:
+            channels = client.call("baseline.get")["channels"]
+            dram = {k: v for k, v in channels.items() if k.startswith("DDR_")}
+            if len(dram) == 4 or time.monotonic() > deadline:
+                break
+            time.sleep(0.2)
+        status = client.call("status")
+    assert len(dram) == 4, channels
+    for name, entry in dram.items():
+        assert entry["origin"] in ("quiet", "idle-run")
+        if entry["origin"] == "quiet":
+            assert entry["n"] == 200  # 2 s at 100 Sa/s
+            assert 0 <= entry["spread_w"] <= max(0.5, 0.05 * entry["power_w"])
+        assert abs(entry["power_w"] - status["channels"][name]["power_w"]) < 2.0

@@ -120,18 +120,35 @@ def test_idle_baseline_mean_from_exact_energy() -> None:
     assert b.power_w == 2.5 and b.spread_w == 1.0 and b.n == 2
 
 
-def test_window_closes_at_target_or_deadline_and_integrates_exactly() -> None:
-    """A window closes once DRAM samples reach the target (or at the deadline); energy = total difference."""
+def test_window_cuts_each_channel_at_the_stop() -> None:
+    """A window ends at the target: samples after the one containing it are taken back out of the total."""
+    ms = 1_000_000
     w = Window(kind="run", start_energy_j={"DDR_AB": 10.0, "BLADE": 100.0}, start_t_ns={"DDR_AB": 0, "BLADE": 0},
                dram_channels=("DDR_AB",), t_start_mono_ns=0)
-    assert not w.ready({"DDR_AB": 10**9}, 0)
-    w.request_close(target_t_ns=2 * 10**9, deadline_mono_ns=5 * 10**9)
-    assert not w.ready({"DDR_AB": 10**9}, 10**9)
-    assert w.ready({"DDR_AB": 2 * 10**9}, 10**9)
-    assert w.ready({"DDR_AB": None}, 5 * 10**9)
-    energy, window_s, spans = w.result({"DDR_AB": 14.0, "BLADE": 150.0}, {"DDR_AB": 2 * 10**9, "BLADE": 2 * 10**9},
-                                       now_mono_ns=10**8, speed=20.0)
-    assert energy == {"DDR_AB": 4.0, "BLADE": 50.0} and window_s == 2.0 and spans["BLADE"] == 2.0
+    w.observe("DDR_AB", np.array([10, 20]) * ms, np.array([100.0, 100.0]), energy_j=12.0)  # still open
+    w.request_close(target_t_ns=25 * ms, deadline_mono_ns=10**9, rates_hz={"DDR_AB": 100.0, "BLADE": 1000.0})
+    assert not w.ready(0)
+    # One late batch carries the samples around the stop: 30 (contains 25) is kept, 40 and 50 are not.
+    w.observe("DDR_AB", np.array([30, 40, 50]) * ms, np.array([100.0, 200.0, 300.0]), energy_j=18.0)
+    w.observe("BLADE", np.arange(1, 41) * ms, np.full(40, 1000.0), energy_j=140.0)
+    assert w.ready(0)
+    energy, window_s, spans = w.result({"DDR_AB": 18.0, "BLADE": 140.0}, {"DDR_AB": 50 * ms, "BLADE": 40 * ms},
+                                       now_mono_ns=ms, speed=1.0)
+    assert energy == pytest.approx({"DDR_AB": 3.0, "BLADE": 25.0})
+    assert window_s == pytest.approx(0.03) and spans["BLADE"] == pytest.approx(0.025)
+    assert w.channel_samples("DDR_AB").tolist() == [100.0, 100.0, 100.0]
+
+
+def test_window_deadline_and_unknown_values() -> None:
+    """A stalled channel closes the window at the deadline; a NaN after the stop keeps the whole total."""
+    w = Window(kind="run", start_energy_j={"DDR_AB": 0.0, "DDR_CD": 0.0}, start_t_ns={"DDR_AB": 0, "DDR_CD": 0},
+               dram_channels=("DDR_AB", "DDR_CD"), t_start_mono_ns=0)
+    w.request_close(target_t_ns=15, deadline_mono_ns=100, rates_hz={"DDR_AB": 1e8, "DDR_CD": 1e8})
+    w.observe("DDR_AB", np.array([10, 20, 30]), np.array([1e8, 1e8, np.nan]), energy_j=5.0)
+    assert w.cut["DDR_AB"] == (5.0, 30)
+    assert not w.ready(99) and w.ready(100)
+    energy, _, _ = w.result({"DDR_AB": 5.0, "DDR_CD": 0.5}, {"DDR_AB": 30, "DDR_CD": 10}, now_mono_ns=100, speed=2.0)
+    assert energy == {"DDR_AB": 5.0, "DDR_CD": 0.5}
 
 
 def test_run_records() -> None:

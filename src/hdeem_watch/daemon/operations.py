@@ -33,6 +33,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("hdeem_watch.daemon")
 
+#: How long a closing window waits for lagging samples (monotonic seconds) before it closes anyway.
+CLOSE_GRACE_S = 3.0
 #: Longest ``baseline.measure`` window in seconds.
 MAX_BASELINE_S = 3600.0
 
@@ -154,8 +156,10 @@ class Operations:
         return {"run_id": run_id, "t_start_ns": record["t_start_ns"], "run": record}
 
     def _close_deadline(self, now: int, extra_s: float = 0.0) -> int:
+        # Long enough for a lagging source to catch up (the sim holds its sensors back while it
+        # plans a run, up to seconds on a loaded machine); a stalled channel ends the wait.
         slowest = max((1.0 / a.rate_hz for a in self.d.accounts.values() if a.rate_hz > 0), default=0.0)
-        grace_s = max(0.25, 4 * self.d.settings.poll_interval_s, 3 * slowest / self.d.speed)
+        grace_s = max(CLOSE_GRACE_S, 4 * self.d.settings.poll_interval_s, 3 * slowest / self.d.speed)
         return now + round((extra_s + grace_s) * 1e9)
 
     def op_run_stop(self, args: dict[str, Any]) -> Any:
@@ -180,12 +184,13 @@ class Operations:
         if window.closing:
             return pending
         window.context["abort"] = abort
-        batch = d.poll_once()
+        d.poll_once()
         now = d.clock()
         self._notify_source("stop", window.context["record"], now)
-        last = [t for c in d.dram_channels if (t := d.accounts[c].last_t_ns) is not None]
-        target = int(batch.t_wall_ns) if batch is not None else (max(last) + 1 if last else 0)
-        window.request_close(target_t_ns=target, deadline_mono_ns=self._close_deadline(now))
+        # The stop on the source's sample-time axis; the window closes once every DRAM channel has
+        # delivered its samples up to it (a sensor may lag: the sim while it plans a run).
+        window.request_close(target_t_ns=d.sample_time_of(now), deadline_mono_ns=self._close_deadline(now),
+                             rates_hz=d.rates(), last_t_ns=d.last_sample_times(), energy_j=d.energies())
         self.advance_windows(now)
         return pending
 
@@ -198,14 +203,14 @@ class Operations:
             raise OpError("bad-args", f"args.seconds = {seconds!r}: expected a duration in (0, {MAX_BASELINE_S:g}] s")
         self._busy()
         d = self.d
-        batch = d.poll_once()
+        d.poll_once()
         now = d.clock()
         window = Window(kind="baseline", start_energy_j=d.energies(), start_t_ns=d.last_sample_times(),
                         dram_channels=d.dram_channels, t_start_mono_ns=now, context={"waiters": []})
         last = [t for c in d.dram_channels if (t := d.accounts[c].last_t_ns) is not None]
-        start = max(last) if last else (int(batch.t_wall_ns) if batch is not None else 0)
+        start = max(last) if last else d.sample_time_of(now)
         window.request_close(target_t_ns=start + round(seconds * 1e9),
-                             deadline_mono_ns=self._close_deadline(now, seconds / d.speed))
+                             deadline_mono_ns=self._close_deadline(now, seconds / d.speed), rates_hz=d.rates())
         pending = Pending("baseline.measure")
         window.context["waiters"].append(pending)
         d.windows.append(window)
@@ -217,8 +222,7 @@ class Operations:
         """Close every window that is ready (called after each poll)."""
         if not self.d.windows:
             return
-        last = self.d.last_sample_times()
-        for window in [w for w in self.d.windows if w.ready(last, now_mono_ns)]:
+        for window in [w for w in self.d.windows if w.ready(now_mono_ns)]:
             self.d.windows.remove(window)
             try:
                 self._closed(window, now_mono_ns)
@@ -253,6 +257,8 @@ class Operations:
         record = finish_record(window.context["record"], energy_j=energy, window_s=window_s,
                                dram_channels=d.dram_channels, t_wall_ns=time.time_ns(), spans_s=spans,
                                aborted=aborted)
+        # The window on each channel's sample axis: samples with first < t <= last are inside.
+        record["samples_ns"] = {c: list(span) for c, span in window.sample_spans_ns.items()}
         assert d.store is not None
         d.store.save_run(record)
         if record["kernel"] in ("idle", "sleep") and not aborted:

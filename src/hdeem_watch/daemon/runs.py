@@ -106,6 +106,7 @@ def new_record(run_id: str, args: RunArgs, *, t_wall_ns: int, node: str) -> dict
         "model": None,
         "model_error": None,
         "fit": None,
+        "samples_ns": None,
     }
 
 

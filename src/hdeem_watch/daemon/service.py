@@ -15,6 +15,7 @@ Example:
 
 from __future__ import annotations
 
+import collections
 import concurrent.futures
 import fcntl
 import logging
@@ -91,6 +92,7 @@ class Daemon:
         self._metric_last: dict[str, tuple[float, int, int]] = {}
         self.polls = 0
         self.poll_errors = 0
+        self._offsets: collections.deque[int] = collections.deque(maxlen=400)
 
     # -- lifecycle -------------------------------------------------------------------------------------
 
@@ -323,13 +325,29 @@ class Daemon:
                            reported_missing=int(batch.gaps.get(name, 0)) if batch.gaps else 0,
                            keep_history=not running)
             for window in self.windows:
-                window.add_samples(name, power_w)
+                window.observe(name, t_ns, power_w, energy_j=energy)
             self.publisher.publish_samples(name, rate_hz=account.rate_hz, t_wall_ns=t_ns, power_w=power_w,
                                            energy_j=energy, status=status, t_ns=header_t_ns)
+        self._offsets.append(int(batch.t_wall_ns) - round(int(batch.t_mono_ns) * self.speed))
         if self.recorder is not None:
             self.recorder.write_batch(batch)
         self.operations.advance_windows(self.clock())
         return batch
+
+    def sample_time_of(self, t_mono_ns: int) -> int:
+        """A monotonic instant on the source's sample-time axis (wall ns; the sim's own time).
+
+        From the recent polls' ``t_wall_ns − t_mono_ns × speed``: a source that lags (holds its
+        samples back for a while) only lowers that offset, so the largest recent one is the true
+        mapping.
+        """
+        if not self._offsets:
+            return time.time_ns()
+        return round(int(t_mono_ns) * self.speed) + max(self._offsets)
+
+    def rates(self) -> dict[str, float]:
+        """The nominal rate of every channel."""
+        return {name: a.rate_hz for name, a in self.accounts.items()}
 
     def last_sample_times(self) -> dict[str, int | None]:
         """The last sample time of every channel."""

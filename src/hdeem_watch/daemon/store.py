@@ -72,7 +72,7 @@ class Store:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True, mode=0o750)
         try:
-            self._db = sqlite3.connect(str(self.path), isolation_level=None, timeout=5.0)
+            self._db = sqlite3.connect(str(self.path), isolation_level=None, timeout=5.0, check_same_thread=False)
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=FULL")
             version = self._schema_version()

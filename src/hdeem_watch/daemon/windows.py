@@ -1,24 +1,33 @@
-"""Measurement windows on the stream of polls: an open window, then a closing one, then closed.
+"""Measurement windows on the stream of polls: open, closing, closed.
 
-A window (a run, or a ``baseline.measure`` idle window) starts at a poll: the cumulative energies and
-the last sample time of every channel are taken there. It is asked to close at a *target* sample
-time (the stop of a run; start + duration for an idle window), and it closes at the first poll at
-which every DRAM channel has a sample ending at or after that target — so the energy a source books
-at the stop (the sim adds the rest of a stopped run's traffic to the first sample ending after the
-stop) is inside the window. A deadline on the monotonic clock closes it anyway if a channel stalls.
+A window (a run, or a ``baseline.measure`` idle window) starts at a poll: the cumulative energy and
+the last sample time of every channel are taken there. It is asked to close at a *target* on the
+source's sample-time axis (the stop of a run; start + duration for an idle window). From then on
+each channel is cut at the target as its samples arrive: the last sample kept is the one whose
+interval contains the target (a sample at ``t`` covers ``(t − period, t]``; the sim books the rest
+of a stopped run's energy into exactly that sample), and the energy of the samples after it is
+taken back out of the channel's cumulative total — so the window is ``[start, stop]`` even when the
+source delivers the samples around the stop late and in one batch. The window closes when every
+DRAM channel has been cut, or at a deadline on the monotonic clock (a stalled channel then counts
+what it delivered).
 
-Each channel's window energy is the difference of the source's cumulative totals at the two polls
-(exact: nothing is lost between polls), and its duration is the span of sample time between the
-two polls' last samples (the source's own time: a sped-up sim's seconds, not the daemon's).
+Each channel's window energy is the difference of the source's cumulative totals (exact: nothing is
+lost between polls), and its duration the span of its sample times (the source's own time: a
+sped-up sim's seconds, not the daemon's).
 
 Example:
+    >>> import numpy as np
     >>> w = Window(kind="baseline", start_energy_j={"DDR_AB": 1.0}, start_t_ns={"DDR_AB": 0},
     ...            dram_channels=("DDR_AB",), t_start_mono_ns=0)
-    >>> w.request_close(target_t_ns=20, deadline_mono_ns=100)
-    >>> w.ready({"DDR_AB": 10}, now_mono_ns=5), w.ready({"DDR_AB": 20}, now_mono_ns=6)
-    (False, True)
-    >>> w.result({"DDR_AB": 3.0}, {"DDR_AB": 20}, now_mono_ns=6, speed=1.0)
-    ({'DDR_AB': 2.0}, 2e-08, {'DDR_AB': 2e-08})
+    >>> w.request_close(target_t_ns=25, deadline_mono_ns=100, rates_hz={"DDR_AB": 1e8})
+    >>> w.observe("DDR_AB", np.array([10, 20]), np.array([1e8, 1e8]), energy_j=3.0)
+    >>> w.ready(now_mono_ns=5)
+    False
+    >>> w.observe("DDR_AB", np.array([30, 40]), np.array([1e8, 1e8]), energy_j=5.0)
+    >>> w.ready(now_mono_ns=6)
+    True
+    >>> w.result({"DDR_AB": 5.0}, {"DDR_AB": 40}, now_mono_ns=6, speed=1.0)
+    ({'DDR_AB': 3.0}, 3e-08, {'DDR_AB': 3e-08})
 """
 
 from __future__ import annotations
@@ -41,11 +50,13 @@ class Window:
         kind: ``"run"`` or ``"baseline"``.
         start_energy_j: cumulative energy per channel at the start poll.
         start_t_ns: last sample time per channel at the start poll (None = no sample yet).
-        dram_channels: the channels whose samples decide when the window closes.
+        dram_channels: the channels whose cut decides when the window closes.
         t_start_mono_ns: monotonic time of the start poll.
-        target_t_ns: sample time at which the window may close (None = still open).
+        target_t_ns: the end on the sample-time axis (None = still open).
         deadline_mono_ns: the window closes at this monotonic time whatever the samples say.
         context: what the owner needs when the window closes (run record, pending reply, ...).
+        cut: per channel, ``(cumulative energy at the end, time of the last sample kept)`` once the
+            channel's samples have reached the target.
     """
 
     kind: str
@@ -57,26 +68,68 @@ class Window:
     deadline_mono_ns: int | None = None
     context: dict[str, Any] = field(default_factory=dict)
     samples: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    cut: dict[str, tuple[float, int]] = field(default_factory=dict)
     _counts: dict[str, int] = field(default_factory=dict)
+    _periods_ns: dict[str, float] = field(default_factory=dict)
+    _last_t_ns: dict[str, int] = field(default_factory=dict)
+    #: Per channel ``(last sample time before the window, last sample time in it)``, set by result().
+    sample_spans_ns: dict[str, tuple[int | None, int | None]] = field(default_factory=dict)
 
     @property
     def closing(self) -> bool:
         """Whether a close was requested."""
         return self.target_t_ns is not None
 
-    def request_close(self, *, target_t_ns: int, deadline_mono_ns: int) -> None:
-        """Close at the first poll whose DRAM samples reach ``target_t_ns`` (or at the deadline)."""
+    def request_close(self, *, target_t_ns: int, deadline_mono_ns: int, rates_hz: Mapping[str, float],
+                      last_t_ns: Mapping[str, int | None] | None = None,
+                      energy_j: Mapping[str, float] | None = None) -> None:
+        """End the window at ``target_t_ns`` (sample time), or at ``deadline_mono_ns`` at the latest.
+
+        ``last_t_ns``/``energy_j`` (the channels' state now) cut at once the channels that are
+        already past the target (nothing of theirs can be taken back).
+        """
         self.target_t_ns = int(target_t_ns)
         self.deadline_mono_ns = int(deadline_mono_ns)
+        self._periods_ns = {c: 1e9 / r for c, r in rates_hz.items() if r > 0}
+        for channel, t in (last_t_ns or {}).items():
+            if t is not None and t >= self.target_t_ns and energy_j is not None:
+                self.cut[channel] = (float(energy_j.get(channel, math.nan)), int(t))
 
-    def ready(self, last_t_ns: Mapping[str, int | None], now_mono_ns: int) -> bool:
+    def observe(self, channel: str, t_ns: np.ndarray, power_w: np.ndarray, *, energy_j: float) -> None:
+        """Take one batch of a channel (after the source's cumulative ``energy_j`` includes it)."""
+        if self.target_t_ns is None or channel in self.cut:
+            self.add_samples(channel, power_w)
+            if t_ns.size:
+                self._last_t_ns[channel] = int(t_ns[-1])
+            return
+        if t_ns.size == 0:
+            return
+        period = self._periods_ns.get(channel)
+        if int(t_ns[-1]) < self.target_t_ns or period is None:
+            self.add_samples(channel, power_w)
+            self._last_t_ns[channel] = int(t_ns[-1])
+            if period is None and int(t_ns[-1]) >= self.target_t_ns:
+                self.cut[channel] = (float(energy_j), int(t_ns[-1]))
+            return
+        # Keep the samples whose interval starts before the target; take the rest back out.
+        keep = t_ns < self.target_t_ns + period
+        excess = float(np.sum(power_w[~keep])) * period * 1e-9
+        kept_t = t_ns[keep]
+        if not math.isfinite(excess):  # an unknown value after the stop: the total cannot be split
+            self.cut[channel] = (float(energy_j), int(t_ns[-1]))
+            self.add_samples(channel, power_w)
+            return
+        self.add_samples(channel, power_w[keep])
+        end = int(kept_t[-1]) if kept_t.size else self._last_t_ns.get(channel, self.start_t_ns.get(channel) or 0)
+        self.cut[channel] = (float(energy_j) - excess, end)
+
+    def ready(self, now_mono_ns: int) -> bool:
         """Whether the window can close now."""
         if self.target_t_ns is None:
             return False
         if self.deadline_mono_ns is not None and now_mono_ns >= self.deadline_mono_ns:
             return True
-        channels = self.dram_channels or tuple(last_t_ns)
-        return all((last_t_ns.get(c) or -1) >= self.target_t_ns for c in channels)
+        return all(c in self.cut for c in self.dram_channels)
 
     def add_samples(self, channel: str, power_w: np.ndarray) -> None:
         """Keep a channel's samples (up to :data:`MAX_RUN_SAMPLES`), for the window's spread."""
@@ -94,25 +147,29 @@ class Window:
 
     def result(
         self,
-        stop_energy_j: Mapping[str, float],
-        stop_t_ns: Mapping[str, int | None],
+        energy_now_j: Mapping[str, float],
+        last_t_now_ns: Mapping[str, int | None],
         *,
         now_mono_ns: int,
         speed: float,
     ) -> tuple[dict[str, float], float, dict[str, float]]:
-        """``(energy per channel, window_s, window_s per channel)`` at the closing poll.
+        """``(energy per channel, window_s, window_s per channel)`` when the window closes.
 
-        ``window_s`` is the DRAM channels' sample-time span; a channel without samples at either
-        end falls back to the monotonic span times ``speed``.
+        Cut channels use their cut; the others (deadline) what they have now. ``window_s`` is the
+        DRAM channels' longest span; a channel without samples falls back to the monotonic span
+        times ``speed``.
         """
-        energy = window_energy(self.start_energy_j, stop_energy_j)
+        stop_energy = {c: self.cut[c][0] if c in self.cut else e for c, e in energy_now_j.items()}
+        stop_t = {c: self.cut[c][1] if c in self.cut else t for c, t in last_t_now_ns.items()}
+        energy = window_energy(self.start_energy_j, stop_energy)
         mono_s = (now_mono_ns - self.t_start_mono_ns) / 1e9 * speed
         spans: dict[str, float] = {}
         for name in energy:
-            a, b = self.start_t_ns.get(name), stop_t_ns.get(name)
+            a, b = self.start_t_ns.get(name), stop_t.get(name)
             spans[name] = (b - a) / 1e9 if a is not None and b is not None and b > a else mono_s
         dram = [spans[c] for c in self.dram_channels if c in spans]
         window_s = max(dram) if dram else mono_s
+        self.sample_spans_ns = {c: (self.start_t_ns.get(c), stop_t.get(c)) for c in energy}
         return energy, float(window_s), spans
 
 
