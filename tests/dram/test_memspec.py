@@ -144,3 +144,12 @@ def test_presets(drampower_ref: Path) -> None:
     assert samsung.currents["idd4w"] * 18 == pytest.approx(1.590)
     with pytest.raises(InputError, match="unknown memspec preset"):
         preset("ddr3-1600")
+
+
+def test_hashable_and_equal_by_value() -> None:
+    """Specs can key caches: equal specs hash equal, a calibrated copy differs."""
+    a, b = preset("ddr4-2133-x8-4gb"), preset("ddr4-2133-x8-4gb")
+    assert a == b and hash(a) == hash(b)
+    cal = a.with_currents({"idd0": 0.03})
+    assert cal != a
+    assert len({a, b, cal}) == 2

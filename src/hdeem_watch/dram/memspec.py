@@ -118,6 +118,12 @@ class MemSpec:
     _raw: Mapping[str, Any] = field(default_factory=dict, repr=False, compare=False)
     _current_keys: Mapping[str, str] = field(default_factory=dict, repr=False, compare=False)
 
+    def __hash__(self) -> int:
+        """Hash of every compared field (so specs can key caches); mappings are hashed as sorted items."""
+        return hash((self.memory_id, self.nbr_of_devices, self.nbr_of_ranks, self.nbr_of_banks, self.tck_s,
+                     tuple(sorted(self.timings.items())), tuple(sorted(self.currents.items())),
+                     self.vdd, self.vpp, self.vddq, self.fact_rho, self.ref_mode))
+
     @property
     def trfc(self) -> int:
         """Refresh cycle time in cycles for the memspec's ``RefMode`` (RFC1, RFC2 or RFC4)."""
