@@ -327,3 +327,23 @@ def test_open_states_at_end_are_counted_to_t(tmp_path: Path) -> None:
     assert stats.ranks[0].cycles_act == 1000 and stats.ranks[0].bank_active_cycles == 1000
     assert stats.ranks[1].cycles_act == 278 and stats.ranks[1].cycles_sref == 1000 - 278
     assert stats.ranks[1].ref == 1 and stats.ranks[1].cycles_pre == 0
+
+
+def test_benchmark_trace_matches_oracle(tmp_path: Path) -> None:
+    """The benchmark's synthetic trace is legal and the fast path agrees with the literal oracle on it."""
+    import importlib.util
+
+    bench_path = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_energy.py"
+    spec_ = importlib.util.spec_from_file_location("_bench_energy", bench_path)
+    assert spec_ is not None and spec_.loader is not None
+    bench = importlib.util.module_from_spec(spec_)
+    spec_.loader.exec_module(bench)
+    path = tmp_path / "bench.csv"
+    counts = bench.write_trace(path, 20_000, seed=3)
+    spec = preset("ddr4-2133-x8-4gb")
+    trace = read_command_trace(path, spec)
+    assert len(trace) == sum(counts.values()) and trace.count("PDEP") == counts["PDEP"] > 0
+    commands = [(int(t), ("ACT", "PRE", "PREA", "REFA", "RD", "RDA", "WR", "WRA", "PDEA", "PDXA", "PDEP", "PDXP",
+                          "SREFEN", "SREFEX", "END", "NOP")[c], int(r), int(b))
+                for t, c, r, b in zip(trace.cycle, trace.cmd, trace.rank, trace.bank)]
+    assert trace_stats(spec, trace) == _oracle_stats(spec, commands)
