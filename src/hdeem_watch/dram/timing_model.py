@@ -23,20 +23,23 @@ from hdeem_watch.dram.scheduler import SchedulerConfig
 _MAX_ROUNDS = 8
 
 
-def _previous_same(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For each element, the index of the previous and next element with the same key (-1 if none).
+def _previous_same(key: np.ndarray, want_next: bool) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """For each element, the index of the previous (and next) element with the same key (-1 if none).
 
     Also returns the stable order by key.
     """
     n = key.size
     small = key.astype(np.int16) if key.size and key.max() < 32767 else key
     order = np.argsort(small, kind="stable")
-    sorted_key = key[order]
-    same = sorted_key[1:] == sorted_key[:-1]
+    sorted_key = small[order]
+    same = np.flatnonzero(sorted_key[1:] == sorted_key[:-1])
     prev = np.full(n, -1, dtype=np.int64)
-    nxt = np.full(n, -1, dtype=np.int64)
-    prev[order[1:][same]] = order[:-1][same]
-    nxt[order[:-1][same]] = order[1:][same]
+    later, earlier = order[same + 1], order[same]
+    prev[later] = earlier
+    nxt = None
+    if want_next:
+        nxt = np.full(n, -1, dtype=np.int64)
+        nxt[earlier] = later
     return prev, nxt, order
 
 
@@ -74,22 +77,25 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     """
     n = rank.size
     gbank = rank * geometry.banks + bank
-    prev, nxt, by_bank = _previous_same(gbank)
+    prev, nxt, by_bank = _previous_same(gbank, policy == "closed")
     has_prev = prev >= 0
     prev_safe = np.where(has_prev, prev, 0)
     same_row = has_prev & (row[prev_safe] == row)
     queue = config.read_queue
-    if policy == "closed":
+    if nxt is not None:  # closed page
         nxt_safe = np.where(nxt >= 0, nxt, 0)
         auto = (nxt < 0) | (row[nxt_safe] != row) | (nxt - np.arange(n) > queue)
         hit = same_row & ~auto[prev_safe]
+        conflict = has_prev & ~same_row & ~auto[prev_safe]
     else:
         auto = np.zeros(n, dtype=bool)
         hit = same_row
-    conflict = has_prev & ~same_row & ~auto[prev_safe]
+        conflict = has_prev & ~same_row
     need = ~hit
     b = timing.burst
-    recovery = np.where(write, timing.wl + b + timing.wr, timing.al + timing.rtp)
+
+    def recovery_of(index: np.ndarray) -> np.ndarray:
+        return np.where(write[index], timing.wl + b + timing.wr, timing.al + timing.rtp)
 
     gaps = _column_gaps(timing, rank, bankgroup, write)
     if config.hidden_turnaround:
@@ -115,7 +121,8 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     q = run_start[p_safe]
     need_before = count_before = np.cumsum(need) - need  # activating requests strictly before i
     del count_before
-    wait_p = recovery[p_safe] + timing.rp + timing.rcd - config.hidden_bank - (cum[idx] - cum[p_safe])
+    recovery_p = recovery_of(p_safe)
+    wait_p = recovery_p + timing.rp + timing.rcd - config.hidden_bank - (cum[idx] - cum[p_safe])
     wait_q = timing.ras + timing.rp - (cum[idx] - cum[q])
     rank_p = need_before[p_safe] + need[p_safe]  # activating requests up to and including p
     rank_q = need_before[q] + need[q]
@@ -134,7 +141,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     t = cum + np.cumsum(lifts) + timing.rcd
     # activation times: as early as the bank and the queue allow, at the latest tRCD before the column
     enter = np.where(idx >= queue, t[np.maximum(idx - queue, 0)], 0)
-    ready = np.where(p_has, np.maximum(t[q] - timing.rcd + timing.ras, t[p_safe] + recovery[p_safe]), 0)
+    ready = np.where(p_has, np.maximum(t[q] - timing.rcd + timing.ras, t[p_safe] + recovery_p), 0)
     act = np.zeros(n, dtype=np.int64)
     act[idx] = np.minimum(np.maximum(np.where(p_has, ready + timing.rp, 0), enter), t[idx] - timing.rcd)
     pre_t = act[idx] - timing.rp
@@ -146,10 +153,11 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     refreshed = has_prev & (k_col > k_col[prev_safe])
     k_pre = refresh.count(pre_t)
     explicit_pre = p_conflict & ~(k_pre > k_col[p_safe])
-    outcome_conflict = conflict.copy()
-    outcome_conflict[idx] = explicit_pre
-    outcome_hit = hit & ~refreshed
-    outcome_miss = ~outcome_hit & ~outcome_conflict
+    # outcomes: conflicts are the activating requests with an explicit PRE; a refresh turned
+    # the others (and the hits it interrupted) into misses
+    lost_hits = np.flatnonzero(hit & refreshed)
+    n_conflicts = int(np.count_nonzero(explicit_pre))
+    n_hits = int(np.count_nonzero(hit)) - lost_hits.size
 
     # activations: the model's own, a second one when a refresh fell between an early ACT and its
     # column command, and one for each hit turned into a miss by a refresh
@@ -157,7 +165,6 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     k_act = refresh.count(act_virtual)
     first_act_real = refresh.real(act_virtual)
     again = k_act < k_col[idx]
-    lost_hits = np.flatnonzero(hit & refreshed)
     act_req = np.concatenate((idx, idx[again], lost_hits))
     act_cycle = np.concatenate((first_act_real, col_real[idx[again]] - timing.rcd, col_real[lost_hits] - timing.rcd))
     pre_req = idx[explicit_pre]
@@ -174,7 +181,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
         sorted_acts = np.sort(act_keys)
         latest = np.searchsorted(sorted_acts, gbank[auto_req] * shift + col_real[auto_req], side="right") - 1
         opened = sorted_acts[np.maximum(latest, 0)] % shift
-        auto_cycle = np.maximum(opened + timing.ras, col_real[auto_req] + recovery[auto_req])
+        auto_cycle = np.maximum(opened + timing.ras, col_real[auto_req] + recovery_of(auto_req))
         # A row re-activated after a refresh restarts tRAS, which the refresh-free timing did not
         # see: where the implicit precharge would come after the bank's next ACT, the column
         # command is a plain RD/WR and an explicit PRE precedes that ACT instead.
@@ -235,7 +242,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     writes = int(np.count_nonzero(write))
     return ControllerResult(
         stats=stats, requests=n, reads=n - writes, writes=writes,
-        row_hits=int(np.count_nonzero(outcome_hit)), row_misses=int(np.count_nonzero(outcome_miss)),
-        row_conflicts=int(np.count_nonzero(outcome_conflict)), cycles=end, commands=commands,
+        row_hits=n_hits, row_misses=n - n_hits - n_conflicts, row_conflicts=n_conflicts, cycles=end,
+        commands=commands,
         geometry=geometry,
     )
