@@ -321,13 +321,17 @@ class Daemon:
             account = found
             energy = batch.energy_j.get(name, math.nan)
             status = batch.status.get(name, "ok")
+            previous_status, previous_energy = account.status, account.energy_j
             account.update(t_ns, power_w, energy_j=energy, status=status,
                            reported_missing=int(batch.gaps.get(name, 0)) if batch.gaps else 0,
                            keep_history=not running)
             for window in self.windows:
                 window.observe(name, t_ns, power_w, energy_j=energy)
-            self.publisher.publish_samples(name, rate_hz=account.rate_hz, t_wall_ns=t_ns, power_w=power_w,
-                                           energy_j=energy, status=status, t_ns=header_t_ns)
+            # An empty batch is published only when it says something new (a rate-limited sensor,
+            # e.g. HDEEM read every 0.1 s, gives empty batches at most polls).
+            if t_ns.size or status != previous_status or (energy != previous_energy and math.isfinite(energy)):
+                self.publisher.publish_samples(name, rate_hz=account.rate_hz, t_wall_ns=t_ns, power_w=power_w,
+                                               energy_j=energy, status=status, t_ns=header_t_ns)
         self._offsets.append(int(batch.t_wall_ns) - round(int(batch.t_mono_ns) * self.speed))
         if self.recorder is not None:
             self.recorder.write_batch(batch)
