@@ -155,12 +155,41 @@ class ControllerResult:
     geometry: Geometry
 
 
-def _column_gaps(timing: Timing, rank: np.ndarray, bankgroup: np.ndarray, write: np.ndarray) -> np.ndarray:
-    """Minimum spacing of each column command after the previous one (first entry 0)."""
+def _column_gaps(timing: Timing, rank: np.ndarray, bankgroup: np.ndarray, write: np.ndarray,
+                 hidden_turnaround: int = 0) -> np.ndarray:
+    """Minimum spacing of each column command after the previous one (first entry 0).
+
+    The spacing depends on four bits (same rank, same bank group, previous and current direction):
+    a 16-entry table, indexed per pair. ``hidden_turnaround`` cycles come off each read/write
+    switch (never below tCCD_S).
+    """
     n = rank.size
     gaps = np.zeros(n, dtype=np.int64)
     if n < 2:
         return gaps
+    b = timing.burst
+    rank_switch = max(timing.ccd_s, b + timing.rtrs + 1)  # + 1 cycle of read/write preamble
+    read_to_write = max(timing.ccd_s, timing.rl + b + 2 - timing.wl - hidden_turnaround)
+    table = np.zeros(16, dtype=np.int64)
+    for same_rank in (0, 1):
+        for same_group in (0, 1):
+            if same_group and not same_rank:
+                continue
+            same_kind = timing.ccd_l if same_group else timing.ccd_s if same_rank else rank_switch
+            write_to_read = (timing.wl + b + timing.wtr_l if same_group else
+                             timing.wl + b + timing.wtr_s if same_rank else timing.wl + b + timing.rtrs - timing.rl)
+            write_to_read = max(timing.ccd_s, write_to_read - hidden_turnaround)
+            for prev_w in (0, 1):
+                for cur_w in (0, 1):
+                    gap = same_kind if prev_w == cur_w else read_to_write if cur_w else write_to_read
+                    table[((same_rank * 2 + same_group) * 2 + prev_w) * 2 + cur_w] = gap
+    w = write.view(np.uint8) if write.dtype == np.bool_ else write.astype(np.uint8)
+    code = (rank[1:] == rank[:-1]).view(np.uint8) << 3
+    code |= ((bankgroup[1:] == bankgroup[:-1]).view(np.uint8) & (code >> 3)) << 2
+    code |= w[:-1] << 1
+    code |= w[1:]
+    gaps[1:] = table[code]
+    return gaps
     b = timing.burst
     same_rank = rank[1:] == rank[:-1]
     same_group = same_rank & (bankgroup[1:] == bankgroup[:-1])
@@ -287,23 +316,24 @@ def stats_from_commands(geometry: Geometry, timing: Timing, commands: Commands,
     end = commands.end_cycle
     window = end - commands.start_cycle
     refreshes = commands.ref_cycle.size
-    for r in range(geometry.ranks):
+    per_rank = geometry.ranks
+    # column commands per (rank, write, auto) in one pass
+    code = (commands.col_rank * 4 + commands.col_write.view(np.uint8) * 2 + commands.col_auto.view(np.uint8))
+    columns = np.bincount(code, minlength=4 * per_rank).reshape(-1, 2, 2) if code.size else np.zeros((per_rank, 2, 2))
+    acts = np.bincount(commands.act_rank, minlength=per_rank)
+    explicit = np.bincount(commands.pre_rank, minlength=per_rank)
+    autos = np.bincount(auto_pre_rank, minlength=per_rank)
+    prea = np.bincount(run_rank[closed_by_prea], minlength=per_rank)
+    ref_start = commands.ref_cycle + timing.rp
+    ref_stop = np.minimum(ref_start + timing.rfc, end)
+    for r in range(per_rank):
         mine = run_rank == r
         opened, closed = run_open[mine], run_close[mine]
-        ref_start = commands.ref_cycle + timing.rp
-        ref_stop = np.minimum(ref_start + timing.rfc, end)
-        starts = np.concatenate((opened, ref_start))
-        stops = np.concatenate((closed, ref_stop))
-        union = _union_length(starts, stops)
-        col_r = commands.col_rank == r
-        auto = commands.col_auto[col_r]
-        write = commands.col_write[col_r]
-        explicit_pre = int(np.count_nonzero(commands.pre_rank == r))
+        union = _union_length(np.concatenate((opened, ref_start)), np.concatenate((closed, ref_stop)))
         ranks.append(RankStats(
-            act=float(np.count_nonzero(commands.act_rank == r)),
-            pre=float(explicit_pre + np.count_nonzero(closed_by_prea[mine]) + np.count_nonzero(auto_pre_rank == r)),
-            rd=float(np.count_nonzero(~write & ~auto)), wr=float(np.count_nonzero(write & ~auto)),
-            rda=float(np.count_nonzero(~write & auto)), wra=float(np.count_nonzero(write & auto)),
+            act=float(acts[r]), pre=float(explicit[r] + prea[r] + autos[r]),
+            rd=float(columns[r, 0, 0]), wr=float(columns[r, 1, 0]),
+            rda=float(columns[r, 0, 1]), wra=float(columns[r, 1, 1]),
             ref=float(refreshes), cycles_total=float(window), cycles_act=float(union),
             cycles_pre=float(window - union),
             bank_active_cycles=float(np.sum(closed - opened) + geometry.banks * np.sum(ref_stop - ref_start)),

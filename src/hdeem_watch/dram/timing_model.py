@@ -60,7 +60,7 @@ class _Refresh:
 
     def count(self, virtual: np.ndarray) -> np.ndarray:
         period = self.refi - self.stall
-        return np.where(virtual >= self.first, (virtual - self.first) // period + 1, 0)
+        return np.maximum((virtual - self.first + period) // period, 0)
 
     def real(self, virtual: np.ndarray) -> np.ndarray:
         return self.start + virtual + self.stall * self.count(virtual)
@@ -97,11 +97,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     def recovery_of(index: np.ndarray) -> np.ndarray:
         return np.where(write[index], timing.wl + b + timing.wr, timing.al + timing.rtp)
 
-    gaps = _column_gaps(timing, rank, bankgroup, write)
-    if config.hidden_turnaround:
-        switch = np.zeros(n, dtype=bool)
-        switch[1:] = write[1:] != write[:-1]
-        gaps = np.where(switch, np.maximum(gaps - config.hidden_turnaround, timing.ccd_s), gaps)
+    gaps = _column_gaps(timing, rank, bankgroup, write, config.hidden_turnaround)
     cum = np.cumsum(gaps)
     # the activation that opened each request's row: cummax of ACT positions in bank order
     sorted_need = need[by_bank]
