@@ -41,6 +41,8 @@ def test_json_contract_and_values(capsys: pytest.CaptureFixture[str], drampower_
     assert data["counts"][0]["rd"] + data["counts"][1]["rd"] == sum(
         b["counter"]["reads"] for b in internal["stats"]["bank"])
     assert sum(r["core_j"] for r in data["ranks"]) == pytest.approx(data["core_j"], rel=1e-12)
+    assert [r["counts"] for r in data["ranks"]] == data["counts"]
+    assert [r["cycles"] for r in data["ranks"]] == data["cycles"]
 
 
 def test_table_by_default_and_preset_name(capsys: pytest.CaptureFixture[str], drampower_ref: Path) -> None:

@@ -9,7 +9,8 @@ Usage::
 ``total_j``, ``core_j``, ``interface_j`` (null: the interface is not modelled, see
 ``interface_status``), ``components`` (``act_j`` ... ``sref_j``), per-rank ``counts`` (``act, pre,
 rd, wr, rda, wra, ref``) and ``cycles`` (``act, pre, pdna, pdnp, sref``) as lists indexed by rank,
-and ``ranks`` (per rank: ``rank``, ``core_j``, ``components``, ``bank_active_cycles``). Bad input
+and ``ranks`` (per rank: ``rank``, ``core_j``, ``components``, ``counts``, ``cycles``,
+``bank_active_cycles``). Bad input
 (memspec or trace) is one line on stderr and exit code 2.
 """
 
@@ -73,6 +74,8 @@ def report(spec: MemSpec, stats: CommandStats, energy: EnergyBreakdown, *, trace
         "counts": [{name: getattr(rank, name) for name in COUNT_FIELDS} for rank in stats.ranks],
         "cycles": [{name: getattr(rank, f"cycles_{name}") for name in CYCLE_FIELDS} for rank in stats.ranks],
         "ranks": [{"rank": r, "core_j": sum(parts.values()), "components": parts,
+                   "counts": {name: getattr(stats.ranks[r], name) for name in COUNT_FIELDS},
+                   "cycles": {name: getattr(stats.ranks[r], f"cycles_{name}") for name in CYCLE_FIELDS},
                    "bank_active_cycles": stats.ranks[r].bank_active_cycles}
                   for r, parts in enumerate(energy.ranks)],
     }
