@@ -33,9 +33,18 @@ def test_run_energy_model_and_refit(daemon_factory: Any, receive: Any) -> None:
         records = [_run(client, kernel, 0.15) for kernel in KERNELS]
         listed = client.call("runs.list")["runs"]
         calib = client.call("calib.get")
+        baselines = client.call("baseline.get")["channels"]
         with pytest.raises(ControlError) as info:
             client.call("run.stop", {"run_id": "r999"})
         assert info.value.code == "not-found"
+        reset = client.call("calib.reset")
+        after_reset = client.call("calib.get")
+    assert reset["fit"] is None and reset["runs"] == 0 and reset["history"] == []
+    assert after_reset["fit"] is None and after_reset["truth"]["simulated"] is True
+    # The idle run (the first) is every channel's idle baseline, its mean the run's mean power.
+    for channel, entry in baselines.items():
+        assert entry["origin"] == "idle-run"
+        assert entry["power_w"] == pytest.approx(records[0]["mean_power_w"][channel], rel=1e-9)
     stream = receive(sub, 1.0)
     sub.close()
     for i, rec in enumerate(records):
