@@ -49,7 +49,7 @@ from hdeem_watch.errors import InputError
 
 POLICIES = ("open", "closed")
 #: Requests served per chunk by :func:`simulate`.
-CHUNK_REQUESTS = 1 << 19
+CHUNK_REQUESTS = 1 << 17
 
 
 @dataclass(frozen=True)
@@ -234,7 +234,7 @@ def simulate(
 
     Long streams are served in chunks of about :data:`CHUNK_REQUESTS` requests (bounded memory,
     cache-friendly); each chunk but the last ends by precharging the banks left open (one PRE per
-    open bank every million requests: a negligible deviation).
+    open bank per chunk: a negligible deviation).
 
     Raises:
         InputError: for a bad policy, mapping, memspec or mismatched arrays.
