@@ -32,15 +32,21 @@ class _ArgumentParser(argparse.ArgumentParser):
         raise InputError(f"{self.prog}: {message}")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Build the top-level parser with every subcommand registered."""
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """Build the top-level parser.
+
+    Args:
+        only: register just this subcommand (the one being run), so that running one command does
+            not import every other command's dependencies (scipy, textual, zmq); ``None`` registers
+            all of them (``--help``).
+    """
     parser = _ArgumentParser(
         prog="hdeem-watch",
         description="DRAM power monitoring and DRAM power-model calibration on HPC nodes.",
     )
     parser.add_argument("--version", action="version", version=f"hdeem-watch {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_ArgumentParser)
-    for name in SUBCOMMAND_MODULES:
+    for name in SUBCOMMAND_MODULES if only is None else (only,):
         module = importlib.import_module(f"hdeem_watch.cli.{name}")
         module.register(subparsers)
     return parser
@@ -49,8 +55,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit code (also used as the console-script entry point)."""
     try:
-        parser = build_parser()
-        args = parser.parse_args(argv)
+        arguments = list(sys.argv[1:] if argv is None else argv)
+        first = next((a for a in arguments if not a.startswith("-")), None)
+        parser = build_parser(first if first in SUBCOMMAND_MODULES else None)
+        args = parser.parse_args(arguments)
         if getattr(args, "func", None) is None:
             parser.print_help(sys.stderr)
             return EXIT_BAD_INPUT
