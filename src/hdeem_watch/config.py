@@ -79,6 +79,10 @@ class DaemonSettings:
         currents: the currents the embedded calibrator fits.
         half_life_s: forgetting half-life of the online calibrator (0 = no forgetting).
         model_max_requests: request-prefix size of the kernel model (None = the model's default).
+        curve_secret_key_file: the daemon's CURVE certificate (``.key_secret``, see ``--gen-keys``): both
+            sockets then encrypt and authenticate (for remote TCP); None = off.
+        curve_clients_dir: directory of the public ``.key`` files of the clients allowed to connect
+            under CURVE (None = any client that knows the daemon's public key).
         prometheus_port: serve Prometheus metrics on this port (None = off).
         prometheus_addr: address of the Prometheus endpoint.
         sndhwm: per-subscriber send queue in messages; a slower subscriber loses messages (seen as
@@ -111,6 +115,8 @@ class DaemonSettings:
     currents: tuple[str, ...] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
     half_life_s: float = 0.0
     model_max_requests: int | None = None
+    curve_secret_key_file: str | None = None
+    curve_clients_dir: str | None = None
     prometheus_port: int | None = None
     prometheus_addr: str = "127.0.0.1"
     sndhwm: int = 20_000

@@ -37,6 +37,10 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--seed", type=int, metavar="N", help="sim random seed")
     parser.add_argument("--replay-file", metavar="FILE", help="recording for --source replay")
     parser.add_argument("--record", metavar="FILE", help="record every sample to FILE (replayable CSV)")
+    parser.add_argument("--curve-secret-key", metavar="FILE", help="CURVE certificate (.key_secret) of the daemon")
+    parser.add_argument("--curve-clients", metavar="DIR", help="public keys of the clients allowed under CURVE")
+    parser.add_argument("--gen-keys", metavar="DIR", help="write a new CURVE key pair (server.key, "
+                        "server.key_secret) to DIR and exit")
     parser.add_argument("--prometheus", type=int, metavar="PORT", help="serve Prometheus metrics on PORT")
     parser.add_argument("--poll-interval", type=float, metavar="S", help="source poll period in s (default 0.025)")
     parser.add_argument("--memspec", metavar="PRESET|FILE", help="memspec of one DIMM for the run model")
@@ -45,6 +49,12 @@ def register(subparsers: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.gen_keys:
+        from hdeem_watch.daemon.security import generate_keys
+
+        public, secret = generate_keys(args.gen_keys, "server")
+        print(f"public key (give to clients): {public}\nsecret key (--curve-secret-key): {secret}")
+        return 0
     from hdeem_watch.daemon.service import Daemon
 
     settings = load_settings(
@@ -52,7 +62,8 @@ def _run(args: argparse.Namespace) -> int:
         overrides={
             "source": args.source, "pub": args.pub, "control": args.control, "state_dir": args.state_dir,
             "runtime_dir": args.runtime_dir, "node": args.node, "speed": args.speed, "seed": args.seed,
-            "replay_file": args.replay_file, "record_file": args.record, "prometheus_port": args.prometheus,
+            "replay_file": args.replay_file, "record_file": args.record,
+            "curve_secret_key_file": args.curve_secret_key, "curve_clients_dir": args.curve_clients, "prometheus_port": args.prometheus,
             "poll_interval_s": args.poll_interval, "memspec": args.memspec, "log_level": args.log_level,
         },
     )

@@ -91,6 +91,8 @@ class ControlClient:
         timeout_s: how long :meth:`call` waits for a reply.
         socket_type: ``"dealer"`` (default) or ``"req"``.
         context: a ZeroMQ context (default: the process's shared instance).
+        curve_server_key: the daemon's CURVE public key (Z85, 40 bytes) when it runs with CURVE.
+        curve_client_keys: ``(public, secret)`` of this client (default: an ephemeral pair).
 
     Example:
         >>> with ControlClient("ipc:///tmp/x/control.sock", timeout_s=0.05) as c:  # doctest: +SKIP
@@ -105,6 +107,8 @@ class ControlClient:
         *,
         socket_type: str = "dealer",
         context: zmq.Context[Any] | None = None,
+        curve_server_key: bytes | None = None,
+        curve_client_keys: tuple[bytes, bytes] | None = None,
     ) -> None:
         if socket_type not in ("dealer", "req"):
             raise ValueError(f"socket_type {socket_type!r}: expected 'dealer' or 'req'")
@@ -114,11 +118,17 @@ class ControlClient:
         self._context = context or zmq.Context.instance()
         self._ids = itertools.count(1)
         self._socket: zmq.Socket[Any] | None = None
+        self._curve = (curve_server_key, curve_client_keys)
 
     def _connect(self) -> zmq.Socket[Any]:
         if self._socket is None:
             sock = self._context.socket(self._type)
             sock.setsockopt(zmq.LINGER, 0)
+            server_key, client_keys = self._curve
+            if server_key is not None:
+                from hdeem_watch.daemon.security import secure_client
+
+                secure_client(sock, server_key, client_keys)
             sock.connect(self.endpoint)
             self._socket = sock
         return self._socket

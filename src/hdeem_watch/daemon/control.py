@@ -95,14 +95,18 @@ class ControlServer:
         endpoint: where to bind.
         handlers: op name → handler.
         max_bytes: the request size limit.
+        secure: applied to the socket before it binds (CURVE).
 
     Attributes:
         requests: requests received; errors: error replies sent.
     """
 
     def __init__(self, context: zmq.Context[Any], endpoint: str, handlers: Mapping[str, Handler],
-                 max_bytes: int = protocol.MAX_REQUEST_BYTES) -> None:
+                 max_bytes: int = protocol.MAX_REQUEST_BYTES,
+                 secure: Callable[[zmq.Socket[Any]], None] | None = None) -> None:
         self.socket = context.socket(zmq.ROUTER)
+        if secure is not None:
+            secure(self.socket)
         self.socket.setsockopt(zmq.LINGER, 0)
         # Frames far beyond the limit are not even read into memory: the peer is disconnected.
         self.socket.setsockopt(zmq.MAXMSGSIZE, 64 * max_bytes)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import os
 import stat
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -66,6 +66,7 @@ class Publisher:
         endpoint: where to bind.
         node: node name used in every topic and header.
         sndhwm: per-subscriber queue length in messages.
+        secure: applied to the socket before it binds (CURVE, :mod:`hdeem_watch.daemon.security`).
 
     Attributes:
         sent: messages handed to ZeroMQ.
@@ -73,9 +74,12 @@ class Publisher:
         subscriptions: subscription messages seen.
     """
 
-    def __init__(self, context: zmq.Context[Any], endpoint: str, *, node: str, sndhwm: int = 20_000) -> None:
+    def __init__(self, context: zmq.Context[Any], endpoint: str, *, node: str, sndhwm: int = 20_000,
+                 secure: Callable[[zmq.Socket[Any]], None] | None = None) -> None:
         self.node = node
         self.socket = context.socket(zmq.XPUB)
+        if secure is not None:
+            secure(self.socket)
         self.socket.setsockopt(zmq.SNDHWM, int(sndhwm))
         self.socket.setsockopt(zmq.LINGER, 0)
         self.socket.setsockopt(zmq.XPUB_VERBOSE, 1)

@@ -83,6 +83,7 @@ class Daemon:
         self.metrics: DaemonMetrics | None = None
         self.metrics_port: int | None = None
         self.recorder: Any = None
+        self.curve: Any = None
         self.operations = Operations(self)
         self._stop = False
         self._lock_file: Any = None
@@ -148,9 +149,17 @@ class Daemon:
                                                 rate_hz={i.name: i.rate_hz for i in infos})
             except OSError as error:
                 raise InputError(f"record file {self.settings.record_file}: {error.strerror}") from None
+        secure = None
+        if self.settings.curve_secret_key_file:
+            from hdeem_watch.daemon.security import CurveServer
+
+            self.curve = CurveServer(self.context, self.settings.curve_secret_key_file, self.settings.curve_clients_dir)
+            secure = self.curve.apply
         try:
-            self.publisher = Publisher(self.context, self.pub_endpoint, node=self.node, sndhwm=self.settings.sndhwm)
-            self.control = ControlServer(self.context, self.control_endpoint, self.operations.handlers())
+            self.publisher = Publisher(self.context, self.pub_endpoint, node=self.node, sndhwm=self.settings.sndhwm,
+                                       secure=secure)
+            self.control = ControlServer(self.context, self.control_endpoint, self.operations.handlers(),
+                                         secure=secure)
         except (zmq.ZMQError, OSError) as error:
             self._close_sockets()
             raise InputError(f"cannot bind {self.pub_endpoint} / {self.control_endpoint}: {error}") from None
@@ -222,6 +231,9 @@ class Daemon:
         if self.recorder is not None:
             self.recorder.close()
             self.recorder = None
+        if self.curve is not None:
+            self.curve.close()
+            self.curve = None
         if self.source is not None:
             try:
                 self.source.close()
@@ -386,6 +398,7 @@ class Daemon:
             "run": run,
             "uptime_s": (self.clock() - self._t_open_mono) / 1e9,
             "endpoints": {"pub": self.pub_endpoint, "control": self.control_endpoint},
+            "curve_public_key": None if self.curve is None else self.curve.public.decode(),
             "speed": self.speed,
             "prometheus_port": self.metrics_port,
         }
