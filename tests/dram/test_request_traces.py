@@ -125,3 +125,18 @@ def test_lackey_on_a_real_valgrind_run(tmp_path: Path) -> None:
     assert trace.cpu_accesses > 2 * (1 << 15)
     with_instructions = read_request_trace(log, "lackey", cache=cache, instructions=True)
     assert with_instructions.addresses.size >= trace.addresses.size
+
+
+def test_mixed_widths_blank_lines_and_crlf(tmp_path: Path) -> None:
+    """Addresses of every width read back exactly; blank lines are skipped and CRLF endings accepted."""
+    rng = np.random.default_rng(7)
+    addresses = rng.integers(0, 1 << 48, 5000, dtype=np.uint64) >> rng.integers(0, 48, 5000).astype(np.uint64)
+    is_write = rng.random(5000) < 0.4
+    path = tmp_path / "mixed.trace"
+    write_requests(path, addresses, is_write, "ramulator2")
+    trace = read_request_trace(path, "ramulator2")
+    assert np.array_equal(trace.addresses, addresses) and np.array_equal(trace.is_write, is_write)
+    crlf = tmp_path / "crlf.trace"
+    crlf.write_bytes(b"0x40 R\r\n0x80 W\r\n\n0xc0 R\n")
+    trace = read_request_trace(crlf, "ramulator")
+    assert trace.addresses.tolist() == [0x40, 0x80, 0xC0] and trace.is_write.tolist() == [False, True, False]
