@@ -164,9 +164,8 @@ class HdeemWatchApp(App[int]):
             stale = stalled or snap.health.state in ("stale", "reconnecting")
             if stale != self.screen.has_class("-stale"):
                 self.screen.set_class(stale, "-stale")
-                self.refresh(repaint=True)
                 for widget in self.query(LinesWidget):
-                    widget.refresh()
+                    widget.restyle()
             if not self.paused or not self._shown_once:
                 self._shown_once = self.query_one(PowerPlots).size.width > 0
                 self.query_one(ChannelTable).show(snap)

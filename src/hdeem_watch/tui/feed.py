@@ -108,6 +108,7 @@ class NodeFeed(threading.Thread):
         self._sub: zmq.Socket[Any] | None = None
         self._pub_endpoint = ""
         self._halt = threading.Event()
+        self._wake = threading.Event()
         self._workers: list[threading.Thread] = []
         self._last_probe_ns = 0
         self._reachable = False
@@ -147,33 +148,41 @@ class NodeFeed(threading.Thread):
     def stop(self, timeout_s: float = 2.0) -> None:
         """Stop the thread and close its sockets."""
         self._halt.set()
+        self._wake.set()
         if self.is_alive():
             self.join(timeout_s)
 
     # ------------------------------------------------------------------ thread
 
     def run(self) -> None:
+        # One wake-up per snapshot: sleep until it is due (or the view changes), then take every
+        # message ZeroMQ queued meanwhile. Far fewer wake-ups than one per message burst.
         next_snapshot = self._clock()
         try:
             while not self._halt.is_set():
                 now = self._clock()
                 if self._sub is None or not self._reachable or self._is_quiet(now):
                     self._probe(now)
-                wait_ms = max(0, (next_snapshot - self._clock()) // 1_000_000)
+                wait_s = max(0, next_snapshot - self._clock()) / 1e9
+                if self._wake.wait(wait_s):
+                    self._wake.clear()
+                    next_snapshot = self._clock()
                 if self._sub is not None:
-                    if self._sub.poll(wait_ms, zmq.POLLIN):
-                        self._drain()
-                else:
-                    self._halt.wait(wait_ms / 1000)
+                    self._drain()
                 now = self._clock()
                 if now >= next_snapshot:
                     self.latest = self._build(now)
                     # a node in the background only feeds the health bar's dot: fewer snapshots
-                    period = self._period_ns if self.view.focus == self.index else max(self._period_ns, BACKGROUND_PERIOD_NS)
+                    focused = self.view.focus == self.index
+                    period = self._period_ns if focused else max(self._period_ns, BACKGROUND_PERIOD_NS)
                     next_snapshot = max(next_snapshot + period, now)
         finally:
             self._close_sub()
             self._control.close()
+
+    def wake(self) -> None:
+        """Build the next snapshot now (the view changed)."""
+        self._wake.set()
 
     def _is_quiet(self, now: int) -> bool:
         last = self.model.last_rx_mono_ns
@@ -305,6 +314,7 @@ class FeedHub:
         """Stop every feed thread."""
         for feed in self.feeds:
             feed._halt.set()
+            feed._wake.set()
         for feed in self.feeds:
             feed.stop()
 
@@ -313,10 +323,14 @@ class FeedHub:
         return [feed.latest for feed in self.feeds]
 
     def set_view(self, *, focus: int, window_s: float, width: int) -> None:
-        """Tell the feeds what the app shows."""
+        """Tell the feeds what the app shows (a changed view is served at once)."""
+        changed = (focus, window_s, width) != (self.view.focus, self.view.window_s, self.view.width)
         self.view.focus = focus
         self.view.window_s = window_s
         self.view.width = width
+        if changed:
+            for feed in self.feeds:
+                feed.wake()
 
     def request(self, index: int, op: str, args: dict[str, Any] | None = None) -> None:
         """Queue a control request to daemon ``index``."""

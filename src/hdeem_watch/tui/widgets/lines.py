@@ -36,6 +36,8 @@ class LinesWidget(Widget):
         super().__init__(id=id, classes=classes)
         self._strips: list[Strip] = []
         self._last: object = None
+        self._rendered: dict[tuple[int, int], Strip] = {}
+        self._base = Style()
         self.plain = ""
 
     def set_text(self, text: Text) -> None:
@@ -59,14 +61,29 @@ class LinesWidget(Widget):
         relayout = len(strips) != len(self._strips)
         self._strips = strips
         self.plain = plain
+        self._rendered.clear()
         self.refresh(layout=relayout)
+
+    def restyle(self) -> None:
+        """Forget the finished lines (the base style changed, e.g. the screen went stale)."""
+        self._rendered.clear()
+        self.refresh()
 
     def get_content_height(self, container, viewport, width: int) -> int:  # type: ignore[no-untyped-def]
         return len(self._strips)
 
     def render_line(self, y: int) -> Strip:
         width = self.size.width
-        base = self.rich_style + _DIM if self.screen.has_class("-stale") else self.rich_style
+        key = (y, width)
+        done = self._rendered.get(key)
+        if done is not None:
+            return done
+        if not self._rendered:  # the base style is looked up once per change, not per line
+            self._base = self.rich_style + _DIM if self.screen.has_class("-stale") else self.rich_style
+        base = self._base
         if 0 <= y < len(self._strips):
-            return self._strips[y].crop(0, width).apply_style(base).extend_cell_length(width, base)
-        return Strip.blank(width, base)
+            done = self._strips[y].crop(0, width).apply_style(base).extend_cell_length(width, base)
+        else:
+            done = Strip.blank(width, base)
+        self._rendered[key] = done
+        return done
