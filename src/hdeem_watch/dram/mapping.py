@@ -201,12 +201,12 @@ class AddressMapping:
             values[token] = field & ((1 << width) - 1)
         geometry = self.geometry
         flat = values["Bg"] * geometry.banks_per_group + values["Ba"]
+        bankgroup, bank = values["Bg"], values["Ba"]
         if self.xor_bank:
             flat = flat ^ self._fold(values["Ro"])
-        return Fields(
-            channel=values["Ch"], rank=values["Ra"], bankgroup=flat // geometry.banks_per_group,
-            bank=flat % geometry.banks_per_group, row=values["Ro"], column=values["Co"], flat_bank=flat,
-        )
+            bankgroup, bank = flat // geometry.banks_per_group, flat % geometry.banks_per_group
+        return Fields(channel=values["Ch"], rank=values["Ra"], bankgroup=bankgroup, bank=bank, row=values["Ro"],
+                      column=values["Co"], flat_bank=flat)
 
     def encode(self, fields: Fields) -> np.ndarray:
         """The lowest physical address of each request (offset 0): the inverse of :meth:`decode`."""

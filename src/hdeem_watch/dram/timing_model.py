@@ -101,7 +101,8 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     cum = np.cumsum(gaps)
     # the activation that opened each request's row: cummax of ACT positions in bank order
     sorted_need = need[by_bank]
-    last = np.maximum.accumulate(np.where(sorted_need, np.arange(n), 0)) if n else np.zeros(0, np.int64)
+    # (each bank's first request activates, so every request has an ACT at or before it)
+    last = np.flatnonzero(sorted_need)[np.cumsum(sorted_need) - 1] if n else np.zeros(0, np.int64)
     run_start = np.empty(n, dtype=np.int64)
     run_start[by_bank] = by_bank[last]
 
