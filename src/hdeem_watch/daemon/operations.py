@@ -60,7 +60,7 @@ class Operations:
 
     def op_status(self, args: dict[str, Any]) -> dict[str, Any]:
         """The heartbeat body plus node, version and counts."""
-        body = self.d.status_body()
+        body = self.d.reporter.status_body()
         assert self.d.store is not None
         body.update({"node": self.d.node, "version": __version__, "runs": self.d.store.count_runs(),
                      "model_error": self.d.calib_body.get("model_error")})
@@ -83,7 +83,7 @@ class Operations:
 
     def op_calib_get(self, args: dict[str, Any]) -> dict[str, Any]:
         """The latest calibration (with the sim's truth when simulated)."""
-        return self.d.calib_with_truth()
+        return self.d.reporter.calib_with_truth()
 
     def op_calib_reset(self, args: dict[str, Any]) -> Pending:
         """Forget every calibration run (on the worker, after any refit in progress)."""
@@ -99,8 +99,8 @@ class Operations:
             assert self.d.store is not None
             self.d.store.clear_calibrator(time.time_ns())
             self.d.calib_body = body
-            self.d.publish_calib()
-            self.d.complete(pending, self.d.calib_with_truth())
+            self.d.reporter.publish_calib()
+            self.d.complete(pending, self.d.reporter.calib_with_truth())
 
         self.d.submit(job, done)
         return pending
@@ -237,9 +237,9 @@ class Operations:
             found[name] = bl.baseline_from_samples(window.channel_samples(name), t_ns=account.last_t_ns or 0,
                                                    origin="idle-run", energy_j=energy.get(name),
                                                    window_s=spans.get(name))
-        changed = [self.d.update_baseline(name, b) for name, b in found.items()]
+        changed = [self.d.reporter.update_baseline(name, b) for name, b in found.items()]
         if any(changed):
-            self.d.publish_baselines()
+            self.d.reporter.publish_baselines()
         return found
 
     def _closed(self, window: Window, now: int) -> None:
@@ -294,7 +294,7 @@ class Operations:
             d.metrics.observe_run()
         d.publisher.publish("run", {"event": "stop", "run": record})
         if result is not None:
-            d.publish_calib()
+            d.reporter.publish_calib()
         for pending in waiters:
             d.complete(pending, record)
 

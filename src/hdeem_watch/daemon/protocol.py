@@ -40,44 +40,43 @@ from typing import Any
 
 import numpy as np
 
+from hdeem_watch.daemon.requests import (
+    Reply,
+    Request,
+    decode_reply,
+    decode_request,
+    encode_reply_error,
+    encode_reply_ok,
+    encode_request,
+    request_id_of,
+)
+from hdeem_watch.daemon.wire import (
+    ERROR_CODES,
+    MAX_REQUEST_BYTES,
+    ProtocolError,
+    dumps,
+    jsonable,
+    loads_object,
+)
+
+__all__ = [
+    "ERROR_CODES", "KINDS", "MAX_REQUEST_BYTES", "SAMPLE_DTYPE", "TIME_DTYPE", "TOPIC_PREFIX", "VERSION",
+    "GapTracker", "Message", "ProtocolError", "Reply", "Request", "SequenceCounter", "decode", "decode_reply",
+    "decode_request", "dumps", "encode", "encode_reply_error", "encode_reply_ok", "encode_request",
+    "encode_samples", "jsonable", "loads_object", "now_ns", "pack_samples", "parse_topic", "request_id_of",
+    "samples_topic", "subscription", "topic", "unpack_samples",
+]
+
 #: Protocol version carried in every header as ``"v"`` and in the topic prefix ``hw1``.
 VERSION = 1
 #: The first element of every topic.
 TOPIC_PREFIX = f"hw{VERSION}"
 #: Message kinds (the third topic element).
 KINDS = ("samples", "status", "run", "calib", "baseline")
-#: Largest control request the daemon accepts, in bytes; larger ones get error ``too-large``.
-MAX_REQUEST_BYTES = 64 * 1024
 #: dtype of the power part of a samples payload (little-endian float64).
 SAMPLE_DTYPE = "<f8"
 #: dtype of the time part of a samples payload (little-endian int64 ns).
 TIME_DTYPE = "<i8"
-
-#: Error codes of control replies.
-ERROR_CODES = (
-    "bad-json",  # the request frame is not a UTF-8 JSON object
-    "bad-request",  # the object lacks "op", or fields have the wrong type
-    "too-large",  # larger than MAX_REQUEST_BYTES
-    "unknown-op",  # no such operation
-    "bad-args",  # arguments missing or invalid for the operation
-    "not-found",  # e.g. run.stop with an unknown run_id
-    "conflict",  # e.g. run.start while a run is in progress
-    "unavailable",  # the operation cannot be served now (e.g. no model for this kernel)
-    "internal",  # a bug in the daemon; the message says what
-)
-
-
-class ProtocolError(ValueError):
-    """A message or request that does not follow protocol v1.
-
-    Attributes:
-        code: one of :data:`ERROR_CODES` (used as the control error code).
-    """
-
-    def __init__(self, message: str, code: str = "bad-request") -> None:
-        super().__init__(message)
-        self.code = code
-
 
 # ----------------------------------------------------------------------------------------------
 # Topics
@@ -149,51 +148,6 @@ def parse_topic(text: str) -> tuple[str, str, str | None]:
 def _check_name(what: str, name: str) -> None:
     if not isinstance(name, str) or not name or "/" in name:
         raise ProtocolError(f"{what} {name!r}: expected a non-empty name without '/'")
-
-
-# ----------------------------------------------------------------------------------------------
-# JSON with NaN -> null
-
-
-def jsonable(value: Any) -> Any:
-    """``value`` with NaN/inf floats as ``None`` and numpy scalars/arrays as plain Python."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, bool | int | str) or value is None:
-        return value
-    if isinstance(value, Mapping):
-        return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return [jsonable(v) for v in value.tolist()]
-    if isinstance(value, np.bool_):
-        return bool(value)
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating):
-        return jsonable(float(value))
-    raise ProtocolError(f"cannot encode {type(value).__name__} as JSON")
-
-
-def dumps(value: Any) -> bytes:
-    """Compact UTF-8 JSON, NaN/inf as ``null`` (strict JSON, every parser reads it)."""
-    return json.dumps(jsonable(value), separators=(",", ":"), allow_nan=False).encode()
-
-
-def loads_object(data: bytes, what: str = "frame") -> dict[str, Any]:
-    """Parse a UTF-8 JSON object.
-
-    Raises:
-        ProtocolError: code ``bad-json`` when it is not UTF-8 JSON or not an object.
-    """
-    try:
-        value = json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as error:
-        raise ProtocolError(f"{what}: not UTF-8 JSON ({error})", code="bad-json") from None
-    if not isinstance(value, dict):
-        raise ProtocolError(f"{what}: expected a JSON object, got {type(value).__name__}", code="bad-json")
-    return value
 
 
 # ----------------------------------------------------------------------------------------------
@@ -440,103 +394,3 @@ class GapTracker:
         missed = seq - last - 1
         self.missed += missed
         return missed
-
-
-# ----------------------------------------------------------------------------------------------
-# Control requests and replies
-
-
-@dataclass(frozen=True)
-class Request:
-    """A parsed control request."""
-
-    id: Any
-    op: str
-    args: dict[str, Any]
-
-
-@dataclass(frozen=True)
-class Reply:
-    """A parsed control reply: ``result`` when ``ok``, else ``code`` and ``message``."""
-
-    id: Any
-    ok: bool
-    result: Any = None
-    code: str = ""
-    message: str = ""
-
-
-def encode_request(op: str, args: Mapping[str, Any] | None = None, request_id: Any = None) -> bytes:
-    """One control request frame."""
-    return dumps({"id": request_id, "op": op, "args": dict(args or {})})
-
-
-def decode_request(data: bytes, max_bytes: int = MAX_REQUEST_BYTES) -> Request:
-    """Parse a control request frame.
-
-    Raises:
-        ProtocolError: ``too-large``, ``bad-json`` or ``bad-request``; its message is one line.
-    """
-    if len(data) > max_bytes:
-        raise ProtocolError(f"request of {len(data)} bytes exceeds the limit of {max_bytes}", code="too-large")
-    obj = loads_object(data, "request")
-    op = obj.get("op")
-    if not isinstance(op, str) or not op:
-        raise ProtocolError(f"request.op = {op!r}: expected a non-empty string")
-    args = obj.get("args", {})
-    if args is None:
-        args = {}
-    if not isinstance(args, dict):
-        raise ProtocolError(f"request.args: expected an object, got {type(args).__name__}")
-    request_id = obj.get("id")
-    if not isinstance(request_id, str | int | float | type(None)) or isinstance(request_id, bool):
-        raise ProtocolError("request.id: expected a string, a number or null")
-    return Request(id=request_id, op=op, args=args)
-
-
-def request_id_of(data: bytes) -> Any:
-    """Best-effort ``id`` of a request that failed to parse (None if it cannot be found)."""
-    if len(data) > MAX_REQUEST_BYTES:
-        return None
-    try:
-        value = json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError):
-        return None
-    if isinstance(value, dict):
-        rid = value.get("id")
-        if isinstance(rid, str | int | float) and not isinstance(rid, bool):
-            return rid
-    return None
-
-
-def encode_reply_ok(request_id: Any, result: Any) -> bytes:
-    """A success reply frame."""
-    return dumps({"id": request_id, "ok": True, "result": result})
-
-
-def encode_reply_error(request_id: Any, code: str, message: str) -> bytes:
-    """An error reply frame (``message`` is flattened to one line)."""
-    return dumps({"id": request_id, "ok": False, "error": {"code": code, "message": " ".join(message.split())}})
-
-
-def decode_reply(data: bytes) -> Reply:
-    """Parse a reply frame.
-
-    Raises:
-        ProtocolError: when it is not a v1 reply.
-    """
-    obj = loads_object(data, "reply")
-    ok = obj.get("ok")
-    if ok is True:
-        return Reply(id=obj.get("id"), ok=True, result=obj.get("result"))
-    if ok is False:
-        error = obj.get("error")
-        if not isinstance(error, dict):
-            raise ProtocolError("reply.error: expected an object")
-        return Reply(
-            id=obj.get("id"),
-            ok=False,
-            code=str(error.get("code", "")),
-            message=str(error.get("message", "")),
-        )
-    raise ProtocolError(f"reply.ok = {ok!r}: expected true or false")

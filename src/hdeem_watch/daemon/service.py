@@ -20,7 +20,6 @@ import concurrent.futures
 import fcntl
 import logging
 import math
-import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -40,6 +39,7 @@ from hdeem_watch.daemon.modelling import MAX_HISTORY, RunModeller, compact_fit
 from hdeem_watch.daemon.operations import Operations
 from hdeem_watch.daemon.poller import IntervalTimer, wait_ms
 from hdeem_watch.daemon.publisher import Publisher
+from hdeem_watch.daemon.reporting import Reporter
 from hdeem_watch.daemon.store import Store, StoreError
 from hdeem_watch.daemon.windows import Window
 from hdeem_watch.errors import InputError
@@ -85,12 +85,14 @@ class Daemon:
         self.recorder: Any = None
         self.curve: Any = None
         self.operations = Operations(self)
+        self.reporter = Reporter(self)
         self._stop = False
         self._lock_file: Any = None
         self._process = psutil.Process()
         self._t_open_mono = 0
         self._last_health = "ok"
         self._metric_last: dict[str, tuple[float, int, int]] = {}
+        self._cpu_percent = math.nan
         self.polls = 0
         self.poll_errors = 0
         self._offsets: collections.deque[int] = collections.deque(maxlen=400)
@@ -213,7 +215,7 @@ class Daemon:
 
         def built(body: dict[str, Any]) -> None:
             self.calib_body = body
-            self.publish_calib()
+            self.reporter.publish_calib()
 
         self.submit(build, built)
 
@@ -281,12 +283,12 @@ class Daemon:
                 self.poll_once()
             if heartbeat.due():
                 heartbeat.advance()
-                self.publish_status()
+                self.reporter.publish_status()
             if republish.due():
                 republish.advance()
-                self.look_for_quiet_periods()
-                self.publish_calib()
-                self.publish_baselines()
+                self.reporter.look_for_quiet_periods()
+                self.reporter.publish_calib()
+                self.reporter.publish_baselines()
             self._collect_jobs()
 
     def submit(self, job: Callable[[], Any], done: Callable[[Any], None]) -> None:
@@ -378,111 +380,6 @@ class Daemon:
         """Source seconds per monotonic second (sim/replay speed; 1 for real sensors)."""
         value = getattr(self.source, "speed", 1.0)
         return float(value) if isinstance(value, int | float) and value > 0 else 1.0
-
-    # -- publishing ------------------------------------------------------------------------------------
-
-    def status_body(self) -> dict[str, Any]:
-        """The heartbeat body (also the base of the ``status`` op)."""
-        try:
-            health = str(self.source.health())
-        except Exception as error:
-            health = f"error: {error}"
-        if self._last_health.startswith("error") and health == "ok":
-            health = self._last_health
-        memory = self._process.memory_info()
-        run = next((w.context.get("record") for w in self.windows if w.kind == "run"), None)
-        return {
-            "source": {"kind": getattr(self.source, "kind", self.settings.source), "health": health},
-            "channels": {name: a.status_entry() for name, a in self.accounts.items()},
-            "process": {"cpu_percent": self._cpu_percent, "rss_bytes": int(memory.rss), "pid": os.getpid()},
-            "run": run,
-            "uptime_s": (self.clock() - self._t_open_mono) / 1e9,
-            "endpoints": {"pub": self.pub_endpoint, "control": self.control_endpoint},
-            "curve_public_key": None if self.curve is None else self.curve.public.decode(),
-            "speed": self.speed,
-            "prometheus_port": self.metrics_port,
-        }
-
-    _cpu_percent = math.nan
-
-    def publish_status(self) -> None:
-        """Publish the heartbeat (and update the Prometheus metrics once a second)."""
-        assert self.publisher is not None
-        self._cpu_percent = float(self._process.cpu_percent(None))
-        self._last_health = "ok" if self.poll_errors == 0 else self._last_health
-        for account in self.accounts.values():
-            account.close_rate_window()
-        self.publisher.publish("status", self.status_body())
-        if self.recorder is not None:
-            self.recorder.flush()
-        if self.metrics is not None:
-            for name, account in self.accounts.items():
-                energy0, samples0, gaps0 = self._metric_last.get(name, (0.0, 0, 0))
-                energy = account.energy_j
-                self.metrics.observe_channel(name, power_w=account.power_w, energy_delta_j=energy - energy0,
-                                             samples=account.samples - samples0, missing=account.gaps - gaps0)
-                self._metric_last[name] = (energy if math.isfinite(energy) else energy0, account.samples,
-                                           account.gaps)
-        self.poll_errors = 0
-
-    def truth(self) -> dict[str, Any] | None:
-        """The simulated source's hidden truth, or None for real sensors."""
-        getter = getattr(self.source, "truth", None)
-        if getter is None:
-            return None
-        try:
-            return dict(getter())
-        except Exception:
-            return None
-
-    def publish_calib(self) -> None:
-        """Publish the ``calib`` body (cached by the publisher for late joiners)."""
-        if self.publisher is not None:
-            self.publisher.publish("calib", self.calib_with_truth())
-
-    def calib_with_truth(self) -> dict[str, Any]:
-        """The latest ``calib`` body with the sim's truth now."""
-        body = dict(self.calib_body)
-        body["truth"] = self.truth()
-        return body
-
-    def publish_baselines(self) -> None:
-        """Publish the ``baseline`` body (cached for late joiners)."""
-        if self.publisher is not None:
-            self.publisher.publish("baseline", bl.baselines_body(self.baselines))
-        if self.metrics is not None:
-            self.metrics.observe_baselines({c: b.power_w for c, b in self.baselines.items()})
-
-    def update_baseline(self, channel: str, baseline: bl.Baseline) -> bool:
-        """Merge a new baseline; store it if it was kept. Returns whether it changed."""
-        kept = bl.merge(self.baselines.get(channel), baseline)
-        if kept is self.baselines.get(channel):
-            return False
-        self.baselines[channel] = kept
-        if self.store is not None:
-            self.store.save_baseline(channel, kept.to_dict())
-        return True
-
-    def look_for_quiet_periods(self) -> None:
-        """Baselines from quiet periods of the recent samples (only while no window is open)."""
-        if self.windows:
-            return
-        changed = False
-        for name in self.dram_channels:
-            account = self.accounts[name]
-            ring = account.history
-            if ring is None or len(ring) == 0:
-                continue
-            values = ring.values()
-            found = bl.quiet_window(values, rate_hz=account.rate_hz, window_s=self.settings.quiet_window_s,
-                                    max_spread_w=self.settings.quiet_max_spread_w)
-            if found is None:
-                continue
-            baseline = bl.baseline_from_samples(values[found[0]:found[1]], t_ns=account.last_t_ns or 0,
-                                                origin="quiet")
-            changed |= self.update_baseline(name, baseline)
-        if changed:
-            self.publish_baselines()
 
     def complete(self, pending: Pending, result: Any = None, error: tuple[str, str] | None = None) -> None:
         """Send a deferred control reply."""
