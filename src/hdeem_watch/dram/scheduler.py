@@ -152,7 +152,12 @@ def service_order(bank: np.ndarray, row: np.ndarray, is_write: np.ndarray,
 
 def _regroup(seg_id: np.ndarray, group: np.ndarray, bank: np.ndarray, open_group: np.ndarray,
              hit_cap: int | None) -> np.ndarray:
-    """FR-FCFS order within whole segments (a permutation of ``range(len(seg_id))``)."""
+    """FR-FCFS order within whole segments (a permutation of ``range(len(seg_id))``).
+
+    One stable sort by (segment, row group) cuts every group into turns of at most
+    ``hit_cap + 1`` requests (blocks, each in arrival order); only the blocks are then ordered by
+    (segment, bank, turn, first appearance of their row), and expanded back.
+    """
     m = seg_id.size
     boundary = np.concatenate(([True], seg_id[1:] != seg_id[:-1]))
     seg_start = np.flatnonzero(boundary)
@@ -161,26 +166,35 @@ def _regroup(seg_id: np.ndarray, group: np.ndarray, bank: np.ndarray, open_group
     by_group = np.argsort(key, kind="stable")
     sorted_key = key[by_group]
     new = np.concatenate(([True], sorted_key[1:] != sorted_key[:-1]))
-    start_of = np.flatnonzero(new)
+    group_start = np.flatnonzero(new)
     run_index = np.cumsum(new) - 1
-    first = np.empty(m, dtype=np.int64)
-    first[by_group] = by_group[start_of[run_index]]
+    if hit_cap is None:
+        block_start = group_start
+        block_group = np.arange(group_start.size)
+        block_turn = np.zeros(group_start.size, dtype=np.int64)
+    else:
+        rank_in_group = np.arange(m, dtype=np.int64) - group_start[run_index]
+        block_start = np.flatnonzero(rank_in_group % (hit_cap + 1) == 0)
+        block_group = run_index[block_start]
+        block_turn = rank_in_group[block_start] // (hit_cap + 1)
+    first = by_group[group_start[block_group]]  # where the block's row first appears
+    block_sid = sid[first]
     # rows in order of first appearance, the row left open by the previous segment first (a hit)
-    local_first = np.where(group == open_group, -1, first - seg_start[sid])
-    chunk = np.zeros(m, dtype=np.int64)
-    if hit_cap is not None:
-        chunk[by_group] = (np.arange(m, dtype=np.int64) - start_of[run_index]) // (hit_cap + 1)
+    local_first = np.where(group[first] == open_group[first], -1, first - seg_start[block_sid])
     seg_len = int(np.diff(np.append(seg_start, m)).max())
-    width = (seg_len + 1) * (seg_len + 2)
     banks = int(bank.max()) + 1
-    slot_key = sid * banks + bank
-    grouped = np.argsort(slot_key * width + chunk * (seg_len + 1) + local_first + 1, kind="stable")
+    block_key = ((block_sid * banks + bank[first]) * (seg_len + 1) + block_turn) * (seg_len + 2) + local_first + 1
+    order = np.argsort(block_key, kind="stable")
+    lengths = np.diff(np.append(block_start, m))[order]
+    starts = block_start[order]
+    offsets = np.cumsum(lengths) - lengths
+    grouped = by_group[np.repeat(starts - offsets, lengths) + np.arange(m, dtype=np.int64)]
     # Each bank keeps the places its requests had (banks interleave as they arrived, e.g. across
     # bank groups); within a bank the places are refilled in row-grouped order.
     single_bank = np.logical_and.reduceat(bank == bank[seg_start][sid], seg_start)
     if single_bank.all():
         return grouped
-    slots = np.argsort(slot_key, kind="stable")
+    slots = np.argsort(sid * banks + bank, kind="stable")
     permutation = np.empty(m, dtype=np.int64)
     permutation[slots] = grouped
     return permutation
