@@ -131,3 +131,16 @@ def test_slurm_endpoints_use_the_documented_port() -> None:
     assert slurm_endpoints(7000, env=env)[0] == "tcp://taurusi6001:7000"
     with pytest.raises(InputError):
         slurm_endpoints(env={})
+
+
+def test_tui_without_a_terminal_prints_text_lines(fake_node) -> None:  # type: ignore[no-untyped-def]
+    """hdeem-watch tui with stdout not a terminal falls back to text progress (and says so on stderr)."""
+    done = subprocess.run(
+        [sys.executable, "-m", "hdeem_watch", "tui", "--connect", fake_node.control_endpoint, "--duration", "2.5"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "not a terminal" in done.stderr
+    lines = done.stdout.splitlines()
+    assert any(line.startswith("state  fake1 live") for line in lines), done.stdout
+    assert any(line.startswith("power ") and all(ch in line for ch in DRAM) for line in lines), done.stdout

@@ -12,6 +12,7 @@ daemon is stopped on exit, on Ctrl-C, on SIGTERM and when the terminal hangs up 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import time
@@ -48,6 +49,10 @@ def _check(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     _check(args)
+    if not args.headless and not _is_terminal():
+        print("hdeem-watch demo: standard output is not a terminal; printing progress as text (--headless)",
+              file=sys.stderr)
+        args.headless = True
     from hdeem_watch.tui.demo_daemon import DaemonFailed, DemoDaemon
     from hdeem_watch.tui.demo_schedule import DemoSchedule
 
@@ -81,6 +86,11 @@ def _run(args: argparse.Namespace) -> int:
         daemon.stop()
 
 
+def _is_terminal() -> bool:
+    """Whether the TUI can run here (a terminal that is not 'dumb')."""
+    return sys.stdout.isatty() and os.environ.get("TERM", "") != "dumb"
+
+
 def _tui(control: str, args: argparse.Namespace, schedule_cls: Any) -> int:
     from hdeem_watch.tui.app import HdeemWatchApp
     from hdeem_watch.tui.feed import FeedHub
@@ -99,7 +109,7 @@ def _tui(control: str, args: argparse.Namespace, schedule_cls: Any) -> int:
 def _headless(control: str, args: argparse.Namespace) -> int:
     from hdeem_watch.tui.demo_schedule import DemoSchedule, ScheduleEvent
     from hdeem_watch.tui.feed import FeedHub
-    from hdeem_watch.tui.headless import ProgressPrinter
+    from hdeem_watch.tui.headless import print_progress
 
     def on_event(event: ScheduleEvent) -> None:
         if event.event == "error":
@@ -113,15 +123,11 @@ def _headless(control: str, args: argparse.Namespace) -> int:
     hub = FeedHub([control], snapshot_hz=4.0)
     hub.set_view(focus=-1, window_s=10.0, width=0)
     schedule = DemoSchedule(control, speed=args.speed, on_event=on_event)
-    printer = ProgressPrinter(power_every_s=5.0)
     hub.start()
     schedule.start()
     start = time.monotonic()
     try:
-        while args.duration is None or time.monotonic() - start < args.duration:
-            time.sleep(0.5)
-            for line in printer.lines(hub.snapshots()[0], time.monotonic() - start):
-                print(line, flush=True)
+        print_progress(hub, duration_s=args.duration)
     finally:
         schedule.stop()
         hub.stop()

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from typing import Any
 
 from hdeem_watch.errors import InputError
@@ -45,6 +46,10 @@ def register(subparsers: Any) -> None:
     )
     parser.add_argument("--fps", type=float, default=10.0, help="frames per second (lower it over slow ssh)")
     parser.add_argument("--window", type=float, default=60.0, help="initial plot window in seconds")
+    parser.add_argument(
+        "--headless", action="store_true", help="print runs, calibration and power as text lines instead of the UI"
+    )
+    parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     parser.add_argument(
         "--stats", metavar="FILE", default=None, help="append frames/CPU/messages each second as JSON lines (benchmarks)"
     )
@@ -102,12 +107,17 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"--fps {args.fps}: expected a positive number of frames per second")
     if not args.window > 0:
         raise InputError(f"--window {args.window}: expected a positive number of seconds")
+    if args.duration is not None and not args.duration > 0:
+        raise InputError(f"--duration {args.duration}: expected a positive number of seconds")
     endpoints = resolve_endpoints(args)
-    from hdeem_watch.tui.app import HdeemWatchApp
     from hdeem_watch.tui.feed import FeedHub
 
+    if args.headless or not (sys.stdout.isatty() and os.environ.get("TERM", "") != "dumb"):
+        return _headless(FeedHub(endpoints, snapshot_hz=4.0), args)
+    from hdeem_watch.tui.app import HdeemWatchApp
+
     hub = FeedHub(endpoints, snapshot_hz=min(10.0, max(1.0, args.fps)))
-    app = HdeemWatchApp(hub, fps=args.fps, window_s=args.window)
+    app = HdeemWatchApp(hub, fps=args.fps, window_s=args.window, exit_after_s=args.duration)
     stats = None
     if args.stats:
         from hdeem_watch.tui.stats import StatsWriter
@@ -119,4 +129,21 @@ def _run(args: argparse.Namespace) -> int:
     finally:
         if stats is not None:
             stats.stop()
+    return 0
+
+
+def _headless(hub: Any, args: argparse.Namespace) -> int:
+    from hdeem_watch.tui.headless import print_progress
+
+    if not args.headless:
+        print("hdeem-watch tui: standard output is not a terminal; printing progress as text (--headless)",
+              file=sys.stderr)
+    hub.set_view(focus=-1, window_s=10.0, width=0)
+    hub.start()
+    try:
+        print_progress(hub, duration_s=args.duration)
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        hub.stop()
     return 0

@@ -2,8 +2,8 @@
 
 :class:`ProgressPrinter` reads the same snapshots the TUI paints and turns what changed into
 lines: each finished run (measured vs modelled energy), each new calibration (errors and the
-currents against the simulation's truth), and the live DRAM power every few seconds. Pure: it
-returns lines; the caller prints them.
+currents against the simulation's truth), and the live DRAM power every few seconds. The printer
+is pure (it returns lines); :func:`print_progress` is the loop that prints them.
 
 Example:
     >>> from hdeem_watch.tui.snapshot import NodeSnapshot
@@ -15,9 +15,15 @@ Example:
 from __future__ import annotations
 
 import math
+import sys
+import time
+from typing import TYPE_CHECKING, TextIO
 
 from hdeem_watch.tui.snapshot import CalibView, NodeSnapshot, RunView
 from hdeem_watch.tui.widgets.fmt import percent
+
+if TYPE_CHECKING:
+    from hdeem_watch.tui.feed import FeedHub
 
 
 def run_line(run: RunView) -> str:
@@ -101,3 +107,31 @@ class ProgressPrinter:
             self._last_power_s = now_s
             out.append(power_line(snapshot))
         return out
+
+
+def print_progress(
+    hub: FeedHub,
+    *,
+    duration_s: float | None = None,
+    out: TextIO | None = None,
+    period_s: float = 0.5,
+    power_every_s: float = 5.0,
+) -> int:
+    """Print the progress of every node of ``hub`` until ``duration_s`` (None: until interrupted).
+
+    Lines are prefixed with the node's name when there are several nodes. Returns the number of
+    lines printed.
+    """
+    stream = out if out is not None else sys.stdout
+    printers = [ProgressPrinter(power_every_s=power_every_s) for _ in hub.feeds]
+    start = time.monotonic()
+    count = 0
+    while duration_s is None or time.monotonic() - start < duration_s:
+        time.sleep(period_s)
+        now = time.monotonic() - start
+        for printer, snapshot in zip(printers, hub.snapshots()):
+            prefix = f"[{snapshot.node}] " if len(printers) > 1 else ""
+            for line in printer.lines(snapshot, now):
+                print(prefix + line, file=stream, flush=True)
+                count += 1
+    return count
