@@ -1,9 +1,11 @@
 """Timing, row-buffer outcomes and refresh of a served request sequence (vectorised core).
 
 Used by :func:`hdeem_watch.dram.controller.simulate`, which explains the model. All cycle figures
-are int64. Every step is an array operation; the bank constraints make the issue times a max-plus
-recurrence, solved by a few rounds of ``t = G + cummax(release − G)`` over the requests that need
-an activation (``G`` = cumulative column spacing), which converges from below.
+are int64. Every step is an array operation. Column commands are spaced by the column rules
+(cumulative spacing ``G``); a request that needs an activation may add a lift (its bank is not
+ready yet), and the lifts of the requests in between count towards the distance to the access it
+waits for, so the lifts are a recurrence over the activating requests, solved by a few Jacobi
+rounds on their cumulative sums (exact when no other lift lies in between, the common case).
 """
 
 from __future__ import annotations
@@ -116,8 +118,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     # ACT that opened p's row). Lifts of requests in between count towards that distance, so the
     # lifts are a recurrence over the activating requests; a few Jacobi rounds solve it.
     q = run_start[p_safe]
-    need_before = count_before = np.cumsum(need) - need  # activating requests strictly before i
-    del count_before
+    need_before = np.cumsum(need) - need  # activating requests strictly before i
     recovery_p = recovery_of(p_safe)
     wait_p = recovery_p + timing.rp + timing.rcd - config.hidden_bank - (cum[idx] - cum[p_safe])
     wait_q = timing.ras + timing.rp - (cum[idx] - cum[q])
