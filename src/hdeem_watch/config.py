@@ -63,6 +63,9 @@ class DaemonSettings:
             ``$XDG_STATE_HOME/hdeem-watch`` or ``~/.local/state/hdeem-watch``.
         poll_interval_s: period of the source poll and of the sample batches (smaller = lower latency,
             more CPU).
+        idle_poll_interval_s: poll period while no subscriber receives samples (energies, runs and
+            baselines stay exact at any poll period; only the stream's latency needs the fast one).
+            0 = always ``poll_interval_s``.
         heartbeat_s: period of the ``status`` heartbeat.
         republish_s: period at which ``calib`` and ``baseline`` are re-published for late joiners.
         speed: time factor of the ``sim`` and ``replay`` sources (1 = real time).
@@ -100,6 +103,7 @@ class DaemonSettings:
     runtime_dir: str | None = None
     state_dir: str = field(default_factory=default_state_dir)
     poll_interval_s: float = 0.025
+    idle_poll_interval_s: float = 0.25
     heartbeat_s: float = 1.0
     republish_s: float = 10.0
     speed: float = 1.0
@@ -131,6 +135,8 @@ class DaemonSettings:
         for name in ("poll_interval_s", "heartbeat_s", "republish_s", "speed", "quiet_window_s", "quiet_history_s"):
             if not getattr(self, name) > 0:
                 raise InputError(f"{name} = {getattr(self, name)!r}; expected a number > 0")
+        if self.idle_poll_interval_s < 0:
+            raise InputError(f"idle_poll_interval_s = {self.idle_poll_interval_s!r}; expected >= 0 (0 = off)")
         if self.half_life_s < 0:
             raise InputError(f"half_life_s = {self.half_life_s!r}; expected >= 0 (0 = no forgetting)")
         if self.dimms < 1:

@@ -121,3 +121,29 @@ def test_quiet_periods_become_baselines(shared_daemon: Any) -> None:
             assert entry["n"] == 200  # 2 s at 100 Sa/s
             assert 0 <= entry["spread_w"] <= max(0.5, 0.05 * entry["power_w"])
         assert abs(entry["power_w"] - status["channels"][name]["power_w"]) < 2.0
+
+
+def test_polls_slowly_while_nobody_watches_samples(daemon_factory: Any) -> None:
+    """Without a samples subscriber the daemon polls every 0.25 s; a subscriber brings 25 ms, leaving restores it."""
+    import time
+
+    d = daemon_factory("--speed", "5").start()
+
+    def interval_becomes(client: Any, value: float) -> bool:
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline:
+            if client.call("status")["poll_interval_s"] == value:
+                return True
+            time.sleep(0.05)
+        return False
+
+    with d.client() as client:
+        assert interval_becomes(client, 0.25)
+        status_only = d.subscriber(protocol.subscription(d.node, "status"))
+        time.sleep(0.3)
+        assert client.call("status")["poll_interval_s"] == 0.25  # heartbeats need no fast polls
+        sub = d.subscriber(protocol.subscription(d.node))
+        assert interval_becomes(client, 0.025)
+        sub.close()
+        assert interval_becomes(client, 0.25)
+        status_only.close()

@@ -244,3 +244,14 @@ def test_store_survives_kill9_mid_write(tmp_path: Path) -> None:
     store = Store(path)
     assert store.count_runs() >= acknowledged >= 50
     assert store.get_run(f"r{acknowledged}") is not None
+
+
+def test_interval_change_takes_effect_within_one_new_period() -> None:
+    """Switching to a faster period moves the next deadline closer; a slower one does not delay it."""
+    now = [0]
+    timer = IntervalTimer(250, clock=lambda: now[0])
+    now[0] = 10
+    timer.set_interval(25)
+    assert timer.next_ns == 35
+    timer.set_interval(250)
+    assert timer.next_ns == 35 and timer.interval_ns == 250

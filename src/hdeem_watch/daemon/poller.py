@@ -65,6 +65,13 @@ class IntervalTimer:
         self.skipped = 0
         self.ticks = 0
 
+    def set_interval(self, interval_ns: int) -> None:
+        """Change the period; the next deadline moves to at most one new period from now."""
+        if interval_ns <= 0:
+            raise ValueError(f"interval_ns = {interval_ns}: expected > 0")
+        self.interval_ns = int(interval_ns)
+        self.next_ns = min(self.next_ns, self._clock() + self.interval_ns)
+
     def remaining_ns(self) -> int:
         """Nanoseconds until the next deadline (0 when due)."""
         return max(0, self.next_ns - self._clock())

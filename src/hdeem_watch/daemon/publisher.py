@@ -89,6 +89,8 @@ class Publisher:
         self.sent = 0
         self.dropped = 0
         self.subscriptions = 0
+        #: Subscribed prefixes (a prefix leaves when its last subscriber unsubscribes or goes away).
+        self.prefixes: set[bytes] = set()
 
     def _send(self, frames: list[bytes]) -> bool:
         # Three plain sends with integer flags: send_multipart's per-call flag arithmetic on enums
@@ -146,10 +148,16 @@ class Publisher:
             except zmq.Again:
                 break
             handled += 1
-            if not message or message[0] != 1:
+            if not message:
+                continue
+            prefix = message[1:]
+            if message[0] == 0:  # the last subscriber of this prefix left
+                self.prefixes.discard(prefix)
+                continue
+            if message[0] != 1:
                 continue
             self.subscriptions += 1
-            prefix = message[1:]
+            self.prefixes.add(prefix)
             for topic in self._cache:
                 if topic.encode().startswith(prefix):
                     resend.add(topic)
@@ -160,6 +168,11 @@ class Publisher:
             header["seq"] = self._seq.next(topic)
             self._send([frames[0], protocol.dumps(header), frames[2]])
         return handled
+
+    def watched(self, kind: str) -> bool:
+        """Whether some subscriber receives messages of ``kind`` (e.g. ``"samples"``)."""
+        probe = protocol.topic(self.node, kind, "X" if kind == "samples" else None).encode()
+        return any(probe.startswith(prefix) for prefix in self.prefixes)
 
     def close(self) -> None:
         """Close the socket (pending messages are dropped: LINGER 0)."""

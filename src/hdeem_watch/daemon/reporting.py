@@ -47,6 +47,7 @@ class Reporter:
             "endpoints": {"pub": self.d.pub_endpoint, "control": self.d.control_endpoint},
             "curve_public_key": None if self.d.curve is None else self.d.curve.public.decode(),
             "speed": self.d.speed,
+            "poll_interval_s": self.d.poll_interval_ns / 1e9,
             "prometheus_port": self.d.metrics_port,
         }
 

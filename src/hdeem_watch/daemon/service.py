@@ -93,6 +93,7 @@ class Daemon:
         self._last_health = "ok"
         self._metric_last: dict[str, tuple[float, int, int]] = {}
         self._cpu_percent = math.nan
+        self.poll_interval_ns = round(settings.poll_interval_s * 1e9)
         self.polls = 0
         self.poll_errors = 0
         self._offsets: collections.deque[int] = collections.deque(maxlen=400)
@@ -263,8 +264,8 @@ class Daemon:
     def run(self) -> None:
         """Serve until :meth:`request_stop` (or SIGTERM/SIGINT via the command line)."""
         assert self.publisher is not None and self.control is not None
-        interval = round(self.settings.poll_interval_s * 1e9)
-        poll_timer = IntervalTimer(interval, clock=self.clock)
+        self.poll_interval_ns = self._poll_interval_ns()
+        poll_timer = IntervalTimer(self.poll_interval_ns, clock=self.clock)
         heartbeat = IntervalTimer(round(self.settings.heartbeat_s * 1e9), clock=self.clock)
         republish = IntervalTimer(round(self.settings.republish_s * 1e9), clock=self.clock,
                                   start_ns=self.clock())
@@ -278,6 +279,10 @@ class Daemon:
                 self.control.handle()
             if self.publisher.socket in events:
                 self.publisher.handle_subscriptions()
+            interval_ns = self._poll_interval_ns()
+            if interval_ns != poll_timer.interval_ns:
+                poll_timer.set_interval(interval_ns)
+                self.poll_interval_ns = interval_ns
             if poll_timer.due():
                 poll_timer.advance()
                 self.poll_once()
@@ -290,6 +295,12 @@ class Daemon:
                 self.reporter.publish_calib()
                 self.reporter.publish_baselines()
             self._collect_jobs()
+
+    def _poll_interval_ns(self) -> int:
+        """The fast poll period while someone receives samples or a window is open, else the idle one."""
+        fast, idle = self.settings.poll_interval_s, self.settings.idle_poll_interval_s
+        watched = self.publisher is not None and self.publisher.watched("samples")
+        return round((fast if watched or idle <= 0 or self.windows else max(fast, idle)) * 1e9)
 
     def submit(self, job: Callable[[], Any], done: Callable[[Any], None]) -> None:
         """Run ``job`` on the model worker; call ``done(result)`` in the loop when it finished."""
