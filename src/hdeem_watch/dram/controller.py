@@ -264,10 +264,9 @@ def simulate(
             if not keep.all():
                 fields = type(fields)(**{k: v[keep] for k, v in vars(fields).items()})
                 writes = writes[keep]
-        order = service_order(fields.rank * geometry.banks + fields.flat_bank, fields.row, writes, config)
-        part = run_timing(geometry, timing, config, policy,
-                          rank=fields.rank[order], bank=fields.flat_bank[order],
-                          bankgroup=fields.bankgroup[order], row=fields.row[order],
+        gbank = fields.rank * geometry.banks + fields.flat_bank
+        order = service_order(gbank, fields.row, writes, config)
+        part = run_timing(geometry, timing, config, policy, gbank=gbank[order], row=fields.row[order],
                           column=fields.column[order], write=writes[order],
                           start=start, close_at_end=i < pieces - 1)
         start = part.cycles

@@ -69,7 +69,7 @@ class _Refresh:
 
 
 def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, policy: str, *,
-               rank: np.ndarray, bank: np.ndarray, bankgroup: np.ndarray, row: np.ndarray,
+               gbank: np.ndarray, row: np.ndarray,
                column: np.ndarray, write: np.ndarray, start: int = 0, close_at_end: bool = False) -> ControllerResult:
     """Time a request sequence already in service order and collect its commands and statistics.
 
@@ -77,8 +77,11 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     precharges the banks left open and ends the window ``tRP`` later, so the next chunk starts
     with every bank precharged.
     """
-    n = rank.size
-    gbank = rank * geometry.banks + bank
+    n = gbank.size
+    # gbank = rank × banks + bank; all counts are powers of two: fields by shifts
+    rank = gbank >> (geometry.banks.bit_length() - 1)
+    bank = gbank & (geometry.banks - 1)
+    bankgroup = gbank >> (geometry.banks_per_group.bit_length() - 1)  # unique over the ranks
     prev, nxt, by_bank = _previous_same(gbank, policy == "closed")
     has_prev = prev >= 0
     prev_safe = np.where(has_prev, prev, 0)
