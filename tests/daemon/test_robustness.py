@@ -115,7 +115,9 @@ def test_plain_req_socket_and_req_client_work(shared_daemon: Any) -> None:
 
 def test_slow_subscriber_does_not_stall_the_others(daemon_factory: Any, receive: Any) -> None:
     """A subscriber that stops reading loses messages (visible as seq gaps); the others get every message."""
-    d = daemon_factory("--speed", "20", HDEEM_WATCH_SNDHWM="20").start()
+    # 200 messages per subscriber: ~0.7 s of stream, slack for a test process the loaded machine
+    # deschedules; the slow one falls 2 s (~600 messages of up to 16 kB) behind.
+    d = daemon_factory("--speed", "20", HDEEM_WATCH_SNDHWM="200").start()
     slow = d.subscriber(protocol.subscription(d.node), rcvhwm=5)
     fast = [d.subscriber(protocol.subscription(d.node)) for _ in range(2)]
     time.sleep(0.3)

@@ -146,4 +146,7 @@ def test_polls_slowly_while_nobody_watches_samples(daemon_factory: Any) -> None:
         assert interval_becomes(client, 0.025)
         sub.close()
         assert interval_becomes(client, 0.25)
+        one_channel = d.subscriber(protocol.subscription(d.node, "samples") + b"DDR_AB")
+        assert interval_becomes(client, 0.025)
+        one_channel.close()
         status_only.close()

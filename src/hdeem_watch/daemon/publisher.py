@@ -171,8 +171,8 @@ class Publisher:
 
     def watched(self, kind: str) -> bool:
         """Whether some subscriber receives messages of ``kind`` (e.g. ``"samples"``)."""
-        probe = protocol.topic(self.node, kind, "X" if kind == "samples" else None).encode()
-        return any(probe.startswith(prefix) for prefix in self.prefixes)
+        base = protocol.subscription(self.node, kind)  # every topic of the kind starts with it
+        return any(base.startswith(prefix) or prefix.startswith(base) for prefix in self.prefixes)
 
     def close(self) -> None:
         """Close the socket (pending messages are dropped: LINGER 0)."""
