@@ -215,7 +215,7 @@ class HdeemWatchApp(App[int]):
     def action_baseline(self) -> None:
         """Ask the focused node's daemon to measure its idle baseline."""
         self.provider.request(self.focus_index, "baseline.measure", {"seconds": self.baseline_s})
-        self.notify(f"baseline: measuring {self.baseline_s:g} s of idle power", timeout=3)
+        self.paint()  # the key line says "sent" now and shows the daemon's reply when it comes
 
     def action_help(self) -> None:
         """Show the key help."""
