@@ -86,6 +86,7 @@ class Publisher:
         self.endpoint = bind_endpoint(self.socket, endpoint)
         self._seq = protocol.SequenceCounter()
         self._cache: dict[str, list[bytes]] = {}
+        self._sample_topics: dict[str, str] = {}
         self.sent = 0
         self.dropped = 0
         self.subscriptions = 0
@@ -131,7 +132,9 @@ class Publisher:
         t_ns: int | None = None,
     ) -> bool:
         """Publish one samples batch of one channel."""
-        topic = protocol.samples_topic(self.node, channel)
+        topic = self._sample_topics.get(channel)
+        if topic is None:
+            topic = self._sample_topics[channel] = protocol.samples_topic(self.node, channel)
         frames = protocol.encode_samples(
             self.node, channel, seq=self._seq.next(topic), rate_hz=rate_hz, t_wall_ns=t_wall_ns,
             power_w=power_w, energy_j=energy_j, status=status, t_ns=t_ns,
