@@ -37,7 +37,7 @@ from hdeem_watch.daemon.control import ControlServer, Pending
 from hdeem_watch.daemon.metrics import DaemonMetrics
 from hdeem_watch.daemon.modelling import MAX_HISTORY, RunModeller, compact_fit
 from hdeem_watch.daemon.operations import Operations
-from hdeem_watch.daemon.poller import IntervalTimer, wait_ms
+from hdeem_watch.daemon.poller import IntervalTimer
 from hdeem_watch.daemon.publisher import Publisher
 from hdeem_watch.daemon.reporting import Reporter
 from hdeem_watch.daemon.store import Store, StoreError
@@ -262,39 +262,54 @@ class Daemon:
     # -- the loop --------------------------------------------------------------------------------------
 
     def run(self) -> None:
-        """Serve until :meth:`request_stop` (or SIGTERM/SIGINT via the command line)."""
+        """Serve until :meth:`request_stop` (or SIGTERM/SIGINT via the command line).
+
+        One iteration per wake-up, kept lean (it runs 40 times a second): one clock read for the
+        timeout, one for the deadlines; the poll period is re-derived only when subscriptions or
+        windows changed.
+        """
         assert self.publisher is not None and self.control is not None
+        clock = self.clock
         self.poll_interval_ns = self._poll_interval_ns()
-        poll_timer = IntervalTimer(self.poll_interval_ns, clock=self.clock)
-        heartbeat = IntervalTimer(round(self.settings.heartbeat_s * 1e9), clock=self.clock)
-        republish = IntervalTimer(round(self.settings.republish_s * 1e9), clock=self.clock,
-                                  start_ns=self.clock())
+        poll_timer = IntervalTimer(self.poll_interval_ns, clock=clock)
+        heartbeat = IntervalTimer(round(self.settings.heartbeat_s * 1e9), clock=clock)
+        republish = IntervalTimer(round(self.settings.republish_s * 1e9), clock=clock, start_ns=clock())
+        control_socket, pub_socket = self.control.socket, self.publisher.socket
         poller = zmq.Poller()
-        poller.register(self.control.socket, zmq.POLLIN)
-        poller.register(self.publisher.socket, zmq.POLLIN)
+        poller.register(control_socket, zmq.POLLIN)
+        poller.register(pub_socket, zmq.POLLIN)
         self.poll_once()
+        open_windows = len(self.windows)
         while not self._stop:
-            events = dict(poller.poll(wait_ms([poll_timer, heartbeat, republish], cap_ms=100)))
-            if self.control.socket in events:
-                self.control.handle()
-            if self.publisher.socket in events:
-                self.publisher.handle_subscriptions()
-            interval_ns = self._poll_interval_ns()
-            if interval_ns != poll_timer.interval_ns:
-                poll_timer.set_interval(interval_ns)
-                self.poll_interval_ns = interval_ns
-            if poll_timer.due():
+            wake = min(poll_timer.next_ns, heartbeat.next_ns, republish.next_ns)
+            timeout_ms = min(100, max(0, -(-(wake - clock()) // 1_000_000)))
+            changed = False
+            for sock, _event in poller.poll(timeout_ms):
+                if sock is control_socket:
+                    self.control.handle()
+                elif sock is pub_socket:
+                    self.publisher.handle_subscriptions()
+                    changed = True
+            now = clock()
+            if now >= poll_timer.next_ns:
                 poll_timer.advance()
                 self.poll_once()
-            if heartbeat.due():
+            if now >= heartbeat.next_ns:
                 heartbeat.advance()
                 self.reporter.publish_status()
-            if republish.due():
+            if now >= republish.next_ns:
                 republish.advance()
                 self.reporter.look_for_quiet_periods()
                 self.reporter.publish_calib()
                 self.reporter.publish_baselines()
-            self._collect_jobs()
+            if self.jobs:
+                self._collect_jobs()
+            if changed or len(self.windows) != open_windows:
+                open_windows = len(self.windows)
+                interval_ns = self._poll_interval_ns()
+                if interval_ns != poll_timer.interval_ns:
+                    poll_timer.set_interval(interval_ns)
+                    self.poll_interval_ns = interval_ns
 
     def _poll_interval_ns(self) -> int:
         """The fast poll period while someone receives samples or a window is open, else the idle one."""
