@@ -257,17 +257,17 @@ def simulate(
     parts: list[ControllerResult] = []
     start = 0
     for i in range(pieces):
-        fields = address_mapping.decode(addresses[bounds[i]:bounds[i + 1]])
+        lanes, gbank, row, column = address_mapping.decode_packed(addresses[bounds[i]:bounds[i + 1]],
+                                                                   column=keep_commands)
         writes = is_write[bounds[i]:bounds[i + 1]]
-        if geometry.channels > 1:
-            keep = fields.channel == channel
+        if lanes is not None:
+            keep = lanes == channel
             if not keep.all():
-                fields = type(fields)(**{k: v[keep] for k, v in vars(fields).items()})
-                writes = writes[keep]
-        gbank = fields.rank * geometry.banks + fields.flat_bank
-        order = service_order(gbank, fields.row, writes, config)
-        part = run_timing(geometry, timing, config, policy, gbank=gbank[order], row=fields.row[order],
-                          column=fields.column[order], write=writes[order],
+                gbank, row, writes = gbank[keep], row[keep], writes[keep]
+                column = column[keep] if column is not None else None
+        order = service_order(gbank, row, writes, config)
+        part = run_timing(geometry, timing, config, policy, gbank=gbank[order], row=row[order],
+                          column=column[order] if column is not None else None, write=writes[order],
                           start=start, close_at_end=i < pieces - 1)
         start = part.cycles
         if not keep_commands:

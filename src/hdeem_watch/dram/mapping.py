@@ -208,6 +208,58 @@ class AddressMapping:
         return Fields(channel=values["Ch"], rank=values["Ra"], bankgroup=bankgroup, bank=bank, row=values["Ro"],
                       column=values["Co"], flat_bank=flat)
 
+    def decode_packed(self, addresses: np.ndarray, *, column: bool = True
+                      ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray | None]:
+        """The fields the controller needs, in as few passes as possible.
+
+        Returns:
+            ``(channel, bank, row, column)``: ``bank`` is the global bank index
+            ``rank × banks + flat_bank``; ``channel`` is ``None`` for one channel, ``column``
+            ``None`` unless asked for. Narrow integer types (``int32`` where the mapped bits fit).
+        """
+        geometry = self.geometry
+        if self.xor_bank:
+            fields = self.decode(addresses)
+            gbank = fields.rank * geometry.banks + fields.flat_bank
+            return (fields.channel if geometry.channels > 1 else None, gbank, fields.row,
+                    fields.column if column else None)
+        addresses = np.asarray(addresses, dtype=np.uint64)
+        line = addresses >> np.uint64(self.offset_bits)
+        if self.address_bits - self.offset_bits <= 31:
+            line = line.astype(np.int32)  # the bits above are ignored anyway
+        else:
+            line = line.view(np.int64)
+        # global bank: rank, bank group, bank (each a slice) packed as rank × banks + bg × per_group + ba
+        place = {"Ra": (geometry.bankgroups * geometry.banks_per_group).bit_length() - 1,
+                 "Bg": geometry.banks_per_group.bit_length() - 1, "Ba": 0}
+        values: dict[str, np.ndarray | None] = {"Ch": None, "Co": None}
+        gbank: np.ndarray | None = None
+        for token, shift, width in self._slices:
+            if width == 0 or (token == "Ch" and geometry.channels == 1) or (token == "Co" and not column):
+                continue
+            rel = shift - self.offset_bits
+            if token in place:
+                if place[token] >= rel:  # mask in place, then move left
+                    part = line & ((1 << width) - 1) << rel
+                    if place[token] > rel:
+                        part <<= place[token] - rel
+                else:
+                    part = line >> (rel - place[token])
+                    part &= ((1 << width) - 1) << place[token]
+                if gbank is None:
+                    gbank = part
+                else:
+                    gbank |= part
+                continue
+            field = line >> rel if rel else line.copy()
+            field &= (1 << width) - 1
+            values[token] = field
+        if gbank is None:
+            gbank = np.zeros(line.size, dtype=line.dtype)
+        row = values.get("Ro")
+        assert row is not None
+        return values["Ch"], gbank, row, values["Co"]
+
     def encode(self, fields: Fields) -> np.ndarray:
         """The lowest physical address of each request (offset 0): the inverse of :meth:`decode`."""
         geometry = self.geometry

@@ -70,12 +70,13 @@ class _Refresh:
 
 def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, policy: str, *,
                gbank: np.ndarray, row: np.ndarray,
-               column: np.ndarray, write: np.ndarray, start: int = 0, close_at_end: bool = False) -> ControllerResult:
+               column: np.ndarray | None, write: np.ndarray, start: int = 0, close_at_end: bool = False) -> ControllerResult:
     """Time a request sequence already in service order and collect its commands and statistics.
 
     ``start`` is the cycle the sequence starts at (a chunk after earlier ones); ``close_at_end``
     precharges the banks left open and ends the window ``tRP`` later, so the next chunk starts
-    with every bank precharged.
+    with every bank precharged. ``column`` may be ``None`` when the commands are not kept (their
+    ``col_column`` is then empty).
     """
     n = gbank.size
     # gbank = rank × banks + bank; all counts are powers of two: fields by shifts
@@ -84,11 +85,11 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     bankgroup = gbank >> (geometry.banks_per_group.bit_length() - 1)  # unique over the ranks
     prev, nxt, by_bank = _previous_same(gbank, policy == "closed")
     has_prev = prev >= 0
-    prev_safe = np.where(has_prev, prev, 0)
+    prev_safe = np.maximum(prev, 0)
     same_row = has_prev & (row[prev_safe] == row)
     queue = config.read_queue
     if nxt is not None:  # closed page
-        nxt_safe = np.where(nxt >= 0, nxt, 0)
+        nxt_safe = np.maximum(nxt, 0)
         auto = (nxt < 0) | (row[nxt_safe] != row) | (nxt - np.arange(n) > queue)
         hit = same_row & ~auto[prev_safe]
         conflict = has_prev & ~same_row & ~auto[prev_safe]
@@ -100,52 +101,66 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     b = timing.burst
 
     def recovery_of(index: np.ndarray) -> np.ndarray:
-        return np.where(write[index], timing.wl + b + timing.wr, timing.al + timing.rtp)
+        read_recovery = timing.al + timing.rtp
+        return write[index] * (timing.wl + b + timing.wr - read_recovery) + read_recovery
 
     gaps = _column_gaps(timing, rank, bankgroup, write, config.hidden_turnaround)
     cum = np.cumsum(gaps)
-    # the activation that opened each request's row: cummax of ACT positions in bank order
-    sorted_need = need[by_bank]
-    # (each bank's first request activates, so every request has an ACT at or before it)
-    last = np.flatnonzero(sorted_need)[np.cumsum(sorted_need) - 1] if n else np.zeros(0, np.int64)
-    run_start = np.empty(n, dtype=np.int64)
-    run_start[by_bank] = by_bank[last]
-
     idx = np.flatnonzero(need)
+    m = idx.size
     p = prev[idx]
     p_has = p >= 0
-    p_safe = np.where(p_has, p, 0)
+    p_safe = np.maximum(p, 0)
     p_conflict = conflict[idx]
+    # q: the activation that opened p's row = the previous activating request of the same bank
+    # (no request of that bank lies between p and i); 0 where there is none (no p either)
+    need_by_bank = by_bank[need[by_bank]]  # activating requests, stably sorted by bank
+    q = np.zeros(m, dtype=np.int64)
+    if m > 1:
+        same_bank = gbank[need_by_bank[1:]] == gbank[need_by_bank[:-1]]
+        need_rank = np.cumsum(need, dtype=np.int32)  # activating requests up to and including i
+        later = need_by_bank[1:][same_bank]
+        q[need_rank[later] - 1] = need_by_bank[:-1][same_bank]
+    else:
+        need_rank = np.cumsum(need, dtype=np.int32)
     # Each request that needs an activation may lift the column sequence: it must wait for its
     # bank (t_p + recovery + tRP + tRCD after the previous access p, and tRAS + tRP after the
     # ACT that opened p's row). Lifts of requests in between count towards that distance, so the
     # lifts are a recurrence over the activating requests; a few Jacobi rounds solve it.
-    q = run_start[p_safe]
-    need_before = np.cumsum(need) - need  # activating requests strictly before i
     recovery_p = recovery_of(p_safe)
-    wait_p = recovery_p + timing.rp + timing.rcd - config.hidden_bank - (cum[idx] - cum[p_safe])
-    wait_q = timing.ras + timing.rp - (cum[idx] - cum[q])
-    rank_p = need_before[p_safe] + need[p_safe]  # activating requests up to and including p
-    rank_q = need_before[q] + need[q]
-    rank_i = need_before[idx]  # up to i - 1
-    lam = np.where(p_has, np.maximum(0, np.maximum(wait_p, wait_q)), 0)
+    cum_i = cum[idx]
+    wait_p = recovery_p + (timing.rp + timing.rcd - config.hidden_bank) - (cum_i - cum[p_safe])
+    wait_q = (timing.ras + timing.rp) - (cum_i - cum[q])
+    rank_p = need_rank[p_safe]  # activating requests up to and including p
+    rank_q = need_rank[q]
+    rank_i = np.arange(m, dtype=np.int32)  # activating requests before i
+    lam = np.maximum(np.maximum(wait_p, wait_q), 0)
+    lam *= p_has
     for _ in range(_MAX_ROUNDS):
-        total = np.concatenate(([0], np.cumsum(lam)))
-        between_p = total[rank_i] - total[rank_p]
-        between_q = total[rank_i] - total[rank_q]
-        new_lam = np.where(p_has, np.maximum(0, np.maximum(wait_p - between_p, wait_q - between_q)), 0)
+        total = np.zeros(m + 1, dtype=np.int64)
+        np.cumsum(lam, out=total[1:])
+        total_i = total[:-1]  # = total[rank_i]
+        new_lam = np.maximum(wait_p - (total_i - total[rank_p]), wait_q - (total_i - total[rank_q]))
+        np.maximum(new_lam, 0, out=new_lam)
+        new_lam *= p_has
         if np.array_equal(new_lam, lam):
             break
         lam = new_lam
+    del rank_i
     lifts = np.zeros(n, dtype=np.int64)
     lifts[idx] = lam
-    t = cum + np.cumsum(lifts) + timing.rcd
+    t = np.cumsum(lifts)
+    t += cum
+    t += timing.rcd
     # activation times: as early as the bank and the queue allow, at the latest tRCD before the column
-    enter = np.where(idx >= queue, t[np.maximum(idx - queue, 0)], 0)
-    ready = np.where(p_has, np.maximum(t[q] - timing.rcd + timing.ras, t[p_safe] + recovery_p), 0)
-    act = np.zeros(n, dtype=np.int64)
-    act[idx] = np.minimum(np.maximum(np.where(p_has, ready + timing.rp, 0), enter), t[idx] - timing.rcd)
-    pre_t = act[idx] - timing.rp
+    enter = t[np.maximum(idx - queue, 0)]
+    enter *= idx >= queue
+    ready = np.maximum(t[q] + (timing.ras - timing.rcd), t[p_safe] + recovery_p)
+    ready += timing.rp
+    ready *= p_has
+    t_i = t[idx]
+    act_virtual = np.minimum(np.maximum(ready, enter), t_i - timing.rcd)
+    pre_t = act_virtual - timing.rp
 
     refresh = _Refresh(timing, start)
     k_col = refresh.count(t)
@@ -153,7 +168,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     # refresh closes the row: a hit or conflict whose previous same-bank access precedes a refresh
     refreshed = has_prev & (k_col > k_col[prev_safe])
     k_pre = refresh.count(pre_t)
-    explicit_pre = p_conflict & ~(k_pre > k_col[p_safe])
+    explicit_pre = p_conflict & (k_pre <= k_col[p_safe])
     # outcomes: conflicts are the activating requests with an explicit PRE; a refresh turned
     # the others (and the hits it interrupted) into misses
     lost_hits = np.flatnonzero(hit & refreshed)
@@ -162,10 +177,10 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
 
     # activations: the model's own, a second one when a refresh fell between an early ACT and its
     # column command, and one for each hit turned into a miss by a refresh
-    act_virtual = act[idx]
     k_act = refresh.count(act_virtual)
     first_act_real = refresh.real(act_virtual)
-    again = k_act < k_col[idx]
+    k_col_i = k_col[idx]
+    again = k_act < k_col_i
     act_req = np.concatenate((idx, idx[again], lost_hits))
     act_cycle = np.concatenate((first_act_real, col_real[idx[again]] - timing.rcd, col_real[lost_hits] - timing.rcd))
     pre_req = idx[explicit_pre]
@@ -234,7 +249,8 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     commands = Commands(
         act_cycle=act_cycle, act_rank=rank[act_req], act_bank=bank[act_req], act_row=row[act_req],
         pre_cycle=pre_cycle, pre_rank=rank[pre_req], pre_bank=bank[pre_req],
-        col_cycle=col_real, col_rank=rank, col_bank=bank, col_row=row, col_column=column,
+        col_cycle=col_real, col_rank=rank, col_bank=bank, col_row=row,
+        col_column=column if column is not None else np.zeros(0, dtype=np.int64),
         col_write=write, col_auto=auto, ref_cycle=ref_cycle, end_cycle=end, refa_delay=timing.rp,
         start_cycle=start,
     )
