@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import signal
 import subprocess
@@ -77,6 +78,17 @@ def test_bad_flags_exit_2_with_one_line(tmp_path: Path) -> None:
         assert code == 2, args
 
 
+def test_unavailable_source_is_one_line_with_the_reason(tmp_path: Path) -> None:
+    """A source that cannot work here exits 2 with exactly one stderr line giving the source's reason."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("HDEEM_WATCH_")}
+    env["HDEEM_WATCH_RAPL_ROOT"] = str(tmp_path / "no-powercap")
+    done = _cli("--source", "rapl", "--state-dir", str(tmp_path / "s"), "--runtime-dir", str(tmp_path / "r"), env=env)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("hdeem-watch: error: source rapl:"), done.stderr
+    assert "no-powercap" in lines[0]
+
+
 def test_second_daemon_on_the_same_state_dir_is_refused(daemon_factory: Any) -> None:
     """Two daemons cannot share a state directory: the second exits 2 with one line naming the directory."""
     first = daemon_factory("--speed", "5").start()
@@ -84,7 +96,7 @@ def test_second_daemon_on_the_same_state_dir_is_refused(daemon_factory: Any) -> 
                 "--state-dir", str(first.state_dir), env=first.env)
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
-    assert lines[-1].startswith("hdeem-watch: error: state dir") and "another" in lines[-1]
+    assert len(lines) == 1 and lines[0].startswith("hdeem-watch: error: state dir") and "another" in lines[0]
     assert first.proc is not None
     first.proc.send_signal(signal.SIGINT)  # Ctrl-C is a clean stop too
     assert first.proc.wait(timeout=15) == 0, first.stderr()

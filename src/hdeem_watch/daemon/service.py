@@ -136,7 +136,9 @@ class Daemon:
                 self.source = make_source(self.settings.source, **self.settings.source_options())
                 self.source.open()
             except SourceUnavailable as error:
-                raise InputError(f"source {self.settings.source}: {error.reason}") from None
+                kind = self.settings.source
+                reason = error.reason[len(kind) + 1:].strip() if error.reason.startswith(f"{kind}:") else error.reason
+                raise InputError(f"source {kind}: {reason}") from None
         else:
             self.source.open()
         infos = self.source.channels()
@@ -248,7 +250,8 @@ class Daemon:
         if self._lock_file is not None:
             self._lock_file.close()
             self._lock_file = None
-        log.info("hdeem-watch daemon stopped (%d polls)", self.polls)
+        if self.polls:
+            log.info("hdeem-watch daemon stopped (%d polls)", self.polls)
 
     def _close_sockets(self) -> None:
         for part in (self.publisher, self.control):
