@@ -220,8 +220,8 @@ class AddressMapping:
         geometry = self.geometry
         if self.xor_bank:
             fields = self.decode(addresses)
-            gbank = fields.rank * geometry.banks + fields.flat_bank
-            return (fields.channel if geometry.channels > 1 else None, gbank, fields.row,
+            return (fields.channel if geometry.channels > 1 else None,
+                    fields.rank * geometry.banks + fields.flat_bank, fields.row,
                     fields.column if column else None)
         addresses = np.asarray(addresses, dtype=np.uint64)
         line = addresses >> np.uint64(self.offset_bits)
