@@ -2,8 +2,9 @@
 
 Target (DESIGN.md §8): each hdeem-watch kernel reaches >= 90 % of the line rate of the C loop with
 the same thread count. The C program is written and built by this script; both sides use the same
-arrays size, repeat count, CPU pinning, first touch by the worker and timing method (all workers
-ready, window opens, ``repeat`` passes, all workers done). Trials of C and hdeem-watch alternate
+arrays size, repeat count, CPU pinning, first touch by the worker, page size (transparent huge
+pages via ``madvise``, which numpy requests for large arrays) and timing method (all workers ready,
+window opens, ``repeat`` passes, all workers done). Trials of C and hdeem-watch alternate
 (C, hw, hw, C, ...) so a change of machine load hits both alike; each figure is the best of
 ``--trials``.
 
@@ -20,14 +21,20 @@ windows: the best of several short windows is the closest to an undisturbed run 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import ctypes
 import os
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
+from hdeem_watch.bench import kernels as K
 from hdeem_watch.bench.runner import choose_cpus, run_one
 from hdeem_watch.bench.schedule import KERNELS, RunSpec
 from hdeem_watch.bench.system import llc_total_bytes
@@ -41,6 +48,7 @@ C_SOURCE = r"""
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <time.h>
 
 static double *a, *b, *c;
@@ -49,6 +57,14 @@ static int threads, kernel;
 static int cpus[1024];
 static double sums[1024];
 static pthread_barrier_t ready, go;
+
+/* 2 MiB-aligned and advised for transparent huge pages, as numpy does for large arrays. */
+static double *alloc(long n) {
+    void *p = NULL;
+    if (posix_memalign(&p, 1 << 21, n * 8)) return NULL;
+    madvise(p, n * 8, MADV_HUGEPAGE);
+    return p;
+}
 
 static double now(void) { struct timespec t; clock_gettime(CLOCK_MONOTONIC, &t); return t.tv_sec + 1e-9 * t.tv_nsec; }
 
@@ -89,8 +105,8 @@ int main(int argc, char **argv) {
     int narrays = (kernel == 3) ? 3 : (kernel == 2 || kernel == 4 || kernel == 5) ? 2 : 1;
     double best = 1e30, check = 0.0;
     for (int t = 0; t < trials; t++) {
-        a = malloc(elements * 8); b = narrays > 1 ? malloc(elements * 8) : NULL;
-        c = narrays > 2 ? malloc(elements * 8) : NULL;
+        a = alloc(elements); b = narrays > 1 ? alloc(elements) : NULL;
+        c = narrays > 2 ? alloc(elements) : NULL;
         pthread_barrier_init(&ready, NULL, threads + 1); pthread_barrier_init(&go, NULL, threads + 1);
         pthread_t tid[1024];
         for (long w = 0; w < threads; w++) pthread_create(&tid[w], NULL, worker, (void *)w);
@@ -112,13 +128,51 @@ int main(int argc, char **argv) {
 """
 
 
+#: The loop statements of the standalone program, reused verbatim for the in-process library.
+LOOP_BODIES = {
+    "read": "sum += a[k];", "assign": "a[k] = 2.0;", "scale": "b[k] = 2.0 * a[k];",
+    "add": "c[k] = a[k] + b[k];", "triad": "a[k] = b[k] + 2.0 * a[k];", "copy": "b[k] = a[k];",
+    "selfscale": "a[k] = 2.0 * a[k];",
+}
+LIB_SOURCE = "".join(
+    f"double k_{name}(double *a, double *b, double *c, long lo, long hi) {{\n"
+    f"    double sum = 0.0;\n    for (long k = lo * 8; k < hi * 8; k += 8) {body}\n    return sum;\n}}\n"
+    for name, body in LOOP_BODIES.items())
+
+
 def build(workdir: Path) -> Path:
     """Write and compile the C loops with gcc -O2 -pthread; return the executable."""
+    for name, body in LOOP_BODIES.items():  # the program's switch holds the same statements
+        assert body in C_SOURCE, name
     source = workdir / "stride8.c"
     source.write_text(C_SOURCE)
     exe = workdir / "stride8"
     subprocess.run(["gcc", "-O2", "-pthread", "-o", str(exe), str(source)], check=True)
     return exe
+
+
+def build_lib(workdir: Path) -> ctypes.CDLL:
+    """Compile the same loops as a shared library (gcc -O2) for the in-process column."""
+    source = workdir / "stride8lib.c"
+    source.write_text(LIB_SOURCE)
+    lib = workdir / "libstride8.so"
+    subprocess.run(["gcc", "-O2", "-shared", "-fPIC", "-o", str(lib), str(source)], check=True)
+    dll = ctypes.CDLL(str(lib))
+    for name in LOOP_BODIES:
+        fn = getattr(dll, f"k_{name}")
+        fn.restype = ctypes.c_double
+        fn.argtypes = [ctypes.c_void_p] * 3 + [ctypes.c_long] * 2
+    return dll
+
+
+def c_in_runner(dll: ctypes.CDLL) -> Callable[..., float]:
+    """A drop-in for ``kernels.run_pass`` that runs the C loop (ctypes releases the GIL)."""
+
+    def run_pass(kernel: str, arrays: dict[str, np.ndarray], lo: int, hi: int, scratch: np.ndarray) -> float:
+        ptrs = [arrays[n].ctypes.data if n in arrays else None for n in ("a", "b", "c")]
+        return float(getattr(dll, f"k_{kernel}")(*ptrs, lo, hi))
+
+    return run_pass
 
 
 def c_seconds(exe: Path, kernel: str, elements: int, repeat: int, trials: int, cpus: list[int]) -> float:
@@ -128,22 +182,38 @@ def c_seconds(exe: Path, kernel: str, elements: int, repeat: int, trials: int, c
     return float(out.split()[0])
 
 
-def py_seconds(kernel: str, threads: int, elements: int, repeat: int, backend: str) -> float:
-    """Wall time of ``repeat`` passes of the hdeem-watch kernel."""
-    return run_one(RunSpec(kernel, threads, elements, repeat), backend=backend).seconds
+@contextlib.contextmanager
+def patched_run_pass(replacement: Callable[..., float] | None) -> Iterator[None]:
+    """Temporarily run another pass function inside the hdeem-watch runner."""
+    original = K.run_pass
+    if replacement is not None:
+        K.run_pass = replacement  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        K.run_pass = original  # type: ignore[assignment]
+
+
+def py_seconds(kernel: str, threads: int, elements: int, repeat: int, backend: str,
+               run_pass: Callable[..., float] | None = None) -> float:
+    """Wall time of ``repeat`` passes in the hdeem-watch runner (its kernel, or ``run_pass``)."""
+    with patched_run_pass(run_pass):
+        return run_one(RunSpec(kernel, threads, elements, repeat), backend=backend).seconds
 
 
 def best_times(exe: Path, kernel: str, threads: int, elements: int, repeat: int, trials: int,
-               backends: list[str]) -> dict[str, float]:
+               backends: list[str], c_pass: Callable[..., float] | None = None) -> dict[str, float]:
     """Best times of C and each backend over trials in rotating order (C first, then shifted)."""
     cpus = choose_cpus(threads)
-    sides = ["c", *backends]
+    sides = ["c", *backends] + (["c-in-runner"] if c_pass else [])
     best = dict.fromkeys(sides, float("inf"))
     for trial in range(trials):
         shift = trial % len(sides)
         for side in sides[shift:] + sides[:shift]:
             if side == "c":
                 seconds = c_seconds(exe, kernel, elements, repeat, 1, cpus)
+            elif side == "c-in-runner":
+                seconds = py_seconds(kernel, threads, elements, repeat, "thread", c_pass)
             else:
                 seconds = py_seconds(kernel, threads, elements, repeat, side)
             best[side] = min(best[side], seconds)
@@ -161,6 +231,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--kernels", default=",".join(KERNELS))
     parser.add_argument("--backend", default="thread", choices=("thread", "process", "both"),
                         help="hdeem-watch worker backend; 'both' measures threads and processes side by side")
+    parser.add_argument("--c-in-runner", action="store_true",
+                        help="add a column: the same C loops (ctypes) run inside the hdeem-watch runner, "
+                             "to separate loop speed from process effects")
     args = parser.parse_args(argv)
     elements = args.elements or (1 << 24 if args.quick else 1 << 25)
     repeat = args.repeat or 2
@@ -175,14 +248,17 @@ def main(argv: list[str] | None = None) -> int:
     header = f"{'kernel':<10}{'threads':>8}{'C Mlines/s':>12}"
     for backend in backends:
         header += f"{backend + ' Mlines/s':>18}{'ratio':>7}"
+    if args.c_in_runner:
+        header += f"{'C-in-runner':>13}{'ratio':>7}"
     print(f"{header}  target >= {TARGET:.0%} of C")
     lines = (elements + 7) // 8
     worst = dict.fromkeys(backends, float("inf"))
     with tempfile.TemporaryDirectory(prefix="bench-c-") as tmp:
         exe = build(Path(tmp))
+        c_pass = c_in_runner(build_lib(Path(tmp))) if args.c_in_runner else None
         for kernel in args.kernels.split(","):
             for threads in counts:
-                best = best_times(exe, kernel, threads, elements, repeat, trials, backends)
+                best = best_times(exe, kernel, threads, elements, repeat, trials, backends, c_pass)
                 c_rate = lines * repeat / best["c"]
                 row = f"{kernel:<10}{threads:>8}{c_rate / 1e6:>12.1f}"
                 flags = []
@@ -192,6 +268,9 @@ def main(argv: list[str] | None = None) -> int:
                     worst[backend] = min(worst[backend], ratio)
                     row += f"{rate / 1e6:>18.1f}{ratio:>7.2f}"
                     flags.append("ok" if ratio >= TARGET else "BELOW")
+                if c_pass is not None:
+                    rate = lines * repeat / best["c-in-runner"]
+                    row += f"{rate / 1e6:>13.1f}{rate / c_rate:>7.2f}"
                 print(f"{row}  {' '.join(flags)}", flush=True)
     for backend in backends:
         print(f"worst ratio ({backend}) {worst[backend]:.2f} (target >= {TARGET:.2f})")
