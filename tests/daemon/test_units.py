@@ -255,3 +255,43 @@ def test_interval_change_takes_effect_within_one_new_period() -> None:
     assert timer.next_ns == 35
     timer.set_interval(250)
     assert timer.next_ns == 35 and timer.interval_ns == 250
+
+
+@pytest.mark.parametrize("failure", ["bad-preset", "crash"])
+def test_a_failing_model_still_answers_run_stop(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, failure: str) -> None:
+    """If the model cannot be built (bad memspec, or a crash), run.stop still replies with the energies and why."""
+    import threading
+
+    from hdeem_watch.daemon import service
+
+    if failure == "crash":
+        def broken(*args: object, **kwargs: object) -> None:
+            raise RuntimeError("no-such-preset: simulated crash")
+
+        monkeypatch.setattr(service, "RunModeller", broken)
+
+    from hdeem_watch.config import DaemonSettings
+    from hdeem_watch.daemon.client import ControlClient
+    from hdeem_watch.daemon.service import Daemon
+    from hdeem_watch.sources.sim import SimSource
+
+    settings = DaemonSettings(pub=f"ipc://{tmp_path}/p.sock", control=f"ipc://{tmp_path}/c.sock",
+                              state_dir=str(tmp_path / "s"), node="n", memspec="no-such-preset", speed=20.0)
+    daemon = Daemon(settings, source=SimSource(seed=2, speed=20.0))
+    daemon.start()
+    loop = threading.Thread(target=daemon.run)
+    loop.start()
+    try:
+        with ControlClient(settings.control or "", timeout_s=20.0) as client:
+            run_id = client.call("run.start", {"kernel": "triad", "elements": 2**20})["run_id"]
+            time.sleep(0.1)
+            record = client.call("run.stop", {"run_id": run_id})
+            calib = client.call("calib.get")
+    finally:
+        daemon.request_stop()
+        loop.join()
+        daemon.close()
+    assert record["state"] == "done" and record["dram_energy_j"] > 0
+    expected = "failed to build" if failure == "crash" else "no-such-preset"
+    assert record["model"] is None and expected in record["model_error"]
+    assert calib["fit"] is None and "no-such-preset" in calib["model_error"]

@@ -91,7 +91,8 @@ class Operations:
 
         def job() -> dict[str, Any]:
             modeller = self.d.modeller  # read on the worker, after the job that built it
-            assert modeller is not None
+            if modeller is None:
+                raise RuntimeError("the calibrator is not available (it failed to build; see the log)")
             modeller.reset()
             return modeller.body()
 
@@ -102,7 +103,7 @@ class Operations:
             self.d.reporter.publish_calib()
             self.d.complete(pending, self.d.reporter.calib_with_truth())
 
-        self.d.submit(job, done)
+        self.d.submit(job, done, failed=lambda error: self.d.complete(pending, error=("unavailable", str(error))))
         return pending
 
     # -- runs ------------------------------------------------------------------------------------------
@@ -268,7 +269,8 @@ class Operations:
             return
         def job() -> tuple[Any, ...]:
             modeller = d.modeller  # read on the worker, after the job that built it
-            assert modeller is not None
+            if modeller is None:
+                raise RuntimeError("the model is not available (it failed to build; see the log)")
             try:
                 model, fit, error = modeller.evaluate(record)
             except Exception as exc:  # a model bug must not lose the run or its reply
@@ -276,7 +278,8 @@ class Operations:
                 model, fit, error = None, None, f"model failed: {type(exc).__name__}: {exc}"
             return model, fit, error, modeller.body(), (modeller.state() if fit is not None else None)
 
-        d.submit(job, lambda result: self._finish_run(record, waiters, result))
+        d.submit(job, lambda result: self._finish_run(record, waiters, result),
+                 failed=lambda error: self._finish_run(record, waiters, (None, None, str(error), d.calib_body, None)))
 
     def _finish_run(self, record: dict[str, Any], waiters: list[Pending], result: tuple[Any, ...] | None) -> None:
         d = self.d

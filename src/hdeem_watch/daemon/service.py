@@ -75,7 +75,8 @@ class Daemon:
         self.windows: list[Window] = []
         self.calib_body: dict[str, Any] = {}
         self.worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="hdeem-model")
-        self.jobs: list[tuple[concurrent.futures.Future[Any], Callable[[Any], None]]] = []
+        self.jobs: list[tuple[concurrent.futures.Future[Any], Callable[[Any], None],
+                              Callable[[BaseException], None] | None]] = []
         self.publisher: Publisher | None = None
         self.control: ControlServer | None = None
         self.store: Store | None = None
@@ -220,7 +221,11 @@ class Daemon:
             self.calib_body = body
             self.reporter.publish_calib()
 
-        self.submit(build, built)
+        def not_built(error: BaseException) -> None:
+            self.calib_body = {**self.calib_body, "loading": False,
+                               "model_error": f"model failed to build: {type(error).__name__}: {error}"}
+
+        self.submit(build, built, not_built)
 
     def request_stop(self) -> None:
         """Ask the loop to end (safe from a signal handler)."""
@@ -320,22 +325,29 @@ class Daemon:
         watched = self.publisher is not None and self.publisher.watched("samples")
         return round((fast if watched or idle <= 0 or self.windows else max(fast, idle)) * 1e9)
 
-    def submit(self, job: Callable[[], Any], done: Callable[[Any], None]) -> None:
-        """Run ``job`` on the model worker; call ``done(result)`` in the loop when it finished."""
-        self.jobs.append((self.worker.submit(job), done))
+    def submit(self, job: Callable[[], Any], done: Callable[[Any], None],
+               failed: Callable[[BaseException], None] | None = None) -> None:
+        """Run ``job`` on the model worker; in the loop, call ``done(result)`` or ``failed(error)``."""
+        self.jobs.append((self.worker.submit(job), done, failed))
 
     def _collect_jobs(self) -> None:
         if not self.jobs:
             return
         remaining = []
-        for future, done in self.jobs:
+        for future, done, failed in self.jobs:
             if not future.done():
-                remaining.append((future, done))
+                remaining.append((future, done, failed))
                 continue
             try:
-                done(future.result())
+                error = future.exception()
+                if error is None:
+                    done(future.result())
+                else:
+                    log.error("model job failed: %s: %s", type(error).__name__, error)
+                    if failed is not None:
+                        failed(error)
             except Exception:
-                log.exception("model job failed")
+                log.exception("finishing a model job failed")
         self.jobs = remaining
 
     # -- polling ---------------------------------------------------------------------------------------
