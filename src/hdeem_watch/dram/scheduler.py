@@ -134,16 +134,23 @@ def service_order(bank: np.ndarray, row: np.ndarray, is_write: np.ndarray,
     group = bank_s * (int(row.max()) + 1) + row[served]
     boundary = np.empty(n, dtype=bool)
     boundary[0] = True
-    boundary[1:] = seg[1:] != seg[:-1]
+    np.not_equal(seg[1:], seg[:-1], out=boundary[1:])
     seg_start = np.flatnonzero(boundary)
-    seg_id = np.cumsum(boundary) - 1
+    seg_id = np.cumsum(boundary, dtype=np.int32)
+    seg_id -= 1
     # a segment whose requests all go to one row is served as it is
-    uniform = np.logical_and.reduceat(group == group[seg_start][seg_id], seg_start)
-    if uniform.all():
+    change = group[1:] != group[:-1]
+    change &= ~boundary[1:]
+    mixed = np.zeros(seg_start.size, dtype=bool)
+    mixed[seg_id[1:][change]] = True
+    if not mixed.any():
         return served
     open_group = np.full(seg_start.size, -1, dtype=np.int64)
     open_group[1:] = group[seg_start[1:] - 1]  # the row the previous segment left open
-    sub = np.flatnonzero(~uniform[seg_id])
+    if mixed.all():
+        permutation = _regroup(seg_id, group, bank_s, open_group[seg_id], config.hit_cap, boundary)
+        return served[permutation]
+    sub = np.flatnonzero(mixed[seg_id])
     permutation = _regroup(seg_id[sub], group[sub], bank_s[sub], open_group[seg_id[sub]], config.hit_cap)
     out = served.copy()
     out[sub] = served[sub][permutation]
@@ -151,36 +158,42 @@ def service_order(bank: np.ndarray, row: np.ndarray, is_write: np.ndarray,
 
 
 def _regroup(seg_id: np.ndarray, group: np.ndarray, bank: np.ndarray, open_group: np.ndarray,
-             hit_cap: int | None) -> np.ndarray:
+             hit_cap: int | None, boundary: np.ndarray | None = None) -> np.ndarray:
     """FR-FCFS order within whole segments (a permutation of ``range(len(seg_id))``).
 
     One stable sort by (segment, row group) cuts every group into turns of at most
     ``hit_cap + 1`` requests (blocks, each in arrival order); only the blocks are then ordered by
-    (segment, bank, turn, first appearance of their row), and expanded back.
+    (segment, bank, turn, first appearance of their row), and expanded back. ``boundary``: where
+    the segments start (computed if not given).
     """
     m = seg_id.size
-    boundary = np.concatenate(([True], seg_id[1:] != seg_id[:-1]))
+    if boundary is None:
+        boundary = np.concatenate(([True], seg_id[1:] != seg_id[:-1]))
     seg_start = np.flatnonzero(boundary)
-    sid = np.cumsum(boundary) - 1
+    sid = np.cumsum(boundary, dtype=np.int32)
+    sid -= 1
     key = sid * (int(group.max()) + 1) + group
     by_group = np.argsort(key, kind="stable")
     sorted_key = key[by_group]
     new = np.concatenate(([True], sorted_key[1:] != sorted_key[:-1]))
     group_start = np.flatnonzero(new)
-    run_index = np.cumsum(new) - 1
+    run_index = np.cumsum(new, dtype=np.int32)
+    run_index -= 1
     if hit_cap is None:
         block_start = group_start
         block_group = np.arange(group_start.size)
         block_turn = np.zeros(group_start.size, dtype=np.int64)
     else:
-        rank_in_group = np.arange(m, dtype=np.int64) - group_start[run_index]
-        block_start = np.flatnonzero(rank_in_group % (hit_cap + 1) == 0)
+        rank_in_group = np.arange(m, dtype=np.int32)
+        rank_in_group -= group_start.astype(np.int32)[run_index]
+        block_start = np.flatnonzero(rank_in_group % np.int32(hit_cap + 1) == 0)
         block_group = run_index[block_start]
-        block_turn = rank_in_group[block_start] // (hit_cap + 1)
+        block_turn = rank_in_group[block_start].astype(np.int64) // (hit_cap + 1)
     first = by_group[group_start[block_group]]  # where the block's row first appears
     block_sid = sid[first]
     # rows in order of first appearance, the row left open by the previous segment first (a hit)
-    local_first = np.where(group[first] == open_group[first], -1, first - seg_start[block_sid])
+    local_first = first - seg_start[block_sid]
+    local_first[group[first] == open_group[first]] = -1
     seg_len = int(np.diff(np.append(seg_start, m)).max())
     banks = int(bank.max()) + 1
     block_key = ((block_sid * banks + bank[first]) * (seg_len + 1) + block_turn) * (seg_len + 2) + local_first + 1
@@ -188,11 +201,14 @@ def _regroup(seg_id: np.ndarray, group: np.ndarray, bank: np.ndarray, open_group
     lengths = np.diff(np.append(block_start, m))[order]
     starts = block_start[order]
     offsets = np.cumsum(lengths) - lengths
-    grouped = by_group[np.repeat(starts - offsets, lengths) + np.arange(m, dtype=np.int64)]
+    source = np.repeat(starts - offsets, lengths)
+    source += np.arange(m, dtype=np.int64)
+    grouped = by_group[source]
     # Each bank keeps the places its requests had (banks interleave as they arrived, e.g. across
     # bank groups); within a bank the places are refilled in row-grouped order.
-    single_bank = np.logical_and.reduceat(bank == bank[seg_start][sid], seg_start)
-    if single_bank.all():
+    bank_change = bank[1:] != bank[:-1]
+    bank_change &= ~boundary[1:]
+    if not bank_change.any():  # every segment goes to one bank
         return grouped
     slots = np.argsort(sid * banks + bank, kind="stable")
     permutation = np.empty(m, dtype=np.int64)
