@@ -180,8 +180,8 @@ def _regroup(seg_id: np.ndarray, group: np.ndarray, bank: np.ndarray, open_group
     run_index = np.cumsum(new, dtype=np.int32)
     run_index -= 1
     if hit_cap is None:
-        block_start = group_start
-        block_group = np.arange(group_start.size)
+        block_start: np.ndarray = group_start
+        block_group: np.ndarray = np.arange(group_start.size)
         block_turn = np.zeros(group_start.size, dtype=np.int64)
     else:
         rank_in_group = np.arange(m, dtype=np.int32)
