@@ -72,12 +72,15 @@ class SchedulerConfig:
         return int(self.high * self.write_queue) + 1
 
 
-def phases(is_write: np.ndarray, config: SchedulerConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Position of every request in the served sequence, and the segment it is regrouped within.
+def served_segments(is_write: np.ndarray, config: SchedulerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The served sequence before row grouping, and where its segments start (closed form).
+
+    The served sequence is read phase 0, write batch 0, read phase 1, ..., the last read phase,
+    the remaining writes (each run in arrival order); read phases are cut into windows of
+    ``window`` reads. Built from the run lengths, without per-request segment ids.
 
     Returns:
-        ``(position, segment)``: a permutation target (``served[position[i]] = i``) and a
-        non-decreasing segment id along the served sequence (read windows and write batches).
+        ``(served, boundary)``: request indices in served order, and a flag at each segment start.
     """
     n = is_write.size
     write_pos = np.flatnonzero(is_write)
@@ -86,30 +89,32 @@ def phases(is_write: np.ndarray, config: SchedulerConfig) -> tuple[np.ndarray, n
     batch = config.drain_batch
     trigger = config.drain_trigger
     full = max(0, (n_writes - trigger) // batch + 1) if n_writes >= trigger else 0
-    # the write that fills the queue to the trigger level starts drain k
     trigger_write = trigger - 1 + batch * np.arange(full, dtype=np.int64)
-    reads_before = write_pos[trigger_write] - trigger_write
-    cut = np.maximum(0, reads_before - config.read_queue)
+    cut = np.maximum(write_pos[trigger_write] - trigger_write - config.read_queue, 0)
     cut = np.maximum.accumulate(cut) if cut.size else cut
-    position = np.empty(n, dtype=np.int64)
-    segment = np.empty(n, dtype=np.int64)
-    read_ordinal = np.arange(n_reads, dtype=np.int64)
-    phase = np.cumsum(np.bincount(np.minimum(cut, n_reads), minlength=n_reads + 1)[:n_reads]) if n_reads else read_ordinal
-    read_index = np.flatnonzero(~is_write)
-    position[read_index] = read_ordinal + phase * batch
-    # a read phase is regrouped in windows of at most ``window`` reads
-    phase_start = np.concatenate(([0], cut))[phase]
-    window = (read_ordinal - phase_start) // config.window
-    write_ordinal = np.arange(n_writes, dtype=np.int64)
-    k = write_ordinal // batch
-    in_full = k < full
-    position[write_pos[in_full]] = cut[k[in_full]] + write_ordinal[in_full]
-    position[write_pos[~in_full]] = n_reads + write_ordinal[~in_full]
-    # segment ids: ordered along the served sequence
-    span = n // config.window + 2
-    segment[read_index] = phase * (span + 1) * 2 + window
-    segment[write_pos] = np.minimum(k, full) * (span + 1) * 2 + (span + 1)
-    return position, segment
+    read_first = np.concatenate(([0], cut))  # first read ordinal of each read phase
+    read_len = np.diff(np.append(read_first, n_reads))
+    # runs: read phase k, write batch k (k < full); the last read phase, the remaining writes
+    lengths = np.empty(2 * (full + 1), dtype=np.int64)
+    lengths[0::2] = read_len
+    lengths[1::2] = batch
+    lengths[-1] = n_writes - full * batch
+    run_start = np.cumsum(lengths) - lengths  # served position of each run
+    base = np.empty(2 * (full + 1), dtype=np.int64)  # index into (reads, writes) of each run's first
+    base[0::2] = read_first
+    base[1::2] = n_reads + batch * np.arange(full + 1, dtype=np.int64)
+    source = np.repeat(base - run_start, lengths)
+    source += np.arange(n, dtype=np.int64)
+    served = np.concatenate((np.flatnonzero(~is_write), write_pos))[source]
+    boundary = np.zeros(n, dtype=bool)
+    boundary[run_start[1::2][lengths[1::2] > 0]] = True  # write batches, remaining writes
+    windows = -(-read_len // config.window)  # read windows per phase
+    total = int(windows.sum())
+    first_window = np.cumsum(windows) - windows
+    starts = np.repeat(run_start[0::2] - config.window * first_window, windows)
+    starts += config.window * np.arange(total, dtype=np.int64)
+    boundary[starts] = True
+    return served, boundary
 
 
 def service_order(bank: np.ndarray, row: np.ndarray, is_write: np.ndarray,
@@ -126,15 +131,9 @@ def service_order(bank: np.ndarray, row: np.ndarray, is_write: np.ndarray,
     n = is_write.size
     if n == 0:
         return np.zeros(0, dtype=np.int64)
-    position, segment = phases(is_write, config)
-    served = np.empty(n, dtype=np.int64)
-    served[position] = np.arange(n, dtype=np.int64)
-    seg = segment[served]
+    served, boundary = served_segments(is_write, config)
     bank_s = bank[served].astype(np.int64)
     group = bank_s * (int(row.max()) + 1) + row[served]
-    boundary = np.empty(n, dtype=bool)
-    boundary[0] = True
-    np.not_equal(seg[1:], seg[:-1], out=boundary[1:])
     seg_start = np.flatnonzero(boundary)
     seg_id = np.cumsum(boundary, dtype=np.int32)
     seg_id -= 1
@@ -170,7 +169,7 @@ def _regroup(seg_id: np.ndarray, group: np.ndarray, bank: np.ndarray, open_group
     if boundary is None:
         boundary = np.concatenate(([True], seg_id[1:] != seg_id[:-1]))
     seg_start = np.flatnonzero(boundary)
-    sid = np.cumsum(boundary, dtype=np.int32)
+    sid = np.cumsum(boundary, dtype=np.int32).astype(np.int64)  # int64: it is packed into keys
     sid -= 1
     key = sid * (int(group.max()) + 1) + group
     by_group = np.argsort(key, kind="stable")
