@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from hdeem_watch import slurm
 from hdeem_watch.bench import kernels as K
 from hdeem_watch.bench import system
 from hdeem_watch.bench.schedule import IDLE_KERNEL, RunSpec, canonical_kernel
@@ -134,10 +135,12 @@ Hook = Callable[[RunSpec], Mapping[str, Any] | None]
 def choose_cpus(threads: int, allowed: list[int] | None = None, *, oversubscribe: bool = False) -> list[int]:
     """Pick one CPU per worker from the allowed set (socket 0 and physical cores first).
 
+    ``allowed`` defaults to :func:`hdeem_watch.slurm.allowed_cpus`.
+
     Raises:
         InputError: more threads than allowed CPUs and ``oversubscribe`` is off.
     """
-    cpus = system.cpu_order(system.allowed_cpus() if allowed is None else allowed)
+    cpus = system.cpu_order(slurm.allowed_cpus() if allowed is None else allowed)
     if threads > len(cpus) and not oversubscribe:
         raise InputError(f"--threads {threads}: only {len(cpus)} CPUs are allowed here "
                          f"({','.join(map(str, sorted(cpus)))}); expected at most {len(cpus)} "
@@ -195,7 +198,8 @@ def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None
     Args:
         spec: kernel, threads, elements and repeat.
         backend: ``"thread"`` or ``"process"``.
-        allowed: CPUs to use (default: this process's affinity).
+        allowed: CPUs to use (default: :func:`hdeem_watch.slurm.allowed_cpus`, the affinity mask
+            cut to the task's share inside a SLURM allocation).
         oversubscribe: allow more workers than CPUs (round-robin pinning).
         on_start: called after the arrays are ready, just before the window opens; may return a
             mapping stored in ``RunResult.announce`` (e.g. ``{"run_id": ...}``).
