@@ -36,6 +36,8 @@ Example:
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from dataclasses import dataclass, replace
 from dataclasses import fields as fields_of
 from typing import Any
@@ -50,6 +52,8 @@ from hdeem_watch.errors import InputError
 POLICIES = ("open", "closed")
 #: Requests served per chunk by :func:`simulate`.
 CHUNK_REQUESTS = 1 << 17
+#: Prepare the next chunk (decode, service order) in a second thread while one is timed.
+PIPELINE = True
 
 
 @dataclass(frozen=True)
@@ -190,18 +194,6 @@ def _column_gaps(timing: Timing, rank: np.ndarray, bankgroup: np.ndarray, write:
     code |= w[1:]
     gaps[1:] = table[code]
     return gaps
-    b = timing.burst
-    same_rank = rank[1:] == rank[:-1]
-    same_group = same_rank & (bankgroup[1:] == bankgroup[:-1])
-    prev_w, cur_w = write[:-1], write[1:]
-    rank_switch = max(timing.ccd_s, b + timing.rtrs + 1)  # + 1 cycle of read/write preamble
-    same_kind = np.where(same_group, timing.ccd_l, np.where(same_rank, timing.ccd_s, rank_switch))
-    read_to_write = max(timing.ccd_s, timing.rl + b + 2 - timing.wl)
-    write_to_read = np.where(same_group, timing.wl + b + timing.wtr_l,
-                             np.where(same_rank, timing.wl + b + timing.wtr_s,
-                                      max(timing.ccd_s, timing.wl + b + timing.rtrs - timing.rl)))
-    gaps[1:] = np.where(prev_w == cur_w, same_kind, np.where(cur_w, read_to_write, write_to_read))
-    return gaps
 
 
 def simulate(
@@ -254,9 +246,9 @@ def simulate(
     n = addresses.size
     pieces = max(1, n // CHUNK_REQUESTS)
     bounds = [n * i // pieces for i in range(pieces + 1)]
-    parts: list[ControllerResult] = []
-    start = 0
-    for i in range(pieces):
+
+    def prepare(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+        """Chunk ``i`` decoded and in service order (independent of the chunks before it)."""
         lanes, gbank, row, column = address_mapping.decode_packed(addresses[bounds[i]:bounds[i + 1]],
                                                                    column=keep_commands)
         writes = is_write[bounds[i]:bounds[i + 1]]
@@ -266,13 +258,26 @@ def simulate(
                 gbank, row, writes = gbank[keep], row[keep], writes[keep]
                 column = column[keep] if column is not None else None
         order = service_order(gbank, row, writes, config)
-        part = run_timing(geometry, timing, config, policy, gbank=gbank[order], row=row[order],
-                          column=column[order] if column is not None else None, write=writes[order],
-                          start=start, close_at_end=i < pieces - 1)
-        start = part.cycles
-        if not keep_commands:
-            part = replace(part, commands=None)
-        parts.append(part)
+        return gbank[order], row[order], column[order] if column is not None else None, writes[order]
+
+    parts: list[ControllerResult] = []
+    start = 0
+    # the service order of chunk i + 1 is computed in a second thread while chunk i is timed
+    # (numpy releases the GIL in its loops); only the timing depends on the chunk before
+    with ThreadPoolExecutor(max_workers=1) if pieces > 1 and PIPELINE else nullcontext() as pool:
+        pending = pool.submit(prepare, 0) if pool is not None else None
+        for i in range(pieces):
+            if pending is not None and pool is not None:
+                gbank, row, column, writes = pending.result()
+                pending = pool.submit(prepare, i + 1) if i + 1 < pieces else None
+            else:
+                gbank, row, column, writes = prepare(i)
+            part = run_timing(geometry, timing, config, policy, gbank=gbank, row=row, column=column, write=writes,
+                              start=start, close_at_end=i < pieces - 1)
+            start = part.cycles
+            if not keep_commands:
+                part = replace(part, commands=None)
+            parts.append(part)
     return parts[0] if len(parts) == 1 else _merge(parts)
 
 
