@@ -1,9 +1,9 @@
-"""What the bench needs to know about the machine: CPUs it may use, their order, LLC, free memory.
+"""What the bench needs to know about the machine: CPU order, LLC size, free memory.
 
-All readers take the sysfs root and the allowed-CPU set as arguments so they can be tested against
-fixture trees; the defaults read the live system. The CPUs come from ``os.sched_getaffinity(0)``
-(which is what ``srun -c N``, ``taskset`` and cgroup cpusets restrict), the topology from sysfs and
-psutil.
+All readers take the sysfs root and the CPU set as arguments so they can be tested against fixture
+trees; the defaults read the live system. Which CPUs may be used is the SLURM adapter's business
+(:func:`hdeem_watch.slurm.allowed_cpus`: the affinity mask that ``srun``, ``taskset`` and cpusets
+restrict); here they are ordered (sysfs topology, psutil core count).
 
 Example:
     >>> order = cpu_order({0, 1})
@@ -13,7 +13,6 @@ Example:
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -27,11 +26,6 @@ CGROUP_ROOT = Path("/sys/fs/cgroup")
 MEMORY_HEADROOM = 0.10
 #: Arrays smaller than this multiple of the LLC get a warning (caches would serve part of the traffic).
 LLC_FACTOR = 4
-
-
-def allowed_cpus() -> list[int]:
-    """Return the CPUs this process may run on (its affinity mask), sorted."""
-    return sorted(os.sched_getaffinity(0))
 
 
 def _read_int(path: Path) -> int | None:
