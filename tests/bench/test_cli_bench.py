@@ -112,8 +112,9 @@ def test_respects_the_cpus_it_was_given() -> None:
 class FakeRouter:
     """A real ROUTER socket answering the control protocol, recording each request with its time."""
 
-    def __init__(self, endpoint: str) -> None:
+    def __init__(self, endpoint: str, fail_start_after: int | None = None) -> None:
         self.endpoint = endpoint
+        self.fail_start_after = fail_start_after
         self.requests: list[tuple[int, dict[str, Any]]] = []
         self._stop = threading.Event()
         self._ready = threading.Event()
@@ -139,6 +140,11 @@ class FakeRouter:
                 result: Any = {"node": "fake", "endpoints": {}, "source": {}, "channels": {}}
             elif op == "run.start":
                 runs += 1
+                if self.fail_start_after is not None and runs > self.fail_start_after:
+                    reply = {"id": request["id"], "ok": False,
+                             "error": {"code": "busy", "message": "a run is already in progress"}}
+                    sock.send_multipart([*frames[:-1], json.dumps(reply).encode()])
+                    continue
                 result = {"run_id": f"r{runs}"}
             elif op == "run.stop":
                 result = {"run_id": request["args"]["run_id"], "energy_j": {"DDR_AB": 1.5}}
@@ -223,3 +229,21 @@ def test_progress_bar_on_a_terminal_only() -> None:
     assert len(proc.stdout.splitlines()) == 2
     plain = bench("--kernels", "read", "--threads", "1", "--elements", "4096", "--repeat", "1", "--json")
     assert "\r[" not in plain.stderr
+
+
+def test_daemon_failing_mid_sweep_warns_once_and_finishes(tmp_path: Path) -> None:
+    """If the daemon refuses a run.start mid-sweep, the bench warns once on stderr, stops
+    announcing, and still runs and reports every run (exit 0)."""
+    server = FakeRouter(f"ipc://{tmp_path / 'control.sock'}", fail_start_after=1)
+    try:
+        proc = bench("--kernels", "read,copy,scale", "--threads", "1", "--elements", "8192", "--repeat", "1",
+                     "--daemon", server.endpoint, "--json")
+    finally:
+        server.close()
+    assert proc.returncode == 0, proc.stderr
+    records = [json.loads(line) for line in proc.stdout.splitlines()]
+    assert [r["kernel"] for r in records] == ["read", "copy", "scale"]
+    assert records[0]["run_id"] == "r1" and "run_id" not in records[1] and "run_id" not in records[2]
+    assert [r["op"] for _, r in server.requests] == ["status", "run.start", "run.stop", "run.start"]
+    warnings = [line for line in proc.stderr.splitlines() if "run.start failed" in line]
+    assert len(warnings) == 1 and "busy" in warnings[0] and "not announced" in warnings[0]
