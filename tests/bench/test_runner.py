@@ -118,3 +118,14 @@ def test_small_run_warns_about_llc() -> None:
         assert result.warnings == ()
     else:
         assert any("last-level cache" in w for w in result.warnings)
+
+
+def test_available_memory_respects_cgroup_limit(tmp_path: Path) -> None:
+    """A cgroup v2 memory.max caps the available memory at max − current; 'max' means no cap."""
+    (tmp_path / "memory.max").write_text(f"{1 << 30}\n")
+    (tmp_path / "memory.current").write_text(f"{256 << 20}\n")
+    assert system.available_memory_bytes(tmp_path) <= (1 << 30) - (256 << 20)
+    (tmp_path / "memory.max").write_text("max\n")
+    unlimited = system.available_memory_bytes(tmp_path)
+    uncapped = system.available_memory_bytes(tmp_path / "no-cgroup")
+    assert unlimited > 0 and abs(unlimited - uncapped) < 256 << 20
