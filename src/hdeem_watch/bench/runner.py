@@ -13,9 +13,9 @@ One run (:func:`run_one`) goes through four phases:
    traffic count implies.
 
 Two backends run the workers truly in parallel: ``"thread"`` (numpy releases the GIL in every kernel
-loop) and ``"process"`` (forked workers over a shared anonymous mapping). Threads are the default:
-the passes are single numpy calls, so the GIL is held for microseconds per pass, and threads start
-faster (see docs/bench.md for the measurement).
+loop) and ``"process"`` (forked workers, each with its own share of the arrays in private memory:
+no GIL at all). Threads are the default: the passes are single numpy calls, so the GIL is held for
+microseconds per pass, and threads start faster (see docs/bench.md for the measurement).
 
 Example:
     >>> result = run_one(RunSpec("copy", 1, 1 << 12, 2))
@@ -25,8 +25,6 @@ Example:
 
 from __future__ import annotations
 
-import contextlib
-import mmap
 import multiprocessing as mp
 import os
 import threading
@@ -177,19 +175,6 @@ def _worker(kernel: str, arrays: Mapping[str, np.ndarray], lo: int, hi: int, rep
     report((affinity, checksum))
 
 
-def _shared_arrays(kernel: str, elements: int) -> tuple[dict[str, np.ndarray], list[mmap.mmap]]:
-    maps: list[mmap.mmap] = []
-    arrays: dict[str, np.ndarray] = {}
-    for name in K.KERNEL_ARRAYS[kernel]:
-        mm = mmap.mmap(-1, max(8, elements * 8))  # MAP_SHARED | MAP_ANONYMOUS: visible after fork
-        if hasattr(mmap, "MADV_HUGEPAGE"):  # as numpy does for large arrays: fewer TLB misses
-            with contextlib.suppress(OSError):
-                mm.madvise(mmap.MADV_HUGEPAGE)
-        maps.append(mm)
-        arrays[name] = np.frombuffer(mm, dtype=np.float64, count=elements)
-    return arrays, maps
-
-
 def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None = None,
             oversubscribe: bool = False, on_start: Hook | None = None, on_stop: Hook | None = None,
             keep_arrays: bool = False, available_bytes: int | None = None) -> RunResult:
@@ -301,16 +286,26 @@ def _run_threads(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple
 def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple[int, int]],
                    start_hook: Callable[[], None], stop_hook: Callable[[], None], keep: bool,
                    scratch_n: int) -> _Outcome:
+    """Forked workers, each allocating and first-touching only its own share, privately.
+
+    Nothing is shared: the parent never reads the arrays during a run, so each worker's share is
+    ordinary process memory (numpy asks for transparent huge pages; shared anonymous memory would
+    be shmem, which gets none unless ``shmem_enabled`` allows it). With ``keep`` the shares are
+    sent back after the window and joined.
+    """
     ctx = mp.get_context("fork")
-    shared, maps = _shared_arrays(kernel, spec.elements)
     n = spec.threads
     ready, go = ctx.Barrier(n + 1), ctx.Barrier(n + 1)
     pipes = [ctx.Pipe(duplex=False) for _ in range(n)]
 
     def body(i: int) -> None:
         send = pipes[i][1]
+        lo, hi = ranges[i]
         try:
-            _worker(kernel, shared, *ranges[i], spec.repeat, cpus[i], scratch_n, ready, go, send.send)
+            local = K.make_arrays(kernel, max(0, min(hi * 8, spec.elements) - lo * 8))
+            _worker(kernel, local, 0, hi - lo, spec.repeat, cpus[i], scratch_n, ready, go, send.send)
+            if keep:
+                send.send(local)
         except BaseException:
             ready.abort()
             go.abort()
@@ -323,6 +318,7 @@ def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tup
         proc.start()
     for _, send in pipes:
         send.close()  # the parent keeps only the read ends: a dead worker reads as EOF
+    out: dict[str, np.ndarray] = {}
     try:
         ready.wait(WORKER_TIMEOUT_S)
         start_hook()
@@ -330,6 +326,9 @@ def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tup
         go.wait(WORKER_TIMEOUT_S)
         reports = [recv.recv() for recv, _ in pipes]
         m1, t1_ns = time.perf_counter_ns(), time.time_ns()
+        if keep:
+            shares = [recv.recv() for recv, _ in pipes]
+            out = {name: np.concatenate([share[name] for share in shares]) for name in K.KERNEL_ARRAYS[kernel]}
     except (threading.BrokenBarrierError, EOFError):
         raise RuntimeError("bench worker process failed") from None
     finally:
@@ -337,11 +336,7 @@ def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tup
             proc.join(5.0)
             if proc.is_alive():
                 proc.kill()
+        for recv, _ in pipes:
+            recv.close()
     stop_hook()
-    # Copy out of the shared maps (only if asked) so they can be closed.
-    out = {name: np.array(a) for name, a in shared.items()} if keep else {}
-    shared.clear()
-    for mm in maps:
-        with contextlib.suppress(BufferError):  # a view still alive elsewhere: GC unmaps it later
-            mm.close()
     return out, t0_ns, t1_ns, (m1 - m0) / 1e9, reports
