@@ -322,8 +322,7 @@ def stats_from_commands(geometry: Geometry, timing: Timing, commands: Commands,
     refreshes = commands.ref_cycle.size
     per_rank = geometry.ranks
     # column commands per (rank, write, auto) in one pass
-    code = (commands.col_rank * 4 + commands.col_write.view(np.uint8) * 2 + commands.col_auto.view(np.uint8))
-    columns = np.bincount(code, minlength=4 * per_rank).reshape(-1, 2, 2) if code.size else np.zeros((per_rank, 2, 2))
+    columns = _column_counts(commands.col_rank, commands.col_write, commands.col_auto, per_rank)
     acts = np.bincount(commands.act_rank, minlength=per_rank)
     explicit = np.bincount(commands.pre_rank, minlength=per_rank)
     autos = np.bincount(auto_pre_rank, minlength=per_rank)
@@ -343,6 +342,24 @@ def stats_from_commands(geometry: Geometry, timing: Timing, commands: Commands,
             bank_active_cycles=float(np.sum(closed - opened) + geometry.banks * np.sum(ref_stop - ref_start)),
         ))
     return CommandStats(ranks=tuple(ranks))
+
+
+def _column_counts(rank: np.ndarray, write: np.ndarray, auto: np.ndarray, ranks: int) -> np.ndarray:
+    """Column commands per (rank, write, auto-precharge): an array ``[rank, write, auto]``."""
+    if ranks > 8:  # many ranks: one bincount
+        code = rank.astype(np.int64) * 4 + write.view(np.uint8) * 2 + auto.view(np.uint8)
+        return np.bincount(code, minlength=4 * ranks).reshape(-1, 2, 2)
+    counts = np.zeros((ranks, 2, 2), dtype=np.int64)
+    any_auto = bool(auto.any())
+    write_auto = write & auto if any_auto else None
+    for r in range(ranks):
+        mine = rank == r if ranks > 1 else np.ones(rank.size, dtype=bool)
+        total = np.count_nonzero(mine)
+        writes = np.count_nonzero(write & mine)
+        autos = np.count_nonzero(auto & mine) if any_auto else 0
+        both = np.count_nonzero(write_auto & mine) if write_auto is not None else 0
+        counts[r] = ((total - writes - autos + both, autos - both), (writes - both, both))
+    return counts
 
 
 def _union_length(starts: np.ndarray, stops: np.ndarray) -> int:

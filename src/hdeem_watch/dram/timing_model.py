@@ -31,17 +31,26 @@ def _previous_same(key: np.ndarray, want_next: bool) -> tuple[np.ndarray, np.nda
     Also returns the stable order by key.
     """
     n = key.size
-    small = key.astype(np.int16) if key.size and key.max() < 32767 else key
+    top = int(key.max()) if n else 0
+    # narrow keys sort faster (radix); the stable order is the same
+    small = key.astype(np.int8) if top < 128 else key.astype(np.int16) if top < 32767 else key
     order = np.argsort(small, kind="stable")
     sorted_key = small[order]
-    same = np.flatnonzero(sorted_key[1:] == sorted_key[:-1])
-    prev = np.full(n, -1, dtype=np.int64)
-    later, earlier = order[same + 1], order[same]
-    prev[later] = earlier
+    first = np.flatnonzero(sorted_key[1:] != sorted_key[:-1]) + 1  # where each key's run starts
+    earlier = order[:-1].copy()
+    earlier[first - 1] = -1
+    prev = np.empty(n, dtype=np.int64)
+    if n:
+        prev[order[0]] = -1
+        prev[order[1:]] = earlier
     nxt = None
     if want_next:
-        nxt = np.full(n, -1, dtype=np.int64)
-        nxt[earlier] = later
+        later = order[1:].copy()
+        later[first - 1] = -1
+        nxt = np.empty(n, dtype=np.int64)
+        if n:
+            nxt[order[-1]] = -1
+            nxt[order[:-1]] = later
     return prev, nxt, order
 
 
