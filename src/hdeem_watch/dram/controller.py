@@ -165,7 +165,8 @@ def _column_gaps(timing: Timing, rank: np.ndarray, bankgroup: np.ndarray, write:
 
     The spacing depends on four bits (same rank, same bank group, previous and current direction):
     a 16-entry table, indexed per pair. ``hidden_turnaround`` cycles come off each read/write
-    switch (never below tCCD_S).
+    switch (never below tCCD_S). ``bankgroup`` numbers the bank groups of all ranks (unique over
+    ranks), so equal bank groups imply the same rank.
     """
     n = rank.size
     gaps = np.zeros(n, dtype=np.int64)
@@ -189,7 +190,7 @@ def _column_gaps(timing: Timing, rank: np.ndarray, bankgroup: np.ndarray, write:
                     table[((same_rank * 2 + same_group) * 2 + prev_w) * 2 + cur_w] = gap
     w = write.view(np.uint8) if write.dtype == np.bool_ else write.astype(np.uint8)
     code = (rank[1:] == rank[:-1]).view(np.uint8) << 3
-    code |= ((bankgroup[1:] == bankgroup[:-1]).view(np.uint8) & (code >> 3)) << 2
+    code |= (bankgroup[1:] == bankgroup[:-1]).view(np.uint8) << 2  # bank groups are unique over ranks
     code |= w[:-1] << 1
     code |= w[1:]
     gaps[1:] = table[code]

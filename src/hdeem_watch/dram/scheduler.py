@@ -132,6 +132,8 @@ def service_order(bank: np.ndarray, row: np.ndarray, is_write: np.ndarray,
     if n == 0:
         return np.zeros(0, dtype=np.int64)
     served, boundary = served_segments(is_write, config)
+    if n < 2:
+        return served
     bank_s = bank[served].astype(np.int64)
     group = bank_s * (int(row.max()) + 1) + row[served]
     seg_start = np.flatnonzero(boundary)
@@ -140,8 +142,10 @@ def service_order(bank: np.ndarray, row: np.ndarray, is_write: np.ndarray,
     # a segment whose requests all go to one row is served as it is
     change = group[1:] != group[:-1]
     change &= ~boundary[1:]
-    mixed = np.zeros(seg_start.size, dtype=bool)
-    mixed[seg_id[1:][change]] = True
+    changes = np.cumsum(change, dtype=np.int32)  # row changes inside segments, up to each request
+    seg_last = np.append(seg_start[1:], n) - 1
+    mixed = changes[np.maximum(seg_last - 1, 0)] > np.where(seg_start > 0, changes[np.maximum(seg_start - 1, 0)], 0)
+    mixed &= seg_last > seg_start
     if not mixed.any():
         return served
     open_group = np.full(seg_start.size, -1, dtype=np.int64)

@@ -73,6 +73,16 @@ class _Refresh:
         period = self.refi - self.stall
         return np.maximum((virtual - self.first + period) // period, 0)
 
+    def count_sorted(self, virtual: np.ndarray) -> np.ndarray:
+        """:meth:`count` of a non-decreasing array: where each refresh falls, then a running count."""
+        if virtual.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        period = self.refi - self.stall
+        refreshes = int(self.count(virtual[-1:])[0])
+        thresholds = self.first + period * np.arange(refreshes, dtype=np.int64)
+        marks = np.bincount(np.searchsorted(virtual, thresholds, side="left"), minlength=virtual.size + 1)
+        return np.cumsum(marks[:-1])
+
     def real(self, virtual: np.ndarray) -> np.ndarray:
         return self.start + virtual + self.stall * self.count(virtual)
 
@@ -172,7 +182,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     pre_t = act_virtual - timing.rp
 
     refresh = _Refresh(timing, start)
-    k_col = refresh.count(t)
+    k_col = refresh.count_sorted(t)  # t never decreases (gaps and lifts are >= 0)
     col_real = refresh.start + t + refresh.stall * k_col
     # refresh closes the row: a hit or conflict whose previous same-bank access precedes a refresh
     refreshed = has_prev & (k_col > k_col[prev_safe])
