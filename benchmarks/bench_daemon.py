@@ -242,7 +242,7 @@ def publisher_ceiling(seconds: float, batch: int, subscribers: int) -> dict[str,
 def daemon_ceiling(seconds: float, speed: float) -> dict[str, Any]:
     """The whole daemon with a sped-up sim and one subscriber."""
     with tempfile.TemporaryDirectory(prefix="hwf-") as tmp:
-        proc, pub, _ = start_daemon(Path(tmp), speed)
+        proc, pub, control = start_daemon(Path(tmp), speed)
         try:
             procs, _ready, results = run_subscribers(pub, 1, seconds + 2.0)
             ps = psutil.Process(proc.pid)
@@ -251,11 +251,15 @@ def daemon_ceiling(seconds: float, speed: float) -> dict[str, Any]:
             cpu = 100 * (cpu_seconds(ps) - c0) / (time.monotonic() - t0)
             sub = results.get(timeout=60)
             procs[0].join(timeout=30)
+            with ControlClient(control, timeout_s=10.0) as client:
+                status = client.call("status")
+            source_gaps = sum(int(c["gaps"]) for c in status["channels"].values())
         finally:
             proc.terminate()
             proc.wait(timeout=30)
     return {"speed": speed, "generated_per_s": 1600.0 * speed, "delivered_per_s": sub["samples"] / sub["seconds"],
-            "lost_samples": sub["missing_samples"], "cpu_percent": cpu}
+            "lost_samples": sub["missing_samples"], "lost_messages": sub["missed_messages"],
+            "source_gaps": source_gaps, "cpu_percent": cpu}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -300,7 +304,8 @@ def main(argv: list[str] | None = None) -> int:
         ("  publisher send rate, samples/s", pc["sent_per_s"], "-", None),
         (f"whole daemon, sim at speed {dc['speed']:g}: samples/s delivered", dc["delivered_per_s"],
          f"{dc['generated_per_s']:.0f} generated", dc["delivered_per_s"] / dc["generated_per_s"]),
-        ("  its lost samples / CPU %", f"{dc['lost_samples']} / {dc['cpu_percent']:.0f}", "-", None),
+        ("  its lost samples (of which lost at the source: the sim's 60 sim-s buffer) / lost messages / CPU %",
+         f"{dc['lost_samples']} ({dc['source_gaps']}) / {dc['lost_messages']} / {dc['cpu_percent']:.0f}", "-", None),
     ]
     if args.json:
         print(json.dumps(results))

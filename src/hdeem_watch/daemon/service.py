@@ -46,6 +46,9 @@ from hdeem_watch.errors import InputError
 
 log = logging.getLogger("hdeem_watch.daemon")
 
+#: Longest stretch of source time between two idle polls (s).
+IDLE_MAX_SOURCE_S = 10.0
+
 Clock = Callable[[], int]
 
 
@@ -323,7 +326,10 @@ class Daemon:
         """The fast poll period while someone receives samples or a window is open, else the idle one."""
         fast, idle = self.settings.poll_interval_s, self.settings.idle_poll_interval_s
         watched = self.publisher is not None and self.publisher.watched("samples")
-        return round((fast if watched or idle <= 0 or self.windows else max(fast, idle)) * 1e9)
+        if watched or idle <= 0 or self.windows:
+            return round(fast * 1e9)
+        # At most 10 s of source time per poll: a sped-up sim's sensor buffer (60 sim-s) must not overflow.
+        return round(max(fast, min(idle, IDLE_MAX_SOURCE_S / self.speed)) * 1e9)
 
     def submit(self, job: Callable[[], Any], done: Callable[[Any], None],
                failed: Callable[[BaseException], None] | None = None) -> None:
