@@ -24,6 +24,7 @@ from __future__ import annotations
 import hashlib
 import mmap
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -303,22 +304,32 @@ def _hex_values(digits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _read_uniform(buf: np.ndarray, width: int, fmt: str) -> tuple[np.ndarray, np.ndarray] | None:
     """Parse a trace whose lines all have ``width`` bytes (newline included), block by block.
 
-    Returns ``None`` if any line is malformed (the general path then names it).
+    Large traces are parsed by two threads (numpy releases the GIL in its loops). Returns
+    ``None`` if any line is malformed (the general path then names it).
     """
     count = buf.size // width
     addresses = np.empty(count, dtype=np.uint64)
     writes = np.empty(count, dtype=bool)
     text = np.lib.stride_tricks.as_strided(buf, shape=(count, width), strides=(width, 1))
     block = 1 << 16
-    for first in range(0, count, block):
+
+    def parse(first: int) -> bool:
         rows = text[first:first + block]
         values, is_write, ok = _parse_same_length(rows[:, :width - 1], np.zeros(0, dtype=np.int64), width - 1, fmt,
                                                   matrix=True)
         if not (ok.all() and (rows[:, width - 1] == 10).all()):
-            return None
+            return False
         addresses[first:first + rows.shape[0]] = values
         writes[first:first + rows.shape[0]] = is_write
-    return addresses, writes
+        return True
+
+    firsts = range(0, count, block)
+    if len(firsts) < 4:
+        good = all(parse(first) for first in firsts)
+    else:
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            good = all(pool.map(parse, firsts))
+    return (addresses, writes) if good else None
 
 
 def _map_file(path: str | Path) -> bytes | mmap.mmap:
