@@ -132,7 +132,6 @@ class Daemon:
         except StoreError as error:
             raise InputError(str(error)) from None
         self.store.close_interrupted_runs(time.time_ns())
-        self._load_state()
         if self.source is None:
             from hdeem_watch.sources.base import SourceUnavailable, make_source
 
@@ -173,6 +172,7 @@ class Daemon:
             self._close_sockets()
             raise InputError(f"cannot bind {self.pub_endpoint} / {self.control_endpoint}: {error}") from None
         self.pub_endpoint, self.control_endpoint = self.publisher.endpoint, self.control.endpoint
+        self._load_state()
         if self.settings.prometheus_port is not None:
             self.metrics = DaemonMetrics(self.node)
             try:
@@ -236,7 +236,7 @@ class Daemon:
 
     def close(self) -> None:
         """Finish the model jobs, close the sockets, the source and the database."""
-        self.worker.shutdown(wait=True)
+        self.worker.shutdown(wait=True, cancel_futures=True)
         self._collect_jobs()
         self._close_sockets()
         if self.metrics is not None:
@@ -343,6 +343,8 @@ class Daemon:
         for future, done, failed in self.jobs:
             if not future.done():
                 remaining.append((future, done, failed))
+                continue
+            if future.cancelled():  # shutting down
                 continue
             try:
                 error = future.exception()
