@@ -21,7 +21,6 @@ its target and the ratio (figure/target, or target/figure for "at most" targets:
 from __future__ import annotations
 
 import argparse
-import json
 import multiprocessing as mp
 import os
 import subprocess
@@ -308,7 +307,9 @@ def main(argv: list[str] | None = None) -> int:
          f"{dc['lost_samples']} ({dc['source_gaps']}) / {dc['lost_messages']} / {dc['cpu_percent']:.0f}", "-", None),
     ]
     if args.json:
-        print(json.dumps(results))
+        from hdeem_watch.daemon.protocol import dumps
+
+        print(dumps(results).decode())  # strict JSON: NaN as null
         return 0
     print(f"bench_daemon: {seconds:g} s steady, poll every {args.poll_interval * 1000:g} ms, {args.subscribers} "
           f"subscribers, {os.cpu_count()} CPUs, load average {results['load_average'][0]:.2f}")

@@ -194,6 +194,7 @@ def test_metrics_follow_prometheus_naming() -> None:
     assert 'hdeem_watch_missing_samples_total{channel="DDR_AB",node="n1"} 1.0' in text
     assert 'hdeem_watch_calibrated_current_amperes{current="idd0",node="n1"} 0.05' in text
     assert "# TYPE hdeem_watch_power_watts gauge" in text
+    assert "process_cpu_seconds_total" in text
 
 
 def test_store_round_trip_and_schema_guard(tmp_path: Path) -> None:

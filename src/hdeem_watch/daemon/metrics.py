@@ -10,6 +10,7 @@ Metrics (Prometheus naming: base units, ``_total`` on counters):
 * ``hdeem_watch_runs_total{node}`` — finished runs
 * ``hdeem_watch_calibrated_current_amperes{node, current}`` — the latest calibrated currents
 * ``hdeem_watch_calibration_error_ratio{node}`` — mean absolute relative error after the fit
+* the standard ``process_cpu_seconds_total``, ``process_resident_memory_bytes``, ... of the daemon
 
 Each daemon uses its own :class:`prometheus_client.CollectorRegistry` (tests can run several).
 
@@ -26,7 +27,14 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from prometheus_client import CollectorRegistry, Counter, Gauge, generate_latest, start_http_server
+from prometheus_client import (
+    CollectorRegistry,
+    Counter,
+    Gauge,
+    ProcessCollector,
+    generate_latest,
+    start_http_server,
+)
 
 
 class DaemonMetrics:
@@ -40,6 +48,8 @@ class DaemonMetrics:
     def __init__(self, node: str, registry: CollectorRegistry | None = None) -> None:
         self.node = node
         self.registry = registry or CollectorRegistry()
+        # The standard process_* metrics (CPU seconds, resident memory, open files) of the daemon.
+        ProcessCollector(registry=self.registry)
         labels = ("node", "channel")
         self.power = Gauge("hdeem_watch_power_watts", "Latest power of the channel.", labels, registry=self.registry)
         self.energy = Counter(
