@@ -180,18 +180,17 @@ def _regroup(seg_id: np.ndarray, group: np.ndarray, bank: np.ndarray, open_group
     sorted_key = key[by_group]
     new = np.concatenate(([True], sorted_key[1:] != sorted_key[:-1]))
     group_start = np.flatnonzero(new)
-    run_index = np.cumsum(new, dtype=np.int32)
-    run_index -= 1
     if hit_cap is None:
         block_start: np.ndarray = group_start
         block_group: np.ndarray = np.arange(group_start.size)
         block_turn = np.zeros(group_start.size, dtype=np.int64)
     else:
-        rank_in_group = np.arange(m, dtype=np.int32)
-        rank_in_group -= group_start.astype(np.int32)[run_index]
-        block_start = np.flatnonzero(rank_in_group % np.int32(hit_cap + 1) == 0)
-        block_group = run_index[block_start]
-        block_turn = rank_in_group[block_start].astype(np.int64) // (hit_cap + 1)
+        # each group is cut into turns of hit_cap + 1 requests: the blocks, from the group lengths
+        group_len = np.diff(np.append(group_start, m))
+        turns = -(-group_len // (hit_cap + 1))
+        block_group = np.repeat(np.arange(group_start.size), turns)
+        block_turn = np.arange(block_group.size, dtype=np.int64) - (np.cumsum(turns) - turns)[block_group]
+        block_start = group_start[block_group] + block_turn * (hit_cap + 1)
     first = by_group[group_start[block_group]]  # where the block's row first appears
     block_sid = sid[first]
     # rows in order of first appearance, the row left open by the previous segment first (a hit)
