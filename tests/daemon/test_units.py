@@ -296,3 +296,85 @@ def test_a_failing_model_still_answers_run_stop(tmp_path: Path, monkeypatch: pyt
     expected = "failed to build" if failure == "crash" else "no-such-preset"
     assert record["model"] is None and expected in record["model_error"]
     assert calib["fit"] is None and "no-such-preset" in calib["model_error"]
+
+
+class _FlakySource:
+    """A tiny in-test source: two DRAM channels at 100 Sa/s, NaN energy on demand, failures on demand."""
+
+    kind = "flaky"
+
+    def __init__(self) -> None:
+        self.fail = False
+        self.unknown_energy = False
+        self.k = 0
+        self.energy = 0.0
+        self.t0 = 0
+
+    def channels(self) -> list:
+        from hdeem_watch.sources.base import ChannelInfo
+
+        return [ChannelInfo("DDR_AB", 100.0, "dram"), ChannelInfo("DDR_CD", 100.0, "dram")]
+
+    def open(self) -> None:
+        self.t0 = time.monotonic_ns()
+
+    def close(self) -> None:
+        pass
+
+    def health(self) -> str:
+        return "ok"
+
+    def poll(self) -> object:
+        from hdeem_watch.sources.base import SourceBatch
+
+        if self.fail:
+            raise OSError("sensor bus timeout")
+        now = time.monotonic_ns()
+        k1 = (now - self.t0) // 10_000_000
+        ks = np.arange(self.k + 1, k1 + 1, dtype=np.int64)
+        self.k = int(k1)
+        power = np.full(ks.size, np.nan if self.unknown_energy else 2.0)
+        self.energy += 0.0 if self.unknown_energy else float(power.sum()) * 0.01
+        energy = math.nan if self.unknown_energy else self.energy
+        samples = {c: (ks * 10_000_000, power) for c in ("DDR_AB", "DDR_CD")}
+        return SourceBatch(now, now, samples, dict.fromkeys(samples, energy),
+                           dict.fromkeys(samples, "stale" if self.unknown_energy else "ok"))
+
+
+def test_source_failures_and_unknown_values_are_reported_not_fatal(tmp_path: Path) -> None:
+    """A failing poll shows as an error status and health, then recovers; unknown energy stays unknown (null)."""
+    import threading
+
+    from hdeem_watch.config import DaemonSettings
+    from hdeem_watch.daemon.client import ControlClient
+    from hdeem_watch.daemon.service import Daemon
+
+    source = _FlakySource()
+    settings = DaemonSettings(pub=f"ipc://{tmp_path}/p.sock", control=f"ipc://{tmp_path}/c.sock",
+                              state_dir=str(tmp_path / "s"), node="n", heartbeat_s=0.2)
+    daemon = Daemon(settings, source=source)
+    daemon.start()
+    loop = threading.Thread(target=daemon.run)
+    loop.start()
+    try:
+        with ControlClient(settings.control or "", timeout_s=20.0) as client:
+            time.sleep(0.3)
+            source.fail = True
+            time.sleep(0.5)
+            failing = client.call("status")
+            source.fail = False
+            time.sleep(0.5)
+            recovered = client.call("status")
+            source.unknown_energy = True
+            run_id = client.call("run.start", {"kernel": "idle"})["run_id"]
+            time.sleep(0.2)
+            record = client.call("run.stop", {"run_id": run_id})
+    finally:
+        daemon.request_stop()
+        loop.join()
+        daemon.close()
+    assert failing["source"]["health"].startswith("error: OSError: sensor bus timeout")
+    assert failing["channels"]["DDR_AB"]["status"].startswith("error")
+    assert recovered["source"]["health"] == "ok" and recovered["channels"]["DDR_AB"]["status"] == "ok"
+    assert record["energy_j"]["DDR_AB"] is None and record["dram_energy_j"] is None
+    assert record["model"] is None and "no measured DRAM energy" in record["model_error"]
