@@ -30,6 +30,9 @@ import numpy as np
 
 from hdeem_watch.errors import InputError
 
+#: Above this share of requests in multi-row segments, :func:`service_order` regroups every segment.
+REGROUP_ALL_SHARE = 0.6
+
 
 @dataclass(frozen=True)
 class SchedulerConfig:
@@ -150,7 +153,9 @@ def service_order(bank: np.ndarray, row: np.ndarray, is_write: np.ndarray,
         return served
     open_group = np.full(seg_start.size, -1, dtype=np.int64)
     open_group[1:] = group[seg_start[1:] - 1]  # the row the previous segment left open
-    if mixed.all():
+    # regrouping a one-row segment leaves it as it is: when most requests are in mixed segments,
+    # regroup everything (no subset gathers)
+    if int((seg_last - seg_start + 1)[mixed].sum()) >= REGROUP_ALL_SHARE * n:
         permutation = _regroup(seg_id, group, bank_s, open_group[seg_id], config.hit_cap, boundary)
         return served[permutation]
     sub = np.flatnonzero(mixed[seg_id])
