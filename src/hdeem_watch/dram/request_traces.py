@@ -10,8 +10,9 @@ Formats (one request per line, newline-terminated):
   `` S addr,size`` / `` M addr,size`` (a modify = load + store), plus ``==pid==`` banner lines;
   a CPU trace, filtered through a last-level cache.
 
-The writers are vectorised (the reference traces of ``reference/ramulator`` are reproduced byte
-for byte, see the tests); the Ramulator readers are vectorised too.
+The writers live in :mod:`hdeem_watch.dram.trace_writers` (re-exported here). The Ramulator
+readers are vectorised: a trace whose lines all have one length (a generated trace) is
+memory-mapped and parsed as a strided byte matrix, block by block on two threads.
 
 Example:
     >>> import numpy as np
@@ -21,101 +22,21 @@ Example:
 
 from __future__ import annotations
 
-import hashlib
 import mmap
-from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from hdeem_watch.dram.trace_writers import format_requests, iter_formatted, trace_sha256, write_requests
 from hdeem_watch.errors import InputError
+
+__all__ = ["FORMATS", "CacheConfig", "RequestTrace", "cache_filter", "format_requests", "iter_formatted",
+           "read_request_trace", "trace_sha256", "write_requests"]
 
 #: The request-trace formats the readers accept.
 FORMATS = ("ramulator", "ramulator2", "pinatrace", "lackey")
-
-_HEX_DIGITS = np.frombuffer(b"0123456789abcdef", dtype=np.uint8)
-#: (read prefix, write prefix, read suffix, write suffix) per writable format.
-_LAYOUT = {
-    "ramulator": (b"0x", b"0x", b" R\n", b" W\n"),
-    "ramulator2": (b"LD 0x", b"ST 0x", b"\n", b"\n"),
-}
-_CHUNK = 1 << 20
-
-
-def _format_chunk(addresses: np.ndarray, is_write: np.ndarray, layout: tuple[bytes, ...]) -> bytes:
-    prefix_r, prefix_w, suffix_r, suffix_w = layout
-    count = addresses.size
-    if count == 0:
-        return b""
-    raw = addresses.astype(">u8").view(np.uint8).reshape(count, 8)
-    nibbles = np.empty((count, 16), dtype=np.uint8)
-    nibbles[:, 0::2] = raw >> 4
-    nibbles[:, 1::2] = raw & 15
-    digits = max(1, (int(addresses.max()).bit_length() + 3) // 4)
-    nibbles = nibbles[:, 16 - digits:]
-    nonzero = nibbles != 0
-    first = np.where(nonzero.any(axis=1), nonzero.argmax(axis=1), digits - 1)
-    pre = max(len(prefix_r), len(prefix_w))
-    suf = max(len(suffix_r), len(suffix_w))
-    out = np.empty((count, pre + digits + suf), dtype=np.uint8)
-    keep = np.empty(out.shape, dtype=bool)
-
-    def put(column: int, text_r: bytes, text_w: bytes, width: int) -> None:
-        for j in range(width):
-            if text_r == text_w:
-                out[:, column + j] = text_r[j]
-                keep[:, column + j] = True
-                continue
-            char_r = text_r[j] if j < len(text_r) else 0
-            char_w = text_w[j] if j < len(text_w) else 0
-            out[:, column + j] = np.where(is_write, char_w, char_r)
-            keep[:, column + j] = np.where(is_write, j < len(text_w), j < len(text_r))
-
-    put(0, prefix_r, prefix_w, pre)
-    out[:, pre:pre + digits] = _HEX_DIGITS[nibbles]
-    keep[:, pre:pre + digits] = np.arange(digits)[None, :] >= first[:, None]
-    put(pre + digits, suffix_r, suffix_w, suf)
-    return out.tobytes() if keep.all() else out[keep].tobytes()
-
-
-def iter_formatted(addresses: np.ndarray, is_write: np.ndarray, fmt: str = "ramulator") -> Iterator[bytes]:
-    """The trace text of a request stream, in chunks of about a million lines.
-
-    Raises:
-        InputError: for a format that cannot be written.
-    """
-    if fmt not in _LAYOUT:
-        raise InputError(f"format {fmt!r}: cannot write it; expected one of {', '.join(_LAYOUT)}")
-    addresses = np.asarray(addresses, dtype=np.uint64)
-    is_write = np.asarray(is_write, dtype=bool)
-    if addresses.shape != is_write.shape:
-        raise InputError(f"requests: {addresses.size} addresses but {is_write.size} write flags")
-    for start in range(0, addresses.size, _CHUNK):
-        stop = start + _CHUNK
-        yield _format_chunk(addresses[start:stop], is_write[start:stop], _LAYOUT[fmt])
-
-
-def format_requests(addresses: np.ndarray, is_write: np.ndarray, fmt: str = "ramulator") -> bytes:
-    """The whole trace text of a request stream (see :func:`iter_formatted`)."""
-    return b"".join(iter_formatted(addresses, is_write, fmt))
-
-
-def trace_sha256(addresses: np.ndarray, is_write: np.ndarray, fmt: str = "ramulator") -> str:
-    """sha256 (hex) of the trace text, computed chunk by chunk (no whole text in memory)."""
-    digest = hashlib.sha256()
-    for chunk in iter_formatted(addresses, is_write, fmt):
-        digest.update(chunk)
-    return digest.hexdigest()
-
-
-def write_requests(path: str | Path, addresses: np.ndarray, is_write: np.ndarray, fmt: str = "ramulator") -> None:
-    """Write a request trace file."""
-    with open(path, "wb") as handle:
-        for chunk in iter_formatted(addresses, is_write, fmt):
-            handle.write(chunk)
-
 
 # ----------------------------------------------------------------------------------------- readers
 
