@@ -376,8 +376,7 @@ def _union_length(starts: np.ndarray, stops: np.ndarray) -> int:
     new_block = np.empty(starts.size, dtype=bool)
     new_block[0] = True
     new_block[1:] = starts[1:] > reach[:-1]
-    block_id = np.cumsum(new_block) - 1
-    block_start = starts[new_block]
-    block_stop = np.zeros(block_start.size, dtype=np.int64)
-    np.maximum.at(block_stop, block_id, stops)
-    return int(np.sum(block_stop - block_start))
+    first = np.flatnonzero(new_block)
+    # a block ends where the next begins; its stop is the running maximum there
+    block_stop = reach[np.append(first[1:] - 1, starts.size - 1)]
+    return int(np.sum(block_stop - starts[first]))
