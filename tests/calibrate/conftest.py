@@ -22,6 +22,7 @@ def _load(name: str) -> ModuleType:
 
 
 SYNTH = _load("calib_synth")
+REAL = _load("calib_real")
 
 #: Hidden truth / datasheet ratios (in the range the seed paper reports for this kind of module).
 TRUTH_RATIOS = SYNTH.TRUTH_RATIOS
@@ -33,6 +34,12 @@ def synth() -> ModuleType:
     return SYNTH
 
 
+@pytest.fixture(scope="session")
+def real() -> ModuleType:
+    """Realistic runs from the real controller and energy models (tests/calibrate/calib_real.py)."""
+    return REAL
+
+
 @pytest.fixture
 def truth_a() -> dict[str, float]:
     """Hidden true currents: the datasheet scaled by :data:`TRUTH_RATIOS`."""
@@ -40,7 +47,6 @@ def truth_a() -> dict[str, float]:
     for name, ratio in TRUTH_RATIOS.items():
         truth[name] *= ratio
     return truth
-
 
 
 @pytest.fixture
