@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from hdeem_watch import __version__
 from hdeem_watch.daemon import baselines as bl
+from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.control import Handler, OpError, Pending
 from hdeem_watch.daemon.runs import finish_record, new_record, parse_run_args
 from hdeem_watch.daemon.windows import Window
@@ -276,7 +277,10 @@ class Operations:
             except Exception as exc:  # a model bug must not lose the run or its reply
                 log.exception("modelling run %s failed", record["run_id"])
                 model, fit, error = None, None, f"model failed: {type(exc).__name__}: {exc}"
-            return model, fit, error, modeller.body(), (modeller.state() if fit is not None else None)
+            # The calibrator's state grows with the runs (MBs after hundreds): serialise it here,
+            # not in the poll loop.
+            state = protocol.dumps(modeller.state()).decode() if fit is not None else None
+            return model, fit, error, modeller.body(), state
 
         d.submit(job, lambda result: self._finish_run(record, waiters, result),
                  failed=lambda error: self._finish_run(record, waiters, (None, None, str(error), d.calib_body, None)))

@@ -58,6 +58,9 @@ class StoreError(RuntimeError):
 
 
 def _dumps(value: Any) -> str:
+    """Strict JSON text (NaN as null); a ``str`` is taken as JSON text already (serialised elsewhere)."""
+    if isinstance(value, str):
+        return value
     return json.dumps(jsonable(value), separators=(",", ":"), allow_nan=False)
 
 
@@ -165,9 +168,12 @@ class Store:
 
     # -- calibration ---------------------------------------------------------------------------
 
-    def save_calibration(self, t_ns: int, state: Mapping[str, Any], fit: Mapping[str, Any] | None,
+    def save_calibration(self, t_ns: int, state: Mapping[str, Any] | str, fit: Mapping[str, Any] | None,
                          run_id: str | None) -> None:
-        """Store the calibrator's state and append the fit to the history, in one transaction."""
+        """Store the calibrator's state and append the fit to the history, in one transaction.
+
+        ``state`` may be JSON text already (the daemon serialises the large state on its worker).
+        """
         with self._transaction():
             self._db.execute(
                 "INSERT OR REPLACE INTO calibrator (id, t_ns, state) VALUES (1, ?, ?)", (int(t_ns), _dumps(state))
