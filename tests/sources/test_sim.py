@@ -11,10 +11,10 @@ from hdeem_watch.sources.base import CHANNELS, DRAM_CHANNELS, RunEvent, Source, 
 from hdeem_watch.sources.sim import SimSource, modelled_line_rate
 from hdeem_watch.sources.sim_model import (
     DIMM_PAIR,
+    effective_currents,
     kernel_traffic_lines,
     run_truth_energy_j,
     socket_shares,
-    stretch_stats,
 )
 
 S = 1_000_000_000
@@ -130,15 +130,35 @@ def test_truth_ratios_and_drift():
 
 
 def test_line_rate_saturates():
-    """Bandwidth grows with threads, saturates per socket (~55 GB/s), doubles with socket 1; no traffic = 0."""
+    """Bandwidth grows with threads, saturates per socket, doubles with socket 1; no traffic = 0."""
     rates = [modelled_line_rate("read", n) * 64 / 1e9 for n in (1, 2, 6, 12, 13, 24)]
     assert rates[0] == pytest.approx(7.0, rel=0.01)
     assert all(b >= a for a, b in itertools.pairwise(rates))
-    assert 50 < rates[3] < 60
-    assert 2 * rates[3] == pytest.approx(rates[5])
+    assert 40 < rates[3] < 60
+    assert 2 * rates[3] == pytest.approx(rates[5], rel=0.03)  # the socket model at half the arrays
     assert modelled_line_rate("triad", 12) < modelled_line_rate("read", 12)
     assert modelled_line_rate("idle", 12) == 0.0
     assert socket_shares(12) == (1.0, 0.0) and socket_shares(16) == (0.75, 0.25)
+
+
+@pytest.mark.parametrize(("kernel", "threads"), [("read", 24), ("triad", 24), ("copy", 12), ("add", 18)])
+def test_line_rate_within_the_controller_capacity(kernel, threads):
+    """A run never moves more lines/s on a socket than the controller model of its channels can serve."""
+    from hdeem_watch.dram.node import cycles_per_line, lines_of
+    from hdeem_watch.sources.sim_model import TOPOLOGY, default_model
+
+    model = default_model()
+    elements = 1 << 22
+    groups = model.node_stats(kernel, elements, threads, 1)
+    rate = modelled_line_rate(kernel, threads, elements)
+    total = sum(lines_of(stats) * n for stats, n in groups)
+    for stats, n in groups:
+        if lines_of(stats) == 0:
+            continue
+        socket_rate = rate * lines_of(stats) * n / total
+        capacity = n / (cycles_per_line(stats) * model.tck_s)
+        assert socket_rate <= capacity * (1 + 1e-9)
+    assert len(groups) == TOPOLOGY.sockets
 
 
 def _power_during_run(threads: int) -> dict[str, float]:
@@ -175,8 +195,8 @@ def test_completed_run_energy_equals_truth_model(threads):
     sim.on_run(RunEvent("start", "r", kernel, threads, elements, repeat, clock.t))
     plan = sim.run_plan("r", timeout_s=120)
     lines = sum(kernel_traffic_lines(kernel, elements)) * repeat
-    duration_s = lines / modelled_line_rate(kernel, threads)
-    assert plan.duration_ns == round(duration_s * 1e9)
+    duration_s = lines / modelled_line_rate(kernel, threads, elements)
+    assert plan.duration_ns == pytest.approx(duration_s * 1e9, abs=1)
     # poll well after the end of traffic: the batch holds the whole run plus idle time
     clock.t = S // 10 + plan.duration_ns + S // 2
     batch = sim.poll()
@@ -214,23 +234,22 @@ def test_early_stop_conserves_energy():
     assert float(later.samples["DDR_AB"][1].mean()) == pytest.approx(float(plan.idle_w[:2].sum()))
 
 
-def test_equal_dimms_match_core_energy_times_eight():
-    """With identical DIMMs and 24 threads the run energy is 8 × the model of one channel's counts."""
+def test_equal_dimms_match_core_energy_of_the_groups():
+    """With identical DIMMs the run energy is the core energy of each socket group's channel × its channels."""
+    from hdeem_watch.calibrate.rows import stretch_stats
+    from hdeem_watch.dram.energy import core_energy
+
     clock = Clock()
     sim = quiet_sim(clock, dimm_spread=0.0)
-    kernel, elements, threads, repeat, window = "scale", 3_000_000, 24, 10, 0.7
+    kernel, elements, threads, repeat, window = "scale", 3_000_000, 18, 10, 0.7
     currents = sim.truth_model.currents(0.0)
     model = sim.model
     total = run_truth_energy_j(model, currents, kernel, elements, threads, repeat, window)
-    stats = stretch_stats(model.kernel_stats8(kernel, elements, threads, repeat), 1.0, window, model.tck_s)
-    if model.backend == "dram":  # the real model: compare with core_energy on a calibrated copy
-        from hdeem_watch.dram.energy import core_energy
-
-        one = core_energy(model.spec.with_currents(dict(zip(model.names, currents[0]))), stats).core_j
-    else:  # before the DRAM model landed: the private classic model
-        cols, const = model.linear(stats)
-        one = float(currents[0] @ cols + const)
-    assert total == pytest.approx(8 * one, rel=1e-9)
+    truth_spec = model.spec.with_currents(dict(zip(model.names, currents[0])))
+    groups = model.node_stats(kernel, elements, threads, repeat)
+    expected = sum(core_energy(truth_spec, stretch_stats(model.spec, stats, window)).core_j * n for stats, n in groups)
+    assert total == pytest.approx(expected, rel=1e-9)
+    assert groups[0][0].total("rd") == pytest.approx(2 * groups[1][0].total("rd"), rel=0.01)  # 12 vs 6 threads
 
 
 def test_speed_and_factory():
@@ -275,9 +294,11 @@ def test_background_plan_holds_samples_back_without_loss(monkeypatch):
     assert len(t) == 90 and t[0] == 1_700_000_000 * S + 110_000_000   # 0.1 s .. 1.0 s, nothing lost
 
 
-@pytest.mark.parametrize(("kernel", "threads"), [("idle", 4), ("triad", 24), ("read", 24)])
+@pytest.mark.parametrize(("kernel", "threads"), [("idle", 4), ("triad", 24), ("read", 24), ("copy", 6), ("add", 18)])
 def test_run_energy_equals_the_calibrators_row_at_the_truth(kernel, threads):
-    """With identical DIMMs the sim's DRAM energy over a run's window is the calibrator's row at the truth."""
+    """With identical DIMMs the sim's DRAM energy over a run's window is the daemon's calibration row at the truth."""
+    from hdeem_watch.daemon.modelling import RunModeller
+
     clock = Clock()
     sim = quiet_sim(clock, dimm_spread=0.0)
     elements, repeat = 40_000_000, 8
@@ -291,30 +312,65 @@ def test_run_energy_equals_the_calibrators_row_at_the_truth(kernel, threads):
     batch = sim.poll()
     measured = sum(float(batch.samples[ch][1][: window_ns // 10_000_000].sum()) * 0.01 for ch in DRAM_CHANNELS)
     truth = sim.truth_model.currents(0.0)[0]
-    model = sim.model
-    if model.backend == "dram":   # the daemon's own row: calibrate.rows.observation_from_run
-        from hdeem_watch.calibrate.rows import observation_from_run
-        from hdeem_watch.daemon.modelling import idle_stats
+    modeller = RunModeller("samsung-m393a1g43db0-cpb", dimms=8)
+    model, _fit, error = modeller.evaluate({"run_id": "r", "kernel": kernel, "threads": threads, "elements":
+                                            elements if kernel != "idle" else 0, "repeat": repeat,
+                                            "window_s": window_ns * 1e-9, "dram_energy_j": measured})
+    assert error is None and model is not None
+    from hdeem_watch.calibrate import Observation
 
-        stats = idle_stats(model.spec) if kernel == "idle" else model.kernel_stats8(kernel, elements, threads, repeat)
-        row = observation_from_run(model.spec, stats, window_ns * 1e-9, 1.0, scale=8)
-        expected = row.predicted_j(truth)
-    else:                         # before the DRAM model landed: the fallback's own stretching
-        expected = run_truth_energy_j(model, sim.truth_model.currents(0.0), kernel, elements, threads, repeat,
-                                      window_ns * 1e-9)
-    assert measured == pytest.approx(expected, rel=1e-6)
+    row = Observation.from_dict(model["observation"])
+    assert measured == pytest.approx(row.predicted_j(truth), rel=1e-6)
 
 
-def test_fallback_model_is_consistent():
-    """The private stand-in model keeps the plan identity: dyn + background × D = truth energy over D."""
-    from hdeem_watch.sources.sim_model import FallbackModel, TruthModel, plan_run
+def test_effective_currents_reproduce_the_signal_with_the_other_currents_at_datasheet():
+    """The effective truth (I/O per burst, sensor offsets, refresh and IPP0 deviations folded into the five
+    calibrated currents, the rest at datasheet) gives the sim's measured energy through the calibration row."""
+    from hdeem_watch.calibrate import Observation
+    from hdeem_watch.daemon.modelling import RunModeller
 
-    model = FallbackModel()
-    truth = TruthModel(model.names, model.datasheet, seed=3, aging_per_h=0.0, temp_amp_c=0.0)
-    currents = truth.currents(0.0)
-    plan = plan_run(model, currents, "r", 0, "copy", 8_000_000, 16, 5, 0.0)
-    d_s = plan.duration_ns * 1e-9
-    planned = float((plan.bg_w * d_s + plan.dyn_j).sum())
-    assert planned == pytest.approx(run_truth_energy_j(model, currents, "copy", 8_000_000, 16, 5, d_s), rel=1e-6)
-    assert np.all(plan.dyn_j[:4] > 0) and np.all(plan.dyn_j[4:] > 0)       # 16 threads: both sockets
-    assert plan.dyn_j[0] > plan.dyn_j[4]                                      # 12 of 16 on socket 0
+    clock = Clock()
+    sim = quiet_sim(clock, dimm_spread=0.0, io_j_per_line=0.5e-9, offsets=True)
+    kernel, threads, elements, repeat = "triad", 24, 40_000_000, 8
+    sim.on_run(RunEvent("start", "r", kernel, threads, elements, repeat, 0))
+    plan = sim.run_plan("r", timeout_s=120)
+    window_ns = (plan.duration_ns // 10_000_000) * 10_000_000
+    sim.on_run(RunEvent("stop", "r", kernel, threads, elements, repeat, window_ns))
+    clock.t = window_ns + 10_000_000
+    batch = sim.poll()
+    measured = sum(float(batch.samples[ch][1][: window_ns // 10_000_000].sum()) * 0.01 for ch in DRAM_CHANNELS)
+    model, _fit, _error = RunModeller("samsung-m393a1g43db0-cpb", dimms=8).evaluate(
+        {"run_id": "r", "kernel": kernel, "threads": threads, "elements": elements, "repeat": repeat,
+         "window_s": window_ns * 1e-9, "dram_energy_j": measured})
+    assert model is not None
+    row = Observation.from_dict(model["observation"])
+    truth = sim.truth()
+    names = sim.model.names
+    effective = np.array([truth["effective_currents_a"][n] for n in names])
+    core = sim.truth_model.currents(0.0)[0]
+    # the refresh current's deviation is folded in exactly only with a refresh every tREFI: 0.2 %
+    assert measured == pytest.approx(row.predicted_j(effective), rel=2e-3)
+    assert abs(measured - row.predicted_j(core)) > 5 * abs(measured - row.predicted_j(effective))
+    direct = effective_currents(sim.model, core, 0.5e-9, sum(truth["offsets_w"][c] for c in DRAM_CHANNELS))
+    assert np.allclose(direct, effective)
+    io_share = float(plan.io_j.sum()) / (float(plan.bg_w.sum()) * plan.duration_ns * 1e-9 + float(plan.dyn_j.sum()))
+    assert 0.01 < io_share < 0.10   # I/O: a modest share of the DIMMs' energy under full load
+
+
+def test_datasheet_model_overestimates_the_sim_node():
+    """On kernel runs the datasheet model overestimates the sim's DRAM energy 1.3–2.5× (field: ~2×)."""
+    from hdeem_watch.sources.sim_model import TruthModel, default_model, plan_run
+
+    model = default_model()
+    ratios = []
+    for seed in (0, 1, 2):
+        truth = TruthModel(model.names, model.datasheet, seed)
+        for kernel, threads in (("read", 24), ("triad", 12), ("copy", 4)):
+            plan = plan_run(model, truth.currents(0.0), "r", 0, kernel, 1 << 22, threads, 20, 0.5e-9)
+            d_s = plan.duration_ns * 1e-9
+            sim_j = float((plan.bg_w * d_s + plan.dyn_j + plan.io_j).sum())
+            datasheet = np.broadcast_to(model.datasheet, (8, len(model.names)))
+            ds_j = run_truth_energy_j(model, datasheet, kernel, 1 << 22, threads, 20, d_s)
+            ratios.append(ds_j / sim_j)
+    assert 1.3 < float(np.mean(ratios)) < 2.5, ratios
+    assert min(ratios) > 1.1

@@ -55,6 +55,7 @@ from hdeem_watch.sources.sim_model import (
     DIMMS,
     RunPlan,
     TruthModel,
+    effective_currents,
     idle_power_w,
     load_model,
     modelled_line_rate,
@@ -97,7 +98,9 @@ class SimSource:
         wall_clock: wall clock in ns (read once at open).
         noise: add Gaussian noise.
         quantum_w: quantisation step (0 = none).
-        io_j_per_line: I/O energy per 64-byte line on the DIMM rails (unmodelled by the calibrator).
+        io_j_per_line: I/O energy per 64-byte line on the DIMM rails (VDDQ drivers and termination;
+            not in the core model). The default 0.5 nJ (≈ 1 pJ/bit) is ~2–4 % of the DIMMs' power
+            under STREAM load and adds ~12 mA per device to the IDD4R/IDD4W a fit recovers.
         offsets: add a board offset per channel (DIMM pairs −0.1…+0.3 W, others ±1 W).
         aging_per_h: relative growth of every true current per sim hour.
         temp_amp_c: amplitude of the DIMM temperature swing (°C, period 1 sim hour).
@@ -117,7 +120,7 @@ class SimSource:
 
     def __init__(self, seed: int = 0, clock: Callable[[], int] = time.monotonic_ns, speed: float = 1.0,
                  wall_clock: Callable[[], int] = time.time_ns, *, noise: bool = True, quantum_w: float = 0.125,
-                 io_j_per_line: float = 2.0e-9, offsets: bool = True, aging_per_h: float = 0.005,
+                 io_j_per_line: float = 0.5e-9, offsets: bool = True, aging_per_h: float = 0.005,
                  temp_amp_c: float = 3.0, dimm_spread: float = 0.10, buffer_s: float = 60.0,
                  background_plans: bool = True) -> None:
         if not speed > 0 or not math.isfinite(speed):
@@ -298,11 +301,19 @@ class SimSource:
         return self._plans[run_id]
 
     def truth(self) -> dict:
-        """The hidden true currents now (A per device), per DIMM and averaged — simulation only."""
+        """The hidden true currents now (A per device), per DIMM and averaged — simulation only.
+
+        ``mean_currents_a`` is the core truth; ``effective_currents_a`` is what a node-level fit can
+        recover (:func:`~hdeem_watch.sources.sim_model.effective_currents`: the core truth plus the
+        I/O energy per burst as an IDD4R/IDD4W equivalent and the DIMM-pair sensor offsets as a
+        shift of every VDD state current), averaged over the DIMMs; compare a fit with it.
+        """
         t_s = self._sim_ns * 1e-9
         currents = self.truth_model.currents(t_s)
         temps = self.truth_model.temperature_c(t_s)
         names = self.model.names
+        offsets = float(sum(self._offset_w[c] for c in DRAM_CHANNELS))
+        effective = effective_currents(self.model, currents, self.io_j_per_line, offsets)
         return {
             "simulated": True,
             "t_ns": self._t0_wall + self._sim_ns,
@@ -310,6 +321,8 @@ class SimSource:
             "unit": "A per device",
             "datasheet": {n: float(v) for n, v in zip(names, self.model.datasheet)},
             "mean_currents_a": {n: float(v) for n, v in zip(names, currents.mean(axis=0))},
+            "effective_currents_a": {n: float(v) for n, v in zip(names, effective.mean(axis=0))},
+            "effective_note": "core truth + I/O energy per burst (IDD4R/IDD4W) + DIMM-pair sensor offsets",
             "dimms": {
                 f"DIMM_{dimm}": {
                     "channel": DIMM_PAIR[d], "socket": DIMM_SOCKET[d], "temperature_c": float(temps[d]),
