@@ -88,8 +88,8 @@ def test_realistic_runs_determine_idd0_idd2n_idd3n_within_3_percent(spec: Any, r
 def test_recommended_design_beats_a_naive_one(spec: Any, real: ModuleType, planned: list[Any]) -> None:
     """At the same truth and noise the recommended design (read-only at 1–24 threads, write-heavy
     kernels at low to saturated bandwidth, idle runs up to 30 s) determines IDD0, IDD4R and IDD4W
-    better (smaller posterior sd) than a naive one (every kernel at a few thread counts, idle runs
-    up to 10 s)."""
+    better (posterior sd ≥ 15 % smaller; observed 24–37 %) than a naive one (every kernel at a
+    few thread counts, idle runs up to 10 s)."""
     naive = real.plan(spec, real.NAIVE_DESIGN)
     truth = {n: spec.currents[n] * 0.6 for n in real.CURRENTS}
     sds = []
@@ -99,4 +99,25 @@ def test_recommended_design_beats_a_naive_one(spec: Any, real: ModuleType, plann
         sds.append(posterior_relative_sd(fit(obs, spec, loo="none")))
     good, bad = sds
     for name in ("idd0", "idd4r", "idd4w"):
-        assert good[name] < 0.8 * bad[name], (name, good[name], bad[name])
+        assert good[name] < 0.85 * bad[name], (name, good[name], bad[name])
+
+
+def test_constant_power_offset_goes_into_idd2n(spec: Any, real: ModuleType, planned: list[Any]) -> None:
+    """A 2 % constant *power* offset (not the per-run energy the intercept models) is collinear
+    with the standby currents: predictions stay good (LOO ≤ 2 %), but IDD2N absorbs it — its
+    error is the offset over the idle runs' IDD2N power (2–4 % here) to ±1.5 points, every time."""
+    from hdeem_watch.dram.energy import CURRENT_NAMES
+
+    i2n = CURRENT_NAMES.index("idd2n")
+    for seed, (truth, result) in zip(SEEDS, _fits(spec, real, planned, real.IDLE_S, offset_kind="power")):
+        assert result.error_loo <= 0.02, (seed, result.error_loo)
+        rng = np.random.default_rng(2000 + seed)
+        real.draw_truth(spec, rng)
+        runs = real.draw_runs(planned, real.IDLE_S, rng)
+        clean = real.observations(spec, runs, truth, np.random.default_rng(0), noise=0.0, offset=0.0)
+        offset_w = 0.02 * np.mean([o.measured_j / o.window_s for o in clean])
+        idle = clean[-1]
+        expected = offset_w * idle.window_s / (idle.columns[i2n] * truth["idd2n"])
+        assert 0.015 <= expected <= 0.05
+        got = result.calibrated["idd2n"] / truth["idd2n"] - 1
+        assert got == pytest.approx(expected, abs=0.015), (seed, got, expected)
