@@ -1,11 +1,20 @@
 """The model side of a finished run, and the embedded online calibrator.
 
-For a run of kernel K with T threads over N elements, repeated R times, the command statistics of
-one DIMM come from :func:`hdeem_watch.dram.kernels.kernel_stats` (``channels = dimms``: every DIMM
-carries 1/dimms of the traffic); :func:`hdeem_watch.calibrate.observation_from_run` stretches the
-background residency and refresh to the measured window and scales the row by the number of DIMMs,
-against the node's total measured DRAM energy. An idle run is a row with no commands. The row is
-added to the :class:`~hdeem_watch.calibrate.OnlineCalibrator`, which refits.
+For a run of kernel K with T threads over N elements, repeated R times, the command statistics come
+from :func:`hdeem_watch.dram.node.node_run_stats` — the traffic split of the node (threads fill
+socket 0 first; each socket's threads load that socket's channels, with XOR bank hashing; a socket
+without threads is idle), the same function the simulated node uses. The calibration row is
+:func:`hdeem_watch.dram.node.node_observation`: per socket group
+:func:`hdeem_watch.calibrate.observation_from_run` (background residency and refresh stretched to the
+measured window, scaled by the group's DIMMs), summed, against the node's total measured DRAM
+energy. An idle run is a row with no commands. The row is added to the
+:class:`~hdeem_watch.calibrate.OnlineCalibrator`, which refits.
+
+The run's ``calibrated_j`` is a prediction: the model with the fit from *before* the run (so its
+error is an honest out-of-sample error; ``fitted_j`` is the value after the refit). The ``calib``
+body carries ``suggest``: the calibrator's ranking of the runs seen so far (and an idle run) by how
+much one more of each would determine the weakest current
+(:func:`hdeem_watch.calibrate.suggest_next`).
 
 This class does no I/O and is used from ONE worker thread of the daemon (the fit and the kernel
 model can take tens of milliseconds; the poll loop must not wait for them).
@@ -32,6 +41,8 @@ from hdeem_watch.errors import InputError
 
 #: Compact fit-history entries kept for the ``calib`` topic.
 MAX_HISTORY = 200
+#: Kinds of run kept as candidates for the suggested next run.
+MAX_CANDIDATES = 64
 
 
 def load_spec(memspec: str) -> Any:
@@ -119,21 +130,32 @@ class RunModeller:
             self.error = f"model not available: {error}"
         except InputError as error:
             self.error = str(error)
+        self.topology: Any = None
+        self._candidates: dict[str, Any] = {}
+        if self.error is None:
+            from hdeem_watch.dram.node import topology_for
+
+            self.topology = topology_for(self.dimms)
         self._stats_cache = functools.lru_cache(maxsize=64)(self._kernel_stats)
 
     def _kernel_stats(self, kernel: str, elements: int, threads: int, repeat: int) -> Any:
-        from hdeem_watch.dram.kernels import kernel_stats
+        from hdeem_watch.dram.node import node_run_stats
 
-        options: dict[str, Any] = {"repeat": repeat, "channels": self.dimms}
-        if self.max_requests:
-            options["max_requests"] = self.max_requests
-        return kernel_stats(self.spec, kernel, elements, threads, **options).stats
+        return tuple(node_run_stats(self.spec, kernel, elements, threads, repeat, self.topology,
+                                    max_requests=self.max_requests))
+
+    def groups_for(self, kernel: str, elements: int, threads: int, repeat: int) -> list[tuple[Any, int]]:
+        """Per socket, the modelled statistics of one of its DIMMs and how many DIMMs it has (cached;
+        idle kernels and idle sockets have no commands)."""
+        if kernel in IDLE_KERNELS or elements == 0:
+            from hdeem_watch.dram.node import idle_channel_stats
+
+            return [(idle_channel_stats(self.spec), self.dimms)]
+        return list(self._stats_cache(kernel, int(elements), int(threads), int(repeat)))
 
     def stats_for(self, kernel: str, elements: int, threads: int, repeat: int) -> Any:
-        """Modelled statistics of one DIMM for a run (cached; idle kernels have no commands)."""
-        if kernel in IDLE_KERNELS or elements == 0:
-            return idle_stats(self.spec)
-        return self._stats_cache(kernel, int(elements), int(threads), int(repeat))
+        """Modelled statistics of one DIMM of socket 0 for a run (see :meth:`groups_for`)."""
+        return self.groups_for(kernel, elements, threads, repeat)[0][0]
 
     def latest_fit(self) -> dict[str, Any] | None:
         """``FitResult.to_dict()`` of the latest fit, or None."""
@@ -160,8 +182,9 @@ class RunModeller:
         """Model a finished run, add it to the calibrator and refit.
 
         Returns:
-            ``(model, fit, error)``: ``model`` = ``{"memspec", "dimms", "datasheet_j", "predicted_j",
-            "calibrated_j", "counts", "observation"}`` (None when the run cannot be modelled),
+            ``(model, fit, error)``: ``model`` = ``{"memspec", "dimms", "groups", "datasheet_j",
+            "predicted_j", "calibrated_j" (= predicted_j: the fit before this run), "fitted_j" (after
+            the refit), "counts", "observation"}`` (None when the run cannot be modelled),
             ``fit`` = the refit's ``to_dict()`` (None without a refit) and ``error`` = why not.
         """
         if self.error is not None:
@@ -173,13 +196,13 @@ class RunModeller:
             return None, None, f"run {name!r}: no measured DRAM energy ({measured!r})"
         if not isinstance(window_s, int | float) or not window_s > 0:
             return None, None, f"run {name!r}: empty window"
-        from hdeem_watch.calibrate import observation_from_run
+        from hdeem_watch.dram.node import node_counts, node_observation
 
         try:
-            stats = self.stats_for(str(record["kernel"]), int(record["elements"]), int(record["threads"]),
-                                   int(record["repeat"]))
-            obs = observation_from_run(self.spec, stats, float(window_s), float(measured), scale=float(self.dimms),
-                                       name=f"{record.get('run_id')}:{name}", time_ns=int(record.get("t_stop_ns") or 0))
+            groups = self.groups_for(str(record["kernel"]), int(record["elements"]), int(record["threads"]),
+                                     int(record["repeat"]))
+            obs = node_observation(self.spec, groups, float(window_s), float(measured),
+                                   name=f"{record.get('run_id')}:{name}", time_ns=int(record.get("t_stop_ns") or 0))
         except InputError as error:
             return None, None, str(error)
         before = self.latest_fit()
@@ -187,25 +210,48 @@ class RunModeller:
         model: dict[str, Any] = {
             "memspec": getattr(self.spec, "memory_id", self.memspec),
             "dimms": self.dimms,
+            "groups": [n for _stats, n in groups],
             "datasheet_j": obs.predicted_j(datasheet_vec),
             "predicted_j": None,
             "calibrated_j": None,
-            "counts": {f: stats.total(f) * self.dimms for f in ("act", "pre", "rd", "wr", "ref")},
+            "fitted_j": None,
+            "counts": node_counts(groups),
             "observation": obs.to_dict(),
         }
         if before is not None:
             vec, intercept = self._currents_vector(before)
-            model["predicted_j"] = obs.predicted_j(vec, intercept)
+            model["predicted_j"] = model["calibrated_j"] = obs.predicted_j(vec, intercept)
         try:
             result = self.calibrator.add_run(obs)
         except InputError as error:
             return model, None, str(error)
         fit = dict(result.to_dict())
         vec, intercept = self._currents_vector(fit)
-        model["calibrated_j"] = obs.predicted_j(vec, intercept)
+        model["fitted_j"] = obs.predicted_j(vec, intercept)
+        self._remember_candidate(record, obs)
         self.history.append(compact_fit(int(result.time_ns or obs.time_ns), fit))
         del self.history[:-MAX_HISTORY]
         return model, fit, None
+
+    def _remember_candidate(self, record: Mapping[str, Any], obs: Any) -> None:
+        """Keep the row of each kind of run (kernel × threads) as a candidate for :meth:`suggest`."""
+        kernel = str(record.get("kernel"))
+        key = "idle" if kernel in IDLE_KERNELS or not record.get("elements") else f"{kernel}-{record.get('threads')}t"
+        self._candidates[key] = obs
+        while len(self._candidates) > MAX_CANDIDATES:
+            self._candidates.pop(next(iter(self._candidates)))
+
+    def suggest(self, top: int = 3) -> list[list[Any]] | None:
+        """The best next runs among those seen (``[[name, score], ...]``, best first), or None."""
+        if self.calibrator is None or self.calibrator.latest is None or not self._candidates:
+            return None
+        from hdeem_watch.calibrate import suggest_next
+
+        try:
+            ranking = suggest_next(self.calibrator, self._candidates)
+        except (InputError, ValueError, np.linalg.LinAlgError):
+            return None
+        return [[name, round(float(score), 4)] for name, score in ranking[:top]]
 
     def reset(self) -> None:
         """Forget every run and fit."""
@@ -233,4 +279,5 @@ class RunModeller:
             "memspec": self.memspec,
             "model_error": self.error,
             "truth": dict(truth) if truth is not None else None,
+            "suggest": self.suggest(),
         }
