@@ -3,9 +3,17 @@
 The simulated node does the memory traffic itself; the schedule only tells the daemon what runs
 (``run.start`` with kernel, threads, elements, repeat and ``metadata.simulated = true``), waits the
 time the modelled node needs for it, and says ``run.stop``. ``repeat`` is chosen so a run lasts
-about :data:`TARGET_RUN_S` with :func:`hdeem_watch.sources.sim.modelled_line_rate`. Idle runs
-(kernel ``idle``) pin the standby currents. Rounds go on until stopped: all kernels at 24 threads
-first (what the calibration needs), then other thread counts.
+about its target length with :func:`hdeem_watch.sources.sim.modelled_line_rate`.
+
+The design is what makes the five currents identifiable within a minute (about 30 runs):
+
+- thread counts 24, 4, 12, 1 (:data:`THREAD_ROUNDS`): the share of row misses per line (IDD0)
+  and the split between the sockets change with the threads;
+- run lengths that vary (:data:`RUN_LENGTHS_S`, 1.0–2.0 s, the mean :data:`TARGET_RUN_S`): with
+  every run equally long the standby power × window and the fit's intercept (a fixed energy per
+  run) are the same column;
+- an idle run (kernel ``idle``) per round, of a different length each round
+  (:data:`IDLE_SECONDS`): it pins the precharge standby current and the intercept.
 """
 
 from __future__ import annotations
@@ -20,12 +28,16 @@ from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreach
 from hdeem_watch.dram.kernels import kernel_traffic
 from hdeem_watch.sources.sim import modelled_line_rate
 
-#: Wanted duration of one run, seconds.
+#: Mean duration of one run, seconds.
 TARGET_RUN_S = 1.5
+#: Lengths of the kernel runs, cycled over the runs (mean TARGET_RUN_S).
+RUN_LENGTHS_S = (1.0, 2.0, 1.5)
+#: Length of the idle run of each round, cycled over the rounds.
+IDLE_SECONDS = (0.75, 3.0, 1.5, 2.25)
 #: Doubles per array (128 MiB arrays: far larger than any last-level cache).
 ELEMENTS = 1 << 24
-#: Thread counts of the rounds after the first (the first is all kernels at 24 threads).
-THREAD_ROUNDS = ("24", "12", "6,18", "1,2,4,8")
+#: Thread counts of the rounds, cycled.
+THREAD_ROUNDS = ("24", "4", "12", "1")
 #: Pause between runs, seconds (the plots show the steps).
 GAP_S = 0.4
 
@@ -42,26 +54,46 @@ def repeat_for(kernel: str, threads: int, elements: int = ELEMENTS, target_s: fl
 
 def run_seconds(spec: RunSpec) -> float:
     """How long the modelled node needs for ``spec`` (``TARGET_RUN_S`` for an idle run)."""
-    rate = modelled_line_rate(spec.kernel, spec.threads)
+    rate = modelled_line_rate(spec.kernel, spec.threads, spec.elements or ELEMENTS)
     if spec.kernel == IDLE_KERNEL or rate <= 0:
         return TARGET_RUN_S
     traffic = kernel_traffic(spec.kernel, spec.elements)
     return (traffic.lines_read + traffic.lines_written) * spec.repeat / rate
 
 
-def demo_round(threads_spec: str) -> list[RunSpec]:
-    """One round: an idle run, then every kernel at each thread count of ``threads_spec``."""
-    runs = [RunSpec(kernel=IDLE_KERNEL, threads=24, elements=0, repeat=1)]
-    for spec in sweep(list(KERNELS), threads_spec, ELEMENTS, 1):
-        runs.append(RunSpec(spec.kernel, spec.threads, spec.elements, repeat_for(spec.kernel, spec.threads)))
+@dataclass(frozen=True)
+class DemoRun:
+    """One run of the demo and how long to hold it.
+
+    Attributes:
+        spec: kernel, threads, elements, repeat.
+        seconds: the time the modelled node needs for it (the chosen length for an idle run).
+    """
+
+    spec: RunSpec
+    seconds: float
+
+
+def demo_round(threads_spec: str, round_no: int = 0) -> list[DemoRun]:
+    """Round ``round_no``: an idle run, then every kernel at each thread count of ``threads_spec``.
+
+    The idle run lasts ``IDLE_SECONDS[round_no]`` (cycled); the kernel runs cycle through
+    :data:`RUN_LENGTHS_S`, shifted by the round so each kernel gets different lengths.
+    """
+    idle = RunSpec(kernel=IDLE_KERNEL, threads=24, elements=0, repeat=1)
+    runs = [DemoRun(idle, IDLE_SECONDS[round_no % len(IDLE_SECONDS)])]
+    for i, spec in enumerate(sweep(list(KERNELS), threads_spec, ELEMENTS, 1)):
+        target = RUN_LENGTHS_S[(i + round_no) % len(RUN_LENGTHS_S)]
+        sized = RunSpec(spec.kernel, spec.threads, spec.elements, repeat_for(spec.kernel, spec.threads, target_s=target))
+        runs.append(DemoRun(sized, run_seconds(sized)))
     return runs
 
 
-def demo_plan(rounds: int) -> list[RunSpec]:
+def demo_plan(rounds: int) -> list[DemoRun]:
     """The first ``rounds`` rounds, cycling through :data:`THREAD_ROUNDS`."""
-    plan: list[RunSpec] = []
+    plan: list[DemoRun] = []
     for i in range(rounds):
-        plan.extend(demo_round(THREAD_ROUNDS[i % len(THREAD_ROUNDS)]))
+        plan.extend(demo_round(THREAD_ROUNDS[i % len(THREAD_ROUNDS)], i))
     return plan
 
 
@@ -122,30 +154,31 @@ class DemoSchedule(threading.Thread):
         round_no = 0
         try:
             while not self._halt.is_set():
-                for spec in demo_round(THREAD_ROUNDS[round_no % len(THREAD_ROUNDS)]):
+                for run in demo_round(THREAD_ROUNDS[round_no % len(THREAD_ROUNDS)], round_no):
                     if self._halt.is_set() or (self.max_runs is not None and index >= self.max_runs):
                         return
                     index += 1
-                    self._one(client, index, spec)
+                    self._one(client, index, run)
                     self._halt.wait(GAP_S / self.speed)
                 round_no += 1
         finally:
             client.close()
 
-    def _one(self, client: ControlClient, index: int, spec: RunSpec) -> None:
+    def _one(self, client: ControlClient, index: int, run: DemoRun) -> None:
+        spec = run.spec
         args = {
             "name": f"{spec.kernel}-{spec.threads}t",
             "kernel": spec.kernel,
             "threads": spec.threads,
             "elements": spec.elements,
             "repeat": spec.repeat,
-            "metadata": {"simulated": True, "source": "demo", "modelled_s": round(run_seconds(spec), 4)},
+            "metadata": {"simulated": True, "source": "demo", "modelled_s": round(run.seconds, 4)},
         }
         try:
             started = client.call("run.start", args)
             run_id = started.get("run_id") if isinstance(started, dict) else started
             self.on_event(ScheduleEvent(index, spec, "start", str(run_id)))
-            self._halt.wait(run_seconds(spec) / self.speed)
+            self._halt.wait(run.seconds / self.speed)
             result = client.call("run.stop", {"run_id": run_id})
         except (ControlError, DaemonUnreachable) as error:
             self.on_event(ScheduleEvent(index, spec, "error", str(error)))

@@ -36,14 +36,18 @@ def run_line(run: RunView) -> str:
 
 
 def calib_line(calib: CalibView) -> str:
-    """One calibration state (currents in mA per device; ``sim`` = the simulation's hidden truth)."""
+    """One calibration state (currents in mA per device; ``sim`` = the simulation's hidden truth that a
+    fit can recover, incl. I/O energy and sensor offsets; ``core`` = its core truth)."""
     parts = [
         f"calib  {calib.n_runs} runs  error before {_pct(calib.error_before)} after {_pct(calib.error_after)} "
         f"loo {_pct(calib.error_loo)}"
     ]
     for c in calib.currents:
         item = f"{c.name} {c.datasheet_a * 1e3:.1f}->{c.calibrated_a * 1e3:.1f}"
-        if math.isfinite(c.truth_a):
+        core = getattr(c, "truth_core_a", math.nan)
+        if math.isfinite(c.truth_a) and isinstance(core, float) and math.isfinite(core):
+            item += f" (sim incl. I/O {c.truth_a * 1e3:.1f}, core {core * 1e3:.1f})"
+        elif math.isfinite(c.truth_a):
             item += f" (sim {c.truth_a * 1e3:.1f})"
         if not c.identifiable:
             item += "?"

@@ -10,11 +10,21 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from hdeem_watch.tui.snapshot import CalibView, CurrentView, RunView
 
 DRAM_CHANNELS = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
+
+
+@dataclass(frozen=True)
+class SimCurrentView(CurrentView):
+    """A calibrated current of a simulated node: ``truth_a`` is the *effective* truth the fit can
+    recover (core truth incl. the I/O energy per burst and sensor offsets, the sim's
+    ``effective_currents_a``), ``truth_core_a`` the core truth (``mean_currents_a``)."""
+
+    truth_core_a: float = math.nan
 
 
 def num(value: Any) -> float:
@@ -135,6 +145,10 @@ def calib_view(body: Mapping[str, Any], *, history_len: int = 40) -> CalibView:
     fit = body.get("fit") if isinstance(body.get("fit"), Mapping) else None
     truth_raw = body.get("truth")
     truth = _current_values(truth_raw) if isinstance(truth_raw, Mapping) else {}
+    truth_core: dict[str, float] = {}
+    if isinstance(truth_raw, Mapping) and isinstance(truth_raw.get("effective_currents_a"), Mapping):
+        truth_core = truth
+        truth = _current_values(truth_raw["effective_currents_a"])
     simulated = bool(truth) or bool(isinstance(truth_raw, Mapping) and truth_raw.get("simulated"))
     history_raw = body.get("history")
     series = history_series(history_raw if isinstance(history_raw, list) else [])
@@ -146,22 +160,24 @@ def calib_view(body: Mapping[str, Any], *, history_len: int = 40) -> CalibView:
         return CalibView(simulated=simulated, suggested_next=suggestion, model_error=model_error)
     currents_raw = fit.get("currents") if isinstance(fit.get("currents"), Mapping) else {}
     assert isinstance(currents_raw, Mapping)
-    currents = []
+    currents: list[CurrentView] = []
     for name, entry in currents_raw.items():
         if not isinstance(entry, Mapping):
             continue
         key = str(name).lower()
-        currents.append(
-            CurrentView(
-                name=key,
-                datasheet_a=num(entry.get("datasheet")),
-                calibrated_a=num(entry.get("calibrated")),
-                ci95_a=_ci_half_width(entry.get("ci95"), num(entry.get("calibrated"))),
-                identifiable=bool(entry.get("identifiable", False)),
-                truth_a=truth.get(key, math.nan),
-                history_a=tuple(series.get(key, [])[-history_len:]),
-            )
-        )
+        fields: dict[str, Any] = {
+            "name": key,
+            "datasheet_a": num(entry.get("datasheet")),
+            "calibrated_a": num(entry.get("calibrated")),
+            "ci95_a": _ci_half_width(entry.get("ci95"), num(entry.get("calibrated"))),
+            "identifiable": bool(entry.get("identifiable", False)),
+            "truth_a": truth.get(key, math.nan),
+            "history_a": tuple(series.get(key, [])[-history_len:]),
+        }
+        if truth_core:
+            currents.append(SimCurrentView(**fields, truth_core_a=truth_core.get(key, math.nan)))
+        else:
+            currents.append(CurrentView(**fields))
     error = fit.get("error") if isinstance(fit.get("error"), Mapping) else {}
     assert isinstance(error, Mapping)
     n_runs = first_num(fit, "n_runs", "runs", "n_observations", "observability.n_runs")

@@ -1,6 +1,7 @@
 """The calibration panel: datasheet vs calibrated currents, intervals, identifiability, errors,
 the history of each current (aging), the suggested next run, and the simulator's hidden truth
-(marked "simulation")."""
+(marked "simulation"): the *effective* truth a fit can recover (incl. the I/O energy per burst and
+the sensor offsets) in the ``sim`` column, the core truth in ``core`` when the panel is wide enough."""
 
 from __future__ import annotations
 
@@ -24,16 +25,22 @@ def calib_text(calib: CalibView, width: int) -> Text:
     title = f"calibration ({calib.n_runs} runs)" if calib.n_runs else "calibration"
     text.append(title, style="bold")
     if calib.simulated:
-        text.append("  sim: simulation truth" if width >= 44 else "  sim=simulation", style="dim italic")
+        effective = any(math.isfinite(_core(c)) for c in calib.currents)
+        if effective:
+            text.append("  sim: sim truth (incl. I/O)" if width >= 50 else "  sim=simulation", style="dim italic")
+        else:
+            text.append("  sim: simulation truth" if width >= 44 else "  sim=simulation", style="dim italic")
     if not calib.currents:
         text.append("\n(no fit yet: waiting for runs)", style="dim italic")
         if calib.model_error:
             text.append(f"\nmodel: {calib.model_error}", style="yellow")
         return text
     show_truth = calib.simulated
-    spark_width = max(0, width - (6 + 7 + 7 + 6 + 3 + (7 if show_truth else 0)) - 1)
+    show_core = show_truth and width >= 6 + 7 + 7 + 6 + 3 + 7 + 7 + 8 and any(
+        math.isfinite(_core(c)) for c in calib.currents)
+    spark_width = max(0, width - (6 + 7 + 7 + 6 + 3 + (7 if show_truth else 0) + (7 if show_core else 0)) - 1)
     text.append("\n")
-    header = "mA     datash  calib.  ±ci95 id" + ("    sim" if show_truth else "")
+    header = "mA     datash  calib.  ±ci95 id" + ("    sim" if show_truth else "") + ("   core" if show_core else "")
     if spark_width >= 4:
         header += " history"
     text.append(header[:width], style="bold underline")
@@ -47,6 +54,8 @@ def calib_text(calib: CalibView, width: int) -> Text:
         text.append(" ✓ " if c.identifiable else " ? ", style="green" if c.identifiable else "yellow")
         if show_truth:
             text.append(_ma(c.truth_a, 7), style="italic")
+        if show_core:
+            text.append(_ma(_core(c), 7), style="dim italic")
         if spark_width >= 4 and c.history_a:
             text.append(" " + sparkline(c.history_a[-(spark_width - 1) :]), style="cyan")
     text.append("\n")
@@ -58,6 +67,12 @@ def calib_text(calib: CalibView, width: int) -> Text:
     if calib.model_error:
         text.append(f"\nmodel: {calib.model_error}", style="yellow")
     return text
+
+
+def _core(current: object) -> float:
+    """The sim's core truth of a current (NaN when the view has none)."""
+    value = getattr(current, "truth_core_a", math.nan)
+    return float(value) if isinstance(value, float) else math.nan
 
 
 def _pct(value: float) -> str:
