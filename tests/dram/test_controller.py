@@ -149,3 +149,23 @@ def test_chunked_simulation_matches_one_piece(tmp_path: Path, spec, monkeypatch:
     write_drampower_trace(path, chunked)
     from_trace = trace_stats(spec, read_command_trace(path))
     assert core_energy(spec, chunked.stats).core_j == pytest.approx(core_energy(spec, from_trace).core_j, rel=1e-12)
+
+
+@pytest.mark.parametrize("policy", ["open", "closed"])
+def test_pipelined_chunks_give_the_same_result(spec, policy: str, monkeypatch: pytest.MonkeyPatch) -> None:  # type: ignore[no-untyped-def]
+    """Preparing the next chunk in a second thread changes nothing: counts, cycles and commands are equal."""
+    import hdeem_watch.dram.controller as controller
+
+    monkeypatch.setattr(controller, "CHUNK_REQUESTS", 1 << 12)
+    addresses, is_write = kernel_requests("triad", 8 * 9000, threads=3)
+    results = []
+    for pipeline in (True, False):
+        monkeypatch.setattr(controller, "PIPELINE", pipeline)
+        results.append(simulate(spec, addresses, is_write, policy=policy, keep_commands=True))
+    threaded, serial = results
+    assert threaded.stats == serial.stats and threaded.cycles == serial.cycles
+    assert (threaded.row_hits, threaded.row_misses, threaded.row_conflicts) == (
+        serial.row_hits, serial.row_misses, serial.row_conflicts)
+    assert threaded.commands is not None and serial.commands is not None
+    for name in ("act_cycle", "pre_cycle", "col_cycle", "col_column", "col_auto"):
+        assert np.array_equal(getattr(threaded.commands, name), getattr(serial.commands, name))

@@ -140,3 +140,24 @@ def test_mixed_widths_blank_lines_and_crlf(tmp_path: Path) -> None:
     crlf.write_bytes(b"0x40 R\r\n0x80 W\r\n\n0xc0 R\n")
     trace = read_request_trace(crlf, "ramulator")
     assert trace.addresses.tolist() == [0x40, 0x80, 0xC0] and trace.is_write.tolist() == [False, True, False]
+
+
+def test_uniform_and_general_readers_agree(tmp_path: Path) -> None:
+    """A trace of equal-length lines (parsed as one strided matrix) reads like the same lines mixed with others."""
+    rng = np.random.default_rng(4)
+    addresses = (rng.integers(0x10000000, 0xFFFFFFFF, 300_000, dtype=np.uint64) & ~np.uint64(63))
+    is_write = rng.random(addresses.size) < 0.3
+    uniform = tmp_path / "uniform.trace"
+    write_requests(uniform, addresses, is_write)  # eight hex digits each: one line length
+    mixed = tmp_path / "mixed.trace"
+    mixed.write_bytes(b"0x1 R\n\n" + uniform.read_bytes().upper().replace(b"0X", b"0x"))
+    fast, general = read_request_trace(uniform, "ramulator"), read_request_trace(mixed, "ramulator")
+    assert np.array_equal(fast.addresses, addresses) and np.array_equal(fast.is_write, is_write)
+    assert general.addresses[0] == 1 and not general.is_write[0]
+    assert np.array_equal(general.addresses[1:], addresses) and np.array_equal(general.is_write[1:], is_write)
+    broken = tmp_path / "broken.trace"
+    text = bytearray(uniform.read_bytes())
+    text[13 * 123_456 + 5] = ord("g")  # a non-hex digit on line 123,457
+    broken.write_bytes(bytes(text))
+    with pytest.raises(InputError, match=f"{broken}:123457:"):
+        read_request_trace(broken, "ramulator")
