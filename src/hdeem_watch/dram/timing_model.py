@@ -54,6 +54,21 @@ def _previous_same(key: np.ndarray, want_next: bool) -> tuple[np.ndarray, np.nda
     return prev, nxt, order
 
 
+def _by_bank(bank: np.ndarray) -> np.ndarray:
+    """Stable order by bank (a radix sort on a narrow copy of the small bank index)."""
+    small = bank.astype(np.int8) if bank.size and int(bank.max()) < 128 else bank
+    return np.argsort(small, kind="stable")
+
+
+def _sorted_keys(bank: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """``np.sort(keys)`` for ``keys = bank × 2^42 + cycle`` whose events of one bank are mostly in
+    time order already: sorted by bank, checked, fully sorted only if that was not enough."""
+    ordered = keys[_by_bank(bank)]
+    if ordered.size > 1 and bool((ordered[1:] < ordered[:-1]).any()):
+        ordered = np.sort(keys)
+    return ordered
+
+
 class _Refresh:
     """Closed-form insertion of the refresh stall windows.
 
@@ -207,13 +222,15 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
 
     last_real = int(col_real[-1]) + (np.where(write[-1], timing.wl, timing.rl) + b) if n else start
     shift = np.int64(1) << np.int64(42)
-    act_keys = gbank[act_req] * shift + act_cycle
+    act_bank = gbank[act_req]
+    act_keys = act_bank * shift + act_cycle
+    act_order = _by_bank(act_bank)  # nearly key order: the searches below run fast
     auto_cycle = np.zeros(0, dtype=np.int64)
     auto_req = np.flatnonzero(auto)
     if auto_req.size:
+        sorted_acts = np.sort(act_keys)
         # the implicit precharge of RDA/WRA: after tRAS from the ACT that opened the row and after
         # the read (tRTP) or write recovery
-        sorted_acts = np.sort(act_keys)
         latest = np.searchsorted(sorted_acts, gbank[auto_req] * shift + col_real[auto_req], side="right") - 1
         opened = sorted_acts[np.maximum(latest, 0)] % shift
         auto_cycle = np.maximum(opened + timing.ras, col_real[auto_req] + recovery_of(auto_req))
@@ -245,11 +262,11 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
 
     # bank-open intervals: each ACT until the first of: the next precharge of its bank (explicit or
     # auto), the next refresh's PREA, the end
-    act_bank = gbank[act_req]
     close_key_bank = np.concatenate((gbank[pre_req], gbank[auto_req]))
     close_time = np.concatenate((pre_cycle, auto_cycle))
-    close_keys = np.sort(close_key_bank * shift + close_time)
-    pos = np.searchsorted(close_keys, act_keys, side="left")
+    close_keys = _sorted_keys(close_key_bank, close_key_bank * shift + close_time)
+    pos = np.empty(act_keys.size, dtype=np.int64)  # searched in (nearly) key order, put back
+    pos[act_order] = np.searchsorted(close_keys, act_keys[act_order], side="left")
     found = pos < close_keys.size
     padded = np.append(close_keys, np.int64(-1))
     candidate = padded[np.minimum(pos, close_keys.size)]
