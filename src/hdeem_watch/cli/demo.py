@@ -107,7 +107,7 @@ def _tui(control: str, args: argparse.Namespace, schedule_cls: Any) -> int:
 
 
 def _headless(control: str, args: argparse.Namespace) -> int:
-    from hdeem_watch.tui.demo_schedule import DemoSchedule, ScheduleEvent
+    from hdeem_watch.tui.demo_schedule import RUN_LENGTHS_S, THREAD_ROUNDS, DemoSchedule, ScheduleEvent
     from hdeem_watch.tui.feed import FeedHub
     from hdeem_watch.tui.headless import print_progress
 
@@ -116,8 +116,8 @@ def _headless(control: str, args: argparse.Namespace) -> int:
             print(f"error  run {event.index} {event.spec.kernel} {event.spec.threads}t: {event.detail}", flush=True)
 
     print(
-        f"demo: daemon at {control}; schedule: idle + 7 kernels at 24 threads, then 12, 6/18, 1-8 threads; "
-        "Ctrl-C stops",
+        f"demo: daemon at {control}; schedule: rounds of an idle run + 7 kernels at "
+        f"{'/'.join(THREAD_ROUNDS)} threads, runs of {'/'.join(f'{s:g}' for s in RUN_LENGTHS_S)} s; Ctrl-C stops",
         flush=True,
     )
     hub = FeedHub([control], snapshot_hz=4.0)
