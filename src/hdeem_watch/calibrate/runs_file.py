@@ -9,7 +9,11 @@ Format (paths relative to the RUNS.json file)::
         "window_s": 2.0, "scale": 8}
      ]}
 
-Per run: ``name`` (default ``run[i]``), ``measured_j`` (> 0), exactly one of ``trace`` (a DRAMPower
+Per run: ``name`` (default ``run[i]``), ``measured_j`` (> 0) — or, instead, ``hdeem_printout``: a
+real ``checkHdeem`` / ``hdeem_get_stats`` printout whose DIMM-pair energy (DDR_AB + DDR_CD + DDR_EF +
+DDR_GH) is the measured energy, with ``printout_block`` choosing which statistics-since-start block
+(index among those with a DRAM energy; default the last) and its duration the default window —
+exactly one of ``trace`` (a DRAMPower
 command trace CSV) or ``stats`` (:meth:`CommandStats.to_dict` form), and optionally ``scale`` (how
 many such channels the measured energy covers, default 1), ``window_s`` (the measured window; the
 model's residency and refresh are stretched to it; default: the trace's/statistics' own window),
@@ -29,7 +33,8 @@ from hdeem_watch.calibrate.rows import observation_from_run, stats_window_s
 from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError
 
-_RUN_KEYS = {"name", "measured_j", "trace", "stats", "scale", "window_s", "time_ns", "weight"}
+_RUN_KEYS = {"name", "measured_j", "hdeem_printout", "printout_block", "trace", "stats", "scale", "window_s",
+             "time_ns", "weight"}
 
 
 def load_spec(value: str, base: Path, where: str) -> Any:
@@ -99,9 +104,15 @@ def _observation(spec: Any, run: Any, i: int, base: Path, where: str) -> Observa
     unknown = sorted(set(run) - _RUN_KEYS)
     if unknown:
         raise InputError(f"run {name!r}: unknown field {unknown[0]!r}; expected some of {sorted(_RUN_KEYS)}")
-    if "measured_j" not in run:
-        raise InputError(f"run {name!r}: measured_j missing; expected the measured energy in J")
-    measured = check_measured(name, run["measured_j"])
+    printout_window = math.nan
+    if "hdeem_printout" in run:
+        if "measured_j" in run:
+            raise InputError(f"run {name!r}: give measured_j or hdeem_printout, not both")
+        measured, printout_window = _printout_energy(run, name, base)
+    elif "measured_j" not in run:
+        raise InputError(f"run {name!r}: measured_j missing; expected the measured energy in J (or hdeem_printout)")
+    else:
+        measured = check_measured(name, run["measured_j"])
     has_trace, has_stats = "trace" in run, "stats" in run
     if has_trace == has_stats:
         raise InputError(f"run {name!r}: expected exactly one of 'trace' (a path) or 'stats' (an object)")
@@ -125,6 +136,8 @@ def _observation(spec: Any, run: Any, i: int, base: Path, where: str) -> Observa
     default_window = stats_window_s(spec, stats)
     if "window_s" in run:
         window = _number(run, "window_s", name, 1.0)
+    elif math.isfinite(printout_window) and printout_window > 0:
+        window = printout_window
     elif math.isnan(default_window):
         raise InputError(f"run {name!r}: the statistics have no window (cycles_total = 0); give window_s")
     else:
@@ -147,3 +160,27 @@ def _trace_stats(spec: Any, value: Any, name: str, base: Path) -> CommandStats:
         return trace_stats(spec, read_command_trace(path))
     except InputError as error:
         raise InputError(f"run {name!r}: {error}") from None
+
+
+def _printout_energy(run: Mapping[str, Any], name: str, base: Path) -> tuple[float, float]:
+    """``(measured_j, duration_s)`` of the chosen statistics block of a real HDEEM printout."""
+    from hdeem_watch.sources.hdeem_printout import read_printout
+
+    value = run["hdeem_printout"]
+    if not isinstance(value, str) or not value:
+        raise InputError(f"run {name!r}: hdeem_printout = {value!r}; expected a path to a checkHdeem/get_stats printout")
+    path = Path(value) if Path(value).is_absolute() else base / value
+    if not path.is_file():
+        raise InputError(f"run {name!r}: hdeem_printout {str(path)!r} does not exist")
+    try:
+        printout = read_printout(path)
+    except InputError as error:
+        raise InputError(f"run {name!r}: {error}") from None
+    blocks = [b for b in printout.of_kind("stats") if math.isfinite(b.dram_energy_j())]
+    if not blocks:
+        raise InputError(f"run {name!r}: {path}: no statistics block with DDR_AB..DDR_GH energies")
+    index = run.get("printout_block", len(blocks) - 1)
+    if isinstance(index, bool) or not isinstance(index, int) or not -len(blocks) <= index < len(blocks):
+        raise InputError(f"run {name!r}: printout_block = {index!r}; expected an index below {len(blocks)}")
+    block = blocks[index]
+    return check_measured(name, block.dram_energy_j()), float(block.duration_s)
