@@ -202,3 +202,14 @@ def test_idle_kernel_moves_no_dram_lines() -> None:
     assert result.dram_bytes_per_s == 0.0 and result.lines_per_s == 0.0
     assert result.seconds > 0
     assert result.t_end_ns >= result.t_start_ns
+
+
+def test_large_arrays_start_on_a_huge_page_boundary() -> None:
+    """Large arrays start on a 2 MiB boundary and have exactly the requested length."""
+    arrays = K.make_arrays("add", 1 << 20)  # 8 MiB each
+    assert set(arrays) == {"a", "b", "c"}
+    for array in arrays.values():
+        assert array.size == 1 << 20 and array.dtype == np.float64
+        assert array.ctypes.data % K.ALIGN_BYTES == 0
+    small = K.make_arrays("copy", 1000)
+    assert all(a.size == 1000 for a in small.values())

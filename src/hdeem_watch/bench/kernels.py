@@ -117,10 +117,25 @@ def make_arrays(kernel: str, elements: int) -> dict[str, np.ndarray]:
     """Allocate (but do not touch) the kernel's arrays of ``elements`` doubles each.
 
     ``np.empty`` of a large size maps fresh pages that the OS places on first touch, so the worker
-    that later calls :func:`init_arrays` on its own range decides where its pages live.
+    that later calls :func:`init_arrays` on its own range decides where its pages live. Large
+    arrays start on a 2 MiB (huge-page) boundary, like the C baseline's ``posix_memalign``
+    arrays: measured here, add went from 0.81 to 0.90 of C and the same C loop run on the arrays
+    from 0.77 to 1.00 (numpy's own arrays start 16 bytes into a page).
     """
-    return {name: np.empty(int(elements), dtype=np.float64)
-            for name in KERNEL_ARRAYS[canonical_kernel(kernel)]}
+    return {name: _aligned_empty(int(elements)) for name in KERNEL_ARRAYS[canonical_kernel(kernel)]}
+
+
+#: Array start alignment: a huge-page boundary, as the C baseline's ``posix_memalign`` uses.
+ALIGN_BYTES = 2 << 20
+
+
+def _aligned_empty(elements: int) -> np.ndarray:
+    """An untouched float64 array whose data starts on a 2 MiB boundary (for large arrays)."""
+    if elements * 8 < 4 * ALIGN_BYTES:
+        return np.empty(elements, dtype=np.float64)
+    raw = np.empty(elements + ALIGN_BYTES // 8, dtype=np.float64)
+    start = (-raw.ctypes.data % ALIGN_BYTES) // 8
+    return raw[start:start + elements]
 
 
 def init_arrays(arrays: Mapping[str, np.ndarray], lo_line: int, hi_line: int) -> None:
