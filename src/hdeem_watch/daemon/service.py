@@ -377,6 +377,7 @@ class Daemon:
             return None
         running = any(w.kind == "run" for w in self.windows)
         header_t_ns = time.time_ns()
+        outgoing: list[list[bytes]] = []
         for name, (t_ns, power_w) in batch.samples.items():
             found = self.accounts.get(name)
             if found is None:
@@ -393,8 +394,11 @@ class Daemon:
             # An empty batch is published only when it says something new (a rate-limited sensor,
             # e.g. HDEEM read every 0.1 s, gives empty batches at most polls).
             if t_ns.size or status != previous_status or (energy != previous_energy and math.isfinite(energy)):
-                self.publisher.publish_samples(name, rate_hz=account.rate_hz, t_wall_ns=t_ns, power_w=power_w,
-                                               energy_j=energy, status=status, t_ns=header_t_ns)
+                outgoing.append(self.publisher.samples_frames(name, rate_hz=account.rate_hz, t_wall_ns=t_ns,
+                                                              power_w=power_w, energy_j=energy, status=status,
+                                                              t_ns=header_t_ns))
+        # All channels at once: one wake-up of the I/O thread per poll, not one per message.
+        self.publisher.send_all(outgoing)
         self._offsets.append(int(batch.t_wall_ns) - round(int(batch.t_mono_ns) * self.speed))
         if self.recorder is not None:
             self.recorder.write_batch(batch)

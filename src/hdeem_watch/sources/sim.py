@@ -147,6 +147,8 @@ class SimSource:
         }
         self._rngs = {info.name: np.random.default_rng([self.seed, i + 1]) for i, info in enumerate(self._infos)}
         self._period_ns = {info.name: round(1e9 / info.rate_hz) for info in self._infos}
+        #: Samples per channel that fit in the sensor buffer.
+        self._buffer_k = {name: self.buffer_ns // period for name, period in self._period_ns.items()}
         self._open = False
         self._t0_mono = 0
         self._t0_wall = 0
@@ -209,12 +211,23 @@ class SimSource:
         t_s = sim_now * 1e-9
         currents = self.truth_model.currents(t_s)
         idle = idle_power_w(self.model, currents)
+        # No run planned and no energy owed (the node is idle): every channel's noise-free power is
+        # one number for the whole poll, the same sums in the same order as _power's arrays.
+        flat = self._flat_power(idle) if not self._plans and not any(self._owed.values()) else None
         samples: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         status: dict[str, str] = {}
         gaps: dict[str, int] = {}
         for info in self._infos:
             name, period = info.name, self._period_ns[info.name]
             k0, k1 = self._next_k[name], sim_now // period
+            if flat is not None and k1 - k0 + 1 <= self._buffer_k[name]:
+                power = self._flat_samples(name, info.kind, flat[name], k1 - k0 + 1)
+                self._energy_j[name] += float(power.sum()) * period * 1e-9
+                self._next_k[name] = k1 + 1
+                samples[name] = (np.arange(k0 * period + self._t0_wall, k1 * period + self._t0_wall + 1, period,
+                                           dtype=np.int64), power)
+                status[name] = STATUS_OK
+                continue
             lost = 0
             if (k1 - k0 + 1) * period > self.buffer_ns:
                 keep_from = k1 - self.buffer_ns // period + 1
@@ -240,6 +253,26 @@ class SimSource:
         self._retire(sim_now)
         return SourceBatch(t_mono_ns=now, t_wall_ns=self._t0_wall + sim_now, samples=samples,
                            energy_j=dict(self._energy_j), status=status, gaps=gaps)
+
+    def _flat_power(self, idle: np.ndarray) -> dict[str, float]:
+        """Noise-free power of every channel of an idle node (W), summed as :meth:`_power` sums."""
+        pairs = {name: float(idle[[d for d in range(len(DIMMS)) if DIMM_PAIR[d] == name]].sum())
+                 for name in DRAM_CHANNELS}
+        flat = {name: pairs[name] + self._offset_w[name] for name in DRAM_CHANNELS}
+        flat["CPU0"] = CPU_IDLE_W[0] + self._offset_w["CPU0"]
+        flat["CPU1"] = CPU_IDLE_W[1] + self._offset_w["CPU1"]
+        flat["BLADE"] = BLADE_BASE_W + CPU_IDLE_W[0] + CPU_IDLE_W[1] + float(idle.sum()) + self._offset_w["BLADE"]
+        return flat
+
+    def _flat_samples(self, name: str, kind: str, power_w: float, n: int) -> np.ndarray:
+        """``n`` samples of a constant noise-free power: noise, quantisation, clipping at 0."""
+        if self.noise and n:
+            power = power_w + self._rngs[name].normal(0.0, NOISE_W[kind], size=n)
+        else:
+            power = np.full(n, power_w)
+        if self.quantum_w > 0:
+            power = np.round(power / self.quantum_w) * self.quantum_w
+        return np.maximum(power, 0.0, out=power)
 
     # -- runs ------------------------------------------------------------------------------------------
     def on_run(self, event: RunEvent) -> None:

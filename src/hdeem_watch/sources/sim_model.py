@@ -274,6 +274,8 @@ class TruthModel:
         self.aging_per_h = aging_per_h
         self.temp_amp_c = temp_amp_c
         self.tempco = np.array([0.005 if n in _BACKGROUND else 0.001 for n in names])
+        self._rated = self.datasheet[None, :] * self.ratio  # the first product of currents(), once
+        self._tempco_col = self.tempco[None, :]
 
     def temperature_c(self, t_s: float) -> np.ndarray:
         """DIMM temperatures (°C) at ``t_s`` seconds of sim time."""
@@ -282,8 +284,8 @@ class TruthModel:
     def currents(self, t_s: float) -> np.ndarray:
         """True currents (A per device), shape (8 DIMMs, len(names)), at ``t_s`` seconds of sim time."""
         aging = 1.0 + self.aging_per_h * t_s / 3600.0
-        temp = 1.0 + self.tempco[None, :] * (self.temperature_c(t_s) - 40.0)[:, None]
-        return self.datasheet[None, :] * self.ratio * aging * temp
+        temp = 1.0 + self._tempco_col * (self.temperature_c(t_s) - 40.0)[:, None]
+        return self._rated * aging * temp
 
 
 @dataclass(frozen=True)
