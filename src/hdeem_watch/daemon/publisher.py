@@ -17,6 +17,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 import os
 import stat
 from collections.abc import Callable, Mapping
@@ -58,6 +59,25 @@ def bind_endpoint(sock: zmq.Socket[Any], endpoint: str) -> str:
     return bound.decode() if isinstance(bound, bytes) else str(bound)
 
 
+def samples_header_template(node: str, channel: str, rate_hz: float) -> str:
+    """The samples header of one channel with its fixed fields filled in (exactly as
+    :func:`protocol.encode_samples` formats them), left open: ``% (seq, t_ns, n, t0_ns, energy_j, status)``.
+    """
+    rate = float(rate_hz)
+    fixed = {
+        "node": protocol._quoted(node),
+        "channel": protocol._quoted(channel),
+        "rate": protocol._json_number(rate),
+        "dt": str(round(1e9 / rate)) if rate > 0 and math.isfinite(rate) else "null",
+    }
+    node_q, channel_q, rate_s, dt_s = (fixed[key].replace("%", "%%") for key in ("node", "channel", "rate", "dt"))
+    return (
+        '{"v":' + str(protocol.VERSION) + ',"seq":%d,"node":' + node_q + ',"t_ns":%d,"channel":' + channel_q
+        + ',"unit":"W","rate_hz":' + rate_s + ',"n":%d,"dtype":"<f8","t0_ns":%s,"dt_ns":' + dt_s
+        + ',"energy_j":%s,"status":%s}'
+    )
+
+
 class Publisher:
     """Publishes protocol-v1 messages of one node on an XPUB socket.
 
@@ -86,7 +106,8 @@ class Publisher:
         self.endpoint = bind_endpoint(self.socket, endpoint)
         self._seq = protocol.SequenceCounter()
         self._cache: dict[str, list[bytes]] = {}
-        self._sample_topics: dict[str, str] = {}
+        #: Per channel: topic, topic bytes, rate and the header template of its samples messages.
+        self._sample_topics: dict[str, tuple[str, bytes, float, str]] = {}
         self.sent = 0
         self.dropped = 0
         self.subscriptions = 0
@@ -152,13 +173,22 @@ class Publisher:
         back-to-back sends wake ZeroMQ's I/O thread (and each subscriber) once per poll instead of
         once per message, which is most of the cost of a send on a virtual machine.
         """
-        topic = self._sample_topics.get(channel)
-        if topic is None:
-            topic = self._sample_topics[channel] = protocol.samples_topic(self.node, channel)
-        return protocol.encode_samples(
-            self.node, channel, seq=self._seq.next(topic), rate_hz=rate_hz, t_wall_ns=t_wall_ns,
-            power_w=power_w, energy_j=energy_j, status=status, t_ns=t_ns,
+        known = self._sample_topics.get(channel)
+        if known is None or known[2] != rate_hz:
+            topic = protocol.samples_topic(self.node, channel)
+            known = self._sample_topics[channel] = (topic, topic.encode(),
+                                                    rate_hz, samples_header_template(self.node, channel, rate_hz))
+        payload = protocol.pack_samples(t_wall_ns, power_w)
+        n = len(payload) >> 4
+        header = known[3] % (
+            self._seq.next(known[0]),
+            protocol.now_ns() if t_ns is None else int(t_ns),
+            n,
+            str(int(t_wall_ns[0])) if n else "null",
+            protocol._json_number(energy_j),
+            protocol._quoted(status),
         )
+        return [known[1], header.encode(), payload]
 
     def send_all(self, messages: list[list[bytes]]) -> int:
         """Send several messages back to back (in order); return how many were handed to ZeroMQ."""

@@ -49,6 +49,7 @@ from hdeem_watch.sources.base import (
     SourceBatch,
     hdeem_channel_infos,
 )
+from hdeem_watch.sources.sim_fast import NoiseBank, idle_rows
 from hdeem_watch.sources.sim_model import (
     DIMM_PAIR,
     DIMM_SOCKET,
@@ -145,8 +146,16 @@ class SimSource:
             if offsets else 0.0
             for info in self._infos
         }
-        self._rngs = {info.name: np.random.default_rng([self.seed, i + 1]) for i, info in enumerate(self._infos)}
+        self._noise = NoiseBank({info.name: np.random.default_rng([self.seed, i + 1]) for i, info in enumerate(self._infos)},
+                                {info.name: NOISE_W[info.kind] for info in self._infos})
         self._period_ns = {info.name: round(1e9 / info.rate_hz) for info in self._infos}
+        by_period: dict[int, list[ChannelInfo]] = {}
+        for info in self._infos:
+            by_period.setdefault(self._period_ns[info.name], []).append(info)
+        #: Channels on the same sample grid, with their noise σ as a column (the idle fast path).
+        self._groups = [(period, tuple(i.name for i in infos), np.array([[NOISE_W[i.kind]] for i in infos]))
+                        for period, infos in by_period.items()]
+        self._pair_index = np.array([[d for d in range(len(DIMMS)) if DIMM_PAIR[d] == name] for name in DRAM_CHANNELS])
         #: Samples per channel that fit in the sensor buffer.
         self._buffer_k = {name: self.buffer_ns // period for name, period in self._period_ns.items()}
         self._open = False
@@ -217,17 +226,13 @@ class SimSource:
         samples: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         status: dict[str, str] = {}
         gaps: dict[str, int] = {}
+        if flat is not None:
+            self._poll_idle(sim_now, flat, samples, status)
         for info in self._infos:
             name, period = info.name, self._period_ns[info.name]
-            k0, k1 = self._next_k[name], sim_now // period
-            if flat is not None and k1 - k0 + 1 <= self._buffer_k[name]:
-                power = self._flat_samples(name, info.kind, flat[name], k1 - k0 + 1)
-                self._energy_j[name] += float(power.sum()) * period * 1e-9
-                self._next_k[name] = k1 + 1
-                samples[name] = (np.arange(k0 * period + self._t0_wall, k1 * period + self._t0_wall + 1, period,
-                                           dtype=np.int64), power)
-                status[name] = STATUS_OK
+            if name in samples:
                 continue
+            k0, k1 = self._next_k[name], sim_now // period
             lost = 0
             if (k1 - k0 + 1) * period > self.buffer_ns:
                 keep_from = k1 - self.buffer_ns // period + 1
@@ -240,7 +245,7 @@ class SimSource:
             power = self._power(name, t_end, period, idle)
             self._deposit_owed(name, t_end, period, power)
             if self.noise and len(ks):
-                power = power + self._rngs[name].normal(0.0, NOISE_W[info.kind], size=len(ks))
+                power = power + self._noise.take(name, len(ks))
             if self.quantum_w > 0:
                 power = np.round(power / self.quantum_w) * self.quantum_w
             power = np.maximum(power, 0.0)
@@ -256,23 +261,30 @@ class SimSource:
 
     def _flat_power(self, idle: np.ndarray) -> dict[str, float]:
         """Noise-free power of every channel of an idle node (W), summed as :meth:`_power` sums."""
-        pairs = {name: float(idle[[d for d in range(len(DIMMS)) if DIMM_PAIR[d] == name]].sum())
-                 for name in DRAM_CHANNELS}
-        flat = {name: pairs[name] + self._offset_w[name] for name in DRAM_CHANNELS}
+        flat = {name: pair + self._offset_w[name]
+                for name, pair in zip(DRAM_CHANNELS, idle[self._pair_index].sum(axis=1).tolist())}
         flat["CPU0"] = CPU_IDLE_W[0] + self._offset_w["CPU0"]
         flat["CPU1"] = CPU_IDLE_W[1] + self._offset_w["CPU1"]
         flat["BLADE"] = BLADE_BASE_W + CPU_IDLE_W[0] + CPU_IDLE_W[1] + float(idle.sum()) + self._offset_w["BLADE"]
         return flat
 
-    def _flat_samples(self, name: str, kind: str, power_w: float, n: int) -> np.ndarray:
-        """``n`` samples of a constant noise-free power: noise, quantisation, clipping at 0."""
-        if self.noise and n:
-            power = power_w + self._rngs[name].normal(0.0, NOISE_W[kind], size=n)
-        else:
-            power = np.full(n, power_w)
-        if self.quantum_w > 0:
-            power = np.round(power / self.quantum_w) * self.quantum_w
-        return np.maximum(power, 0.0, out=power)
+    def _poll_idle(self, sim_now: int, flat: dict[str, float], samples: dict[str, tuple[np.ndarray, np.ndarray]],
+                   status: dict[str, str]) -> None:
+        """The samples of an idle node, one 2-D array per group of channels on the same grid."""
+        for period, names, sigma_col in self._groups:
+            k0, k1 = self._next_k[names[0]], sim_now // period
+            n = k1 - k0 + 1
+            if n > self._buffer_k[names[0]] or any(self._next_k[name] != k0 for name in names):
+                continue  # a lost stretch or channels out of step: the general path
+            noise = self._noise.take_rows(names, sigma_col, n) if self.noise and n else None
+            rows = idle_rows(np.array([[flat[name]] for name in names]), noise, self.quantum_w, n)
+            sums = rows.sum(axis=1).tolist()
+            t_wall = np.arange(k0 * period + self._t0_wall, k1 * period + self._t0_wall + 1, period, dtype=np.int64)
+            for i, name in enumerate(names):
+                self._energy_j[name] += sums[i] * period * 1e-9
+                self._next_k[name] = k1 + 1
+                samples[name] = (t_wall, rows[i])
+                status[name] = STATUS_OK
 
     # -- runs ------------------------------------------------------------------------------------------
     def on_run(self, event: RunEvent) -> None:
