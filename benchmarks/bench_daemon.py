@@ -104,7 +104,10 @@ def subscriber(pub: str, seconds: float, ready: Any, results: Any, prefix: bytes
             steps = np.diff(t, prepend=previous) if previous is not None else np.diff(t)
             missing += int(np.sum(np.maximum(np.rint(steps / period) - 1, 0)))
             last_t[msg.topic] = int(t[-1])
-            latencies.append((now - t) / 1e6)
+            # Latency in the steady state only: the first batches after subscribing were collected at the
+            # daemon's idle poll period (0.25 s) before it saw the subscription.
+            if time.monotonic() - first >= WARMUP_S:
+                latencies.append((now - t) / 1e6)
             samples += int(t.size)
     elapsed = time.monotonic() - first if first is not None else float("nan")
     lat = np.concatenate(latencies) if latencies else np.array([np.nan])
@@ -112,6 +115,10 @@ def subscriber(pub: str, seconds: float, ready: Any, results: Any, prefix: bytes
                  "missing_samples": missing, "p50_ms": float(np.percentile(lat, 50)),
                  "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(np.max(lat))})
     sock.close(0)
+
+
+#: Seconds after a subscriber's first samples message before its latencies count (the CPU window's warm-up).
+WARMUP_S = 2.0
 
 
 def run_subscribers(pub: str, n: int, seconds: float, prefix: bytes = b"hw1/") -> tuple[list[Any], Any, Any]:
@@ -184,7 +191,7 @@ def steady(seconds: float, subscribers: int, poll_interval_s: float) -> dict[str
             time.sleep(min(seconds, 10.0))  # nobody watches: the daemon polls at its idle period
             unwatched = 100 * (cpu_seconds(ps) - c0) / (time.monotonic() - t0)
             procs, _ready, results = run_subscribers(pub, subscribers, seconds + 4)
-            time.sleep(2.0)  # warm-up
+            time.sleep(WARMUP_S)  # warm-up
             c0, t0 = cpu_seconds(ps), time.monotonic()
             time.sleep(seconds)
             cpu = 100 * (cpu_seconds(ps) - c0) / (time.monotonic() - t0)

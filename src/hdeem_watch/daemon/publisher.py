@@ -192,9 +192,17 @@ class Publisher:
 
     def send_all(self, messages: list[list[bytes]]) -> int:
         """Send several messages back to back (in order); return how many were handed to ZeroMQ."""
-        sent = 0
-        for frames in messages:
-            sent += self._send(frames)
+        sock, sent = self.socket, 0
+        for topic, header, payload in messages:
+            try:
+                sock.send(topic, _MORE_NOBLOCK)
+            except zmq.Again:  # XPUB drops instead of blocking; kept for a PUB-like socket
+                self.dropped += 1
+                continue
+            sock.send(header, _MORE_NOBLOCK)
+            sock.send(payload, _NOBLOCK, copy=len(payload) < 65536)
+            sent += 1
+        self.sent += sent
         return sent
 
     def handle_subscriptions(self) -> int:
