@@ -37,6 +37,7 @@ import zmq
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
+from hdeem_watch.config import DaemonSettings  # noqa: E402
 from hdeem_watch.daemon import protocol  # noqa: E402
 from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable  # noqa: E402
 
@@ -275,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--subscribers", type=int, default=4)
     parser.add_argument("--batch", type=int, default=100_000, help="samples per flood batch")
     parser.add_argument("--flood-speed", type=float, default=1000.0, help="sim speed of the daemon ceiling")
-    parser.add_argument("--poll-interval", type=float, default=0.025, help="daemon poll period (s) of the steady phase")
+    parser.add_argument("--poll-interval", type=float, default=DaemonSettings().poll_interval_s, help="daemon poll period (s) of the steady phase")
     parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
     args = parser.parse_args(argv)
     seconds = args.seconds or (10.0 if args.quick else 60.0)

@@ -9,6 +9,7 @@ from typing import Any
 
 import zmq
 
+from hdeem_watch.config import DaemonSettings
 from hdeem_watch.daemon import protocol
 
 
@@ -137,7 +138,7 @@ def test_slow_subscriber_does_not_stall_the_others(daemon_factory: Any, receive:
             tracker.observe(m.topic, m.seq)
         assert tracker.missed == 0
         blade = [m for m in got if m.channel == "BLADE"]
-        assert len(blade) > 0.5 * 2.0 / 0.025  # kept up with the poll rate
+        assert len(blade) > 0.5 * 2.0 / DaemonSettings().poll_interval_s  # kept up with the poll rate
         assert sum(1 for m in got if m.kind == "status") >= 2
     tracker = protocol.GapTracker()
     for m in late:

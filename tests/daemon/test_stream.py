@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from hdeem_watch.config import DaemonSettings
 from hdeem_watch.daemon import protocol
 from hdeem_watch.sources.base import hdeem_channel_infos
 
@@ -124,7 +125,7 @@ def test_quiet_periods_become_baselines(shared_daemon: Any) -> None:
 
 
 def test_polls_slowly_while_nobody_watches_samples(daemon_factory: Any) -> None:
-    """Without a samples subscriber the daemon polls every 0.25 s; a subscriber brings 25 ms, leaving restores it."""
+    """Without a samples subscriber the daemon polls every 0.25 s; a subscriber brings the fast period, leaving restores it."""
     import time
 
     d = daemon_factory("--speed", "5").start()
@@ -143,10 +144,10 @@ def test_polls_slowly_while_nobody_watches_samples(daemon_factory: Any) -> None:
         time.sleep(0.3)
         assert client.call("status")["poll_interval_s"] == 0.25  # heartbeats need no fast polls
         sub = d.subscriber(protocol.subscription(d.node))
-        assert interval_becomes(client, 0.025)
+        assert interval_becomes(client, DaemonSettings().poll_interval_s)
         sub.close()
         assert interval_becomes(client, 0.25)
         one_channel = d.subscriber(protocol.subscription(d.node, "samples") + b"DDR_AB")
-        assert interval_becomes(client, 0.025)
+        assert interval_becomes(client, DaemonSettings().poll_interval_s)
         one_channel.close()
         status_only.close()
