@@ -42,7 +42,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--gen-keys", metavar="DIR", help="write a new CURVE key pair (server.key, "
                         "server.key_secret) to DIR and exit")
     parser.add_argument("--prometheus", type=int, metavar="PORT", help="serve Prometheus metrics on PORT")
-    parser.add_argument("--poll-interval", type=float, metavar="S", help="source poll period in s (default 0.025)")
+    parser.add_argument("--poll-interval", type=float, metavar="S", help="source poll period in s (default 0.04)")
     parser.add_argument("--memspec", metavar="PRESET|FILE", help="memspec of one DIMM for the run model")
     parser.add_argument("--log-level", choices=("debug", "info", "warning", "error"))
     parser.set_defaults(func=_run)
