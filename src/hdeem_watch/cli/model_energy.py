@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from hdeem_watch.dram.presets import PRESETS  # no numpy: the model itself is imported when it runs
@@ -46,11 +45,9 @@ def register(subparsers: Any) -> None:
 
 def resolve_memspec(value: str) -> MemSpec:
     """A memspec file, or a preset when no such file exists and the name is a preset."""
-    from hdeem_watch.dram.memspec import load_memspec, preset
+    from hdeem_watch.dram.memspec import memspec_from
 
-    if value in PRESETS and not Path(value).exists():
-        return preset(value)
-    return load_memspec(value)
+    return memspec_from(value)
 
 
 def report(spec: MemSpec, stats: CommandStats, energy: EnergyBreakdown, *, trace_path: str,

@@ -31,7 +31,6 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -51,11 +50,9 @@ def load_spec(memspec: str) -> Any:
     Raises:
         InputError: unknown preset / unreadable file.
     """
-    from hdeem_watch.dram.memspec import load_memspec, preset
+    from hdeem_watch.dram.memspec import memspec_from
 
-    if memspec.endswith(".json") or Path(memspec).is_file():
-        return load_memspec(memspec)
-    return preset(memspec)
+    return memspec_from(memspec)
 
 
 def idle_stats(spec: Any) -> Any:

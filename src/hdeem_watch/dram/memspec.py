@@ -349,3 +349,22 @@ def preset(name: str) -> MemSpec:
     if name not in PRESETS:
         raise InputError(f"unknown memspec preset {name!r}; expected one of {sorted(PRESETS)}")
     return load_memspec(preset_path(name))
+
+
+def memspec_from(value: str | Path) -> MemSpec:
+    """A memspec named the way users name one: an existing file, else a preset by that name.
+
+    A value that is neither an existing file nor a preset name is read as a file when it looks like
+    a path (``.json`` or a directory part) and as a preset otherwise, so the error names the right
+    thing (the missing file, or the known presets).
+
+    Raises:
+        InputError: a missing or malformed file, or an unknown preset.
+    """
+    from hdeem_watch.dram.presets import PRESETS
+
+    path = Path(value)
+    text = str(value)
+    if path.exists() or (text not in PRESETS and (text.endswith(".json") or len(path.parts) > 1)):
+        return load_memspec(path)
+    return preset(text)
