@@ -141,7 +141,12 @@ def cpu_seconds(proc: psutil.Process) -> float:
 def idle_baseline_cpu(seconds: float) -> float:
     """CPU share (% of one core) of an idle Python process holding the daemon's imports."""
     code = "import time, numpy, scipy, zmq, psutil, hdeem_watch.daemon.service\nprint('up', flush=True)\ntime.sleep(1e6)"
-    proc = subprocess.Popen([sys.executable, "-c", code], env=_env(), stdout=subprocess.PIPE, text=True)
+    return _baseline_cpu([sys.executable, "-c", code], seconds)
+
+
+def _baseline_cpu(argv: list[str], seconds: float) -> float:
+    """CPU share (% of one core) of a baseline process over ``seconds`` after it prints its first line."""
+    proc = subprocess.Popen(argv, env=_env(), stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     proc.stdout.readline()
     ps = psutil.Process(proc.pid)
@@ -169,17 +174,7 @@ while True:
 def wake_baseline_cpu(seconds: float, interval_s: float) -> float:
     """CPU share of a process that only wakes at the daemon's poll rate (zmq poll on two sockets)."""
     with tempfile.TemporaryDirectory(prefix="hww-") as tmp:
-        proc = subprocess.Popen([sys.executable, "-c", WAKE_LOOP, f"ipc://{tmp}", str(interval_s)], env=_env(),
-                                stdout=subprocess.PIPE, text=True)
-        assert proc.stdout is not None
-        proc.stdout.readline()
-        ps = psutil.Process(proc.pid)
-        c0, t0 = cpu_seconds(ps), time.monotonic()
-        time.sleep(seconds)
-        share = 100 * (cpu_seconds(ps) - c0) / (time.monotonic() - t0)
-        proc.kill()
-        proc.wait()
-    return share
+        return _baseline_cpu([sys.executable, "-c", WAKE_LOOP, f"ipc://{tmp}", str(interval_s)], seconds)
 
 
 def steady(seconds: float, subscribers: int, poll_interval_s: float) -> dict[str, Any]:
