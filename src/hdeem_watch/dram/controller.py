@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.dram.mapping import AddressMapping, Geometry
-from hdeem_watch.dram.scheduler import SchedulerConfig, service_order
+from hdeem_watch.dram.scheduler import SchedulerConfig, serve
 from hdeem_watch.dram.stats import CommandStats, RankStats
 from hdeem_watch.errors import InputError
 
@@ -248,6 +248,9 @@ def simulate(
     pieces = max(1, n // CHUNK_REQUESTS)
     bounds = [n * i // pieces for i in range(pieces + 1)]
 
+    row_bits = geometry.rows.bit_length() - 1
+    key_type = np.int32 if (geometry.ranks * geometry.banks) << row_bits <= 1 << 31 else np.int64
+
     def prepare(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
         """Chunk ``i`` decoded and in service order (independent of the chunks before it)."""
         lanes, gbank, row, column = address_mapping.decode_packed(addresses[bounds[i]:bounds[i + 1]],
@@ -258,8 +261,12 @@ def simulate(
             if not keep.all():
                 gbank, row, writes = gbank[keep], row[keep], writes[keep]
                 column = column[keep] if column is not None else None
-        order = service_order(gbank, row, writes, config)
-        return gbank[order], row[order], column[order] if column is not None else None, writes[order]
+        key: np.ndarray = np.left_shift(gbank.astype(key_type, copy=False), row_bits)
+        key |= row
+        key, writes, order = serve(key, row_bits, writes, config, want_order=column is not None)
+        row = key & ((1 << row_bits) - 1)
+        key >>= row_bits
+        return key, row, column[order] if column is not None and order is not None else None, writes
 
     parts: list[ControllerResult] = []
     start = 0

@@ -85,6 +85,12 @@ def served_segments(is_write: np.ndarray, config: SchedulerConfig) -> tuple[np.n
     Returns:
         ``(served, boundary)``: request indices in served order, and a flag at each segment start.
     """
+    served, boundary, _ = _served_runs(is_write, config)
+    return served, boundary
+
+
+def _served_runs(is_write: np.ndarray, config: SchedulerConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`served_segments`, plus the write flags in served order (from the run lengths)."""
     n = is_write.size
     write_pos = np.flatnonzero(is_write)
     n_writes = write_pos.size
@@ -108,7 +114,10 @@ def served_segments(is_write: np.ndarray, config: SchedulerConfig) -> tuple[np.n
     base[1::2] = n_reads + batch * np.arange(full + 1, dtype=np.int64)
     source = np.repeat(base - run_start, lengths)
     source += np.arange(n, dtype=np.int64)
-    served = np.concatenate((np.flatnonzero(~is_write), write_pos))[source]
+    both = np.empty(n, dtype=np.int64)
+    both[n_reads:] = write_pos
+    both[:n_reads] = np.flatnonzero(~is_write)
+    served = both[source]
     boundary = np.zeros(n, dtype=bool)
     boundary[run_start[1::2][lengths[1::2] > 0]] = True  # write batches, remaining writes
     windows = -(-read_len // config.window)  # read windows per phase
@@ -117,7 +126,9 @@ def served_segments(is_write: np.ndarray, config: SchedulerConfig) -> tuple[np.n
     starts = np.repeat(run_start[0::2] - config.window * first_window, windows)
     starts += config.window * np.arange(total, dtype=np.int64)
     boundary[starts] = True
-    return served, boundary
+    kinds = np.zeros(lengths.size, dtype=bool)
+    kinds[1::2] = True
+    return served, boundary, np.repeat(kinds, lengths)
 
 
 def service_order(bank: np.ndarray, row: np.ndarray, is_write: np.ndarray,
@@ -130,94 +141,146 @@ def service_order(bank: np.ndarray, row: np.ndarray, is_write: np.ndarray,
         is_write: write flags.
         config: scheduler parameters.
     """
+    if is_write.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    row = np.asarray(row, dtype=np.int64)
+    row_bits = max(1, int(row.max()).bit_length())
+    key = (np.asarray(bank, dtype=np.int64) << row_bits) | row
+    order = serve(key, row_bits, np.asarray(is_write, dtype=bool), config, want_order=True)[2]
+    assert order is not None
+    return order
+
+
+def serve(key: np.ndarray, bank_shift: int, is_write: np.ndarray, config: SchedulerConfig | None = None, *,
+          want_order: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The requests in service order, as their row keys (the work of :func:`service_order`).
+
+    Args:
+        key: row key of each request in arrival order, ``bank << bank_shift | row`` (non-negative;
+            any numbering of banks and rows that keeps them apart gives the same order).
+        bank_shift: bits of the row part of ``key``.
+        is_write: write flags.
+        config: scheduler parameters.
+        want_order: also return the service order (request indices).
+
+    Returns:
+        ``(keys, writes, order)``: the row keys and write flags in service order, and the order
+        (``None`` unless asked for).
+    """
     config = config or SchedulerConfig()
     n = is_write.size
-    if n == 0:
-        return np.zeros(0, dtype=np.int64)
-    served, boundary = served_segments(is_write, config)
+    served, boundary, writes = _served_runs(is_write, config)
+    key_s = key[served]
     if n < 2:
-        return served
-    bank_s = bank[served].astype(np.int64)
-    group = bank_s * (int(row.max()) + 1) + row[served]
-    seg_start = np.flatnonzero(boundary)
-    seg_id = np.cumsum(boundary, dtype=np.int32)
-    seg_id -= 1
+        return key_s, writes, served if want_order else None
     # a segment whose requests all go to one row is served as it is
-    change = group[1:] != group[:-1]
+    change = key_s[1:] != key_s[:-1]
     change &= ~boundary[1:]
+    n_changes = int(np.count_nonzero(change))
+    if n_changes == 0:
+        return key_s, writes, served if want_order else None
+    seg_start = np.flatnonzero(boundary)
+    if n_changes >= REGROUP_ALL_SHARE * (n - seg_start.size):
+        # regrouping a one-row segment leaves it as it is: with many mixed segments, regroup all
+        out = _regroup(key_s, bank_shift, boundary, seg_start, config.hit_cap, want_order)
+        return out[0], writes, served[out[1]] if out[1] is not None else None
     changes = np.cumsum(change, dtype=np.int32)  # row changes inside segments, up to each request
     seg_last = np.append(seg_start[1:], n) - 1
     mixed = changes[np.maximum(seg_last - 1, 0)] > np.where(seg_start > 0, changes[np.maximum(seg_start - 1, 0)], 0)
     mixed &= seg_last > seg_start
-    if not mixed.any():
-        return served
-    open_group = np.full(seg_start.size, -1, dtype=np.int64)
-    open_group[1:] = group[seg_start[1:] - 1]  # the row the previous segment left open
-    # regrouping a one-row segment leaves it as it is: when most requests are in mixed segments,
-    # regroup everything (no subset gathers)
-    if int((seg_last - seg_start + 1)[mixed].sum()) >= REGROUP_ALL_SHARE * n:
-        permutation = _regroup(seg_id, group, bank_s, open_group[seg_id], config.hit_cap, boundary)
-        return served[permutation]
+    seg_id = np.cumsum(boundary, dtype=np.int32)
+    seg_id -= 1
     sub = np.flatnonzero(mixed[seg_id])
-    permutation = _regroup(seg_id[sub], group[sub], bank_s[sub], open_group[seg_id[sub]], config.hit_cap)
-    out = served.copy()
-    out[sub] = served[sub][permutation]
-    return out
+    # the row each mixed segment's predecessor left open: kept as the first request before it
+    sub_boundary = boundary[sub]
+    sub_boundary[0] = True
+    sub_start = np.flatnonzero(sub_boundary)
+    open_key = np.where(sub[sub_start] > 0, key_s[np.maximum(sub[sub_start] - 1, 0)], -1)
+    keys, permutation = _regroup(key_s[sub], bank_shift, sub_boundary, sub_start, config.hit_cap, True,
+                                 open_key=open_key)
+    assert permutation is not None
+    key_s = key_s.copy()
+    key_s[sub] = keys
+    order = None
+    if want_order:
+        order = served.copy()
+        order[sub] = served[sub][permutation]
+    return key_s, writes, order
 
 
-def _regroup(seg_id: np.ndarray, group: np.ndarray, bank: np.ndarray, open_group: np.ndarray,
-             hit_cap: int | None, boundary: np.ndarray | None = None) -> np.ndarray:
-    """FR-FCFS order within whole segments (a permutation of ``range(len(seg_id))``).
+def _regroup(key: np.ndarray, bank_shift: int, boundary: np.ndarray, seg_start: np.ndarray,
+             hit_cap: int | None, want_order: bool, open_key: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray | None]:
+    """FR-FCFS order within whole segments: the keys in that order (and the permutation).
 
-    One stable sort by (segment, row group) cuts every group into turns of at most
+    One stable sort by (segment, row key) cuts every group into turns of at most
     ``hit_cap + 1`` requests (blocks, each in arrival order); only the blocks are then ordered by
-    (segment, bank, turn, first appearance of their row), and expanded back. ``boundary``: where
-    the segments start (computed if not given).
+    (segment, bank, turn, first appearance of their row), and expanded back. ``open_key``: the
+    row key each segment starts with open (default: the key before the segment's first request;
+    -1 for none).
     """
-    m = seg_id.size
-    if boundary is None:
-        boundary = np.concatenate(([True], seg_id[1:] != seg_id[:-1]))
-    seg_start = np.flatnonzero(boundary)
-    sid = np.cumsum(boundary, dtype=np.int32).astype(np.int64)  # int64: it is packed into keys
-    sid -= 1
-    key = sid * (int(group.max()) + 1) + group
-    by_group = np.argsort(key, kind="stable")
+    m = key.size
+    key_bits = max(1, int(key.max()).bit_length())
+    sid = np.cumsum(boundary, dtype=np.int64)  # segment of each request, + 1
+    wide = sid << key_bits
+    wide |= key
+    by_group = np.argsort(wide, kind="stable")
+    del wide
+    # the sort keeps every segment in its place: segment starts stay group starts
     sorted_key = key[by_group]
-    new = np.concatenate(([True], sorted_key[1:] != sorted_key[:-1]))
+    new = boundary.copy()
+    new[1:] |= sorted_key[1:] != sorted_key[:-1]
     group_start = np.flatnonzero(new)
     if hit_cap is None:
         block_start: np.ndarray = group_start
-        block_group: np.ndarray = np.arange(group_start.size)
         block_turn = np.zeros(group_start.size, dtype=np.int64)
     else:
         # each group is cut into turns of hit_cap + 1 requests: the blocks, from the group lengths
         group_len = np.diff(np.append(group_start, m))
         turns = -(-group_len // (hit_cap + 1))
-        block_group = np.repeat(np.arange(group_start.size), turns)
-        block_turn = np.arange(block_group.size, dtype=np.int64) - (np.cumsum(turns) - turns)[block_group]
-        block_start = group_start[block_group] + block_turn * (hit_cap + 1)
-    first = by_group[group_start[block_group]]  # where the block's row first appears
-    block_sid = sid[first]
+        if int(turns.max()) == 1:
+            block_start = group_start
+            block_turn = np.zeros(group_start.size, dtype=np.int64)
+        else:
+            block_group = np.repeat(np.arange(group_start.size), turns)
+            block_turn = np.arange(block_group.size, dtype=np.int64) - (np.cumsum(turns) - turns)[block_group]
+            block_start = group_start[block_group] + block_turn * (hit_cap + 1)
+    block_first = by_group[block_start - block_turn * (hit_cap + 1) if hit_cap is not None else block_start]
+    block_sid = sid[block_start] - 1
+    block_row_key = sorted_key[block_start].astype(np.int64)
     # rows in order of first appearance, the row left open by the previous segment first (a hit)
-    local_first = first - seg_start[block_sid]
-    local_first[group[first] == open_group[first]] = -1
+    local_first = block_first - seg_start[block_sid]
+    if open_key is None:
+        open_key = np.full(seg_start.size, -1, dtype=np.int64)
+        open_key[1:] = key[seg_start[1:] - 1]
+    local_first[block_row_key == open_key[block_sid]] = -1
     seg_len = int(np.diff(np.append(seg_start, m)).max())
-    banks = int(bank.max()) + 1
-    block_key = ((block_sid * banks + bank[first]) * (seg_len + 1) + block_turn) * (seg_len + 2) + local_first + 1
+    block_bank = block_row_key >> bank_shift
+    banks = int(block_bank.max()) + 1
+    block_key = ((block_sid * banks + block_bank) * (seg_len + 1) + block_turn) * (seg_len + 2) + local_first + 1
     order = np.argsort(block_key, kind="stable")
     lengths = np.diff(np.append(block_start, m))[order]
     starts = block_start[order]
     offsets = np.cumsum(lengths) - lengths
     source = np.repeat(starts - offsets, lengths)
     source += np.arange(m, dtype=np.int64)
-    grouped = by_group[source]
+    grouped_key = sorted_key[source]
+    grouped = by_group[source] if want_order else None
     # Each bank keeps the places its requests had (banks interleave as they arrived, e.g. across
     # bank groups); within a bank the places are refilled in row-grouped order.
+    bank = key >> bank_shift
     bank_change = bank[1:] != bank[:-1]
     bank_change &= ~boundary[1:]
     if not bank_change.any():  # every segment goes to one bank
-        return grouped
-    slots = np.argsort(sid * banks + bank, kind="stable")
-    permutation = np.empty(m, dtype=np.int64)
-    permutation[slots] = grouped
-    return permutation
+        return grouped_key, grouped
+    bank_bits = max(1, banks.bit_length())
+    sid <<= bank_bits
+    sid |= bank
+    slots = np.argsort(sid, kind="stable")
+    out_key = np.empty(m, dtype=key.dtype)
+    out_key[slots] = grouped_key
+    permutation = None
+    if grouped is not None:
+        permutation = np.empty(m, dtype=np.int64)
+        permutation[slots] = grouped
+    return out_key, permutation
