@@ -281,7 +281,7 @@ def simulate(
             else:
                 gbank, row, column, writes = prepare(i)
             part = run_timing(geometry, timing, config, policy, gbank=gbank, row=row, column=column, write=writes,
-                              start=start, close_at_end=i < pieces - 1)
+                              start=start, close_at_end=i < pieces - 1, keep_commands=keep_commands)
             start = part.cycles
             if not keep_commands:
                 part = replace(part, commands=None)

@@ -10,6 +10,8 @@ rounds on their cumulative sums (exact when no other lift lies in between, the c
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from hdeem_watch.dram.controller import (
@@ -23,35 +25,6 @@ from hdeem_watch.dram.mapping import Geometry
 from hdeem_watch.dram.scheduler import SchedulerConfig
 
 _MAX_ROUNDS = 8
-
-
-def _previous_same(key: np.ndarray, want_next: bool) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-    """For each element, the index of the previous (and next) element with the same key (-1 if none).
-
-    Also returns the stable order by key.
-    """
-    n = key.size
-    top = int(key.max()) if n else 0
-    # narrow keys sort faster (radix); the stable order is the same
-    small = key.astype(np.int8) if top < 128 else key.astype(np.int16) if top < 32767 else key
-    order = np.argsort(small, kind="stable")
-    sorted_key = small[order]
-    first = np.flatnonzero(sorted_key[1:] != sorted_key[:-1]) + 1  # where each key's run starts
-    earlier = order[:-1].copy()
-    earlier[first - 1] = -1
-    prev = np.empty(n, dtype=np.int64)
-    if n:
-        prev[order[0]] = -1
-        prev[order[1:]] = earlier
-    nxt = None
-    if want_next:
-        later = order[1:].copy()
-        later[first - 1] = -1
-        nxt = np.empty(n, dtype=np.int64)
-        if n:
-            nxt[order[-1]] = -1
-            nxt[order[:-1]] = later
-    return prev, nxt, order
 
 
 def _by_bank(bank: np.ndarray) -> np.ndarray:
@@ -83,80 +56,107 @@ class _Refresh:
         self.start = start
         # virtual time of the first refresh at or after ``start`` (none at cycle 0)
         self.first = max(self.refi, -(-start // self.refi) * self.refi) - start
+        self.period = self.refi - self.stall
 
     def count(self, virtual: np.ndarray) -> np.ndarray:
-        period = self.refi - self.stall
-        return np.maximum((virtual - self.first + period) // period, 0)
+        return np.maximum((virtual - self.first + self.period) // self.period, 0)
 
-    def count_sorted(self, virtual: np.ndarray) -> np.ndarray:
-        """:meth:`count` of a non-decreasing array: where each refresh falls, then a running count."""
-        if virtual.size == 0:
-            return np.zeros(0, dtype=np.int64)
-        period = self.refi - self.stall
-        refreshes = int(self.count(virtual[-1:])[0])
-        thresholds = self.first + period * np.arange(refreshes, dtype=np.int64)
-        marks = np.bincount(np.searchsorted(virtual, thresholds, side="left"), minlength=virtual.size + 1)
-        return np.cumsum(marks[:-1])
+    def thresholds(self, last: int) -> np.ndarray:
+        """Virtual times of the refreshes up to ``last``."""
+        refreshes = int(self.count(np.array([last], dtype=np.int64))[0])
+        return self.first + self.period * np.arange(refreshes, dtype=np.int64)
 
     def real(self, virtual: np.ndarray) -> np.ndarray:
         return self.start + virtual + self.stall * self.count(virtual)
 
 
-def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, policy: str, *,
-               gbank: np.ndarray, row: np.ndarray,
-               column: np.ndarray | None, write: np.ndarray, start: int = 0, close_at_end: bool = False) -> ControllerResult:
-    """Time a request sequence already in service order and collect its commands and statistics.
+@dataclass(frozen=True)
+class TimingPlan:
+    """The refresh-free part of the timing of one request sequence (independent of its start).
 
-    ``start`` is the cycle the sequence starts at (a chunk after earlier ones); ``close_at_end``
-    precharges the banks left open and ends the window ``tRP`` later, so the next chunk starts
-    with every bank precharged. ``column`` may be ``None`` when the commands are not kept (their
-    ``col_column`` is then empty).
+    Attributes:
+        gbank, row, write: the sequence (service order).
+        auto: RDA/WRA flags (closed page), ``None`` for the open page.
+        t: virtual (refresh-free) cycle of each column command.
+        idx: the requests that need an activation (ascending); ``p``/``p_has``: the previous
+            request of their bank (0 where none); ``p_conflict``: it left another row open.
+        act_virtual: virtual activation time of each.
+        by_bank, bank_sorted, hit_sorted: the stable order by bank, the banks and hits in it.
     """
+
+    gbank: np.ndarray
+    row: np.ndarray
+    write: np.ndarray
+    auto: np.ndarray | None
+    t: np.ndarray
+    idx: np.ndarray
+    p: np.ndarray
+    p_has: np.ndarray
+    p_conflict: np.ndarray
+    act_virtual: np.ndarray
+    by_bank: np.ndarray
+    bank_sorted: np.ndarray
+    hit_sorted: np.ndarray
+
+
+def plan_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, policy: str, *,
+                gbank: np.ndarray, row: np.ndarray, write: np.ndarray) -> TimingPlan:
+    """Row-buffer outcomes and refresh-free times of a sequence in service order (see the module doc)."""
     n = gbank.size
-    # gbank = rank × banks + bank; all counts are powers of two: fields by shifts
-    rank = gbank >> (geometry.banks.bit_length() - 1)
-    bank = gbank & (geometry.banks - 1)
-    bankgroup = gbank >> (geometry.banks_per_group.bit_length() - 1)  # unique over the ranks
-    prev, nxt, by_bank = _previous_same(gbank, policy == "closed")
-    has_prev = prev >= 0
-    prev_safe = np.maximum(prev, 0)
-    same_row = has_prev & (row[prev_safe] == row)
     queue = config.read_queue
-    if nxt is not None:  # closed page
-        nxt_safe = np.maximum(nxt, 0)
-        auto = (nxt < 0) | (row[nxt_safe] != row) | (nxt - np.arange(n) > queue)
-        hit = same_row & ~auto[prev_safe]
-        conflict = has_prev & ~same_row & ~auto[prev_safe]
+    banks_total = geometry.ranks * geometry.banks
+    # one stable sort by bank (radix on a narrow copy): each request's predecessor in its bank is
+    # its neighbour in that order
+    narrow = np.int8 if banks_total <= 128 else np.int16 if banks_total < 32767 else np.int64
+    small = gbank.astype(narrow)
+    by_bank = np.argsort(small, kind="stable")
+    bank_sorted = small[by_bank]
+    row_sorted = row[by_bank]
+    has_prev = np.zeros(n, dtype=bool)
+    np.equal(bank_sorted[1:], bank_sorted[:-1], out=has_prev[1:])
+    same_row = has_prev.copy()
+    same_row[1:] &= row_sorted[1:] == row_sorted[:-1]
+    del row_sorted
+    auto: np.ndarray | None = None
+    if policy == "closed":
+        # RDA/WRA unless the bank's next request hits the row within the queue's reach
+        auto_sorted = np.ones(n, dtype=bool)
+        if n > 1:
+            np.logical_not(same_row[1:], out=auto_sorted[:-1])
+            auto_sorted[:-1] |= (by_bank[1:] - by_bank[:-1]) > queue
+        prev_auto = np.zeros(n, dtype=bool)
+        prev_auto[1:] = auto_sorted[:-1]
+        hit = same_row & ~prev_auto
+        conflict = has_prev & ~same_row & ~prev_auto
+        auto = np.empty(n, dtype=bool)
+        auto[by_bank] = auto_sorted
     else:
-        auto = np.zeros(n, dtype=bool)
         hit = same_row
-        conflict = has_prev & ~same_row
-    need = ~hit
+        conflict = has_prev
+    need_sorted = np.flatnonzero(~hit)  # activating requests, by bank
+    requests = by_bank[need_sorted]
+    p_has_b = has_prev[need_sorted]
+    p_b = np.where(p_has_b, by_bank[need_sorted - 1], 0)
+    # q: the activation that opened p's row = the previous activating request of the same bank
+    q_b = np.zeros(requests.size, dtype=np.int64)
+    if requests.size > 1:
+        q_b[1:] = np.where(p_has_b[1:], requests[:-1], 0)
+    pc_b = conflict[need_sorted]
+    to_time = np.argsort(requests, kind="stable")  # a merge of the banks' ascending runs
+    idx = requests[to_time]
+    p_safe, p_has, q, p_conflict = p_b[to_time], p_has_b[to_time], q_b[to_time], pc_b[to_time]
+    m = idx.size
     b = timing.burst
 
     def recovery_of(index: np.ndarray) -> np.ndarray:
         read_recovery = timing.al + timing.rtp
         return write[index] * (timing.wl + b + timing.wr - read_recovery) + read_recovery
 
-    gaps = _column_gaps(timing, rank, bankgroup, write, config.hidden_turnaround)
-    cum = np.cumsum(gaps)
-    idx = np.flatnonzero(need)
-    m = idx.size
-    p = prev[idx]
-    p_has = p >= 0
-    p_safe = np.maximum(p, 0)
-    p_conflict = conflict[idx]
-    # q: the activation that opened p's row = the previous activating request of the same bank
-    # (no request of that bank lies between p and i); 0 where there is none (no p either)
-    need_by_bank = by_bank[need[by_bank]]  # activating requests, stably sorted by bank
-    q = np.zeros(m, dtype=np.int64)
-    if m > 1:
-        same_bank = gbank[need_by_bank[1:]] == gbank[need_by_bank[:-1]]
-        need_rank = np.cumsum(need, dtype=np.int32)  # activating requests up to and including i
-        later = need_by_bank[1:][same_bank]
-        q[need_rank[later] - 1] = need_by_bank[:-1][same_bank]
-    else:
-        need_rank = np.cumsum(need, dtype=np.int32)
+    rank = gbank >> (geometry.banks.bit_length() - 1)
+    bankgroup = gbank >> (geometry.banks_per_group.bit_length() - 1)  # unique over the ranks
+    cum = _column_gaps(timing, rank, bankgroup, write, config.hidden_turnaround)
+    del rank, bankgroup
+    np.cumsum(cum, out=cum)
     # Each request that needs an activation may lift the column sequence: it must wait for its
     # bank (t_p + recovery + tRP + tRCD after the previous access p, and tRAS + tRP after the
     # ACT that opened p's row). Lifts of requests in between count towards that distance, so the
@@ -165,9 +165,8 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     cum_i = cum[idx]
     wait_p = recovery_p + (timing.rp + timing.rcd - config.hidden_bank) - (cum_i - cum[p_safe])
     wait_q = (timing.ras + timing.rp) - (cum_i - cum[q])
-    rank_p = need_rank[p_safe]  # activating requests up to and including p
-    rank_q = need_rank[q]
-    rank_i = np.arange(m, dtype=np.int32)  # activating requests before i
+    rank_p = np.searchsorted(idx, p_safe, side="right")  # activating requests up to and including p
+    rank_q = np.searchsorted(idx, q, side="right")
     lam = np.maximum(np.maximum(wait_p, wait_q), 0)
     lam *= p_has
     for _ in range(_MAX_ROUNDS):
@@ -180,11 +179,11 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
         if np.array_equal(new_lam, lam):
             break
         lam = new_lam
-    del rank_i
-    lifts = np.zeros(n, dtype=np.int64)
-    lifts[idx] = lam
-    t = np.cumsum(lifts)
-    t += cum
+    # column times: the spacing plus the lifts so far (request 0 always activates: idx[0] = 0)
+    t = cum
+    if m:
+        np.cumsum(lam, out=lam)
+        t += np.repeat(lam, np.diff(idx, append=n))
     t += timing.rcd
     # activation times: as early as the bank and the queue allow, at the latest tRCD before the column
     enter = t[np.maximum(idx - queue, 0)]
@@ -192,52 +191,107 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     ready = np.maximum(t[q] + (timing.ras - timing.rcd), t[p_safe] + recovery_p)
     ready += timing.rp
     ready *= p_has
-    t_i = t[idx]
-    act_virtual = np.minimum(np.maximum(ready, enter), t_i - timing.rcd)
+    act_virtual = np.minimum(np.maximum(ready, enter), t[idx] - timing.rcd)
+    return TimingPlan(gbank=gbank, row=row, write=write, auto=auto, t=t, idx=idx, p=p_safe, p_has=p_has,
+                      p_conflict=p_conflict, act_virtual=act_virtual, by_bank=by_bank, bank_sorted=bank_sorted,
+                      hit_sorted=hit)
+
+
+def _lost_hits(plan: TimingPlan, refresh: _Refresh, banks_total: int) -> np.ndarray:
+    """Hits whose row a refresh closed since the previous access of their bank (ascending).
+
+    Such a hit is the first request of its bank at or after a refresh: found per (bank,
+    refresh) by a search in the bank order.
+    """
+    n = plan.t.size
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    thresholds = refresh.thresholds(int(plan.t[-1]))
+    if thresholds.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    first = np.searchsorted(plan.t, thresholds, side="left")  # first request after each refresh
+    position = plan.bank_sorted.astype(np.int64)
+    position *= n
+    position += plan.by_bank  # ascending: by bank, then by request
+    queries = (np.arange(banks_total, dtype=np.int64)[:, None] * n + first[None, :]).ravel()
+    found = np.searchsorted(position, queries, side="left")
+    query_bank = np.repeat(np.arange(banks_total), first.size)
+    inside = found < n
+    found, query_bank = found[inside], query_bank[inside]
+    found = found[plan.bank_sorted[found] == query_bank]
+    return np.unique(plan.by_bank[found[plan.hit_sorted[found]]])
+
+
+def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, policy: str, *,
+               gbank: np.ndarray, row: np.ndarray,
+               column: np.ndarray | None, write: np.ndarray, start: int = 0, close_at_end: bool = False,
+               plan: TimingPlan | None = None, keep_commands: bool = True) -> ControllerResult:
+    """Time a request sequence already in service order and collect its commands and statistics.
+
+    ``start`` is the cycle the sequence starts at (a chunk after earlier ones); ``close_at_end``
+    precharges the banks left open and ends the window ``tRP`` later, so the next chunk starts
+    with every bank precharged. ``column`` may be ``None`` when the commands are not kept (their
+    ``col_column`` is then empty). ``plan``: :func:`plan_timing` of the sequence, if already
+    computed. ``keep_commands=False`` leaves ``col_cycle`` empty (the statistics do not need it).
+    """
+    if plan is None:
+        plan = plan_timing(geometry, timing, config, policy, gbank=gbank, row=row, write=write)
+    gbank, row, write, t, idx = plan.gbank, plan.row, plan.write, plan.t, plan.idx
+    n = gbank.size
+    b = timing.burst
+    rank = gbank >> (geometry.banks.bit_length() - 1)
+    bank = gbank & (geometry.banks - 1)
+    auto = plan.auto if plan.auto is not None else np.zeros(n, dtype=bool)
+    p_safe = plan.p
+    act_virtual = plan.act_virtual
     pre_t = act_virtual - timing.rp
 
+    def recovery_of(index: np.ndarray) -> np.ndarray:
+        read_recovery = timing.al + timing.rtp
+        return write[index] * (timing.wl + b + timing.wr - read_recovery) + read_recovery
+
     refresh = _Refresh(timing, start)
-    k_col = refresh.count_sorted(t)  # t never decreases (gaps and lifts are >= 0)
-    col_real = refresh.start + t + refresh.stall * k_col
-    # refresh closes the row: a hit or conflict whose previous same-bank access precedes a refresh
-    refreshed = has_prev & (k_col > k_col[prev_safe])
+    t_i = t[idx]
+    k_col_i = refresh.count(t_i)
+    col_real_i = refresh.real(t_i)
     k_pre = refresh.count(pre_t)
-    explicit_pre = p_conflict & (k_pre <= k_col[p_safe])
+    explicit_pre = plan.p_conflict & (k_pre <= refresh.count(t[p_safe]))
     # outcomes: conflicts are the activating requests with an explicit PRE; a refresh turned
     # the others (and the hits it interrupted) into misses
-    lost_hits = np.flatnonzero(hit & refreshed)
+    lost_hits = _lost_hits(plan, refresh, geometry.ranks * geometry.banks)
     n_conflicts = int(np.count_nonzero(explicit_pre))
-    n_hits = int(np.count_nonzero(hit)) - lost_hits.size
+    n_hits = n - idx.size - lost_hits.size
 
     # activations: the model's own, a second one when a refresh fell between an early ACT and its
     # column command, and one for each hit turned into a miss by a refresh
     k_act = refresh.count(act_virtual)
     first_act_real = refresh.real(act_virtual)
-    k_col_i = k_col[idx]
     again = k_act < k_col_i
     act_req = np.concatenate((idx, idx[again], lost_hits))
-    act_cycle = np.concatenate((first_act_real, col_real[idx[again]] - timing.rcd, col_real[lost_hits] - timing.rcd))
+    act_cycle = np.concatenate((first_act_real, col_real_i[again] - timing.rcd,
+                                refresh.real(t[lost_hits]) - timing.rcd))
     pre_req = idx[explicit_pre]
     pre_cycle = refresh.real(pre_t[explicit_pre])
 
-    last_real = int(col_real[-1]) + (np.where(write[-1], timing.wl, timing.rl) + b) if n else start
+    last_real = int(refresh.real(t[-1:])[0]) + (np.where(write[-1], timing.wl, timing.rl) + b) if n else start
     shift = np.int64(1) << np.int64(42)
     act_bank = gbank[act_req]
     act_keys = act_bank * shift + act_cycle
     act_order = _by_bank(act_bank)  # nearly key order: the searches below run fast
     auto_cycle = np.zeros(0, dtype=np.int64)
-    auto_req = np.flatnonzero(auto)
+    auto_req = np.flatnonzero(auto) if plan.auto is not None else np.zeros(0, dtype=np.int64)
     if auto_req.size:
+        auto_real = refresh.real(t[auto_req])
         sorted_acts = np.sort(act_keys)
         # the implicit precharge of RDA/WRA: after tRAS from the ACT that opened the row and after
         # the read (tRTP) or write recovery
-        latest = np.searchsorted(sorted_acts, gbank[auto_req] * shift + col_real[auto_req], side="right") - 1
+        latest = np.searchsorted(sorted_acts, gbank[auto_req] * shift + auto_real, side="right") - 1
         opened = sorted_acts[np.maximum(latest, 0)] % shift
-        auto_cycle = np.maximum(opened + timing.ras, col_real[auto_req] + recovery_of(auto_req))
+        auto_cycle = np.maximum(opened + timing.ras, auto_real + recovery_of(auto_req))
         # A row re-activated after a refresh restarts tRAS, which the refresh-free timing did not
         # see: where the implicit precharge would come after the bank's next ACT, the column
         # command is a plain RD/WR and an explicit PRE precedes that ACT instead.
-        following = np.searchsorted(sorted_acts, gbank[auto_req] * shift + col_real[auto_req], side="right")
+        following = np.searchsorted(sorted_acts, gbank[auto_req] * shift + auto_real, side="right")
         padded_acts = np.append(sorted_acts, np.int64(-1))
         candidate = padded_acts[np.minimum(following, sorted_acts.size)]
         next_act = np.where(candidate // shift == gbank[auto_req], candidate % shift, np.iinfo(np.int64).max)
@@ -247,12 +301,12 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
             auto = auto.copy()
             auto[fixed] = False
             pre_req = np.concatenate((pre_req, fixed))
-            pre_cycle = np.concatenate((pre_cycle, np.maximum(next_act[late] - timing.rp, col_real[fixed] + 1)))
-            auto_req, auto_cycle = auto_req[~late], auto_cycle[~late]
+            pre_cycle = np.concatenate((pre_cycle, np.maximum(next_act[late] - timing.rp, auto_real[late] + 1)))
+            auto_req, auto_cycle, auto_real = auto_req[~late], auto_cycle[~late], auto_real[~late]
     end = int(max(last_real, int(act_cycle.max()) if act_cycle.size else 0,
                   int(auto_cycle.max()) + 1 if auto_cycle.size else 0))
     # an implicit precharge after a refresh's PREA closes nothing (the PREA did)
-    next_ref = (col_real[auto_req] // timing.refi + 1) * timing.refi
+    next_ref = (auto_real // timing.refi + 1) * timing.refi if auto_req.size else auto_cycle
     preempted = (next_ref < auto_cycle) & (next_ref <= end)
     auto_req = auto_req[~preempted]
     auto_cycle = auto_cycle[~preempted]
@@ -285,7 +339,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     commands = Commands(
         act_cycle=act_cycle, act_rank=rank[act_req], act_bank=bank[act_req], act_row=row[act_req],
         pre_cycle=pre_cycle, pre_rank=rank[pre_req], pre_bank=bank[pre_req],
-        col_cycle=col_real, col_rank=rank, col_bank=bank, col_row=row,
+        col_cycle=refresh.real(t) if keep_commands else np.zeros(0, dtype=np.int64), col_rank=rank, col_bank=bank, col_row=row,
         col_column=column if column is not None else np.zeros(0, dtype=np.int64),
         col_write=write, col_auto=auto, ref_cycle=ref_cycle, end_cycle=end, refa_delay=timing.rp,
         start_cycle=start,
