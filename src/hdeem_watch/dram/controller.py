@@ -159,44 +159,6 @@ class ControllerResult:
     geometry: Geometry
 
 
-def _column_gaps(timing: Timing, rank: np.ndarray, bankgroup: np.ndarray, write: np.ndarray,
-                 hidden_turnaround: int = 0) -> np.ndarray:
-    """Minimum spacing of each column command after the previous one (first entry 0).
-
-    The spacing depends on four bits (same rank, same bank group, previous and current direction):
-    a 16-entry table, indexed per pair. ``hidden_turnaround`` cycles come off each read/write
-    switch (never below tCCD_S). ``bankgroup`` numbers the bank groups of all ranks (unique over
-    ranks), so equal bank groups imply the same rank.
-    """
-    n = rank.size
-    gaps = np.zeros(n, dtype=np.int64)
-    if n < 2:
-        return gaps
-    b = timing.burst
-    rank_switch = max(timing.ccd_s, b + timing.rtrs + 1)  # + 1 cycle of read/write preamble
-    read_to_write = max(timing.ccd_s, timing.rl + b + 2 - timing.wl - hidden_turnaround)
-    table = np.zeros(16, dtype=np.int64)
-    for same_rank in (0, 1):
-        for same_group in (0, 1):
-            if same_group and not same_rank:
-                continue
-            same_kind = timing.ccd_l if same_group else timing.ccd_s if same_rank else rank_switch
-            write_to_read = (timing.wl + b + timing.wtr_l if same_group else
-                             timing.wl + b + timing.wtr_s if same_rank else timing.wl + b + timing.rtrs - timing.rl)
-            write_to_read = max(timing.ccd_s, write_to_read - hidden_turnaround)
-            for prev_w in (0, 1):
-                for cur_w in (0, 1):
-                    gap = same_kind if prev_w == cur_w else read_to_write if cur_w else write_to_read
-                    table[((same_rank * 2 + same_group) * 2 + prev_w) * 2 + cur_w] = gap
-    w = write.view(np.uint8) if write.dtype == np.bool_ else write.astype(np.uint8)
-    code = (rank[1:] == rank[:-1]).view(np.uint8) << 3
-    code |= (bankgroup[1:] == bankgroup[:-1]).view(np.uint8) << 2  # bank groups are unique over ranks
-    code |= w[:-1] << 1
-    code |= w[1:]
-    gaps[1:] = table[code]
-    return gaps
-
-
 def simulate(
     spec: Any,
     addresses: np.ndarray,
@@ -242,6 +204,7 @@ def simulate(
     timing = Timing.from_spec(spec)
     config = scheduler or SchedulerConfig()
     address_mapping = AddressMapping(geometry, mapping, xor_bank=xor_bank)
+    from hdeem_watch.dram.row_outcomes import Outcomes, row_outcomes
     from hdeem_watch.dram.timing_model import run_timing
 
     n = addresses.size
@@ -251,8 +214,8 @@ def simulate(
     row_bits = geometry.rows.bit_length() - 1
     key_type = np.int32 if (geometry.ranks * geometry.banks) << row_bits <= 1 << 31 else np.int64
 
-    def prepare(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
-        """Chunk ``i`` decoded and in service order (independent of the chunks before it)."""
+    def prepare(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, Outcomes]:
+        """Chunk ``i`` decoded, in service order, with its row-buffer outcomes (independent of the chunks before it)."""
         lanes, gbank, row, column = address_mapping.decode_packed(addresses[bounds[i]:bounds[i + 1]],
                                                                    column=keep_commands)
         writes = is_write[bounds[i]:bounds[i + 1]]
@@ -266,22 +229,24 @@ def simulate(
         key, writes, order = serve(key, row_bits, writes, config, want_order=column is not None)
         row = key & ((1 << row_bits) - 1)
         key >>= row_bits
-        return key, row, column[order] if column is not None and order is not None else None, writes
+        outcomes = row_outcomes(geometry, config, policy, gbank=key, row=row)
+        return key, row, column[order] if column is not None and order is not None else None, writes, outcomes
 
     parts: list[ControllerResult] = []
     start = 0
-    # the service order of chunk i + 1 is computed in a second thread while chunk i is timed
-    # (numpy releases the GIL in its loops); only the timing depends on the chunk before
+    # the service order and row outcomes of chunk i + 1 are computed in a second thread while
+    # chunk i is timed (numpy releases the GIL in its loops); only the timing depends on the chunk before
     with ThreadPoolExecutor(max_workers=1) if pieces > 1 and PIPELINE else nullcontext() as pool:
         pending = pool.submit(prepare, 0) if pool is not None else None
         for i in range(pieces):
             if pending is not None and pool is not None:
-                gbank, row, column, writes = pending.result()
+                gbank, row, column, writes, outcomes = pending.result()
                 pending = pool.submit(prepare, i + 1) if i + 1 < pieces else None
             else:
-                gbank, row, column, writes = prepare(i)
+                gbank, row, column, writes, outcomes = prepare(i)
             part = run_timing(geometry, timing, config, policy, gbank=gbank, row=row, column=column, write=writes,
-                              start=start, close_at_end=i < pieces - 1, keep_commands=keep_commands)
+                              start=start, close_at_end=i < pieces - 1, outcomes=outcomes,
+                              keep_commands=keep_commands)
             start = part.cycles
             if not keep_commands:
                 part = replace(part, commands=None)

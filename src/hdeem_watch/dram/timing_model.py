@@ -18,10 +18,10 @@ from hdeem_watch.dram.controller import (
     Commands,
     ControllerResult,
     Timing,
-    _column_gaps,
     stats_from_commands,
 )
 from hdeem_watch.dram.mapping import Geometry
+from hdeem_watch.dram.row_outcomes import Outcomes, row_outcomes
 from hdeem_watch.dram.scheduler import SchedulerConfig
 
 _MAX_ROUNDS = 8
@@ -40,6 +40,48 @@ def _sorted_keys(bank: np.ndarray, keys: np.ndarray) -> np.ndarray:
     if ordered.size > 1 and bool((ordered[1:] < ordered[:-1]).any()):
         ordered = np.sort(keys)
     return ordered
+
+
+def _column_gaps(timing: Timing, rank: np.ndarray, bankgroup: np.ndarray, write: np.ndarray,
+                 hidden_turnaround: int = 0) -> np.ndarray:
+    """Minimum spacing of each column command after the previous one (first entry 0).
+
+    The spacing depends on four bits (same rank, same bank group, previous and current direction):
+    a 16-entry table, indexed per pair. ``hidden_turnaround`` cycles come off each read/write
+    switch (never below tCCD_S). ``bankgroup`` numbers the bank groups of all ranks (unique over
+    ranks), so equal bank groups imply the same rank.
+    """
+    n = rank.size
+    gaps = np.zeros(n, dtype=np.int64)
+    if n < 2:
+        return gaps
+    b = timing.burst
+    rank_switch = max(timing.ccd_s, b + timing.rtrs + 1)  # + 1 cycle of read/write preamble
+    read_to_write = max(timing.ccd_s, timing.rl + b + 2 - timing.wl - hidden_turnaround)
+    table = np.zeros(16, dtype=np.int64)
+    for same_rank in (0, 1):
+        for same_group in (0, 1):
+            if same_group and not same_rank:
+                continue
+            same_kind = timing.ccd_l if same_group else timing.ccd_s if same_rank else rank_switch
+            write_to_read = (timing.wl + b + timing.wtr_l if same_group else
+                             timing.wl + b + timing.wtr_s if same_rank else timing.wl + b + timing.rtrs - timing.rl)
+            write_to_read = max(timing.ccd_s, write_to_read - hidden_turnaround)
+            for prev_w in (0, 1):
+                for cur_w in (0, 1):
+                    gap = same_kind if prev_w == cur_w else read_to_write if cur_w else write_to_read
+                    table[((same_rank * 2 + same_group) * 2 + prev_w) * 2 + cur_w] = gap
+    w = write.view(np.uint8) if write.dtype == np.bool_ else write.astype(np.uint8)
+    # the pair code in bytes (cheap), then one table look-up
+    code = (rank[1:] == rank[:-1]).view(np.uint8) << 3
+    code |= (bankgroup[1:] == bankgroup[:-1]).view(np.uint8) << 2  # bank groups are unique over ranks
+    code |= w[:-1] << 1
+    code |= w[1:]
+    if int(table.min()) >= 0 and int(table.max()) < 256:
+        gaps[1:] = table.astype(np.uint8).take(code)
+    else:
+        gaps[1:] = table.take(code.astype(np.intp))
+    return gaps
 
 
 class _Refresh:
@@ -76,75 +118,31 @@ class TimingPlan:
 
     Attributes:
         gbank, row, write: the sequence (service order).
-        auto: RDA/WRA flags (closed page), ``None`` for the open page.
+        outcomes: its row-buffer outcomes.
         t: virtual (refresh-free) cycle of each column command.
-        idx: the requests that need an activation (ascending); ``p``/``p_has``: the previous
-            request of their bank (0 where none); ``p_conflict``: it left another row open.
-        act_virtual: virtual activation time of each.
-        by_bank, bank_sorted, hit_sorted: the stable order by bank, the banks and hits in it.
+        act_virtual: virtual activation time of each request in ``outcomes.idx``.
     """
 
     gbank: np.ndarray
     row: np.ndarray
     write: np.ndarray
-    auto: np.ndarray | None
+    outcomes: Outcomes
     t: np.ndarray
-    idx: np.ndarray
-    p: np.ndarray
-    p_has: np.ndarray
-    p_conflict: np.ndarray
     act_virtual: np.ndarray
-    by_bank: np.ndarray
-    bank_sorted: np.ndarray
-    hit_sorted: np.ndarray
 
 
 def plan_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, policy: str, *,
-                gbank: np.ndarray, row: np.ndarray, write: np.ndarray) -> TimingPlan:
-    """Row-buffer outcomes and refresh-free times of a sequence in service order (see the module doc)."""
+                gbank: np.ndarray, row: np.ndarray, write: np.ndarray,
+                outcomes: Outcomes | None = None) -> TimingPlan:
+    """Row-buffer outcomes and refresh-free times of a sequence in service order (see the module doc).
+
+    ``outcomes``: :func:`hdeem_watch.dram.row_outcomes.row_outcomes` of the sequence, if already computed.
+    """
     n = gbank.size
     queue = config.read_queue
-    banks_total = geometry.ranks * geometry.banks
-    # one stable sort by bank (radix on a narrow copy): each request's predecessor in its bank is
-    # its neighbour in that order
-    narrow = np.int8 if banks_total <= 128 else np.int16 if banks_total < 32767 else np.int64
-    small = gbank.astype(narrow)
-    by_bank = np.argsort(small, kind="stable")
-    bank_sorted = small[by_bank]
-    row_sorted = row[by_bank]
-    has_prev = np.zeros(n, dtype=bool)
-    np.equal(bank_sorted[1:], bank_sorted[:-1], out=has_prev[1:])
-    same_row = has_prev.copy()
-    same_row[1:] &= row_sorted[1:] == row_sorted[:-1]
-    del row_sorted
-    auto: np.ndarray | None = None
-    if policy == "closed":
-        # RDA/WRA unless the bank's next request hits the row within the queue's reach
-        auto_sorted = np.ones(n, dtype=bool)
-        if n > 1:
-            np.logical_not(same_row[1:], out=auto_sorted[:-1])
-            auto_sorted[:-1] |= (by_bank[1:] - by_bank[:-1]) > queue
-        prev_auto = np.zeros(n, dtype=bool)
-        prev_auto[1:] = auto_sorted[:-1]
-        hit = same_row & ~prev_auto
-        conflict = has_prev & ~same_row & ~prev_auto
-        auto = np.empty(n, dtype=bool)
-        auto[by_bank] = auto_sorted
-    else:
-        hit = same_row
-        conflict = has_prev
-    need_sorted = np.flatnonzero(~hit)  # activating requests, by bank
-    requests = by_bank[need_sorted]
-    p_has_b = has_prev[need_sorted]
-    p_b = np.where(p_has_b, by_bank[need_sorted - 1], 0)
-    # q: the activation that opened p's row = the previous activating request of the same bank
-    q_b = np.zeros(requests.size, dtype=np.int64)
-    if requests.size > 1:
-        q_b[1:] = np.where(p_has_b[1:], requests[:-1], 0)
-    pc_b = conflict[need_sorted]
-    to_time = np.argsort(requests, kind="stable")  # a merge of the banks' ascending runs
-    idx = requests[to_time]
-    p_safe, p_has, q, p_conflict = p_b[to_time], p_has_b[to_time], q_b[to_time], pc_b[to_time]
+    if outcomes is None:
+        outcomes = row_outcomes(geometry, config, policy, gbank=gbank, row=row)
+    idx, p_safe, p_has, q = outcomes.idx, outcomes.p, outcomes.p_has, outcomes.q
     m = idx.size
     b = timing.burst
 
@@ -165,8 +163,7 @@ def plan_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, pol
     cum_i = cum[idx]
     wait_p = recovery_p + (timing.rp + timing.rcd - config.hidden_bank) - (cum_i - cum[p_safe])
     wait_q = (timing.ras + timing.rp) - (cum_i - cum[q])
-    rank_p = np.searchsorted(idx, p_safe, side="right")  # activating requests up to and including p
-    rank_q = np.searchsorted(idx, q, side="right")
+    rank_p, rank_q = outcomes.rank_p, outcomes.rank_q
     lam = np.maximum(np.maximum(wait_p, wait_q), 0)
     lam *= p_has
     for _ in range(_MAX_ROUNDS):
@@ -192,9 +189,7 @@ def plan_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, pol
     ready += timing.rp
     ready *= p_has
     act_virtual = np.minimum(np.maximum(ready, enter), t[idx] - timing.rcd)
-    return TimingPlan(gbank=gbank, row=row, write=write, auto=auto, t=t, idx=idx, p=p_safe, p_has=p_has,
-                      p_conflict=p_conflict, act_virtual=act_virtual, by_bank=by_bank, bank_sorted=bank_sorted,
-                      hit_sorted=hit)
+    return TimingPlan(gbank=gbank, row=row, write=write, outcomes=outcomes, t=t, act_virtual=act_virtual)
 
 
 def _lost_hits(plan: TimingPlan, refresh: _Refresh, banks_total: int) -> np.ndarray:
@@ -210,39 +205,40 @@ def _lost_hits(plan: TimingPlan, refresh: _Refresh, banks_total: int) -> np.ndar
     if thresholds.size == 0:
         return np.zeros(0, dtype=np.int64)
     first = np.searchsorted(plan.t, thresholds, side="left")  # first request after each refresh
-    position = plan.bank_sorted.astype(np.int64)
+    position: np.ndarray = plan.outcomes.bank_sorted.astype(np.int32 if banks_total * n < 1 << 31 else np.int64)
     position *= n
-    position += plan.by_bank  # ascending: by bank, then by request
+    position += plan.outcomes.by_bank  # ascending: by bank, then by request
     queries = (np.arange(banks_total, dtype=np.int64)[:, None] * n + first[None, :]).ravel()
     found = np.searchsorted(position, queries, side="left")
     query_bank = np.repeat(np.arange(banks_total), first.size)
     inside = found < n
     found, query_bank = found[inside], query_bank[inside]
-    found = found[plan.bank_sorted[found] == query_bank]
-    return np.unique(plan.by_bank[found[plan.hit_sorted[found]]])
+    found = found[plan.outcomes.bank_sorted[found] == query_bank]
+    return np.unique(plan.outcomes.by_bank[found[plan.outcomes.hit_sorted[found]]])
 
 
 def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, policy: str, *,
                gbank: np.ndarray, row: np.ndarray,
                column: np.ndarray | None, write: np.ndarray, start: int = 0, close_at_end: bool = False,
-               plan: TimingPlan | None = None, keep_commands: bool = True) -> ControllerResult:
+               plan: TimingPlan | None = None, outcomes: Outcomes | None = None,
+               keep_commands: bool = True) -> ControllerResult:
     """Time a request sequence already in service order and collect its commands and statistics.
 
     ``start`` is the cycle the sequence starts at (a chunk after earlier ones); ``close_at_end``
     precharges the banks left open and ends the window ``tRP`` later, so the next chunk starts
     with every bank precharged. ``column`` may be ``None`` when the commands are not kept (their
-    ``col_column`` is then empty). ``plan``: :func:`plan_timing` of the sequence, if already
-    computed. ``keep_commands=False`` leaves ``col_cycle`` empty (the statistics do not need it).
+    ``col_column`` is then empty). ``plan``: :func:`plan_timing` of the sequence, or ``outcomes``: its
+    :func:`hdeem_watch.dram.row_outcomes.row_outcomes`, if already computed. ``keep_commands=False`` leaves ``col_cycle`` empty (the statistics do not need it).
     """
     if plan is None:
-        plan = plan_timing(geometry, timing, config, policy, gbank=gbank, row=row, write=write)
-    gbank, row, write, t, idx = plan.gbank, plan.row, plan.write, plan.t, plan.idx
+        plan = plan_timing(geometry, timing, config, policy, gbank=gbank, row=row, write=write, outcomes=outcomes)
+    gbank, row, write, t, idx = plan.gbank, plan.row, plan.write, plan.t, plan.outcomes.idx
     n = gbank.size
     b = timing.burst
     rank = gbank >> (geometry.banks.bit_length() - 1)
     bank = gbank & (geometry.banks - 1)
-    auto = plan.auto if plan.auto is not None else np.zeros(n, dtype=bool)
-    p_safe = plan.p
+    auto = plan.outcomes.auto if plan.outcomes.auto is not None else np.zeros(n, dtype=bool)
+    p_safe = plan.outcomes.p
     act_virtual = plan.act_virtual
     pre_t = act_virtual - timing.rp
 
@@ -255,7 +251,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     k_col_i = refresh.count(t_i)
     col_real_i = refresh.real(t_i)
     k_pre = refresh.count(pre_t)
-    explicit_pre = plan.p_conflict & (k_pre <= refresh.count(t[p_safe]))
+    explicit_pre = plan.outcomes.p_conflict & (k_pre <= refresh.count(t[p_safe]))
     # outcomes: conflicts are the activating requests with an explicit PRE; a refresh turned
     # the others (and the hits it interrupted) into misses
     lost_hits = _lost_hits(plan, refresh, geometry.ranks * geometry.banks)
@@ -279,7 +275,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
     act_keys = act_bank * shift + act_cycle
     act_order = _by_bank(act_bank)  # nearly key order: the searches below run fast
     auto_cycle = np.zeros(0, dtype=np.int64)
-    auto_req = np.flatnonzero(auto) if plan.auto is not None else np.zeros(0, dtype=np.int64)
+    auto_req = np.flatnonzero(auto) if plan.outcomes.auto is not None else np.zeros(0, dtype=np.int64)
     if auto_req.size:
         auto_real = refresh.real(t[auto_req])
         sorted_acts = np.sort(act_keys)
