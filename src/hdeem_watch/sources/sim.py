@@ -49,7 +49,7 @@ from hdeem_watch.sources.base import (
     SourceBatch,
     hdeem_channel_infos,
 )
-from hdeem_watch.sources.sim_fast import NoiseBank, idle_rows
+from hdeem_watch.sources.sim_fast import IdleBlock, NoiseBank, idle_block
 from hdeem_watch.sources.sim_model import (
     DIMM_PAIR,
     DIMM_SOCKET,
@@ -64,19 +64,11 @@ from hdeem_watch.sources.sim_model import (
     socket_shares,
     threads_per_socket,
 )
+from hdeem_watch.sources.sim_signal import NOISE_W, channel_power_w, flat_power_w, mean_power_w
 
 __all__ = ["SimSource", "modelled_line_rate", "socket_shares", "threads_per_socket"]
 
 log = logging.getLogger(__name__)
-
-#: Idle CPU package power (W) per socket and the extra power per busy core / hyper-thread.
-CPU_IDLE_W = (12.0, 8.0)
-CPU_CORE_W = 1.5
-CPU_HT_W = 0.3
-#: Blade power not in the VR sensors (fans, board, disks, NIC), W.
-BLADE_BASE_W = 45.0
-#: Noise σ (W) per channel kind.
-NOISE_W = {"blade": 0.8, "cpu": 0.25, "dram": 0.05}
 
 
 @dataclass
@@ -110,6 +102,9 @@ class SimSource:
         background_plans: compute a run's energy plan (``kernel_stats``, seconds for big runs) in a
             worker thread; until it is ready the sim's sensors lag (samples after the run's start are
             held back, then delivered), so ``on_run`` never blocks the daemon's poll loop.
+        block_s: while the node is idle, its samples are generated this far (sim s) ahead of the
+            polls, in one computation per block (the hidden currents' drift is evaluated once per
+            block); a run drops the unpublished rest at once. 0 = one block per poll.
 
     Example:
         >>> sim = SimSource(seed=1)
@@ -123,7 +118,7 @@ class SimSource:
                  wall_clock: Callable[[], int] = time.time_ns, *, noise: bool = True, quantum_w: float = 0.125,
                  io_j_per_line: float = 0.5e-9, offsets: bool = True, aging_per_h: float = 0.005,
                  temp_amp_c: float = 3.0, dimm_spread: float = 0.10, buffer_s: float = 60.0,
-                 background_plans: bool = True) -> None:
+                 background_plans: bool = True, block_s: float = 1.0) -> None:
         if not speed > 0 or not math.isfinite(speed):
             from hdeem_watch.errors import InputError
 
@@ -136,6 +131,7 @@ class SimSource:
         self.quantum_w = float(quantum_w)
         self.io_j_per_line = float(io_j_per_line)
         self.buffer_ns = int(buffer_s * 1e9)
+        self.block_ns = max(0, int(block_s * 1e9))
         self.model = load_model()
         self.truth_model = TruthModel(self.model.names, self.model.datasheet, self.seed,
                                       aging_per_h=aging_per_h, temp_amp_c=temp_amp_c, dimm_spread=dimm_spread)
@@ -155,7 +151,11 @@ class SimSource:
         #: Channels on the same sample grid, with their noise σ as a column (the idle fast path).
         self._groups = [(period, tuple(i.name for i in infos), np.array([[NOISE_W[i.kind]] for i in infos]))
                         for period, infos in by_period.items()]
-        self._pair_index = np.array([[d for d in range(len(DIMMS)) if DIMM_PAIR[d] == name] for name in DRAM_CHANNELS])
+        #: Per group, the idle samples generated ahead (None = none; see :mod:`hdeem_watch.sources.sim_fast`).
+        self._blocks: list[IdleBlock | None] = [None] * len(self._groups)
+        self._flat: dict[str, float] = {}
+        self._flat_at = -1
+        self._status_ok = {info.name: STATUS_OK for info in self._infos}
         #: Samples per channel that fit in the sensor buffer.
         self._buffer_k = {name: self.buffer_ns // period for name, period in self._period_ns.items()}
         self._open = False
@@ -186,10 +186,14 @@ class SimSource:
         self._energy_j = {name: 0.0 for name in CHANNELS}
         self._sim_ns = 0
         self._generated_ns = 0
+        self._blocks = [None] * len(self._groups)
+        self._flat_at = -1
         self._open = True
 
     def close(self) -> None:
         """Stop (idempotent); a closed sim can be opened again and starts afresh."""
+        if self._open:
+            self._drop_blocks()
         self._open = False
         self._plans.clear()
         self._pending.clear()
@@ -211,38 +215,47 @@ class SimSource:
         if not self._open:
             raise RuntimeError("SimSource.poll() before open()")
         now = int(self._clock())
-        self._sim_ns = max(self._sim_ns, self.sim_time_ns(now))
-        self._resolve_plans()
-        # while a run's plan is being computed, the sensors lag: nothing after its start is generated
-        sim_now = min([self._sim_ns, *(p.t0_ns for p in self._pending.values())])
-        sim_now = max(sim_now, self._generated_ns)
-        self._generated_ns = sim_now
-        t_s = sim_now * 1e-9
-        currents = self.truth_model.currents(t_s)
-        idle = idle_power_w(self.model, currents)
-        # No run planned and no energy owed (the node is idle): every channel's noise-free power is
-        # one number for the whole poll, the same sums in the same order as _power's arrays.
-        flat = self._flat_power(idle) if not self._plans and not any(self._owed.values()) else None
+        sim_ns = self._sim_ns = max(self._sim_ns, self.sim_time_ns(now))
+        if self._pending:
+            self._resolve_plans()
+            # while a run's plan is being computed, the sensors lag: nothing after its start is generated
+            sim_ns = min([sim_ns, *(p.t0_ns for p in self._pending.values())])
+        sim_now = self._generated_ns = max(sim_ns, self._generated_ns)
         samples: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        status: dict[str, str] = {}
         gaps: dict[str, int] = {}
-        if flat is not None:
-            self._poll_idle(sim_now, flat, samples, status)
+        if not self._plans and not self._owed:
+            self._poll_idle(sim_now, samples)   # the node is idle: slices of blocks generated ahead
+        elif self._blocks:
+            self._drop_blocks()
+        status = dict(self._status_ok)
+        if len(samples) < len(self._infos):
+            self._poll_general(sim_now, samples, status, gaps)
+        if self._plans:
+            self._retire(sim_now)
+        return SourceBatch(t_mono_ns=now, t_wall_ns=self._t0_wall + sim_now, samples=samples,
+                           energy_j=dict(self._energy_j), status=status, gaps=gaps)
+
+    def _poll_general(self, sim_now: int, samples: dict[str, tuple[np.ndarray, np.ndarray]],
+                      status: dict[str, str], gaps: dict[str, int]) -> None:
+        """Every channel not served from an idle block, computed for this poll alone (runs, lost stretches)."""
+        idle = idle_power_w(self.model, self.truth_model.currents(sim_now * 1e-9))
+        plans = list(self._plans.values())
         for info in self._infos:
             name, period = info.name, self._period_ns[info.name]
             if name in samples:
                 continue
+            offset = self._offset_w[name]
             k0, k1 = self._next_k[name], sim_now // period
             lost = 0
             if (k1 - k0 + 1) * period > self.buffer_ns:
                 keep_from = k1 - self.buffer_ns // period + 1
                 lost = keep_from - k0
-                self._energy_j[name] += self._mean_power(name, k0 * period - period, (keep_from - 1) * period,
-                                                         idle) * (keep_from - k0) * period * 1e-9
+                self._energy_j[name] += mean_power_w(name, k0 * period - period, (keep_from - 1) * period, idle,
+                                                     plans, offset_w=offset) * (keep_from - k0) * period * 1e-9
                 k0 = keep_from
             ks = np.arange(k0, k1 + 1, dtype=np.int64)
             t_end = ks * period
-            power = self._power(name, t_end, period, idle)
+            power = channel_power_w(name, t_end, period, idle, plans, offset_w=offset)
             self._deposit_owed(name, t_end, period, power)
             if self.noise and len(ks):
                 power = power + self._noise.take(name, len(ks))
@@ -252,39 +265,67 @@ class SimSource:
             self._energy_j[name] += float(power.sum()) * period * 1e-9
             self._next_k[name] = k1 + 1
             samples[name] = (t_end + self._t0_wall, power)
-            status[name] = STATUS_GAP if lost else STATUS_OK
             if lost:
+                status[name] = STATUS_GAP
                 gaps[name] = int(lost)
-        self._retire(sim_now)
-        return SourceBatch(t_mono_ns=now, t_wall_ns=self._t0_wall + sim_now, samples=samples,
-                           energy_j=dict(self._energy_j), status=status, gaps=gaps)
 
-    def _flat_power(self, idle: np.ndarray) -> dict[str, float]:
-        """Noise-free power of every channel of an idle node (W), summed as :meth:`_power` sums."""
-        flat = {name: pair + self._offset_w[name]
-                for name, pair in zip(DRAM_CHANNELS, idle[self._pair_index].sum(axis=1).tolist())}
-        flat["CPU0"] = CPU_IDLE_W[0] + self._offset_w["CPU0"]
-        flat["CPU1"] = CPU_IDLE_W[1] + self._offset_w["CPU1"]
-        flat["BLADE"] = BLADE_BASE_W + CPU_IDLE_W[0] + CPU_IDLE_W[1] + float(idle.sum()) + self._offset_w["BLADE"]
-        return flat
+    def _poll_idle(self, sim_now: int, samples: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
+        """The samples of an idle node: per group of channels on the same grid, a slice of its block.
 
-    def _poll_idle(self, sim_now: int, flat: dict[str, float], samples: dict[str, tuple[np.ndarray, np.ndarray]],
-                   status: dict[str, str]) -> None:
-        """The samples of an idle node, one 2-D array per group of channels on the same grid."""
-        for period, names, sigma_col in self._groups:
-            k0, k1 = self._next_k[names[0]], sim_now // period
-            n = k1 - k0 + 1
-            if n > self._buffer_k[names[0]] or any(self._next_k[name] != k0 for name in names):
-                continue  # a lost stretch or channels out of step: the general path
-            noise = self._noise.take_rows(names, sigma_col, n) if self.noise and n else None
-            rows = idle_rows(np.array([[flat[name]] for name in names]), noise, self.quantum_w, n)
-            sums = rows.sum(axis=1).tolist()
-            t_wall = np.arange(k0 * period + self._t0_wall, k1 * period + self._t0_wall + 1, period, dtype=np.int64)
-            for i, name in enumerate(names):
-                self._energy_j[name] += sums[i] * period * 1e-9
-                self._next_k[name] = k1 + 1
-                samples[name] = (t_wall, rows[i])
-                status[name] = STATUS_OK
+        A group whose poll reaches past its block gets a new block from its next sample to about
+        ``block_s`` of sim time ahead (the unpublished rest of the old one is dropped); a group that
+        lost samples to the sensor buffer is left to the general path.
+        """
+        energy, next_k = self._energy_j, self._next_k
+        for g, (period, names, _sigma) in enumerate(self._groups):
+            first = names[0]
+            k0, k1 = next_k[first], sim_now // period
+            if k1 - k0 + 1 > self._buffer_k[first]:
+                self._drop_block(g)
+                continue
+            block = self._blocks[g]
+            if block is None or k1 > block.k_last:
+                block = self._new_block(g, k0, k1, sim_now)
+            i0, i1 = k0 - block.k_first, k1 + 1 - block.k_first
+            t_wall = block.t_wall_ns[i0:i1]
+            for name, row in zip(names, block.rows):
+                samples[name] = (t_wall, row[i0:i1])
+            if i1 > i0:
+                for name, total in zip(names, block.energy_j[i1 - 1]):
+                    energy[name] = total
+                    next_k[name] = k1 + 1
+
+    def _new_block(self, g: int, k0: int, k1: int, sim_now: int) -> IdleBlock:
+        """Generate group ``g``'s idle samples from ``k0`` to at least ``k1`` and ``block_s`` past ``sim_now``."""
+        self._drop_block(g)
+        period, names, sigma_col = self._groups[g]
+        if self._flat_at != sim_now:   # both groups' new blocks usually start at the same poll
+            idle = idle_power_w(self.model, self.truth_model.currents(sim_now * 1e-9))
+            self._flat = flat_power_w(idle, self._offset_w)
+            self._flat_at = sim_now
+        k_last = max(k1, (sim_now + self.block_ns) // period)
+        n = k_last - k0 + 1
+        noise = self._noise.take_rows(names, sigma_col, n) if self.noise else None
+        block = idle_block(k0, k_last, period, self._t0_wall, np.array([[self._flat[name]] for name in names]), noise,
+                           self.quantum_w, np.array([self._energy_j[name] for name in names]))
+        self._blocks[g] = block
+        return block
+
+    def _drop_block(self, g: int) -> None:
+        """Forget group ``g``'s block; its unpublished samples' noise goes back to the bank."""
+        block = self._blocks[g]
+        if block is None:
+            return
+        self._blocks[g] = None
+        names = self._groups[g][1]
+        unpublished = block.k_last - self._next_k[names[0]] + 1
+        if self.noise and unpublished > 0:
+            for name in names:
+                self._noise.rewind(name, unpublished)
+
+    def _drop_blocks(self) -> None:
+        for g in range(len(self._groups)):
+            self._drop_block(g)
 
     # -- runs ------------------------------------------------------------------------------------------
     def on_run(self, event: RunEvent) -> None:
@@ -379,7 +420,7 @@ class SimSource:
             "io_j_per_line": self.io_j_per_line,
         }
 
-    # -- the signal ------------------------------------------------------------------------------------
+    # -- energy owed by stopped runs -------------------------------------------------------------------
     def _add_owed(self, name: str, t_ns: int, joules: float) -> None:
         self._owed.setdefault(name, []).append((t_ns, joules))
 
@@ -395,53 +436,12 @@ class SimSource:
                 continue
             i = int(np.searchsorted(t_end, t_owed, side="left"))
             power[i] += joules / (period * 1e-9)
-        self._owed[name] = keep
+        if keep:
+            self._owed[name] = keep
+        else:
+            del self._owed[name]
 
     def _retire(self, sim_now: int) -> None:
         for run_id, plan in list(self._plans.items()):
             if plan.cpu_end_ns is not None and plan.cpu_end_ns <= sim_now and plan.traffic_end_ns <= sim_now:
                 del self._plans[run_id]
-
-    @staticmethod
-    def _overlap(t_end: np.ndarray, period: int, a: int, b: float) -> np.ndarray:
-        lo = np.maximum(t_end - period, a)
-        hi = np.minimum(t_end.astype(float), b)
-        return np.clip(hi - lo, 0.0, None) / period
-
-    def _dram_w(self, dimms: list[int], t_end: np.ndarray, period: int, idle: np.ndarray) -> np.ndarray:
-        power = np.full(len(t_end), float(idle[dimms].sum()))
-        for plan in self._plans.values():
-            if plan.duration_ns <= 0:
-                continue
-            excess = float(plan.excess_w[dimms].sum())
-            power += excess * self._overlap(t_end, period, plan.t0_ns, plan.traffic_end_ns)
-        return power
-
-    def _cpu_w(self, socket: int, t_end: np.ndarray, period: int) -> np.ndarray:
-        power = np.full(len(t_end), CPU_IDLE_W[socket])
-        for plan in self._plans.values():
-            n = plan.threads[socket]
-            if n <= 0:
-                continue
-            extra = CPU_CORE_W * min(n, 12) + CPU_HT_W * max(n - 12, 0)
-            end = math.inf if plan.cpu_end_ns is None else plan.cpu_end_ns
-            power += extra * self._overlap(t_end, period, plan.t0_ns, end)
-        return power
-
-    def _power(self, name: str, t_end: np.ndarray, period: int, idle: np.ndarray) -> np.ndarray:
-        """Noise-free mean power of ``name`` over each interval ``(t − period, t]`` (W)."""
-        if name in DRAM_CHANNELS:
-            dimms = [d for d in range(len(DIMMS)) if DIMM_PAIR[d] == name]
-            power = self._dram_w(dimms, t_end, period, idle)
-        elif name in ("CPU0", "CPU1"):
-            power = self._cpu_w(int(name[-1]), t_end, period)
-        else:  # BLADE: base + both sockets + all DIMMs
-            power = BLADE_BASE_W + self._cpu_w(0, t_end, period) + self._cpu_w(1, t_end, period)
-            power = power + self._dram_w(list(range(len(DIMMS))), t_end, period, idle)
-        return power + self._offset_w[name]
-
-    def _mean_power(self, name: str, a: int, b: int, idle: np.ndarray) -> float:
-        """Noise-free mean power of ``name`` over ``(a, b]`` (for samples lost to the buffer)."""
-        if b <= a:
-            return 0.0
-        return float(self._power(name, np.array([b], dtype=np.int64), b - a, idle)[0])

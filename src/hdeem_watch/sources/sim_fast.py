@@ -1,15 +1,19 @@
-"""The simulated node's hot path: block-drawn noise and the idle node's samples in a few array operations.
+"""The simulated node's hot path: block-drawn noise and the idle node's samples generated ahead in blocks.
 
-The sim polls 40 times a second inside the daemon, so each poll's cost is mostly per-call overhead
-(a numpy call on a cold cache costs several µs whatever its size). Two things keep it small without
-changing a single sample:
+The sim polls 25 times a second inside the daemon, so each poll's cost is mostly per-call overhead
+(a numpy call on a cold cache costs several µs whatever its size). Three things keep it small:
 
 * :class:`NoiseBank` draws each channel's standard-normal noise from the channel's own generator in
   blocks and hands out slices; the values are exactly those of one ``normal(0, σ, n)`` call per
-  poll (numpy's generators draw normals one after another, whatever the call sizes).
+  poll (numpy's generators draw normals one after another, whatever the call sizes). A slice that
+  was taken but not used can be given back (:meth:`NoiseBank.rewind`).
 * :func:`idle_rows` computes the samples of several channels with the same grid (the six 100 Sa/s
   channels) as one 2-D array while the node is idle (its noise-free power is then one number per
-  channel and poll), with the same float operations in the same order as the general path.
+  channel), with the same float operations in the same order as the general path.
+* :func:`idle_block` generates an idle group's samples *ahead* (about a second of sim time), with
+  their timestamps and cumulative energies, so most polls only slice what became due
+  (:class:`IdleBlock`). The sim drops the unpublished part of a block (and rewinds its noise) as
+  soon as the node stops being idle, so the power still responds to runs at once.
 
 Example:
     >>> import numpy as np
@@ -20,6 +24,8 @@ Example:
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -50,6 +56,13 @@ class NoiseBank:
             pos = 0
         self._pos[name] = pos + n
         return buf[pos:pos + n]
+
+    def rewind(self, name: str, n: int) -> None:
+        """Give back the last ``n`` values taken from ``name`` (at most those of its latest take)."""
+        pos = self._pos[name] - int(n)
+        if pos < 0:
+            raise ValueError(f"noise {name}: cannot rewind {n} values (only {self._pos[name]} kept)")
+        self._pos[name] = pos
 
     def take(self, name: str, n: int) -> np.ndarray:
         """The next ``n`` noise values of ``name`` (W, a new array)."""
@@ -82,3 +95,47 @@ def idle_rows(base_w: np.ndarray, noise: np.ndarray | None, quantum_w: float, n:
     """
     power = base_w + noise if noise is not None else np.repeat(base_w, n, axis=1)
     return quantise(power, quantum_w)
+
+
+@dataclass(frozen=True)
+class IdleBlock:
+    """Samples of one group of channels (same grid) generated ahead while the node is idle.
+
+    Attributes:
+        k_first: sample index (sim time / period) of column 0.
+        k_last: sample index of the last column.
+        t_wall_ns: sample timestamps (int64, one per column).
+        rows: per channel, its samples (W; views of one 2-D array).
+        energy_j: per column, every channel's cumulative energy after it (J; plain floats, read by
+            index without a numpy call).
+    """
+
+    k_first: int
+    k_last: int
+    t_wall_ns: np.ndarray
+    rows: tuple[np.ndarray, ...]
+    energy_j: list[list[float]]
+
+
+def idle_block(k_first: int, k_last: int, period_ns: int, t0_wall_ns: int, base_w: np.ndarray,
+               noise: np.ndarray | None, quantum_w: float, start_energy_j: np.ndarray) -> IdleBlock:
+    """The samples ``k_first..k_last`` of k idle channels with constant noise-free power.
+
+    Args:
+        k_first: first sample index (its interval ends at ``k_first · period``).
+        k_last: last sample index.
+        period_ns: the channels' sample period.
+        t0_wall_ns: wall-clock time of sim time 0.
+        base_w: noise-free power per channel, shape (k, 1).
+        noise: noise per channel and sample, shape (k, n), or None.
+        quantum_w: quantisation step (0 = none).
+        start_energy_j: each channel's cumulative energy before ``k_first``, shape (k,).
+    """
+    n = k_last - k_first + 1
+    power = idle_rows(base_w, noise, quantum_w, n)
+    t_wall = np.arange(k_first * period_ns + t0_wall_ns, k_last * period_ns + t0_wall_ns + 1, period_ns,
+                       dtype=np.int64)
+    energy = np.cumsum(power, axis=1)
+    energy *= period_ns * 1e-9
+    energy += start_energy_j[:, None]
+    return IdleBlock(k_first, k_last, t_wall, tuple(power), energy.T.tolist())

@@ -1,0 +1,99 @@
+"""The simulated node's noise-free signal: each HDEEM channel's mean power over its sample intervals.
+
+Pure functions of the idle power per DIMM, the active :class:`~hdeem_watch.sources.sim_model.RunPlan`
+objects and the channel's board offset. A sample ending at ``t`` is the mean power over
+``(t − period, t]``; a run adds its DRAM excess over the overlap of that interval with its traffic
+and its cores' power over the overlap with its CPU load (threads fill socket 0 first).
+
+Example:
+    >>> import numpy as np
+    >>> idle = np.full(8, 0.5)
+    >>> channel_power_w("DDR_AB", np.array([10, 20]), 10, idle, [], offset_w=0.25).tolist()
+    [1.25, 1.25]
+    >>> float(flat_power_w(idle, {n: 0.0 for n in ("BLADE", "CPU0", "CPU1", *DRAM_CHANNELS)})["BLADE"])
+    69.0
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+
+import numpy as np
+
+from hdeem_watch.sources.base import DRAM_CHANNELS
+from hdeem_watch.sources.sim_model import DIMM_PAIR, DIMMS, RunPlan
+
+#: Idle CPU package power (W) per socket and the extra power per busy core / hyper-thread.
+CPU_IDLE_W = (12.0, 8.0)
+CPU_CORE_W = 1.5
+CPU_HT_W = 0.3
+#: Blade power not in the VR sensors (fans, board, disks, NIC), W.
+BLADE_BASE_W = 45.0
+#: Noise σ (W) per channel kind.
+NOISE_W = {"blade": 0.8, "cpu": 0.25, "dram": 0.05}
+#: The DIMMs (indices) behind each DIMM-pair channel.
+PAIR_DIMMS = {name: [d for d in range(len(DIMMS)) if DIMM_PAIR[d] == name] for name in DRAM_CHANNELS}
+_PAIR_INDEX = np.array([PAIR_DIMMS[name] for name in DRAM_CHANNELS])
+
+
+def overlap(t_end: np.ndarray, period: int, a: int, b: float) -> np.ndarray:
+    """Fraction of each interval ``(t − period, t]`` that lies inside ``(a, b]``."""
+    lo = np.maximum(t_end - period, a)
+    hi = np.minimum(t_end.astype(float), b)
+    return np.clip(hi - lo, 0.0, None) / period
+
+
+def dram_w(dimms: list[int], t_end: np.ndarray, period: int, idle_w: np.ndarray, plans: Iterable[RunPlan]) -> np.ndarray:
+    """Mean power of ``dimms`` over each interval: idle plus every run's excess while its traffic flows."""
+    power = np.full(len(t_end), float(idle_w[dimms].sum()))
+    for plan in plans:
+        if plan.duration_ns <= 0:
+            continue
+        excess = float(plan.excess_w[dimms].sum())
+        power += excess * overlap(t_end, period, plan.t0_ns, plan.traffic_end_ns)
+    return power
+
+
+def cpu_w(socket: int, t_end: np.ndarray, period: int, plans: Iterable[RunPlan]) -> np.ndarray:
+    """Mean package power of ``socket`` over each interval: idle plus the busy cores of every run."""
+    power = np.full(len(t_end), CPU_IDLE_W[socket])
+    for plan in plans:
+        n = plan.threads[socket]
+        if n <= 0:
+            continue
+        extra = CPU_CORE_W * min(n, 12) + CPU_HT_W * max(n - 12, 0)
+        end = math.inf if plan.cpu_end_ns is None else plan.cpu_end_ns
+        power += extra * overlap(t_end, period, plan.t0_ns, end)
+    return power
+
+
+def channel_power_w(name: str, t_end: np.ndarray, period: int, idle_w: np.ndarray, plans: Iterable[RunPlan],
+                    *, offset_w: float) -> np.ndarray:
+    """Noise-free mean power of channel ``name`` over each interval ``(t − period, t]`` (W)."""
+    plans = list(plans)
+    if name in DRAM_CHANNELS:
+        power = dram_w(PAIR_DIMMS[name], t_end, period, idle_w, plans)
+    elif name in ("CPU0", "CPU1"):
+        power = cpu_w(int(name[-1]), t_end, period, plans)
+    else:  # BLADE: base + both sockets + all DIMMs
+        power = BLADE_BASE_W + cpu_w(0, t_end, period, plans) + cpu_w(1, t_end, period, plans)
+        power = power + dram_w(list(range(len(DIMMS))), t_end, period, idle_w, plans)
+    return power + offset_w
+
+
+def mean_power_w(name: str, a: int, b: int, idle_w: np.ndarray, plans: Iterable[RunPlan], *, offset_w: float) -> float:
+    """Noise-free mean power of ``name`` over ``(a, b]`` (for samples lost to the sensor buffer)."""
+    if b <= a:
+        return 0.0
+    return float(channel_power_w(name, np.array([b], dtype=np.int64), b - a, idle_w, plans, offset_w=offset_w)[0])
+
+
+def flat_power_w(idle_w: np.ndarray, offset_w: Mapping[str, float]) -> dict[str, float]:
+    """Noise-free power of every channel of an idle node (W), summed as :func:`channel_power_w` sums."""
+    flat = {name: pair + offset_w[name]
+            for name, pair in zip(DRAM_CHANNELS, idle_w[_PAIR_INDEX].sum(axis=1).tolist())}
+    flat["CPU0"] = CPU_IDLE_W[0] + offset_w["CPU0"]
+    flat["CPU1"] = CPU_IDLE_W[1] + offset_w["CPU1"]
+    flat["BLADE"] = BLADE_BASE_W + CPU_IDLE_W[0] + CPU_IDLE_W[1] + float(idle_w.sum()) + offset_w["BLADE"]
+    return flat
