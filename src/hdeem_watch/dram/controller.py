@@ -36,8 +36,6 @@ Example:
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-from contextlib import nullcontext
 from dataclasses import dataclass, replace
 from dataclasses import fields as fields_of
 from typing import Any
@@ -45,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.dram.mapping import AddressMapping, Geometry
+from hdeem_watch.dram.pipeline import prepared
 from hdeem_watch.dram.scheduler import SchedulerConfig, serve
 from hdeem_watch.dram.stats import CommandStats, RankStats
 from hdeem_watch.errors import InputError
@@ -52,8 +51,13 @@ from hdeem_watch.errors import InputError
 POLICIES = ("open", "closed")
 #: Requests served per chunk by :func:`simulate`.
 CHUNK_REQUESTS = 1 << 17
-#: Prepare the next chunk (decode, service order) in a second thread while one is timed.
+#: Prepare the next chunk (decode, service order, row outcomes) while one is timed.
 PIPELINE = True
+#: ... in a forked worker process where that is safe and the commands are not kept
+#: (:mod:`hdeem_watch.dram.pipeline`), else in a thread.
+PIPELINE_PROCESS = True
+#: Compute the row outcomes while preparing (else while timing): balances the two stages.
+OUTCOMES_AHEAD = False
 
 
 @dataclass(frozen=True)
@@ -214,8 +218,9 @@ def simulate(
     row_bits = geometry.rows.bit_length() - 1
     key_type = np.int32 if (geometry.ranks * geometry.banks) << row_bits <= 1 << 31 else np.int64
 
-    def prepare(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, Outcomes]:
-        """Chunk ``i`` decoded, in service order, with its row-buffer outcomes (independent of the chunks before it)."""
+    def prepare(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, Outcomes | None]:
+        """Chunk ``i`` decoded and in service order (independent of the chunks before it); with its
+        row-buffer outcomes if :data:`OUTCOMES_AHEAD`."""
         lanes, gbank, row, column = address_mapping.decode_packed(addresses[bounds[i]:bounds[i + 1]],
                                                                    column=keep_commands)
         writes = is_write[bounds[i]:bounds[i + 1]]
@@ -229,28 +234,22 @@ def simulate(
         key, writes, order = serve(key, row_bits, writes, config, want_order=column is not None)
         row = key & ((1 << row_bits) - 1)
         key >>= row_bits
-        outcomes = row_outcomes(geometry, config, policy, gbank=key, row=row)
+        outcomes = row_outcomes(geometry, config, policy, gbank=key, row=row) if OUTCOMES_AHEAD else None
         return key, row, column[order] if column is not None and order is not None else None, writes, outcomes
 
     parts: list[ControllerResult] = []
     start = 0
-    # the service order and row outcomes of chunk i + 1 are computed in a second thread while
-    # chunk i is timed (numpy releases the GIL in its loops); only the timing depends on the chunk before
-    with ThreadPoolExecutor(max_workers=1) if pieces > 1 and PIPELINE else nullcontext() as pool:
-        pending = pool.submit(prepare, 0) if pool is not None else None
-        for i in range(pieces):
-            if pending is not None and pool is not None:
-                gbank, row, column, writes, outcomes = pending.result()
-                pending = pool.submit(prepare, i + 1) if i + 1 < pieces else None
-            else:
-                gbank, row, column, writes, outcomes = prepare(i)
-            part = run_timing(geometry, timing, config, policy, gbank=gbank, row=row, column=column, write=writes,
-                              start=start, close_at_end=i < pieces - 1, outcomes=outcomes,
-                              keep_commands=keep_commands)
-            start = part.cycles
-            if not keep_commands:
-                part = replace(part, commands=None)
-            parts.append(part)
+    # chunk i + 1 is prepared (service order, row outcomes) in a worker process or thread while
+    # chunk i is timed; only the timing depends on the chunk before
+    mode = "inline" if not PIPELINE else "process" if PIPELINE_PROCESS and not keep_commands else "thread"
+    slot_bytes = 72 * (bounds[1] - bounds[0] + 1) + 4096
+    for i, (gbank, row, column, writes, outcomes) in enumerate(prepared(prepare, pieces, mode, slot_bytes)):
+        part = run_timing(geometry, timing, config, policy, gbank=gbank, row=row, column=column, write=writes,
+                          start=start, close_at_end=i < pieces - 1, outcomes=outcomes, keep_commands=keep_commands)
+        start = part.cycles
+        if not keep_commands:
+            part = replace(part, commands=None)
+        parts.append(part)
     return parts[0] if len(parts) == 1 else _merge(parts)
 
 

@@ -261,11 +261,14 @@ def _regroup(key: np.ndarray, bank_shift: int, boundary: np.ndarray, seg_start: 
     order = np.argsort(block_key, kind="stable")
     lengths = np.diff(np.append(block_start, m))[order]
     starts = block_start[order]
-    offsets = np.cumsum(lengths) - lengths
-    source = np.repeat(starts - offsets, lengths)
-    source += np.arange(m, dtype=np.int64)
-    grouped_key = sorted_key[source]
-    grouped = by_group[source] if want_order else None
+    # a block is one row: the keys in grouped order need no gather
+    grouped_key = np.repeat(block_row_key[order].astype(key.dtype), lengths)
+    grouped = None
+    if want_order:
+        offsets = np.cumsum(lengths) - lengths
+        source = np.repeat(starts - offsets, lengths)
+        source += np.arange(m, dtype=np.int64)
+        grouped = by_group[source]
     # Each bank keeps the places its requests had (banks interleave as they arrived, e.g. across
     # bank groups); within a bank the places are refilled in row-grouped order.
     bank = key >> bank_shift
