@@ -7,8 +7,11 @@ Generates the Copy kernel's stream of the Ramulator reference (12,582,912 double
 2. the same from the Ramulator 1 trace file (reading and parsing included),
 
 and prints requests/s, peak memory, the target (>= 20 M requests/s) and the ratio to Ramulator's
-wall time for the same trace (``reference/ramulator/throughput.csv``). ``--quick`` runs 1/8 of the
-stream. Usage: ``python3 benchmarks/bench_stats.py [--quick] [--json]``.
+wall time for the same trace (``reference/ramulator/throughput.csv``). The chunks are prepared
+in a forked worker process while the previous one is timed (``controller.PIPELINE_PROCESS``;
+``--threads`` prepares them in a thread instead): its peak memory is printed separately (most of
+its pages are shared with the benchmark's). ``--quick`` runs 1/8 of the stream. Usage:
+``python3 benchmarks/bench_stats.py [--quick] [--json] [--threads]``.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from hdeem_watch.dram import controller
 from hdeem_watch.dram.controller import simulate
 from hdeem_watch.dram.kernels import kernel_requests
 from hdeem_watch.dram.memspec import load_memspec
@@ -59,7 +63,10 @@ def main() -> int:
     parser.add_argument("--quick", action="store_true", help="1/8 of the stream, one repetition")
     parser.add_argument("--json", action="store_true", help="one JSON object per measurement")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", action="store_true", help="prepare chunks in a thread, not a worker process")
     args = parser.parse_args()
+    controller.PIPELINE_PROCESS = not args.threads
+    pipeline = "thread" if args.threads else "process"
     spec = load_memspec(REFERENCE / "ddr4_2133P_8Gb_x8_2r_8dev.json")
     elements = ELEMENTS // 8 if args.quick else ELEMENTS
     repeats = 1 if args.quick else args.repeats
@@ -81,6 +88,7 @@ def main() -> int:
         file_seconds, _ = _best_of(repeats, from_file)
         rows.append(("trace file -> stats", file_seconds))
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    worker_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     for label, secs in rows:
         rate = n / secs
         record = {
@@ -89,7 +97,8 @@ def main() -> int:
             "ratio_to_target": rate / TARGET_REQUESTS_PER_S,
             "ratio_to_ramulator_fastest": rate / fastest_ramulator,
             "ratio_to_ramulator": {sim: rate / r for sim, r in baseline.items()},
-            "peak_rss_mb": round(peak_mb, 1), "act": result.stats.total("act"), "cycles": result.cycles,
+            "peak_rss_mb": round(peak_mb, 1), "worker_peak_rss_mb": round(worker_mb, 1), "pipeline": pipeline,
+            "act": result.stats.total("act"), "cycles": result.cycles,
         }
         if args.json:
             sys.stdout.write(json.dumps(record) + "\n")
@@ -99,7 +108,10 @@ def main() -> int:
                   f"Ramulator fastest {fastest_ramulator / 1e6:.2f} M/s: {rate / fastest_ramulator:.1f}x; "
                   + ", ".join(f"{sim} {rate / r:.0f}x" for sim, r in baseline.items()) + ")")
     if not args.json:
-        print(f"peak RSS {peak_mb:.0f} MB (Ramulator 2: 147 MB, Ramulator 1: 5.5 MB streaming)")
+        print(f"peak RSS {peak_mb:.0f} MB; {pipeline} pipeline"
+              + (f", worker process peak RSS {worker_mb:.0f} MB (mostly pages shared with this one)"
+               if not args.threads else "")
+              + " (Ramulator 2: 147 MB, Ramulator 1: 5.5 MB streaming)")
     return 0
 
 

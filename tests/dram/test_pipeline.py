@@ -122,3 +122,20 @@ def spec():  # type: ignore[no-untyped-def]
 
     return load_memspec(Path(__file__).resolve().parents[2] / ".." / "shared" / "reference" / "ramulator"
                         / "ddr4_2133P_8Gb_x8_2r_8dev.json")
+
+
+def test_split_work_fills_both_halves_and_reports_a_failed_half() -> None:
+    """split_work fills entries lo:hi of every output from both halves; a False half gives None."""
+    def square(lo: int, hi: int, out: tuple[np.ndarray, ...]) -> bool:
+        out[0][:] = np.arange(lo, hi) ** 2
+        out[1][:] = np.arange(lo, hi) % 2 == 1
+        return True
+
+    result = pipeline.split_work(square, 1001, (np.int64, np.bool_))
+    assert result is not None
+    assert np.array_equal(result[0], np.arange(1001) ** 2) and np.array_equal(result[1], np.arange(1001) % 2 == 1)
+    for bad_half in (0, 1):
+        def fails(lo: int, hi: int, out: tuple[np.ndarray, ...], bad_half: int = bad_half) -> bool:
+            return (lo == 0) != bool(bad_half)
+
+        assert pipeline.split_work(fails, 10, (np.int64,)) is None

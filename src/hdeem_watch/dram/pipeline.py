@@ -15,6 +15,8 @@ one, in one of three ways:
 
 A chunk's result is a tuple of arrays, ``None`` and dataclasses of arrays (one level).
 
+:func:`split_work` fills arrays in two halves at once (a thread for the first).
+
 Example:
     >>> import numpy as np
     >>> [int(a.sum()) for (a,) in prepared(lambda i: (np.arange(i + 3),), 3, "thread")]
@@ -187,7 +189,10 @@ def _in_process(prepare: Callable[[int], tuple[Any, ...]], pieces: int, slot_byt
                           for m in message[1]]
             yield _rebuild(arrays, message[2])
             if i + SLOTS < pieces:
-                os.write(free_w, b"\0")  # the consumer is done with chunk i: its slot is free
+                # the consumer is done with chunk i: its slot is free (unless the worker stopped:
+                # then its error message follows)
+                with contextlib.suppress(BrokenPipeError):
+                    os.write(free_w, b"\0")
         finished = True
     finally:
         os.close(ready_r)
@@ -199,3 +204,19 @@ def _in_process(prepare: Callable[[int], tuple[Any, ...]], pieces: int, slot_byt
         del buffer
         with contextlib.suppress(BufferError):  # a caller still holds a view: the mapping goes with it
             shared.close()
+
+
+def split_work(work: Callable[[int, int, tuple[np.ndarray, ...]], bool], count: int,
+               dtypes: tuple[Any, ...]) -> tuple[np.ndarray, ...] | None:
+    """Fill arrays of ``count`` entries in two halves at once (the first in a thread); ``None`` if a half failed.
+
+    ``work(lo, hi, out)`` fills ``out`` (one array per dtype, ``hi - lo`` entries each) for the
+    entries ``lo:hi`` and returns whether it succeeded. Meant for long numpy operations (each
+    holds the lock only briefly), e.g. parsing a trace in blocks of 65536 lines.
+    """
+    half = count // 2
+    outputs = tuple(np.empty(count, dtype=d) for d in dtypes)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        first = pool.submit(work, 0, half, tuple(o[:half] for o in outputs))
+        second = work(half, count, tuple(o[half:] for o in outputs))
+        return outputs if first.result() and second else None

@@ -12,7 +12,7 @@ Formats (one request per line, newline-terminated):
 
 The writers live in :mod:`hdeem_watch.dram.trace_writers` (re-exported here). The Ramulator
 readers are vectorised: a trace whose lines all have one length (a generated trace) is
-memory-mapped and parsed as a strided byte matrix, block by block on two threads.
+memory-mapped and parsed as a strided byte matrix, block by block, in two halves at once.
 
 Example:
     >>> import numpy as np
@@ -23,12 +23,12 @@ Example:
 from __future__ import annotations
 
 import mmap
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from hdeem_watch.dram.pipeline import split_work
 from hdeem_watch.dram.trace_writers import format_requests, iter_formatted, trace_sha256, write_requests
 from hdeem_watch.errors import InputError
 
@@ -225,32 +225,31 @@ def _hex_values(digits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _read_uniform(buf: np.ndarray, width: int, fmt: str) -> tuple[np.ndarray, np.ndarray] | None:
     """Parse a trace whose lines all have ``width`` bytes (newline included), block by block.
 
-    Large traces are parsed by two threads (numpy releases the GIL in its loops). Returns
+    Large traces are parsed in two halves at once (:func:`hdeem_watch.dram.pipeline.split_work`:
+    two threads; numpy releases the GIL in its loops, which are long here). Returns
     ``None`` if any line is malformed (the general path then names it).
     """
     count = buf.size // width
-    addresses = np.empty(count, dtype=np.uint64)
-    writes = np.empty(count, dtype=bool)
-    text = np.lib.stride_tricks.as_strided(buf, shape=(count, width), strides=(width, 1))
     block = 1 << 16
+    text = np.lib.stride_tricks.as_strided(buf, shape=(count, width), strides=(width, 1))
 
-    def parse(first: int) -> bool:
-        rows = text[first:first + block]
-        values, is_write, ok = _parse_same_length(rows[:, :width - 1], np.zeros(0, dtype=np.int64), width - 1, fmt,
-                                                  matrix=True)
-        if not (ok.all() and (rows[:, width - 1] == 10).all()):
-            return False
-        addresses[first:first + rows.shape[0]] = values
-        writes[first:first + rows.shape[0]] = is_write
+    def parse(first: int, last: int, out: tuple[np.ndarray, ...]) -> bool:
+        addresses, writes = out
+        for lo in range(first, last, block):
+            rows = text[lo:min(lo + block, last)]
+            values, is_write, ok = _parse_same_length(rows[:, :width - 1], np.zeros(0, dtype=np.int64), width - 1,
+                                                      fmt, matrix=True)
+            if not (ok.all() and (rows[:, width - 1] == 10).all()):
+                return False
+            addresses[lo - first:lo - first + rows.shape[0]] = values
+            writes[lo - first:lo - first + rows.shape[0]] = is_write
         return True
 
-    firsts = range(0, count, block)
-    if len(firsts) < 4:
-        good = all(parse(first) for first in firsts)
-    else:
-        with ThreadPoolExecutor(max_workers=2) as pool:
-            good = all(pool.map(parse, firsts))
-    return (addresses, writes) if good else None
+    if count >= 4 * block:
+        result = split_work(parse, count, (np.uint64, np.bool_))
+        return (result[0], result[1]) if result is not None else None
+    out = (np.empty(count, dtype=np.uint64), np.empty(count, dtype=bool))
+    return out if parse(0, count, out) else None
 
 
 def _map_file(path: str | Path) -> bytes | mmap.mmap:
