@@ -97,9 +97,20 @@ def row_outcomes(geometry: Geometry, config: SchedulerConfig, policy: str, *, gb
     q_b = np.zeros(m, dtype=np.int64)
     if m > 1:
         q_b[1:] = np.where(p_has_b[1:], requests[:-1], 0)
-    to_time = np.argsort(requests, kind="stable")  # a merge of the banks' ascending runs
-    idx = requests[to_time]
-    p = p_b[to_time]
+    rank_p: np.ndarray | None = None
+    if 8 * m > n:  # many activations: by marks and counts (no sort, no searches)
+        need = np.zeros(n, dtype=bool)
+        need[requests] = True
+        idx = np.flatnonzero(need)
+        position = np.empty(n, dtype=np.int64)
+        position[requests] = np.arange(m, dtype=np.int64)
+        to_time = position[idx]
+        p = p_b[to_time]
+        rank_p = np.cumsum(need, dtype=np.int64)[p]
+    else:
+        to_time = np.argsort(requests, kind="stable")  # a merge of the banks' ascending runs
+        idx = requests[to_time]
+        p = p_b[to_time]
     # ranks in the activating sequence: q's from the bank order, p's by a search
     rank_b = np.empty(m, dtype=np.int64)
     rank_b[to_time] = np.arange(1, m + 1, dtype=np.int64)
@@ -107,5 +118,6 @@ def row_outcomes(geometry: Geometry, config: SchedulerConfig, policy: str, *, gb
     if m > 1:
         rank_q_b[1:] = np.where(p_has_b[1:], rank_b[:-1], 1)
     return Outcomes(auto=auto, idx=idx, p=p, p_has=p_has_b[to_time], q=q_b[to_time],
-                    p_conflict=conflict[need_sorted][to_time], rank_p=np.searchsorted(idx, p, side="right"),
+                    p_conflict=conflict[need_sorted][to_time],
+                    rank_p=np.searchsorted(idx, p, side="right") if rank_p is None else rank_p,
                     rank_q=rank_q_b[to_time], by_bank=by_bank, bank_sorted=bank_sorted, hit_sorted=hit)
