@@ -56,6 +56,8 @@ PIPELINE = True
 #: ... in a forked worker process where that is safe and the commands are not kept
 #: (:mod:`hdeem_watch.dram.pipeline`), else in a thread.
 PIPELINE_PROCESS = True
+#: Fewest chunks worth a worker process (forking costs a few ms).
+PROCESS_MIN_CHUNKS = 4
 #: Compute the row outcomes while preparing (else while timing): balances the two stages.
 OUTCOMES_AHEAD = False
 
@@ -241,7 +243,8 @@ def simulate(
     start = 0
     # chunk i + 1 is prepared (service order, row outcomes) in a worker process or thread while
     # chunk i is timed; only the timing depends on the chunk before
-    mode = "inline" if not PIPELINE else "process" if PIPELINE_PROCESS and not keep_commands else "thread"
+    mode = ("inline" if not PIPELINE else
+            "process" if PIPELINE_PROCESS and not keep_commands and pieces >= PROCESS_MIN_CHUNKS else "thread")
     slot_bytes = 72 * (bounds[1] - bounds[0] + 1) + 4096
     for i, (gbank, row, column, writes, outcomes) in enumerate(prepared(prepare, pieces, mode, slot_bytes)):
         part = run_timing(geometry, timing, config, policy, gbank=gbank, row=row, column=column, write=writes,
