@@ -263,13 +263,13 @@ def test_a_failing_model_still_answers_run_stop(tmp_path: Path, monkeypatch: pyt
     """If the model cannot be built (bad memspec, or a crash), run.stop still replies with the energies and why."""
     import threading
 
-    from hdeem_watch.daemon import service
+    from hdeem_watch.daemon import jobs
 
     if failure == "crash":
         def broken(*args: object, **kwargs: object) -> None:
             raise RuntimeError("no-such-preset: simulated crash")
 
-        monkeypatch.setattr(service, "RunModeller", broken)
+        monkeypatch.setattr(jobs, "RunModeller", broken)  # the model worker's first job builds it
 
     from hdeem_watch.config import DaemonSettings
     from hdeem_watch.daemon.client import ControlClient

@@ -18,7 +18,7 @@ def _polls(fast: bool, **options) -> list:
     sim = SimSource(seed=11, clock=lambda: t[0], wall_clock=lambda: 1_700_000_000 * S, background_plans=False,
                     **options)
     if not fast:
-        sim._poll_idle = lambda *args: None  # type: ignore[method-assign]  # every channel on the general path
+        sim._idle.poll = lambda *args: None  # type: ignore[method-assign]  # every channel on the general path
     sim.open()
     rng = np.random.default_rng(4)
     batches = []

@@ -34,6 +34,7 @@ _MORE_NOBLOCK = int(zmq.SNDMORE) | int(zmq.NOBLOCK)
 #: The compiled ``Socket.send`` under pyzmq's Python wrapper (which only adds RADIO/SERVER options).
 _RAW_SEND = getattr(zmq.backend, "Socket", zmq.Socket).send
 _TIME_DTYPE = np.dtype(protocol.TIME_DTYPE)
+_QUOTED_STATUS = {status: protocol._quoted(status) for status in ("ok", "stale", "overflow", "gap", "closed")}
 _SAMPLE_DTYPE = np.dtype(protocol.SAMPLE_DTYPE)
 
 #: Topics whose latest message is cached and re-sent to new subscribers.
@@ -203,8 +204,8 @@ class Publisher:
             t_ns,
             n,
             t0,
-            repr(energy_j) if math.isfinite(energy_j) else "null",
-            protocol._quoted(status),
+            repr(energy_j) if energy_j - energy_j == 0.0 else "null",  # finite
+            _QUOTED_STATUS.get(status) or protocol._quoted(status),
         )
         return [known[1], header.encode(), payload]
 

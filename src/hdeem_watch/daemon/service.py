@@ -16,7 +16,6 @@ Example:
 from __future__ import annotations
 
 import collections
-import concurrent.futures
 import fcntl
 import logging
 import math
@@ -34,8 +33,9 @@ from hdeem_watch.daemon import baselines as bl
 from hdeem_watch.daemon.channels import ChannelAccount
 from hdeem_watch.daemon.client import default_endpoints, ipc_path
 from hdeem_watch.daemon.control import ControlServer, Pending
+from hdeem_watch.daemon.jobs import ModelJobs, load_state
 from hdeem_watch.daemon.metrics import DaemonMetrics
-from hdeem_watch.daemon.modelling import MAX_HISTORY, RunModeller, compact_fit
+from hdeem_watch.daemon.modelling import RunModeller
 from hdeem_watch.daemon.operations import Operations
 from hdeem_watch.daemon.poller import IntervalTimer
 from hdeem_watch.daemon.publisher import Publisher
@@ -77,9 +77,7 @@ class Daemon:
         self.baselines: dict[str, bl.Baseline] = {}
         self.windows: list[Window] = []
         self.calib_body: dict[str, Any] = {}
-        self.worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="hdeem-model")
-        self.jobs: list[tuple[concurrent.futures.Future[Any], Callable[[Any], None],
-                              Callable[[BaseException], None] | None]] = []
+        self.jobs = ModelJobs()
         self.publisher: Publisher | None = None
         self.control: ControlServer | None = None
         self.store: Store | None = None
@@ -174,7 +172,7 @@ class Daemon:
             self._close_sockets()
             raise InputError(f"cannot bind {self.pub_endpoint} / {self.control_endpoint}: {error}") from None
         self.pub_endpoint, self.control_endpoint = self.publisher.endpoint, self.control.endpoint
-        self._load_state()
+        load_state(self)
         if self.settings.prometheus_port is not None:
             self.metrics = DaemonMetrics(self.node)
             try:
@@ -187,50 +185,6 @@ class Daemon:
         log.info("hdeem-watch daemon %s: node %s, source %s, pub %s, control %s", __version__, self.node,
                  self.settings.source, self.pub_endpoint, self.control_endpoint)
 
-    def _load_state(self) -> None:
-        assert self.store is not None
-        for channel, record in self.store.load_baselines().items():
-            try:
-                self.baselines[channel] = bl.Baseline.from_dict(record)
-            except (ValueError, TypeError):
-                log.warning("ignoring a malformed stored baseline of %s", channel)
-        history: list[dict[str, Any]] = []
-        for t_ns, _run_id, fit in self.store.fit_history(MAX_HISTORY):
-            if fit is None:
-                history.clear()  # a calib.reset
-            else:
-                history.append(compact_fit(t_ns, fit))
-        state = self.store.load_calibrator()
-        latest = next((fit for _t, _r, fit in reversed(self.store.fit_history(1))), None)
-        # Until the worker has built the model (importing the calibrator takes seconds), late
-        # joiners get the stored fit.
-        self.calib_body = {"fit": latest, "history": history, "runs": len((state or {}).get("observations", [])),
-                           "drift": {}, "memspec": self.settings.memspec, "model_error": None, "truth": None,
-                           "loading": True}
-        settings = self.settings
-
-        def build() -> dict[str, Any]:
-            modeller = RunModeller(
-                settings.memspec, dimms=settings.dimms, currents=settings.currents,
-                half_life_s=settings.half_life_s or None, max_requests=settings.model_max_requests,
-                state=state, history=history,
-            )
-            if modeller.restore_error:
-                log.warning("calibrator state not restored: %s", modeller.restore_error)
-            if modeller.error:
-                log.warning("runs will not be modelled: %s", modeller.error)
-            self.modeller = modeller  # set on the worker: every later model job runs after this one
-            return modeller.body()
-
-        def built(body: dict[str, Any]) -> None:
-            self.calib_body = body
-            self.reporter.publish_calib()
-
-        def not_built(error: BaseException) -> None:
-            self.calib_body = {**self.calib_body, "loading": False,
-                               "model_error": f"model failed to build: {type(error).__name__}: {error}"}
-
-        self.submit(build, built, not_built)
 
     def request_stop(self) -> None:
         """Ask the loop to end (safe from a signal handler)."""
@@ -238,8 +192,7 @@ class Daemon:
 
     def close(self) -> None:
         """Finish the model jobs, close the sockets, the source and the database."""
-        self.worker.shutdown(wait=True, cancel_futures=True)
-        self._collect_jobs()
+        self.jobs.shutdown()
         self._close_sockets()
         if self.metrics is not None:
             self.metrics.close()
@@ -277,9 +230,9 @@ class Daemon:
     def run(self) -> None:
         """Serve until :meth:`request_stop` (or SIGTERM/SIGINT via the command line).
 
-        One iteration per wake-up, kept lean (it runs 40 times a second): one clock read for the
-        timeout, one for the deadlines; the poll period is re-derived only when subscriptions or
-        windows changed.
+        One iteration per wake-up, kept lean (it runs 25 times a second): one clock read for the
+        timeout, one for the deadlines, ZeroMQ's compiled poll on a prebuilt list; the poll period is
+        re-derived only when subscriptions or windows changed.
         """
         assert self.publisher is not None and self.control is not None
         clock = self.clock
@@ -288,16 +241,15 @@ class Daemon:
         heartbeat = IntervalTimer(round(self.settings.heartbeat_s * 1e9), clock=clock)
         republish = IntervalTimer(round(self.settings.republish_s * 1e9), clock=clock, start_ns=clock())
         control_socket, pub_socket = self.control.socket, self.publisher.socket
-        poller = zmq.Poller()
-        poller.register(control_socket, zmq.POLLIN)
-        poller.register(pub_socket, zmq.POLLIN)
+        zmq_poll = zmq.backend.zmq_poll  # what zmq.Poller.poll calls, without its Python layer
+        items = [(control_socket, zmq.POLLIN), (pub_socket, zmq.POLLIN)]
         self.poll_once()
         open_windows = len(self.windows)
         while not self._stop:
             wake = min(poll_timer.next_ns, heartbeat.next_ns, republish.next_ns)
             timeout_ms = min(100, max(0, -(-(wake - clock()) // 1_000_000)))
             changed = False
-            for sock, _event in poller.poll(timeout_ms):
+            for sock, _event in zmq_poll(items, timeout_ms):
                 if sock is control_socket:
                     self.control.handle()
                 elif sock is pub_socket:
@@ -305,18 +257,18 @@ class Daemon:
                     changed = True
             now = clock()
             if now >= poll_timer.next_ns:
-                poll_timer.advance()
+                poll_timer.advance(now)
                 self.poll_once()
             if now >= heartbeat.next_ns:
-                heartbeat.advance()
+                heartbeat.advance(now)
                 self.reporter.publish_status()
             if now >= republish.next_ns:
-                republish.advance()
+                republish.advance(now)
                 self.reporter.look_for_quiet_periods()
                 self.reporter.publish_calib()
                 self.reporter.publish_baselines()
-            if self.jobs:
-                self._collect_jobs()
+            if self.jobs.pending:
+                self.jobs.collect()
             if changed or len(self.windows) != open_windows:
                 open_windows = len(self.windows)
                 interval_ns = self._poll_interval_ns()
@@ -336,29 +288,7 @@ class Daemon:
     def submit(self, job: Callable[[], Any], done: Callable[[Any], None],
                failed: Callable[[BaseException], None] | None = None) -> None:
         """Run ``job`` on the model worker; in the loop, call ``done(result)`` or ``failed(error)``."""
-        self.jobs.append((self.worker.submit(job), done, failed))
-
-    def _collect_jobs(self) -> None:
-        if not self.jobs:
-            return
-        remaining = []
-        for future, done, failed in self.jobs:
-            if not future.done():
-                remaining.append((future, done, failed))
-                continue
-            if future.cancelled():  # shutting down
-                continue
-            try:
-                error = future.exception()
-                if error is None:
-                    done(future.result())
-                else:
-                    log.error("model job failed: %s: %s", type(error).__name__, error)
-                    if failed is not None:
-                        failed(error)
-            except Exception:
-                log.exception("finishing a model job failed")
-        self.jobs = remaining
+        self.jobs.submit(job, done, failed)
 
     # -- polling ---------------------------------------------------------------------------------------
 
@@ -401,7 +331,8 @@ class Daemon:
                 outgoing.append(encode(name, account.rate_hz, t_ns, power_w, energy, status, header_t_ns))
         # All channels at once: one wake-up of the I/O thread per poll, not one per message.
         self.publisher.send_all(outgoing)
-        self._offsets.append(int(batch.t_wall_ns) - round(int(batch.t_mono_ns) * self.speed))
+        speed = self.speed
+        self._offsets.append(batch.t_wall_ns - (batch.t_mono_ns if speed == 1.0 else round(batch.t_mono_ns * speed)))
         if self.recorder is not None:
             self.recorder.write_batch(batch)
         if windows:

@@ -41,7 +41,6 @@ import numpy as np
 
 from hdeem_watch.sources.base import (
     CHANNELS,
-    DRAM_CHANNELS,
     STATUS_GAP,
     STATUS_OK,
     ChannelInfo,
@@ -49,14 +48,11 @@ from hdeem_watch.sources.base import (
     SourceBatch,
     hdeem_channel_infos,
 )
-from hdeem_watch.sources.sim_fast import IdleBlock, NoiseBank, idle_block
+from hdeem_watch.sources.sim_fast import IdleBlocks, NoiseBank
 from hdeem_watch.sources.sim_model import (
     DIMM_PAIR,
-    DIMM_SOCKET,
-    DIMMS,
     RunPlan,
     TruthModel,
-    effective_currents,
     idle_power_w,
     load_model,
     modelled_line_rate,
@@ -64,7 +60,8 @@ from hdeem_watch.sources.sim_model import (
     socket_shares,
     threads_per_socket,
 )
-from hdeem_watch.sources.sim_signal import NOISE_W, channel_power_w, flat_power_w, mean_power_w
+from hdeem_watch.sources.sim_signal import NOISE_W, channel_power_w, deposit_owed, flat_power_w, mean_power_w
+from hdeem_watch.sources.sim_truth import truth_report
 
 __all__ = ["SimSource", "modelled_line_rate", "socket_shares", "threads_per_socket"]
 
@@ -151,13 +148,14 @@ class SimSource:
         #: Channels on the same sample grid, with their noise σ as a column (the idle fast path).
         self._groups = [(period, tuple(i.name for i in infos), np.array([[NOISE_W[i.kind]] for i in infos]))
                         for period, infos in by_period.items()]
-        #: Per group, the idle samples generated ahead (None = none; see :mod:`hdeem_watch.sources.sim_fast`).
-        self._blocks: list[IdleBlock | None] = [None] * len(self._groups)
         self._flat: dict[str, float] = {}
         self._flat_at = -1
         self._status_ok = {info.name: STATUS_OK for info in self._infos}
         #: Samples per channel that fit in the sensor buffer.
         self._buffer_k = {name: self.buffer_ns // period for name, period in self._period_ns.items()}
+        #: The idle node's samples generated ahead (:mod:`hdeem_watch.sources.sim_fast`).
+        self._idle = IdleBlocks(self._groups, self._noise if noise else None, self.quantum_w, self.block_ns,
+                                self._buffer_k)
         self._open = False
         self._t0_mono = 0
         self._t0_wall = 0
@@ -186,14 +184,14 @@ class SimSource:
         self._energy_j = {name: 0.0 for name in CHANNELS}
         self._sim_ns = 0
         self._generated_ns = 0
-        self._blocks = [None] * len(self._groups)
+        self._idle.blocks = [None] * len(self._groups)
         self._flat_at = -1
         self._open = True
 
     def close(self) -> None:
         """Stop (idempotent); a closed sim can be opened again and starts afresh."""
         if self._open:
-            self._drop_blocks()
+            self._idle.drop_all(self._next_k)
         self._open = False
         self._plans.clear()
         self._pending.clear()
@@ -208,25 +206,30 @@ class SimSource:
 
     def sim_time_ns(self, t_mono_ns: int) -> int:
         """Sim time (ns since open) of a time on the injected monotonic clock."""
-        return round((int(t_mono_ns) - self._t0_mono) * self.speed)
+        elapsed = int(t_mono_ns) - self._t0_mono
+        return elapsed if self.speed == 1.0 else round(elapsed * self.speed)
 
     def poll(self) -> SourceBatch:
         """Every sample whose interval ended since the previous poll (see the module docstring)."""
         if not self._open:
             raise RuntimeError("SimSource.poll() before open()")
-        now = int(self._clock())
-        sim_ns = self._sim_ns = max(self._sim_ns, self.sim_time_ns(now))
+        now = self._clock()
+        elapsed = now - self._t0_mono
+        sim_ns = elapsed if self.speed == 1.0 else round(elapsed * self.speed)
+        if sim_ns < self._sim_ns:
+            sim_ns = self._sim_ns
+        self._sim_ns = sim_ns
         if self._pending:
             self._resolve_plans()
             # while a run's plan is being computed, the sensors lag: nothing after its start is generated
             sim_ns = min([sim_ns, *(p.t0_ns for p in self._pending.values())])
-        sim_now = self._generated_ns = max(sim_ns, self._generated_ns)
+        sim_now = self._generated_ns = sim_ns if sim_ns > self._generated_ns else self._generated_ns
         samples: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         gaps: dict[str, int] = {}
-        if not self._plans and not self._owed:
-            self._poll_idle(sim_now, samples)   # the node is idle: slices of blocks generated ahead
-        elif self._blocks:
-            self._drop_blocks()
+        if not self._plans and not self._owed:   # the node is idle: slices of blocks generated ahead
+            self._idle.poll(sim_now, self._t0_wall, self._next_k, self._energy_j, samples, self._flat_w)
+        elif self._idle.any:
+            self._idle.drop_all(self._next_k)
         status = dict(self._status_ok)
         if len(samples) < len(self._infos):
             self._poll_general(sim_now, samples, status, gaps)
@@ -256,7 +259,12 @@ class SimSource:
             ks = np.arange(k0, k1 + 1, dtype=np.int64)
             t_end = ks * period
             power = channel_power_w(name, t_end, period, idle, plans, offset_w=offset)
-            self._deposit_owed(name, t_end, period, power)
+            if name in self._owed:
+                keep = deposit_owed(self._owed[name], t_end, period, power)
+                if keep:
+                    self._owed[name] = keep
+                else:
+                    del self._owed[name]
             if self.noise and len(ks):
                 power = power + self._noise.take(name, len(ks))
             if self.quantum_w > 0:
@@ -269,63 +277,12 @@ class SimSource:
                 status[name] = STATUS_GAP
                 gaps[name] = int(lost)
 
-    def _poll_idle(self, sim_now: int, samples: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
-        """The samples of an idle node: per group of channels on the same grid, a slice of its block.
-
-        A group whose poll reaches past its block gets a new block from its next sample to about
-        ``block_s`` of sim time ahead (the unpublished rest of the old one is dropped); a group that
-        lost samples to the sensor buffer is left to the general path.
-        """
-        energy, next_k = self._energy_j, self._next_k
-        for g, (period, names, _sigma) in enumerate(self._groups):
-            first = names[0]
-            k0, k1 = next_k[first], sim_now // period
-            if k1 - k0 + 1 > self._buffer_k[first]:
-                self._drop_block(g)
-                continue
-            block = self._blocks[g]
-            if block is None or k1 > block.k_last:
-                block = self._new_block(g, k0, k1, sim_now)
-            i0, i1 = k0 - block.k_first, k1 + 1 - block.k_first
-            t_wall = block.t_wall_ns[i0:i1]
-            for name, row in zip(names, block.rows):
-                samples[name] = (t_wall, row[i0:i1])
-            if i1 > i0:
-                for name, total in zip(names, block.energy_j[i1 - 1]):
-                    energy[name] = total
-                    next_k[name] = k1 + 1
-
-    def _new_block(self, g: int, k0: int, k1: int, sim_now: int) -> IdleBlock:
-        """Generate group ``g``'s idle samples from ``k0`` to at least ``k1`` and ``block_s`` past ``sim_now``."""
-        self._drop_block(g)
-        period, names, sigma_col = self._groups[g]
-        if self._flat_at != sim_now:   # both groups' new blocks usually start at the same poll
-            idle = idle_power_w(self.model, self.truth_model.currents(sim_now * 1e-9))
-            self._flat = flat_power_w(idle, self._offset_w)
+    def _flat_w(self, sim_now: int) -> dict[str, float]:
+        """Every channel's noise-free idle power at ``sim_now`` (both groups' new blocks usually start together)."""
+        if self._flat_at != sim_now:
+            self._flat = flat_power_w(idle_power_w(self.model, self.truth_model.currents(sim_now * 1e-9)), self._offset_w)
             self._flat_at = sim_now
-        k_last = max(k1, (sim_now + self.block_ns) // period)
-        n = k_last - k0 + 1
-        noise = self._noise.take_rows(names, sigma_col, n) if self.noise else None
-        block = idle_block(k0, k_last, period, self._t0_wall, np.array([[self._flat[name]] for name in names]), noise,
-                           self.quantum_w, np.array([self._energy_j[name] for name in names]))
-        self._blocks[g] = block
-        return block
-
-    def _drop_block(self, g: int) -> None:
-        """Forget group ``g``'s block; its unpublished samples' noise goes back to the bank."""
-        block = self._blocks[g]
-        if block is None:
-            return
-        self._blocks[g] = None
-        names = self._groups[g][1]
-        unpublished = block.k_last - self._next_k[names[0]] + 1
-        if self.noise and unpublished > 0:
-            for name in names:
-                self._noise.rewind(name, unpublished)
-
-    def _drop_blocks(self) -> None:
-        for g in range(len(self._groups)):
-            self._drop_block(g)
+        return self._flat
 
     # -- runs ------------------------------------------------------------------------------------------
     def on_run(self, event: RunEvent) -> None:
@@ -387,59 +344,14 @@ class SimSource:
         return self._plans[run_id]
 
     def truth(self) -> dict:
-        """The hidden true currents now (A per device), per DIMM and averaged — simulation only.
-
-        ``mean_currents_a`` is the core truth; ``effective_currents_a`` is what a node-level fit can
-        recover (:func:`~hdeem_watch.sources.sim_model.effective_currents`: the core truth plus the
-        I/O energy per burst as an IDD4R/IDD4W equivalent and the DIMM-pair sensor offsets as a
-        shift of every VDD state current), averaged over the DIMMs; compare a fit with it.
-        """
-        t_s = self._sim_ns * 1e-9
-        currents = self.truth_model.currents(t_s)
-        temps = self.truth_model.temperature_c(t_s)
-        names = self.model.names
-        offsets = float(sum(self._offset_w[c] for c in DRAM_CHANNELS))
-        effective = effective_currents(self.model, currents, self.io_j_per_line, offsets)
-        return {
-            "simulated": True,
-            "t_ns": self._t0_wall + self._sim_ns,
-            "backend": self.model.backend,
-            "unit": "A per device",
-            "datasheet": {n: float(v) for n, v in zip(names, self.model.datasheet)},
-            "mean_currents_a": {n: float(v) for n, v in zip(names, currents.mean(axis=0))},
-            "effective_currents_a": {n: float(v) for n, v in zip(names, effective.mean(axis=0))},
-            "effective_note": "core truth + I/O energy per burst (IDD4R/IDD4W) + DIMM-pair sensor offsets",
-            "dimms": {
-                f"DIMM_{dimm}": {
-                    "channel": DIMM_PAIR[d], "socket": DIMM_SOCKET[d], "temperature_c": float(temps[d]),
-                    "currents_a": {n: float(v) for n, v in zip(names, currents[d])},
-                }
-                for d, dimm in enumerate(DIMMS)
-            },
-            "offsets_w": dict(self._offset_w),
-            "io_j_per_line": self.io_j_per_line,
-        }
+        """The hidden true currents now (A per device), per DIMM and averaged — simulation only
+        (:func:`~hdeem_watch.sources.sim_truth.truth_report`)."""
+        return truth_report(self.model, self.truth_model, self._sim_ns * 1e-9, t_ns=self._t0_wall + self._sim_ns,
+                            offset_w=self._offset_w, io_j_per_line=self.io_j_per_line)
 
     # -- energy owed by stopped runs -------------------------------------------------------------------
     def _add_owed(self, name: str, t_ns: int, joules: float) -> None:
         self._owed.setdefault(name, []).append((t_ns, joules))
-
-    def _deposit_owed(self, name: str, t_end: np.ndarray, period: int, power: np.ndarray) -> None:
-        """Add energy owed by stopped runs to the first sample ending at/after the stop (in place)."""
-        pending = self._owed.get(name)
-        if not pending or not len(t_end):
-            return
-        keep = []
-        for t_owed, joules in pending:
-            if t_owed > t_end[-1]:
-                keep.append((t_owed, joules))
-                continue
-            i = int(np.searchsorted(t_end, t_owed, side="left"))
-            power[i] += joules / (period * 1e-9)
-        if keep:
-            self._owed[name] = keep
-        else:
-            del self._owed[name]
 
     def _retire(self, sim_now: int) -> None:
         for run_id, plan in list(self._plans.items()):

@@ -25,6 +25,7 @@ Example:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -139,3 +140,78 @@ def idle_block(k_first: int, k_last: int, period_ns: int, t0_wall_ns: int, base_
     energy *= period_ns * 1e-9
     energy += start_energy_j[:, None]
     return IdleBlock(k_first, k_last, t_wall, tuple(power), energy.T.tolist())
+
+
+class IdleBlocks:
+    """The idle node's fast path: per group of channels on the same grid, a block of samples generated ahead.
+
+    Args:
+        groups: per group ``(period ns, channel names, noise σ per channel as a (k, 1) column)``.
+        noise: the noise bank (None = no noise).
+        quantum_w: quantisation step (0 = none).
+        block_ns: how far (sim ns) past the poll a new block reaches.
+        buffer_k: per channel, the samples the sensor buffer holds (a longer stretch is not served).
+    """
+
+    def __init__(self, groups: list[tuple[int, tuple[str, ...], np.ndarray]], noise: NoiseBank | None,
+                 quantum_w: float, block_ns: int, buffer_k: dict[str, int]) -> None:
+        self.groups = groups
+        self.noise = noise
+        self.quantum_w = quantum_w
+        self.block_ns = block_ns
+        self.buffer_k = buffer_k
+        self.blocks: list[IdleBlock | None] = [None] * len(groups)
+
+    def poll(self, sim_now: int, t0_wall_ns: int, next_k: dict[str, int], energy_j: dict[str, float],
+             samples: dict[str, tuple[np.ndarray, np.ndarray]], flat_w: Callable[[int], dict[str, float]]) -> None:
+        """Serve every group's samples due by ``sim_now`` from its block (in place: ``next_k``, ``energy_j``, ``samples``).
+
+        A group whose poll reaches past its block gets a new block from its next sample to
+        ``block_ns`` past ``sim_now`` (``flat_w(sim_now)``: every channel's noise-free idle power);
+        a group that lost samples to the sensor buffer is dropped and left to the caller.
+        """
+        for g, (period, names, _sigma) in enumerate(self.groups):
+            first = names[0]
+            k0, k1 = next_k[first], sim_now // period
+            if k1 - k0 + 1 > self.buffer_k[first]:
+                self.drop(g, next_k)
+                continue
+            block = self.blocks[g]
+            if block is None or k1 > block.k_last:
+                self.drop(g, next_k)
+                period, names, sigma_col = self.groups[g]
+                k_last = max(k1, (sim_now + self.block_ns) // period)
+                noise = self.noise.take_rows(names, sigma_col, k_last - k0 + 1) if self.noise is not None else None
+                flat = flat_w(sim_now)
+                block = self.blocks[g] = idle_block(k0, k_last, period, t0_wall_ns, np.array([[flat[n]] for n in names]),
+                                                    noise, self.quantum_w, np.array([energy_j[n] for n in names]))
+            i0, i1 = k0 - block.k_first, k1 + 1 - block.k_first
+            t_wall = block.t_wall_ns[i0:i1]
+            for name, row in zip(names, block.rows):
+                samples[name] = (t_wall, row[i0:i1])
+            if i1 > i0:
+                for name, total in zip(names, block.energy_j[i1 - 1]):
+                    energy_j[name] = total
+                    next_k[name] = k1 + 1
+
+    def drop(self, g: int, next_k: dict[str, int]) -> None:
+        """Forget group ``g``'s block; its unpublished samples' noise goes back to the bank."""
+        block = self.blocks[g]
+        if block is None:
+            return
+        self.blocks[g] = None
+        names = self.groups[g][1]
+        unpublished = block.k_last - next_k[names[0]] + 1
+        if self.noise is not None and unpublished > 0:
+            for name in names:
+                self.noise.rewind(name, unpublished)
+
+    def drop_all(self, next_k: dict[str, int]) -> None:
+        """Forget every block (the node is no longer idle, or the sim closes)."""
+        for g in range(len(self.groups)):
+            self.drop(g, next_k)
+
+    @property
+    def any(self) -> bool:
+        """Whether some group has a block."""
+        return any(block is not None for block in self.blocks)

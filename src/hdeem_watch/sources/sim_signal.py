@@ -97,3 +97,19 @@ def flat_power_w(idle_w: np.ndarray, offset_w: Mapping[str, float]) -> dict[str,
     flat["CPU1"] = CPU_IDLE_W[1] + offset_w["CPU1"]
     flat["BLADE"] = BLADE_BASE_W + CPU_IDLE_W[0] + CPU_IDLE_W[1] + float(idle_w.sum()) + offset_w["BLADE"]
     return flat
+
+
+def deposit_owed(owed: list[tuple[int, float]], t_end: np.ndarray, period: int,
+                 power_w: np.ndarray) -> list[tuple[int, float]]:
+    """Add energy owed by stopped runs, ``[(sim ns of the stop, J)]``, to the first sample ending at or
+    after each stop (``power_w`` in place); return the entries whose sample is not among ``t_end`` yet."""
+    if not len(t_end):
+        return list(owed)
+    keep = []
+    for t_owed, joules in owed:
+        if t_owed > t_end[-1]:
+            keep.append((t_owed, joules))
+            continue
+        i = int(np.searchsorted(t_end, t_owed, side="left"))
+        power_w[i] += joules / (period * 1e-9)
+    return keep
