@@ -4,7 +4,9 @@ Generates the Copy kernel's stream of the Ramulator reference (12,582,912 double
 4,718,592 requests), then times
 
 1. ``simulate`` on the request arrays (mapping, scheduling, timing, refresh, statistics), and
-2. the same from the Ramulator 1 trace file (reading and parsing included),
+2. the same from the Ramulator 1 trace file (reading and parsing included:
+   ``trace_simulation.simulate_trace`` parses the memory-mapped file chunk by chunk in the
+   preparing stage of the pipeline),
 
 and prints requests/s, peak memory, the target (>= 20 M requests/s) and the ratio to Ramulator's
 wall time for the same trace (``reference/ramulator/throughput.csv``). The chunks are prepared
@@ -29,7 +31,8 @@ from hdeem_watch.dram import controller
 from hdeem_watch.dram.controller import simulate
 from hdeem_watch.dram.kernels import kernel_requests
 from hdeem_watch.dram.memspec import load_memspec
-from hdeem_watch.dram.request_traces import read_request_trace, write_requests
+from hdeem_watch.dram.request_traces import write_requests
+from hdeem_watch.dram.trace_simulation import simulate_trace
 
 REFERENCE = Path(__file__).resolve().parents[1] / ".." / "shared" / "reference" / "ramulator"
 TARGET_REQUESTS_PER_S = 20e6
@@ -82,8 +85,7 @@ def main() -> int:
         write_requests(path, addresses, is_write)
 
         def from_file():  # type: ignore[no-untyped-def]
-            trace = read_request_trace(path, "ramulator")
-            return simulate(spec, trace.addresses, trace.is_write)
+            return simulate_trace(spec, path, "ramulator")[0]
 
         file_seconds, _ = _best_of(repeats, from_file)
         rows.append(("trace file -> stats", file_seconds))

@@ -140,19 +140,19 @@ def run_stats(args: argparse.Namespace) -> int:
         data = summary(stats, requests=rd + wr, reads=rd, writes=wr, row_hits=None, row_misses=None,
                        row_conflicts=None, cycles=stats.ranks[0].cycles_total if stats.ranks else 0.0)
     else:
-        from hdeem_watch.dram.controller import simulate
-        from hdeem_watch.dram.request_traces import CacheConfig, read_request_trace
+        from hdeem_watch.dram.request_traces import CacheConfig
+        from hdeem_watch.dram.trace_simulation import simulate_trace
 
         cache = CacheConfig(size_bytes=args.llc_bytes, ways=args.llc_ways, flush=args.llc_flush)
-        requests = read_request_trace(args.trace, args.format, cache=cache)
-        result = simulate(spec, requests.addresses, requests.is_write, policy=args.policy, mapping=args.mapping,
-                          xor_bank=args.xor_bank, keep_commands=bool(args.emit_drampower))
+        result, cpu_accesses = simulate_trace(spec, args.trace, args.format, cache=cache, policy=args.policy,
+                                              mapping=args.mapping, xor_bank=args.xor_bank,
+                                              keep_commands=bool(args.emit_drampower))
         stats = result.stats
         data = summary(stats, requests=result.requests, reads=result.reads, writes=result.writes,
                        row_hits=result.row_hits, row_misses=result.row_misses,
                        row_conflicts=result.row_conflicts, cycles=result.cycles)
-        if requests.cpu_accesses:
-            data["cpu_accesses"] = requests.cpu_accesses
+        if cpu_accesses:
+            data["cpu_accesses"] = cpu_accesses
         if args.emit_drampower:
             from hdeem_watch.dram.command_emit import write_drampower_trace
 

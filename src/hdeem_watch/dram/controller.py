@@ -36,6 +36,7 @@ Example:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from dataclasses import fields as fields_of
 from typing import Any
@@ -200,12 +201,32 @@ def simulate(
     Raises:
         InputError: for a bad policy, mapping, memspec or mismatched arrays.
     """
-    if policy not in POLICIES:
-        raise InputError(f"policy {policy!r}: expected one of {', '.join(POLICIES)}")
     addresses = np.asarray(addresses, dtype=np.uint64)
     is_write = np.asarray(is_write, dtype=bool)
     if addresses.shape != is_write.shape or addresses.ndim != 1:
         raise InputError(f"requests: {addresses.size} addresses but {is_write.size} write flags")
+    return simulate_requests(spec, addresses.size, lambda lo, hi: (addresses[lo:hi], is_write[lo:hi]),
+                             policy=policy, mapping=mapping, xor_bank=xor_bank, channel=channel,
+                             scheduler=scheduler, keep_commands=keep_commands)
+
+
+def simulate_requests(
+    spec: Any,
+    n: int,
+    requests: Callable[[int, int], tuple[np.ndarray, np.ndarray]],
+    *,
+    policy: str = "open",
+    mapping: str = "RoBaRaCoCh",
+    xor_bank: bool = False,
+    channel: int = 0,
+    scheduler: SchedulerConfig | None = None,
+    keep_commands: bool = False,
+) -> ControllerResult:
+    """:func:`simulate` of ``n`` requests that ``requests(lo, hi)`` gives (addresses, write flags)
+    chunk by chunk, in the preparing stage (e.g. parsed from a trace file while the chunk before
+    is timed: :func:`hdeem_watch.dram.trace_simulation.simulate_trace`)."""
+    if policy not in POLICIES:
+        raise InputError(f"policy {policy!r}: expected one of {', '.join(POLICIES)}")
     geometry = Geometry.from_spec(spec)
     timing = Timing.from_spec(spec)
     config = scheduler or SchedulerConfig()
@@ -213,7 +234,6 @@ def simulate(
     from hdeem_watch.dram.row_outcomes import Outcomes, row_outcomes
     from hdeem_watch.dram.timing_model import run_timing
 
-    n = addresses.size
     pieces = max(1, n // CHUNK_REQUESTS)
     bounds = [n * i // pieces for i in range(pieces + 1)]
 
@@ -223,9 +243,8 @@ def simulate(
     def prepare(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray, Outcomes | None]:
         """Chunk ``i`` decoded and in service order (independent of the chunks before it); with its
         row-buffer outcomes if :data:`OUTCOMES_AHEAD`."""
-        lanes, gbank, row, column = address_mapping.decode_packed(addresses[bounds[i]:bounds[i + 1]],
-                                                                   column=keep_commands)
-        writes = is_write[bounds[i]:bounds[i + 1]]
+        chunk, writes = requests(bounds[i], bounds[i + 1])
+        lanes, gbank, row, column = address_mapping.decode_packed(chunk, column=keep_commands)
         if lanes is not None:
             keep = lanes == channel
             if not keep.all():

@@ -205,7 +205,7 @@ def _lost_hits(plan: TimingPlan, refresh: _Refresh, banks_total: int) -> np.ndar
     if thresholds.size == 0:
         return np.zeros(0, dtype=np.int64)
     first = np.searchsorted(plan.t, thresholds, side="left")  # first request after each refresh
-    position: np.ndarray = plan.outcomes.bank_sorted.astype(np.int32 if banks_total * n < 1 << 31 else np.int64)
+    position = plan.outcomes.bank_sorted.astype(np.int64)
     position *= n
     position += plan.outcomes.by_bank  # ascending: by bank, then by request
     queries = (np.arange(banks_total, dtype=np.int64)[:, None] * n + first[None, :]).ravel()
