@@ -245,8 +245,12 @@ class Daemon:
         items = [(control_socket, zmq.POLLIN), (pub_socket, zmq.POLLIN)]
         self.poll_once()
         open_windows = len(self.windows)
+        # The heartbeat and the re-publication are served at the first poll after their deadline
+        # (at most one poll period late) instead of waking the loop once more for them.
+        slowest_ns = min(heartbeat.interval_ns, republish.interval_ns) // 4
+        coalesce = poll_timer.interval_ns <= slowest_ns
         while not self._stop:
-            wake = min(poll_timer.next_ns, heartbeat.next_ns, republish.next_ns)
+            wake = poll_timer.next_ns if coalesce else min(poll_timer.next_ns, heartbeat.next_ns, republish.next_ns)
             timeout_ms = min(100, max(0, -(-(wake - clock()) // 1_000_000)))
             changed = False
             for sock, _event in zmq_poll(items, timeout_ms):
@@ -274,6 +278,7 @@ class Daemon:
                 interval_ns = self._poll_interval_ns()
                 if interval_ns != poll_timer.interval_ns:
                     poll_timer.set_interval(interval_ns)
+                    coalesce = interval_ns <= slowest_ns
                     self.poll_interval_ns = interval_ns
 
     def _poll_interval_ns(self) -> int:
