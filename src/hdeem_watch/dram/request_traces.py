@@ -30,6 +30,7 @@ import numpy as np
 
 from hdeem_watch.dram.pipeline import split_work
 from hdeem_watch.dram.trace_writers import format_requests, iter_formatted, trace_sha256, write_requests
+from hdeem_watch.dram.uniform_parser import UniformParser
 from hdeem_watch.errors import InputError
 
 __all__ = ["FORMATS", "CacheConfig", "RequestTrace", "cache_filter", "format_requests", "iter_formatted",
@@ -235,15 +236,9 @@ def _read_uniform(buf: np.ndarray, width: int, fmt: str) -> tuple[np.ndarray, np
 
     def parse(first: int, last: int, out: tuple[np.ndarray, ...]) -> bool:
         addresses, writes = out
-        for lo in range(first, last, block):
-            rows = text[lo:min(lo + block, last)]
-            values, is_write, ok = _parse_same_length(rows[:, :width - 1], np.zeros(0, dtype=np.int64), width - 1,
-                                                      fmt, matrix=True)
-            if not (ok.all() and (rows[:, width - 1] == 10).all()):
-                return False
-            addresses[lo - first:lo - first + rows.shape[0]] = values
-            writes[lo - first:lo - first + rows.shape[0]] = is_write
-        return True
+        parser = UniformParser(width - 1, fmt, block)  # one per half: its own work arrays
+        return all(parser.parse(text[lo:min(lo + block, last)], addresses[lo - first:min(lo + block, last) - first],
+                                writes[lo - first:min(lo + block, last) - first]) for lo in range(first, last, block))
 
     if count >= 4 * block:
         result = split_work(parse, count, (np.uint64, np.bool_))

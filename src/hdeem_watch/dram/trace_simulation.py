@@ -32,7 +32,8 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.dram.controller import ControllerResult, simulate, simulate_requests
-from hdeem_watch.dram.request_traces import CacheConfig, _parse_same_length, read_request_trace
+from hdeem_watch.dram.request_traces import CacheConfig, read_request_trace
+from hdeem_watch.dram.uniform_parser import UniformParser
 
 _BLOCK = 1 << 16
 
@@ -63,17 +64,18 @@ def simulate_trace(spec: Any, path: str | Path, fmt: str, *, cache: CacheConfig 
             count = buf.size // width
             text = np.lib.stride_tricks.as_strided(buf, shape=(count, width), strides=(width, 1))
 
+            parsers: list[UniformParser] = []  # made where it is used (the worker): its own work arrays
+
             def requests(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+                if not parsers:
+                    parsers.append(UniformParser(width - 1, fmt, _BLOCK))
                 addresses = np.empty(hi - lo, dtype=np.uint64)
                 writes = np.empty(hi - lo, dtype=bool)
                 for first in range(lo, hi, _BLOCK):
-                    rows = text[first:min(first + _BLOCK, hi)]
-                    values, is_write, ok = _parse_same_length(rows[:, :width - 1], np.zeros(0, dtype=np.int64),
-                                                              width - 1, fmt, matrix=True)
-                    if not (ok.all() and (rows[:, width - 1] == 10).all()):
+                    last = min(first + _BLOCK, hi)
+                    if not parsers[0].parse(text[first:last], addresses[first - lo:last - lo],
+                                            writes[first - lo:last - lo]):
                         raise _NotUniform(first)
-                    addresses[first - lo:first - lo + rows.shape[0]] = values
-                    writes[first - lo:first - lo + rows.shape[0]] = is_write
                 return addresses, writes
 
             try:
