@@ -260,7 +260,7 @@ def simulate_requests(
 
     parts: list[ControllerResult] = []
     start = 0
-    # chunk i + 1 is prepared (service order, row outcomes) in a worker process or thread while
+    # chunk i + 1 is prepared (decoded, in service order) in a worker process or thread while
     # chunk i is timed; only the timing depends on the chunk before
     mode = ("inline" if not PIPELINE else
             "process" if PIPELINE_PROCESS and not keep_commands and pieces >= PROCESS_MIN_CHUNKS else "thread")

@@ -1,6 +1,9 @@
-"""Timing, row-buffer outcomes and refresh of a served request sequence (vectorised core).
+"""Timing and refresh of a served request sequence, and its command set (vectorised core).
 
-Used by :func:`hdeem_watch.dram.controller.simulate`, which explains the model. All cycle figures
+Used by :func:`hdeem_watch.dram.controller.simulate`, which explains the model; the row-buffer
+outcomes come from :mod:`hdeem_watch.dram.row_outcomes`. :func:`plan_timing` is the part that does
+not depend on when the sequence starts (refresh-free times), :func:`run_timing` adds refresh,
+commands and statistics. All cycle figures
 are int64. Every step is an array operation. Column commands are spaced by the column rules
 (cumulative spacing ``G``); a request that needs an activation may add a lift (its bank is not
 ready yet), and the lifts of the requests in between count towards the distance to the access it
