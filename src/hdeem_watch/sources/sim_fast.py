@@ -98,6 +98,10 @@ def idle_rows(base_w: np.ndarray, noise: np.ndarray | None, quantum_w: float, n:
     return quantise(power, quantum_w)
 
 
+#: Blocks up to this many columns keep their energies as plain floats too (1 s at 1000 Sa/s, ×8).
+LIST_COLUMNS = 8192
+
+
 @dataclass(frozen=True)
 class IdleBlock:
     """Samples of one group of channels (same grid) generated ahead while the node is idle.
@@ -107,15 +111,23 @@ class IdleBlock:
         k_last: sample index of the last column.
         t_wall_ns: sample timestamps (int64, one per column).
         rows: per channel, its samples (W; views of one 2-D array).
-        energy_j: per column, every channel's cumulative energy after it (J; plain floats, read by
-            index without a numpy call).
+        energy_j: per channel (rows), its cumulative energy after each column (J).
+        energy_rows: the same as plain floats (read by index without a numpy call), for blocks of
+            at most :data:`LIST_COLUMNS` columns (a sped-up sim's long blocks read ``energy_j``).
     """
 
     k_first: int
     k_last: int
     t_wall_ns: np.ndarray
     rows: tuple[np.ndarray, ...]
-    energy_j: list[list[float]]
+    energy_j: np.ndarray
+    energy_rows: list[list[float]] | None
+
+    def energies_after(self, i: int) -> list[float]:
+        """Every channel's cumulative energy after column ``i`` (J)."""
+        if self.energy_rows is not None:
+            return [row[i] for row in self.energy_rows]
+        return list(self.energy_j[:, i].tolist())
 
 
 def idle_block(k_first: int, k_last: int, period_ns: int, t0_wall_ns: int, base_w: np.ndarray,
@@ -139,7 +151,7 @@ def idle_block(k_first: int, k_last: int, period_ns: int, t0_wall_ns: int, base_
     energy = np.cumsum(power, axis=1)
     energy *= period_ns * 1e-9
     energy += start_energy_j[:, None]
-    return IdleBlock(k_first, k_last, t_wall, tuple(power), energy.T.tolist())
+    return IdleBlock(k_first, k_last, t_wall, tuple(power), energy, energy.tolist() if n <= LIST_COLUMNS else None)
 
 
 class IdleBlocks:
@@ -190,7 +202,7 @@ class IdleBlocks:
             for name, row in zip(names, block.rows):
                 samples[name] = (t_wall, row[i0:i1])
             if i1 > i0:
-                for name, total in zip(names, block.energy_j[i1 - 1]):
+                for name, total in zip(names, block.energies_after(i1 - 1)):
                     energy_j[name] = total
                     next_k[name] = k1 + 1
 
