@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import os
 import resource
 import sys
 import tempfile
@@ -83,6 +84,8 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "copy.trace"
         write_requests(path, addresses, is_write)
+        with open(path, "rb") as handle:  # written back now, not by the kernel during the timed runs
+            os.fsync(handle.fileno())
 
         def from_file():  # type: ignore[no-untyped-def]
             return simulate_trace(spec, path, "ramulator")[0]
