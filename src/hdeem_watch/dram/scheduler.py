@@ -66,8 +66,9 @@ class SchedulerConfig:
 
     @property
     def drain_batch(self) -> int:
-        """Writes served per drain (from above ``high`` to below ``low``)."""
-        return self.drain_trigger - (int(self.low * self.write_queue) - 1)
+        """Writes served per drain (from above ``high`` to below ``low``; at most the writes queued
+        when it starts, so a queue whose ``low`` mark rounds to no entry drains whole)."""
+        return min(self.drain_trigger, self.drain_trigger - (int(self.low * self.write_queue) - 1))
 
     @property
     def drain_trigger(self) -> int:
