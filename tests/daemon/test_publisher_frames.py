@@ -26,8 +26,7 @@ def test_template_frames_equal_encode_samples(channel, rate_hz, n, energy_j, sta
         t_ns = np.arange(n, dtype=np.int64) * 1_000_000 + 1_700_000_000_000_000_000
         power_w = np.linspace(0.0, 5.0, n)
         for seq, rate in enumerate((rate_hz, rate_hz, rate_hz * 2)):
-            got = pub.samples_frames(channel, rate_hz=rate, t_wall_ns=t_ns, power_w=power_w, energy_j=energy_j,
-                                     status=status, t_ns=42)
+            got = pub.samples_message(channel, rate, t_ns, power_w, energy_j, status, 42)
             want = protocol.encode_samples("node%1", channel, seq=seq, rate_hz=rate, t_wall_ns=t_ns, power_w=power_w,
                                            energy_j=energy_j, status=status, t_ns=42)
             assert got == want

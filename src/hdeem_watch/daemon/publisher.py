@@ -158,32 +158,18 @@ class Publisher:
         t_ns: int | None = None,
     ) -> bool:
         """Publish one samples batch of one channel."""
-        return self._send(self.samples_frames(channel, rate_hz=rate_hz, t_wall_ns=t_wall_ns, power_w=power_w,
-                                              energy_j=energy_j, status=status, t_ns=t_ns))
-
-    def samples_frames(
-        self,
-        channel: str,
-        *,
-        rate_hz: float,
-        t_wall_ns: np.ndarray,
-        power_w: np.ndarray,
-        energy_j: float,
-        status: str,
-        t_ns: int | None = None,
-    ) -> list[bytes]:
-        """The frames of the next samples batch of ``channel`` (takes its sequence number; not sent).
-
-        The daemon encodes every channel of a poll first and hands them to :meth:`send_all` at once:
-        back-to-back sends wake ZeroMQ's I/O thread (and each subscriber) once per poll instead of
-        once per message, which is most of the cost of a send on a virtual machine.
-        """
-        return self.samples_message(channel, rate_hz, t_wall_ns, power_w, energy_j, status,
-                                    protocol.now_ns() if t_ns is None else int(t_ns))
+        return self._send(self.samples_message(channel, rate_hz, t_wall_ns, power_w, energy_j, status,
+                                               protocol.now_ns() if t_ns is None else int(t_ns)))
 
     def samples_message(self, channel: str, rate_hz: float, t_wall_ns: np.ndarray, power_w: np.ndarray,
                         energy_j: float, status: str, t_ns: int) -> list[bytes]:
-        """:meth:`samples_frames` with positional arguments and the header time given (the poll's hot path)."""
+        """The frames of the next samples batch of ``channel`` (takes its sequence number; not sent).
+
+        The poll's hot path (positional arguments, header time given). The daemon encodes every
+        channel of a poll first and hands them to :meth:`send_all` at once: back-to-back sends wake
+        ZeroMQ's I/O thread (and each subscriber) once per poll instead of once per message, which is
+        most of the cost of a send on a virtual machine.
+        """
         known = self._sample_topics.get(channel)
         if known is None or known[2] != rate_hz:
             topic = protocol.samples_topic(self.node, channel)
