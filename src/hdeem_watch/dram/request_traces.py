@@ -30,7 +30,7 @@ import numpy as np
 
 from hdeem_watch.dram.pipeline import split_work
 from hdeem_watch.dram.trace_writers import format_requests, iter_formatted, trace_sha256, write_requests
-from hdeem_watch.dram.uniform_parser import UniformParser
+from hdeem_watch.dram.uniform_parser import UniformParser, uniform_lines
 from hdeem_watch.errors import InputError
 
 __all__ = ["FORMATS", "CacheConfig", "RequestTrace", "cache_filter", "format_requests", "iter_formatted",
@@ -153,22 +153,16 @@ def _lines(data: bytes | mmap.mmap) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return buf, starts.astype(np.int64), ends.astype(np.int64)
 
 
-def _parse_same_length(buf: np.ndarray, starts: np.ndarray, length: int, fmt: str, *,
-                       matrix: bool = False) -> tuple[np.ndarray, ...]:
-    """Parse lines that all have ``length`` bytes: (values, is_write, ok) per line.
-
-    ``matrix=True``: ``buf`` already is the ``(count, length)`` matrix of the lines.
-    """
-    count = buf.shape[0] if matrix else starts.size
+def _parse_same_length(buf: np.ndarray, starts: np.ndarray, length: int, fmt: str) -> tuple[np.ndarray, ...]:
+    """Parse lines that all have ``length`` bytes: (values, is_write, ok) per line."""
+    count = starts.size
     ok = np.zeros(count, dtype=bool)
     values = np.zeros(count, dtype=np.uint64)
     is_write = np.zeros(count, dtype=bool)
     if length < (5 if fmt == "ramulator" else 6):  # shortest: '0x0 R', 'LD 0x0'
         return values, is_write, ok
     width = length + 1
-    if matrix:
-        text = buf
-    elif count > 1 and starts[-1] - starts[0] == (count - 1) * width and buf.size >= starts[-1] + width:
+    if count > 1 and starts[-1] - starts[0] == (count - 1) * width and buf.size >= starts[-1] + width:
         # consecutive lines of one length: a strided view, no gather
         text = np.lib.stride_tricks.as_strided(buf[starts[0]:], shape=(count, length), strides=(width, 1))
     else:
@@ -223,46 +217,43 @@ def _hex_values(digits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return values, ok
 
 
-def _read_uniform(buf: np.ndarray, width: int, fmt: str) -> tuple[np.ndarray, np.ndarray] | None:
-    """Parse a trace whose lines all have ``width`` bytes (newline included), block by block.
+def _read_uniform(text: np.ndarray, fmt: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """Parse a trace whose lines all have one length (:func:`uniform_lines`), block by block.
 
     Large traces are parsed in two halves at once (:func:`hdeem_watch.dram.pipeline.split_work`:
     two threads; numpy releases the GIL in its loops, which are long here). Returns
     ``None`` if any line is malformed (the general path then names it).
     """
-    count = buf.size // width
-    block = 1 << 16
-    text = np.lib.stride_tricks.as_strided(buf, shape=(count, width), strides=(width, 1))
+    count, width = text.shape
 
     def parse(first: int, last: int, out: tuple[np.ndarray, ...]) -> bool:
-        addresses, writes = out
-        parser = UniformParser(width - 1, fmt, block)  # one per half: its own work arrays
-        return all(parser.parse(text[lo:min(lo + block, last)], addresses[lo - first:min(lo + block, last) - first],
-                                writes[lo - first:min(lo + block, last) - first]) for lo in range(first, last, block))
+        parser = UniformParser(width - 1, fmt)  # one per half: its own work arrays
+        return parser.parse_range(text, first, last, *out)
 
-    if count >= 4 * block:
+    if count >= 4 * UniformParser.BLOCK:
         result = split_work(parse, count, (np.uint64, np.bool_))
         return (result[0], result[1]) if result is not None else None
     out = (np.empty(count, dtype=np.uint64), np.empty(count, dtype=bool))
     return out if parse(0, count, out) else None
 
 
-def _map_file(path: str | Path) -> bytes | mmap.mmap:
-    """The file's bytes: memory-mapped and pre-faulted (no copy), or read if it cannot be mapped."""
+def map_file(path: str | Path, *, populate: bool = True) -> bytes | mmap.mmap:
+    """The file's bytes, memory-mapped (no copy; pre-faulted with ``populate``), or read if it
+    cannot be mapped."""
     with open(path, "rb") as handle:
         try:
-            flags = mmap.MAP_PRIVATE | getattr(mmap, "MAP_POPULATE", 0)
+            flags = mmap.MAP_PRIVATE | (getattr(mmap, "MAP_POPULATE", 0) if populate else 0)
             return mmap.mmap(handle.fileno(), 0, flags=flags, prot=mmap.PROT_READ)
         except (ValueError, OSError, AttributeError):  # empty file, special file, no mmap flags
             return handle.read()
 
 
 def _read_dram_trace(path: str | Path, fmt: str) -> RequestTrace:
-    data = _map_file(path)
-    width = data.find(b"\n") + 1
-    if width > 1 and len(data) % width == 0 and data[width - 2] != 13:
+    data = map_file(path)
+    text = uniform_lines(data)
+    if text is not None:
         # every line may have the same length (a generated trace): parse it as a strided matrix
-        uniform = _read_uniform(np.frombuffer(data, dtype=np.uint8), width, fmt)
+        uniform = _read_uniform(text, fmt)
         if uniform is not None:
             return RequestTrace(*uniform)
     buf, starts, ends = _lines(data)

@@ -25,17 +25,14 @@ Example:
 
 from __future__ import annotations
 
-import mmap
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from hdeem_watch.dram.controller import ControllerResult, simulate, simulate_requests
-from hdeem_watch.dram.request_traces import CacheConfig, read_request_trace
-from hdeem_watch.dram.uniform_parser import UniformParser
-
-_BLOCK = 1 << 16
+from hdeem_watch.dram.request_traces import CacheConfig, map_file, read_request_trace
+from hdeem_watch.dram.uniform_parser import UniformParser, uniform_lines
 
 
 def simulate_trace(spec: Any, path: str | Path, fmt: str, *, cache: CacheConfig | None = None,
@@ -57,29 +54,21 @@ def simulate_trace(spec: Any, path: str | Path, fmt: str, *, cache: CacheConfig 
         InputError: ``file:line`` and what was wrong, for a malformed line; or a bad format or option.
     """
     if fmt in ("ramulator", "ramulator2") and Path(path).is_file():
-        data = _map(path)
-        width = data.find(b"\n") + 1
-        if width > 1 and len(data) % width == 0 and data[width - 2] != 13:
-            buf = np.frombuffer(data, dtype=np.uint8)
-            count = buf.size // width
-            text = np.lib.stride_tricks.as_strided(buf, shape=(count, width), strides=(width, 1))
-
+        text = uniform_lines(map_file(path, populate=False))  # the worker touches its own chunks
+        if text is not None:
             parsers: list[UniformParser] = []  # made where it is used (the worker): its own work arrays
 
             def requests(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
                 if not parsers:
-                    parsers.append(UniformParser(width - 1, fmt, _BLOCK))
+                    parsers.append(UniformParser(text.shape[1] - 1, fmt))
                 addresses = np.empty(hi - lo, dtype=np.uint64)
                 writes = np.empty(hi - lo, dtype=bool)
-                for first in range(lo, hi, _BLOCK):
-                    last = min(first + _BLOCK, hi)
-                    if not parsers[0].parse(text[first:last], addresses[first - lo:last - lo],
-                                            writes[first - lo:last - lo]):
-                        raise _NotUniform(first)
+                if not parsers[0].parse_range(text, lo, hi, addresses, writes):
+                    raise _NotUniform(lo)
                 return addresses, writes
 
             try:
-                return simulate_requests(spec, count, requests, **options), 0
+                return simulate_requests(spec, text.shape[0], requests, **options), 0
             except _NotUniform:
                 pass  # mixed line lengths or a malformed line: the general reader names it
     trace = read_request_trace(path, fmt, cache=cache)
@@ -88,12 +77,3 @@ def simulate_trace(spec: Any, path: str | Path, fmt: str, *, cache: CacheConfig 
 
 class _NotUniform(Exception):
     """A block of the trace is not lines of one length in the format (raised in the pipeline)."""
-
-
-def _map(path: str | Path) -> bytes | mmap.mmap:
-    """The file's bytes, memory-mapped without pre-faulting (the worker touches its chunks)."""
-    with open(path, "rb") as handle:
-        try:
-            return mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
-        except (ValueError, OSError):  # empty or special file
-            return handle.read()

@@ -19,9 +19,21 @@ Example:
 
 from __future__ import annotations
 
+import mmap
+
 import numpy as np
 
 _EVERY_BYTE_ONE = np.uint64(0x0101010101010101)
+
+
+def uniform_lines(data: bytes | mmap.mmap) -> np.ndarray | None:
+    """The ``(lines, width)`` byte matrix of a trace whose lines all have one length (newline
+    included, no CR), as a view of ``data``; ``None`` if the lengths cannot all be equal."""
+    width = data.find(b"\n") + 1
+    if width <= 1 or len(data) % width or data[width - 2] == 13:
+        return None
+    buf = np.frombuffer(data, dtype=np.uint8)
+    return np.lib.stride_tricks.as_strided(buf, shape=(buf.size // width, width), strides=(width, 1))
 
 
 def _word(text: bytes) -> int:
@@ -38,7 +50,10 @@ class UniformParser:
         block: most lines per call of :meth:`parse`.
     """
 
-    def __init__(self, length: int, fmt: str, block: int = 1 << 16) -> None:
+    #: Default lines per block.
+    BLOCK = 1 << 16
+
+    def __init__(self, length: int, fmt: str, block: int = BLOCK) -> None:
         self.length = length
         self.fmt = fmt
         self.block = block
@@ -127,3 +142,13 @@ class UniformParser:
         np.copyto(data, pairs, casting="unsafe")  # the low byte of each lane
         addresses[:] = data.view(">u8" if self.width == 16 else ">u4")[:, 0]
         return bool(ok.all())
+
+    def parse_range(self, text: np.ndarray, first: int, last: int, addresses: np.ndarray,
+                    writes: np.ndarray) -> bool:
+        """:meth:`parse` lines ``[first, last)`` of ``text`` block by block into ``addresses`` and
+        ``writes`` (both of length ``last − first``); whether every line was well formed."""
+        for lo in range(first, last, self.block):
+            hi = min(lo + self.block, last)
+            if not self.parse(text[lo:hi], addresses[lo - first:hi - first], writes[lo - first:hi - first]):
+                return False
+        return True
