@@ -164,32 +164,33 @@ def test_split_lines_covers_range_once() -> None:
             assert max(sizes) - min(sizes) <= 1
 
 
-def test_triad_chunk_fits_half_the_workers_llc_share() -> None:
-    """Triad's chunk working set (lines of a and b plus scratch) fits half a worker's LLC share,
+def test_chunk_fits_half_the_workers_llc_share() -> None:
+    """A chunk's working set (lines of two arrays plus slack) fits half a worker's LLC share,
     within the chunk bounds; unknown LLC falls back to a chunk that fits a 1 MiB L2."""
-    lo, hi = K.TRIAD_CHUNK_RANGE
+    lo, hi = K.CHUNK_RANGE
     for llc in (2 << 20, 30 << 20, 32 << 20, 60 << 20):
         for workers in (1, 2, 12, 24, 48):
-            chunk = K.triad_chunk_lines(llc, workers)
+            chunk = K.chunk_lines(llc, workers)
             assert lo <= chunk <= hi
             if lo < chunk < hi:
-                assert chunk * K.TRIAD_BYTES_PER_LINE <= llc / workers / 2
-                assert (chunk + 1) * K.TRIAD_BYTES_PER_LINE > llc / workers / 2
-    fallback = K.triad_chunk_lines(None, 4)
-    assert fallback * K.TRIAD_BYTES_PER_LINE <= 1 << 20
+                assert chunk * K.CHUNK_BYTES_PER_LINE <= llc / workers / 2
+                assert (chunk + 1) * K.CHUNK_BYTES_PER_LINE > llc / workers / 2
+    fallback = K.chunk_lines(None, 4)
+    assert fallback * K.CHUNK_BYTES_PER_LINE <= 1 << 20
 
 
+@pytest.mark.parametrize("kernel", K.CHUNKED_KERNELS)
 @pytest.mark.parametrize("chunk", [1, 7, 64, 1000, 1001, 5000])
-def test_triad_chunk_boundaries(chunk: int) -> None:
-    """Triad gives the same result whatever the chunk (ranges not multiples of it included)."""
+def test_chunk_boundaries(kernel: str, chunk: int) -> None:
+    """A chunked kernel gives the same result whatever the chunk (ranges not multiples of it included)."""
     elements = 8 * 1001
-    arrays = _filled("triad", elements)
+    arrays = _filled(kernel, elements)
     expected = {n: a.copy() for n, a in arrays.items()}
-    _reference_run("triad", expected, 2)
-    scratch = np.zeros(K.scratch_size("triad", chunk))
+    _reference_run(kernel, expected, 2)
+    scratch = np.zeros(K.scratch_size(kernel, chunk))
     for _ in range(2):
-        K.run_pass("triad", arrays, 0, 500, scratch)
-        K.run_pass("triad", arrays, 500, 1001, scratch)
+        K.run_pass(kernel, arrays, 0, 500, scratch)
+        K.run_pass(kernel, arrays, 500, 1001, scratch)
     for name in arrays:
         np.testing.assert_array_equal(arrays[name], expected[name])
 

@@ -16,18 +16,24 @@ copy       ``b[k] = a[k]``         a           b                   a, b
 selfscale  ``a[k] = 2 a[k]``       a           a                   a
 =========  ======================  ==========  ==================  =============
 
-Each pass is one numpy call on strided views with ``out=`` (no temporaries), except triad,
-which needs ``2 a[k]`` as an intermediate: it runs in chunks, first ``a += a`` in place (``2 a``,
-exact, or inf exactly where ``2.0 * a`` overflows), then ``a = b + a`` (one rounding: bit-exact with
-the C loop). The chunk is sized by :func:`triad_chunk_lines` so the chunk's lines of ``a`` and ``b``
-fit in half of the worker's share of the last-level cache: the lines of ``a`` read (and made dirty)
-by the first step are still cached when the second step writes them again (no extra DRAM traffic;
-the scratch buffer of :func:`scratch_size` only carries the chunk length). Doubling in place instead
-of into a separate scratch buffer measured 1.1-1.25x faster here (the second step stores into
-lines the core already owns). Larger chunks mean fewer numpy calls (16384 lines run ~30 % faster
-than 4096 here).
+Read, assign, copy and selfscale are one numpy call per pass on strided views with ``out=`` (no
+temporaries). Scale, add and triad run in chunks of :func:`chunk_lines` lines, two calls per chunk,
+with the chunk's destination lines still in cache for the second call (no extra DRAM traffic):
+
+* scale: copy ``a`` into ``b`` (the int64 copy below), then ``b += b`` in place (``2 a``: exact);
+* add: copy ``b`` into ``c``, then ``c = a + c`` (the same single rounding as ``a + b``);
+* triad: ``a += a`` in place (``2 a``, exact, or inf exactly where ``2.0 * a`` overflows), then
+  ``a = b + a`` (one rounding: bit-exact with the C loop).
+
+Splitting scale and add this way measured 1.15-1.2x faster than the single ``multiply``/``add``
+call on one core here: the first call streams one array through numpy's fastest strided loop and
+the second streams the other (docs/bench.md). The chunk is sized so the chunk's lines of the two
+arrays fit in half of the worker's share of the last-level cache; the scratch buffer of
+:func:`scratch_size` only carries the chunk length. Doubling triad's ``a`` in place instead of into
+a separate scratch buffer measured 1.1-1.25x faster (the second step stores into lines the core
+already owns). Larger chunks mean fewer numpy calls (16384 lines run ~30 % faster than 4096 here).
 numpy releases the GIL inside each loop, so threads run these passes truly in parallel. The calls
-were chosen for speed on strided views: ``einsum`` sums faster than ``add.reduce``, and copy runs
+were chosen for speed on strided views: ``einsum`` sums faster than ``add.reduce``, and copies run
 as ``bitwise_or(a, 0)`` on int64 views of the same memory (bit-exact, faster than ``copyto`` or
 ``positive``); see docs/bench.md.
 
@@ -55,14 +61,16 @@ from hdeem_watch.bench.schedule import IDLE_KERNEL, KERNELS, canonical_kernel
 STRIDE = 8
 #: Bytes per cache line / DRAM burst.
 LINE_BYTES = 64
-#: Default lines per triad chunk: 2 arrays x 4096 lines x 64 B = 512 KiB of lines plus a 32 KiB
+#: Kernels that run in chunks (two numpy calls per chunk, the destination's lines kept in cache).
+CHUNKED_KERNELS = ("scale", "add", "triad")
+#: Default lines per chunk: 2 arrays x 4096 lines x 64 B = 512 KiB of lines plus a 32 KiB
 #: scratch, inside a 1 MiB L2 and any LLC (used when the LLC size is unknown).
-TRIAD_CHUNK_LINES = 4096
-#: Bounds of the triad chunk chosen from the LLC.
-TRIAD_CHUNK_RANGE = (1024, 16384)
-#: Cache bytes budgeted per triad chunk line: a line of ``a``, a line of ``b``, 8 bytes of slack
-#: (formerly the scratch double; kept so the chunk sizes stay as measured).
-TRIAD_BYTES_PER_LINE = 2 * 64 + 8
+CHUNK_LINES = 4096
+#: Bounds of the chunk chosen from the LLC.
+CHUNK_RANGE = (1024, 32768)
+#: Cache bytes budgeted per chunk line: a line of each of two arrays, 8 bytes of slack
+#: (formerly triad's scratch double; kept so the chunk sizes stay as measured).
+CHUNK_BYTES_PER_LINE = 2 * 64 + 8
 #: Doubles in the idle kernel's scratch buffer (16 KiB: L1-resident).
 IDLE_BUFFER = 2048
 
@@ -178,8 +186,9 @@ def run_pass(kernel: str, arrays: Mapping[str, np.ndarray], lo_line: int, hi_lin
         arrays: the arrays from :func:`make_arrays`.
         lo_line: first line of this worker's range.
         hi_line: one past the last line.
-        scratch: a per-worker float64 buffer from :func:`scratch_size`; for triad its length is
-            the chunk in lines, for idle at least :data:`IDLE_BUFFER`.
+        scratch: a per-worker float64 buffer from :func:`scratch_size`; for the
+            :data:`CHUNKED_KERNELS` its length is the chunk in lines, for idle at least
+            :data:`IDLE_BUFFER`.
 
     Returns:
         ``sum(a[k])`` for read, 0.0 for every other kernel (the idle kernel returns a checksum).
@@ -189,20 +198,16 @@ def run_pass(kernel: str, arrays: Mapping[str, np.ndarray], lo_line: int, hi_lin
     if kernel == "assign":
         _view(arrays["a"], lo_line, hi_line).fill(2.0)
     elif kernel == "scale":
-        np.multiply(_view(arrays["a"], lo_line, hi_line), 2.0, out=_view(arrays["b"], lo_line, hi_line))
+        _scale(arrays["a"], arrays["b"], lo_line, hi_line, scratch.size)
     elif kernel == "add":
-        np.add(_view(arrays["a"], lo_line, hi_line), _view(arrays["b"], lo_line, hi_line),
-               out=_view(arrays["c"], lo_line, hi_line))
+        _add(arrays["a"], arrays["b"], arrays["c"], lo_line, hi_line, scratch.size)
     elif kernel == "copy":
-        # Bit-exact copy through the int64 loop, which runs faster on strided views than any
-        # float64 copy numpy has (positive, copyto, multiply by 1): measured 180 vs 137 Mlines/s.
-        np.bitwise_or(_view(arrays["a"], lo_line, hi_line).view(np.int64), 0,
-                      out=_view(arrays["b"], lo_line, hi_line).view(np.int64))
+        _copy(_view(arrays["a"], lo_line, hi_line), _view(arrays["b"], lo_line, hi_line))
     elif kernel == "selfscale":
         a = _view(arrays["a"], lo_line, hi_line)
         np.multiply(a, 2.0, out=a)
     elif kernel == "triad":
-        _triad(arrays["a"], arrays["b"], lo_line, hi_line, scratch)
+        _triad(arrays["a"], arrays["b"], lo_line, hi_line, scratch.size)
     elif kernel == IDLE_KERNEL:
         return _idle(hi_line - lo_line, scratch)
     else:  # pragma: no cover - canonical names are checked by the schedule
@@ -210,22 +215,43 @@ def run_pass(kernel: str, arrays: Mapping[str, np.ndarray], lo_line: int, hi_lin
     return 0.0
 
 
-def triad_chunk_lines(llc_bytes: int | None, workers: int) -> int:
-    """Return the triad chunk (lines) whose working set fits half a worker's share of the LLC.
+def chunk_lines(llc_bytes: int | None, workers: int) -> int:
+    """Return the chunk (lines) whose two-array working set fits half a worker's share of the LLC.
 
     Example:
-        >>> triad_chunk_lines(30 << 20, 24), triad_chunk_lines(32 << 20, 2), triad_chunk_lines(None, 1)
+        >>> chunk_lines(30 << 20, 24), chunk_lines(32 << 20, 2), chunk_lines(None, 1)
         (4818, 16384, 4096)
     """
     if not llc_bytes:
-        return TRIAD_CHUNK_LINES
-    lo, hi = TRIAD_CHUNK_RANGE
-    return max(lo, min(hi, int(llc_bytes) // max(1, int(workers)) // 2 // TRIAD_BYTES_PER_LINE))
+        return CHUNK_LINES
+    lo, hi = CHUNK_RANGE
+    return max(lo, min(hi, int(llc_bytes) // max(1, int(workers)) // 2 // CHUNK_BYTES_PER_LINE))
 
 
-def _triad(a_full: np.ndarray, b_full: np.ndarray, lo_line: int, hi_line: int,
-           scratch: np.ndarray) -> None:
-    step = scratch.size
+def _copy(src: np.ndarray, dst: np.ndarray) -> None:
+    """``dst = src`` bit for bit through the int64 loop, which runs faster on strided views than any
+    float64 copy numpy has (positive, copyto, multiply by 1): measured 180 vs 137 Mlines/s."""
+    np.bitwise_or(src.view(np.int64), 0, out=dst.view(np.int64))
+
+
+def _scale(a_full: np.ndarray, b_full: np.ndarray, lo_line: int, hi_line: int, step: int) -> None:
+    for lo in range(lo_line, hi_line, step):
+        hi = min(lo + step, hi_line)
+        b = _view(b_full, lo, hi)
+        _copy(_view(a_full, lo, hi), b)
+        np.add(b, b, out=b)  # 2a, exact (or inf, as 2.0 * a); b's lines are still cached
+
+
+def _add(a_full: np.ndarray, b_full: np.ndarray, c_full: np.ndarray, lo_line: int, hi_line: int,
+         step: int) -> None:
+    for lo in range(lo_line, hi_line, step):
+        hi = min(lo + step, hi_line)
+        c = _view(c_full, lo, hi)
+        _copy(_view(b_full, lo, hi), c)
+        np.add(_view(a_full, lo, hi), c, out=c)  # a + b with c's lines still cached
+
+
+def _triad(a_full: np.ndarray, b_full: np.ndarray, lo_line: int, hi_line: int, step: int) -> None:
     for lo in range(lo_line, hi_line, step):
         hi = min(lo + step, hi_line)
         a = _view(a_full, lo, hi)
@@ -245,8 +271,8 @@ def _idle(lines: int, scratch: np.ndarray) -> float:
     return float(buf[0])
 
 
-def scratch_size(kernel: str, chunk_lines: int = TRIAD_CHUNK_LINES) -> int:
-    """Return the scratch elements a worker needs for ``kernel`` (triad: its chunk in lines)."""
-    if kernel == "triad":
-        return max(1, int(chunk_lines))
+def scratch_size(kernel: str, chunk: int = CHUNK_LINES) -> int:
+    """Return the scratch elements a worker needs for ``kernel`` (a chunked kernel: its chunk in lines)."""
+    if kernel in CHUNKED_KERNELS:
+        return max(1, int(chunk))
     return IDLE_BUFFER if kernel == IDLE_KERNEL else 1

@@ -212,7 +212,7 @@ def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None
     cores = system.physical_cores()
     if cores is not None and spec.threads > cores:
         warnings.append(f"{spec.threads} threads on {cores} physical cores: workers share cores (SMT)")
-    scratch_n = K.scratch_size(kernel, K.triad_chunk_lines(llc, spec.threads))
+    scratch_n = K.scratch_size(kernel, K.chunk_lines(llc, spec.threads))
     lines = K.lines_of(spec.elements)
     ranges = K.split_lines(lines, spec.threads)
     runner = _run_threads if backend == "thread" else _run_processes
