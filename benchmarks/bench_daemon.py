@@ -5,7 +5,10 @@ Phases:
 1. **steady**: the daemon as a real process with the simulated node at speed 1 — HDEEM's full rate,
    BLADE at 1000 Sa/s and six channels at 100 Sa/s — and 4 subscriber processes for ``--seconds``
    (default 60, ``--quick`` 10). Reported: the daemon's CPU share of one core (target ≤ 1 %), beside
-   an idle Python process with the same imports (the baseline); samples lost by the subscribers
+   three baselines: an idle Python process with the same imports, a process that only wakes at the
+   poll rate, and one that also hands one poll's pre-built messages (7 channels, the daemon's sizes)
+   to ZeroMQ for the same number of subscribers (the transport's floor: what any daemon polling at
+   this rate pays on this machine before doing any work); samples lost by the subscribers
    (sequence gaps and missing timestamps; target 0); p50/p99 sensor→subscriber latency (receive wall
    time minus the sample's own timestamp, the end of its interval; target p99 ≤ 50 ms).
 2. **ceiling (publisher)**: the daemon's publisher (protocol encoding + XPUB) flooding batches of
@@ -171,6 +174,61 @@ while True:
 """
 
 
+SEND_LOOP = """
+import subprocess, sys, time, zmq
+import numpy as np
+from hdeem_watch.daemon.publisher import Publisher
+from hdeem_watch.sources.base import hdeem_channel_infos
+endpoint, interval_s, subscribers = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
+ctx = zmq.Context()
+publisher = Publisher(ctx, endpoint + "/s1.sock", node="bench")
+control = ctx.socket(zmq.ROUTER); control.bind(endpoint + "/s2.sock")
+sub = ("import sys, zmq\\ns = zmq.Context().socket(zmq.SUB); s.connect(sys.argv[1]); "
+       "s.setsockopt(zmq.SUBSCRIBE, b'hw1/')\\nwhile True: s.recv_multipart()")
+children = [subprocess.Popen([sys.executable, "-c", sub, publisher.endpoint]) for _ in range(subscribers)]
+seen = 0
+while seen < subscribers:  # every subscriber is connected and subscribed
+    seen += publisher.handle_subscriptions() if publisher.socket.poll(100) else 0
+# The daemon's messages of one poll, built once by its own encoder: each channel's samples of one period.
+messages = []
+for info in hdeem_channel_infos():
+    n = max(1, round(info.rate_hz * interval_s))
+    t = np.arange(n, dtype=np.int64) * round(1e9 / info.rate_hz)
+    messages.append(publisher.samples_message(info.name, info.rate_hz, t, np.full(n, 5.0), 1.0, "ok", 0))
+items = [(control, zmq.POLLIN), (publisher.socket, zmq.POLLIN)]
+interval_ns = round(interval_s * 1e9)
+deadline = time.monotonic_ns()
+print("up", flush=True)
+while True:
+    deadline += interval_ns
+    for sock, _event in zmq.backend.zmq_poll(items, max(0, -(-(deadline - time.monotonic_ns()) // 1_000_000))):
+        if sock is publisher.socket:
+            publisher.handle_subscriptions()
+    publisher.send_all(messages)
+"""
+
+
+def send_baseline_cpu(seconds: float, interval_s: float, subscribers: int) -> float:
+    """CPU share of a process that only wakes at the poll rate and hands one poll's pre-built messages
+    (one per channel, the daemon's sizes) to ZeroMQ for ``subscribers`` subscribers: the transport's floor."""
+    with tempfile.TemporaryDirectory(prefix="hws-") as tmp:
+        argv = [sys.executable, "-c", SEND_LOOP, f"ipc://{tmp}", str(interval_s), str(subscribers)]
+        proc = subprocess.Popen(argv, env=_env(), stdout=subprocess.PIPE, text=True, start_new_session=True)
+        try:
+            assert proc.stdout is not None
+            proc.stdout.readline()
+            ps = psutil.Process(proc.pid)
+            time.sleep(1.0)
+            c0, t0 = cpu_seconds(ps), time.monotonic()
+            time.sleep(seconds)
+            return 100 * (cpu_seconds(ps) - c0) / (time.monotonic() - t0)
+        finally:
+            for child in psutil.Process(proc.pid).children(recursive=True):
+                child.kill()
+            proc.kill()
+            proc.wait()
+
+
 def wake_baseline_cpu(seconds: float, interval_s: float) -> float:
     """CPU share of a process that only wakes at the daemon's poll rate (zmq poll on two sockets)."""
     with tempfile.TemporaryDirectory(prefix="hww-") as tmp:
@@ -282,6 +340,7 @@ def main(argv: list[str] | None = None) -> int:
                                "load_average": os.getloadavg()}
     results["idle_process_cpu_percent"] = idle_baseline_cpu(min(seconds, 10.0))
     results["wake_loop_cpu_percent"] = wake_baseline_cpu(min(seconds, 10.0), args.poll_interval)
+    results["send_loop_cpu_percent"] = send_baseline_cpu(min(seconds, 20.0), args.poll_interval, args.subscribers)
     results["steady"] = steady(seconds, args.subscribers, args.poll_interval)
     results["publisher_ceiling"] = publisher_ceiling(flood_s, args.batch, args.subscribers)
     results["daemon_ceiling"] = daemon_ceiling(flood_s, args.flood_speed)
@@ -296,6 +355,8 @@ def main(argv: list[str] | None = None) -> int:
          None),
         ("  baseline: a process that only wakes at the poll rate (zmq poll), %", results["wake_loop_cpu_percent"],
          "-", None),
+        (f"  baseline: the same + one poll's 7 messages to {args.subscribers} subscribers, %",
+         results["send_loop_cpu_percent"], "-", None),
         ("lost samples (all subscribers)", s["lost_samples"] + s["lost_messages"], "0", None),
         ("p99 sensor->subscriber latency, ms", s["p99_ms"], "<= 50", 50.0 / s["p99_ms"]),
         ("  p50 latency, ms", s["p50_ms"], "-", None),
