@@ -21,7 +21,7 @@ wheel, at whatever places they have.
 
 Usage::
 
-    python3 benchmarks/bench_kernels_vs_c.py            # 2**25 doubles/array, repeat 2, 5 trials
+    python3 benchmarks/bench_kernels_vs_c.py            # 2**25 doubles/array, repeat 2, 9 trials
     python3 benchmarks/bench_kernels_vs_c.py --quick    # 2**24, repeat 2, 3 trials, 4 placements
     python3 benchmarks/bench_kernels_vs_c.py --backend both   # threads and processes side by side
 
@@ -269,7 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="smaller arrays, fewer passes, trials and placements")
     parser.add_argument("--elements", type=int, help="doubles per array (default 2**25, quick 2**24)")
     parser.add_argument("--repeat", type=int, help="passes per run (default 2)")
-    parser.add_argument("--trials", type=int, help="runs per figure, best kept (default 5, quick 3)")
+    parser.add_argument("--trials", type=int, help="runs per figure, best kept (default 9, quick 3)")
     parser.add_argument("--threads", default=None, help="comma-separated thread counts (default 1 and all CPUs)")
     parser.add_argument("--kernels", default=",".join(KERNELS))
     parser.add_argument("--placements", default=None,
@@ -282,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     elements = args.elements or (1 << 24 if args.quick else 1 << 25)
     repeat = args.repeat or 2
-    trials = args.trials or (3 if args.quick else 5)
+    trials = args.trials or (3 if args.quick else 9)
     pads = ([int(p) for p in args.placements.split(",")] if args.placements
             else list(PLACEMENT_PADS[::2] if args.quick else PLACEMENT_PADS))
     backends = ["thread", "process"] if args.backend == "both" else [args.backend]
