@@ -147,18 +147,23 @@ def idle_baseline_cpu(seconds: float) -> float:
     return _baseline_cpu([sys.executable, "-c", code], seconds)
 
 
-def _baseline_cpu(argv: list[str], seconds: float) -> float:
-    """CPU share (% of one core) of a baseline process over ``seconds`` after it prints its first line."""
+def _baseline_cpu(argv: list[str], seconds: float, warmup_s: float = 0.0) -> float:
+    """CPU share (% of one core) of a baseline process over ``seconds``, ``warmup_s`` after it prints
+    its first line (its own CPU, not its children's; they are killed with it)."""
     proc = subprocess.Popen(argv, env=_env(), stdout=subprocess.PIPE, text=True)
-    assert proc.stdout is not None
-    proc.stdout.readline()
-    ps = psutil.Process(proc.pid)
-    c0, t0 = cpu_seconds(ps), time.monotonic()
-    time.sleep(seconds)
-    share = 100 * (cpu_seconds(ps) - c0) / (time.monotonic() - t0)
-    proc.kill()
-    proc.wait()
-    return share
+    try:
+        assert proc.stdout is not None
+        proc.stdout.readline()
+        ps = psutil.Process(proc.pid)
+        time.sleep(warmup_s)
+        c0, t0 = cpu_seconds(ps), time.monotonic()
+        time.sleep(seconds)
+        return 100 * (cpu_seconds(ps) - c0) / (time.monotonic() - t0)
+    finally:
+        for child in psutil.Process(proc.pid).children(recursive=True):
+            child.kill()
+        proc.kill()
+        proc.wait()
 
 
 WAKE_LOOP = """
@@ -213,20 +218,7 @@ def send_baseline_cpu(seconds: float, interval_s: float, subscribers: int) -> fl
     (one per channel, the daemon's sizes) to ZeroMQ for ``subscribers`` subscribers: the transport's floor."""
     with tempfile.TemporaryDirectory(prefix="hws-") as tmp:
         argv = [sys.executable, "-c", SEND_LOOP, f"ipc://{tmp}", str(interval_s), str(subscribers)]
-        proc = subprocess.Popen(argv, env=_env(), stdout=subprocess.PIPE, text=True, start_new_session=True)
-        try:
-            assert proc.stdout is not None
-            proc.stdout.readline()
-            ps = psutil.Process(proc.pid)
-            time.sleep(1.0)
-            c0, t0 = cpu_seconds(ps), time.monotonic()
-            time.sleep(seconds)
-            return 100 * (cpu_seconds(ps) - c0) / (time.monotonic() - t0)
-        finally:
-            for child in psutil.Process(proc.pid).children(recursive=True):
-                child.kill()
-            proc.kill()
-            proc.wait()
+        return _baseline_cpu(argv, seconds, warmup_s=1.0)
 
 
 def wake_baseline_cpu(seconds: float, interval_s: float) -> float:

@@ -63,8 +63,8 @@ STRIDE = 8
 LINE_BYTES = 64
 #: Kernels that run in chunks (two numpy calls per chunk, the destination's lines kept in cache).
 CHUNKED_KERNELS = ("scale", "add", "triad")
-#: Default lines per chunk: 2 arrays x 4096 lines x 64 B = 512 KiB of lines plus a 32 KiB
-#: scratch, inside a 1 MiB L2 and any LLC (used when the LLC size is unknown).
+#: Default lines per chunk: 2 arrays x 4096 lines x 64 B = 512 KiB of lines, inside a 1 MiB L2 and
+#: any LLC (used when the LLC size is unknown).
 CHUNK_LINES = 4096
 #: Bounds of the chunk chosen from the LLC.
 CHUNK_RANGE = (1024, 32768)
@@ -220,7 +220,7 @@ def chunk_lines(llc_bytes: int | None, workers: int) -> int:
 
     Example:
         >>> chunk_lines(30 << 20, 24), chunk_lines(32 << 20, 2), chunk_lines(None, 1)
-        (4818, 16384, 4096)
+        (4818, 32768, 4096)
     """
     if not llc_bytes:
         return CHUNK_LINES

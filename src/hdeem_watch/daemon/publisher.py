@@ -120,18 +120,7 @@ class Publisher:
         self.prefixes: set[bytes] = set()
 
     def _send(self, frames: list[bytes]) -> bool:
-        # Three plain sends with integer flags: send_multipart's per-call flag arithmetic on enums
-        # costs more than the send itself at the daemon's message rate.
-        sock = self.socket
-        try:
-            sock.send(frames[0], _MORE_NOBLOCK)
-        except zmq.Again:  # XPUB drops instead of blocking; kept for a PUB-like socket
-            self.dropped += 1
-            return False
-        sock.send(frames[1], _MORE_NOBLOCK)
-        sock.send(frames[2], _NOBLOCK, copy=len(frames[2]) < 65536)
-        self.sent += 1
-        return True
+        return self.send_all([frames]) == 1
 
     def publish(self, kind: str, body: Mapping[str, Any], *, t_ns: int | None = None) -> bool:
         """Publish a non-sample message (``status``, ``run``, ``calib``, ``baseline``)."""

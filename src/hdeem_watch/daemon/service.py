@@ -185,7 +185,6 @@ class Daemon:
         log.info("hdeem-watch daemon %s: node %s, source %s, pub %s, control %s", __version__, self.node,
                  self.settings.source, self.pub_endpoint, self.control_endpoint)
 
-
     def request_stop(self) -> None:
         """Ask the loop to end (safe from a signal handler)."""
         self._stop = True
@@ -371,7 +370,7 @@ class Daemon:
     def speed(self) -> float:
         """Source seconds per monotonic second (sim/replay speed; 1 for real sensors)."""
         value = getattr(self.source, "speed", 1.0)
-        if value is self._speed_of:  # the same object as last time (read 40 times a second)
+        if value is self._speed_of:  # the same object as last time (read at every poll)
             return self._speed
         self._speed_of = value
         self._speed = float(value) if isinstance(value, int | float) and value > 0 else 1.0
