@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from hdeem_watch.bench import blas
 from hdeem_watch.bench import kernels as K
 from hdeem_watch.bench.runner import pass_traffic, run_one
 from hdeem_watch.bench.schedule import KERNELS, RunSpec
@@ -23,6 +24,16 @@ REFERENCE = {
     "copy": lambda v: {"b": v["a"]},
     "selfscale": lambda v: {"a": 2.0 * v["a"]},
 }
+
+
+@pytest.fixture(params=["openblas", "numpy"])
+def triad_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Run a triad test with OpenBLAS's fused ``daxpby`` and again with the numpy fallback."""
+    if request.param == "numpy":
+        monkeypatch.setattr(blas, "openblas", lambda: None)
+    else:
+        assert blas.openblas() is not None, "scipy-openblas32 is a dependency and must load"
+    return str(request.param)
 
 
 def _reference_run(kernel: str, arrays: dict[str, np.ndarray], repeat: int) -> float:
@@ -63,6 +74,19 @@ def test_kernel_arithmetic_matches_reference(kernel: str, backend: str) -> None:
         assert result.checksum == expected_sum == K.lines_of(elements) * K.INIT_VALUES["a"]
     else:
         assert math.isnan(result.checksum)
+
+
+@pytest.mark.parametrize("backend", ["thread", "process"])
+def test_triad_arithmetic_on_both_paths(triad_path: str, backend: str) -> None:
+    """Triad computes ``b + 2a`` at every 8th double through OpenBLAS and through numpy alike."""
+    elements, repeat = 8 * 1001 + 3, 3
+    result = run_one(RunSpec("triad", 2, elements, repeat), backend=backend, keep_arrays=True,
+                     oversubscribe=True)
+    expected = _filled("triad", elements)
+    _reference_run("triad", expected, repeat)
+    assert result.arrays is not None
+    for name in expected:
+        np.testing.assert_array_equal(result.arrays[name], expected[name], err_msg=f"{triad_path}: {name}")
 
 
 def _probe(kernel: str, elements: int) -> tuple[set[str], set[str]]:
@@ -152,6 +176,11 @@ def test_kernel_traffic_matches_dram_model_requests(kernel: str) -> None:
     assert (reads, writes, origin) == (*ours, "dram-model")
 
 
+def test_triad_fallback_touches_the_same_lines(triad_path: str) -> None:
+    """Both triad paths read a and b and write a, at stride-8 elements only."""
+    assert _probe("triad", 8 * 700) == ({"a", "b"}, {"a"})
+
+
 def test_split_lines_covers_range_once() -> None:
     """Workers' line ranges are contiguous, disjoint and cover every line (OpenMP static split)."""
     for lines in (0, 1, 7, 1000, 1001):
@@ -181,8 +210,10 @@ def test_chunk_fits_half_the_workers_llc_share() -> None:
 
 @pytest.mark.parametrize("kernel", K.CHUNKED_KERNELS)
 @pytest.mark.parametrize("chunk", [1, 7, 64, 1000, 1001, 5000])
-def test_chunk_boundaries(kernel: str, chunk: int) -> None:
-    """A chunked kernel gives the same result whatever the chunk (ranges not multiples of it included)."""
+def test_chunk_boundaries(kernel: str, chunk: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A chunked kernel gives the same result whatever the chunk (ranges not multiples of it included);
+    triad's numpy fallback is the chunked one."""
+    monkeypatch.setattr(blas, "openblas", lambda: None)
     elements = 8 * 1001
     arrays = _filled(kernel, elements)
     expected = {n: a.copy() for n, a in arrays.items()}
@@ -216,7 +247,7 @@ def test_large_arrays_start_on_a_huge_page_boundary() -> None:
     assert all(a.size == 1000 for a in small.values())
 
 
-def test_triad_is_bit_exact_with_the_c_expression_on_awkward_values() -> None:
+def test_triad_is_bit_exact_with_the_c_expression_on_awkward_values(triad_path: str) -> None:
     """Triad's chunked in-place steps give exactly ``b + 2.0 * a`` (the C loop's expression) at every
     stride-8 double, bit for bit (signed zeros, subnormals, overflow to inf, NaN, random values), over
     several chunks and a partial last chunk, and leave every other double untouched."""
