@@ -17,25 +17,26 @@ selfscale  ``a[k] = 2 a[k]``       a           a                   a
 =========  ======================  ==========  ==================  =============
 
 Read, assign, copy and selfscale are one numpy call per pass on strided views with ``out=`` (no
-temporaries). Scale, add and triad run in chunks of :func:`chunk_lines` lines, two calls per chunk,
-with the chunk's destination lines still in cache for the second call (no extra DRAM traffic):
+temporaries). Triad is one call per pass of OpenBLAS's fused ``daxpby`` (``a = 1.0 b + 2.0 a``,
+:mod:`hdeem_watch.bench.blas`): numpy has no single call for ``b + 2a``, and its two-call version
+tops out well below the C loop's rate (docs/bench.md). Scale and add, and triad when OpenBLAS is
+missing, run in chunks of :func:`chunk_lines` lines, two numpy calls per chunk, with the chunk's
+destination lines still in cache for the second call (no extra DRAM traffic):
 
 * scale: copy ``a`` into ``b`` (the int64 copy below), then ``b += b`` in place (``2 a``: exact);
 * add: copy ``b`` into ``c``, then ``c = a + c`` (the same single rounding as ``a + b``);
-* triad: ``a += a`` in place (``2 a``, exact, or inf exactly where ``2.0 * a`` overflows), then
-  ``a = b + a`` (one rounding: bit-exact with the C loop).
+* triad (fallback): ``a += a`` in place (``2 a``, exact, or inf exactly where ``2.0 * a``
+  overflows), then ``a = b + a`` (one rounding: bit-exact with the C loop, as ``daxpby`` is).
 
 Splitting scale and add this way measured 1.15-1.2x faster than the single ``multiply``/``add``
 call on one core here: the first call streams one array through numpy's fastest strided loop and
 the second streams the other (docs/bench.md). The chunk is sized so the chunk's lines of the two
 arrays fit in half of the worker's share of the last-level cache; the scratch buffer of
-:func:`scratch_size` only carries the chunk length. Doubling triad's ``a`` in place instead of into
-a separate scratch buffer measured 1.1-1.25x faster (the second step stores into lines the core
-already owns). Larger chunks mean fewer numpy calls (16384 lines run ~30 % faster than 4096 here).
-numpy releases the GIL inside each loop, so threads run these passes truly in parallel. The calls
-were chosen for speed on strided views: ``einsum`` sums faster than ``add.reduce``, and copies run
-as ``bitwise_or(a, 0)`` on int64 views of the same memory (bit-exact, faster than ``copyto`` or
-``positive``); see docs/bench.md.
+:func:`scratch_size` only carries the chunk length. Larger chunks mean fewer numpy calls (16384
+lines run ~30 % faster than 4096 here). numpy and ctypes release the GIL inside each loop, so
+threads run these passes truly in parallel. The calls were chosen for speed on strided views:
+``einsum`` sums faster than ``add.reduce``, and copies run as ``bitwise_or(a, 0)`` on int64 views of
+the same memory (bit-exact, faster than ``copyto`` or ``positive``); see docs/bench.md.
 
 The idle kernel evaluates ``sin`` over a 16 KiB scratch buffer (L1-resident): cores busy, DRAM idle.
 
@@ -62,7 +63,8 @@ from hdeem_watch.bench.schedule import IDLE_KERNEL, KERNELS, canonical_kernel
 STRIDE = 8
 #: Bytes per cache line / DRAM burst.
 LINE_BYTES = 64
-#: Kernels that run in chunks (two numpy calls per chunk, the destination's lines kept in cache).
+#: Kernels that run in chunks (two numpy calls per chunk, the destination's lines kept in cache);
+#: triad only when OpenBLAS is missing.
 CHUNKED_KERNELS = ("scale", "add", "triad")
 #: Default lines per chunk: 2 arrays x 4096 lines x 64 B = 512 KiB of lines, inside a 1 MiB L2 and
 #: any LLC (used when the LLC size is unknown).
