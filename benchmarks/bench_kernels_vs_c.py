@@ -4,8 +4,8 @@ Target (DESIGN.md §8): each hdeem-watch kernel reaches >= 90 % of the line rate
 the same thread count. The C program is written and built by this script; both sides use the same
 arrays size, repeat count, CPU pinning, first touch by the worker, page size (transparent huge
 pages via ``madvise``, which numpy requests for large arrays) and timing method (all workers ready,
-window opens, ``repeat`` passes, all workers done). Trials of C and hdeem-watch alternate
-(C, hw, hw, C, ...) so a change of machine load hits both alike.
+window opens, ``repeat`` passes, all workers done). Runs of C and hdeem-watch alternate one by one
+(C, hw, C, hw, ...) so a change of machine load or memory state hits both alike.
 
 SUMMARY, the same on both sides: the **median of every run**. C has one side per build (8
 placements, below) and hdeem-watch as many slots; all run once per trial, in rotating order, for
@@ -31,7 +31,7 @@ wheel, at whatever places they have.
 
 Usage::
 
-    python3 benchmarks/bench_kernels_vs_c.py            # 2**25 doubles/array, repeat 2, 5 trials
+    python3 benchmarks/bench_kernels_vs_c.py            # 2**25 doubles/array, repeat 2, 7 trials
     python3 benchmarks/bench_kernels_vs_c.py --quick    # 2**24, repeat 2, 3 trials, 4 placements
     python3 benchmarks/bench_kernels_vs_c.py --backend both   # threads and processes side by side
 
@@ -249,8 +249,11 @@ def all_rates(exes: dict[int, Path], kernel: str, threads: int, elements: int, r
     """
     cpus = choose_cpus(threads)
     lines = (elements + 7) // 8
-    slots = [f"{backend}#{k}" for backend in backends for k in range(len(exes))]
-    sides = [f"c@{pad}" for pad in exes] + slots + (["c-in-runner"] if c_pass else [])
+    # C and hdeem-watch alternate run by run (c@0, thread#0, c@8, thread#1, ...), so a change of the
+    # machine's state lasting a few runs hits both sides alike.
+    sides = [side for k, pad in enumerate(exes)
+             for side in [f"c@{pad}"] + [f"{backend}#{k}" for backend in backends]]
+    sides += ["c-in-runner"] if c_pass else []
     rates: dict[str, list[float]] = {side: [] for side in sides}
     for trial in range(trials):
         shift = trial % len(sides)
@@ -304,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="smaller arrays, fewer passes, trials and placements")
     parser.add_argument("--elements", type=int, help="doubles per array (default 2**25, quick 2**24)")
     parser.add_argument("--repeat", type=int, help="passes per run (default 2)")
-    parser.add_argument("--trials", type=int, help="runs of each build and slot (default 5, quick 3)")
+    parser.add_argument("--trials", type=int, help="runs of each build and slot (default 7, quick 3)")
     parser.add_argument("--threads", default=None, help="comma-separated thread counts (default 1 and all CPUs)")
     parser.add_argument("--kernels", default=",".join(KERNELS))
     parser.add_argument("--placements", default=None,
@@ -317,7 +320,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     elements = args.elements or (1 << 24 if args.quick else 1 << 25)
     repeat = args.repeat or 2
-    trials = args.trials or (3 if args.quick else 5)
+    trials = args.trials or (3 if args.quick else 7)
     pads = ([int(p) for p in args.placements.split(",")] if args.placements
             else list(PLACEMENT_PADS[::2] if args.quick else PLACEMENT_PADS))
     backends = ["thread", "process"] if args.backend == "both" else [args.backend]

@@ -96,3 +96,43 @@ def test_missing_wheel_means_no_library(monkeypatch: pytest.MonkeyPatch) -> None
     monkeypatch.setattr(blas.importlib.util, "find_spec", lambda name: None)
     assert blas.library_path() is None
     assert blas.openblas.__wrapped__() is None  # the uncached loader
+
+
+AMD_ZEN4 = "processor\t: 0\nvendor_id\t: AuthenticAMD\nflags\t\t: fpu sse2 avx avx2 fma avx512f\n\n" \
+           "processor\t: 1\nvendor_id\t: AuthenticAMD\nflags\t\t: fpu sse2 avx avx2 fma avx512f\n"
+
+
+@pytest.mark.parametrize(("cpuinfo", "expected"), [
+    (AMD_ZEN4, "Zen"),
+    ("vendor_id\t: AuthenticAMD\nflags\t\t: fpu sse2 avx\n", None),   # no AVX2: OpenBLAS's own pick
+    ("vendor_id\t: GenuineIntel\nflags\t\t: fpu avx2 avx512f\n", None),
+    ("", None),
+])
+def test_kernel_set_by_cpu(cpuinfo: str, expected: str | None) -> None:
+    """AMD CPUs with AVX2 load OpenBLAS's Zen kernels (its SkylakeX pick on Zen 4 runs the strided
+    daxpby slower); everything else keeps OpenBLAS's own choice."""
+    assert blas.coretype_for(cpuinfo) == expected
+
+
+def test_loaded_kernel_set_follows_the_cpu_and_leaves_no_variable() -> None:
+    """The live load used the kernel set chosen for this CPU (Zen maps to OpenBLAS's Haswell
+    kernels) and removed the variable it set."""
+    import os
+
+    loaded = _loaded()
+    if blas.coretype_for(blas._read_cpuinfo()) == "Zen":
+        assert " Haswell " in loaded.config
+    assert "OPENBLAS_CORETYPE" not in os.environ
+
+
+def test_users_coretype_wins() -> None:
+    """A user's OPENBLAS_CORETYPE is respected, not replaced (checked in a fresh process, since a
+    library loads its kernels once)."""
+    import os
+    import subprocess
+    import sys
+
+    code = "from hdeem_watch.bench import blas; print(blas.openblas().config)"
+    env = {**os.environ, "OPENBLAS_CORETYPE": "SandyBridge"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert " sandybridge " in out.stdout.lower()
