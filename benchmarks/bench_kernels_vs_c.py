@@ -9,8 +9,10 @@ window opens, ``repeat`` passes, all workers done). Runs of C and hdeem-watch al
 
 SUMMARY, the same on both sides: the **median of every run**. C has one side per build (8
 placements, below) and hdeem-watch as many slots; all run once per trial, in rotating order, for
-``--trials`` trials. A row compares the median over all of hdeem-watch's runs (slots x trials) with
-the median over all of C's runs (builds x trials). This VM's memory has a fast state that comes and
+``--trials`` trials, and the whole table is measured ``--sweeps`` times (default 2: rows measured
+minutes apart, so a slow change of the machine's state averages out instead of deciding a row). A row compares the
+median over all of hdeem-watch's runs (sweeps x slots x trials) with the median over all of C's
+runs (sweeps x builds x trials). This VM's memory has a fast state that comes and
 goes for seconds at a time and catches 10-20 % of the runs, C and numpy alike (2 threads, selfscale:
 C runs at 417 Mlines/s median and 641-673 in its top 3 of 40; numpy 409 and 577-677). A best-of-N
 figure per side took the fast state or not at random, and the median of eight such figures swung
@@ -31,8 +33,8 @@ wheel, at whatever places they have.
 
 Usage::
 
-    python3 benchmarks/bench_kernels_vs_c.py            # 2**25 doubles/array, repeat 2, 7 trials
-    python3 benchmarks/bench_kernels_vs_c.py --quick    # 2**24, repeat 2, 3 trials, 4 placements
+    python3 benchmarks/bench_kernels_vs_c.py            # 2**25 doubles/array, repeat 2, 2 sweeps x 4 trials
+    python3 benchmarks/bench_kernels_vs_c.py --quick    # 2**24, repeat 2, 1 sweep x 3 trials, 4 placements
     python3 benchmarks/bench_kernels_vs_c.py --backend both   # threads and processes side by side
 
 Short windows and many alternating trials, because a shared machine preempts long windows: a
@@ -307,7 +309,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="smaller arrays, fewer passes, trials and placements")
     parser.add_argument("--elements", type=int, help="doubles per array (default 2**25, quick 2**24)")
     parser.add_argument("--repeat", type=int, help="passes per run (default 2)")
-    parser.add_argument("--trials", type=int, help="runs of each build and slot (default 7, quick 3)")
+    parser.add_argument("--trials", type=int, help="runs of each build and slot per sweep (default 4, quick 3)")
+    parser.add_argument("--sweeps", type=int, help="times the whole table is measured, runs pooled (default 2, quick 1)")
     parser.add_argument("--threads", default=None, help="comma-separated thread counts (default 1 and all CPUs)")
     parser.add_argument("--kernels", default=",".join(KERNELS))
     parser.add_argument("--placements", default=None,
@@ -320,7 +323,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     elements = args.elements or (1 << 24 if args.quick else 1 << 25)
     repeat = args.repeat or 2
-    trials = args.trials or (3 if args.quick else 7)
+    trials = args.trials or (3 if args.quick else 4)
+    sweeps = args.sweeps or (1 if args.quick else 2)
     pads = ([int(p) for p in args.placements.split(",")] if args.placements
             else list(PLACEMENT_PADS[::2] if args.quick else PLACEMENT_PADS))
     backends = ["thread", "process"] if args.backend == "both" else [args.backend]
@@ -328,8 +332,9 @@ def main(argv: list[str] | None = None) -> int:
     counts = [int(t) for t in args.threads.split(",")] if args.threads else sorted({1, ncpu})
     llc = llc_total_bytes(sorted(os.sched_getaffinity(0)))
     print(f"arrays: {elements} doubles = {elements * 8 / 2**20:.0f} MiB each; LLC "
-          f"{(llc or 0) / 2**20:.0f} MiB; repeat {repeat}; {trials} trials; C built at {len(pads)} loop placements, "
-          f"hdeem-watch in {len(pads)} slots; medians of all {trials * len(pads)} runs per side compared; "
+          f"{(llc or 0) / 2**20:.0f} MiB; repeat {repeat}; {sweeps} sweeps x {trials} trials; C built at {len(pads)} "
+          f"loop placements, hdeem-watch in {len(pads)} slots; medians of all {sweeps * trials * len(pads)} runs "
+          "per side compared; "
           f"load average {os.getloadavg()[0]:.2f}")
     header = f"{'kernel':<10}{'threads':>8}{'C slowest':>10}{'C median':>10}{'C best':>8}{'C p90':>8}"
     for backend in backends:
@@ -342,25 +347,32 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="bench-c-") as tmp:
         exes = {pad: build(Path(tmp), pad) for pad in pads}
         c_pass = c_in_runner(build_lib(Path(tmp))) if args.c_in_runner else None
-        for kernel in args.kernels.split(","):
-            for threads in counts:
-                rates = all_rates(exes, kernel, threads, elements, repeat, trials, backends, c_pass)
-                slowest, median, fastest, c_p90 = c_summary(rates, pads)
-                row = (f"{kernel:<10}{threads:>8}{slowest / 1e6:>10.1f}{median / 1e6:>10.1f}{fastest / 1e6:>8.1f}"
-                       f"{c_p90 / 1e6:>8.1f}")
-                flags = []
-                for backend in backends:
-                    runs = pooled(rates, f"{backend}#")
-                    rate = float(statistics.median(runs))
-                    worst[backend] = min(worst[backend], rate / median)
-                    worst_best[backend] = min(worst_best[backend], rate / fastest)
-                    row += (f"{rate / 1e6:>9.1f}{rate / median:>8.2f}{rate / fastest:>6.2f}"
-                            f"{quantile(runs, 0.9) / c_p90:>6.2f}")
-                    flags.append("ok" if rate / median >= TARGET else "BELOW")
-                if c_pass is not None:
-                    rate = float(statistics.median(rates["c-in-runner"]))
-                    row += f"{rate / 1e6:>12.1f}{rate / median:>8.2f}"
-                print(f"{row}  {' '.join(flags)}", flush=True)
+        rows = [(kernel, threads) for kernel in args.kernels.split(",") for threads in counts]
+        table: dict[tuple[str, int], dict[str, list[float]]] = {row: {} for row in rows}
+        for sweep in range(sweeps):
+            for kernel, threads in rows:
+                print(f"sweep {sweep + 1}/{sweeps}: {kernel} x {threads}", file=sys.stderr, flush=True)
+                runs = all_rates(exes, kernel, threads, elements, repeat, trials, backends, c_pass)
+                for side, rates in runs.items():
+                    table[kernel, threads].setdefault(side, []).extend(rates)
+        for kernel, threads in rows:
+            rates = table[kernel, threads]
+            slowest, median, fastest, c_p90 = c_summary(rates, pads)
+            row = (f"{kernel:<10}{threads:>8}{slowest / 1e6:>10.1f}{median / 1e6:>10.1f}{fastest / 1e6:>8.1f}"
+                   f"{c_p90 / 1e6:>8.1f}")
+            flags = []
+            for backend in backends:
+                pooled_runs = pooled(rates, f"{backend}#")
+                rate = float(statistics.median(pooled_runs))
+                worst[backend] = min(worst[backend], rate / median)
+                worst_best[backend] = min(worst_best[backend], rate / fastest)
+                row += (f"{rate / 1e6:>9.1f}{rate / median:>8.2f}{rate / fastest:>6.2f}"
+                        f"{quantile(pooled_runs, 0.9) / c_p90:>6.2f}")
+                flags.append("ok" if rate / median >= TARGET else "BELOW")
+            if c_pass is not None:
+                rate = float(statistics.median(rates["c-in-runner"]))
+                row += f"{rate / 1e6:>12.1f}{rate / median:>8.2f}"
+            print(f"{row}  {' '.join(flags)}", flush=True)
     for backend in backends:
         print(f"worst ratio ({backend}) {worst[backend]:.2f} of the C median (target >= {TARGET:.2f}); "
               f"{worst_best[backend]:.2f} of the fastest C placement's median")
