@@ -9,16 +9,17 @@ window opens, ``repeat`` passes, all workers done). Runs of C and hdeem-watch al
 
 SUMMARY, the same on both sides: the **median of every run**. C has one side per build (8
 placements, below) and hdeem-watch as many slots; all run once per trial, in rotating order, for
-``--trials`` trials, and the whole table is measured ``--sweeps`` times (default 2: rows measured
-minutes apart, so a slow change of the machine's state averages out instead of deciding a row). A row compares the
-median over all of hdeem-watch's runs (sweeps x slots x trials) with the median over all of C's
-runs (sweeps x builds x trials). This VM's memory has a fast state that comes and
-goes for seconds at a time and catches 10-20 % of the runs, C and numpy alike (2 threads, selfscale:
-C runs at 417 Mlines/s median and 641-673 in its top 3 of 40; numpy 409 and 577-677). A best-of-N
-figure per side took the fast state or not at random, and the median of eight such figures swung
-with it: read at 2 threads read 1.55, 1.30 and 0.90 of C in three consecutive runs at stop 11. The
-median of all runs is the typical state on both sides and does not swing. The 90th percentiles
-are printed beside it (the fast state, ``/p90``), and the median of the fastest placement (``/best``).
+``--trials`` trials, and the whole table is measured ``--sweeps`` times (default 2: each row is
+sampled minutes apart, so a slow change of the machine's state averages out instead of deciding a
+row). A row compares the median over all of hdeem-watch's runs (sweeps x slots x trials) with the
+median over all of C's runs (sweeps x builds x trials). This VM's memory has a fast state that
+comes and goes for seconds at a time and catches 10-20 % of the runs, C and numpy alike (2
+threads, selfscale: C runs at 417 Mlines/s median and 641-673 in its top 3 of 40; numpy 409 and
+577-677). A best-of-N figure per side took the fast state or not at random, and the median of
+eight such figures swung with it: read at 2 threads read 1.55 and 1.30 of C in two consecutive
+runs at stop 11. The median of all runs is the typical state on both sides and does
+not swing. The 90th percentiles are printed beside it (the fast state, ``/p90``), and the median
+of the fastest placement (``/best``).
 
 PLACEMENTS. On the AMD EPYC (Zen) machine this was built on, the line rate of a stride-64-byte
 loop depends on where the loop's ~20-30 bytes of code sit in their 64-byte code line: the very same
