@@ -268,3 +268,23 @@ def _check_triad_bits(rng: np.random.Generator) -> None:
     K.run_pass("triad", arrays, 0, lines, np.empty(K.scratch_size("triad", 64)))
     assert arrays["a"].view(np.int64).tolist() == expected.view(np.int64).tolist()
     assert arrays["b"].view(np.int64).tolist() == b.view(np.int64).tolist()
+
+
+def test_triad_library_loads_before_the_window_opens(monkeypatch: pytest.MonkeyPatch) -> None:
+    """OpenBLAS (~85 ms to load the first time) is loaded in the prepare phase, before ``on_start``
+    opens the window, never inside a measured pass."""
+    events: list[str] = []
+    real = blas.openblas
+
+    def recording() -> blas.Blas | None:
+        events.append("load")
+        return real()
+
+    monkeypatch.setattr(blas, "openblas", recording)
+
+    def on_start(spec: RunSpec) -> None:
+        events.append("window")
+
+    run_one(RunSpec("triad", 1, 8 * 1000, 2), on_start=on_start)
+    assert events[0] == "load" and "window" in events
+    assert events.index("window") > events.index("load")

@@ -4,8 +4,9 @@ One run (:func:`run_one`) goes through four phases:
 
 1. check: the arrays must fit in the available memory (:class:`InputError` otherwise, before any
    allocation) and should be much larger than the LLC (a warning otherwise);
-2. prepare: the workers start, each pins itself to its own CPU (``os.sched_setaffinity``), and
-   first-touches its contiguous share of every array, so its pages are local to it;
+2. prepare: the kernel's libraries load (OpenBLAS for triad), the workers start, each pins itself
+   to its own CPU (``os.sched_setaffinity``), and first-touches its contiguous share of every
+   array, so its pages are local to it;
 3. measure: ``on_start`` is called (the daemon announcement), the wall-clock window opens, all
    workers run ``repeat`` passes of the kernel over their shares, the window closes and ``on_stop``
    is called;
@@ -212,6 +213,7 @@ def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None
     cores = system.physical_cores()
     if cores is not None and spec.threads > cores:
         warnings.append(f"{spec.threads} threads on {cores} physical cores: workers share cores (SMT)")
+    K.prepare(kernel)  # libraries load here, not inside the window (forked workers inherit them)
     scratch_n = K.scratch_size(kernel, K.chunk_lines(llc, spec.threads))
     lines = K.lines_of(spec.elements)
     ranges = K.split_lines(lines, spec.threads)
