@@ -122,7 +122,23 @@ def test_loaded_kernel_set_follows_the_cpu_and_leaves_no_variable() -> None:
     loaded = _loaded()
     if blas.coretype_for(blas._read_cpuinfo()) == "Zen":
         assert " Haswell " in loaded.config
-    assert "OPENBLAS_CORETYPE" not in os.environ
+    assert "OPENBLAS_CORETYPE" not in os.environ and "OPENBLAS_NUM_THREADS" not in os.environ
+
+
+def test_loading_starts_no_thread_pool() -> None:
+    """Loading the library adds no threads to the process (OpenBLAS would otherwise start a pool
+    sized to the CPUs, idle but spinning after load); checked in a fresh process."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import os, numpy; before = len(os.listdir('/proc/self/task'))\n"
+            "from hdeem_watch.bench import blas; assert blas.openblas() is not None\n"
+            "print(before, len(os.listdir('/proc/self/task')))")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("OPENBLAS")}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    before, after = map(int, out.stdout.split())
+    assert after == before
 
 
 def test_users_coretype_wins() -> None:

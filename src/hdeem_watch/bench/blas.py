@@ -65,7 +65,8 @@ class Blas:
             alpha: factor of ``x``.
             x: 1-D float64 view, any positive stride (in elements).
             beta: factor of ``y``.
-            y: 1-D float64 view of the same length, any positive stride; overwritten.
+            y: 1-D float64 view of the same length, any positive stride; overwritten. ``x`` and ``y``
+                must not overlap unless they are the same view.
 
         Raises:
             ValueError: the views are not 1-D float64 of equal length with positive element strides.
@@ -101,8 +102,10 @@ def library_path() -> str | None:
     return None
 
 
-#: The environment variable through which OpenBLAS picks its kernel set at load time.
+#: The environment variables through which OpenBLAS picks its kernel set and its thread pool's size
+#: at load time (set only while it loads, and only when the user has not set them).
 CORETYPE_VARIABLE = "OPENBLAS_CORETYPE"
+THREADS_VARIABLE = "OPENBLAS_NUM_THREADS"
 CPUINFO = "/proc/cpuinfo"
 
 
@@ -146,20 +149,25 @@ _LOAD_LOCK = threading.Lock()
 def openblas() -> Blas | None:
     """Load the library once (privately, ``RTLD_LOCAL``); ``None`` when it or ``daxpby`` is missing.
 
-    The kernel set is chosen by :func:`coretype_for` unless ``OPENBLAS_CORETYPE`` is already set;
-    the variable is set only while the library loads. Thread-safe: workers may call this at once.
+    The kernel set is chosen by :func:`coretype_for` unless ``OPENBLAS_CORETYPE`` is already set,
+    and OpenBLAS starts no thread pool (``OPENBLAS_NUM_THREADS=1`` unless set; the calls are
+    single-threaded either way); the variables are set only while the library loads. Thread-safe:
+    workers may call this at once.
     """
     with _LOAD_LOCK:
         path = library_path()
         if path is None:
             return None
-        coretype = None if CORETYPE_VARIABLE in os.environ else coretype_for(_read_cpuinfo())
+        settings = {THREADS_VARIABLE: "1"}  # no thread pool: each call runs on its worker's CPU
+        coretype = coretype_for(_read_cpuinfo())
         if coretype is not None:
-            os.environ[CORETYPE_VARIABLE] = coretype
+            settings[CORETYPE_VARIABLE] = coretype
+        settings = {name: value for name, value in settings.items() if name not in os.environ}
+        os.environ.update(settings)
         try:
             return Blas(ctypes.CDLL(path), path)
         except (OSError, AttributeError):  # unloadable file or missing symbol
             return None
         finally:
-            if coretype is not None:
-                del os.environ[CORETYPE_VARIABLE]
+            for name in settings:
+                del os.environ[name]
