@@ -39,7 +39,7 @@ Usage::
     python3 benchmarks/bench_kernels_vs_c.py --backend both   # threads and processes side by side
 
 Short windows and many alternating trials, because a shared machine preempts long windows: a
-preempted short window is one outlier among 40 runs, below the median.
+preempted short window is one outlier among 64 runs, below the median.
 """
 
 from __future__ import annotations
@@ -276,20 +276,6 @@ def pooled(rates: dict[str, list[float]], prefix: str) -> list[float]:
     return [rate for side, runs in rates.items() if side.startswith(prefix) for rate in runs]
 
 
-def quantile(values: list[float], q: float) -> float:
-    """The ``q`` quantile by linear interpolation (``q = 0.5``: the median).
-
-    Example:
-        >>> quantile([1.0, 2.0, 3.0, 4.0, 5.0], 0.9)
-        4.6
-    """
-    ordered = sorted(values)
-    position = q * (len(ordered) - 1)
-    low = int(position)
-    high = min(low + 1, len(ordered) - 1)
-    return ordered[low] + (ordered[high] - ordered[low]) * (position - low)
-
-
 def c_summary(rates: dict[str, list[float]], pads: list[int]) -> tuple[float, float, float, float]:
     """``(slowest placement, median of all runs, fastest placement, 90th percentile)`` of C.
 
@@ -301,7 +287,7 @@ def c_summary(rates: dict[str, list[float]], pads: list[int]) -> tuple[float, fl
     """
     per_build = [float(statistics.median(rates[f"c@{pad}"])) for pad in pads]
     runs = pooled(rates, "c@")
-    return min(per_build), float(statistics.median(runs)), max(per_build), quantile(runs, 0.9)
+    return min(per_build), float(statistics.median(runs)), max(per_build), float(np.quantile(runs, 0.9))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -368,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
                 worst[backend] = min(worst[backend], rate / median)
                 worst_best[backend] = min(worst_best[backend], rate / fastest)
                 row += (f"{rate / 1e6:>9.1f}{rate / median:>8.2f}{rate / fastest:>6.2f}"
-                        f"{quantile(pooled_runs, 0.9) / c_p90:>6.2f}")
+                        f"{float(np.quantile(pooled_runs, 0.9)) / c_p90:>6.2f}")
                 flags.append("ok" if rate / median >= TARGET else "BELOW")
             if c_pass is not None:
                 rate = float(statistics.median(rates["c-in-runner"]))

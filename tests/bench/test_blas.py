@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import ctypes
+import os
+import subprocess
+import sys
 import threading
 
 import numpy as np
@@ -20,8 +23,6 @@ def _loaded() -> blas.Blas:
 def test_library_loads_single_threaded_and_privately() -> None:
     """The wheel's library loads once, reports its OpenBLAS build, runs one thread per call (the
     bench pins its own workers), and is not imported as a package (no RTLD_GLOBAL symbols)."""
-    import sys
-
     loaded = _loaded()
     assert blas.openblas() is loaded
     assert loaded.config.startswith("OpenBLAS ")
@@ -95,7 +96,7 @@ def test_missing_wheel_means_no_library(monkeypatch: pytest.MonkeyPatch) -> None
     """Without the wheel there is no library (the kernels then use numpy), and no error."""
     monkeypatch.setattr(blas.importlib.util, "find_spec", lambda name: None)
     assert blas.library_path() is None
-    assert blas.openblas.__wrapped__() is None  # the uncached loader
+    assert blas._load() is None  # the uncached loader
 
 
 AMD_ZEN4 = "processor\t: 0\nvendor_id\t: AuthenticAMD\nflags\t\t: fpu sse2 avx avx2 fma avx512f\n\n" \
@@ -117,8 +118,6 @@ def test_kernel_set_by_cpu(cpuinfo: str, expected: str | None) -> None:
 def test_loaded_kernel_set_follows_the_cpu_and_leaves_no_variable() -> None:
     """The live load used the kernel set chosen for this CPU (Zen maps to OpenBLAS's Haswell
     kernels) and removed the variable it set."""
-    import os
-
     loaded = _loaded()
     if blas.coretype_for(blas._read_cpuinfo()) == "Zen":
         assert " Haswell " in loaded.config
@@ -128,10 +127,6 @@ def test_loaded_kernel_set_follows_the_cpu_and_leaves_no_variable() -> None:
 def test_loading_starts_no_thread_pool() -> None:
     """Loading the library adds no threads to the process (OpenBLAS would otherwise start a pool
     sized to the CPUs, idle but spinning after load); checked in a fresh process."""
-    import os
-    import subprocess
-    import sys
-
     code = ("import os, numpy; before = len(os.listdir('/proc/self/task'))\n"
             "from hdeem_watch.bench import blas; assert blas.openblas() is not None\n"
             "print(before, len(os.listdir('/proc/self/task')))")
@@ -144,10 +139,6 @@ def test_loading_starts_no_thread_pool() -> None:
 def test_users_coretype_wins() -> None:
     """A user's OPENBLAS_CORETYPE is respected, not replaced (checked in a fresh process, since a
     library loads its kernels once)."""
-    import os
-    import subprocess
-    import sys
-
     code = "from hdeem_watch.bench import blas; print(blas.openblas().config)"
     env = {**os.environ, "OPENBLAS_CORETYPE": "SandyBridge"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)

@@ -27,7 +27,6 @@ Example:
 from __future__ import annotations
 
 import ctypes
-import functools
 import glob
 import importlib.util
 import os
@@ -143,31 +142,39 @@ def _read_cpuinfo(path: str = CPUINFO) -> str:
 
 
 _LOAD_LOCK = threading.Lock()
+_LOADED: list[Blas | None] = []  # filled once, under the lock
 
 
-@functools.cache
 def openblas() -> Blas | None:
-    """Load the library once (privately, ``RTLD_LOCAL``); ``None`` when it or ``daxpby`` is missing.
+    """The library, loaded on the first call (privately, ``RTLD_LOCAL``); ``None`` when it or
+    ``daxpby`` is missing. Thread-safe: workers may call this at once, and it loads once."""
+    if not _LOADED:
+        with _LOAD_LOCK:
+            if not _LOADED:
+                _LOADED.append(_load())
+    return _LOADED[0]
+
+
+def _load() -> Blas | None:
+    """Load the library with the settings below (uncached).
 
     The kernel set is chosen by :func:`coretype_for` unless ``OPENBLAS_CORETYPE`` is already set,
     and OpenBLAS starts no thread pool (``OPENBLAS_NUM_THREADS=1`` unless set; the calls are
-    single-threaded either way); the variables are set only while the library loads. Thread-safe:
-    workers may call this at once.
+    single-threaded either way); the variables are set only while the library loads.
     """
-    with _LOAD_LOCK:
-        path = library_path()
-        if path is None:
-            return None
-        settings = {THREADS_VARIABLE: "1"}  # no thread pool: each call runs on its worker's CPU
-        coretype = coretype_for(_read_cpuinfo())
-        if coretype is not None:
-            settings[CORETYPE_VARIABLE] = coretype
-        settings = {name: value for name, value in settings.items() if name not in os.environ}
-        os.environ.update(settings)
-        try:
-            return Blas(ctypes.CDLL(path), path)
-        except (OSError, AttributeError):  # unloadable file or missing symbol
-            return None
-        finally:
-            for name in settings:
-                del os.environ[name]
+    path = library_path()
+    if path is None:
+        return None
+    settings = {THREADS_VARIABLE: "1"}  # no thread pool: each call runs on its worker's CPU
+    coretype = coretype_for(_read_cpuinfo())
+    if coretype is not None:
+        settings[CORETYPE_VARIABLE] = coretype
+    settings = {name: value for name, value in settings.items() if name not in os.environ}
+    os.environ.update(settings)
+    try:
+        return Blas(ctypes.CDLL(path), path)
+    except (OSError, AttributeError):  # unloadable file or missing symbol
+        return None
+    finally:
+        for name in settings:
+            del os.environ[name]
