@@ -35,7 +35,7 @@ from hdeem_watch.dram.memspec import load_memspec
 from hdeem_watch.dram.request_traces import write_requests
 from hdeem_watch.dram.trace_simulation import simulate_trace
 
-REFERENCE = Path(__file__).resolve().parents[1] / ".." / "shared" / "reference" / "ramulator"
+REFERENCE = Path(__file__).resolve().parents[1] / "tests" / "data" / "ramulator"
 TARGET_REQUESTS_PER_S = 20e6
 ELEMENTS = 12_582_912
 

@@ -18,7 +18,7 @@ from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
 from hdeem_watch.dram.energy import core_energy
 from hdeem_watch.dram.memspec import load_memspec
 
-REFERENCE = Path(__file__).resolve().parents[2] / ".." / "shared" / "reference" / "drampower"
+REFERENCE = Path(__file__).resolve().parents[1] / "data" / "drampower"
 MEMSPEC = REFERENCE / "memspecs" / "ddr4_2133_x8_2r_8dev.json"
 RATIOS = {"idd0": 0.55, "idd2n": 0.6, "idd3n": 0.4, "idd4r": 0.5, "idd4w": 0.45}
 

@@ -13,7 +13,7 @@ from hdeem_watch.cli import main
 from hdeem_watch.dram.stats import CommandStats, RankStats
 from hdeem_watch.sources.hdeem_printout import read_printout
 
-TAURUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "reference" / "taurus"
+TAURUS = Path(__file__).resolve().parents[1] / "data" / "taurus"
 
 
 def _write(tmp_path: Path, runs: list[dict]) -> Path:

@@ -1,4 +1,4 @@
-"""Fixtures of the DRAM tests: the DRAMPower v6.2 reference data (../shared/reference/drampower)."""
+"""Fixtures of the DRAM tests: the DRAMPower v6.2 reference data (tests/data/drampower)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from typing import Any
 
 import pytest
 
-#: <repo>/../shared/reference/drampower
-DRAMPOWER_REF = Path(__file__).resolve().parents[2] / ".." / "shared" / "reference" / "drampower"
+#: <repo>/tests/data/drampower
+DRAMPOWER_REF = Path(__file__).resolve().parents[1] / "data" / "drampower"
 
 #: (results folder, memspec file) for every reference configuration.
 REFERENCE_CONFIGS = {

@@ -16,7 +16,7 @@ from hdeem_watch.dram.mapping import AddressMapping, Fields, Geometry
 from hdeem_watch.dram.memspec import load_memspec
 from hdeem_watch.errors import InputError
 
-REFERENCE = Path(__file__).resolve().parents[2] / ".." / "shared" / "reference" / "ramulator"
+REFERENCE = Path(__file__).resolve().parents[1] / "data" / "ramulator"
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from hdeem_watch.cli import main
 from hdeem_watch.dram.kernels import kernel_requests
 from hdeem_watch.dram.request_traces import write_requests
 
-REFERENCE = Path(__file__).resolve().parents[2] / ".." / "shared" / "reference" / "ramulator"
+REFERENCE = Path(__file__).resolve().parents[1] / "data" / "ramulator"
 MEMSPEC = str(REFERENCE / "ddr4_2133P_8Gb_x8_2r_8dev.json")
 KEYS = {"requests", "reads", "writes", "act", "pre", "ref", "row_hits", "row_misses", "row_conflicts", "cycles"}
 

@@ -19,7 +19,7 @@ from hdeem_watch.dram.kernels import (
 from hdeem_watch.dram.request_traces import format_requests, trace_sha256
 from hdeem_watch.errors import InputError
 
-REFERENCE = Path(__file__).resolve().parents[2] / ".." / "shared" / "reference" / "ramulator"
+REFERENCE = Path(__file__).resolve().parents[1] / "data" / "ramulator"
 
 
 def _meta(name: str) -> dict:

@@ -120,8 +120,7 @@ def test_simulation_is_identical_in_every_pipeline_mode(spec, policy: str, monke
 def spec():  # type: ignore[no-untyped-def]
     from pathlib import Path
 
-    return load_memspec(Path(__file__).resolve().parents[2] / ".." / "shared" / "reference" / "ramulator"
-                        / "ddr4_2133P_8Gb_x8_2r_8dev.json")
+    return load_memspec(Path(__file__).resolve().parents[1] / "data" / "ramulator" / "ddr4_2133P_8Gb_x8_2r_8dev.json")
 
 
 def test_split_work_fills_both_halves_and_reports_a_failed_half() -> None:

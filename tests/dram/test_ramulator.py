@@ -17,7 +17,7 @@ from hdeem_watch.dram.controller import simulate
 from hdeem_watch.dram.kernels import access_pattern, kernel_requests
 from hdeem_watch.dram.memspec import load_memspec
 
-REFERENCE = Path(__file__).resolve().parents[2] / ".." / "shared" / "reference" / "ramulator"
+REFERENCE = Path(__file__).resolve().parents[1] / "data" / "ramulator"
 ELEMENTS = 12_582_912
 
 

@@ -1,6 +1,7 @@
 """A real single-node SLURM (munged + slurmctld + slurmd) for the SLURM tests.
 
-Follows ../shared/notes/slurm-single-node.md, with ``TaskPlugin=task/affinity`` instead of
+Follows the usual single-node recipe (munged, then slurmctld and slurmd from a scratch
+directory on Debian's SLURM 22.05 packages), with ``TaskPlugin=task/affinity`` instead of
 task/none so srun really binds tasks to CPUs (``--cpu-bind=none`` gives the unbound case). Needs root and the Debian packages slurmctld, slurmd,
 slurm-client and munge (``.ci/run`` installs them). The cluster runs from a scratch directory with
 its own free ports, with the hdeem-watch Prolog/Epilog hooks of ``daemon/slurm/`` wired in through

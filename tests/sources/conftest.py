@@ -10,7 +10,6 @@ from pathlib import Path
 import pytest
 
 FAKE_DIR = Path(__file__).resolve().parent / "fake_hdeem"
-REFERENCE = Path(__file__).resolve().parents[2] / ".." / "shared" / "reference"
 
 
 class FakeHdeem:
