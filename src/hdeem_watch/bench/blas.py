@@ -5,8 +5,9 @@ numpy has no call that computes ``b + 2a`` in one pass: its triad takes two call
 with the lines in cache, against 730 for the C loop (docs/bench.md). OpenBLAS's ``daxpby``
 extension is that C loop, on strided views: 609 Mlines/s in cache, and 1.13x numpy's rate on
 DRAM-sized arrays with one thread. The library comes from the ``scipy-openblas32`` wheel (the
-OpenBLAS build that numpy and scipy are themselves built against) and is called through ctypes,
-which releases the GIL for the call, so the bench's worker threads run it in parallel.
+OpenBLAS build that numpy and scipy are themselves built against; the optional ``bench`` extra,
+``pip install 'hdeem-watch[bench]'``) and is called through ctypes, which releases the GIL for the
+call, so the bench's worker threads run it in parallel.
 
 OpenBLAS is told to use one thread: the bench runs one pinned worker per CPU, and each call must
 stay on its worker's CPU. When the wheel or the symbol is missing, :func:`openblas` returns ``None``
@@ -26,11 +27,13 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import glob
 import importlib.util
 import os
 import threading
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -102,7 +105,8 @@ def library_path() -> str | None:
 
 
 #: The environment variables through which OpenBLAS picks its kernel set and its thread pool's size
-#: at load time (set only while it loads, and only when the user has not set them).
+#: at load time (set only while it loads, and only when the user has not set them; see
+#: :func:`load_library`).
 CORETYPE_VARIABLE = "OPENBLAS_CORETYPE"
 THREADS_VARIABLE = "OPENBLAS_NUM_THREADS"
 CPUINFO = "/proc/cpuinfo"
@@ -156,25 +160,50 @@ def openblas() -> Blas | None:
 
 
 def _load() -> Blas | None:
-    """Load the library with the settings below (uncached).
-
-    The kernel set is chosen by :func:`coretype_for` unless ``OPENBLAS_CORETYPE`` is already set,
-    and OpenBLAS starts no thread pool (``OPENBLAS_NUM_THREADS=1`` unless set; the calls are
-    single-threaded either way); the variables are set only while the library loads.
-    """
+    """Load the installed wheel's library (uncached); ``None`` when the wheel is not installed."""
     path = library_path()
-    if path is None:
-        return None
+    return None if path is None else load_library(path)
+
+
+def load_library(path: str, cpuinfo: str | None = None) -> Blas | None:
+    """Load the OpenBLAS library at ``path`` with the bench's load-time settings (uncached).
+
+    OpenBLAS reads two variables once, while it loads: ``OPENBLAS_CORETYPE`` (its kernel set, chosen
+    here by :func:`coretype_for`) and ``OPENBLAS_NUM_THREADS`` (its thread pool's size; ``1`` here,
+    the calls being single-threaded either way). A variable the user has set is left as it is. A
+    variable set here exists only for the duration of the load and is removed right after it, so
+    the process environment afterwards is exactly what it was before (other threads could see it
+    only during the load, a few tens of milliseconds, once per process).
+
+    Args:
+        path: the shared library file.
+        cpuinfo: the text of ``/proc/cpuinfo`` (default: read it).
+
+    Returns:
+        The library, or ``None`` when the file does not load or lacks ``daxpby``.
+    """
     settings = {THREADS_VARIABLE: "1"}  # no thread pool: each call runs on its worker's CPU
-    coretype = coretype_for(_read_cpuinfo())
+    coretype = coretype_for(_read_cpuinfo() if cpuinfo is None else cpuinfo)
     if coretype is not None:
         settings[CORETYPE_VARIABLE] = coretype
-    settings = {name: value for name, value in settings.items() if name not in os.environ}
-    os.environ.update(settings)
+    with _unless_set(settings):
+        try:
+            return Blas(ctypes.CDLL(path), path)
+        except (OSError, AttributeError):  # unloadable file or missing symbol
+            return None
+
+
+@contextlib.contextmanager
+def _unless_set(settings: dict[str, str]) -> Iterator[None]:
+    """Set each variable of ``settings`` the environment lacks; on exit, restore every one of them
+    to exactly what it was before (absent, or its previous value)."""
+    before = {name: os.environ.get(name) for name in settings}
+    os.environ.update({name: value for name, value in settings.items() if before[name] is None})
     try:
-        return Blas(ctypes.CDLL(path), path)
-    except (OSError, AttributeError):  # unloadable file or missing symbol
-        return None
+        yield
     finally:
-        for name in settings:
-            del os.environ[name]
+        for name, value in before.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
