@@ -12,14 +12,6 @@ from hdeem_watch.sources.hdeem import HdeemSource
 from hdeem_watch.sources.hdeem_lib import BMC_POLLING, VR_OVERFLOW, ShimLib, build_shim
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0
-
-    def __call__(self) -> int:
-        return self.t
-
-
 def opened(fake, **kw) -> HdeemSource:
     kw.setdefault("interval_s", 0.0)
     src = HdeemSource(**fake.options(**kw))
@@ -125,9 +117,9 @@ def test_slow_get_stats_is_missing_data_without_energy_loss(fake_hdeem):
         src.close()
 
 
-def test_connection_loss_reconnects_with_backoff(fake_hdeem):
+def test_connection_loss_reconnects_with_backoff(fake_hdeem, fake_clock):
     """A failing BMC gives NaN + 'error: ...'; reconnects follow an exponential back-off; energy continues."""
-    clock = Clock()
+    clock = fake_clock()
     src = opened(fake_hdeem, clock=clock, backoff_s=0.5, backoff_max_s=4.0)
     try:
         fake_hdeem.set_power(5, 2.0)        # DDR_EF
@@ -204,9 +196,9 @@ def test_global_method_native_rates(fake_hdeem):
         src.close()
 
 
-def test_overflow_flags_while_polling_mark_the_group(fake_hdeem):
+def test_overflow_flags_while_polling_mark_the_group(fake_hdeem, fake_clock):
     """A VR overflow flag read during polling marks the VR channels 'overflow', not the blade."""
-    clock = Clock()
+    clock = fake_clock()
     src = opened(fake_hdeem, clock=clock, status_every_s=1.0)
     try:
         fake_hdeem.control("overflow", VR_OVERFLOW)
@@ -221,9 +213,9 @@ def test_overflow_flags_while_polling_mark_the_group(fake_hdeem):
         src.close()
 
 
-def test_global_rearm_drains_then_restarts(fake_hdeem):
+def test_global_rearm_drains_then_restarts(fake_hdeem, fake_clock):
     """Re-arming the global buffer drains it, clears, starts again and reports the samples missed."""
-    clock = Clock()
+    clock = fake_clock()
     src = opened(fake_hdeem, method="global", rearm_s=1.0, clock=clock)
     try:
         fake_hdeem.advance(0.3)
@@ -242,9 +234,9 @@ def test_global_rearm_drains_then_restarts(fake_hdeem):
         src.close()
 
 
-def test_bmc_is_read_at_most_every_interval(fake_hdeem):
+def test_bmc_is_read_at_most_every_interval(fake_hdeem, fake_clock):
     """Polled faster than interval_s, the source reads the BMC once per interval; the rest are empty."""
-    clock = Clock()
+    clock = fake_clock()
     src = opened(fake_hdeem, clock=clock, interval_s=0.5)
     try:
         counts = []

@@ -15,14 +15,6 @@ FIXTURES = Path(__file__).resolve().parent / "fixtures"
 RANGE = 262143328850
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.t = 1_000_000_000
-
-    def __call__(self) -> int:
-        return self.t
-
-
 @pytest.fixture
 def tree(tmp_path) -> Path:
     root = tmp_path / "powercap"
@@ -49,9 +41,9 @@ def test_dram_zones_per_socket(tree):
     assert probe(tree) is None
 
 
-def test_power_is_delta_e_over_delta_t_across_a_wrap(tree):
+def test_power_is_delta_e_over_delta_t_across_a_wrap(tree, fake_clock):
     """ΔE/Δt per poll; socket 0's counter wraps between polls and the delta is taken modulo range + 1."""
-    clock = Clock()
+    clock = fake_clock(1_000_000_000)
     src = RaplSource(root=tree, clock=clock)
     src.open()
     bump(dram(tree, 0), 3_000_000)          # crosses max_energy_range_uj
@@ -65,9 +57,9 @@ def test_power_is_delta_e_over_delta_t_across_a_wrap(tree):
     assert wrap_delta_uj(RANGE, 0, RANGE) == 1
 
 
-def test_unmoved_counter_gives_no_sample_not_zero(tree):
+def test_unmoved_counter_gives_no_sample_not_zero(tree, fake_clock):
     """A counter that did not move since the last poll yields no sample (never a 0 W sample)."""
-    clock = Clock()
+    clock = fake_clock(1_000_000_000)
     src = RaplSource(root=tree, clock=clock, interval_s=0.0)
     src.open()
     clock.t += 1_000_000
@@ -79,9 +71,9 @@ def test_unmoved_counter_gives_no_sample_not_zero(tree):
     assert batch.samples["DRAM0"][1][0] == pytest.approx(1.0)   # 2 mJ over both intervals (2 ms)
 
 
-def test_uncorrectable_jump_is_dropped(tree):
+def test_uncorrectable_jump_is_dropped(tree, fake_clock):
     """A delta implying an impossible power (several wraps or a reset) is dropped, not published."""
-    clock = Clock()
+    clock = fake_clock(1_000_000_000)
     src = RaplSource(root=tree, clock=clock, max_power_w=200.0)
     src.open()
     dram(tree, 1).write_text("4000000\n")   # went backwards by 1 J: looks like a wrap of ~262 kJ
@@ -118,9 +110,9 @@ def test_no_dram_zone_and_missing_root(tmp_path):
     assert reason and "does not exist" in reason
 
 
-def test_counters_read_at_most_every_interval(tree):
+def test_counters_read_at_most_every_interval(tree, fake_clock):
     """Polled at 40 Hz with interval_s = 0.1, the zones are read ten times a second (nominal rate)."""
-    clock = Clock()
+    clock = fake_clock(1_000_000_000)
     src = RaplSource(root=tree, clock=clock, interval_s=0.1)
     src.open()
     n = 0

@@ -15,17 +15,8 @@ from hdeem_watch.sources.sim import SimSource
 S = 1_000_000_000
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0
-
-    def __call__(self) -> int:
-        return self.t
-
-
-def sim_recording(path: Path, seconds: float = 2.0) -> dict:
-    """Record a sim for `seconds` in irregular polls; returns the samples per channel."""
-    clock = Clock()
+def sim_recording(path: Path, clock, seconds: float = 2.0) -> dict:
+    """Record a sim for `seconds` of the fake `clock` in irregular polls; returns the samples per channel."""
     sim = SimSource(seed=11, clock=clock, wall_clock=lambda: 1_600_000_000 * S)
     sim.open()
     writer = RecordingWriter(path, node="sim", rate_hz={c.name: c.rate_hz for c in sim.channels()})
@@ -40,10 +31,10 @@ def sim_recording(path: Path, seconds: float = 2.0) -> dict:
     return {ch: (np.concatenate([t for t, _ in v]), np.concatenate([p for _, p in v])) for ch, v in got.items()}
 
 
-def test_round_trip_of_a_sim_recording(tmp_path):
+def test_round_trip_of_a_sim_recording(tmp_path, fake_clock):
     """What the writer records from a live source reads back identically, with rates from the metadata."""
     path = tmp_path / "rec.csv"
-    samples = sim_recording(path)
+    samples = sim_recording(path, fake_clock())
     rec = read_recording(path)
     assert rec.meta["node"] == "sim" and rec.rate_hz["BLADE"] == 1000.0
     for ch, (t, p) in samples.items():
@@ -51,11 +42,11 @@ def test_round_trip_of_a_sim_recording(tmp_path):
         assert np.array_equal(rec.channels[ch][1], p)
 
 
-def test_playback_at_recorded_speed_returns_each_sample_once(tmp_path):
+def test_playback_at_recorded_speed_returns_each_sample_once(tmp_path, fake_clock):
     """Polled at any pace, playback yields every recorded sample exactly once, when its time has come."""
     path = tmp_path / "rec.csv"
-    samples = sim_recording(path, seconds=1.0)
-    clock = Clock()
+    samples = sim_recording(path, fake_clock(), seconds=1.0)
+    clock = fake_clock()
     src = ReplaySource(path, clock=clock, wall_clock=lambda: 5 * S)
     src.open()
     clock.t = S // 2
@@ -74,12 +65,12 @@ def test_playback_at_recorded_speed_returns_each_sample_once(tmp_path):
     assert parts[-1].energy_j["DDR_AB"] == pytest.approx(samples["DDR_AB"][1].sum() * 0.01)
 
 
-def test_faster_and_looping(tmp_path):
+def test_faster_and_looping(tmp_path, fake_clock):
     """At speed 4 one clock second plays four recorded seconds; with loop the recording repeats seamlessly."""
     path = tmp_path / "r.csv"
     t = np.arange(1, 101, dtype=np.int64) * 10_000_000 + 7 * S     # 1 s at 100 Sa/s
     write_recording(path, {"DDR_CD": (t, np.linspace(1.0, 2.0, 100))})
-    clock = Clock()
+    clock = fake_clock()
     src = make_source("replay", path=path, speed=4.0, loop=True, clock=clock, wall_clock=lambda: 0)
     src.open()
     clock.t = S
@@ -91,12 +82,12 @@ def test_faster_and_looping(tmp_path):
     assert src.health() == "ok"
 
 
-def test_original_timestamps_without_restamp(tmp_path):
+def test_original_timestamps_without_restamp(tmp_path, fake_clock):
     """restamp=False publishes the recorded wall-clock timestamps (post-mortem analysis)."""
     path = tmp_path / "r.csv"
     t = np.array([100, 200, 300], dtype=np.int64) * 1_000_000
     write_recording(path, {"CPU0": (t, np.array([10.0, np.nan, 12.0]))})
-    clock = Clock()
+    clock = fake_clock()
     src = ReplaySource(path, restamp=False, clock=clock)
     src.open()
     clock.t = S

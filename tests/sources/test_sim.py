@@ -20,15 +20,7 @@ from hdeem_watch.sources.sim_model import (
 S = 1_000_000_000
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0
-
-    def __call__(self) -> int:
-        return self.t
-
-
-def quiet_sim(clock: Clock, **kw) -> SimSource:
+def quiet_sim(clock, **kw) -> SimSource:
     opts = dict(noise=False, quantum_w=0.0, io_j_per_line=0.0, offsets=False, aging_per_h=0.0, temp_amp_c=0.0)
     opts.update(kw)
     sim = SimSource(seed=5, clock=clock, wall_clock=lambda: 1_700_000_000 * S, **opts)
@@ -44,9 +36,9 @@ def dram_energy(batches, channels=DRAM_CHANNELS) -> float:
     return total
 
 
-def test_protocol_and_rates():
+def test_protocol_and_rates(fake_clock):
     """The sim is a Source; one second gives 1000 BLADE and 100 of each VR sample, 0.125 W steps."""
-    clock = Clock()
+    clock = fake_clock()
     sim = SimSource(seed=1, clock=clock, wall_clock=lambda: 10 * S)
     assert isinstance(sim, Source)
     assert [c.name for c in sim.channels()] == list(CHANNELS)
@@ -67,9 +59,9 @@ def test_protocol_and_rates():
         assert batch.energy_j[ch] == pytest.approx(batch.samples[ch][1].sum() * dt)
 
 
-def test_irregular_polls_no_bursts():
+def test_irregular_polls_no_bursts(fake_clock):
     """Polls at irregular times return exactly the samples that became due; none twice, none invented."""
-    clock = Clock()
+    clock = fake_clock()
     sim = SimSource(seed=2, clock=clock)
     sim.open()
     seen = []
@@ -81,9 +73,9 @@ def test_irregular_polls_no_bursts():
     assert np.all(np.diff(t) == 10_000_000)
 
 
-def test_stall_beyond_buffer_flags_gap_keeps_energy():
+def test_stall_beyond_buffer_flags_gap_keeps_energy(fake_clock):
     """A poller late beyond the sensor buffer loses the old samples (gap flagged) but not their energy."""
-    clock = Clock()
+    clock = fake_clock()
     sim = quiet_sim(clock, buffer_s=2.0)
     clock.t = 10 * S
     batch = sim.poll()
@@ -95,11 +87,11 @@ def test_stall_beyond_buffer_flags_gap_keeps_energy():
     assert sim.poll().status["DDR_AB"] == "ok"
 
 
-def test_deterministic_with_seed():
+def test_deterministic_with_seed(fake_clock):
     """The same seed and poll times give identical samples; another seed gives other hidden currents."""
     runs = []
     for seed in (9, 9, 10):
-        clock = Clock()
+        clock = fake_clock()
         sim = SimSource(seed=seed, clock=clock, wall_clock=lambda: 0)
         sim.open()
         clock.t = S // 3
@@ -109,9 +101,9 @@ def test_deterministic_with_seed():
     assert runs[0][1] != runs[2][1]
 
 
-def test_truth_ratios_and_drift():
+def test_truth_ratios_and_drift(fake_clock):
     """Hidden currents are datasheet × ratios within 0.35–0.85, differ per DIMM, and age upwards."""
-    clock = Clock()
+    clock = fake_clock()
     sim = SimSource(seed=4, clock=clock, temp_amp_c=0.0, aging_per_h=0.01)
     sim.open()
     t0 = sim.truth()
@@ -161,8 +153,7 @@ def test_line_rate_within_the_controller_capacity(kernel, threads):
     assert len(groups) == TOPOLOGY.sockets
 
 
-def _power_during_run(threads: int) -> dict[str, float]:
-    clock = Clock()
+def _power_during_run(threads: int, clock) -> dict[str, float]:
     sim = quiet_sim(clock)
     clock.t = S
     idle = {ch: float(np.mean(v[1])) for ch, v in sim.poll().samples.items()}
@@ -173,21 +164,21 @@ def _power_during_run(threads: int) -> dict[str, float]:
     return {ch: busy[ch] - idle[ch] for ch in CHANNELS}
 
 
-def test_threads_fill_socket0_first():
+def test_threads_fill_socket0_first(fake_clock):
     """≤ 12 threads load only socket 0's DIMM pairs and CPU0; beyond 12 socket 1 gets the extra threads' traffic."""
-    d12 = _power_during_run(12)
+    d12 = _power_during_run(12, fake_clock())
     assert d12["DDR_AB"] > 0.2 and d12["DDR_CD"] > 0.2
     assert d12["DDR_EF"] == pytest.approx(0.0, abs=1e-9) and d12["DDR_GH"] == pytest.approx(0.0, abs=1e-9)
     assert d12["CPU0"] > 10 and d12["CPU1"] == pytest.approx(0.0, abs=1e-9)
-    d24 = _power_during_run(24)
+    d24 = _power_during_run(24, fake_clock())
     assert d24["DDR_EF"] > 0.2 and d24["CPU1"] > 10
     assert d24["BLADE"] > d12["BLADE"]
 
 
 @pytest.mark.parametrize("threads", [8, 20])
-def test_completed_run_energy_equals_truth_model(threads):
+def test_completed_run_energy_equals_truth_model(threads, fake_clock):
     """A run's DRAM energy over its modelled duration equals the truth model of the calibrator's counts."""
-    clock = Clock()
+    clock = fake_clock()
     sim = quiet_sim(clock)
     kernel, elements, repeat = "triad", 2_000_000, 20
     clock.t = S // 10
@@ -211,9 +202,9 @@ def test_completed_run_energy_equals_truth_model(threads):
     assert measured == pytest.approx(expected_run + idle_w * (window_s - duration_s), rel=1e-9)
 
 
-def test_early_stop_conserves_energy():
+def test_early_stop_conserves_energy(fake_clock):
     """Stopped before its traffic is done, the rest of the run's command energy comes right at the stop."""
-    clock = Clock()
+    clock = fake_clock()
     sim = quiet_sim(clock)
     kernel, elements, threads, repeat = "copy", 4_000_000, 24, 40
     sim.on_run(RunEvent("start", "r", kernel, threads, elements, repeat, 0))
@@ -234,12 +225,12 @@ def test_early_stop_conserves_energy():
     assert float(later.samples["DDR_AB"][1].mean()) == pytest.approx(float(plan.idle_w[:2].sum()))
 
 
-def test_equal_dimms_match_core_energy_of_the_groups():
+def test_equal_dimms_match_core_energy_of_the_groups(fake_clock):
     """With identical DIMMs the run energy is the core energy of each socket group's channel × its channels."""
     from hdeem_watch.calibrate.rows import stretch_stats
     from hdeem_watch.dram.energy import core_energy
 
-    clock = Clock()
+    clock = fake_clock()
     sim = quiet_sim(clock, dimm_spread=0.0)
     kernel, elements, threads, repeat, window = "scale", 3_000_000, 18, 10, 0.7
     currents = sim.truth_model.currents(0.0)
@@ -252,9 +243,9 @@ def test_equal_dimms_match_core_energy_of_the_groups():
     assert groups[0][0].total("rd") == pytest.approx(2 * groups[1][0].total("rd"), rel=0.01)  # 12 vs 6 threads
 
 
-def test_speed_and_factory():
+def test_speed_and_factory(fake_clock):
     """At speed 10 one clock second holds ten sim seconds of samples; make_source('sim') builds it."""
-    clock = Clock()
+    clock = fake_clock()
     sim = make_source("sim", seed=1, clock=clock, speed=10.0, wall_clock=lambda: 0)
     sim.open()
     clock.t = S
@@ -262,7 +253,7 @@ def test_speed_and_factory():
     assert DIMM_PAIR.count("DDR_AB") == 2
 
 
-def test_background_plan_holds_samples_back_without_loss(monkeypatch):
+def test_background_plan_holds_samples_back_without_loss(monkeypatch, fake_clock):
     """While a run's plan is computed in the background, samples after its start wait; none are lost."""
     import threading
 
@@ -276,7 +267,7 @@ def test_background_plan_holds_samples_back_without_loss(monkeypatch):
         return real_plan_run(*args)
 
     monkeypatch.setattr(sim_module, "plan_run", slow_plan_run)
-    clock = Clock()
+    clock = fake_clock()
     sim = quiet_sim(clock)
     clock.t = S // 10
     sim.poll()
@@ -295,11 +286,11 @@ def test_background_plan_holds_samples_back_without_loss(monkeypatch):
 
 
 @pytest.mark.parametrize(("kernel", "threads"), [("idle", 4), ("triad", 24), ("read", 24), ("copy", 6), ("add", 18)])
-def test_run_energy_equals_the_calibrators_row_at_the_truth(kernel, threads):
+def test_run_energy_equals_the_calibrators_row_at_the_truth(kernel, threads, fake_clock):
     """With identical DIMMs the sim's DRAM energy over a run's window is the daemon's calibration row at the truth."""
     from hdeem_watch.daemon.modelling import RunModeller
 
-    clock = Clock()
+    clock = fake_clock()
     sim = quiet_sim(clock, dimm_spread=0.0)
     elements, repeat = 40_000_000, 8
     sim.on_run(RunEvent("start", "r", kernel, threads, elements, repeat, 0))
@@ -323,13 +314,13 @@ def test_run_energy_equals_the_calibrators_row_at_the_truth(kernel, threads):
     assert measured == pytest.approx(row.predicted_j(truth), rel=1e-6)
 
 
-def test_effective_currents_reproduce_the_signal_with_the_other_currents_at_datasheet():
+def test_effective_currents_reproduce_the_signal_with_the_other_currents_at_datasheet(fake_clock):
     """The effective truth (I/O per burst, sensor offsets, refresh and IPP0 deviations folded into the five
     calibrated currents, the rest at datasheet) gives the sim's measured energy through the calibration row."""
     from hdeem_watch.calibrate import Observation
     from hdeem_watch.daemon.modelling import RunModeller
 
-    clock = Clock()
+    clock = fake_clock()
     sim = quiet_sim(clock, dimm_spread=0.0, io_j_per_line=0.5e-9, offsets=True)
     kernel, threads, elements, repeat = "triad", 24, 40_000_000, 8
     sim.on_run(RunEvent("start", "r", kernel, threads, elements, repeat, 0))
