@@ -8,11 +8,10 @@ import pytest
 from hdeem_watch.calibrate import (
     fit,
     observation_from_run,
-    stretch_stats,
     suggest_next,
 )
 from hdeem_watch.dram.energy import CURRENT_NAMES, core_energy
-from hdeem_watch.dram.stats import CommandStats, RankStats
+from hdeem_watch.dram.stats import CommandStats, RankStats, stretch_stats
 from hdeem_watch.errors import InputError
 
 

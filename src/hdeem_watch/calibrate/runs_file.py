@@ -147,7 +147,8 @@ def _observation(spec: Any, run: Any, i: int, base: Path, where: str) -> Observa
 
 
 def _trace_stats(spec: Any, value: Any, name: str, base: Path) -> CommandStats:
-    from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+    from hdeem_watch.dram.command_trace import read_command_trace
+    from hdeem_watch.dram.trace_state import trace_stats
 
     if not isinstance(value, str) or not value:
         raise InputError(f"run {name!r}: trace = {value!r}; expected a path to a DRAMPower CSV trace")
@@ -164,7 +165,7 @@ def _trace_stats(spec: Any, value: Any, name: str, base: Path) -> CommandStats:
 
 def _printout_energy(run: Mapping[str, Any], name: str, base: Path) -> tuple[float, float]:
     """``(measured_j, duration_s)`` of the chosen statistics block of a real HDEEM printout."""
-    from hdeem_watch.sources.hdeem_printout import read_printout
+    from hdeem_watch.calibrate.hdeem_printout import read_printout
 
     value = run["hdeem_printout"]
     if not isinstance(value, str) or not value:

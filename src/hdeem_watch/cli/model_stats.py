@@ -132,7 +132,8 @@ def run_stats(args: argparse.Namespace) -> int:
     if args.format == "drampower":
         if args.emit_drampower:
             raise InputError("--emit-drampower: the input already is a DRAMPower trace")
-        from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+        from hdeem_watch.dram.command_trace import read_command_trace
+        from hdeem_watch.dram.trace_state import trace_stats
 
         trace = read_command_trace(args.trace)
         stats = trace_stats(spec, trace)

@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.dram.controller import ControllerResult, simulate, simulate_requests
+from hdeem_watch.dram.command_set import ControllerResult
+from hdeem_watch.dram.controller import simulate, simulate_requests
 from hdeem_watch.dram.request_traces import CacheConfig, map_file, read_request_trace
 from hdeem_watch.dram.uniform_parser import UniformParser, uniform_lines
 
