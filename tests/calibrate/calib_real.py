@@ -120,8 +120,9 @@ def observations(spec: Any, runs: list[tuple[str, Any, float]], truth: dict[str,
     unmodelled offset of ``offset`` × the mean run energy — ``"energy"``: the same joules in every
     run; ``"power"``: a constant power (``offset`` × the mean run power, joules ∝ window) — times
     (1 + ``noise`` · N(0, 1))."""
-    from hdeem_watch.calibrate import observation_from_run, stretch_stats
+    from hdeem_watch.calibrate import observation_from_run
     from hdeem_watch.dram.energy import core_energy
+    from hdeem_watch.dram.stats import stretch_stats
 
     truth_spec = spec.with_currents(truth)
     energies = np.array([core_energy(truth_spec, stretch_stats(spec, s, w)).core_j * DIMMS for _, s, w in runs])

@@ -12,11 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdeem_watch.calibrate import stretch_stats
 from hdeem_watch.cli import main
-from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+from hdeem_watch.dram.command_trace import read_command_trace
 from hdeem_watch.dram.energy import core_energy
 from hdeem_watch.dram.memspec import load_memspec
+from hdeem_watch.dram.stats import stretch_stats
+from hdeem_watch.dram.trace_state import trace_stats
 
 REFERENCE = Path(__file__).resolve().parents[1] / "data" / "drampower"
 MEMSPEC = REFERENCE / "memspecs" / "ddr4_2133_x8_2r_8dev.json"

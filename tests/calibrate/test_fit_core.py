@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from hdeem_watch.calibrate import FitResult, Observation, fit
+from hdeem_watch.calibrate import FitOptions, FitResult, Observation, fit
 from hdeem_watch.errors import InputError
 
 
 def _fit(synth, obs, **kw):
-    return fit(obs, synth.spec(), names=synth.NAMES, **kw)
+    return fit(obs, synth.spec(), FitOptions(names=synth.NAMES, **kw))
 
 
 def test_noise_free_rows_give_back_the_hidden_currents_and_intercept(synth, truth_a) -> None:

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdeem_watch.calibrate import FitSettings, fit, posterior_relative_sd
+from hdeem_watch.calibrate import FitOptions, FitSettings, fit, posterior_relative_sd
 
 #: "Determined" at the tolerance asked for: the 95 % half-width is at most 3 % of the value.
 WITHIN_3 = FitSettings(max_rel_ci=0.03)
@@ -43,7 +43,7 @@ def _fits(spec: Any, real: ModuleType, planned: list[Any], idle_s: tuple[float, 
         truth = real.draw_truth(spec, rng)
         runs = real.draw_runs(planned, idle_s, rng)
         obs = real.observations(spec, runs, truth, rng, noise=0.01, offset=0.02, offset_kind=offset_kind)
-        out.append((truth, fit(obs, spec, settings=WITHIN_3)))
+        out.append((truth, fit(obs, spec, FitOptions(settings=WITHIN_3))))
     return out
 
 
@@ -96,7 +96,7 @@ def test_recommended_design_beats_a_naive_one(spec: Any, real: ModuleType, plann
     for design, idle_s in ((planned, real.IDLE_S), (naive, real.NAIVE_IDLE_S)):
         rng = np.random.default_rng(7)
         obs = real.observations(spec, real.draw_runs(design, idle_s, rng), truth, rng, noise=0.0)
-        sds.append(posterior_relative_sd(fit(obs, spec, loo="none")))
+        sds.append(posterior_relative_sd(fit(obs, spec, FitOptions(loo="none"))))
     good, bad = sds
     for name in ("idd0", "idd4r", "idd4w"):
         assert good[name] < 0.85 * bad[name], (name, good[name], bad[name])

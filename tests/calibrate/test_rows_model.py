@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from hdeem_watch.calibrate import (
+    FitOptions,
     fit,
     observation_from_run,
-    stretch_stats,
     suggest_next,
 )
 from hdeem_watch.dram.energy import CURRENT_NAMES, core_energy
-from hdeem_watch.dram.stats import CommandStats, RankStats
+from hdeem_watch.dram.stats import CommandStats, RankStats, stretch_stats
 from hdeem_watch.errors import InputError
 
 
@@ -102,13 +102,13 @@ def test_vpp_current_can_be_calibrated_and_collinear_pair_is_flagged(samsung, sy
     truth_spec = samsung.with_currents(truth)
     obs = [observation_from_run(samsung, s, w, _measure(truth_spec, samsung, s, w), name=n)
            for n, s, w in synth.realistic_runs(samsung, rng, n_kernel=10, n_idle=2)]
-    alone = fit(obs, samsung, currents=("ipp0", "idd2n", "idd3n"), intercept=False)
+    alone = fit(obs, samsung, FitOptions(currents=("ipp0", "idd2n", "idd3n"), intercept=False))
     assert alone.calibrated["ipp0"] == pytest.approx(truth["ipp0"], rel=1e-6)
-    both = fit(obs, samsung, currents=("idd0", "ipp0", "idd2n", "idd3n"), intercept=False)
+    both = fit(obs, samsung, FitOptions(currents=("idd0", "ipp0", "idd2n", "idd3n"), intercept=False))
     assert both.status == "rank-deficient"
     assert not both.identifiable[0] and not both.identifiable[1]
     with pytest.raises(InputError, match="unknown current 'idd7'"):
-        fit(obs, samsung, currents=("idd0", "idd7"))
+        fit(obs, samsung, FitOptions(currents=("idd0", "idd7")))
 
 
 def test_suggest_next_picks_the_run_that_determines_the_weak_current(samsung, synth, paper_truth) -> None:

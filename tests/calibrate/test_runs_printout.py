@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from hdeem_watch.calibrate.hdeem_printout import read_printout
 from hdeem_watch.calibrate.runs_file import read_runs_file
 from hdeem_watch.cli import main
 from hdeem_watch.dram.stats import CommandStats, RankStats
-from hdeem_watch.sources.hdeem_printout import read_printout
 
 TAURUS = Path(__file__).resolve().parents[1] / "data" / "taurus"
 

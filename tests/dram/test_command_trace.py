@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from hdeem_watch.dram import command_trace
-from hdeem_watch.dram.command_trace import COMMANDS, read_command_trace, trace_stats
+from hdeem_watch.dram.command_trace import COMMANDS, read_command_trace
 from hdeem_watch.dram.memspec import preset
+from hdeem_watch.dram.trace_state import trace_stats
 from hdeem_watch.errors import InputError
 
 GOOD = ("0,ACT,0,0,3,100,0\n"

@@ -13,10 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+from hdeem_watch.dram.command_trace import read_command_trace
 from hdeem_watch.dram.energy import COMPONENTS, core_energy
 from hdeem_watch.dram.memspec import load_memspec, preset
 from hdeem_watch.dram.stats import CommandStats, RankStats
+from hdeem_watch.dram.trace_state import trace_stats
 from hdeem_watch.errors import InputError
 
 

@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 from hdeem_watch.dram.command_emit import write_drampower_trace
-from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+from hdeem_watch.dram.command_trace import read_command_trace
 from hdeem_watch.dram.controller import simulate
 from hdeem_watch.dram.energy import core_energy
 from hdeem_watch.dram.kernels import kernel_requests, kernel_stats
 from hdeem_watch.dram.mapping import AddressMapping, Fields, Geometry
 from hdeem_watch.dram.memspec import load_memspec
+from hdeem_watch.dram.trace_state import trace_stats
 from hdeem_watch.errors import InputError
 
 REFERENCE = Path(__file__).resolve().parents[1] / "data" / "ramulator"

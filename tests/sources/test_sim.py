@@ -227,8 +227,8 @@ def test_early_stop_conserves_energy(fake_clock):
 
 def test_equal_dimms_match_core_energy_of_the_groups(fake_clock):
     """With identical DIMMs the run energy is the core energy of each socket group's channel × its channels."""
-    from hdeem_watch.calibrate.rows import stretch_stats
     from hdeem_watch.dram.energy import core_energy
+    from hdeem_watch.dram.stats import stretch_stats
 
     clock = fake_clock()
     sim = quiet_sim(clock, dimm_spread=0.0)

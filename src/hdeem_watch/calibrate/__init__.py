@@ -3,7 +3,8 @@
 Public names (the contract other areas build on):
 
 - :class:`Observation`, :func:`observation_from_run` — a measured run as a linear equation;
-- :func:`fit` → :class:`FitResult` (``to_dict()`` is the JSON contract of ``calibrate --json``);
+  :func:`node_observation` — one row for a whole node's channel groups;
+- :func:`fit` (:class:`FitOptions`) → :class:`FitResult` (``to_dict()`` is the JSON contract of ``calibrate --json``);
 - :class:`OnlineCalibrator` — refit per run, half-life forgetting, drift, persistence;
 - :func:`suggest_next` — which candidate run best determines the weakest current.
 
@@ -11,23 +12,24 @@ Pure: nothing in this package reads files or clocks except :mod:`~hdeem_watch.ca
 (the RUNS.json reader used by the command line).
 """
 
-from hdeem_watch.calibrate.fit import fit
+from hdeem_watch.calibrate.fit import FitOptions, fit
 from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS, Observation
 from hdeem_watch.calibrate.observe import posterior_relative_sd, suggest_next, weakest_current
 from hdeem_watch.calibrate.online import OnlineCalibrator
 from hdeem_watch.calibrate.result import FitResult, FitSettings
-from hdeem_watch.calibrate.rows import observation_from_run, stretch_stats
+from hdeem_watch.calibrate.rows import node_observation, observation_from_run
 
 __all__ = [
     "DEFAULT_CURRENTS",
+    "FitOptions",
     "FitResult",
     "FitSettings",
     "Observation",
     "OnlineCalibrator",
     "fit",
+    "node_observation",
     "observation_from_run",
     "posterior_relative_sd",
-    "stretch_stats",
     "suggest_next",
     "weakest_current",
 ]

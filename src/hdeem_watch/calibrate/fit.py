@@ -19,7 +19,7 @@ Example:
     >>> truth = np.array([1.0, 0.5])
     >>> rows = [Observation(f"r{i}", np.array(c), 0.0, float(np.dot(c, truth)))
     ...         for i, c in enumerate([[1.0, 2.0], [3.0, 1.0], [2.0, 2.0]])]
-    >>> result = fit(rows, spec, currents=("a", "b"), intercept=False, names=("a", "b"))
+    >>> result = fit(rows, spec, FitOptions(currents=("a", "b"), intercept=False, names=("a", "b")))
     >>> [round(float(v), 6) for v in result.calibrated_a]
     [1.0, 0.5]
 """
@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats as sps
@@ -43,62 +44,96 @@ from hdeem_watch.calibrate.observation import (
 from hdeem_watch.calibrate.result import FitModel, FitResult, FitSettings
 from hdeem_watch.errors import InputError
 
-__all__ = ["LOO_EXACT_MAX_RUNS", "FitModel", "FitResult", "FitSettings", "fit"]
+__all__ = ["LOO_EXACT_MAX_RUNS", "FitModel", "FitOptions", "FitResult", "FitSettings", "fit"]
 
 #: ``loo="auto"`` refits exactly up to this many runs and uses the hat-matrix identity above.
 LOO_EXACT_MAX_RUNS = 60
 
 
-def fit(observations: Sequence[Observation], spec: SpecLike, *,
-        currents: Sequence[str] = DEFAULT_CURRENTS,
-        bounds: Mapping[str, tuple[float, float]] | None = None,
-        intercept: bool = True,
-        prior_weight: float = 0.0,
-        uncertainty: str = "analytic",
-        loo: str = "auto",
-        names: Sequence[str] | None = None,
-        bootstrap_samples: int = 200,
-        seed: int = 0,
-        require_overdetermined: bool = True,
-        settings: FitSettings | None = None,
-        time_ns: int = 0,
-        weights: np.ndarray | None = None) -> FitResult:
-    """Fit ``currents`` (and an intercept ≥ 0) to the measured energies of ``observations``.
+UNCERTAINTY_METHODS = ("analytic", "bootstrap")
+LOO_METHODS = ("auto", "exact", "hat", "none")
 
-    Args:
-        observations: the runs (at least as many as unknowns unless ``require_overdetermined``
-            is False).
-        spec: the memspec (its ``currents`` are the datasheet values and the fixed currents).
-        currents: names of the currents to calibrate (lower-case memspec keys).
+
+@dataclass(frozen=True)
+class FitOptions:
+    """How :func:`fit` calibrates: which currents, their bounds, the intercept, prior and errors.
+
+    Attributes:
+        currents: names of the currents to calibrate (memspec keys, any case; a single name is
+            taken as a one-element tuple).
         bounds: ``{name: (lower_a, upper_a)}`` overriding the default ``(0, datasheet)``.
         intercept: fit a per-run energy ``≥ 0`` the model does not cover (else it is 0).
         prior_weight: λ of a Gaussian prior toward the datasheet on the relative currents; 1 means
             a 100 % deviation costs as much as a 100 % error on one run. 0 = off.
         uncertainty: ``"analytic"`` (active-set covariance, t quantile) or ``"bootstrap"``.
         loo: ``"auto"``, ``"exact"`` (n refits), ``"hat"`` (hat-matrix identity) or ``"none"``.
-        names: the order of the observation columns (default ``energy.CURRENT_NAMES``).
-        bootstrap_samples, seed: for ``uncertainty="bootstrap"``.
-        require_overdetermined: raise if there are fewer runs than unknowns.
+        names: the order of the observation columns (None: ``energy.CURRENT_NAMES``).
+        bootstrap_samples: resamples for ``uncertainty="bootstrap"``.
+        seed: random seed of the bootstrap.
+        require_overdetermined: raise if there are fewer runs than unknowns (the online
+            calibrator fits from the first run on and turns this off).
         settings: identifiability thresholds.
-        time_ns: time stamp recorded in the result.
+
+    Raises:
+        InputError: an unknown ``uncertainty`` or ``loo`` method.
+
+    Example:
+        >>> options = FitOptions(currents="IDD3N", intercept=False)
+        >>> options.currents, options.loo
+        (('IDD3N',), 'auto')
+    """
+
+    currents: Sequence[str] = DEFAULT_CURRENTS
+    bounds: Mapping[str, tuple[float, float]] | None = None
+    intercept: bool = True
+    prior_weight: float = 0.0
+    uncertainty: str = "analytic"
+    loo: str = "auto"
+    names: Sequence[str] | None = None
+    bootstrap_samples: int = 200
+    seed: int = 0
+    require_overdetermined: bool = True
+    settings: FitSettings = field(default_factory=FitSettings)
+
+    def __post_init__(self) -> None:
+        currents = (self.currents,) if isinstance(self.currents, str) else tuple(self.currents)
+        object.__setattr__(self, "currents", currents)
+        if self.names is not None:
+            object.__setattr__(self, "names", tuple(self.names))
+        if self.bounds is not None:
+            object.__setattr__(self, "bounds", dict(self.bounds))
+        if self.uncertainty not in UNCERTAINTY_METHODS:
+            raise InputError(f"uncertainty: {self.uncertainty!r}; expected 'analytic' or 'bootstrap'")
+        if self.loo not in LOO_METHODS:
+            raise InputError(f"loo: {self.loo!r}; expected auto, exact, hat or none")
+
+
+def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions | None = None, *,
+        weights: np.ndarray | None = None, time_ns: int = 0) -> FitResult:
+    """Fit the chosen currents (and an intercept ≥ 0) to the measured energies of ``observations``.
+
+    Args:
+        observations: the runs (at least as many as unknowns unless
+            ``options.require_overdetermined`` is False).
+        spec: the memspec (a :class:`~hdeem_watch.dram.memspec.MemSpec`, or anything with its
+            ``currents``: the datasheet values and the fixed currents).
+        options: what to fit and how (default: :class:`FitOptions` ()).
         weights: extra per-run factors on top of each observation's ``weight`` (e.g. forgetting).
+        time_ns: time stamp recorded in the result.
 
     Raises:
         InputError: an unknown current, bad bounds, no runs, or fewer runs than unknowns.
     """
-    settings = settings or FitSettings()
-    names = tuple(names) if names is not None else current_names()
-    chosen = _check_currents(currents, names, spec)
-    if uncertainty not in ("analytic", "bootstrap"):
-        raise InputError(f"uncertainty: {uncertainty!r}; expected 'analytic' or 'bootstrap'")
-    if loo not in ("auto", "exact", "hat", "none"):
-        raise InputError(f"loo: {loo!r}; expected auto, exact, hat or none")
+    options = options or FitOptions()
+    settings, intercept, prior_weight = options.settings, options.intercept, options.prior_weight
+    names = tuple(options.names) if options.names is not None else current_names()
+    chosen = _check_currents(options.currents, names, spec)
     if not observations:
         raise InputError("runs: no runs to calibrate on")
     k = len(chosen)
     p = k + int(intercept)
     n = len(observations)
-    if require_overdetermined and n < p:
+    if options.require_overdetermined and n < p:
         raise InputError(f"runs: {n} runs for {p} unknowns ({', '.join(chosen)}"
                          f"{', intercept' if intercept else ''}); need at least {p}")
     cols, const, measured, weight = stack(observations, len(names))
@@ -111,7 +146,7 @@ def fit(observations: Sequence[Observation], spec: SpecLike, *,
     index = np.array([names.index(c) for c in chosen], dtype=int)
     all_a = np.array([float(spec.currents.get(nm, 0.0)) for nm in names])
     datasheet = all_a[index]
-    lower_a, upper_a = _bounds(chosen, datasheet, bounds)
+    lower_a, upper_a = _bounds(chosen, datasheet, options.bounds)
     scales = np.where(datasheet > 0, datasheet, np.where(np.isfinite(upper_a) & (upper_a > 0), upper_a, 1.0))
     fixed = np.ones(len(names), dtype=bool)
     fixed[index] = False
@@ -141,10 +176,10 @@ def fit(observations: Sequence[Observation], spec: SpecLike, *,
     cov_active, cov_full = solve.active_set_covariance(design, free, 1.0 if math.isnan(s2) else s2, penalty)
     ci = _intervals(sol, lower, upper, cov_active, cov_full, s2, dof)
     method = "analytic-active-set"
-    if uncertainty == "bootstrap" and dof > 0:
-        ci = solve.bootstrap(design, target, lower, upper, sol, samples=bootstrap_samples, seed=seed,
-                             dof=dof, prior_weight=lam, prior_target=x0, ridge=ridge)
-        method = f"residual-bootstrap-{bootstrap_samples}"
+    if options.uncertainty == "bootstrap" and dof > 0:
+        ci = solve.bootstrap(design, target, lower, upper, sol, samples=options.bootstrap_samples,
+                             seed=options.seed, dof=dof, prior_weight=lam, prior_target=x0, ridge=ridge)
+        method = f"residual-bootstrap-{options.bootstrap_samples}"
     param_scale = np.concatenate([scales, [b_scale] if intercept else []])
     params = sol.x * param_scale
     ci_units = ci * param_scale[:, None]
@@ -169,10 +204,10 @@ def fit(observations: Sequence[Observation], spec: SpecLike, *,
     # Errors: datasheet model, calibrated model, leave-one-out.
     before_j = cols @ all_a + const
     after_j = x_a @ params[:k] + const_eff + (params[k] if intercept else 0.0)
-    if loo == "none" or n < 2:
+    if options.loo == "none" or n < 2:
         loo_j = np.full(n, np.nan)
     else:
-        exact = loo == "exact" or (loo == "auto" and n <= LOO_EXACT_MAX_RUNS)
+        exact = options.loo == "exact" or (options.loo == "auto" and n <= LOO_EXACT_MAX_RUNS)
         with np.errstate(divide="ignore", invalid="ignore"):
             loo_prep = solve.loo_residuals(design, target, lower, upper, sol, exact=exact,
                                            prior_weight=lam, prior_target=x0, ridge=ridge)
@@ -220,8 +255,6 @@ def fit(observations: Sequence[Observation], spec: SpecLike, *,
 
 def _check_currents(currents: Sequence[str], names: tuple[str, ...], spec: SpecLike) -> tuple[str, ...]:
     chosen: list[str] = []
-    if isinstance(currents, str):
-        currents = [currents]
     for raw in currents:
         name = str(raw).strip().lower()
         if name not in names or name not in spec.currents:

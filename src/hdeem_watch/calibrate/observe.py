@@ -23,6 +23,9 @@ import numpy as np
 from hdeem_watch.calibrate import solve
 from hdeem_watch.calibrate.observation import Observation
 from hdeem_watch.calibrate.result import FitModel, FitResult
+from hdeem_watch.calibrate.rows import model_columns
+from hdeem_watch.dram.memspec import MemSpec
+from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError
 
 
@@ -54,7 +57,7 @@ def weakest_current(fit_or_calibrator: Any) -> str:
     return max(sd, key=lambda name: sd[name])
 
 
-def candidate_row(result: FitResult, candidate: Any) -> np.ndarray:
+def candidate_row(result: FitResult, candidate: CommandStats | Observation) -> np.ndarray:
     """The prepared design row a candidate run would add (relative to its predicted energy).
 
     Args:
@@ -65,10 +68,11 @@ def candidate_row(result: FitResult, candidate: Any) -> np.ndarray:
     model = _model_of(result)
     if isinstance(candidate, Observation):
         cols, const = candidate.columns, candidate.constant_j
-    else:
-        from hdeem_watch.calibrate.rows import model_columns
-
+    elif isinstance(model.spec, MemSpec):
         cols, const = model_columns(model.spec, candidate)
+    else:
+        raise InputError("suggest_next: command-statistics candidates need a fit on a full memspec "
+                         "(this one has only currents); give Observations instead")
     all_a = np.array([float(model.spec.currents.get(nm, 0.0)) for nm in model.names])
     fixed = np.ones(len(model.names), dtype=bool)
     fixed[model.index] = False
@@ -84,7 +88,7 @@ def candidate_row(result: FitResult, candidate: Any) -> np.ndarray:
     return row / predicted
 
 
-def suggest_next(fit_or_calibrator: Any, candidates: Mapping[str, Any], *,
+def suggest_next(fit_or_calibrator: Any, candidates: Mapping[str, CommandStats | Observation], *,
                  target: str | None = None) -> list[tuple[str, float]]:
     """Rank candidate runs by how much each shrinks the variance of the weakest current.
 

@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.calibrate.fit import fit
-from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS, Observation, current_names
+from hdeem_watch.calibrate.fit import FitOptions, fit
+from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS, Observation, SpecLike, current_names
 from hdeem_watch.calibrate.result import FitResult, FitSettings
 from hdeem_watch.errors import InputError
 
@@ -59,7 +59,7 @@ class OnlineCalibrator:
         calib = OnlineCalibrator.from_dict(state, spec) # after a restart
     """
 
-    def __init__(self, spec: Any, *, currents: Sequence[str] = DEFAULT_CURRENTS,
+    def __init__(self, spec: SpecLike, *, currents: Sequence[str] = DEFAULT_CURRENTS,
                  half_life_s: float | None = 30 * 86400.0,
                  bounds: Mapping[str, tuple[float, float]] | None = None, intercept: bool = True,
                  prior_weight: float = 0.0, settings: FitSettings | None = None,
@@ -84,6 +84,12 @@ class OnlineCalibrator:
         self.observations: list[Observation] = []
         self.history: list[tuple[int, FitResult]] = []
         self.latest: FitResult | None = None
+
+    def fit_options(self) -> FitOptions:
+        """The options of every refit (from this calibrator's settings; fits from the first run)."""
+        return FitOptions(currents=self.currents, bounds=self.bounds, intercept=self.intercept,
+                          prior_weight=self.prior_weight, loo=self.loo, names=self.names,
+                          require_overdetermined=False, settings=self.settings)
 
     def weights(self) -> np.ndarray:
         """Forgetting factor of each kept run (1 for the newest)."""
@@ -119,9 +125,7 @@ class OnlineCalibrator:
 
     def _refit(self, decay: np.ndarray) -> FitResult:
         now = max(o.time_ns for o in self.observations)
-        result = fit(self.observations, self.spec, weights=decay, currents=self.currents, bounds=self.bounds, intercept=self.intercept,
-                     prior_weight=self.prior_weight, loo=self.loo, names=self.names,
-                     require_overdetermined=False, settings=self.settings, time_ns=now)
+        result = fit(self.observations, self.spec, self.fit_options(), weights=decay, time_ns=now)
         self.latest = result
         self.history.append((now, result))
         if len(self.history) > self.max_history:
@@ -184,7 +188,7 @@ class OnlineCalibrator:
         }
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any], spec: Any) -> OnlineCalibrator:
+    def from_dict(cls, data: Mapping[str, Any], spec: SpecLike) -> OnlineCalibrator:
         """Restore a calibrator from :meth:`to_dict` (the latest fit is recomputed from the runs).
 
         Raises:
@@ -208,9 +212,7 @@ class OnlineCalibrator:
         except (KeyError, TypeError, ValueError, AttributeError) as error:
             raise InputError(f"calibrator state: malformed ({error!r})") from None
         if calib.observations:
-            calib.latest = fit(calib.observations, spec, weights=calib.weights(), currents=calib.currents, bounds=calib.bounds,
-                               intercept=calib.intercept, prior_weight=calib.prior_weight, loo=calib.loo,
-                               names=calib.names, require_overdetermined=False, settings=calib.settings,
+            calib.latest = fit(calib.observations, spec, calib.fit_options(), weights=calib.weights(),
                                time_ns=max(o.time_ns for o in calib.observations))
             if calib.history:
                 calib.history[-1] = (calib.history[-1][0], calib.latest)

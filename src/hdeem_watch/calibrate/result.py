@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from hdeem_watch.calibrate.observation import SpecLike
 from hdeem_watch.errors import InputError
 
 
@@ -176,7 +177,7 @@ class FitModel:
         params: the fitted parameters in amperes (then the intercept in J).
     """
 
-    spec: Any
+    spec: SpecLike
     names: tuple[str, ...]
     index: np.ndarray
     scales_a: np.ndarray

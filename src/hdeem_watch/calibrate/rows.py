@@ -5,71 +5,39 @@ or the model of the announced kernel); the background residency is the model's f
 state times the *measured* window, and refresh is stretched to the measured window too (the device
 refreshes whatever the kernel does). An idle run is command statistics with no commands; if even
 its window is empty (``cycles_total == 0``) the rank is taken as precharged standby for the whole
-window with a refresh every ``REFI``. ``scale`` multiplies the row (e.g. the number of identical
-channels or DIMMs the measured energy covers).
+window with a refresh every ``REFI`` (both done by :func:`hdeem_watch.dram.stats.stretch_stats`).
+``scale`` multiplies the row (e.g. the number of identical channels or DIMMs the measured energy
+covers).
 
 The energy model's linear decomposition (:func:`hdeem_watch.dram.energy.energy_columns`) turns the
 stretched statistics into one column per current; the fit later moves the currents it does not
 calibrate into the constant.
+
+:func:`node_observation` sums the rows of a node's channel groups (:mod:`hdeem_watch.dram.node`)
+into ONE row against the node's total measured DRAM energy.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
-from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 
 from hdeem_watch.calibrate.observation import Observation, check_measured
-from hdeem_watch.dram.stats import COUNT_FIELDS, CommandStats, RankStats
+from hdeem_watch.dram.energy import energy_columns
+from hdeem_watch.dram.memspec import MemSpec
+from hdeem_watch.dram.stats import CommandStats, stretch_stats
 from hdeem_watch.errors import InputError
 
-_STRETCHED = ("cycles_act", "cycles_pre", "cycles_pdna", "cycles_pdnp", "cycles_sref", "bank_active_cycles")
 
-
-def stretch_stats(spec: Any, stats: CommandStats, window_s: float, *, name: str = "run") -> CommandStats:
-    """``stats`` with its state residency and refreshes stretched to a window of ``window_s``.
-
-    Args:
-        spec: the memspec (``tck_s``, ``timings["REFI"]``).
-        stats: the model's statistics (any window length).
-        window_s: the measured window in seconds, > 0.
-        name: the run's name, for messages.
-
-    Raises:
-        InputError: a window that is not a positive number, or commands in an empty window.
-    """
-    if isinstance(window_s, bool) or not isinstance(window_s, int | float) or not math.isfinite(window_s) \
-            or window_s <= 0:
-        raise InputError(f"run {name!r}: window_s = {window_s!r}; expected a duration > 0 s")
-    cycles_w = float(window_s) / float(spec.tck_s)
-    refi = float(spec.timings.get("REFI", 0) or 0)
-    ranks = []
-    for i, rank in enumerate(stats.ranks):
-        if rank.cycles_total <= 0:
-            if any(getattr(rank, f) > 0 for f in COUNT_FIELDS):
-                raise InputError(f"run {name!r}: rank {i} has commands but cycles_total = 0")
-            ranks.append(RankStats(cycles_total=cycles_w, cycles_pre=cycles_w,
-                                   ref=cycles_w / refi if refi > 0 else 0.0))
-            continue
-        factor = cycles_w / rank.cycles_total
-        changes: dict[str, float] = {f: getattr(rank, f) * factor for f in _STRETCHED}
-        changes["ref"] = rank.ref * factor
-        changes["cycles_total"] = cycles_w
-        ranks.append(replace(rank, **changes))
-    return CommandStats(ranks=tuple(ranks))
-
-
-def model_columns(spec: Any, stats: CommandStats) -> tuple[np.ndarray, float]:
+def model_columns(spec: MemSpec, stats: CommandStats) -> tuple[np.ndarray, float]:
     """The energy model's columns (J per A, over ``CURRENT_NAMES``) and constant for ``stats``."""
-    from hdeem_watch.dram.energy import energy_columns
-
     linear = energy_columns(spec, stats)
     return np.asarray(linear.columns, dtype=float), float(linear.constant_j)
 
 
-def observation_from_run(spec: Any, model_stats: CommandStats, window_s: float, measured_j: float, *,
+def observation_from_run(spec: MemSpec, model_stats: CommandStats, window_s: float, measured_j: float, *,
                          scale: float = 1.0, name: str = "run", time_ns: int = 0,
                          weight: float = 1.0) -> Observation:
     """A calibration row for one measured run.
@@ -96,7 +64,29 @@ def observation_from_run(spec: Any, model_stats: CommandStats, window_s: float, 
                        time_ns=int(time_ns), weight=weight, window_s=float(window_s))
 
 
-def stats_window_s(spec: Any, stats: CommandStats) -> float:
+def stats_window_s(spec: MemSpec, stats: CommandStats) -> float:
     """The window of ``stats`` in seconds (longest rank window × tCK; NaN if empty)."""
     cycles = max((rank.cycles_total for rank in stats.ranks), default=0.0)
     return cycles * float(spec.tck_s) if cycles > 0 else math.nan
+
+
+def node_observation(spec: MemSpec, groups: Sequence[tuple[CommandStats, int]], window_s: float,
+                     measured_j: float, *, name: str = "run", time_ns: int = 0,
+                     weight: float = 1.0) -> Observation:
+    """ONE calibration row for a node: its channel groups' rows over the same window, summed.
+
+    Each group's row is ``observation_from_run(spec, stats, window_s, measured_j, scale=channels)``
+    (``groups`` as :func:`hdeem_watch.dram.node.node_run_stats` returns them); the node row's columns
+    and constant are their sums, against the node's measured energy.
+
+    Raises:
+        InputError: no groups, or a bad window or energy (naming the run).
+    """
+    if not groups:
+        raise InputError(f"run {name!r}: no channel groups")
+    rows = [observation_from_run(spec, stats, window_s, measured_j, scale=float(n), name=name, time_ns=time_ns,
+                                 weight=weight) for stats, n in groups]
+    columns = np.sum([row.columns for row in rows], axis=0)
+    constant = float(sum(row.constant_j for row in rows))
+    return Observation(name=rows[0].name, columns=columns, constant_j=constant, measured_j=rows[0].measured_j,
+                       time_ns=rows[0].time_ns, weight=rows[0].weight, window_s=rows[0].window_s)

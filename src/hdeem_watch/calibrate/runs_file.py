@@ -30,6 +30,7 @@ from typing import Any
 
 from hdeem_watch.calibrate.observation import Observation, check_measured
 from hdeem_watch.calibrate.rows import observation_from_run, stats_window_s
+from hdeem_watch.dram.memspec import MemSpec, load_memspec, preset
 from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError
 
@@ -37,10 +38,8 @@ _RUN_KEYS = {"name", "measured_j", "hdeem_printout", "printout_block", "trace", 
              "time_ns", "weight"}
 
 
-def load_spec(value: str, base: Path, where: str) -> Any:
+def load_spec(value: str, base: Path, where: str) -> MemSpec:
     """The memspec named by ``value``: a file (relative to ``base``) or ``preset:NAME``."""
-    from hdeem_watch.dram.memspec import load_memspec, preset
-
     if value.startswith("preset:"):
         return preset(value.removeprefix("preset:"))
     path = Path(value)
@@ -51,7 +50,7 @@ def load_spec(value: str, base: Path, where: str) -> Any:
     return load_memspec(path)
 
 
-def read_runs_file(path: str | Path, memspec: str | Path | None = None) -> tuple[Any, list[Observation]]:
+def read_runs_file(path: str | Path, memspec: str | Path | None = None) -> tuple[MemSpec, list[Observation]]:
     """Read RUNS.json into the memspec and one :class:`Observation` per run.
 
     Args:
@@ -95,7 +94,7 @@ def _number(run: Mapping[str, Any], key: str, name: str, default: float) -> floa
     return float(value)
 
 
-def _observation(spec: Any, run: Any, i: int, base: Path, where: str) -> Observation:
+def _observation(spec: MemSpec, run: Any, i: int, base: Path, where: str) -> Observation:
     if not isinstance(run, Mapping):
         raise InputError(f"{where}: runs[{i}]: expected an object")
     name = run.get("name", f"run[{i}]")
@@ -146,8 +145,9 @@ def _observation(spec: Any, run: Any, i: int, base: Path, where: str) -> Observa
                                 weight=weight)
 
 
-def _trace_stats(spec: Any, value: Any, name: str, base: Path) -> CommandStats:
-    from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+def _trace_stats(spec: MemSpec, value: Any, name: str, base: Path) -> CommandStats:
+    from hdeem_watch.dram.command_trace import read_command_trace
+    from hdeem_watch.dram.trace_state import trace_stats
 
     if not isinstance(value, str) or not value:
         raise InputError(f"run {name!r}: trace = {value!r}; expected a path to a DRAMPower CSV trace")
@@ -164,7 +164,7 @@ def _trace_stats(spec: Any, value: Any, name: str, base: Path) -> CommandStats:
 
 def _printout_energy(run: Mapping[str, Any], name: str, base: Path) -> tuple[float, float]:
     """``(measured_j, duration_s)`` of the chosen statistics block of a real HDEEM printout."""
-    from hdeem_watch.sources.hdeem_printout import read_printout
+    from hdeem_watch.calibrate.hdeem_printout import read_printout
 
     value = run["hdeem_printout"]
     if not isinstance(value, str) or not value:

@@ -15,7 +15,7 @@ import json
 import math
 from typing import Any
 
-from hdeem_watch.calibrate.fit import fit
+from hdeem_watch.calibrate.fit import FitOptions, fit
 from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS
 from hdeem_watch.calibrate.result import FitResult
 from hdeem_watch.calibrate.runs_file import read_runs_file
@@ -54,8 +54,9 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"--prior-weight: {args.prior_weight!r}; expected a number >= 0")
     bounds = parse_bounds(args.bounds)
     spec, observations = read_runs_file(args.runs, args.memspec)
-    result = fit(observations, spec, currents=currents, bounds=bounds, intercept=not args.no_intercept,
-                 prior_weight=args.prior_weight, uncertainty=args.uncertainty)
+    options = FitOptions(currents=currents, bounds=bounds, intercept=not args.no_intercept,
+                         prior_weight=args.prior_weight, uncertainty=args.uncertainty)
+    result = fit(observations, spec, options)
     written = None
     if args.write_memspec:
         from hdeem_watch.dram.memspec import save_memspec

@@ -109,8 +109,9 @@ def format_table(data: dict[str, Any], spec: MemSpec) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Compute and print; InputError propagates to the CLI (one line, exit code 2)."""
-    from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+    from hdeem_watch.dram.command_trace import read_command_trace
     from hdeem_watch.dram.energy import core_energy
+    from hdeem_watch.dram.trace_state import trace_stats
 
     spec = resolve_memspec(args.memspec)
     trace = read_command_trace(args.trace)

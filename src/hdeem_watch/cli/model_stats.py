@@ -25,13 +25,14 @@ from typing import Any
 
 from hdeem_watch.dram.kernels import KERNELS
 from hdeem_watch.dram.mapping import SCHEMES
+from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError
 
 STATS_FORMATS = ("ramulator", "ramulator2", "pinatrace", "lackey", "drampower")
 
 
-def _spec(value: str) -> Any:
+def _spec(value: str) -> MemSpec:
     from hdeem_watch.cli.model_energy import resolve_memspec
 
     return resolve_memspec(value)
@@ -86,7 +87,7 @@ def _controller_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--policy", choices=("open", "closed"), default="open", help="row-buffer policy")
 
 
-def _energy(spec: Any, stats: CommandStats) -> dict[str, Any] | None:
+def _energy(spec: MemSpec, stats: CommandStats) -> dict[str, Any] | None:
     try:
         from hdeem_watch.dram.energy import core_energy
     except ImportError:  # pragma: no cover - the energy model ships with the package
@@ -132,7 +133,8 @@ def run_stats(args: argparse.Namespace) -> int:
     if args.format == "drampower":
         if args.emit_drampower:
             raise InputError("--emit-drampower: the input already is a DRAMPower trace")
-        from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+        from hdeem_watch.dram.command_trace import read_command_trace
+        from hdeem_watch.dram.trace_state import trace_stats
 
         trace = read_command_trace(args.trace)
         stats = trace_stats(spec, trace)

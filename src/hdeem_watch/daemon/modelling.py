@@ -193,7 +193,8 @@ class RunModeller:
             return None, None, f"run {name!r}: no measured DRAM energy ({measured!r})"
         if not isinstance(window_s, int | float) or not window_s > 0:
             return None, None, f"run {name!r}: empty window"
-        from hdeem_watch.dram.node import node_counts, node_observation
+        from hdeem_watch.calibrate.rows import node_observation
+        from hdeem_watch.dram.node import node_counts
 
         try:
             groups = self.groups_for(str(record["kernel"]), int(record["elements"]), int(record["threads"]),

@@ -1,4 +1,6 @@
-"""DRAMPower command traces (CSV): a fast vectorised reader and the trace -> CommandStats step.
+"""DRAMPower command traces (CSV): a fast vectorised reader.
+
+The trace -> CommandStats step (DRAMPower's state machine) is :func:`hdeem_watch.dram.trace_state.trace_stats`.
 
 Format (DRAMPower v6 CLI, no header), one command per line::
 
@@ -18,13 +20,11 @@ integers and looked up with ``searchsorted``. Every malformed line raises a one-
 
 Example:
     >>> import tempfile, pathlib
-    >>> from hdeem_watch.dram.memspec import preset
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "t.csv"
     >>> _ = path.write_text("0,ACT,0,0,3,100,0\\n15,RD,0,0,3,100,0\\n40,PRE,0,0,3,100,0\\n100,END,0,0,0,0,0\\n")
     >>> trace = read_command_trace(path)
-    >>> stats = trace_stats(preset("ddr4-2133-x8-4gb"), trace)
-    >>> stats.ranks[0].act, stats.ranks[0].rd, stats.ranks[0].cycles_act, stats.ranks[0].cycles_pre
-    (1.0, 1.0, 40.0, 60.0)
+    >>> [COMMANDS[code] for code in trace.cmd], trace.end_cycle
+    (['ACT', 'RD', 'PRE', 'END'], 100)
 """
 
 from __future__ import annotations
@@ -37,7 +37,6 @@ from typing import NoReturn
 import numpy as np
 
 from hdeem_watch.dram.memspec import MemSpec
-from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError
 
 #: Command names in code order (``CommandTrace.cmd`` holds the index into this tuple).
@@ -364,17 +363,3 @@ def check_ranges(spec: MemSpec, trace: CommandTrace, *, full: bool = False) -> N
             i = int(np.argmax(over))
             _fail(trace.path, i + 1, f"{name} {values[i]} out of range; memspec {spec.memory_id!r} has "
                   f"{limit} ({name} 0..{limit - 1})")
-
-
-def trace_stats(spec: MemSpec, trace: CommandTrace) -> CommandStats:
-    """Per-rank command counts and state residency of a trace (DRAMPower v6 DDR4 state machine).
-
-    See :mod:`hdeem_watch.dram.trace_state` for the rules.
-
-    Raises:
-        InputError: a rank or bank out of range, or power-down/self-refresh commands out of order.
-    """
-    from hdeem_watch.dram.trace_state import command_stats
-
-    check_ranges(spec, trace)
-    return command_stats(spec, trace)

@@ -29,6 +29,8 @@ import numpy as np
 from hdeem_watch.errors import InputError
 
 if TYPE_CHECKING:
+    from hdeem_watch.dram.command_set import ControllerResult
+    from hdeem_watch.dram.memspec import MemSpec
     from hdeem_watch.dram.stats import CommandStats
 
 #: The kernels, in the order of the seed paper.
@@ -189,11 +191,11 @@ def kernel_requests(kernel: str, elements: int, threads: int = 1, *,
     return addresses.ravel(), is_write.ravel()
 
 
-_CACHE: dict[tuple[Any, ...], Any] = {}
+_CACHE: dict[tuple[Any, ...], ControllerResult] = {}
 
 
-def _simulate_prefix(spec: Any, name: str, lines: int, threads: int, steps: int, policy: str,
-                     mapping: str, xor_bank: bool = False) -> Any:
+def _simulate_prefix(spec: MemSpec, name: str, lines: int, threads: int, steps: int, policy: str,
+                     mapping: str, xor_bank: bool = False) -> ControllerResult:
     """Simulate each thread's first ``steps`` iterations over ``lines`` lines (cached: the daemon
     asks for the same runs again)."""
     from hdeem_watch.dram.controller import simulate
@@ -217,7 +219,7 @@ def _simulate_prefix(spec: Any, name: str, lines: int, threads: int, steps: int,
 
 
 def kernel_stats(
-    spec: Any,
+    spec: MemSpec,
     kernel: str,
     elements: int,
     threads: int,

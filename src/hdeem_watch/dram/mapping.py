@@ -27,10 +27,10 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
+from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.errors import InputError
 
 #: Named schemes (any other permutation of the tokens is accepted too).
@@ -73,7 +73,7 @@ class Geometry:
         return self.columns // self.burst_length
 
     @classmethod
-    def from_spec(cls, spec: Any, channels: int | None = None) -> Geometry:
+    def from_spec(cls, spec: MemSpec, channels: int | None = None) -> Geometry:
         """The geometry of a memspec (``channels`` overrides ``nbr_of_channels``).
 
         Raises:

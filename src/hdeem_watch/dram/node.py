@@ -13,9 +13,8 @@ are :func:`hdeem_watch.dram.kernels.kernel_stats` of the socket's threads and el
 it every thread's power-of-two chunk starts in the same bank and almost every access is a row
 conflict). A socket without threads is an idle group: statistics with no commands.
 
-:func:`node_observation` turns the groups into ONE calibration row against the node's total DRAM
-energy: the sum of :func:`hdeem_watch.calibrate.observation_from_run` of each group (scaled by its
-channel count) over the same measured window.
+The calibrator turns the groups into ONE calibration row against the node's total DRAM energy
+(:func:`hdeem_watch.calibrate.rows.node_observation`).
 
 Example:
     >>> NodeTopology().threads_per_socket(18)
@@ -28,13 +27,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
+from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.dram.stats import CommandStats, RankStats
 from hdeem_watch.errors import InputError
 
-#: Kernels that move no DRAM traffic (compute-only / idle runs).
-IDLE_KERNELS = ("idle", "sleep", "compute", "none")
+#: Kernel names that move no DRAM traffic (idle and compute-only runs): their channels are modelled
+#: as idle groups whatever the run's size.
+NO_TRAFFIC_KERNELS = ("idle", "sleep", "compute", "none")
 
 
 @dataclass(frozen=True)
@@ -95,7 +94,7 @@ def topology_for(dimms: int) -> NodeTopology:
     return NodeTopology(sockets=2, cores_per_socket=12, channels_per_socket=dimms // 2)
 
 
-def idle_channel_stats(spec: Any) -> CommandStats:
+def idle_channel_stats(spec: MemSpec) -> CommandStats:
     """One channel without commands (one empty rank per rank of ``spec``): the calibrator turns it
     into precharged standby with a refresh every REFI over the measured window."""
     return CommandStats(ranks=tuple(RankStats() for _ in range(int(spec.nbr_of_ranks))))
@@ -108,14 +107,14 @@ def socket_elements(elements: int, threads: int, socket_threads: int) -> int:
     return round(int(elements) * socket_threads / threads)
 
 
-def node_run_stats(spec: Any, kernel: str, elements: int, threads: int, repeat: int,
+def node_run_stats(spec: MemSpec, kernel: str, elements: int, threads: int, repeat: int,
                    topology: NodeTopology = HASWELL_EP, *, xor_bank: bool = True,
                    max_requests: int | None = None) -> list[tuple[CommandStats, int]]:
     """Per socket (in order), the statistics of ONE of its channels and how many channels it has.
 
     Args:
         spec: memspec of one DIMM.
-        kernel: kernel name (one of :data:`IDLE_KERNELS` = no traffic).
+        kernel: kernel name (one of :data:`NO_TRAFFIC_KERNELS` = no traffic).
         elements: doubles per array (of the whole run).
         threads: threads of the run.
         repeat: passes.
@@ -134,7 +133,7 @@ def node_run_stats(spec: Any, kernel: str, elements: int, threads: int, repeat: 
 
     idle = idle_channel_stats(spec)
     counts = topology.threads_per_socket(threads)
-    no_traffic = str(kernel).strip().lower() in IDLE_KERNELS or int(elements) <= 0 or int(repeat) <= 0
+    no_traffic = str(kernel).strip().lower() in NO_TRAFFIC_KERNELS or int(elements) <= 0 or int(repeat) <= 0
     groups: list[tuple[CommandStats, int]] = []
     for socket_threads in counts:
         n_elements = socket_elements(elements, threads, socket_threads)
@@ -162,35 +161,13 @@ def cycles_per_line(stats: CommandStats) -> float:
     return cycles / lines if lines > 0 else float("nan")
 
 
-def node_capacity_lines_s(spec: Any, groups: Sequence[tuple[CommandStats, int]]) -> list[float]:
+def node_capacity_lines_s(spec: MemSpec, groups: Sequence[tuple[CommandStats, int]]) -> list[float]:
     """Per group, the lines/s its channels can serve (channels / (cycles per line × tCK); 0 if idle)."""
     out = []
     for stats, channels in groups:
         cpl = cycles_per_line(stats)
         out.append(channels / (cpl * float(spec.tck_s)) if cpl == cpl and cpl > 0 else 0.0)
     return out
-
-
-def node_observation(spec: Any, groups: Sequence[tuple[CommandStats, int]], window_s: float, measured_j: float,
-                     *, name: str = "run", time_ns: int = 0, weight: float = 1.0) -> Any:
-    """ONE calibration row for the node: the groups' rows over the same window, summed.
-
-    Each group's row is ``observation_from_run(spec, stats, window_s, measured_j, scale=channels)``;
-    the node row's columns and constant are their sums, against the node's measured energy.
-
-    Raises:
-        InputError: a bad window or energy (naming the run).
-    """
-    from hdeem_watch.calibrate import Observation, observation_from_run
-
-    if not groups:
-        raise InputError(f"run {name!r}: no channel groups")
-    rows = [observation_from_run(spec, stats, window_s, measured_j, scale=float(n), name=name, time_ns=time_ns,
-                                 weight=weight) for stats, n in groups]
-    columns = np.sum([row.columns for row in rows], axis=0)
-    constant = float(sum(row.constant_j for row in rows))
-    return Observation(name=rows[0].name, columns=columns, constant_j=constant, measured_j=rows[0].measured_j,
-                       time_ns=rows[0].time_ns, weight=rows[0].weight, window_s=rows[0].window_s)
 
 
 def node_counts(groups: Sequence[tuple[CommandStats, int]]) -> dict[str, float]:

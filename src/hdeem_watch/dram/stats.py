@@ -18,16 +18,22 @@ Example:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hdeem_watch.errors import InputError
+
+if TYPE_CHECKING:
+    from hdeem_watch.dram.memspec import MemSpec
 
 #: Command counters of a rank, in the order of the ``counts`` object of ``model energy --json``.
 COUNT_FIELDS = ("act", "pre", "rd", "wr", "rda", "wra", "ref")
 #: State-residency fields of a rank, as ``cycles_<name>``, in the order of ``cycles`` in the JSON.
 CYCLE_FIELDS = ("act", "pre", "pdna", "pdnp", "sref")
+#: Fields that :func:`stretch_stats` scales with the window (state residency, bank activity).
+_STRETCHED = ("cycles_act", "cycles_pre", "cycles_pdna", "cycles_pdnp", "cycles_sref", "bank_active_cycles")
 
 
 @dataclass(frozen=True)
@@ -138,3 +144,49 @@ class CommandStats:
                 raise InputError(f"{where}.ranks[{i}]: expected an object")
             parsed.append(RankStats.from_dict(rank, where=f"{where}.ranks[{i}]"))
         return cls(ranks=tuple(parsed))
+
+
+def stretch_stats(spec: MemSpec, stats: CommandStats, window_s: float, *, name: str = "run") -> CommandStats:
+    """``stats`` with its state residency and refreshes stretched to a window of ``window_s``.
+
+    The command counts stay (the run issued them once); the fraction of time in each state is kept
+    and applied to the longer (or shorter) window, and refresh is scaled with the window because
+    the device refreshes whatever the kernel does. A rank with an empty window (``cycles_total ==
+    0``) becomes precharged standby for the whole window with a refresh every ``REFI``.
+
+    Args:
+        spec: the memspec (``tck_s``, ``timings["REFI"]``).
+        stats: the model's statistics (any window length).
+        window_s: the measured window in seconds, > 0.
+        name: the run's name, for messages.
+
+    Raises:
+        InputError: a window that is not a positive number, or commands in an empty window.
+
+    Example:
+        >>> from hdeem_watch.dram.memspec import preset
+        >>> spec = preset("ddr4-2133-x8-4gb")
+        >>> idle = CommandStats(ranks=(RankStats(), RankStats()))
+        >>> stretched = stretch_stats(spec, idle, 1.0)
+        >>> round(stretched.ranks[0].cycles_total * spec.tck_s, 9), stretched.total("ref") > 0
+        (1.0, True)
+    """
+    if isinstance(window_s, bool) or not isinstance(window_s, int | float) or not math.isfinite(window_s) \
+            or window_s <= 0:
+        raise InputError(f"run {name!r}: window_s = {window_s!r}; expected a duration > 0 s")
+    cycles_w = float(window_s) / float(spec.tck_s)
+    refi = float(spec.timings.get("REFI", 0) or 0)
+    ranks = []
+    for i, rank in enumerate(stats.ranks):
+        if rank.cycles_total <= 0:
+            if any(getattr(rank, f) > 0 for f in COUNT_FIELDS):
+                raise InputError(f"run {name!r}: rank {i} has commands but cycles_total = 0")
+            ranks.append(RankStats(cycles_total=cycles_w, cycles_pre=cycles_w,
+                                   ref=cycles_w / refi if refi > 0 else 0.0))
+            continue
+        factor = cycles_w / rank.cycles_total
+        changes: dict[str, float] = {f: getattr(rank, f) * factor for f in _STRETCHED}
+        changes["ref"] = rank.ref * factor
+        changes["cycles_total"] = cycles_w
+        ranks.append(replace(rank, **changes))
+    return CommandStats(ranks=tuple(ranks))

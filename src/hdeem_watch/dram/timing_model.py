@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hdeem_watch.dram.controller import (
+from hdeem_watch.dram.command_set import (
     Commands,
     ControllerResult,
     Timing,

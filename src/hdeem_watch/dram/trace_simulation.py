@@ -30,12 +30,14 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.dram.controller import ControllerResult, simulate, simulate_requests
+from hdeem_watch.dram.command_set import ControllerResult
+from hdeem_watch.dram.controller import simulate, simulate_requests
+from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.dram.request_traces import CacheConfig, map_file, read_request_trace
 from hdeem_watch.dram.uniform_parser import UniformParser, uniform_lines
 
 
-def simulate_trace(spec: Any, path: str | Path, fmt: str, *, cache: CacheConfig | None = None,
+def simulate_trace(spec: MemSpec, path: str | Path, fmt: str, *, cache: CacheConfig | None = None,
                    **options: Any) -> tuple[ControllerResult, int]:
     """Simulate the requests of a trace file (see the module doc).
 

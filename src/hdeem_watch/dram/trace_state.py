@@ -1,5 +1,7 @@
 """The per-rank DDR4 state machine of DRAMPower v6, vectorised: command trace -> CommandStats.
 
+:func:`trace_stats` is the step's entry point (ranges checked, then :func:`command_stats`).
+
 Rules (DRAMPower v6.2 ``DDR4Core``; DESIGN.md section 3):
 
 - A bank is active from ACT until a precharge of it: PRE, PREA (every bank of the rank), or the
@@ -27,13 +29,23 @@ the RDA/WRA precharge delay counts from the ACT even across a power-down (DRAMPo
 power-down exit); PDXP after a PDEP with an open bank resumes the rank's active time (DRAMPower
 waits for the next ACT). Power-down and self-refresh commands are walked one by one (Python loop
 over those commands only); every other command is handled in bulk.
+
+Example:
+    >>> import tempfile, pathlib
+    >>> from hdeem_watch.dram.command_trace import read_command_trace
+    >>> from hdeem_watch.dram.memspec import preset
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "t.csv"
+    >>> _ = path.write_text("0,ACT,0,0,3,100,0\\n15,RD,0,0,3,100,0\\n40,PRE,0,0,3,100,0\\n100,END,0,0,0,0,0\\n")
+    >>> stats = trace_stats(preset("ddr4-2133-x8-4gb"), read_command_trace(path))
+    >>> stats.ranks[0].act, stats.ranks[0].rd, stats.ranks[0].cycles_act, stats.ranks[0].cycles_pre
+    (1.0, 1.0, 40.0, 60.0)
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from hdeem_watch.dram.command_trace import CODE, CommandTrace
+from hdeem_watch.dram.command_trace import CODE, CommandTrace, check_ranges
 from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.dram.stats import CommandStats, RankStats
 from hdeem_watch.errors import InputError
@@ -242,3 +254,15 @@ def _walk_power_down(spec: MemSpec, trace: CommandTrace, pd_idx: np.ndarray, bas
             pending.append(leave)
     if mode is not None and since <= end:  # still in power-down / self-refresh at T
         residency[{"PDEA": "pdna", "PDEP": "pdnp", "SREFEN": "sref"}[mode]] += end - since
+
+
+def trace_stats(spec: MemSpec, trace: CommandTrace) -> CommandStats:
+    """Per-rank command counts and state residency of a trace (DRAMPower v6 DDR4 state machine).
+
+    The rules are in this module's docstring.
+
+    Raises:
+        InputError: a rank or bank out of range, or power-down/self-refresh commands out of order.
+    """
+    check_ranges(spec, trace)
+    return command_stats(spec, trace)

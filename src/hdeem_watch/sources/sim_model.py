@@ -167,7 +167,7 @@ class DramModel:
 
     def stretched(self, stats: CommandStats, window_s: float) -> CommandStats:
         """``stats`` stretched to ``window_s`` exactly as the calibrator does."""
-        from hdeem_watch.calibrate.rows import stretch_stats
+        from hdeem_watch.dram.stats import stretch_stats
 
         return stretch_stats(self.spec, stats, window_s)
 

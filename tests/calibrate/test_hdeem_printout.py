@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from hdeem_watch.calibrate.hdeem_printout import parse_printout, read_printout
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import CHANNELS
-from hdeem_watch.sources.hdeem_printout import parse_printout, read_printout
 
 TAURUS = Path(__file__).resolve().parents[1] / "data" / "taurus"
 FILES = ("6262taurus.txt", "6415.txt", "6485taurus.txt")

@@ -1,0 +1,236 @@
+"""The import graph of ``src/hdeem_watch`` points one way (issue #13).
+
+The packages are layered ``dram ← {calibrate, sources} ← daemon ← {tui, cli}``: a package may
+import only from a lower tier. The graph is read from the source with :mod:`ast`, so it holds
+every import, at module level and inside functions (a function-local import hides a cycle from
+the interpreter, not from this test). Imports under ``if TYPE_CHECKING:`` are left out: they
+never run.
+"""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+ROOT = "hdeem_watch"
+
+#: Tier of every package and top-level module (the part after ``hdeem_watch.``; ``""`` is the
+#: package's own ``__init__``). An import must go to a strictly lower tier, so two packages of
+#: one tier may not import each other at all.
+TIERS: dict[str, int] = {
+    "": 0,  # __version__
+    "errors": 0,
+    "dram": 1,
+    "calibrate": 2,
+    "sources": 2,
+    "config": 2,
+    "daemon": 3,
+    "slurm": 4,
+    "tui": 5,
+    "bench": 5,
+    "cli": 6,
+    "__main__": 7,
+}
+
+#: Packages inside which no two modules may import each other in a cycle.
+ACYCLIC_PACKAGES = ("dram", "daemon", "calibrate")
+
+
+@dataclass(frozen=True)
+class Edge:
+    """One import statement: ``source`` imports ``target`` at ``path:line``."""
+
+    source: str
+    target: str
+    path: str
+    line: int
+
+    def __str__(self) -> str:
+        return f"{self.source} -> {self.target} ({self.path}:{self.line})"
+
+
+def module_names() -> dict[str, Path]:
+    """Every module of the package by dotted name (packages by their ``__init__``)."""
+    names = {}
+    for path in sorted((SRC / ROOT).rglob("*.py")):
+        parts = list(path.relative_to(SRC).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts.pop()
+        names[".".join(parts)] = path
+    return names
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
+
+
+def _import_nodes(node: ast.AST) -> Iterator[ast.Import | ast.ImportFrom]:
+    """Every import below ``node`` at any depth, except inside ``if TYPE_CHECKING:``."""
+    for child in ast.iter_child_nodes(node):
+        if isinstance(child, ast.If) and _is_type_checking(child.test):
+            yield from _imports_of(child.orelse)
+        else:
+            yield from _imports_of([child])
+
+
+def _imports_of(nodes: list[ast.stmt] | list[ast.AST]) -> Iterator[ast.Import | ast.ImportFrom]:
+    for node in nodes:
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            yield node
+        yield from _import_nodes(node)
+
+
+def import_edges() -> list[Edge]:
+    """Every import from one module of the package to another."""
+    modules = module_names()
+    edges = []
+    for name, path in modules.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        shown = str(path.relative_to(SRC.parent))
+        for node in _import_nodes(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                targets = [alias.name for alias in node.names]
+            else:
+                if node.level:
+                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    stem = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    stem = node.module or ""
+                # ``from pkg import mod`` imports the module pkg.mod; ``from mod import name``
+                # imports mod.
+                targets = [
+                    f"{stem}.{alias.name}" if f"{stem}.{alias.name}" in modules else stem
+                    for alias in node.names
+                ]
+            for target in dict.fromkeys(targets):
+                if target in modules and target != name:
+                    edges.append(Edge(name, target, shown, node.lineno))
+    return edges
+
+
+def area(module: str) -> str:
+    """The package or top-level module ``module`` belongs to (``""`` for the root)."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+def find_cycles(edges: list[Edge], node_of: dict[str, str]) -> list[list[str]]:
+    """Strongly connected components with more than one node of the graph ``edges`` induces
+    on ``node_of`` (module → graph node; modules not in it are left out)."""
+    graph: dict[str, set[str]] = {}
+    for edge in edges:
+        a, b = node_of.get(edge.source), node_of.get(edge.target)
+        if a is not None and b is not None and a != b:
+            graph.setdefault(a, set()).add(b)
+            graph.setdefault(b, set())
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    components: list[list[str]] = []
+
+    def visit(v: str) -> None:  # Tarjan; the graphs here are a few dozen nodes deep at most
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                components.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return components
+
+
+def describe(component: list[str], edges: list[Edge], node_of: dict[str, str]) -> str:
+    """The imports that close the cycle ``component``, one per line."""
+    members = set(component)
+    inside = [
+        str(e)
+        for e in edges
+        if node_of.get(e.source) in members
+        and node_of.get(e.target) in members
+        and node_of[e.source] != node_of[e.target]
+    ]
+    return " <-> ".join(component) + "\n    " + "\n    ".join(inside)
+
+
+@pytest.fixture(scope="module")
+def edges() -> list[Edge]:
+    found = import_edges()
+    assert len(found) > 100, "the import graph is suspiciously small: is the parser broken?"
+    return found
+
+
+def test_the_parser_sees_module_function_local_and_relative_imports(tmp_path: Path) -> None:
+    """The graph builder finds imports at every depth and skips only TYPE_CHECKING blocks."""
+    tree = ast.parse(
+        "import a\n"
+        "from typing import TYPE_CHECKING\n"
+        "if TYPE_CHECKING:\n    import hidden\nelse:\n    import shown\n"
+        "def f():\n    from b import c\n    class K:\n        import d\n"
+    )
+    found = [
+        alias.name if isinstance(n, ast.Import) else n.module
+        for n in _import_nodes(tree)
+        for alias in n.names
+    ]
+    assert found == ["a", "typing", "shown", "b", "d"]
+
+
+def test_every_package_has_a_tier(edges: list[Edge]) -> None:
+    """A new package or top-level module must be placed in the layering on purpose."""
+    missing = sorted({area(m) for m in module_names()} - set(TIERS))
+    assert not missing, f"add to TIERS in tests/test_layering.py: {missing}"
+
+
+def test_no_cycle_between_packages(edges: list[Edge]) -> None:
+    """No two packages (or top-level modules) import each other, directly or around a loop."""
+    node_of = {m: area(m) or ROOT for m in module_names()}
+    cycles = find_cycles(edges, node_of)
+    assert not cycles, "package cycles:\n" + "\n".join(
+        describe(c, edges, node_of) for c in cycles
+    )
+
+
+@pytest.mark.parametrize("package", ACYCLIC_PACKAGES)
+def test_no_cycle_between_modules_of(package: str, edges: list[Edge]) -> None:
+    """Inside ``package`` the modules form a DAG (function-local imports included)."""
+    node_of = {m: m for m in module_names() if area(m) == package}
+    cycles = find_cycles(edges, node_of)
+    assert not cycles, f"module cycles in {package}/:\n" + "\n".join(
+        describe(c, edges, node_of) for c in cycles
+    )
+
+
+@pytest.mark.parametrize("package", sorted(TIERS), ids=lambda name: name or ROOT)
+def test_imports_point_down_the_layers(package: str, edges: list[Edge]) -> None:
+    """dram ← {calibrate, sources} ← daemon ← {tui, cli}: ``package`` imports only lower tiers."""
+    upward = [
+        f"{e}  [tier {TIERS[package]} -> tier {TIERS.get(area(e.target))}]"
+        for e in edges
+        if area(e.source) == package != area(e.target)
+        and TIERS[package] <= TIERS.get(area(e.target), 99)
+    ]
+    assert not upward, f"imports of {package or ROOT} against the layering:\n" + "\n".join(upward)
