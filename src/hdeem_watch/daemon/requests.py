@@ -56,7 +56,7 @@ def decode_request(data: bytes, max_bytes: int = MAX_REQUEST_BYTES) -> Request:
     """
     if len(data) > max_bytes:
         raise ProtocolError(f"request of {len(data)} bytes exceeds the limit of {max_bytes}", code="too-large")
-    obj = loads_object(data, "request", max_depth=MAX_REQUEST_DEPTH)
+    obj = loads_object(data, "request", max_depth=MAX_REQUEST_DEPTH, strict=True)
     op = obj.get("op")
     if not isinstance(op, str) or not op:
         raise ProtocolError(f"request.op = {op!r}: expected a non-empty string")
@@ -76,7 +76,7 @@ def request_id_of(data: bytes) -> Any:
     if len(data) > MAX_REQUEST_BYTES:
         return None
     try:
-        value = loads_object(data, "request", max_depth=MAX_REQUEST_DEPTH)
+        value = loads_object(data, "request", max_depth=MAX_REQUEST_DEPTH, strict=True)
     except ProtocolError:
         return None
     rid = value.get("id")

@@ -126,7 +126,8 @@ def _bounded_int(text: str) -> int:
     return value
 
 
-_DECODER = json.JSONDecoder(parse_constant=_reject_constant, parse_float=_finite_float, parse_int=_bounded_int)
+_STRICT = json.JSONDecoder(parse_constant=_reject_constant, parse_float=_finite_float, parse_int=_bounded_int)
+_LENIENT = json.JSONDecoder(parse_constant=_reject_constant)
 
 
 def _check_strings(value: Any, what: str) -> None:
@@ -152,12 +153,14 @@ def _check_strings(value: Any, what: str) -> None:
                                     code="bad-args") from None
 
 
-def loads_object(data: bytes, what: str = "frame", *, max_depth: int = MAX_JSON_DEPTH) -> dict[str, Any]:
-    """Parse a UTF-8 JSON object, strictly and within bounds.
+def loads_object(data: bytes, what: str = "frame", *, max_depth: int = MAX_JSON_DEPTH,
+                 strict: bool = False) -> dict[str, Any]:
+    """Parse a UTF-8 JSON object within bounds (and, for what a client sent, strictly).
 
-    Strict: no ``NaN``/``Infinity`` constants, no number that overflows a double, no integer beyond
-    a signed 64-bit one, no lone surrogate in a string. Bounded: nesting deeper than ``max_depth``
-    is refused before parsing (a deep body would otherwise exhaust the interpreter's stack).
+    Always: no ``NaN``/``Infinity`` constants, no lone surrogate in a string, and nesting deeper
+    than ``max_depth`` is refused before parsing (a deep body would otherwise exhaust the
+    interpreter's stack). ``strict`` (control requests): also no number that overflows a double
+    and no integer beyond a signed 64-bit one.
 
     Raises:
         ProtocolError: code ``bad-json`` when it is not UTF-8 JSON, too deep or not an object;
@@ -171,7 +174,7 @@ def loads_object(data: bytes, what: str = "frame", *, max_depth: int = MAX_JSON_
     if depth > max_depth:
         raise ProtocolError(f"{what}: nested {depth} deep; at most {max_depth} levels", code="bad-json")
     try:
-        value = _DECODER.decode(text)
+        value = (_STRICT if strict else _LENIENT).decode(text)
     except ProtocolError as error:
         raise ProtocolError(f"{what}: {error}", code=error.code) from None
     except (ValueError, RecursionError) as error:
