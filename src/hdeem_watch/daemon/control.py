@@ -60,8 +60,33 @@ class OpError(Exception):
         self.code = code
 
 
+def encode_result(request_id: Any, result: Any, op: str) -> bytes:
+    """The success reply of ``result``; an ``internal`` error reply when it cannot be encoded.
+
+    A result that cannot be encoded (a value JSON has no form for, nesting too deep for the
+    encoder) must never cost the client its reply: it gets an error naming the operation instead.
+    """
+    try:
+        return protocol.encode_reply_ok(request_id, result)
+    except (ValueError, TypeError, RecursionError) as error:
+        log.error("the reply of %s cannot be encoded: %s: %s", op, type(error).__name__, error)
+        return protocol.encode_reply_error(request_id, "internal",
+                                           f"the reply of {op} cannot be encoded ({type(error).__name__})")
+
+
 def dispatch(data: bytes, handlers: Mapping[str, Handler], max_bytes: int = protocol.MAX_REQUEST_BYTES) -> bytes | Pending:
-    """Answer one request frame: the reply frame, or a :class:`Pending` from the handler."""
+    """Answer one request frame: the reply frame, or a :class:`Pending` from the handler.
+
+    Never raises: whatever goes wrong becomes an error reply.
+    """
+    try:
+        return _dispatch(data, handlers, max_bytes)
+    except Exception as error:  # a bug in the error path itself: still an answer
+        log.exception("control request failed")
+        return protocol.encode_reply_error(None, "internal", f"{type(error).__name__}")
+
+
+def _dispatch(data: bytes, handlers: Mapping[str, Handler], max_bytes: int) -> bytes | Pending:
     try:
         request = protocol.decode_request(data, max_bytes=max_bytes)
     except protocol.ProtocolError as error:
@@ -75,16 +100,16 @@ def dispatch(data: bytes, handlers: Mapping[str, Handler], max_bytes: int = prot
         if isinstance(result, Pending):
             result.request_id = request.id
             return result
-        return protocol.encode_reply_ok(request.id, result)
+        return encode_result(request.id, result, request.op)
     except OpError as error:
         return protocol.encode_reply_error(request.id, error.code, str(error))
     except protocol.ProtocolError as error:
         return protocol.encode_reply_error(request.id, error.code, str(error))
     except InputError as error:
         return protocol.encode_reply_error(request.id, "bad-args", str(error))
-    except Exception as error:
+    except Exception as error:  # RecursionError included
         log.exception("control op %s failed", request.op)
-        return protocol.encode_reply_error(request.id, "internal", f"{type(error).__name__}: {error}")
+        return protocol.encode_reply_error(request.id, "internal", f"{type(error).__name__}: {error}"[:500])
 
 
 class ControlServer:
@@ -145,7 +170,7 @@ class ControlServer:
             self.errors += 1
             self._send(pending.envelope, protocol.encode_reply_error(pending.request_id, error[0], error[1]))
         else:
-            self._send(pending.envelope, protocol.encode_reply_ok(pending.request_id, result))
+            self._send(pending.envelope, encode_result(pending.request_id, result, pending.op))
 
     def _send(self, envelope: list[bytes], body: bytes) -> None:
         try:

@@ -53,6 +53,7 @@ from hdeem_watch.daemon.requests import (
 from hdeem_watch.daemon.wire import (
     ERROR_CODES,
     MAX_REQUEST_BYTES,
+    MAX_REQUEST_DEPTH,
     ProtocolError,
     dumps,
     jsonable,
@@ -60,7 +61,7 @@ from hdeem_watch.daemon.wire import (
 )
 
 __all__ = [
-    "ERROR_CODES", "KINDS", "MAX_REQUEST_BYTES", "SAMPLE_DTYPE", "TIME_DTYPE", "TOPIC_PREFIX", "VERSION",
+    "ERROR_CODES", "KINDS", "MAX_REQUEST_BYTES", "MAX_REQUEST_DEPTH", "SAMPLE_DTYPE", "TIME_DTYPE", "TOPIC_PREFIX", "VERSION",
     "GapTracker", "Message", "ProtocolError", "Reply", "Request", "SequenceCounter", "decode", "decode_reply",
     "decode_request", "dumps", "encode", "encode_reply_error", "encode_reply_ok", "encode_request",
     "encode_samples", "jsonable", "loads_object", "now_ns", "pack_samples", "parse_topic", "request_id_of",

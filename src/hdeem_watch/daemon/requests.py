@@ -11,12 +11,11 @@ Example:
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from hdeem_watch.daemon.wire import MAX_REQUEST_BYTES, ProtocolError, dumps, loads_object
+from hdeem_watch.daemon.wire import MAX_REQUEST_BYTES, MAX_REQUEST_DEPTH, ProtocolError, dumps, loads_object
 
 
 @dataclass(frozen=True)
@@ -47,12 +46,17 @@ def encode_request(op: str, args: Mapping[str, Any] | None = None, request_id: A
 def decode_request(data: bytes, max_bytes: int = MAX_REQUEST_BYTES) -> Request:
     """Parse a control request frame.
 
+    The body is bounded before it is parsed: size (``max_bytes``), nesting depth
+    (:data:`~hdeem_watch.daemon.wire.MAX_REQUEST_DEPTH`); numbers must be finite doubles or
+    64-bit integers and strings valid Unicode. Whatever passes can be stored and encoded again.
+
     Raises:
-        ProtocolError: ``too-large``, ``bad-json`` or ``bad-request``; its message is one line.
+        ProtocolError: ``too-large``, ``bad-json``, ``bad-request`` or ``bad-args``; its message is
+            one line.
     """
     if len(data) > max_bytes:
         raise ProtocolError(f"request of {len(data)} bytes exceeds the limit of {max_bytes}", code="too-large")
-    obj = loads_object(data, "request")
+    obj = loads_object(data, "request", max_depth=MAX_REQUEST_DEPTH, strict=True)
     op = obj.get("op")
     if not isinstance(op, str) or not op:
         raise ProtocolError(f"request.op = {op!r}: expected a non-empty string")
@@ -72,13 +76,12 @@ def request_id_of(data: bytes) -> Any:
     if len(data) > MAX_REQUEST_BYTES:
         return None
     try:
-        value = json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError):
+        value = loads_object(data, "request", max_depth=MAX_REQUEST_DEPTH, strict=True)
+    except ProtocolError:
         return None
-    if isinstance(value, dict):
-        rid = value.get("id")
-        if isinstance(rid, str | int | float) and not isinstance(rid, bool):
-            return rid
+    rid = value.get("id")
+    if isinstance(rid, str | int | float) and not isinstance(rid, bool):
+        return rid
     return None
 
 

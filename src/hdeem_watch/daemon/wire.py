@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Mapping
 from typing import Any
 
@@ -19,6 +20,15 @@ import numpy as np
 
 #: Largest control request the daemon accepts, in bytes; larger ones get error ``too-large``.
 MAX_REQUEST_BYTES = 64 * 1024
+#: Deepest nesting of arrays and objects in a control request (``{"args": {...}}`` is depth 2);
+#: deeper ones get ``bad-json`` before the parser sees them.
+MAX_REQUEST_DEPTH = 32
+#: Deepest nesting accepted in any JSON frame (stream headers, replies): far below the depth at
+#: which Python's parser or encoder would exhaust the interpreter's stack.
+MAX_JSON_DEPTH = 128
+#: Largest integer magnitude in a request (a signed 64-bit integer: what SQLite and every
+#: client's JSON parser can hold).
+MAX_JSON_INT = 2**63 - 1
 
 #: Error codes of control replies.
 ERROR_CODES = (
@@ -76,16 +86,100 @@ def dumps(value: Any) -> bytes:
     return json.dumps(jsonable(value), separators=(",", ":"), allow_nan=False).encode()
 
 
-def loads_object(data: bytes, what: str = "frame") -> dict[str, Any]:
-    """Parse a UTF-8 JSON object.
+_STRING_LITERAL = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"', re.DOTALL)
+_OPENING = np.frombuffer(b"[{", dtype=np.uint8)
+_CLOSING = np.frombuffer(b"]}", dtype=np.uint8)
+
+
+def nesting_depth(text: str) -> int:
+    """The deepest nesting of arrays and objects in JSON ``text``, without parsing it.
+
+    Brackets inside string literals do not count; in malformed text (an unterminated string) they
+    may, which only overestimates. Linear in the length, no recursion.
+
+    Example:
+        >>> nesting_depth('{"a": [1, {"b": "[[["}]}')
+        3
+    """
+    outside = _STRING_LITERAL.sub("", text).encode("utf-8", "surrogatepass")
+    if not outside:
+        return 0
+    codes = np.frombuffer(outside, dtype=np.uint8)
+    steps = np.isin(codes, _OPENING).astype(np.int32) - np.isin(codes, _CLOSING).astype(np.int32)
+    return int(max(0, np.cumsum(steps).max()))
+
+
+def _reject_constant(name: str) -> Any:
+    raise ProtocolError(f"{name} is not a JSON number (send null for an unknown value)", code="bad-json")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ProtocolError(f"number {text[:40]} is out of range (finite doubles only)", code="bad-args")
+    return value
+
+
+def _bounded_int(text: str) -> int:
+    if len(text.lstrip("-")) > 19 or abs(value := int(text)) > MAX_JSON_INT:
+        raise ProtocolError(f"integer {text[:40]} is out of range (|n| < 2**63)", code="bad-args")
+    return value
+
+
+_STRICT = json.JSONDecoder(parse_constant=_reject_constant, parse_float=_finite_float, parse_int=_bounded_int)
+_LENIENT = json.JSONDecoder(parse_constant=_reject_constant)
+
+
+def _check_strings(value: Any, what: str) -> None:
+    """Every string (and key) in ``value`` is encodable as UTF-8 (no lone surrogates); iterative."""
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, str):
+            strings: Any = (item,)
+        elif isinstance(item, dict):
+            strings = item.keys()
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
+            continue
+        else:
+            continue
+        for text in strings:
+            try:
+                text.encode("utf-8")
+            except UnicodeEncodeError:
+                raise ProtocolError(f"{what}: a string holds a lone UTF-16 surrogate ({text[:40]!a})",
+                                    code="bad-args") from None
+
+
+def loads_object(data: bytes, what: str = "frame", *, max_depth: int = MAX_JSON_DEPTH,
+                 strict: bool = False) -> dict[str, Any]:
+    """Parse a UTF-8 JSON object within bounds (and, for what a client sent, strictly).
+
+    Always: no ``NaN``/``Infinity`` constants, no lone surrogate in a string, and nesting deeper
+    than ``max_depth`` is refused before parsing (a deep body would otherwise exhaust the
+    interpreter's stack). ``strict`` (control requests): also no number that overflows a double
+    and no integer beyond a signed 64-bit one.
 
     Raises:
-        ProtocolError: code ``bad-json`` when it is not UTF-8 JSON or not an object.
+        ProtocolError: code ``bad-json`` when it is not UTF-8 JSON, too deep or not an object;
+            ``bad-args`` for a number out of range or a lone surrogate.
     """
     try:
-        value = json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as error:
-        raise ProtocolError(f"{what}: not UTF-8 JSON ({error})", code="bad-json") from None
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise ProtocolError(f"{what}: not UTF-8 ({error})", code="bad-json") from None
+    depth = nesting_depth(text)
+    if depth > max_depth:
+        raise ProtocolError(f"{what}: nested {depth} deep; at most {max_depth} levels", code="bad-json")
+    try:
+        value = (_STRICT if strict else _LENIENT).decode(text)
+    except ProtocolError as error:
+        raise ProtocolError(f"{what}: {error}", code=error.code) from None
+    except (ValueError, RecursionError) as error:
+        raise ProtocolError(f"{what}: not JSON ({error})", code="bad-json") from None
     if not isinstance(value, dict):
         raise ProtocolError(f"{what}: expected a JSON object, got {type(value).__name__}", code="bad-json")
+    _check_strings(value, what)
     return value
