@@ -38,15 +38,15 @@ def test_unknown_sections_and_fields_preserved(reference_memspec_json, tmp_path:
     data = reference_memspec_json
     data["memspec"]["vendorNotes"] = {"lot": "A17", "tested": True}
     data["memspec"]["mempowerspec"]["iddX_custom"] = 0.5
-    spec = parse_memspec(data, "x.json").with_currents({"idd0": 0.04, "idd3n": 0.03})
+    spec = parse_memspec(data, "x.json").with_currents({"idd0": 0.05, "idd3n": 0.04})
     save_memspec(spec, tmp_path / "cal.json")
     back = json.loads((tmp_path / "cal.json").read_text())["memspec"]
     assert back["vendorNotes"] == {"lot": "A17", "tested": True}
     assert back["mempowerspec"]["iddX_custom"] == 0.5
-    assert back["mempowerspec"]["idd0"] == 0.04 and back["mempowerspec"]["idd3n"] == 0.03
+    assert back["mempowerspec"]["idd0"] == 0.05 and back["mempowerspec"]["idd3n"] == 0.04
     assert back["mempowerspec"]["idd2n"] == data["memspec"]["mempowerspec"]["idd2n"]
     assert "iBeta_vdd" not in back["mempowerspec"]  # not invented when the source had none
-    assert load_memspec(tmp_path / "cal.json").currents["idd0"] == 0.04
+    assert load_memspec(tmp_path / "cal.json").currents["idd0"] == 0.05
 
 
 def _error(data: dict, where: str = "bad.json") -> str:
@@ -101,6 +101,7 @@ def test_refresh_mode_currents_required_when_selected(reference_memspec_json) ->
     """RefMode 2 uses RFC2 and idd5F2/ipp5F2, which must then be present."""
     data = reference_memspec_json
     data["memspec"]["memarchitecturespec"]["RefMode"] = 2
+    data["memspec"]["mempowerspec"]["idd5F2"] = 0.080  # the selected refresh current must be physical
     spec = parse_memspec(data, "x")
     assert spec.trfc == 171 and spec.refresh_currents == ("idd5f2", "ipp5f2")
     del data["memspec"]["mempowerspec"]["idd5F2"]
@@ -139,9 +140,7 @@ def test_presets(drampower_ref: Path) -> None:
     gbit = samsung.nbr_of_banks * samsung.nbr_of_rows * samsung.nbr_of_columns * samsung.width / 2**30
     assert gbit == 4
     assert (samsung.timings["RCD"], samsung.timings["RP"], samsung.timings["RL"]) == (15, 15, 15)
-    # per device = module datasheet figure / 18 dies (DESIGN.md section 4)
-    assert samsung.currents["idd0"] * 18 == pytest.approx(1.120)
-    assert samsung.currents["idd4w"] * 18 == pytest.approx(1.590)
+    # per device: see test_samsung_preset_follows_the_module_definition
     with pytest.raises(InputError, match="unknown memspec preset"):
         preset("ddr3-1600")
 
@@ -153,3 +152,70 @@ def test_hashable_and_equal_by_value() -> None:
     cal = a.with_currents({"idd0": 0.03})
     assert cal != a
     assert len({a, b, cal}) == 2
+
+
+# --- physical check (issue 15) -------------------------------------------------------------------
+
+def test_presets_are_physical() -> None:
+    """Every preset passes the physical check (it is applied on load, so loading is the test)."""
+    from hdeem_watch.dram.memspec_check import physical_violations
+    from hdeem_watch.dram.presets import PRESETS
+
+    for name in PRESETS:
+        assert physical_violations(preset(name)) == [], name
+
+
+def test_samsung_preset_follows_the_module_definition() -> None:
+    """Per device = module figure by the dual-rank module definition (DIMM docstring), not module / 18."""
+    samsung = preset("samsung-m393a1g43db0-cpb")
+    cur = samsung.currents
+    # standby figures: all 18 dies in the state
+    assert cur["idd2n"] * 18 == pytest.approx(1.040) and cur["idd3n"] * 18 == pytest.approx(1.540)
+    # operating figures: one rank (9 dies) in the state, the other rank in IDD2P
+    for name, module in (("idd0", 1.120), ("idd4r", 1.750), ("idd4w", 1.590)):
+        assert 9 * cur[name] + 9 * cur["idd2p"] == pytest.approx(module), name
+    assert cur["idd0"] > cur["idd3n"] > cur["idd2n"]
+
+
+@pytest.mark.parametrize(("changes", "expect"), [
+    ({"idd0": 0.040}, "activation: IDD0 40 mA < I1 41.75 mA"),
+    ({"idd0": 0.040}, "ACT+PRE: IDD0 40 mA < the tRAS/tRC mix of IDD3N and IDD2N"),
+    ({"idd4r": 0.030}, "read: IDD4R 30 mA < IDD3N 41.75 mA"),
+    ({"idd4w": 0.030}, "write: IDD4W 30 mA < IDD3N 41.75 mA"),
+    ({"idd5B": 0.030}, "refresh: IDD5B 30 mA < IDD3N 41.75 mA"),
+    ({"idd2n": 0.050}, "background: IDD3N 41.75 mA < IDD2N 50 mA"),
+    ({"idd2p": 0.040}, "power-down: IDD2P 40 mA > IDD2N 36 mA"),
+    ({"idd3p": 0.050}, "power-down: IDD3P 50 mA > IDD3N 41.75 mA"),
+    ({"ipp4r": 0.001, "ipp3n": 0.002}, "read: IPP4R 1 mA < IPP3N 2 mA"),
+])
+def test_unphysical_currents_named(reference_memspec_json, changes: dict, expect: str) -> None:  # type: ignore[no-untyped-def]
+    """A current order that makes a command's energy negative is an error naming the currents."""
+    reference_memspec_json["memspec"]["mempowerspec"].update(changes)
+    message = _error(reference_memspec_json)
+    assert "unphysical currents" in message and expect in message
+    assert "allow_unphysical" in message
+
+
+def test_allow_unphysical_loads_a_raw_fit(reference_memspec_json, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """allow_unphysical loads the same file (for studying a fit's raw output) in every loader."""
+    from hdeem_watch.dram.memspec import memspec_from
+
+    reference_memspec_json["memspec"]["mempowerspec"]["idd0"] = 0.030
+    path = tmp_path / "fit.json"
+    path.write_text(json.dumps(reference_memspec_json))
+    with pytest.raises(InputError, match="activation"):
+        load_memspec(path)
+    with pytest.raises(InputError, match="activation"):
+        memspec_from(str(path))
+    assert load_memspec(path, allow_unphysical=True).currents["idd0"] == 0.030
+    assert memspec_from(str(path), allow_unphysical=True).currents["idd0"] == 0.030
+    assert parse_memspec(reference_memspec_json, "x", allow_unphysical=True).currents["idd0"] == 0.030
+
+
+def test_explicit_beta_and_rho_enter_the_check(reference_memspec_json) -> None:  # type: ignore[no-untyped-def]
+    """With an explicit iBeta below IDD2N the precharge energy is negative: named by iBeta."""
+    power = reference_memspec_json["memspec"]["mempowerspec"]
+    power["iBeta_vdd"] = 0.020
+    reference_memspec_json["memspec"]["bankwisespec"] = {"factRho": 0.5}
+    message = _error(reference_memspec_json)
+    assert "precharge: ibeta_vdd 20 mA < IDD2N 36 mA" in message

@@ -216,15 +216,18 @@ def _int_field(section: Mapping[str, Any], key: str, where: str, *, positive: bo
     return int(value)
 
 
-def parse_memspec(data: Any, where: str = "memspec") -> MemSpec:
+def parse_memspec(data: Any, where: str = "memspec", *, allow_unphysical: bool = False) -> MemSpec:
     """Validate a parsed DRAMPower DDR4 memspec JSON tree.
 
     Args:
         data: the parsed JSON (``{"memspec": {...}}``; a bare inner object is accepted too).
         where: the file name (or other origin) used in error messages.
+        allow_unphysical: skip the physical check (:mod:`hdeem_watch.dram.memspec_check`: every
+            per-command energy >= 0), e.g. to study a fit's raw output.
 
     Raises:
-        InputError: one line naming ``where``, the field and what was wrong.
+        InputError: one line naming ``where``, the field and what was wrong, or the currents that
+            make a command's energy negative.
     """
     if isinstance(data, Mapping) and "memspec" in data:
         spec = data["memspec"]
@@ -305,13 +308,23 @@ def parse_memspec(data: Any, where: str = "memspec") -> MemSpec:
         if name in spec and not isinstance(spec[name], Mapping):
             raise InputError(f"{where}: memspec.{name}: expected an object")
 
-    return MemSpec(memory_id=memory_id, memory_type=memory_type, tck_s=float(tck), timings=timings,
-                   currents=currents, fact_rho=fact_rho, _raw=raw, _current_keys=current_keys,
-                   **volts, **values)
+    spec_out = MemSpec(memory_id=memory_id, memory_type=memory_type, tck_s=float(tck), timings=timings,
+                       currents=currents, fact_rho=fact_rho, _raw=raw, _current_keys=current_keys,
+                       **volts, **values)
+    if not allow_unphysical:
+        from hdeem_watch.dram.memspec_check import check_physical
+
+        check_physical(spec_out, where)
+    return spec_out
 
 
-def load_memspec(path: str | Path) -> MemSpec:
+def load_memspec(path: str | Path, *, allow_unphysical: bool = False) -> MemSpec:
     """Read and validate a DRAMPower DDR4 memspec file.
+
+    Args:
+        path: the JSON file.
+        allow_unphysical: load currents that give a negative per-command energy (see
+            :func:`parse_memspec`).
 
     Raises:
         InputError: unreadable file, invalid JSON, or an invalid field (named, one line).
@@ -327,7 +340,7 @@ def load_memspec(path: str | Path) -> MemSpec:
         data = json.loads(text)
     except json.JSONDecodeError as error:
         raise InputError(f"{path}: invalid JSON at line {error.lineno} column {error.colno}: {error.msg}") from None
-    return parse_memspec(data, where=str(path))
+    return parse_memspec(data, where=str(path), allow_unphysical=allow_unphysical)
 
 
 def save_memspec(spec: MemSpec, path: str | Path) -> None:
@@ -339,7 +352,7 @@ def preset(name: str) -> MemSpec:
     """A built-in memspec by name (see :mod:`hdeem_watch.dram.presets` for the sources of each value).
 
     Args:
-        name: ``"ddr4-2133-x8-4gb"`` or ``"samsung-m393a1g43db0-cpb"``.
+        name: a key of :data:`hdeem_watch.dram.presets.PRESETS`, e.g. ``"samsung-m393a1g43db0-cpb"``.
 
     Raises:
         InputError: an unknown name.
@@ -351,20 +364,25 @@ def preset(name: str) -> MemSpec:
     return load_memspec(preset_path(name))
 
 
-def memspec_from(value: str | Path) -> MemSpec:
+def memspec_from(value: str | Path, *, allow_unphysical: bool = False) -> MemSpec:
     """A memspec named the way users name one: an existing file, else a preset by that name.
 
     A value that is neither an existing file nor a preset name is read as a file when it looks like
     a path (``.json`` or a directory part) and as a preset otherwise, so the error names the right
     thing (the missing file, or the known presets).
 
+    Args:
+        value: a file path or a preset name.
+        allow_unphysical: load a file whose currents give a negative per-command energy (presets
+            are always physical).
+
     Raises:
-        InputError: a missing or malformed file, or an unknown preset.
+        InputError: a missing, malformed or unphysical file, or an unknown preset.
     """
     from hdeem_watch.dram.presets import PRESETS
 
     path = Path(value)
     text = str(value)
     if path.exists() or (text not in PRESETS and (text.endswith(".json") or len(path.parts) > 1)):
-        return load_memspec(path)
+        return load_memspec(path, allow_unphysical=allow_unphysical)
     return preset(text)

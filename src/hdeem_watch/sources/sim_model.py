@@ -38,6 +38,7 @@ import numpy as np
 
 from hdeem_watch.dram.node import HASWELL_EP, lines_of, node_capacity_lines_s, node_run_stats
 from hdeem_watch.dram.stats import CommandStats, RankStats
+from hdeem_watch.sources.sim_currents import truth_parts
 
 #: DIMM names, in channel order (A..H), and the HDEEM pair channel and socket of each.
 DIMMS = ("A", "B", "C", "D", "E", "F", "G", "H")
@@ -257,9 +258,11 @@ class TruthModel:
     Ratios: a base ratio per current drawn in [0.35, 0.70] (the seed paper's calibrated/datasheet
     ratios for this module are 0.35–0.58, VAMPIRE's for DDR3 0.43–0.83; the demo shows the ~1.5–2×
     overestimate of the datasheet model), times a per-DIMM factor in [0.90, 1.10],
-    clipped to [0.35, 0.85]. Drift: every current × (1 + ``aging_per_h`` × hours since open);
-    temperature of DIMM d, T = 40 °C + ``temp_amp_c`` × sin(2π t / 1 h + φ_d), background currents
-    × (1 + 0.5 %/K (T − 40)), the others × (1 + 0.1 %/K (T − 40)).
+    clipped to [0.35, 0.85]; the ratios scale the datasheet's increments so the truth keeps its
+    physical order (:func:`hdeem_watch.sources.sim_currents.truth_parts`). Drift: every current ×
+    (1 + ``aging_per_h`` × hours since open); temperature of DIMM d, T = 40 °C + ``temp_amp_c`` ×
+    sin(2π t / 1 h + φ_d): background currents and the standby floor of command currents
+    × (1 + 0.5 %/K (T − 40)), the command increments × (1 + 0.1 %/K (T − 40)).
     """
 
     def __init__(self, names: tuple[str, ...], datasheet: np.ndarray, seed: int, *,
@@ -273,9 +276,7 @@ class TruthModel:
         self.phase = rng.uniform(0.0, 2 * math.pi, size=len(DIMMS))
         self.aging_per_h = aging_per_h
         self.temp_amp_c = temp_amp_c
-        self.tempco = np.array([0.005 if n in _BACKGROUND else 0.001 for n in names])
-        self._rated = self.datasheet[None, :] * self.ratio  # the first product of currents(), once
-        self._tempco_col = self.tempco[None, :]
+        self._floor, self._increment = truth_parts(names, self.datasheet, self.ratio, _BACKGROUND)
 
     def temperature_c(self, t_s: float) -> np.ndarray:
         """DIMM temperatures (°C) at ``t_s`` seconds of sim time."""
@@ -284,8 +285,8 @@ class TruthModel:
     def currents(self, t_s: float) -> np.ndarray:
         """True currents (A per device), shape (8 DIMMs, len(names)), at ``t_s`` seconds of sim time."""
         aging = 1.0 + self.aging_per_h * t_s / 3600.0
-        temp = 1.0 + self._tempco_col * (self.temperature_c(t_s) - 40.0)[:, None]
-        return self._rated * aging * temp
+        warm = (self.temperature_c(t_s) - 40.0)[:, None]
+        return (self._floor * (1.0 + 0.005 * warm) + self._increment * (1.0 + 0.001 * warm)) * aging
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,11 @@
 """Built-in DDR4 memspecs (DRAMPower JSON files in this directory) and where each number comes from.
 
+Every preset describes one channel of dual-rank x8 modules with 9 devices per rank (2Rx8 ECC RDIMM,
+the common HPC configuration) unless said otherwise; :func:`hdeem_watch.node.memspec_choice.for_dimm`
+re-shapes a preset to the ranks and devices of a detected DIMM. Every preset passes the physical
+check of :mod:`hdeem_watch.dram.memspec_check` (every per-command energy >= 0). Currents are
+amperes per device, as DRAMPower wants them.
+
 ``ddr4-2133-x8-4gb`` (``ddr4-2133-x8-4gb.json``)
     A byte-for-byte copy of ``reference/drampower/memspecs/ddr4_2133_x8_2r_8dev.json``, the device
     the DRAMPower v6.2 reference outputs were computed with: DDR4-2133 (tCK 0.9375 ns, 15-15-15,
@@ -8,38 +14,121 @@
     the Micron 4 Gb x8 rev-A DDR4-1866 and DDR4-2400 memspecs that DRAMPower 4.1 shipped (IDD0 58.5,
     IDD2N 36.0, IDD3N 41.75, IDD4R 171.0, IDD4W 151.875, IDD5B 118, IDD6N 20.25, IDD2P 17,
     IDD3P 22.5, IPP0 4.05, IPP6N 2.6 mA, other IPP 0); VDD 1.2, VPP 2.5, VDDQ 1.2 V. Interface
-    impedances are DRAMPower's test placeholders (1 MOhm, 1 pJ), not a real board.
+    impedances are DRAMPower's test placeholders (1 MOhm, 1 pJ), not a real board. An interpolation,
+    not a datasheet: kept as the DRAMPower reference device.
 
 ``samsung-m393a1g43db0-cpb`` (``samsung-m393a1g43db0-cpb.json``)
     Samsung M393A1G43DB0-CPB, 8 GB DDR4-2133P (15-15-15) registered ECC DIMM, 2 ranks x 9 x8 4 Gb
-    dies (8 data + 1 ECC per rank), as on the Haswell-EP nodes (Taurus) of the seed paper.
+    D-die (K4A4G085WD) devices, as on the Haswell-EP nodes (Taurus) of the seed paper.
 
-    - Geometry (2 ranks, 9 devices per rank, x8, 16 banks in 4 groups, 32768 x 1024, BL8, DDR):
-      the module's organisation (1G x 72, 2Rx8, 4 Gb dies) and the JEDEC DDR4 4 Gb x8 addressing.
-    - Timings: identical to ``ddr4-2133-x8-4gb`` (DDR4-2133P: tCK 0.9375 ns, CL-RCD-RP 15-15-15,
-      RAS 36 = 33 ns, RC 51, RFC1 278 = 260 ns for 4 Gb, REFI 8320 = 7.8 us), i.e. the JEDEC
-      DDR4-2133P speed bin; no module-specific timing was used.
-    - IDD0, IDD2N, IDD3N, IDD4R, IDD4W: the module datasheet figures quoted second-hand in
-      DESIGN.md section 4 (per module: 1120, 1040, 1540, 1750, 1590 mA), converted to per device by
-      dividing by the 18 dies of the module (2 ranks x 9): per device = module / 18, e.g. IDD0
-      1120 / 18 = 62.2 mA. This assumes every die is in the measured state and attributes the
-      register/PLL (RCD) current to the dies, so these figures are upper bounds on the dies' own
-      currents; that is also what the seed paper calibrated against (its calibrated / datasheet
-      ratios are 0.35-0.58).
+    - Geometry and timings: the module's organisation (1G x 72, 2Rx8, 4 Gb dies) with the JEDEC
+      4 Gb x8 addressing and the DDR4-2133P speed bin, identical to ``ddr4-2133-x8-4gb``.
+    - Module figures used (Samsung module datasheet, quoted second-hand in DESIGN.md section 4):
+      IDD0 1120, IDD2N 1040, IDD3N 1540, IDD4R 1750, IDD4W 1590 mA per module.
+    - Conversion to per device: Samsung's own definition of which rank is in which state was not
+      found in a public source, nor the K4A4G085WD die's IDD table. We therefore apply the definition
+      Micron prints for its DDR4 dual-rank modules whose figures are "computed from values specified
+      in the component data sheet" (e.g. MTA18ASF2G72HZ, asf18c2gx72hz.pdf Rev. F, Table 15 notes:
+      operating currents IDD0/IDD4R/IDD4W/IDD5B = "one module rank in the active IDD, the other rank
+      in IDD2P"; standby currents IDD2N/IDD3N/IDD2P/IDD3P/IDD6N = "all ranks in this condition"),
+      and no register (RCD) share, since such computed figures contain none:
+      IDD2N = 1040 / 18 = 57.78, IDD3N = 1540 / 18 = 85.56,
+      IDD0 = 1120 / 9 - IDD2P = 107.44, IDD4R = 1750 / 9 - IDD2P = 177.44,
+      IDD4W = 1590 / 9 - IDD2P = 159.67 mA, with IDD2P = 17 mA (the reference device's, below).
+      Were the RCD's current part of the module figures, every per-device current would be lower
+      by RCD / 18 (standby) resp. RCD / 9 (operating); the calibration absorbs such a shift.
+      The former conversion (every figure / 18) put IDD0 (62.2) below IDD3N (85.6): a negative
+      activation energy.
     - IDD5B, IDD6N, IDD2P, IDD3P, every IPP, VDD/VPP/VDDQ and the interface section: no public
       per-device figure for this module was available to us, so the reference device's values
-      (``ddr4-2133-x8-4gb``, above) are used unchanged.
+      (``ddr4-2133-x8-4gb``) are used unchanged.
+
+``micron-4gb-x8-ddr4-2400-a`` (``micron-4gb-x8-ddr4-2400-a.json``)
+    Micron 4 Gb x8 die revision A (MT40A512M8), DDR4-2400, as DRAMPower's memspec
+    ``MICRON_4Gb_DDR4-2400_8bit_A`` gives it (tukl-msd/DRAMPower ``memspecs/``; Micron 4Gb DDR4
+    datasheet): tCK 0.833 ns, RCD = RP = RL = 16, RAS 39, RC 55, RFC1/2/4 313/192/132 (260/160/110
+    ns), FAW 26, RRD_S/L 4/6, CCD_S/L 4/6, WTR_S/L 3/9, WR 18, RTP 12, WL 16; IDD0 60.75, IPP0 4.05,
+    IDD2N 38.25, IDD2P 17, IDD3N 44, IDD3P 22.5, IDD4R 184.5, IDD4W 168.75, IDD5B 118, IDD6N 20.25,
+    IPP6N 2.6 mA; IPPs the file does not give are 0. One change: REFI 9360 cycles = 7.8 us, the
+    JEDEC interval for 0-85 C (the file has 4680 = 3.9 us, the extended-temperature rate).
+
+``micron-8gb-x8-ddr4-2400-b`` (``micron-8gb-x8-ddr4-2400-b.json``)
+    Micron 8 Gb x8 die revision B (MT40A1G8), DDR4-2400. Currents: Micron's MTA18ASF2G72HZ
+    (16 GB 2Rx8 ECC, 18 of these dies) datasheet asf18c2gx72hz.pdf Rev. F, Table 15, converted back
+    to per device by the table's own notes (see the Samsung entry): IDD2N 612/18 = 34, IDD2P
+    450/18 = 25, IDD3N 774/18 = 43, IDD3P 666/18 = 37, IDD6N 540/18 = 30, IPP3N 54/18 = 3,
+    IDD0 = 657/9 - 25 = 48, IDD4R = 1440/9 - 25 = 135, IDD4W = 1332/9 - 25 = 123,
+    IDD5B = 2475/9 - 25 = 250, IPP0 = 54/9 - 3 = 3, IPP5B = 279/9 - 3 = 28 mA. The other IPPs
+    (IPP2N, IPP2P, IPP3P, IPP4R, IPP4W, IPP6N) are set to IPP3N = 3 mA: Micron's 8 Gb datasheet
+    states the IPP3N limit applies to all IDD2x, IDD3x, IDD4x (and, in the 16 Gb one, IDD6x)
+    conditions. Timings: the DDR4-2400 speed bin of the 4 Gb preset above (the module's Table 1:
+    tRCD = tRP = 13.32 ns, tRC 45.32 ns), with the 8 Gb refresh times tRFC1/2/4 = 350/260/160 ns
+    (420/312/192 cycles) and XS = tRFC1 + 10 ns = 432.
+
+``micron-8gb-x8-ddr4-3200-g`` (``micron-8gb-x8-ddr4-3200-g.json``)
+    Micron 8 Gb x8 die revision G (MT40A1G8, -062E, DDR4-3200AA), as DRAMPower's memspec
+    ``MICRON_8Gb_DDR4-3200_8bit_G.xml`` gives it (datasheet ``8gb_ddr4_sdram.pdf``): tCK 0.625 ns,
+    RCD = RP = RL = 22, RAS 52, RC 74, RFC1 560 (350 ns), REFI 12480 (7.8 us), FAW 34, RRD_S/L 4/8,
+    CCD_S/L 4/8, WTR_S/L 4/12, WR 24, RTP 12, WL 16, XS 576, XSDLL 1024, CKE 8, CKESR 9; IDD0 57,
+    IPP0 3, IDD2N 37, IDD2P 25, IDD3N 56, IPP3N 3, IDD3P 43, IDD4R 168, IDD4W 155, IDD6N 31,
+    IPP6N 5 mA; the file's ``idd5`` 66 mA / ``idd52`` 5 mA are used as IDD5B / IPP5B (the file does
+    not say whether they are the burst IDD5B or the distributed IDD5R: refresh energy may be low).
+    RFC2/RFC4 = 260/160 ns (416/256 cycles, the JEDEC 8 Gb values; unused with RefMode 1). IPP2N,
+    IPP2P, IPP3P, IPP4R, IPP4W = IPP3N (the datasheet's IPP3N note, see above).
+
+Not (yet) in the library, for want of a public per-die table we could read: DDR4-2666 and
+DDR4-2933 bins, x4 dies, 16 Gb dies. Bring your own (``--memspec FILE``; docs/your-node.md).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
-#: Preset name -> file name in this directory.
-PRESETS: dict[str, str] = {
-    "ddr4-2133-x8-4gb": "ddr4-2133-x8-4gb.json",
-    "samsung-m393a1g43db0-cpb": "samsung-m393a1g43db0-cpb.json",
+
+@dataclass(frozen=True)
+class PresetInfo:
+    """What a preset describes, for choosing one for a DIMM.
+
+    Attributes:
+        file: the JSON file in this directory.
+        speed_mts: data rate (MT/s).
+        die_gbit: die density (Gbit).
+        width: device data width (4, 8 or 16).
+        vendor: die (or module) manufacturer.
+        die: die name and revision.
+        source: the datasheet the currents come from (one line).
+    """
+
+    file: str
+    speed_mts: int
+    die_gbit: int
+    width: int
+    vendor: str
+    die: str
+    source: str
+
+
+#: Preset name -> what it describes.
+PRESET_INFO: dict[str, PresetInfo] = {
+    "ddr4-2133-x8-4gb": PresetInfo("ddr4-2133-x8-4gb.json", 2133, 4, 8, "Micron", "4Gb x8 rev A (interpolated)",
+                                   "DRAMPower 4.1 Micron 4Gb x8 rev A 1866/2400 memspecs, mid-point"),
+    "samsung-m393a1g43db0-cpb": PresetInfo("samsung-m393a1g43db0-cpb.json", 2133, 4, 8, "Samsung",
+                                           "K4A4G085WD (4Gb x8 D-die)",
+                                           "Samsung M393A1G43DB0 module IDDs, Micron's dual-rank module definition"),
+    "micron-4gb-x8-ddr4-2400-a": PresetInfo("micron-4gb-x8-ddr4-2400-a.json", 2400, 4, 8, "Micron",
+                                            "MT40A512M8 (4Gb x8 rev A)",
+                                            "DRAMPower memspec MICRON_4Gb_DDR4-2400_8bit_A"),
+    "micron-8gb-x8-ddr4-2400-b": PresetInfo("micron-8gb-x8-ddr4-2400-b.json", 2400, 8, 8, "Micron",
+                                            "MT40A1G8 (8Gb x8 rev B)",
+                                            "Micron MTA18ASF2G72HZ datasheet Rev. F, Table 15"),
+    "micron-8gb-x8-ddr4-3200-g": PresetInfo("micron-8gb-x8-ddr4-3200-g.json", 3200, 8, 8, "Micron",
+                                            "MT40A1G8 (8Gb x8 rev G)",
+                                            "DRAMPower memspec MICRON_8Gb_DDR4-3200_8bit_G (8gb_ddr4_sdram.pdf)"),
 }
+
+#: Preset name -> file name in this directory.
+PRESETS: dict[str, str] = {name: info.file for name, info in PRESET_INFO.items()}
 
 
 def preset_path(name: str) -> Path:
