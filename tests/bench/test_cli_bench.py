@@ -274,6 +274,7 @@ def test_not_an_endpoint_is_bad_input() -> None:
     assert len(lines) == 1 and "--daemon 'nonsense'" in lines[0] and "ipc://" in lines[0]
 
 
+@pytest.mark.slow
 def test_a_run_refused_while_another_is_open_is_retried(tmp_path: Path) -> None:
     """A run.start answered 'conflict' (another run open on the daemon) is asked again about every
     second; once the daemon accepts, the run is announced as usual and the exit code is 0."""
@@ -293,6 +294,7 @@ def test_a_run_refused_while_another_is_open_is_retried(tmp_path: Path) -> None:
     assert len(waiting) == 1 and "waiting up to 30 s" in waiting[0]
 
 
+@pytest.mark.slow
 def test_a_run_still_refused_after_the_wait_exits_1(tmp_path: Path) -> None:
     """If the daemon still refuses after --wait seconds, the sweep stops there with one error line
     and exit code 1 (a batch script can tell), instead of finishing without energies."""

@@ -81,6 +81,7 @@ def test_runs_are_announced_to_a_real_daemon(daemon: str) -> None:
     assert [by_id[r["run_id"]]["kernel"] for r in records] == ["triad", "idle"]
 
 
+@pytest.mark.slow
 def test_bench_waits_for_a_run_open_on_a_real_daemon(daemon: str) -> None:
     """While another client's run is open the real daemon refuses run.start (conflict): the bench
     waits and retries; with too short a wait it exits 1 with one error line; once the other run
