@@ -31,7 +31,6 @@ DOCUMENTS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")), REPO / "
 SKIP = {
     "hdeem-watch daemon --source hdeem": "needs HDEEM hardware (libhdeem on a Bull/Atos node)",
     "hdeem-watch daemon --config /etc/": "the node's installed configuration (source hdeem)",
-    "hdeem-watch daemon --source replay --replay-file rec.csv": "needs a recording made with --record",
     "hdeem-watch daemon --gen-keys /etc/": "writes server keys into /etc",
     "hdeem-watch daemon --pub tcp://0.0.0.0:": "fixed TCP ports and CURVE keys in /etc",
     "hdeem-watch tui --connect tcp://node7:": "needs the cluster nodes node7 and node8",
