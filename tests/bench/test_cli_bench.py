@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import subprocess
@@ -16,7 +17,7 @@ import pytest
 import zmq
 
 SRC = Path(__file__).resolve().parents[2] / "src"
-REQUIRED = ("kernel", "threads", "elements", "seconds", "lines_per_s", "dram_bytes_per_s")
+REQUIRED = ("kernel", "threads", "elements", "seconds", "lines_per_s", "dram_bytes_per_s", "stream_bytes_per_s")
 
 
 def bench(*args: str, cpus: set[int] | None = None, timeout: float = 60) -> subprocess.CompletedProcess[str]:
@@ -50,6 +51,9 @@ def test_json_lines_one_object_per_run() -> None:
         assert record["seconds"] > 0
         moved = (record["lines_read_per_pass"] + record["lines_written_per_pass"]) * 64 * 2
         assert record["dram_bytes_per_s"] == pytest.approx(moved / record["seconds"])
+        # STREAM's convention: each array read or written once per element (add: 3 lines), no write-allocate
+        stream_lines = {"read": 1, "add": 3, "idle": 0}[record["kernel"]]
+        assert record["stream_bytes_per_s"] == pytest.approx(stream_lines * 8192 * 64 * 2 / record["seconds"])
         assert record["t_end_ns"] >= record["t_start_ns"]
         assert len(record["cpus"]) == record["threads"]
     add = records[n_threads]
@@ -64,7 +68,12 @@ def test_table_without_json() -> None:
     assert proc.returncode == 0, proc.stderr
     rows = proc.stdout.splitlines()
     assert rows[0].split()[:3] == ["kernel", "threads", "elements"]
-    assert [row.split()[0] for row in rows[1:]] == ["copy", "triad"]
+    assert [row.split()[0] for row in rows[1:3]] == ["copy", "triad"]
+    assert "DRAM GB/s" in rows[0] and "STREAM GB/s" in rows[0]
+    assert rows[3].startswith("DRAM GB/s: what moves, write-allocate") and "STREAM GB/s: STREAM's count" in rows[3]
+    dram, stream = map(float, rows[1].split()[6:8])  # kernel threads elements repeat seconds Mlines/s DRAM STREAM
+    # copy moves 3 lines per element (read a, write-allocate b, write b); STREAM counts 2
+    assert dram == pytest.approx(1.5 * stream, abs=0.02)
     assert "last-level cache" in proc.stderr  # 64 KiB arrays: the LLC warning
 
 
@@ -112,9 +121,10 @@ def test_respects_the_cpus_it_was_given() -> None:
 class FakeRouter:
     """A real ROUTER socket answering the control protocol, recording each request with its time."""
 
-    def __init__(self, endpoint: str, fail_start_after: int | None = None) -> None:
+    def __init__(self, endpoint: str, fail_start_after: int | None = None, conflicts: int = 0) -> None:
         self.endpoint = endpoint
         self.fail_start_after = fail_start_after
+        self.conflicts = conflicts  # refuse this many run.start with "conflict" (another run open)
         self.requests: list[tuple[int, dict[str, Any]]] = []
         self._stop = threading.Event()
         self._ready = threading.Event()
@@ -138,6 +148,12 @@ class FakeRouter:
             op = request["op"]
             if op == "status":
                 result: Any = {"node": "fake", "endpoints": {}, "source": {}, "channels": {}}
+            elif op == "run.start" and self.conflicts > 0:
+                self.conflicts -= 1
+                reply = {"id": request["id"], "ok": False,
+                         "error": {"code": "conflict", "message": "run 7 is in progress; stop it first"}}
+                sock.send_multipart([*frames[:-1], json.dumps(reply).encode()])
+                continue
             elif op == "run.start":
                 runs += 1
                 if self.fail_start_after is not None and runs > self.fail_start_after:
@@ -247,3 +263,51 @@ def test_daemon_failing_mid_sweep_warns_once_and_finishes(tmp_path: Path) -> Non
     assert [r["op"] for _, r in server.requests] == ["status", "run.start", "run.stop", "run.start"]
     warnings = [line for line in proc.stderr.splitlines() if "run.start failed" in line]
     assert len(warnings) == 1 and "busy" in warnings[0] and "not announced" in warnings[0]
+
+
+def test_not_an_endpoint_is_bad_input() -> None:
+    """--daemon with something that is no ZeroMQ endpoint exits 2 with one line naming it (it used
+    to end in a ZMQError traceback)."""
+    proc = bench("--kernels", "read", "--elements", "4096", "--daemon", "nonsense", "--json")
+    assert proc.returncode == 2 and proc.stdout == ""
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--daemon 'nonsense'" in lines[0] and "ipc://" in lines[0]
+
+
+@pytest.mark.slow
+def test_a_run_refused_while_another_is_open_is_retried(tmp_path: Path) -> None:
+    """A run.start answered 'conflict' (another run open on the daemon) is asked again about every
+    second; once the daemon accepts, the run is announced as usual and the exit code is 0."""
+    server = FakeRouter(f"ipc://{tmp_path / 'control.sock'}", conflicts=2)
+    try:
+        proc = bench("--kernels", "read", "--threads", "1", "--elements", "8192", "--repeat", "1",
+                     "--daemon", server.endpoint, "--wait", "30", "--json")
+    finally:
+        server.close()
+    assert proc.returncode == 0, proc.stderr
+    (record,) = [json.loads(line) for line in proc.stdout.splitlines()]
+    assert record["run_id"] == "r1" and record["daemon"]["energy_j"] == {"DDR_AB": 1.5}
+    starts = [t for t, r in server.requests if r["op"] == "run.start"]
+    assert len(starts) == 3
+    assert all(later - earlier >= 0.9e9 for earlier, later in itertools.pairwise(starts))
+    waiting = [line for line in proc.stderr.splitlines() if "another run open" in line]
+    assert len(waiting) == 1 and "waiting up to 30 s" in waiting[0]
+
+
+@pytest.mark.slow
+def test_a_run_still_refused_after_the_wait_exits_1(tmp_path: Path) -> None:
+    """If the daemon still refuses after --wait seconds, the sweep stops there with one error line
+    and exit code 1 (a batch script can tell), instead of finishing without energies."""
+    server = FakeRouter(f"ipc://{tmp_path / 'control.sock'}", conflicts=1000)
+    try:
+        proc = bench("--kernels", "read,copy", "--threads", "1", "--elements", "8192", "--repeat", "1",
+                     "--daemon", server.endpoint, "--wait", "1.5", "--json")
+    finally:
+        server.close()
+    assert proc.returncode == 1 and proc.stdout == ""
+    assert "Traceback" not in proc.stderr
+    error = proc.stderr.strip().splitlines()[-1]
+    assert error.startswith("hdeem-watch bench: error: ") and "still refused run.start for read-1t" in error
+    assert "after waiting 1.5 s" in error and "run 7 is in progress" in error and "0 of 2 runs done" in error
+    ops = [r["op"] for _, r in server.requests]
+    assert ops[0] == "status" and set(ops[1:]) == {"run.start"} and 2 <= len(ops) - 1 <= 4

@@ -79,3 +79,29 @@ def test_runs_are_announced_to_a_real_daemon(daemon: str) -> None:
     by_id = {run["run_id"]: run for run in listed}
     assert {r["run_id"] for r in records} <= set(by_id)
     assert [by_id[r["run_id"]]["kernel"] for r in records] == ["triad", "idle"]
+
+
+@pytest.mark.slow
+def test_bench_waits_for_a_run_open_on_a_real_daemon(daemon: str) -> None:
+    """While another client's run is open the real daemon refuses run.start (conflict): the bench
+    waits and retries; with too short a wait it exits 1 with one error line; once the other run
+    stops it announces its own and gets its energies (exit 0)."""
+    command = [sys.executable, "-m", "hdeem_watch", "bench", "--kernels", "read", "--threads", "1",
+               "--elements", "65536", "--repeat", "2", "--daemon", daemon, "--json"]
+    with ControlClient(daemon, timeout_s=5.0) as client:
+        other = client.call("run.start", {"kernel": "copy", "name": "someone-else"})["run_id"]
+        refused = subprocess.run([*command, "--wait", "1"], capture_output=True, text=True, timeout=60, env=_env())
+        assert refused.returncode == 1 and refused.stdout == ""
+        assert "Traceback" not in refused.stderr
+        assert f"run {other} is in progress" in refused.stderr.strip().splitlines()[-1]
+        waiting = subprocess.Popen([*command, "--wait", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                   text=True, env=_env())
+        time.sleep(2.0)
+        client.call("run.stop", {"run_id": other})
+    out, err = waiting.communicate(timeout=60)
+    assert waiting.returncode == 0, err
+    assert "waiting up to 60 s" in err
+    (record,) = [json.loads(line) for line in out.splitlines()]
+    assert record["run_id"] != other and record["daemon"]["run_id"] == record["run_id"]
+    dram = [v for k, v in record["daemon"]["energy_j"].items() if k.startswith("DDR_")]
+    assert len(dram) == 4 and all(v is not None and v > 0 for v in dram)

@@ -110,6 +110,47 @@ def test_llc_size_and_warning(tmp_path: Path) -> None:
     assert system.llc_warning(1, [0], tmp_path / "none") is None
 
 
+def _epyc_sys(root: Path) -> Path:
+    """A sysfs CPU tree as Linux presents an AMD EPYC 7702 (Zen 2, 64 cores, SMT): one package, four
+    cores per CCX, each CCX with its own 16 MiB L3. Shown here: CCX 0 (CPUs 0-3, siblings 64-67)
+    and CCX 1 (CPUs 4-7, siblings 68-71). Per CPU, ``cache/indexN/`` holds ``level``, ``type``,
+    ``size``, ``id`` and ``shared_cpu_list`` (the CPUs sharing that cache instance), the layout of
+    the kernel's Documentation/ABI/testing/sysfs-devices-system-cpu; L1 and L2 are per core."""
+    for ccx in (0, 1):
+        for core in range(4 * ccx, 4 * ccx + 4):
+            for cpu in (core, core + 64):
+                topo = root / f"cpu{cpu}" / "topology"
+                topo.mkdir(parents=True)
+                (topo / "physical_package_id").write_text("0\n")
+                (topo / "core_id").write_text(f"{core}\n")
+                l3_cpus = f"{4 * ccx}-{4 * ccx + 3},{64 + 4 * ccx}-{64 + 4 * ccx + 3}"
+                for index, (level, kind, size, cache_id, shared) in enumerate([
+                        (1, "Data", "32K", core, f"{core},{core + 64}"),
+                        (1, "Instruction", "32K", core, f"{core},{core + 64}"),
+                        (2, "Unified", "512K", core, f"{core},{core + 64}"),
+                        (3, "Unified", "16384K", ccx, l3_cpus)]):
+                    d = root / f"cpu{cpu}" / "cache" / f"index{index}"
+                    d.mkdir(parents=True)
+                    for name, value in (("level", level), ("type", kind), ("size", size), ("id", cache_id),
+                                        ("shared_cpu_list", shared)):
+                        (d / name).write_text(f"{value}\n")
+    return root
+
+
+def test_llc_on_epyc_sums_every_l3_instance_of_a_package(tmp_path: Path) -> None:
+    """On EPYC the L3 is per CCX, several per package: the LLC the workers can use is the sum over
+    the distinct L3 instances their CPUs sit on (it used to be the largest L3 per package), so the
+    "arrays too small" warning fires there too."""
+    root = _epyc_sys(tmp_path / "cpu")
+    assert system.llc_bytes(root, 5) == 16 << 20
+    assert system.llc_total_bytes([0, 1, 64], root) == 16 << 20     # one CCX
+    assert system.llc_total_bytes([0, 4], root) == 32 << 20         # two CCXs
+    assert system.llc_total_bytes(range(8), root) == 32 << 20
+    warning = system.llc_warning(100 << 20, [0, 4], root)           # 100 MiB < 4 x 32 MiB
+    assert warning is not None and "(32.0 MiB)" in warning
+    assert system.llc_warning(100 << 20, [0, 1], root) is None      # >= 4 x 16 MiB
+
+
 def test_small_run_warns_about_llc() -> None:
     """A run whose arrays fit in the cache carries the LLC warning in its result."""
     llc = system.llc_total_bytes(ALLOWED)

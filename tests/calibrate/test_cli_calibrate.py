@@ -156,6 +156,7 @@ def test_malformed_trace_and_file_errors(tmp_path, synth, capsys) -> None:
     assert "cannot read runs file" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_real_process_exit_codes(tmp_path, synth) -> None:
     """As a real process: --json is one parseable line on stdout with exit 0; a bad energy exits 2
     with one line on stderr and nothing on stdout."""

@@ -15,6 +15,7 @@ from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
 from hdeem_watch.daemon.security import generate_keys, load_public_key, load_secret_key, secure_client
 
 
+@pytest.mark.slow
 def test_curve_daemon_serves_key_holders_only(daemon_factory: Any, receive: Any, tmp_path: Path) -> None:
     """With CURVE and an allow-list, listed clients get control and samples; others get nothing."""
     server_public, server_secret = generate_keys(tmp_path / "keys", "server")

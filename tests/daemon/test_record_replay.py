@@ -10,11 +10,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from hdeem_watch.daemon import protocol
 from hdeem_watch.sources.replay import read_recording
 
 
+@pytest.mark.slow
 def test_record_then_replay(daemon_factory: Any, receive: Any) -> None:
     """--record writes every streamed sample; --source replay streams the same values at their rates."""
     recorder = daemon_factory("--speed", "10", name="rec")

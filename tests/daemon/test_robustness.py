@@ -7,6 +7,7 @@ import random
 import time
 from typing import Any
 
+import pytest
 import zmq
 
 from hdeem_watch.config import DaemonSettings
@@ -114,6 +115,7 @@ def test_plain_req_socket_and_req_client_work(shared_daemon: Any) -> None:
         assert client.call("ping")["pong"] is True
 
 
+@pytest.mark.slow
 def test_slow_subscriber_does_not_stall_the_others(daemon_factory: Any, receive: Any) -> None:
     """A subscriber that stops reading loses messages (visible as seq gaps); the others get every message."""
     # 200 messages per subscriber: ~0.7 s of stream, slack for a test process the loaded machine

@@ -25,6 +25,7 @@ def _run(client: Any, kernel: str, seconds: float, elements: int = 2**26) -> dic
     return client.call("run.stop", {"run_id": started["run_id"]}, timeout_s=60.0)
 
 
+@pytest.mark.slow
 def test_run_energy_model_and_refit(daemon_factory: Any, receive: Any) -> None:
     """Each stopped run has its window energy per channel, the model energies and a refit; the fit improves."""
     d = daemon_factory("--speed", str(SPEED), **FAST_MODEL).start()
@@ -137,6 +138,7 @@ def test_idle_baseline_measure(daemon_factory: Any) -> None:
         assert stored["channels"][name] == entry
 
 
+@pytest.mark.slow
 def test_restart_after_kill9_keeps_history(daemon_factory: Any) -> None:
     """After kill -9 a restarted daemon has every run, the fit, the baselines; an open run is marked aborted."""
     d = daemon_factory("--speed", str(SPEED), **FAST_MODEL).start()

@@ -7,6 +7,7 @@ from collections import defaultdict
 from typing import Any
 
 import numpy as np
+import pytest
 
 from hdeem_watch.config import DaemonSettings
 from hdeem_watch.daemon import protocol
@@ -23,6 +24,7 @@ def _by_channel(messages: list[protocol.Message]) -> dict[str, list[protocol.Mes
     return out
 
 
+@pytest.mark.slow
 def test_every_channel_at_its_native_rate_without_gaps(shared_daemon: Any, receive: Any) -> None:
     """Each HDEEM channel arrives at its native rate (sample time), consecutive seq, no missing sample."""
     sub = shared_daemon.subscriber(protocol.subscription(shared_daemon.node, "samples"))
@@ -44,6 +46,7 @@ def test_every_channel_at_its_native_rate_without_gaps(shared_daemon: Any, recei
         assert len(t) > 0.5 * 10 * NOMINAL[name] * 2.0
 
 
+@pytest.mark.slow
 def test_stream_energy_is_the_sum_of_the_samples(shared_daemon: Any, receive: Any) -> None:
     """The cumulative energy_j in the headers (the source's own totals) grows by exactly Σ power × period."""
     sub = shared_daemon.subscriber(protocol.subscription(shared_daemon.node, "samples"))
@@ -57,6 +60,7 @@ def test_stream_energy_is_the_sum_of_the_samples(shared_daemon: Any, receive: An
         assert math.isclose(integrated, booked, rel_tol=1e-9, abs_tol=1e-9), name
 
 
+@pytest.mark.slow
 def test_heartbeat_reports_rates_health_and_process(shared_daemon: Any, receive: Any) -> None:
     """A status heartbeat arrives every second with measured rates, no gaps, source health, CPU and RSS."""
     sub = shared_daemon.subscriber(protocol.subscription(shared_daemon.node, "status"))

@@ -341,6 +341,7 @@ class _FlakySource:
                            dict.fromkeys(samples, "stale" if self.unknown_energy else "ok"))
 
 
+@pytest.mark.slow
 def test_source_failures_and_unknown_values_are_reported_not_fatal(tmp_path: Path) -> None:
     """A failing poll shows as an error status and health, then recovers; unknown energy stays unknown (null)."""
     import threading

@@ -26,6 +26,7 @@ def _meta(name: str) -> dict:
     return json.loads((REFERENCE / "trace_meta" / name).read_text())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("meta_file", "fmt"), [("v1_wb0.json", "ramulator"), ("v2ls_wb0.json", "ramulator2")])
 def test_streams_reproduce_reference_trace_hashes(meta_file: str, fmt: str) -> None:
     """The generated stream, written as trace text, has the sha256 of the reference trace of every kernel."""

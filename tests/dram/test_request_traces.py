@@ -101,6 +101,7 @@ int main(void) {
 """
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("valgrind") is None or shutil.which("gcc") is None, reason="needs gcc and valgrind")
 def test_lackey_on_a_real_valgrind_run(tmp_path: Path) -> None:
     """A real `valgrind --tool=lackey --trace-mem=yes` trace of a C loop: the array's lines reach DRAM through the cache."""

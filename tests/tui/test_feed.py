@@ -6,6 +6,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
+
 from hdeem_watch.tui.fakenode import FakeNode
 from hdeem_watch.tui.feed import FeedHub, NodeFeed, ViewSettings, pub_endpoint_for
 from hdeem_watch.tui.snapshot import NodeSnapshot
@@ -40,6 +42,7 @@ def test_feed_learns_stream_endpoint_and_values_update(fake_node: FakeNode) -> N
         feed.stop()
 
 
+@pytest.mark.slow
 def test_feed_counts_wire_gaps(fake_node: FakeNode) -> None:
     """Messages the publisher skips (sequence numbers jump) show up as gaps in the health view."""
     feed = NodeFeed(fake_node.control_endpoint)
@@ -58,6 +61,7 @@ def test_feed_counts_wire_gaps(fake_node: FakeNode) -> None:
         feed.stop()
 
 
+@pytest.mark.slow
 def test_feed_goes_stale_then_reconnects_to_a_restarted_daemon(sock_dir: Path) -> None:
     """A vanished daemon turns the node stale/reconnecting; a new one on the same endpoints is picked up again."""
     pub, ctl = f"ipc://{sock_dir}/r-pub", f"ipc://{sock_dir}/r-ctl"

@@ -6,6 +6,8 @@ import asyncio
 import time
 from collections.abc import Callable
 
+import pytest
+
 from hdeem_watch.daemon.client import ControlClient
 from hdeem_watch.tui.app import HdeemWatchApp
 from hdeem_watch.tui.fakenode import FakeNode
@@ -36,6 +38,7 @@ def dram_values(text: str) -> dict[str, str]:
     return out
 
 
+@pytest.mark.slow
 async def test_values_update_and_pause_freezes_the_screen(sim_daemon) -> None:  # type: ignore[no-untyped-def]
     """Live DRAM values change on screen; p freezes the panels and says PAUSED; p again resumes."""
     app = HdeemWatchApp(FeedHub([sim_daemon.control_endpoint]), fps=10)
@@ -55,6 +58,7 @@ async def test_values_update_and_pause_freezes_the_screen(sim_daemon) -> None:  
         assert "LIVE" in shown(app, HealthBar)
 
 
+@pytest.mark.slow
 async def test_keys_zoom_node_switch_and_baseline_request(sim_daemon, fake_node) -> None:  # type: ignore[no-untyped-def]
     """+/- zoom the window, n/N switch nodes, b sends baseline.measure to the focused daemon, which measures it."""
     hub = FeedHub([sim_daemon.control_endpoint, fake_node.control_endpoint])
@@ -84,6 +88,7 @@ async def test_keys_zoom_node_switch_and_baseline_request(sim_daemon, fake_node)
         await until(lambda: "±" in shown(app, ChannelTable).splitlines()[1])
 
 
+@pytest.mark.slow
 async def test_reconnects_after_the_daemon_is_killed_and_restarted(sim_daemon) -> None:  # type: ignore[no-untyped-def]
     """kill -9 of the daemon turns the screen STALE/RECONNECTING; a restarted daemon makes it LIVE again."""
     hub = FeedHub([sim_daemon.control_endpoint], stale_after_s=2.0, control_timeout_s=0.5)

@@ -80,6 +80,13 @@ IDLE_BUFFER = 2048
 #: Initial values written at first touch, per array.
 INIT_VALUES: dict[str, float] = {"a": 1.0, "b": 2.0, "c": 0.0}
 
+#: Lines per iteration counted by STREAM's convention (McCalpin's STREAM: 2 words per element for
+#: copy and scale, 3 for add and triad): each array read or written counted once, no write-allocate
+#: read of the destination. A "word" here is the 64-byte line the stride-8 access moves; read,
+#: assign and selfscale, which STREAM lacks, follow the same rule.
+STREAM_LINES: dict[str, int] = {"read": 1, "assign": 1, "scale": 2, "add": 3, "triad": 3, "copy": 2,
+                                "selfscale": 2, IDLE_KERNEL: 0}
+
 #: Arrays each kernel uses (allocated and first-touched).
 KERNEL_ARRAYS: dict[str, tuple[str, ...]] = {
     "read": ("a",),

@@ -79,6 +79,10 @@ class RunResult:
             elements/8 / seconds``): the line rate the C benchmark compares.
         dram_bytes_per_s: bytes the DRAM model says move (reads incl. write-allocate, and
             write-backs) per second.
+        stream_bytes_per_s: bytes per second as STREAM counts them (each array read or written
+            once per iteration, no write-allocate: 2/2/3/3 lines for copy/scale/add/triad), to
+            compare with STREAM's figures; below ``dram_bytes_per_s`` where the destination is
+            not also a source (copy, scale, add, assign).
         lines_read_per_pass: lines read from DRAM per pass (all threads).
         lines_written_per_pass: lines written back per pass.
         traffic_origin: ``"dram-model"``, ``"bench-count"`` or ``"none"`` (idle).
@@ -106,6 +110,7 @@ class RunResult:
     checksum: float = float("nan")
     warnings: tuple[str, ...] = ()
     announce: Mapping[str, Any] = field(default_factory=dict)
+    stream_bytes_per_s: float = 0.0
     arrays: Mapping[str, np.ndarray] | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -115,6 +120,7 @@ class RunResult:
             "seconds": self.seconds,
             "lines_per_s": self.lines_per_s,
             "dram_bytes_per_s": self.dram_bytes_per_s,
+            "stream_bytes_per_s": self.stream_bytes_per_s,
             "lines_read_per_pass": self.lines_read_per_pass,
             "lines_written_per_pass": self.lines_written_per_pass,
             "traffic_origin": self.traffic_origin,
@@ -240,7 +246,18 @@ def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None
         cpus=tuple(cpus), worker_affinity=tuple(r[0] for r in reports), backend=backend,
         checksum=float(sum(r[1] for r in reports)) if kernel == "read" else float("nan"),
         warnings=tuple(warnings), announce=announce, arrays=arrays if keep_arrays else None,
+        stream_bytes_per_s=K.STREAM_LINES[kernel] * lines * K.LINE_BYTES * spec.repeat / seconds,
     )
+
+
+def _start_or_release(start_hook: Callable[[], None], go: Any) -> None:
+    """Call the start hook; if it raises (e.g. the daemon refused the run), release the workers
+    waiting at ``go`` (their barrier breaks and they end) before the error goes up."""
+    try:
+        start_hook()
+    except BaseException:
+        go.abort()
+        raise
 
 
 _Outcome = tuple[dict[str, np.ndarray], int, int, float, list[tuple[tuple[int, ...], float]]]
@@ -269,7 +286,7 @@ def _run_threads(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple
         worker.start()
     try:
         ready.wait(WORKER_TIMEOUT_S)
-        start_hook()
+        _start_or_release(start_hook, go)
         t0_ns, m0 = time.time_ns(), time.perf_counter_ns()
         go.wait(WORKER_TIMEOUT_S)
         for worker in workers:
@@ -323,7 +340,7 @@ def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tup
     out: dict[str, np.ndarray] = {}
     try:
         ready.wait(WORKER_TIMEOUT_S)
-        start_hook()
+        _start_or_release(start_hook, go)
         t0_ns, m0 = time.time_ns(), time.perf_counter_ns()
         go.wait(WORKER_TIMEOUT_S)
         reports = [recv.recv() for recv, _ in pipes]

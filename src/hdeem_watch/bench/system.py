@@ -75,9 +75,9 @@ def _parse_size(text: str) -> int | None:
         return None
 
 
-def llc_bytes(sys_cpu: Path = SYS_CPU, cpu: int = 0) -> int | None:
-    """Return the size of the last-level cache seen by ``cpu`` in bytes (None if unknown)."""
-    best: tuple[int, int] | None = None
+def _llc_index(sys_cpu: Path, cpu: int) -> tuple[Path, int] | None:
+    """The sysfs directory and size (bytes) of the highest-level data cache ``cpu`` sees."""
+    best: tuple[int, Path, int] | None = None
     cache_dir = sys_cpu / f"cpu{cpu}" / "cache"
     if not cache_dir.is_dir():
         return None
@@ -91,20 +91,42 @@ def llc_bytes(sys_cpu: Path = SYS_CPU, cpu: int = 0) -> int | None:
         if level is None or size is None or kind == "Instruction":
             continue
         if best is None or level > best[0]:
-            best = (level, size)
-    return None if best is None else best[1]
+            best = (level, index, size)
+    return None if best is None else (best[1], best[2])
+
+
+def llc_bytes(sys_cpu: Path = SYS_CPU, cpu: int = 0) -> int | None:
+    """Return the size of the last-level cache seen by ``cpu`` in bytes (None if unknown)."""
+    found = _llc_index(sys_cpu, cpu)
+    return None if found is None else found[1]
+
+
+def _llc_domain(index: Path, sys_cpu: Path, cpu: int) -> tuple[str, str]:
+    """Which cache instance ``index`` is: the CPUs sharing it (``shared_cpu_list``), else the
+    kernel's cache ``id``, else (old kernels) the CPU's package."""
+    for name in ("shared_cpu_list", "id"):
+        try:
+            return name, (index / name).read_text().strip()
+        except OSError:
+            continue
+    package = _read_int(sys_cpu / f"cpu{cpu}" / "topology" / "physical_package_id") or 0
+    return "package", str(package)
 
 
 def llc_total_bytes(cpus: Iterable[int], sys_cpu: Path = SYS_CPU) -> int | None:
-    """Return the LLC capacity the given CPUs can use (one LLC per package)."""
-    packages: dict[int, int] = {}
+    """Return the LLC capacity the given CPUs can use: the sum over every distinct LLC instance.
+
+    An instance is the set of CPUs that share it, as sysfs lists it: one per package on Intel
+    Xeons, one per CCX (Zen 2) or CCD (Zen 3/4) on AMD EPYC, so that a package holds several.
+    """
+    domains: dict[tuple[str, str], int] = {}
     for cpu in cpus:
-        size = llc_bytes(sys_cpu, cpu)
-        if size is None:
+        found = _llc_index(sys_cpu, cpu)
+        if found is None:
             continue
-        package = _read_int(sys_cpu / f"cpu{cpu}" / "topology" / "physical_package_id") or 0
-        packages[package] = max(packages.get(package, 0), size)
-    return sum(packages.values()) if packages else None
+        index, size = found
+        domains[_llc_domain(index, sys_cpu, cpu)] = size
+    return sum(domains.values()) if domains else None
 
 
 def available_memory_bytes(cgroup_root: Path = CGROUP_ROOT) -> int:

@@ -7,8 +7,9 @@ Example::
         --daemon ipc:///run/hdeem-watch/control.sock --json
 
 Output: a table (default), or with ``--json`` one JSON object per run and line on stdout with at
-least ``kernel, threads, elements, seconds, lines_per_s, dram_bytes_per_s``. A progress bar goes to
-stderr when stderr is a terminal. Exit codes: 0 success, 2 bad input (one line on stderr).
+least ``kernel, threads, elements, seconds, lines_per_s, dram_bytes_per_s, stream_bytes_per_s``. A
+progress bar goes to stderr when stderr is a terminal. Exit codes: 0 success, 2 bad input (one line
+on stderr), 1 the daemon still refused a run after ``--wait`` seconds (another run was open).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import sys
 from typing import Any, TextIO
 
 from hdeem_watch import slurm
+from hdeem_watch.bench.announce import WAIT_S, RunRefused
 from hdeem_watch.bench.runner import BACKENDS, RunResult, run_one, validate
 from hdeem_watch.bench.schedule import sweep
 from hdeem_watch.errors import InputError
@@ -65,6 +67,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--oversubscribe", action="store_true",
                         help="allow more threads than allowed CPUs (round-robin pinning)")
     parser.add_argument("--timeout", type=float, default=5.0, help="daemon reply timeout in s (default 5)")
+    parser.add_argument("--wait", type=float, default=WAIT_S, metavar="S",
+                        help="while the daemon has another run open, ask again every second for up to S "
+                             f"seconds per run, then stop with exit code 1 (default {WAIT_S:g})")
     parser.set_defaults(func=_run)
 
 
@@ -93,13 +98,15 @@ class _Progress:
 
 def _table(results: list[RunResult], out: TextIO) -> None:
     header = f"{'kernel':<10}{'threads':>8}{'elements':>13}{'repeat':>7}{'seconds':>10}" \
-             f"{'Mlines/s':>11}{'DRAM GB/s':>11}  run_id"
+             f"{'Mlines/s':>11}{'DRAM GB/s':>11}{'STREAM GB/s':>13}  run_id"
     print(header, file=out)
     for r in results:
         run_id = r.announce.get("run_id", "")
         print(f"{r.spec.kernel:<10}{r.spec.threads:>8}{r.spec.elements:>13}{r.spec.repeat:>7}"
-              f"{r.seconds:>10.4f}{r.lines_per_s / 1e6:>11.1f}{r.dram_bytes_per_s / 1e9:>11.2f}  {run_id}",
-              file=out)
+              f"{r.seconds:>10.4f}{r.lines_per_s / 1e6:>11.1f}{r.dram_bytes_per_s / 1e9:>11.2f}"
+              f"{r.stream_bytes_per_s / 1e9:>13.2f}  {run_id}", file=out)
+    print("DRAM GB/s: what moves, write-allocate reads included; STREAM GB/s: STREAM's count "
+          "(copy/scale 2, add/triad 3 words per element)", file=out)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -120,27 +127,38 @@ def _run(args: argparse.Namespace) -> int:
     if args.daemon:
         from hdeem_watch.bench.announce import Announcer
 
-        announcer = Announcer(args.daemon, timeout_s=args.timeout, metadata=slurm.job_metadata(), warn=warn)
+        if not (math.isfinite(args.wait) and args.wait >= 0):
+            raise InputError(f"--wait {args.wait:g}: expected a number of seconds >= 0")
+        announcer = Announcer(args.daemon, timeout_s=args.timeout, metadata=slurm.job_metadata(), warn=warn,
+                              wait_s=args.wait)
         announcer.check()
     results: list[RunResult] = []
+    refused: RunRefused | None = None
     try:
         for i, spec in enumerate(specs):
             progress.show(i, f"{spec.kernel} x{spec.threads}")
-            result = run_one(spec, backend=args.backend, allowed=allowed, oversubscribe=args.oversubscribe,
-                             on_start=announcer.on_start if announcer else None,
-                             on_stop=announcer.on_stop if announcer else None)
+            try:
+                result = run_one(spec, backend=args.backend, allowed=allowed, oversubscribe=args.oversubscribe,
+                                 on_start=announcer.on_start if announcer else None,
+                                 on_stop=announcer.on_stop if announcer else None)
+            except RunRefused as error:
+                refused = error
+                break
             for message in result.warnings:
                 warn(message)
             results.append(result)
             if args.json:
                 print(json.dumps(_jsonable(result.to_dict())), flush=True)
-        progress.show(len(specs), "done")
+        progress.show(len(results), "done" if refused is None else "stopped")
         progress.clear()
     finally:
         if announcer is not None:
             announcer.close()
     if not args.json:
         _table(results, sys.stdout)
+    if refused is not None:
+        print(f"hdeem-watch bench: error: {refused}; {len(results)} of {len(specs)} runs done", file=sys.stderr)
+        return 1
     return 0
 
 
