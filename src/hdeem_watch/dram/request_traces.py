@@ -31,7 +31,7 @@ import numpy as np
 from hdeem_watch.dram.pipeline import split_work
 from hdeem_watch.dram.trace_writers import format_requests, iter_formatted, trace_sha256, write_requests
 from hdeem_watch.dram.uniform_parser import UniformParser, uniform_lines
-from hdeem_watch.errors import InputError
+from hdeem_watch.errors import InputError, excerpt, not_a_file_error
 
 __all__ = ["FORMATS", "CacheConfig", "RequestTrace", "cache_filter", "format_requests", "iter_formatted",
            "read_request_trace", "trace_sha256", "write_requests"]
@@ -134,8 +134,7 @@ def cache_filter(line_addresses: np.ndarray, is_write: np.ndarray, cache: CacheC
 
 
 def _fail(path: str | Path, line: int, text: bytes, expected: str) -> InputError:
-    shown = text[:60].decode("utf-8", "replace")
-    return InputError(f"{path}:{line}: {shown!r} is not a valid request; expected {expected}")
+    return InputError(f"{path}:{line}: {excerpt(text)} is not a valid request; expected {expected}")
 
 
 def _lines(data: bytes | mmap.mmap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -356,7 +355,7 @@ def read_request_trace(path: str | Path, fmt: str, *, cache: CacheConfig | None 
     if fmt not in FORMATS:
         raise InputError(f"--format {fmt!r}: expected one of {', '.join(FORMATS)}")
     if not Path(path).is_file():
-        raise InputError(f"{path}: no such trace file")
+        raise not_a_file_error(path, "trace file")
     if fmt in ("ramulator", "ramulator2"):
         return _read_dram_trace(path, fmt)
     cache = cache or CacheConfig()
