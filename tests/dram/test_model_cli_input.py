@@ -162,11 +162,11 @@ def test_progress_repaints_at_most_every_tenth_of_a_second_and_always_at_the_end
     """Updates faster than 0.1 s are skipped except the last one; clear erases the line."""
     clock = iter([0.0, 0.05, 0.2, 0.21])
     terminal = _Terminal()
-    progress = Progress(terminal, "work", clock=lambda: next(clock))  # type: ignore[arg-type]
+    progress = Progress(terminal, clock=lambda: next(clock))  # type: ignore[arg-type]
     for done in (1, 2, 3, 4):
-        progress.update(done, 4)
+        progress.update("work", done, 4)
     assert terminal.text.count("\r[") == 3  # 1 (first), 3 (0.2 s later), 4 (the end); 2 skipped
-    assert terminal.text.endswith("100.0 % work")
+    assert terminal.text.rstrip().endswith("100.0 % work")
     progress.clear()
     assert terminal.text.endswith("\r\x1b[K")
 
@@ -177,16 +177,12 @@ def _long_trace(tmp_path: Path) -> Path:
     return trace  # > 2 chunks of the controller model
 
 
-def test_stats_progress_on_a_terminal(tmp_path: Path) -> None:
-    """On a real pseudo-terminal, ``model stats --emit-drampower`` draws a bar for simulating and
-    for writing, and erases it; the JSON on stdout is untouched (was: a blank screen)."""
-    trace = _long_trace(tmp_path)
+def _on_a_terminal(argv: list[str]) -> tuple[int, bytes, bytes]:
+    """Run ``hdeem-watch argv`` with stderr on a real pseudo-terminal: (exit code, stdout, terminal)."""
     main_fd, terminal_fd = pty.openpty()
     env = {**os.environ, "PYTHONPATH": str(SRC)}
-    with subprocess.Popen([sys.executable, "-m", "hdeem_watch", "model", "stats", "--trace", str(trace),
-                           "--format", "ramulator", "--memspec", PRESET, "--emit-drampower",
-                           str(tmp_path / "out.csv"), "--json"],
-                          stdout=subprocess.PIPE, stderr=terminal_fd, env=env) as process:
+    with subprocess.Popen([sys.executable, "-m", "hdeem_watch", *argv], stdout=subprocess.PIPE,
+                          stderr=terminal_fd, env=env) as process:
         os.close(terminal_fd)
         drawn = b""
         while True:
@@ -199,10 +195,33 @@ def test_stats_progress_on_a_terminal(tmp_path: Path) -> None:
             drawn += chunk
         out = process.stdout.read() if process.stdout else b""
     os.close(main_fd)
-    assert process.returncode == 0
+    return process.returncode, out, drawn
+
+
+def test_stats_progress_on_a_terminal(tmp_path: Path) -> None:
+    """On a real pseudo-terminal, ``model stats --emit-drampower`` draws a bar for the controller
+    model and for writing, and erases it; the JSON on stdout is untouched (was: a blank screen)."""
+    trace = _long_trace(tmp_path)
+    code, out, drawn = _on_a_terminal(["model", "stats", "--trace", str(trace), "--format", "ramulator",
+                                       "--memspec", PRESET, "--emit-drampower", str(tmp_path / "out.csv"),
+                                       "--json"])
+    assert code == 0
     assert json.loads(out)["requests"] == 3 * (CHUNK_REQUESTS * 2 // 3 + 1)
-    assert b"simulating the controller" in drawn and b"writing " in drawn and b"100.0 %" in drawn
+    assert b"controller model" in drawn and b"writing DRAMPower trace" in drawn and b"100.0 %" in drawn
     assert drawn.endswith(b"\r\x1b[K")
+
+
+def test_cpu_trace_progress_covers_reading_and_the_cache(tmp_path: Path) -> None:
+    """A lackey trace (read line by line in Python: minutes for a real multi-GB one) reports
+    reading, splitting into cache lines and the cache filter, then the controller model."""
+    trace = tmp_path / "lackey.out"
+    trace.write_text("==1== Lackey\n" + "".join(f" L {0x10000000 + 64 * i:08x},8\n S {0x20000000 + 64 * i:08x},8\n"
+                                                for i in range(50_000)))
+    code, out, drawn = _on_a_terminal(["model", "stats", "--trace", str(trace), "--format", "lackey",
+                                       "--memspec", PRESET, "--json"])
+    assert code == 0 and json.loads(out)["cpu_accesses"] == 100_000
+    for phase in (b"reading trace", b"cache lines", b"cache filter", b"controller model"):
+        assert phase in drawn, phase
 
 
 def test_stats_progress_is_silent_when_stderr_is_not_a_terminal(tmp_path: Path) -> None:

@@ -124,7 +124,7 @@ def _print(data: dict[str, Any], as_json: bool) -> None:
 def run_stats(args: argparse.Namespace) -> int:
     """``model stats``."""
     spec = _spec(args.memspec)
-    progress = Progress(sys.stderr, "simulating the controller")
+    progress = Progress(sys.stderr)
     try:
         data, stats = _trace_summary(spec, args, progress)
     finally:
@@ -159,7 +159,7 @@ def _trace_summary(spec: MemSpec, args: argparse.Namespace, progress: Progress) 
     cache = CacheConfig(size_bytes=args.llc_bytes, ways=args.llc_ways, flush=args.llc_flush)
     result, cpu_accesses = simulate_trace(spec, args.trace, args.format, cache=cache, policy=args.policy,
                                           mapping=args.mapping, xor_bank=args.xor_bank,
-                                          keep_commands=bool(args.emit_drampower), progress=progress.update)
+                                          keep_commands=bool(args.emit_drampower), progress=progress.callback())
     if result.requests == 0:
         found = f" ({cpu_accesses} CPU accesses, all served by the cache)" if cpu_accesses else ""
         raise InputError(f"{args.trace}: no memory requests in the trace{found}; expected {args.format} lines")
@@ -171,10 +171,9 @@ def _trace_summary(spec: MemSpec, args: argparse.Namespace, progress: Progress) 
     if args.emit_drampower:
         from hdeem_watch.dram.command_emit import write_drampower_trace
 
-        progress.phase(f"writing {args.emit_drampower}")
         try:
             data["drampower_commands"] = write_drampower_trace(Path(args.emit_drampower), result,
-                                                               progress=progress.update)
+                                                               progress=progress.callback())
         except OSError as error:
             raise InputError(f"--emit-drampower {args.emit_drampower}: {error.strerror}") from None
         data["drampower_trace"] = str(args.emit_drampower)

@@ -18,13 +18,16 @@ Example:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from hdeem_watch.dram.command_set import ControllerResult
+from hdeem_watch.dram.progress import ProgressCallback
 
+#: The phase :func:`write_drampower_trace` reports progress under.
+PROGRESS_PHASE = "writing DRAMPower trace"
 _NAMES = ("PREA", "PRE", "REFA", "ACT", "RD", "WR", "RDA", "WRA")
 _PREA, _PRE, _REFA, _ACT, _RD, _WR, _RDA, _WRA = range(len(_NAMES))
 
@@ -88,10 +91,11 @@ def command_count(result: ControllerResult) -> int:
 
 
 def write_drampower_trace(path: str | Path, result: ControllerResult, *,
-                          progress: Callable[[int, int], None] | None = None) -> int:
+                          progress: ProgressCallback | None = None) -> int:
     """Write the trace to ``path``; return the number of commands written (END included).
 
-    ``progress(lines_written, lines_total)`` is called after each batch of lines.
+    ``progress("writing DRAMPower trace", lines_written, lines_total)`` is called after each batch
+    of lines.
     """
     total = command_count(result)
     count = 0
@@ -104,9 +108,9 @@ def write_drampower_trace(path: str | Path, result: ControllerResult, *,
                 count += len(batch)
                 batch = []
                 if progress is not None:
-                    progress(count, total)
+                    progress(PROGRESS_PHASE, count, total)
         handle.write("\n".join(batch) + "\n")
         count += len(batch)
     if progress is not None:
-        progress(count, total)
+        progress(PROGRESS_PHASE, count, total)
     return count
