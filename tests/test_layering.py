@@ -25,16 +25,19 @@ ROOT = "hdeem_watch"
 TIERS: dict[str, int] = {
     "": 0,  # __version__
     "errors": 0,
-    "dram": 1,
-    "calibrate": 2,
-    "sources": 2,
-    "config": 2,
-    "daemon": 3,
-    "slurm": 4,
-    "tui": 5,
-    "bench": 5,
-    "cli": 6,
-    "__main__": 7,
+    "dram": 1,  # the DRAM model: memspecs, statistics, energy, controller
+    "calibrate": 2,  # rows and fits on the model
+    "sources": 2,  # power sensors (the sim models its DRAM with dram/)
+    "node": 2,  # facts about this machine (topology, DIMMs, sensor map)
+    "config": 3,  # the daemon's settings (with each source's options)
+    "daemon": 4,
+    "slurm": 5,  # the SLURM adapter (talks to the daemon)
+    "tui": 6,
+    "bench": 6,
+    "report": 6,  # figures from a daemon's state or a RUNS.json
+    "demo": 7,  # a demo node: daemon + bench schedule, shown by the TUI
+    "cli": 8,
+    "__main__": 9,
 }
 
 #: Packages inside which no two modules may import each other in a cycle.
