@@ -53,6 +53,14 @@ def test_a_directory_as_trace_says_it_is_a_directory(tmp_path: Path, capsys: pyt
     assert f"{tmp_path}: is a directory; expected a trace file" in err
 
 
+def test_a_directory_as_memspec_says_it_is_a_directory(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A directory given as --memspec is named as a directory, not as an unknown preset."""
+    csv = tmp_path / "t.csv"
+    csv.write_text("0,ACT,0,0,3,100,0\n100,END,0,0,0,0,0\n")
+    err = _error(capsys, ["model", "energy", "--trace", str(csv), "--memspec", str(tmp_path)])
+    assert "is a directory; expected a DRAMPower JSON memspec or a preset" in err
+
+
 @pytest.mark.parametrize(("option", "message"), [
     (["--elements", "0"], "argument --elements: 0 is too small; expected at least 8 doubles"),
     (["--elements", "7"], "argument --elements: 7 is too small"),
