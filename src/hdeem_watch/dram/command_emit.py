@@ -4,7 +4,7 @@ Format (DRAMPower CLI CSV, no header): ``cycle,CMD,rank,bankgroup,bank,row,colum
 flat in the rank, columns in device columns (burst index × BL). Each refresh is a PREA followed
 ``tRP`` later by a REFA on every rank; the last line is ``END`` at the evaluation time. The
 statistics :func:`hdeem_watch.dram.controller.simulate` returns are computed from exactly these
-commands, so DRAMPower (or :func:`hdeem_watch.dram.command_trace.trace_stats`) on this file gives
+commands, so DRAMPower (or :func:`hdeem_watch.dram.trace_state.trace_stats`) on this file gives
 the same energy.
 
 Example:
