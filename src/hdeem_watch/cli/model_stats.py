@@ -12,7 +12,10 @@ Usage::
 directly); ``kernel`` models a STREAM-like kernel run. ``--json`` prints one object with
 ``requests, reads, writes, act, pre, ref, row_hits, row_misses, row_conflicts, cycles`` (totals
 over the ranks), ``ranks`` (per-rank statistics), and ``energy`` (``core_j`` and ``components``
-from the DRAMPower-equivalent model). Bad input: one line on stderr, exit code 2.
+from the DRAMPower-equivalent model). Bad input (an empty trace, a count that models nothing): one
+line on stderr, exit code 2. Counts take ``bench``'s spellings (``1e6``, ``2**20``:
+:mod:`hdeem_watch.cli.numbers`); on a terminal, ``stats`` shows its progress on stderr
+(:mod:`hdeem_watch.cli.progress`).
 """
 
 from __future__ import annotations
