@@ -25,16 +25,19 @@ ROOT = "hdeem_watch"
 TIERS: dict[str, int] = {
     "": 0,  # __version__
     "errors": 0,
-    "dram": 1,
-    "calibrate": 2,
-    "sources": 2,
-    "config": 2,
-    "daemon": 3,
-    "slurm": 4,
-    "tui": 5,
-    "bench": 5,
-    "cli": 6,
-    "__main__": 7,
+    "dram": 1,  # the DRAM model: memspecs, statistics, energy, controller
+    "calibrate": 2,  # rows and fits on the model
+    "sources": 2,  # power sensors (the sim models its DRAM with dram/)
+    "node": 2,  # facts about this machine (topology, DIMMs, sensor map)
+    "config": 3,  # the daemon's settings (with each source's options)
+    "daemon": 4,
+    "slurm": 5,  # the SLURM adapter (talks to the daemon)
+    "tui": 6,
+    "bench": 6,
+    "report": 6,  # figures from a daemon's state or a RUNS.json
+    "demo": 7,  # a demo node: daemon + bench schedule, shown by the TUI
+    "cli": 8,
+    "__main__": 9,
 }
 
 #: Packages inside which no two modules may import each other in a cycle.
@@ -54,11 +57,11 @@ class Edge:
         return f"{self.source} -> {self.target} ({self.path}:{self.line})"
 
 
-def module_names() -> dict[str, Path]:
-    """Every module of the package by dotted name (packages by their ``__init__``)."""
+def module_names(src: Path = SRC) -> dict[str, Path]:
+    """Every module of the package under ``src`` by dotted name (packages by their ``__init__``)."""
     names = {}
-    for path in sorted((SRC / ROOT).rglob("*.py")):
-        parts = list(path.relative_to(SRC).with_suffix("").parts)
+    for path in sorted((src / ROOT).rglob("*.py")):
+        parts = list(path.relative_to(src).with_suffix("").parts)
         if parts[-1] == "__init__":
             parts.pop()
         names[".".join(parts)] = path
@@ -87,13 +90,13 @@ def _imports_of(nodes: list[ast.stmt] | list[ast.AST]) -> Iterator[ast.Import | 
         yield from _import_nodes(node)
 
 
-def import_edges() -> list[Edge]:
-    """Every import from one module of the package to another."""
-    modules = module_names()
+def import_edges(src: Path = SRC) -> list[Edge]:
+    """Every import from one module of the package under ``src`` to another."""
+    modules = module_names(src)
     edges = []
     for name, path in modules.items():
         package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-        shown = str(path.relative_to(SRC.parent))
+        shown = str(path.relative_to(src.parent))
         for node in _import_nodes(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.Import):
                 targets = [alias.name for alias in node.names]
@@ -183,8 +186,9 @@ def edges() -> list[Edge]:
     return found
 
 
-def test_the_parser_sees_module_function_local_and_relative_imports(tmp_path: Path) -> None:
-    """The graph builder finds imports at every depth and skips only TYPE_CHECKING blocks."""
+def test_the_parser_sees_imports_at_every_depth_except_type_checking() -> None:
+    """The import finder looks inside functions, classes and else branches, and skips only
+    ``if TYPE_CHECKING:`` blocks."""
     tree = ast.parse(
         "import a\n"
         "from typing import TYPE_CHECKING\n"
@@ -197,6 +201,34 @@ def test_the_parser_sees_module_function_local_and_relative_imports(tmp_path: Pa
         for alias in n.names
     ]
     assert found == ["a", "typing", "shown", "b", "d"]
+
+
+def test_edges_resolve_relative_and_from_package_imports(tmp_path: Path) -> None:
+    """``from . import mod``, ``from ..pkg import mod``, ``from pkg import name`` and
+    ``import pkg.mod`` become edges to the module they load (a package's own ``__init__`` when a
+    name is not a module); imports outside the package are no edges."""
+    files = {
+        "hdeem_watch/__init__.py": "",
+        "hdeem_watch/a/__init__.py": "from hdeem_watch.a.x import thing\n",
+        "hdeem_watch/a/x.py": "from . import y\nimport numpy\n"
+                              "def f():\n    from ..b import z\n    import hdeem_watch.b.z\n",
+        "hdeem_watch/a/y.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from hdeem_watch.b import z\n",
+        "hdeem_watch/b/__init__.py": "",
+        "hdeem_watch/b/z.py": "from hdeem_watch.a import thing\n",
+    }
+    for name, text in files.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    found = {(e.source, e.target, e.line) for e in import_edges(tmp_path)}
+    assert found == {
+        ("hdeem_watch.a", "hdeem_watch.a.x", 1),
+        ("hdeem_watch.a.x", "hdeem_watch.a.y", 1),
+        ("hdeem_watch.a.x", "hdeem_watch.b.z", 4),
+        ("hdeem_watch.a.x", "hdeem_watch.b.z", 5),
+        ("hdeem_watch.b.z", "hdeem_watch.a", 1),
+    }
+    node_of = {m: area(m) for m in module_names(tmp_path)}
+    assert find_cycles(import_edges(tmp_path), node_of) == [["a", "b"]]
 
 
 def test_every_package_has_a_tier(edges: list[Edge]) -> None:

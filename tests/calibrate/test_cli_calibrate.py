@@ -183,3 +183,57 @@ def test_bounds_option(tmp_path, synth, capsys) -> None:
     assert data["currents"]["idd4r"]["at_bound"] == "upper"
     assert main(["calibrate", "--runs", str(runs), "--bounds", "idd4r=zero:1"]) == 2
     assert "--bounds" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("bound", "message"), [
+    ("idd4r=0.2:0", "--bounds idd4r: lower 0.2 A must be < upper 0 A"),
+    ("idd4r=0:200", "--bounds idd4r: upper 200 A looks like mA; expected amperes per device (0.2)"),
+    ("idd4r=-0.1:0.2", "--bounds idd4r: lower -0.1 A is negative"),
+    ("idd4r=0:inf", "--bounds idd4r: 0:inf; expected finite currents"),
+])
+def test_implausible_bounds_are_rejected_in_plain_numbers(tmp_path, synth, capsys, bound, message) -> None:
+    """Reversed, negative, infinite or milliampere bounds: exit 2, one line in plain numbers
+    (issue #20: ``idd4r=0.2:0`` printed ``np.float64(0.2)``, ``idd4r=0:200`` was accepted)."""
+    runs, _truth = _write_runs(tmp_path, synth, traces=False)
+    assert main(["calibrate", "--runs", str(runs), "--bounds", bound]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and "np." not in err and "\n" not in err
+
+
+def test_energies_in_millijoules_are_warned_about(tmp_path, synth, capsys) -> None:
+    """measured_j 1000x too large (mJ): the fit still runs, but stderr and the JSON say the
+    energies look like mJ (issue #20: exit 0 with every current pinned, silently)."""
+    runs, _truth = _write_runs(tmp_path, synth, traces=False)
+    assert main(["calibrate", "--runs", str(runs), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and json.loads(captured.out)["warnings"] == []
+    _mutate(runs, lambda d: [run.update(measured_j=run["measured_j"] * 1000) for run in d["runs"]])
+    assert main(["calibrate", "--runs", str(runs), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert "warning: measured energies are a median" in captured.err
+    assert "measured_j looks like mJ; expected joules" in captured.err
+    assert any("looks like mJ" in w for w in json.loads(captured.out)["warnings"])
+
+
+@pytest.mark.parametrize("memspec", ["ddr4-2133-x8-4gb", "preset:ddr4-2133-x8-4gb"])
+def test_memspec_presets_in_both_spellings(tmp_path, synth, capsys, memspec) -> None:
+    """RUNS.json and --memspec take a preset as NAME or preset:NAME, as ``model`` does (issue #20:
+    RUNS.json required ``preset:`` and ``model`` rejected it)."""
+    runs, _truth = _write_runs(tmp_path, synth, traces=False)
+    _mutate(runs, lambda d: d.update(memspec=memspec))
+    assert main(["calibrate", "--runs", str(runs), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["memspec"] == "DDR4-2133_4Gb_x8_2R_8dev_interpMicronA"
+    assert main(["calibrate", "--runs", str(runs), "--json", "--memspec", memspec]) == 0
+    capsys.readouterr()
+    _mutate(runs, lambda d: d.update(memspec="preset:nonesuch"))
+    assert main(["calibrate", "--runs", str(runs)]) == 2
+    err = capsys.readouterr().err
+    assert "unknown memspec preset 'nonesuch'; expected one of: ddr4-2133-x8-4gb, " in err and "[" not in err
+
+
+def test_a_directory_as_trace_says_so(tmp_path, synth, capsys) -> None:
+    """A run whose trace is a directory: exit 2, 'is a directory' (not 'does not exist')."""
+    runs, _truth = _write_runs(tmp_path, synth)
+    _mutate(runs, lambda d: d["runs"][-1].update(trace="traces"))
+    assert main(["calibrate", "--runs", str(runs)]) == 2
+    assert "traces: is a directory; expected a DRAMPower trace file" in capsys.readouterr().err

@@ -125,9 +125,11 @@ def test_addresses_out_of_range(tmp_path: Path, line: str, message: str) -> None
 
 
 def test_unreadable_file(tmp_path: Path) -> None:
-    """A missing file is an InputError, not a traceback."""
-    with pytest.raises(InputError, match="cannot read trace"):
+    """A missing file or a directory is an InputError saying which, not a traceback."""
+    with pytest.raises(InputError, match=r"nope\.csv: no such trace file"):
         read_command_trace(tmp_path / "nope.csv")
+    with pytest.raises(InputError, match="is a directory; expected a trace file"):
+        read_command_trace(tmp_path)
 
 
 def test_addresses_optional_and_backwards_across_chunks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -42,6 +42,7 @@ from hdeem_watch.calibrate.observation import (
     stack,
 )
 from hdeem_watch.calibrate.result import FitModel, FitResult, FitSettings
+from hdeem_watch.dram.memspec import MAX_DEVICE_CURRENT_A
 from hdeem_watch.errors import InputError
 
 __all__ = ["LOO_EXACT_MAX_RUNS", "FitModel", "FitOptions", "FitResult", "FitSettings", "fit"]
@@ -280,11 +281,34 @@ def _bounds(chosen: tuple[str, ...], datasheet: np.ndarray,
                 lo, hi = (float(v) for v in bounds[name])
             except (TypeError, ValueError):
                 raise InputError(f"bounds.{name}: {bounds[name]!r}; expected (lower_a, upper_a)") from None
+            check_bound_a(f"bounds.{name}", lo, hi)
             lower[j], upper[j] = lo, hi
-        if not (lower[j] < upper[j]) or math.isnan(lower[j]) or math.isnan(upper[j]):
-            raise InputError(f"bounds.{name}: lower {lower[j]!r} A must be < upper {upper[j]!r} A"
+        if not (lower[j] < upper[j]):
+            raise InputError(f"bounds.{name}: lower {lower[j]:g} A must be < upper {upper[j]:g} A"
                              f"{' (datasheet value is 0: give explicit bounds)' if datasheet[j] == 0 else ''}")
     return lower, upper
+
+
+def check_bound_a(where: str, lower_a: float, upper_a: float) -> None:
+    """Raise an InputError naming ``where`` unless ``0 <= lower_a < upper_a`` are plausible per-device
+    currents in amperes (an upper bound above :data:`MAX_DEVICE_CURRENT_A` is milliamperes typed as
+    amperes, as the memspec reader says of currents).
+
+    Example:
+        >>> check_bound_a("--bounds idd4r", 0.0, 200.0)
+        Traceback (most recent call last):
+        ...
+        hdeem_watch.errors.InputError: --bounds idd4r: upper 200 A looks like mA; expected amperes per device (0.2)
+    """
+    if not (math.isfinite(lower_a) and math.isfinite(upper_a)):
+        raise InputError(f"{where}: {lower_a:g}:{upper_a:g}; expected finite currents in amperes")
+    if lower_a < 0:
+        raise InputError(f"{where}: lower {lower_a:g} A is negative; expected a current >= 0 A")
+    if not lower_a < upper_a:
+        raise InputError(f"{where}: lower {lower_a:g} A must be < upper {upper_a:g} A")
+    if upper_a > MAX_DEVICE_CURRENT_A:
+        raise InputError(f"{where}: upper {upper_a:g} A looks like mA; expected amperes per device "
+                         f"({upper_a / 1000:g})")
 
 
 def _intervals(sol: solve.BoundedSolution, lower: np.ndarray, upper: np.ndarray, cov_active: np.ndarray,

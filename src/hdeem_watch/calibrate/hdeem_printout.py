@@ -1,6 +1,6 @@
 """Parse real HDEEM printouts: ``checkHdeem`` output and lines printed after ``hdeem_get_stats``.
 
-Two shapes occur in the Taurus captures (``reference/taurus``):
+Two shapes occur in the Taurus captures (``tests/data/taurus``):
 
 * ``checkHdeem``: sections ``==== Instantaneous values ====`` (``NAME value``),
   ``==== HDEEM statistics ====`` (stats times, ``Blade values for stats : N``, ``VR values for

@@ -16,12 +16,12 @@ Example (on precomputed columns; CommandStats candidates go through the energy m
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
 
 import numpy as np
 
 from hdeem_watch.calibrate import solve
 from hdeem_watch.calibrate.observation import Observation
+from hdeem_watch.calibrate.online import OnlineCalibrator
 from hdeem_watch.calibrate.result import FitModel, FitResult
 from hdeem_watch.calibrate.rows import model_columns
 from hdeem_watch.dram.memspec import MemSpec
@@ -29,8 +29,8 @@ from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError
 
 
-def _result_of(fit_or_calibrator: Any) -> FitResult:
-    result = getattr(fit_or_calibrator, "latest", fit_or_calibrator)
+def _result_of(fit_or_calibrator: FitResult | OnlineCalibrator) -> FitResult:
+    result = fit_or_calibrator.latest if isinstance(fit_or_calibrator, OnlineCalibrator) else fit_or_calibrator
     if not isinstance(result, FitResult):
         raise InputError("suggest_next: no fit yet (add runs first)")
     return result
@@ -42,7 +42,7 @@ def _model_of(result: FitResult) -> FitModel:
     return result.model
 
 
-def posterior_relative_sd(fit_or_calibrator: Any) -> dict[str, float]:
+def posterior_relative_sd(fit_or_calibrator: FitResult | OnlineCalibrator) -> dict[str, float]:
     """Per calibrated current, the posterior standard deviation per unit relative noise, as a
     fraction of its scale (datasheet value): large = weakly determined."""
     result = _result_of(fit_or_calibrator)
@@ -51,7 +51,7 @@ def posterior_relative_sd(fit_or_calibrator: Any) -> dict[str, float]:
     return {name: float(np.sqrt(v)) for name, v in zip(result.currents, var)}
 
 
-def weakest_current(fit_or_calibrator: Any) -> str:
+def weakest_current(fit_or_calibrator: FitResult | OnlineCalibrator) -> str:
     """The calibrated current with the largest relative posterior variance."""
     sd = posterior_relative_sd(fit_or_calibrator)
     return max(sd, key=lambda name: sd[name])
@@ -88,7 +88,7 @@ def candidate_row(result: FitResult, candidate: CommandStats | Observation) -> n
     return row / predicted
 
 
-def suggest_next(fit_or_calibrator: Any, candidates: Mapping[str, CommandStats | Observation], *,
+def suggest_next(fit_or_calibrator: FitResult | OnlineCalibrator, candidates: Mapping[str, CommandStats | Observation], *,
                  target: str | None = None) -> list[tuple[str, float]]:
     """Rank candidate runs by how much each shrinks the variance of the weakest current.
 

@@ -6,7 +6,8 @@ experiment design. Built by :func:`hdeem_watch.calibrate.fit.fit`.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+import statistics
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -161,6 +162,41 @@ class FitResult:
             )
         except (KeyError, TypeError, ValueError) as error:
             raise InputError(f"fit: malformed fit record ({error!r})") from None
+
+
+#: Measured energies a median this many times the datasheet model's (or 1/this) mean wrong units.
+IMPLAUSIBLE_ENERGY_RATIO = 20.0
+
+
+def energy_units_warning(runs: Sequence[Mapping[str, Any]]) -> str | None:
+    """A one-line warning when the measured energies cannot be in joules for this memspec, or None.
+
+    ``runs`` are a fit's :attr:`FitResult.runs` (``measured_j`` and the datasheet model's
+    ``before_j`` of each run).
+
+    The datasheet model is rarely off by more than a factor of a few; a median ratio measured /
+    datasheet-model energy beyond :data:`IMPLAUSIBLE_ENERGY_RATIO` (either way) means the energies
+    are in other units (mJ: every current then pins at its upper bound) or ``scale`` is wrong —
+    the fit still runs, but its currents mean nothing.
+
+    Example:
+        >>> runs = [{"measured_j": 1000.0 * e, "before_j": e} for e in (1.0, 2.0, 3.0)]
+        >>> print(energy_units_warning(runs))
+        measured energies are a median 1e+03x the datasheet model's: measured_j looks like mJ; expected joules
+    """
+    ratios = [run["measured_j"] / run["before_j"] for run in runs
+              if run.get("before_j") and run["before_j"] > 0 and run.get("measured_j")]
+    if not ratios:
+        return None
+    median = statistics.median(ratios)
+    if median > IMPLAUSIBLE_ENERGY_RATIO:
+        hint = ("measured_j looks like mJ; expected joules" if 200 <= median <= 5000 else
+                "check that measured_j is in joules and that scale counts the channels it covers")
+        return f"measured energies are a median {median:.3g}x the datasheet model's: {hint}"
+    if median < 1 / IMPLAUSIBLE_ENERGY_RATIO:
+        return (f"measured energies are a median 1/{1 / median:.3g} of the datasheet model's: check that "
+                "measured_j is in joules (not kJ) and that scale and window_s are right")
+    return None
 
 
 @dataclass(frozen=True, eq=False)

@@ -2,7 +2,7 @@
 
 Format (paths relative to the RUNS.json file)::
 
-    {"memspec": "M.json",                      # or "preset:samsung-m393a1g43db0-cpb"
+    {"memspec": "M.json",                      # or "samsung-m393a1g43db0-cpb" (or "preset:...")
      "runs": [
        {"name": "triad-24", "measured_j": 41.7, "trace": "triad.csv"},
        {"name": "idle", "measured_j": 12.1, "stats": {"ranks": [{...RankStats...}, ...]},
@@ -31,22 +31,33 @@ from typing import Any
 from hdeem_watch.calibrate.observation import Observation, check_measured
 from hdeem_watch.calibrate.rows import observation_from_run, stats_window_s
 from hdeem_watch.dram.memspec import MemSpec, load_memspec, preset
+from hdeem_watch.dram.presets import PRESETS
 from hdeem_watch.dram.stats import CommandStats
-from hdeem_watch.errors import InputError
+from hdeem_watch.errors import InputError, not_a_file_error
 
 _RUN_KEYS = {"name", "measured_j", "hdeem_printout", "printout_block", "trace", "stats", "scale", "window_s",
              "time_ns", "weight"}
 
 
 def load_spec(value: str, base: Path, where: str) -> MemSpec:
-    """The memspec named by ``value``: a file (relative to ``base``) or ``preset:NAME``."""
-    if value.startswith("preset:"):
-        return preset(value.removeprefix("preset:"))
+    """The memspec named by ``value``: a file (relative to ``base``), else a preset by its name,
+    spelled ``NAME`` or ``preset:NAME`` (a file of that name wins over a bare preset name).
+
+    Raises:
+        InputError: an unknown preset, a missing file, or a malformed memspec (naming ``where``).
+    """
     path = Path(value)
     if not path.is_absolute():
         path = base / path
-    if not path.exists():
-        raise InputError(f"{where}: memspec file {str(path)!r} does not exist")
+    name = value.removeprefix("preset:")
+    if value.startswith("preset:") or (not path.exists() and name in PRESETS):
+        if name not in PRESETS:
+            raise InputError(f"{where}: unknown memspec preset {name!r}; expected one of: "
+                             f"{', '.join(sorted(PRESETS))}")
+        return preset(name)
+    if not path.is_file():
+        raise InputError(f"{where}: {not_a_file_error(path, 'memspec file')} (presets: "
+                         f"{', '.join(sorted(PRESETS))})")
     return load_memspec(path)
 
 
@@ -155,7 +166,7 @@ def _trace_stats(spec: MemSpec, value: Any, name: str, base: Path) -> CommandSta
     if not path.is_absolute():
         path = base / path
     if not path.is_file():
-        raise InputError(f"run {name!r}: trace {str(path)!r} does not exist")
+        raise InputError(f"run {name!r}: trace: {not_a_file_error(path, 'DRAMPower trace file')}")
     try:
         return trace_stats(spec, read_command_trace(path))
     except InputError as error:
@@ -171,7 +182,7 @@ def _printout_energy(run: Mapping[str, Any], name: str, base: Path) -> tuple[flo
         raise InputError(f"run {name!r}: hdeem_printout = {value!r}; expected a path to a checkHdeem/get_stats printout")
     path = Path(value) if Path(value).is_absolute() else base / value
     if not path.is_file():
-        raise InputError(f"run {name!r}: hdeem_printout {str(path)!r} does not exist")
+        raise InputError(f"run {name!r}: hdeem_printout: {not_a_file_error(path, 'HDEEM printout file')}")
     try:
         printout = read_printout(path)
     except InputError as error:

@@ -13,11 +13,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from typing import Any
 
-from hdeem_watch.calibrate.fit import FitOptions, fit
+from hdeem_watch.calibrate.fit import FitOptions, check_bound_a, fit
 from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS
-from hdeem_watch.calibrate.result import FitResult
+from hdeem_watch.calibrate.result import FitResult, energy_units_warning
 from hdeem_watch.calibrate.runs_file import read_runs_file
 from hdeem_watch.errors import InputError
 
@@ -57,6 +58,9 @@ def _run(args: argparse.Namespace) -> int:
     options = FitOptions(currents=currents, bounds=bounds, intercept=not args.no_intercept,
                          prior_weight=args.prior_weight, uncertainty=args.uncertainty)
     result = fit(observations, spec, options)
+    warnings = [w for w in (energy_units_warning(result.runs),) if w]
+    for warning in warnings:
+        print(f"hdeem-watch calibrate: warning: {warning}", file=sys.stderr)
     written = None
     if args.write_memspec:
         from hdeem_watch.dram.memspec import save_memspec
@@ -71,6 +75,7 @@ def _run(args: argparse.Namespace) -> int:
         out = result.to_dict()
         out["memspec"] = spec.memory_id
         out["written_memspec"] = written
+        out["warnings"] = warnings
         print(json.dumps(out, allow_nan=False))
     else:
         print(format_table(result, spec.memory_id))
@@ -92,9 +97,11 @@ def parse_bounds(text: str) -> dict[str, tuple[float, float]] | None:
         name, _, rest = item.partition("=")
         lo, _, hi = rest.partition(":")
         try:
-            out[name.strip().lower()] = (float(lo), float(hi))
+            bound = (float(lo), float(hi))
         except ValueError:
             raise InputError(f"--bounds: {item!r}; expected NAME=LOWER:UPPER in amperes") from None
+        check_bound_a(f"--bounds {name.strip()}", *bound)
+        out[name.strip().lower()] = bound
     return out or None
 
 

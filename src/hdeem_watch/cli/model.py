@@ -6,9 +6,14 @@ The sub-subcommands live in their own modules: ``energy`` in :mod:`hdeem_watch.c
 
 from __future__ import annotations
 
+import argparse
+import sys
 from typing import Any
 
 from hdeem_watch.cli import model_energy, model_stats
+
+#: Exit code of ``hdeem-watch model`` without a sub-subcommand (bad input, as at the top level).
+EXIT_USAGE = 2
 
 
 def register(subparsers: Any) -> None:
@@ -18,3 +23,10 @@ def register(subparsers: Any) -> None:
                                              parser_class=type(parser))
     model_energy.register(model_subparsers)
     model_stats.register(model_subparsers)
+
+    def usage(_args: argparse.Namespace) -> int:
+        """``hdeem-watch model`` alone: ``model``'s own help (its sub-subcommands), not the top level's."""
+        parser.print_help(sys.stderr)
+        return EXIT_USAGE
+
+    parser.set_defaults(func=usage)

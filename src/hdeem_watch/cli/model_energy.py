@@ -19,10 +19,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from hdeem_watch.dram.presets import PRESETS  # no numpy: the model itself is imported when it runs
 from hdeem_watch.dram.stats import COUNT_FIELDS, CYCLE_FIELDS
+from hdeem_watch.errors import InputError
 
 if TYPE_CHECKING:
     from hdeem_watch.dram.energy import EnergyBreakdown
@@ -36,7 +38,8 @@ def register(subparsers: Any) -> None:
         "energy", help="DRAM core energy of a DRAMPower command trace (DRAMPower v6 DDR4 model)",
         description="Energy of a DRAMPower CSV command trace for a DDR4 memspec (one channel).")
     parser.add_argument("--memspec", required=True, metavar="M.json",
-                        help=f"DRAMPower JSON memspec, or a preset name: {', '.join(sorted(PRESETS))}")
+                        help=f"DRAMPower JSON memspec, or a preset (NAME or preset:NAME): "
+                             f"{', '.join(sorted(PRESETS))}")
     parser.add_argument("--trace", required=True, metavar="T.csv",
                         help="DRAMPower CLI command trace: cycle,CMD,rank,bankgroup,bank,row,column[,data]")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
@@ -44,10 +47,28 @@ def register(subparsers: Any) -> None:
 
 
 def resolve_memspec(value: str) -> MemSpec:
-    """A memspec file, or a preset when no such file exists and the name is a preset."""
-    from hdeem_watch.dram.memspec import memspec_from
+    """A memspec file, or a preset by name (``NAME`` when no such file exists, or ``preset:NAME``,
+    the spelling RUNS.json uses).
 
-    return memspec_from(value)
+    Raises:
+        InputError: an unknown preset, a missing file, or a malformed memspec.
+    """
+    from hdeem_watch.dram.memspec import memspec_from, preset
+
+    text = str(value)
+    name = text.removeprefix("preset:")
+    known = ", ".join(sorted(PRESETS))
+    if text.startswith("preset:"):
+        if name not in PRESETS:
+            raise InputError(f"--memspec {text!r}: unknown preset {name!r}; expected one of: {known}")
+        return preset(name)
+    path = Path(text)
+    if path.is_dir():
+        raise InputError(f"--memspec {text!r}: is a directory; expected a DRAMPower JSON memspec or a preset")
+    if not path.exists() and text not in PRESETS and not (text.endswith(".json") or len(path.parts) > 1):
+        raise InputError(f"--memspec {text!r}: no such file and no such preset; expected a DRAMPower JSON "
+                         f"memspec or a preset: {known}")
+    return memspec_from(text)
 
 
 def report(spec: MemSpec, stats: CommandStats, energy: EnergyBreakdown, *, trace_path: str,

@@ -12,7 +12,10 @@ Usage::
 directly); ``kernel`` models a STREAM-like kernel run. ``--json`` prints one object with
 ``requests, reads, writes, act, pre, ref, row_hits, row_misses, row_conflicts, cycles`` (totals
 over the ranks), ``ranks`` (per-rank statistics), and ``energy`` (``core_j`` and ``components``
-from the DRAMPower-equivalent model). Bad input: one line on stderr, exit code 2.
+from the DRAMPower-equivalent model). Bad input (an empty trace, a count that models nothing): one
+line on stderr, exit code 2. Counts take ``bench``'s spellings (``1e6``, ``2**20``:
+:mod:`hdeem_watch.cli.numbers`); on a terminal, ``stats`` shows its progress on stderr
+(:mod:`hdeem_watch.cli.progress`).
 """
 
 from __future__ import annotations
@@ -23,6 +26,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from hdeem_watch.cli.numbers import SPELLINGS, count_at_least
+from hdeem_watch.cli.progress import Progress
 from hdeem_watch.dram.kernels import KERNELS
 from hdeem_watch.dram.mapping import SCHEMES
 from hdeem_watch.dram.memspec import MemSpec
@@ -38,16 +43,6 @@ def _spec(value: str) -> MemSpec:
     return resolve_memspec(value)
 
 
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r} is negative")
-    return value
-
-
 def register(subparsers: Any) -> None:
     """Add ``model stats`` and ``model kernel`` to the ``model`` subcommand's subparsers."""
     stats = subparsers.add_parser(
@@ -57,9 +52,10 @@ def register(subparsers: Any) -> None:
     stats.add_argument("--format", required=True, choices=STATS_FORMATS, help="trace format")
     stats.add_argument("--memspec", required=True, metavar="M.json", help="DRAMPower JSON memspec or preset name")
     _controller_options(stats)
-    stats.add_argument("--llc-bytes", type=_positive, default=8 << 20, metavar="N",
+    stats.add_argument("--llc-bytes", type=count_at_least(1, "byte"), default=8 << 20, metavar="N",
                        help="last-level cache in front of pinatrace/lackey traces (default 8 MiB)")
-    stats.add_argument("--llc-ways", type=_positive, default=16, metavar="W", help="its associativity (default 16)")
+    stats.add_argument("--llc-ways", type=count_at_least(1, "way"), default=16, metavar="W",
+                       help="its associativity (default 16)")
     stats.add_argument("--llc-flush", action="store_true", help="write back the dirty lines left at the end")
     stats.add_argument("--emit-drampower", metavar="OUT.csv", help="also write the commands as a DRAMPower trace")
     stats.add_argument("--json", action="store_true", help="print one JSON object")
@@ -69,11 +65,12 @@ def register(subparsers: Any) -> None:
         "kernel", help="DRAM command statistics of a STREAM-like kernel run",
         description="Model the DRAM traffic of a kernel (stride 8 doubles, write-allocate) on one channel.")
     kernel.add_argument("--kernel", required=True, metavar="NAME", help=f"one of {', '.join(KERNELS)}")
-    kernel.add_argument("--elements", required=True, type=_positive, metavar="N", help="doubles per array")
-    kernel.add_argument("--threads", required=True, type=_positive, metavar="T", help="threads")
+    kernel.add_argument("--elements", required=True, type=count_at_least(8, "doubles (one 64-byte line)"),
+                        metavar="N", help=f"doubles per array, >= 8 ({SPELLINGS})")
+    kernel.add_argument("--threads", required=True, type=count_at_least(1, "thread"), metavar="T", help="threads")
     kernel.add_argument("--memspec", required=True, metavar="M.json", help="DRAMPower JSON memspec or preset name")
-    kernel.add_argument("--repeat", type=_positive, default=1, metavar="K", help="passes (default 1)")
-    kernel.add_argument("--channels", type=_positive, default=1, metavar="C",
+    kernel.add_argument("--repeat", type=count_at_least(1, "pass"), default=1, metavar="K", help="passes (default 1)")
+    kernel.add_argument("--channels", type=count_at_least(1, "channel"), default=1, metavar="C",
                         help="channels sharing the traffic; statistics are for one of them (default 1)")
     _controller_options(kernel)
     kernel.add_argument("--json", action="store_true", help="print one JSON object")
@@ -130,6 +127,23 @@ def _print(data: dict[str, Any], as_json: bool) -> None:
 def run_stats(args: argparse.Namespace) -> int:
     """``model stats``."""
     spec = _spec(args.memspec)
+    progress = Progress(sys.stderr)
+    try:
+        data, stats = _trace_summary(spec, args, progress)
+    finally:
+        progress.clear()
+    data["trace"] = str(args.trace)
+    data["energy"] = _energy(spec, stats)
+    _print(data, args.json)
+    return 0
+
+
+def _trace_summary(spec: MemSpec, args: argparse.Namespace, progress: Progress) -> tuple[dict[str, Any], CommandStats]:
+    """The ``--json`` object (without trace and energy) and the statistics of ``args.trace``.
+
+    Raises:
+        InputError: a bad trace, an empty one, or an unwritable ``--emit-drampower`` file.
+    """
     if args.format == "drampower":
         if args.emit_drampower:
             raise InputError("--emit-drampower: the input already is a DRAMPower trace")
@@ -141,32 +155,32 @@ def run_stats(args: argparse.Namespace) -> int:
         rd, wr = stats.total("rd") + stats.total("rda"), stats.total("wr") + stats.total("wra")
         data = summary(stats, requests=rd + wr, reads=rd, writes=wr, row_hits=None, row_misses=None,
                        row_conflicts=None, cycles=stats.ranks[0].cycles_total if stats.ranks else 0.0)
-    else:
-        from hdeem_watch.dram.request_traces import CacheConfig
-        from hdeem_watch.dram.trace_simulation import simulate_trace
+        return data, stats
+    from hdeem_watch.dram.request_traces import CacheConfig
+    from hdeem_watch.dram.trace_simulation import simulate_trace
 
-        cache = CacheConfig(size_bytes=args.llc_bytes, ways=args.llc_ways, flush=args.llc_flush)
-        result, cpu_accesses = simulate_trace(spec, args.trace, args.format, cache=cache, policy=args.policy,
-                                              mapping=args.mapping, xor_bank=args.xor_bank,
-                                              keep_commands=bool(args.emit_drampower))
-        stats = result.stats
-        data = summary(stats, requests=result.requests, reads=result.reads, writes=result.writes,
-                       row_hits=result.row_hits, row_misses=result.row_misses,
-                       row_conflicts=result.row_conflicts, cycles=result.cycles)
-        if cpu_accesses:
-            data["cpu_accesses"] = cpu_accesses
-        if args.emit_drampower:
-            from hdeem_watch.dram.command_emit import write_drampower_trace
+    cache = CacheConfig(size_bytes=args.llc_bytes, ways=args.llc_ways, flush=args.llc_flush)
+    result, cpu_accesses = simulate_trace(spec, args.trace, args.format, cache=cache, policy=args.policy,
+                                          mapping=args.mapping, xor_bank=args.xor_bank,
+                                          keep_commands=bool(args.emit_drampower), progress=progress.callback())
+    if result.requests == 0:
+        found = f" ({cpu_accesses} CPU accesses, all served by the cache)" if cpu_accesses else ""
+        raise InputError(f"{args.trace}: no memory requests in the trace{found}; expected {args.format} lines")
+    data = summary(result.stats, requests=result.requests, reads=result.reads, writes=result.writes,
+                   row_hits=result.row_hits, row_misses=result.row_misses,
+                   row_conflicts=result.row_conflicts, cycles=result.cycles)
+    if cpu_accesses:
+        data["cpu_accesses"] = cpu_accesses
+    if args.emit_drampower:
+        from hdeem_watch.dram.command_emit import write_drampower_trace
 
-            try:
-                data["drampower_commands"] = write_drampower_trace(Path(args.emit_drampower), result)
-            except OSError as error:
-                raise InputError(f"--emit-drampower {args.emit_drampower}: {error.strerror}") from None
-            data["drampower_trace"] = str(args.emit_drampower)
-    data["trace"] = str(args.trace)
-    data["energy"] = _energy(spec, stats)
-    _print(data, args.json)
-    return 0
+        try:
+            data["drampower_commands"] = write_drampower_trace(Path(args.emit_drampower), result,
+                                                               progress=progress.callback())
+        except OSError as error:
+            raise InputError(f"--emit-drampower {args.emit_drampower}: {error.strerror}") from None
+        data["drampower_trace"] = str(args.emit_drampower)
+    return data, result.stats
 
 
 def run_kernel(args: argparse.Namespace) -> int:
@@ -175,8 +189,6 @@ def run_kernel(args: argparse.Namespace) -> int:
 
     spec = _spec(args.memspec)
     name = canonical_kernel(args.kernel)
-    if args.threads < 1 or args.channels < 1:
-        raise InputError("--threads and --channels must be at least 1")
     model = kernel_stats(spec, name, args.elements, args.threads, repeat=args.repeat, channels=args.channels,
                          mapping=args.mapping, policy=args.policy, xor_bank=args.xor_bank)
     data = summary(model.stats, requests=model.reads + model.writes, reads=model.reads, writes=model.writes,

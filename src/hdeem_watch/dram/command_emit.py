@@ -4,7 +4,7 @@ Format (DRAMPower CLI CSV, no header): ``cycle,CMD,rank,bankgroup,bank,row,colum
 flat in the rank, columns in device columns (burst index × BL). Each refresh is a PREA followed
 ``tRP`` later by a REFA on every rank; the last line is ``END`` at the evaluation time. The
 statistics :func:`hdeem_watch.dram.controller.simulate` returns are computed from exactly these
-commands, so DRAMPower (or :func:`hdeem_watch.dram.command_trace.trace_stats`) on this file gives
+commands, so DRAMPower (or :func:`hdeem_watch.dram.trace_state.trace_stats`) on this file gives
 the same energy.
 
 Example:
@@ -20,15 +20,19 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from hdeem_watch.dram.command_set import ControllerResult
+from hdeem_watch.dram.progress import ProgressCallback
+
+#: The phase :func:`write_drampower_trace` reports progress under.
+PROGRESS_PHASE = "writing DRAMPower trace"
 _NAMES = ("PREA", "PRE", "REFA", "ACT", "RD", "WR", "RDA", "WRA")
 _PREA, _PRE, _REFA, _ACT, _RD, _WR, _RDA, _WRA = range(len(_NAMES))
 
 
-def _columns(result: Any) -> tuple[np.ndarray, ...]:
+def _columns(result: ControllerResult) -> tuple[np.ndarray, ...]:
     """Every command as parallel arrays (cycle, kind, rank, bankgroup, bank, row, column), time-ordered."""
     commands = result.commands
     if commands is None:
@@ -59,8 +63,9 @@ def _columns(result: Any) -> tuple[np.ndarray, ...]:
     return cycle[order], kind[order], rank[order], bank // per_group, bank, row[order], column[order]
 
 
-def iter_drampower_lines(result: Any, chunk: int = 1 << 18) -> Iterator[str]:
+def iter_drampower_lines(result: ControllerResult, chunk: int = 1 << 18) -> Iterator[str]:
     """The trace lines, without newlines, in time order, ``END`` last."""
+    end_cycle = result.commands.end_cycle if result.commands is not None else 0
     cycle, kind, rank, bankgroup, bank, row, column = _columns(result)
     for start in range(0, cycle.size, chunk):
         stop = start + chunk
@@ -68,16 +73,31 @@ def iter_drampower_lines(result: Any, chunk: int = 1 << 18) -> Iterator[str]:
         yield from (f"{c},{k},{r},{g},{b},{w},{o}" for c, k, r, g, b, w, o in zip(
             cycle[start:stop].tolist(), names, rank[start:stop].tolist(), bankgroup[start:stop].tolist(),
             bank[start:stop].tolist(), row[start:stop].tolist(), column[start:stop].tolist()))
-    yield f"{result.commands.end_cycle},END,0,0,0,0,0"
+    yield f"{end_cycle},END,0,0,0,0,0"
 
 
-def drampower_lines(result: Any) -> list[str]:
+def drampower_lines(result: ControllerResult) -> list[str]:
     """All trace lines (small results only)."""
     return list(iter_drampower_lines(result))
 
 
-def write_drampower_trace(path: str | Path, result: Any) -> int:
-    """Write the trace to ``path``; return the number of commands written (END included)."""
+def command_count(result: ControllerResult) -> int:
+    """Lines :func:`write_drampower_trace` writes for ``result`` (END included)."""
+    commands = result.commands
+    if commands is None:
+        raise ValueError("the result holds no commands: simulate(..., keep_commands=True)")
+    refreshes = 2 * commands.ref_cycle.size * result.geometry.ranks  # PREA + REFA per rank
+    return refreshes + commands.pre_cycle.size + commands.act_cycle.size + commands.col_cycle.size + 1
+
+
+def write_drampower_trace(path: str | Path, result: ControllerResult, *,
+                          progress: ProgressCallback | None = None) -> int:
+    """Write the trace to ``path``; return the number of commands written (END included).
+
+    ``progress("writing DRAMPower trace", lines_written, lines_total)`` is called after each batch
+    of lines.
+    """
+    total = command_count(result)
     count = 0
     with open(path, "w", encoding="ascii") as handle:
         batch: list[str] = []
@@ -87,6 +107,10 @@ def write_drampower_trace(path: str | Path, result: Any) -> int:
                 handle.write("\n".join(batch) + "\n")
                 count += len(batch)
                 batch = []
+                if progress is not None:
+                    progress(PROGRESS_PHASE, count, total)
         handle.write("\n".join(batch) + "\n")
         count += len(batch)
+    if progress is not None:
+        progress(PROGRESS_PHASE, count, total)
     return count

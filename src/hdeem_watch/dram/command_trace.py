@@ -37,7 +37,7 @@ from typing import NoReturn
 import numpy as np
 
 from hdeem_watch.dram.memspec import MemSpec
-from hdeem_watch.errors import InputError
+from hdeem_watch.errors import InputError, excerpt, not_a_file_error
 
 #: Command names in code order (``CommandTrace.cmd`` holds the index into this tuple).
 COMMANDS: tuple[str, ...] = ("ACT", "PRE", "PREA", "REFA", "RD", "RDA", "WR", "WRA",
@@ -165,7 +165,7 @@ def _fail(where: str, line: int, message: str) -> NoReturn:
 
 
 def _line_text(buf: np.ndarray, start: int, end: int) -> str:
-    return bytes(buf[start:min(end, start + 80)]).decode("ascii", "replace")
+    return excerpt(bytes(buf[start:min(end, start + 80)]))
 
 
 def _parse_chunk(buf: np.ndarray, first_line: int, where: str, limits: dict[str, int] | None = None,
@@ -191,7 +191,7 @@ def _parse_chunk(buf: np.ndarray, first_line: int, where: str, limits: dict[str,
         i = int(np.argmax(bad))
         if ends[i] == starts[i]:
             _fail(where, first_line + i, "empty line; expected cycle,CMD,rank,bankgroup,bank,row,column[,data]")
-        _fail(where, first_line + i, f"{ncomma[i] + 1} fields in {_line_text(buf, starts[i], ends[i])!r}; "
+        _fail(where, first_line + i, f"{ncomma[i] + 1} fields in {_line_text(buf, starts[i], ends[i])}; "
               "expected cycle,CMD,rank,bankgroup,bank,row,column[,data]")
     # drop the line end of lines with a data field: then every line has exactly 7 delimiters
     # (c0..c5 and the end of the column field) and the table is a free reshape
@@ -213,8 +213,8 @@ def _parse_chunk(buf: np.ndarray, first_line: int, where: str, limits: dict[str,
         value, ok = _parse_uint(buf, *bound, values=needed)
         if not ok.all():
             i = int(np.argmin(ok))
-            text = bytes(buf[bound[0][i]:bound[1][i]]).decode("ascii", "replace")
-            _fail(where, first_line + i, f"{name} = {text!r} is not a non-negative integer of at most 16 digits")
+            text = _line_text(buf, bound[0][i], bound[1][i])
+            _fail(where, first_line + i, f"{name} = {text} is not a non-negative integer of at most 16 digits")
         if needed:
             out[name] = value.astype(np.int64, copy=False) if name == "cycle" else value
     # command names: pack up to 6 bytes into an int64 and look them up
@@ -225,9 +225,9 @@ def _parse_chunk(buf: np.ndarray, first_line: int, where: str, limits: dict[str,
     known = (_PACKED[pos] == packed) & (length >= 2) & (length <= 6)
     if not known.all():
         i = int(np.argmin(known))
-        text = bytes(buf[s[i]:e[i]]).decode("ascii", "replace")
-        hint = " (a command of another DRAM standard)" if text in OTHER_STANDARD else ""
-        _fail(where, first_line + i, f"unknown command {text!r}{hint}; expected one of {', '.join(COMMANDS)}")
+        raw = bytes(buf[s[i]:e[i]])
+        hint = " (a command of another DRAM standard)" if raw.decode("latin-1") in OTHER_STANDARD else ""
+        _fail(where, first_line + i, f"unknown command {excerpt(raw)}{hint}; expected one of {', '.join(COMMANDS)}")
     out["cmd"] = _PACKED_CODE[pos]
     for name, dtype in (("rank", np.uint16), ("bankgroup", np.uint16), ("bank", np.uint16),
                         ("row", np.uint32), ("column", np.uint32)):
@@ -281,8 +281,12 @@ def read_command_trace(path: str | Path, spec: MemSpec | None = None, *, address
     if spec is not None:
         limits = {"rank": spec.nbr_of_ranks, "bankgroup": spec.nbr_of_bankgroups, "bank": spec.nbr_of_banks,
                   "row": spec.nbr_of_rows, "column": spec.nbr_of_columns}
+    if Path(path).is_dir():
+        raise not_a_file_error(path, "trace file")
     try:
         handle = open(path, "rb", buffering=0)  # noqa: SIM115 (closed by the with below)
+    except FileNotFoundError:
+        raise not_a_file_error(path, "trace file") from None
     except OSError as error:
         raise InputError(f"{where}: cannot read trace: {error.strerror or error}") from None
     with handle:

@@ -46,6 +46,7 @@ from hdeem_watch.dram.command_set import Commands, ControllerResult, Timing
 from hdeem_watch.dram.mapping import AddressMapping, Geometry
 from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.dram.pipeline import prepared
+from hdeem_watch.dram.progress import ProgressCallback
 from hdeem_watch.dram.row_outcomes import Outcomes, row_outcomes
 from hdeem_watch.dram.scheduler import SchedulerConfig, serve
 from hdeem_watch.dram.stats import CommandStats, RankStats
@@ -53,6 +54,8 @@ from hdeem_watch.dram.timing_model import run_timing
 from hdeem_watch.errors import InputError
 
 POLICIES = ("open", "closed")
+#: The phase :func:`simulate` reports progress under.
+PROGRESS_PHASE = "controller model"
 #: Requests served per chunk by :func:`simulate`.
 CHUNK_REQUESTS = 1 << 17
 #: Prepare the next chunk (decode, service order, row outcomes) while one is timed.
@@ -77,6 +80,7 @@ def simulate(
     channel: int = 0,
     scheduler: SchedulerConfig | None = None,
     keep_commands: bool = False,
+    progress: ProgressCallback | None = None,
 ) -> ControllerResult:
     """Serve a request stream on one channel and count the commands.
 
@@ -93,6 +97,8 @@ def simulate(
         scheduler: queue sizes, watermarks and hit cap (defaults: Ramulator's).
         keep_commands: keep the issued commands in ``result.commands`` (for
             :func:`hdeem_watch.dram.command_emit.write_drampower_trace`); off by default to save memory.
+        progress: called as ``progress("controller model", requests_done, requests_total)``
+            after each chunk (:mod:`hdeem_watch.dram.progress`).
 
     Long streams are served in chunks of about :data:`CHUNK_REQUESTS` requests (bounded memory,
     cache-friendly); each chunk but the last ends by precharging the banks left open (one PRE per
@@ -107,7 +113,7 @@ def simulate(
         raise InputError(f"requests: {addresses.size} addresses but {is_write.size} write flags")
     return simulate_requests(spec, addresses.size, lambda lo, hi: (addresses[lo:hi], is_write[lo:hi]),
                              policy=policy, mapping=mapping, xor_bank=xor_bank, channel=channel,
-                             scheduler=scheduler, keep_commands=keep_commands)
+                             scheduler=scheduler, keep_commands=keep_commands, progress=progress)
 
 
 def simulate_requests(
@@ -121,6 +127,7 @@ def simulate_requests(
     channel: int = 0,
     scheduler: SchedulerConfig | None = None,
     keep_commands: bool = False,
+    progress: ProgressCallback | None = None,
 ) -> ControllerResult:
     """:func:`simulate` of ``n`` requests that ``requests(lo, hi)`` gives (addresses, write flags)
     chunk by chunk, in the preparing stage (e.g. parsed from a trace file while the chunk before
@@ -169,6 +176,8 @@ def simulate_requests(
         if not keep_commands:
             part = replace(part, commands=None)
         parts.append(part)
+        if progress is not None:
+            progress(PROGRESS_PHASE, bounds[i + 1], n)
     return parts[0] if len(parts) == 1 else _merge(parts)
 
 

@@ -22,22 +22,32 @@ Example:
 
 from __future__ import annotations
 
+import itertools
 import mmap
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
 from hdeem_watch.dram.pipeline import split_work
+from hdeem_watch.dram.progress import ProgressCallback
 from hdeem_watch.dram.trace_writers import format_requests, iter_formatted, trace_sha256, write_requests
 from hdeem_watch.dram.uniform_parser import UniformParser, uniform_lines
-from hdeem_watch.errors import InputError
+from hdeem_watch.errors import InputError, excerpt, not_a_file_error
 
 __all__ = ["FORMATS", "CacheConfig", "RequestTrace", "cache_filter", "format_requests", "iter_formatted",
            "read_request_trace", "trace_sha256", "write_requests"]
 
 #: The request-trace formats the readers accept.
 FORMATS = ("ramulator", "ramulator2", "pinatrace", "lackey")
+#: Bytes of lines the CPU-trace readers take per batch (progress is reported once per batch).
+BATCH_BYTES = 1 << 20
+#: Accesses or lines the cache model handles between two progress reports.
+BATCH_LINES = 1 << 16
+
+_Item = TypeVar("_Item")
 
 # ----------------------------------------------------------------------------------------- readers
 
@@ -86,12 +96,14 @@ class CacheConfig:
         return self.size_bytes // (self.ways * self.line_bytes)
 
 
-def cache_filter(line_addresses: np.ndarray, is_write: np.ndarray, cache: CacheConfig) -> tuple[np.ndarray, np.ndarray]:
+def cache_filter(line_addresses: np.ndarray, is_write: np.ndarray, cache: CacheConfig, *,
+                 progress: ProgressCallback | None = None) -> tuple[np.ndarray, np.ndarray]:
     """DRAM requests caused by CPU accesses to cache lines (line-aligned byte addresses).
 
     A miss reads the line (a write allocates it too); evicting a dirty line writes it back, right
     after the read that replaced it. Consecutive accesses to one line are merged first (they are
     hits that only set the dirty bit), so the per-access loop runs on the line sequence only.
+    ``progress("cache filter", lines_done, lines)`` is called every :data:`BATCH_LINES` lines.
     """
     lines = np.asarray(line_addresses, dtype=np.uint64)
     writes = np.asarray(is_write, dtype=bool)
@@ -109,21 +121,23 @@ def cache_filter(line_addresses: np.ndarray, is_write: np.ndarray, cache: CacheC
     sets: dict[int, dict[int, bool]] = {}
     out_addr: list[int] = []
     out_write: list[bool] = []
-    for address, write, index in zip(run_lines.tolist(), run_write.tolist(), set_index):
-        content = sets.get(index)
-        if content is None:
-            content = sets[index] = {}
-        dirty = content.pop(address, None)
-        if dirty is None:  # miss: fetch the line, evict the least recently used
-            out_addr.append(address)
-            out_write.append(False)
-            if len(content) >= ways:
-                victim = next(iter(content))
-                if content.pop(victim):
-                    out_addr.append(victim)
-                    out_write.append(True)
-            dirty = False
-        content[address] = dirty or write  # most recently used last (dict keeps insertion order)
+    for batch in _batches(zip(run_lines.tolist(), run_write.tolist(), set_index), run_lines.size, "cache filter",
+                          progress):
+        for address, write, index in batch:
+            content = sets.get(index)
+            if content is None:
+                content = sets[index] = {}
+            dirty = content.pop(address, None)
+            if dirty is None:  # miss: fetch the line, evict the least recently used
+                out_addr.append(address)
+                out_write.append(False)
+                if len(content) >= ways:
+                    victim = next(iter(content))
+                    if content.pop(victim):
+                        out_addr.append(victim)
+                        out_write.append(True)
+                dirty = False
+            content[address] = dirty or write  # most recently used last (dict keeps insertion order)
     if cache.flush:
         for content in sets.values():
             for address, dirty in content.items():
@@ -133,9 +147,21 @@ def cache_filter(line_addresses: np.ndarray, is_write: np.ndarray, cache: CacheC
     return np.array(out_addr, dtype=np.uint64), np.array(out_write, dtype=bool)
 
 
+def _batches(items: Iterable[_Item], total: int, phase: str,
+             progress: ProgressCallback | None) -> Iterator[Iterator[_Item]]:
+    """``items`` in consecutive slices of :data:`BATCH_LINES` (the caller loops over each), with
+    ``progress(phase, done, total)`` after each; one slice of everything without ``progress``."""
+    iterator = iter(items)
+    if progress is None:
+        yield iterator
+        return
+    for done in range(0, total, BATCH_LINES):
+        yield itertools.islice(iterator, BATCH_LINES)
+        progress(phase, min(done + BATCH_LINES, total), total)
+
+
 def _fail(path: str | Path, line: int, text: bytes, expected: str) -> InputError:
-    shown = text[:60].decode("utf-8", "replace")
-    return InputError(f"{path}:{line}: {shown!r} is not a valid request; expected {expected}")
+    return InputError(f"{path}:{line}: {excerpt(text)} is not a valid request; expected {expected}")
 
 
 def _lines(data: bytes | mmap.mmap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -286,12 +312,25 @@ def _split_access(address: int, size: int, line_bytes: int) -> range:
     return range(first, address + max(size, 1), line_bytes)
 
 
-def _read_pinatrace(path: str | Path) -> tuple[list[int], list[bool], int]:
+def _line_batches(path: str | Path, progress: ProgressCallback | None) -> Iterator[tuple[int, list[bytes]]]:
+    """``(number of the first line, lines)`` of a text file in batches of about :data:`BATCH_BYTES`,
+    with ``progress("reading trace", bytes_read, file_size)`` after each batch."""
+    size = Path(path).stat().st_size
+    first = 1
+    with open(path, "rb") as handle:
+        while batch := handle.readlines(BATCH_BYTES):
+            yield first, batch
+            first += len(batch)
+            if progress is not None:
+                progress("reading trace", handle.tell(), size)
+
+
+def _read_pinatrace(path: str | Path, progress: ProgressCallback | None = None) -> tuple[list[int], list[bool], int]:
     addresses: list[int] = []
     writes: list[bool] = []
     count = 0
-    with open(path, "rb") as handle:
-        for number, raw in enumerate(handle, 1):
+    for first, batch in _line_batches(path, progress):
+        for number, raw in enumerate(batch, first):
             text = raw.strip()
             if not text or text.startswith(b"#"):
                 continue
@@ -309,14 +348,15 @@ def _read_pinatrace(path: str | Path) -> tuple[list[int], list[bool], int]:
     return addresses, writes, count
 
 
-def _read_lackey(path: str | Path, instructions: bool) -> tuple[list[int], list[int], list[bool], int]:
+def _read_lackey(path: str | Path, instructions: bool,
+                 progress: ProgressCallback | None = None) -> tuple[list[int], list[int], list[bool], int]:
     addresses: list[int] = []
     sizes: list[int] = []
     writes: list[bool] = []
     count = 0
     kinds = {b"L": (False,), b"S": (True,), b"M": (False, True), b"I": (False,)}
-    with open(path, "rb") as handle:
-        for number, raw in enumerate(handle, 1):
+    for first, batch in _line_batches(path, progress):
+        for number, raw in enumerate(batch, first):
             text = raw.rstrip(b"\r\n")
             if not text.strip() or text.startswith(b"=="):
                 continue
@@ -340,7 +380,7 @@ def _read_lackey(path: str | Path, instructions: bool) -> tuple[list[int], list[
 
 
 def read_request_trace(path: str | Path, fmt: str, *, cache: CacheConfig | None = None,
-                       instructions: bool = False) -> RequestTrace:
+                       instructions: bool = False, progress: ProgressCallback | None = None) -> RequestTrace:
     """Read a request trace.
 
     Args:
@@ -349,6 +389,9 @@ def read_request_trace(path: str | Path, fmt: str, *, cache: CacheConfig | None 
         cache: the last-level cache CPU traces (``pinatrace``, ``lackey``) go through
             (default: 8 MiB, 16 ways, 64-byte lines).
         instructions: also feed lackey's instruction fetches (``I`` lines) to the cache.
+        progress: told how far reading (bytes), splitting accesses into cache lines and the cache
+            filter are, for CPU traces (:mod:`hdeem_watch.dram.progress`); the vectorised
+            Ramulator readers take a second per GB and report nothing.
 
     Raises:
         InputError: ``file:line`` and what was wrong, for a malformed line; or a bad format.
@@ -356,20 +399,22 @@ def read_request_trace(path: str | Path, fmt: str, *, cache: CacheConfig | None 
     if fmt not in FORMATS:
         raise InputError(f"--format {fmt!r}: expected one of {', '.join(FORMATS)}")
     if not Path(path).is_file():
-        raise InputError(f"{path}: no such trace file")
+        raise not_a_file_error(path, "trace file")
     if fmt in ("ramulator", "ramulator2"):
         return _read_dram_trace(path, fmt)
     cache = cache or CacheConfig()
     if fmt == "pinatrace":
-        addresses, writes, count = _read_pinatrace(path)
+        addresses, writes, count = _read_pinatrace(path, progress)
         sizes = [1] * len(addresses)  # pinatrace records no size
     else:
-        addresses, sizes, writes, count = _read_lackey(path, instructions)
+        addresses, sizes, writes, count = _read_lackey(path, instructions, progress)
     line_addresses: list[int] = []
     line_writes: list[bool] = []
-    for address, size, write in zip(addresses, sizes, writes):
-        for line in _split_access(address, size, cache.line_bytes):
-            line_addresses.append(line)
-            line_writes.append(write)
-    dram, dram_writes = cache_filter(np.array(line_addresses, dtype=np.uint64), np.array(line_writes, dtype=bool), cache)
+    for batch in _batches(zip(addresses, sizes, writes), len(addresses), "cache lines", progress):
+        for address, size, write in batch:
+            for line in _split_access(address, size, cache.line_bytes):
+                line_addresses.append(line)
+                line_writes.append(write)
+    dram, dram_writes = cache_filter(np.array(line_addresses, dtype=np.uint64), np.array(line_writes, dtype=bool), cache,
+                                     progress=progress)
     return RequestTrace(dram, dram_writes, cpu_accesses=count)

@@ -33,12 +33,13 @@ import numpy as np
 from hdeem_watch.dram.command_set import ControllerResult
 from hdeem_watch.dram.controller import simulate, simulate_requests
 from hdeem_watch.dram.memspec import MemSpec
+from hdeem_watch.dram.progress import ProgressCallback
 from hdeem_watch.dram.request_traces import CacheConfig, map_file, read_request_trace
 from hdeem_watch.dram.uniform_parser import UniformParser, uniform_lines
 
 
 def simulate_trace(spec: MemSpec, path: str | Path, fmt: str, *, cache: CacheConfig | None = None,
-                   **options: Any) -> tuple[ControllerResult, int]:
+                   progress: ProgressCallback | None = None, **options: Any) -> tuple[ControllerResult, int]:
     """Simulate the requests of a trace file (see the module doc).
 
     Args:
@@ -46,6 +47,8 @@ def simulate_trace(spec: MemSpec, path: str | Path, fmt: str, *, cache: CacheCon
         path: the trace.
         fmt: one of :data:`hdeem_watch.dram.request_traces.FORMATS`.
         cache: the last-level cache of CPU traces (``pinatrace``, ``lackey``).
+        progress: told how far reading a CPU trace and the controller model are
+            (:mod:`hdeem_watch.dram.progress`).
         options: :func:`hdeem_watch.dram.controller.simulate`'s keyword arguments.
 
     Returns:
@@ -70,11 +73,11 @@ def simulate_trace(spec: MemSpec, path: str | Path, fmt: str, *, cache: CacheCon
                 return addresses, writes
 
             try:
-                return simulate_requests(spec, text.shape[0], requests, **options), 0
+                return simulate_requests(spec, text.shape[0], requests, progress=progress, **options), 0
             except _NotUniform:
                 pass  # mixed line lengths or a malformed line: the general reader names it
-    trace = read_request_trace(path, fmt, cache=cache)
-    return simulate(spec, trace.addresses, trace.is_write, **options), trace.cpu_accesses
+    trace = read_request_trace(path, fmt, cache=cache, progress=progress)
+    return simulate(spec, trace.addresses, trace.is_write, progress=progress, **options), trace.cpu_accesses
 
 
 class _NotUniform(Exception):
