@@ -126,7 +126,7 @@ def test_a_directory_owned_by_another_user_is_refused(tmp_path: Path) -> None:
         os.chown(directory, 4242, 4242)
     else:
         directory = Path("/")  # root's: never this user's
-    with pytest.raises(InputError, match="owned by uid|mode"):
+    with pytest.raises(InputError, match=r"owned by uid|mode"):
         private_directory(directory, strict=True)
 
 
