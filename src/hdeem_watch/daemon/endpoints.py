@@ -17,18 +17,21 @@ An ipc endpoint is a file, and files are shared with other users and other daemo
 * **Clean-up.** :meth:`IpcFile.unlink_if_ours` removes the socket file only if it is still the
   one this process created (same device and inode), never a successor's.
 
-TCP: :func:`is_loopback` tells which endpoints stay on the node (insecure TCP elsewhere needs
-``allow_insecure_tcp``, see :mod:`hdeem_watch.config`).
+TCP: :func:`~hdeem_watch.daemon.addresses.is_loopback` tells which endpoints stay on the node
+(insecure TCP elsewhere needs ``allow_insecure_tcp``, see :mod:`hdeem_watch.config`).
 
 Example:
-    >>> is_loopback("tcp://127.0.0.1:7410"), is_loopback("tcp://*:7410"), is_loopback("ipc:///run/x")
-    (True, False, True)
+    >>> import zmq, tempfile
+    >>> sock = zmq.Context.instance().socket(zmq.PUB)
+    >>> binding = bind(sock, f"ipc://{tempfile.mkdtemp()}/doc.sock")
+    >>> oct(binding.ipc.path.stat().st_mode & 0o777)
+    '0o660'
+    >>> sock.close(0)
 """
 
 from __future__ import annotations
 
 import errno
-import ipaddress
 import logging
 import os
 import socket
@@ -39,8 +42,11 @@ from typing import Any
 
 import zmq
 
+from hdeem_watch.daemon.addresses import is_loopback
 from hdeem_watch.daemon.client import fallback_runtime_dir, ipc_path
 from hdeem_watch.errors import InputError
+
+__all__ = ["Binding", "IpcFile", "bind", "bind_endpoint", "is_loopback", "private_directory"]
 
 log = logging.getLogger("hdeem_watch.daemon")
 
@@ -172,18 +178,3 @@ def _refuse_live_socket(endpoint: str, path: Path) -> None:
 def _last_endpoint(sock: zmq.Socket[Any]) -> str:
     bound = sock.getsockopt(zmq.LAST_ENDPOINT)
     return bound.decode() if isinstance(bound, bytes) else str(bound)
-
-
-def is_loopback(endpoint: str) -> bool:
-    """Whether ``endpoint`` is reachable only from this node (ipc, inproc, TCP on a loopback address)."""
-    if not endpoint.startswith("tcp://"):
-        return True
-    host = endpoint[len("tcp://"):].rsplit(":", 1)[0].strip("[]")
-    if ";" in host:  # tcp://source;destination: the bound (source) side decides
-        host = host.split(";")[0]
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False  # "*", an interface name or a host name: reachable from the network
