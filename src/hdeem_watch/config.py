@@ -26,9 +26,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hdeem_watch.daemon.addresses import is_loopback
 from hdeem_watch.errors import InputError
 
 ENV_PREFIX = "HDEEM_WATCH_"
+
+
+class SettingError(InputError):
+    """A setting with a value out of range; :func:`load_settings` adds where the value came from.
+
+    Attributes:
+        setting: the field name.
+    """
+
+    def __init__(self, setting: str, message: str) -> None:
+        super().__init__(message)
+        self.setting = setting
 SOURCE_KINDS = ("sim", "hdeem", "rapl", "replay")
 
 
@@ -86,6 +99,9 @@ class DaemonSettings:
             sockets then encrypt and authenticate (for remote TCP); None = off.
         curve_clients_dir: directory of the public ``.key`` files of the clients allowed to connect
             under CURVE (None = any client that knows the daemon's public key).
+        allow_insecure_tcp: accept ``pub``/``control`` on TCP at a non-loopback address without
+            CURVE (anyone who reaches the port reads the stream, or starts runs and resets the
+            calibration); refused unless true, and warned about loudly when true.
         prometheus_port: serve Prometheus metrics on this port (None = off).
         prometheus_addr: address of the Prometheus endpoint.
         sndhwm: per-subscriber send queue in messages; a slower subscriber loses messages (seen as
@@ -121,6 +137,7 @@ class DaemonSettings:
     model_max_requests: int | None = None
     curve_secret_key_file: str | None = None
     curve_clients_dir: str | None = None
+    allow_insecure_tcp: bool = False
     prometheus_port: int | None = None
     prometheus_addr: str = "127.0.0.1"
     sndhwm: int = 20_000
@@ -131,26 +148,37 @@ class DaemonSettings:
 
     def __post_init__(self) -> None:
         if self.source not in SOURCE_KINDS:
-            raise InputError(f"source = {self.source!r}; expected one of {', '.join(SOURCE_KINDS)}")
+            raise SettingError("source", f"source = {self.source!r}; expected one of {', '.join(SOURCE_KINDS)}")
         for name in ("poll_interval_s", "heartbeat_s", "republish_s", "speed", "quiet_window_s", "quiet_history_s"):
             if not getattr(self, name) > 0:
-                raise InputError(f"{name} = {getattr(self, name)!r}; expected a number > 0")
+                raise SettingError(name, f"{name} = {getattr(self, name)!r}; expected a number > 0")
         if self.idle_poll_interval_s < 0:
-            raise InputError(f"idle_poll_interval_s = {self.idle_poll_interval_s!r}; expected >= 0 (0 = off)")
+            raise SettingError("idle_poll_interval_s", f"idle_poll_interval_s = {self.idle_poll_interval_s!r}; expected >= 0 (0 = off)")
         if self.half_life_s < 0:
-            raise InputError(f"half_life_s = {self.half_life_s!r}; expected >= 0 (0 = no forgetting)")
+            raise SettingError("half_life_s", f"half_life_s = {self.half_life_s!r}; expected >= 0 (0 = no forgetting)")
         if self.dimms < 1:
-            raise InputError(f"dimms = {self.dimms!r}; expected >= 1")
+            raise SettingError("dimms", f"dimms = {self.dimms!r}; expected >= 1")
         if self.sndhwm < 1:
-            raise InputError(f"sndhwm = {self.sndhwm!r}; expected >= 1")
+            raise SettingError("sndhwm", f"sndhwm = {self.sndhwm!r}; expected >= 1")
         if self.prometheus_port is not None and not 0 <= self.prometheus_port <= 65535:
-            raise InputError(f"prometheus_port = {self.prometheus_port!r}; expected 0..65535")
+            raise SettingError("prometheus_port", f"prometheus_port = {self.prometheus_port!r}; expected 0..65535")
         if self.log_level not in ("debug", "info", "warning", "error"):
-            raise InputError(f"log_level = {self.log_level!r}; expected debug, info, warning or error")
+            raise SettingError("log_level", f"log_level = {self.log_level!r}; expected debug, info, warning or error")
         if not self.node or "/" in self.node:
-            raise InputError(f"node = {self.node!r}; expected a non-empty name without '/'")
+            raise SettingError("node", f"node = {self.node!r}; expected a non-empty name without '/'")
         if self.source == "replay" and not self.replay_file:
-            raise InputError("source = 'replay' needs replay_file (--replay-file FILE)")
+            raise SettingError("replay_file", "source = 'replay' needs replay_file (--replay-file FILE)")
+        if self.seed is not None and not 0 <= self.seed < 2**32:
+            raise SettingError("seed", f"seed = {self.seed!r}; expected an integer 0..4294967295")
+        if not self.currents:
+            raise SettingError("currents", "currents = []; expected at least one current to calibrate")
+        for name in ("pub", "control"):
+            endpoint = getattr(self, name)
+            if (endpoint and not is_loopback(endpoint) and not self.curve_secret_key_file
+                    and not self.allow_insecure_tcp):
+                raise SettingError(name, f"{name} = {endpoint!r}: TCP on a non-loopback address without CURVE is "
+                                   "open to anyone who can reach it; set curve_secret_key_file (see --gen-keys), "
+                                   "or allow_insecure_tcp = true to accept that")
 
     def source_options(self) -> dict[str, Any]:
         """Keyword options for ``make_source(self.source, ...)``."""
@@ -215,12 +243,13 @@ def _coerce(name: str, value: Any, where: str) -> Any:
     raise InputError(f"{where}: {name} = {value!r}; expected {getattr(base, '__name__', str(base))}")
 
 
-def _apply(values: dict[str, Any], data: Mapping[str, Any], where: str) -> None:
+def _apply(values: dict[str, Any], data: Mapping[str, Any], where: str, origins: dict[str, str]) -> None:
     for key, value in data.items():
         name = key.replace("-", "_")
         if name not in _FIELDS:
             raise InputError(f"{where}: unknown setting {key!r}; expected one of {', '.join(sorted(_FIELDS))}")
         values[name] = _coerce(name, value, where)
+        origins[name] = where
 
 
 def load_settings(
@@ -228,6 +257,7 @@ def load_settings(
     *,
     env: Mapping[str, str] | None = None,
     overrides: Mapping[str, Any] | None = None,
+    check_model: bool = False,
 ) -> DaemonSettings:
     """Settings from defaults, the TOML file, ``HDEEM_WATCH_*`` variables and ``overrides`` (flags).
 
@@ -236,34 +266,70 @@ def load_settings(
         env: the environment (default ``os.environ``); only ``HDEEM_WATCH_<FIELD>`` names are read,
             other ``HDEEM_WATCH_`` variables (e.g. ``HDEEM_WATCH_RUNTIME_DIR``) map to fields too.
         overrides: command-line values; None values are ignored (flag not given).
+        check_model: also check the run model's settings (:func:`check_model_settings`; loads the
+            memspec), as the daemon does at start.
 
     Raises:
         InputError: unreadable file, bad TOML, unknown key, value of the wrong type or range.
     """
     values: dict[str, Any] = {}
+    origins: dict[str, str] = {}
     if config is not None:
         path = Path(config)
         try:
-            data = tomllib.loads(path.read_text())
+            data = tomllib.loads(path.read_text(encoding="utf-8"))
         except OSError as error:
             raise InputError(f"{path}: cannot read the config file ({error.strerror})") from None
+        except UnicodeDecodeError:
+            raise InputError(f"{path}: not a text file (not UTF-8); expected a TOML config file") from None
         except tomllib.TOMLDecodeError as error:
             raise InputError(f"{path}: not valid TOML ({error})") from None
         if "daemon" in data and isinstance(data["daemon"], dict):
             rest = {k: v for k, v in data.items() if k != "daemon"}
-            _apply(values, rest, str(path))
-            _apply(values, data["daemon"], f"{path} [daemon]")
+            _apply(values, rest, str(path), origins)
+            _apply(values, data["daemon"], f"{path} [daemon]", origins)
         else:
-            _apply(values, data, str(path))
+            _apply(values, data, str(path), origins)
     environment = os.environ if env is None else env
     for name in _FIELDS:
         key = ENV_PREFIX + name.upper()
         if key in environment:
             values[name] = _coerce(name, environment[key], f"environment {key}")
+            origins[name] = f"environment {key}"
     if overrides:
         for name, value in overrides.items():
             if value is not None:
                 if name not in _FIELDS:
                     raise InputError(f"unknown setting {name!r}")
                 values[name] = _coerce(name, value, f"--{name.replace('_', '-')}")
-    return DaemonSettings(**values)
+                origins[name] = f"--{name.replace('_', '-')}"
+    try:
+        settings = DaemonSettings(**values)
+        if check_model:
+            check_model_settings(settings)
+    except SettingError as error:
+        where = origins.get(error.setting)
+        raise InputError(f"{where}: {error}" if where else str(error)) from None
+    return settings
+
+
+def check_model_settings(settings: DaemonSettings) -> None:
+    """Check the run model's settings: the memspec exists and the currents are known to it.
+
+    Loads the memspec (a preset name or a DRAMPower JSON file), so a typo stops the daemon at once
+    instead of leaving every run without a model.
+
+    Raises:
+        SettingError: naming the setting, its value and what was expected.
+    """
+    from hdeem_watch.dram.energy import CURRENT_NAMES
+    from hdeem_watch.dram.memspec import memspec_from
+
+    try:
+        spec = memspec_from(settings.memspec)
+    except InputError as error:
+        raise SettingError("memspec", f"memspec = {settings.memspec!r}: {error}") from None
+    known = [name for name in CURRENT_NAMES if name in spec.currents]
+    unknown = [name for name in settings.currents if name not in known]
+    if unknown:
+        raise SettingError("currents", f"currents: unknown current {unknown[0]!r}; expected some of {', '.join(known)}")

@@ -45,6 +45,7 @@ def test_curve_daemon_serves_key_holders_only(daemon_factory: Any, receive: Any,
             pytest.raises(DaemonUnreachable):
         other.call("ping")
     assert d.terminate() == 0, d.stderr()
+    assert "CURVE: connection refused: DENIED (CURVE)" in d.stderr()  # once logged at DEBUG only (#22.14)
 
 
 def test_gen_keys_writes_a_pair(tmp_path: Path) -> None:

@@ -39,6 +39,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--record", metavar="FILE", help="record every sample to FILE (replayable CSV)")
     parser.add_argument("--curve-secret-key", metavar="FILE", help="CURVE certificate (.key_secret) of the daemon")
     parser.add_argument("--curve-clients", metavar="DIR", help="public keys of the clients allowed under CURVE")
+    parser.add_argument("--allow-insecure-tcp", action="store_true", default=None,
+                        help="accept TCP endpoints on a non-loopback address without CURVE (unencrypted, "
+                        "unauthenticated: anyone who reaches the port may read the stream and control runs)")
     parser.add_argument("--gen-keys", metavar="DIR", help="write a new CURVE key pair (server.key, "
                         "server.key_secret) to DIR and exit")
     parser.add_argument("--prometheus", type=int, metavar="PORT", help="serve Prometheus metrics on PORT")
@@ -65,7 +68,9 @@ def _run(args: argparse.Namespace) -> int:
             "replay_file": args.replay_file, "record_file": args.record,
             "curve_secret_key_file": args.curve_secret_key, "curve_clients_dir": args.curve_clients, "prometheus_port": args.prometheus,
             "poll_interval_s": args.poll_interval, "memspec": args.memspec, "log_level": args.log_level,
+            "allow_insecure_tcp": args.allow_insecure_tcp,
         },
+        check_model=True,
     )
     logging.basicConfig(level=settings.log_level.upper(), stream=sys.stderr,
                         format="%(asctime)s hdeem-watchd %(levelname)s %(message)s")

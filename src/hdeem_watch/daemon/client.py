@@ -69,6 +69,15 @@ def runtime_dir(explicit: str | os.PathLike[str] | None = None) -> Path:
     xdg = os.environ.get("XDG_RUNTIME_DIR")
     if xdg:
         return Path(xdg) / "hdeem-watch"
+    return fallback_runtime_dir()
+
+
+def fallback_runtime_dir() -> Path:
+    """``/tmp/hdeem-watch-<uid>``: the runtime directory when nothing names one.
+
+    It sits in a world-writable directory, so the daemon adopts it only when it is its own
+    (:func:`hdeem_watch.daemon.endpoints.private_directory`).
+    """
     return Path(f"/tmp/hdeem-watch-{os.getuid()}")
 
 

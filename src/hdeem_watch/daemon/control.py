@@ -29,7 +29,7 @@ from typing import Any
 import zmq
 
 from hdeem_watch.daemon import protocol
-from hdeem_watch.daemon.publisher import bind_endpoint
+from hdeem_watch.daemon.endpoints import bind, is_loopback
 from hdeem_watch.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -132,11 +132,15 @@ class ControlServer:
         self.socket = context.socket(zmq.ROUTER)
         if secure is not None:
             secure(self.socket)
+        elif not is_loopback(endpoint):
+            log.warning("control %s: TCP without CURVE on a non-loopback address: anyone who can reach it may "
+                        "start and stop runs and reset the calibration (allowed by allow_insecure_tcp)", endpoint)
         self.socket.setsockopt(zmq.LINGER, 0)
         # Frames far beyond the limit are not even read into memory: the peer is disconnected.
         self.socket.setsockopt(zmq.MAXMSGSIZE, 64 * max_bytes)
         self.socket.setsockopt(zmq.SNDHWM, 10_000)
-        self.endpoint = bind_endpoint(self.socket, endpoint)
+        binding = bind(self.socket, endpoint)
+        self.endpoint, self._ipc = binding.endpoint, binding.ipc
         self.handlers = dict(handlers)
         self.max_bytes = max_bytes
         self.requests = 0
@@ -179,5 +183,7 @@ class ControlServer:
             log.debug("control reply dropped: %s", error)
 
     def close(self) -> None:
-        """Close the socket."""
+        """Close the socket and remove its ipc file if it is still the one this server created."""
         self.socket.close(linger=0)
+        if self._ipc is not None:
+            self._ipc.unlink_if_ours()

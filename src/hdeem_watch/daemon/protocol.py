@@ -62,7 +62,7 @@ from hdeem_watch.daemon.wire import (
 
 __all__ = [
     "ERROR_CODES", "KINDS", "MAX_REQUEST_BYTES", "MAX_REQUEST_DEPTH", "SAMPLE_DTYPE", "TIME_DTYPE", "TOPIC_PREFIX", "VERSION",
-    "GapTracker", "Message", "ProtocolError", "Reply", "Request", "SequenceCounter", "decode", "decode_reply",
+    "GapTracker", "Message", "ProtocolError", "Reply", "Request", "SamplesEncoder", "SequenceCounter", "decode", "decode_reply",
     "decode_request", "dumps", "encode", "encode_reply_error", "encode_reply_ok", "encode_request",
     "encode_samples", "jsonable", "loads_object", "now_ns", "pack_samples", "parse_topic", "request_id_of",
     "samples_topic", "subscription", "topic", "unpack_samples",
@@ -210,10 +210,6 @@ def unpack_samples(payload: bytes, n: int) -> tuple[np.ndarray, np.ndarray]:
     return t, p
 
 
-_SAMPLES_HEADER = (
-    '{"v":%d,"seq":%d,"node":%s,"t_ns":%d,"channel":%s,"unit":"W","rate_hz":%s,"n":%d,"dtype":"<f8",'
-    '"t0_ns":%s,"dt_ns":%s,"energy_j":%s,"status":%s}'
-)
 _QUOTED: dict[str, str] = {}
 
 
@@ -232,6 +228,78 @@ def _json_number(value: float) -> str:
     return repr(value) if math.isfinite(value) else "null"
 
 
+_TIME = np.dtype(TIME_DTYPE)
+_SAMPLE = np.dtype(SAMPLE_DTYPE)
+
+
+class SamplesEncoder:
+    """The one encoder of samples messages: one channel's topic and header, fixed fields formatted once.
+
+    The header is formatted directly (the daemon's hot path: every channel, every poll); it is the
+    same JSON object the generic :func:`encode` would produce, in the order of the table in
+    ``docs/protocol.md``. :func:`encode_samples` and the daemon's publisher both use it.
+
+    Args:
+        node: node name.
+        channel: channel name, e.g. ``"DDR_AB"``.
+        rate_hz: the channel's native sample rate.
+
+    Raises:
+        ProtocolError: a name with ``/`` or an empty one.
+
+    Example:
+        >>> enc = SamplesEncoder("n1", "DDR_AB", 100.0)
+        >>> frames = enc.frames(0, 5, np.array([10], dtype="<i8"), np.array([2.0]), 1.5, "ok")
+        >>> frames[0], json.loads(frames[1])["dt_ns"]
+        (b'hw1/n1/samples/DDR_AB', 10000000)
+    """
+
+    def __init__(self, node: str, channel: str, rate_hz: float) -> None:
+        self.topic = samples_topic(node, channel)
+        self.topic_bytes = self.topic.encode()
+        self.rate_hz = float(rate_hz)
+        rate = self.rate_hz
+        dt = str(round(1e9 / rate)) if rate > 0 and math.isfinite(rate) else "null"
+        fixed = [x.replace("%", "%%") for x in (_quoted(node), _quoted(channel), _json_number(rate), dt)]
+        self._template = (
+            '{"v":' + str(VERSION) + ',"seq":%d,"node":' + fixed[0] + ',"t_ns":%d,"channel":' + fixed[1]
+            + ',"unit":"W","rate_hz":' + fixed[2] + ',"n":%d,"dtype":"<f8","t0_ns":%s,"dt_ns":' + fixed[3]
+            + ',"energy_j":%s,"status":%s}'
+        )
+
+    def frames(self, seq: int, t_ns: int, t_wall_ns: np.ndarray, power_w: np.ndarray, energy_j: float,
+               status: str) -> list[bytes]:
+        """The three frames of one batch (positional: the hot path).
+
+        Args:
+            seq: this topic's sequence number.
+            t_ns: header time (wall clock, int ns).
+            t_wall_ns: sample times (wall clock, int ns).
+            power_w: sample values in W (NaN = unknown).
+            energy_j: cumulative energy at the end of the batch (NaN = unknown → ``null``).
+            status: the channel status (``"ok"``, ``"stale"``, ``"error: ..."``).
+
+        Raises:
+            ProtocolError: times and powers of different lengths or not one-dimensional.
+        """
+        if (t_wall_ns.dtype == _TIME and power_w.dtype == _SAMPLE and t_wall_ns.ndim == 1
+                and power_w.shape == t_wall_ns.shape):
+            payload = t_wall_ns.tobytes() + power_w.tobytes()
+        else:
+            payload = pack_samples(t_wall_ns, power_w)
+        n = len(payload) >> 4
+        energy = float(energy_j)
+        header = self._template % (
+            int(seq),
+            int(t_ns),
+            n,
+            str(int(t_wall_ns[0])) if n else "null",
+            repr(energy) if math.isfinite(energy) else "null",
+            _quoted(status),
+        )
+        return [self.topic_bytes, header.encode(), payload]
+
+
 def encode_samples(
     node: str,
     channel: str,
@@ -244,10 +312,7 @@ def encode_samples(
     status: str,
     t_ns: int | None = None,
 ) -> list[bytes]:
-    """Frames of one samples batch of one channel.
-
-    The header is formatted directly (this is the daemon's hot path); it is the same JSON object
-    the generic :func:`encode` would produce.
+    """Frames of one samples batch of one channel (a one-off :class:`SamplesEncoder`).
 
     Args:
         node: node name.
@@ -260,23 +325,9 @@ def encode_samples(
         status: the channel status (``"ok"``, ``"stale"``, ``"error: ..."``).
         t_ns: header time; defaults to now.
     """
-    payload = pack_samples(t_wall_ns, power_w)
-    n = len(payload) // 16
-    rate = float(rate_hz)
-    header = _SAMPLES_HEADER % (
-        VERSION,
-        int(seq),
-        _quoted(node),
-        now_ns() if t_ns is None else int(t_ns),
-        _quoted(channel),
-        _json_number(rate),
-        n,
-        str(int(t_wall_ns[0])) if n else "null",
-        str(round(1e9 / rate)) if rate > 0 and math.isfinite(rate) else "null",
-        _json_number(energy_j),
-        _quoted(status),
-    )
-    return [f"{TOPIC_PREFIX}/{node}/samples/{channel}".encode(), header.encode(), payload]
+    encoder = SamplesEncoder(node, channel, rate_hz)
+    return encoder.frames(seq, now_ns() if t_ns is None else int(t_ns), np.asarray(t_wall_ns), np.asarray(power_w),
+                          energy_j, status)
 
 
 @dataclass(frozen=True)

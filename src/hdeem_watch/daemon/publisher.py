@@ -17,9 +17,9 @@ Example:
 
 from __future__ import annotations
 
-import math
+import logging
 import os
-import stat
+import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -27,60 +27,22 @@ import numpy as np
 import zmq
 
 from hdeem_watch.daemon import protocol
-from hdeem_watch.daemon.client import ipc_path
+from hdeem_watch.daemon.endpoints import bind, bind_endpoint, is_loopback
+
+__all__ = ["CACHED_KINDS", "MAX_SUBSCRIPTIONS", "Publisher", "bind_endpoint"]
+
+log = logging.getLogger("hdeem_watch.daemon")
 
 _NOBLOCK = int(zmq.NOBLOCK)
 _MORE_NOBLOCK = int(zmq.SNDMORE) | int(zmq.NOBLOCK)
-#: The compiled ``Socket.send`` under pyzmq's Python wrapper (which only adds RADIO/SERVER options).
-_RAW_SEND = getattr(zmq.backend, "Socket", zmq.Socket).send
-_TIME_DTYPE = np.dtype(protocol.TIME_DTYPE)
-_QUOTED_STATUS = {status: protocol._quoted(status) for status in ("ok", "stale", "overflow", "gap", "closed")}
-_SAMPLE_DTYPE = np.dtype(protocol.SAMPLE_DTYPE)
 
 #: Topics whose latest message is cached and re-sent to new subscribers.
 CACHED_KINDS = ("calib", "baseline")
-
-
-def bind_endpoint(sock: zmq.Socket[Any], endpoint: str) -> str:
-    """Bind ``sock``; for ipc, create the directory (0750) and make the socket file 0660.
-
-    Returns:
-        The endpoint actually bound (``tcp://*:0`` resolves to its port).
-
-    Raises:
-        OSError: the directory cannot be created.
-        zmq.ZMQError: the endpoint cannot be bound (in use, bad address).
-    """
-    path = ipc_path(endpoint)
-    if path is not None:
-        if len(str(path)) > 107:
-            raise OSError(f"ipc path longer than 107 bytes: {path}")
-        if not path.parent.exists():
-            path.parent.mkdir(parents=True, mode=0o750)
-    sock.bind(endpoint)
-    bound = sock.getsockopt(zmq.LAST_ENDPOINT)
-    if path is not None:
-        os.chmod(path, stat.S_IRUSR | stat.S_IWUSR | stat.S_IRGRP | stat.S_IWGRP)
-    return bound.decode() if isinstance(bound, bytes) else str(bound)
-
-
-def samples_header_template(node: str, channel: str, rate_hz: float) -> str:
-    """The samples header of one channel with its fixed fields filled in (exactly as
-    :func:`protocol.encode_samples` formats them), left open: ``% (seq, t_ns, n, t0_ns, energy_j, status)``.
-    """
-    rate = float(rate_hz)
-    fixed = {
-        "node": protocol._quoted(node),
-        "channel": protocol._quoted(channel),
-        "rate": protocol._json_number(rate),
-        "dt": str(round(1e9 / rate)) if rate > 0 and math.isfinite(rate) else "null",
-    }
-    node_q, channel_q, rate_s, dt_s = (fixed[key].replace("%", "%%") for key in ("node", "channel", "rate", "dt"))
-    return (
-        '{"v":' + str(protocol.VERSION) + ',"seq":%d,"node":' + node_q + ',"t_ns":%d,"channel":' + channel_q
-        + ',"unit":"W","rate_hz":' + rate_s + ',"n":%d,"dtype":"<f8","t0_ns":%s,"dt_ns":' + dt_s
-        + ',"energy_j":%s,"status":%s}'
-    )
+#: Most distinct subscription prefixes held at once (a TUI holds a handful). libzmq keeps every
+#: prefix a peer sends until that peer leaves (~0.8 KB each; 200,000 of them once took 520 MiB)
+#: and an XPUB cannot tell which peer sent which, so beyond this bound every stream connection is
+#: dropped (subscribers reconnect and subscribe again by themselves) and a warning is logged.
+MAX_SUBSCRIPTIONS = 10_000
 
 
 class Publisher:
@@ -92,31 +54,44 @@ class Publisher:
         node: node name used in every topic and header.
         sndhwm: per-subscriber queue length in messages.
         secure: applied to the socket before it binds (CURVE, :mod:`hdeem_watch.daemon.security`).
+        max_subscriptions: the bound on distinct subscription prefixes (:data:`MAX_SUBSCRIPTIONS`).
+        clock: monotonic seconds (rate limit of the warnings).
 
     Attributes:
         sent: messages handed to ZeroMQ.
         dropped: messages ZeroMQ refused at once (``EAGAIN``; not expected with XPUB).
         subscriptions: subscription messages seen.
+        resets: times every connection was dropped for too many subscriptions.
+        prefixes: subscribed prefixes (a prefix leaves when its last subscriber unsubscribes or goes away).
     """
 
     def __init__(self, context: zmq.Context[Any], endpoint: str, *, node: str, sndhwm: int = 20_000,
-                 secure: Callable[[zmq.Socket[Any]], None] | None = None) -> None:
+                 secure: Callable[[zmq.Socket[Any]], None] | None = None,
+                 max_subscriptions: int = MAX_SUBSCRIPTIONS, clock: Callable[[], float] = time.monotonic) -> None:
         self.node = node
         self.socket = context.socket(zmq.XPUB)
         if secure is not None:
             secure(self.socket)
+        elif not is_loopback(endpoint):
+            log.warning("stream %s: TCP without CURVE on a non-loopback address: anyone who can reach it "
+                        "reads every sample, unencrypted (allowed by allow_insecure_tcp)", endpoint)
         self.socket.setsockopt(zmq.SNDHWM, int(sndhwm))
+        # Subscriptions wait in the peer's socket instead of piling up here between two reads.
+        self.socket.setsockopt(zmq.RCVHWM, 1000)
         self.socket.setsockopt(zmq.LINGER, 0)
         self.socket.setsockopt(zmq.XPUB_VERBOSE, 1)
-        self.endpoint = bind_endpoint(self.socket, endpoint)
+        binding = bind(self.socket, endpoint)
+        self.endpoint, self._ipc = binding.endpoint, binding.ipc
         self._seq = protocol.SequenceCounter()
         self._cache: dict[str, list[bytes]] = {}
-        #: Per channel: topic, topic bytes, rate and the header template of its samples messages.
-        self._sample_topics: dict[str, tuple[str, bytes, float, str]] = {}
+        self._encoders: dict[str, protocol.SamplesEncoder] = {}
+        self._max_subscriptions = int(max_subscriptions)
+        self._clock = clock
+        self._warned_at = -1e9
         self.sent = 0
         self.dropped = 0
         self.subscriptions = 0
-        #: Subscribed prefixes (a prefix leaves when its last subscriber unsubscribes or goes away).
+        self.resets = 0
         self.prefixes: set[bytes] = set()
 
     def _send(self, frames: list[bytes]) -> bool:
@@ -154,53 +129,37 @@ class Publisher:
                         energy_j: float, status: str, t_ns: int) -> list[bytes]:
         """The frames of the next samples batch of ``channel`` (takes its sequence number; not sent).
 
-        The poll's hot path (positional arguments, header time given). The daemon encodes every
-        channel of a poll first and hands them to :meth:`send_all` at once: back-to-back sends wake
-        ZeroMQ's I/O thread (and each subscriber) once per poll instead of once per message, which is
-        most of the cost of a send on a virtual machine.
+        The poll's hot path (positional arguments, header time given), encoded by the channel's
+        :class:`~hdeem_watch.daemon.protocol.SamplesEncoder`. The daemon encodes every channel of a
+        poll first and hands them to :meth:`send_all` at once: back-to-back sends wake ZeroMQ's I/O
+        thread (and each subscriber) once per poll instead of once per message.
         """
-        known = self._sample_topics.get(channel)
-        if known is None or known[2] != rate_hz:
-            topic = protocol.samples_topic(self.node, channel)
-            known = self._sample_topics[channel] = (topic, topic.encode(),
-                                                    rate_hz, samples_header_template(self.node, channel, rate_hz))
-        n = len(t_wall_ns)
-        if (t_wall_ns.dtype is _TIME_DTYPE and power_w.dtype is _SAMPLE_DTYPE and t_wall_ns.ndim == 1
-                and power_w.shape == t_wall_ns.shape):
-            payload = t_wall_ns.tobytes() + power_w.tobytes()
-            t0 = str(t_wall_ns.item(0)) if n else "null"
-        else:
-            payload = protocol.pack_samples(t_wall_ns, power_w)
-            n = len(payload) >> 4
-            t0 = str(int(t_wall_ns[0])) if n else "null"
-        energy_j = float(energy_j)
-        header = known[3] % (
-            self._seq.next(known[0]),
-            t_ns,
-            n,
-            t0,
-            repr(energy_j) if energy_j - energy_j == 0.0 else "null",  # finite
-            _QUOTED_STATUS.get(status) or protocol._quoted(status),
-        )
-        return [known[1], header.encode(), payload]
+        encoder = self._encoders.get(channel)
+        if encoder is None or encoder.rate_hz != rate_hz:
+            encoder = self._encoders[channel] = protocol.SamplesEncoder(self.node, channel, rate_hz)
+        return encoder.frames(self._seq.next(encoder.topic), t_ns, t_wall_ns, power_w, energy_j, status)
 
     def send_all(self, messages: list[list[bytes]]) -> int:
         """Send several messages back to back (in order); return how many were handed to ZeroMQ."""
-        sock, sent, send = self.socket, 0, _RAW_SEND
+        send, sent = self.socket.send, 0
         for topic, header, payload in messages:
             try:
-                send(sock, topic, _MORE_NOBLOCK)
+                send(topic, _MORE_NOBLOCK)
             except zmq.Again:  # XPUB drops instead of blocking; kept for a PUB-like socket
                 self.dropped += 1
                 continue
-            send(sock, header, _MORE_NOBLOCK)
-            send(sock, payload, _NOBLOCK, len(payload) < 65536)
+            send(header, _MORE_NOBLOCK)
+            send(payload, _NOBLOCK, copy=len(payload) < 65536)
             sent += 1
         self.sent += sent
         return sent
 
     def handle_subscriptions(self) -> int:
-        """Read pending subscription messages; re-send cached topics a new subscription covers."""
+        """Read pending subscription messages; re-send cached topics a new subscription covers.
+
+        Beyond ``max_subscriptions`` distinct prefixes every connection is dropped (see
+        :data:`MAX_SUBSCRIPTIONS`).
+        """
         handled = 0
         resend: set[str] = set()
         while True:
@@ -219,6 +178,9 @@ class Publisher:
                 continue
             self.subscriptions += 1
             self.prefixes.add(prefix)
+            if len(self.prefixes) > self._max_subscriptions:
+                self._drop_connections()
+                return handled
             for topic in self._cache:
                 if topic.encode().startswith(prefix):
                     resend.add(topic)
@@ -230,11 +192,38 @@ class Publisher:
             self._send([frames[0], protocol.dumps(header), frames[2]])
         return handled
 
+    def _drop_connections(self) -> None:
+        """Unbind and bind again: libzmq ends every connection of the endpoint and frees its subscriptions."""
+        self.resets += 1
+        now = self._clock()
+        if now - self._warned_at >= 60.0:
+            self._warned_at = now
+            log.warning("stream %s: more than %d distinct subscriptions; the rest are refused by dropping every "
+                        "stream connection (subscribers reconnect by themselves; %d resets so far)",
+                        self.endpoint, self._max_subscriptions, self.resets)
+        self.socket.unbind(self.endpoint)
+        while True:  # what is still queued belonged to the dropped connections
+            try:
+                self.socket.recv(flags=zmq.NOBLOCK)
+            except zmq.Again:
+                break
+        self.prefixes.clear()
+        if self._ipc is not None:
+            # libzmq removes the old socket file from its I/O thread; bind only once it is gone,
+            # or that removal would take the new file with it.
+            deadline = time.monotonic() + 2.0
+            while os.path.lexists(self._ipc.path) and time.monotonic() < deadline:
+                time.sleep(0.005)
+        binding = bind(self.socket, self.endpoint)
+        self._ipc = binding.ipc
+
     def watched(self, kind: str) -> bool:
         """Whether some subscriber receives messages of ``kind`` (e.g. ``"samples"``)."""
         base = protocol.subscription(self.node, kind)  # every topic of the kind starts with it
         return any(base.startswith(prefix) or prefix.startswith(base) for prefix in self.prefixes)
 
     def close(self) -> None:
-        """Close the socket (pending messages are dropped: LINGER 0)."""
+        """Close the socket (pending messages are dropped: LINGER 0) and remove its ipc file if still ours."""
         self.socket.close(linger=0)
+        if self._ipc is not None:
+            self._ipc.unlink_if_ours()

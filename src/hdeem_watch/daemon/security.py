@@ -21,7 +21,9 @@ Example:
 
 from __future__ import annotations
 
+import logging
 import os
+from collections.abc import MutableMapping
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +31,26 @@ import zmq
 import zmq.auth
 
 from hdeem_watch.errors import InputError
+
+log = logging.getLogger("hdeem_watch.daemon.security")
+
+
+class RefusalLog(logging.LoggerAdapter):  # type: ignore[type-arg]
+    """The ZAP authenticator's log with its refusals raised from DEBUG to WARNING.
+
+    pyzmq's authenticator reports a refused client (``DENIED (CURVE) ... client_key=...``) only at
+    DEBUG; a refusal is what an operator wants to see (a misconfigured client, or a probe).
+    """
+
+    def process(self, msg: Any, kwargs: MutableMapping[str, Any]) -> tuple[Any, MutableMapping[str, Any]]:
+        return msg, kwargs
+
+    def debug(self, msg: object, *args: object, **kwargs: Any) -> None:
+        """DEBUG, or WARNING for a ``DENIED`` decision."""
+        if isinstance(msg, str) and (msg.startswith("DENIED") or (msg.startswith("%s (") and args and args[0] == "DENIED")):
+            self.logger.warning("CURVE: connection refused: " + msg, *args, **kwargs)
+        else:
+            self.logger.debug(msg, *args, **kwargs)
 
 
 def generate_keys(directory: str | os.PathLike[str], name: str) -> tuple[Path, Path]:
@@ -102,7 +124,7 @@ class CurveServer:
         self.public, self.secret = load_secret_key(secret_key_file)
         if clients_dir is not None and not Path(clients_dir).is_dir():
             raise InputError(f"curve_clients_dir {clients_dir}: not a directory")
-        self.authenticator = ThreadAuthenticator(context)
+        self.authenticator = ThreadAuthenticator(context, log=RefusalLog(log, {}))
         self.authenticator.start()
         self.authenticator.configure_curve(domain="*", location=clients_dir or zmq.auth.CURVE_ALLOW_ANY)
 

@@ -1,60 +1,70 @@
 """The daemon's persistent state: runs, calibration fits and calibrator state, baselines.
 
-One SQLite file (``state.db``) in the state directory, in WAL mode with ``synchronous=FULL``:
-every write is one committed transaction, so a ``kill -9`` at any moment loses nothing that was
-acknowledged, and a restarted daemon continues where the previous one stopped. The schema is
-versioned (table ``meta``, key ``schema_version``); a newer schema than this code knows is refused
-rather than misread.
+One SQLite file (``state.db``) in the state directory, in WAL mode with ``synchronous=FULL``. The
+schema is versioned (table ``meta``, key ``schema_version``); a newer schema than this code knows
+is refused rather than misread. Records are stored as JSON text (NaN as null) beside the columns
+used for lookups.
 
-Records are stored as JSON text (NaN as null) beside the columns used for lookups.
+The daemon's loop never waits for the disk and never dies of it:
+
+* Writes return at once. They are serialised on the caller's thread (a snapshot) and written by a
+  :class:`~hdeem_watch.daemon.store_writer.BackgroundWriter` thread in order, each in one committed
+  transaction. While the disk is full, read-only or locked by another process, the writes wait in
+  memory and are retried; :meth:`Store.health` says ``degraded: <reason>`` meanwhile. Whatever was
+  saved is visible to every read at once, written or not.
+* Reads merge what is still waiting with what is on disk; a read that fails degrades the health
+  and returns what memory holds instead of raising.
+* At start-up a damaged file is salvaged and rows with bad JSON are quarantined
+  (:mod:`~hdeem_watch.daemon.store_repair`), listed in :attr:`Store.quarantined`. Only a file that
+  cannot be opened or created at all is a :class:`StoreError`.
 
 Example:
     >>> import tempfile, pathlib
     >>> store = Store(pathlib.Path(tempfile.mkdtemp()) / "state.db")
     >>> run_id = store.next_run_id()
     >>> store.save_run({"run_id": run_id, "kernel": "triad", "state": "running", "t_start_ns": 1})
-    >>> [r["kernel"] for r in store.list_runs()]
-    ['triad']
+    >>> [r["kernel"] for r in store.list_runs()], store.health()
+    (['triad'], 'ok')
     >>> store.close()
 """
 
 from __future__ import annotations
 
-import contextlib
+import itertools
 import json
+import logging
 import sqlite3
-from collections.abc import Iterator, Mapping
+import threading
+import time
+from collections.abc import Callable, Hashable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from hdeem_watch.daemon.protocol import jsonable
+from hdeem_watch.daemon.store_repair import SCHEMA, quarantine_bad_rows, salvage_if_corrupt
+from hdeem_watch.daemon.store_writer import BackgroundWriter
+
+log = logging.getLogger("hdeem_watch.daemon.store")
 
 #: The schema this code writes.
 SCHEMA_VERSION = 1
-
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS runs (
-    run_id TEXT PRIMARY KEY,
-    seq INTEGER NOT NULL UNIQUE,
-    kernel TEXT NOT NULL,
-    state TEXT NOT NULL,
-    t_start_ns INTEGER NOT NULL,
-    record TEXT NOT NULL
-);
-CREATE TABLE IF NOT EXISTS fits (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    t_ns INTEGER NOT NULL,
-    run_id TEXT,
-    fit TEXT
-);
-CREATE TABLE IF NOT EXISTS calibrator (id INTEGER PRIMARY KEY CHECK (id = 1), t_ns INTEGER NOT NULL, state TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS baselines (channel TEXT PRIMARY KEY, t_ns INTEGER NOT NULL, record TEXT NOT NULL);
-"""
+#: Fields left out of a run summary (``list_runs(full=False)``): the refit and the model's
+#: calibration row, which grow with the number of runs (tens of KB per record).
+SUMMARY_OMITS = ("fit", "model.observation")
+_SUMMARY_SQL = "json_remove(record, " + ", ".join(f"'$.{f}'" for f in SUMMARY_OMITS) + ")"
+#: How long a read waits for a lock held by another process before it gives up (s).
+READ_TIMEOUT_S = 0.05
+#: How long a save waits for its own write while the database is healthy (s): a record is then
+#: on disk before the daemon acknowledges it (a ``kill -9`` loses nothing acknowledged). While
+#: writes fail, saves do not wait at all.
+SYNC_WAIT_S = 0.25
+#: How long :meth:`Store.close` keeps trying to write what is pending (s).
+CLOSE_FLUSH_S = 5.0
 
 
 class StoreError(RuntimeError):
-    """The state database cannot be used (newer schema, corrupt file)."""
+    """The state database cannot be used at all (newer schema, not a database, cannot be created)."""
 
 
 def _dumps(value: Any) -> str:
@@ -64,43 +74,107 @@ def _dumps(value: Any) -> str:
     return json.dumps(jsonable(value), separators=(",", ":"), allow_nan=False)
 
 
+def summary_of(record: Mapping[str, Any]) -> dict[str, Any]:
+    """A run record without the fields that grow with the calibration (:data:`SUMMARY_OMITS`)."""
+    summary = {k: v for k, v in record.items() if k != "fit"}
+    model = summary.get("model")
+    if isinstance(model, Mapping):
+        summary["model"] = {k: v for k, v in model.items() if k != "observation"}
+    return summary
+
+
+def _loads(text: str | None) -> Any:
+    try:
+        return None if text is None else json.loads(text)
+    except ValueError:
+        return None
+
+
+@dataclass(frozen=True)
+class _RunRow:
+    seq: int
+    kernel: str
+    state: str
+    t_start_ns: int
+    record: str
+    summary: str
+
+
+@dataclass(frozen=True)
+class _CalibOp:
+    t_ns: int
+    state: str | None  # None: calib.reset (the calibrator is forgotten)
+    fit: str | None
+    run_id: str | None
+
+
 class Store:
-    """SQLite state of one daemon (single-threaded use; open one per process).
+    """SQLite state of one daemon (open one per state directory; the daemon's lock file ensures it).
 
     Args:
         path: the database file; its directory is created (mode 0750) if missing.
+        clock: wall clock in ns (quarantine and salvage stamps).
+        retry_min_s: first pause after a failed write (doubling up to ``retry_max_s``).
+        retry_max_s: longest pause between two tries of a failed write.
+        sync_wait_s: how long a save waits for its write while the database is healthy
+            (:data:`SYNC_WAIT_S`; 0 = never wait).
+
+    Attributes:
+        quarantined: one line per damaged page or bad row found at start-up (empty when sound).
+
+    Raises:
+        StoreError: the file is not a database, has a newer schema, or cannot be created.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, *, clock: Callable[[], int] = time.time_ns, retry_min_s: float = 0.2,
+                 retry_max_s: float = 5.0, sync_wait_s: float = SYNC_WAIT_S) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True, mode=0o750)
         try:
-            self._db = sqlite3.connect(str(self.path), isolation_level=None, timeout=5.0, check_same_thread=False)
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute("PRAGMA synchronous=FULL")
+            self.quarantined = salvage_if_corrupt(self.path, t_ns=clock())
+            self._db = self._connect(READ_TIMEOUT_S)
             version = self._schema_version()
             if version is not None and version > SCHEMA_VERSION:
                 raise StoreError(f"{self.path}: schema version {version} is newer than this daemon's {SCHEMA_VERSION}")
-            with self._transaction():
-                for statement in _SCHEMA.strip().split(";"):
-                    if statement.strip():
-                        self._db.execute(statement)
-                self._db.execute(
-                    "INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),)
-                )
+            if version is None or not self._has_tables():
+                self._db.execute("PRAGMA busy_timeout = 5000")  # creating it: nothing to save otherwise
+                self._db.executescript(SCHEMA)
+                self._db.execute("INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)",
+                                 (str(SCHEMA_VERSION),))
+                self._db.execute(f"PRAGMA busy_timeout = {round(READ_TIMEOUT_S * 1000)}")
+            # Before the quarantine: a run id is never given twice, even one whose row was set aside.
+            self._max_seq = int(self._db.execute("SELECT COALESCE(MAX(seq), 0) FROM runs").fetchone()[0])
         except sqlite3.DatabaseError as error:
             raise StoreError(f"{self.path}: cannot use the state database ({error})") from None
-
-    @contextlib.contextmanager
-    def _transaction(self) -> Iterator[None]:
-        """One explicit transaction: committed on success, rolled back on an exception."""
-        self._db.execute("BEGIN IMMEDIATE")
+        except OSError as error:
+            raise StoreError(f"{self.path}: cannot use the state database ({error.strerror})") from None
         try:
-            yield
-        except BaseException:
-            self._db.execute("ROLLBACK")
-            raise
-        self._db.execute("COMMIT")
+            self.quarantined += quarantine_bad_rows(self._db, t_ns=clock())
+        except sqlite3.Error as error:
+            log.warning("%s: bad rows not quarantined (%s); the loaders skip them", self.path, error)
+        for line in self.quarantined:
+            log.warning("state database: %s", line)
+        self._lock = threading.Lock()
+        self._runs: dict[str, _RunRow] = {}
+        self._baselines: dict[str, tuple[int, str]] = {}
+        self._calib: dict[int, _CalibOp] = {}
+        self._calib_ids = itertools.count()
+        self._read_health = "ok"
+        self._count = int((self._query("SELECT COUNT(*) FROM runs WHERE json_valid(record)") or [(0,)])[0][0])
+        self._sync_wait_s = sync_wait_s
+        self._writer = BackgroundWriter(lambda: self._connect(2.0), self._apply, retry_min_s=retry_min_s,
+                                        retry_max_s=retry_max_s)
+
+    def _connect(self, timeout_s: float) -> sqlite3.Connection:
+        db = sqlite3.connect(str(self.path), isolation_level=None, timeout=timeout_s, check_same_thread=False)
+        if db.execute("PRAGMA journal_mode").fetchone()[0] != "wal":
+            db.execute("PRAGMA journal_mode=WAL")
+        db.execute("PRAGMA synchronous=FULL")
+        return db
+
+    def _has_tables(self) -> bool:
+        names = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        return {"meta", "runs", "fits", "calibrator", "baselines", "quarantine"} <= names
 
     def _schema_version(self) -> int | None:
         exists = self._db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name='meta'").fetchone()
@@ -114,102 +188,202 @@ class Store:
         """The schema version of the open file."""
         return int(self._schema_version() or SCHEMA_VERSION)
 
+    def health(self) -> str:
+        """``"ok"``, or ``"degraded: <reason>"`` while writes wait in memory or reads fail."""
+        writer = self._writer.health
+        if writer != "ok":
+            return f"{writer}; {self._writer.pending} writes pending"
+        return self._read_health
+
+    def flush(self, timeout_s: float = CLOSE_FLUSH_S) -> bool:
+        """Wait until every saved record is written; False when ``timeout_s`` passed first."""
+        return self._writer.flush(timeout_s)
+
     def close(self) -> None:
-        """Close the database (a WAL checkpoint happens on the last close)."""
+        """Write what is pending (up to :data:`CLOSE_FLUSH_S`), then close the database."""
+        unsaved = self._writer.close(CLOSE_FLUSH_S)
+        if unsaved:
+            log.error("state database: %d writes could not be saved before exit (%s): %s", len(unsaved),
+                      self._writer.health, ", ".join(str(op) for op in unsaved[:10]))
         self._db.close()
 
-    # -- runs ----------------------------------------------------------------------------------
+    def _submit(self, op: Hashable) -> None:
+        ticket = self._writer.submit(op)
+        if self._sync_wait_s > 0 and self._writer.health == "ok":
+            self._writer.wait_for(ticket, self._sync_wait_s)
+
+    # -- reading -------------------------------------------------------------------------------------
+
+    def _query(self, sql: str, params: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
+        """Rows of ``sql``; [] with a degraded health when the file cannot be read now."""
+        try:
+            rows = self._db.execute(sql, params).fetchall()
+        except sqlite3.Error as error:
+            reason = f"degraded: state database not readable ({error})"
+            if reason != self._read_health:
+                log.warning("%s; answering from memory", reason[len("degraded: "):])
+            self._read_health = reason
+            return []
+        self._read_health = "ok"
+        return rows
+
+    # -- runs ----------------------------------------------------------------------------------------
 
     def next_run_id(self) -> str:
         """A run id not used before in this state directory: ``r<n>``."""
-        row = self._db.execute("SELECT COALESCE(MAX(seq), 0) FROM runs").fetchone()
-        return f"r{int(row[0]) + 1}"
+        return f"r{self._max_seq + 1}"
 
     def save_run(self, record: Mapping[str, Any]) -> None:
-        """Insert or replace a run record (``run_id`` of the form ``r<n>``)."""
+        """Insert or replace a run record (``run_id`` of the form ``r<n>``); returns at once."""
         run_id = str(record["run_id"])
-        seq = int(run_id.lstrip("r"))
-        with self._transaction():
-            self._db.execute(
-                "INSERT OR REPLACE INTO runs (run_id, seq, kernel, state, t_start_ns, record) VALUES (?,?,?,?,?,?)",
-                (run_id, seq, str(record.get("kernel", "")), str(record.get("state", "")),
-                 int(record.get("t_start_ns") or 0), _dumps(record)),
-            )
+        row = _RunRow(seq=int(run_id.lstrip("r")), kernel=str(record.get("kernel", "")),
+                      state=str(record.get("state", "")), t_start_ns=int(record.get("t_start_ns") or 0),
+                      record=_dumps(record), summary=_dumps(summary_of(record)))
+        with self._lock:
+            self._runs[run_id] = row
+            if row.seq > self._max_seq:
+                self._max_seq = row.seq
+                self._count += 1
+        self._submit(("run", run_id))
 
     def get_run(self, run_id: str) -> dict[str, Any] | None:
         """One run record, or None."""
-        row = self._db.execute("SELECT record FROM runs WHERE run_id = ?", (run_id,)).fetchone()
-        return json.loads(row[0]) if row else None
+        with self._lock:
+            row = self._runs.get(run_id)
+            if row is not None:
+                return _loads(row.record)
+            rows = self._query("SELECT record FROM runs WHERE run_id = ? AND json_valid(record)", (run_id,))
+        return _loads(rows[0][0]) if rows else None
 
-    def list_runs(self, limit: int = 100, kernel: str | None = None) -> list[dict[str, Any]]:
-        """Run records, newest first."""
-        if kernel is None:
-            rows = self._db.execute("SELECT record FROM runs ORDER BY seq DESC LIMIT ?", (limit,)).fetchall()
-        else:
-            rows = self._db.execute(
-                "SELECT record FROM runs WHERE kernel = ? ORDER BY seq DESC LIMIT ?", (kernel, limit)
-            ).fetchall()
-        return [json.loads(r[0]) for r in rows]
+    def list_runs(self, limit: int = 100, kernel: str | None = None, *, full: bool = False,
+                  before: str | int | None = None) -> list[dict[str, Any]]:
+        """Run records, newest first: summaries (:func:`summary_of`) unless ``full``.
+
+        Args:
+            limit: at most this many.
+            kernel: only runs of this kernel.
+            full: whole records (with the refit and the calibration row).
+            before: only runs older than this run id (``"r17"`` or 17): the next page.
+        """
+        where: list[str] = ["json_valid(record)"]
+        params: list[Any] = []
+        if kernel is not None:
+            where.append("kernel = ?")
+            params.append(kernel)
+        before_seq = None if before is None else int(str(before).lstrip("r"))
+        if before_seq is not None:
+            where.append("seq < ?")
+            params.append(before_seq)
+        column = "record" if full else _SUMMARY_SQL
+        sql = f"SELECT seq, {column} FROM runs WHERE {' AND '.join(where)} ORDER BY seq DESC LIMIT ?"
+        with self._lock:
+            found = {int(seq): text for seq, text in self._query(sql, (*params, int(limit)))}
+            for row in self._runs.values():
+                if (kernel is None or row.kernel == kernel) and (before_seq is None or row.seq < before_seq):
+                    found[row.seq] = row.record if full else row.summary
+        newest = sorted(found, reverse=True)[: max(0, int(limit))]
+        return [r for r in (_loads(found[seq]) for seq in newest) if isinstance(r, dict)]
 
     def close_interrupted_runs(self, t_ns: int) -> int:
         """Mark runs left ``running`` by a crashed daemon as ``aborted``; return how many."""
-        rows = self._db.execute("SELECT record FROM runs WHERE state = 'running'").fetchall()
-        for (text,) in rows:
-            record = json.loads(text)
+        with self._lock:
+            texts = [r.record for r in self._runs.values() if r.state == "running"]
+            texts += [t for (t,) in self._query("SELECT record FROM runs WHERE state = 'running' AND json_valid(record)")]
+        closed = 0
+        for record in (_loads(t) for t in texts):
+            if not isinstance(record, dict) or "run_id" not in record:
+                continue
             record["state"] = "aborted"
             record["model_error"] = "the daemon stopped during the run"
             record["t_stop_ns"] = record.get("t_stop_ns") or int(t_ns)
             self.save_run(record)
-        return len(rows)
+            closed += 1
+        return closed
 
     def count_runs(self) -> int:
-        """Number of stored runs."""
-        return int(self._db.execute("SELECT COUNT(*) FROM runs").fetchone()[0])
+        """Number of stored runs (counting those still waiting to be written)."""
+        return self._count
 
-    # -- calibration ---------------------------------------------------------------------------
+    # -- calibration ---------------------------------------------------------------------------------
 
     def save_calibration(self, t_ns: int, state: Mapping[str, Any] | str, fit: Mapping[str, Any] | None,
                          run_id: str | None) -> None:
-        """Store the calibrator's state and append the fit to the history, in one transaction.
+        """Store the calibrator's state and append the fit to the history (one transaction, later).
 
         ``state`` may be JSON text already (the daemon serialises the large state on its worker).
         """
-        with self._transaction():
-            self._db.execute(
-                "INSERT OR REPLACE INTO calibrator (id, t_ns, state) VALUES (1, ?, ?)", (int(t_ns), _dumps(state))
-            )
-            self._db.execute(
-                "INSERT INTO fits (t_ns, run_id, fit) VALUES (?, ?, ?)",
-                (int(t_ns), run_id, None if fit is None else _dumps(fit)),
-            )
-
-    def load_calibrator(self) -> dict[str, Any] | None:
-        """The last saved calibrator state, or None."""
-        row = self._db.execute("SELECT state FROM calibrator WHERE id = 1").fetchone()
-        return json.loads(row[0]) if row else None
+        self._save_calib(_CalibOp(int(t_ns), _dumps(state), None if fit is None else _dumps(fit), run_id))
 
     def clear_calibrator(self, t_ns: int) -> None:
         """Forget the calibrator state (``calib.reset``); the fit history keeps a null entry."""
-        with self._transaction():
-            self._db.execute("DELETE FROM calibrator")
-            self._db.execute("INSERT INTO fits (t_ns, run_id, fit) VALUES (?, NULL, NULL)", (int(t_ns),))
+        self._save_calib(_CalibOp(int(t_ns), None, None, None))
+
+    def _save_calib(self, op: _CalibOp) -> None:
+        with self._lock:
+            key = next(self._calib_ids)
+            self._calib[key] = op
+        self._submit(("calib", key))
+
+    def load_calibrator(self) -> dict[str, Any] | None:
+        """The last saved calibrator state, or None."""
+        with self._lock:
+            if self._calib:
+                last = self._calib[max(self._calib)]
+                return None if last.state is None else _loads(last.state)
+            rows = self._query("SELECT state FROM calibrator WHERE id = 1 AND json_valid(state)")
+        state = _loads(rows[0][0]) if rows else None
+        return state if isinstance(state, dict) else None
 
     def fit_history(self, limit: int = 100) -> list[tuple[int, str | None, dict[str, Any] | None]]:
         """``(t_ns, run_id, fit or None)`` oldest first, the last ``limit`` entries."""
-        rows = self._db.execute("SELECT t_ns, run_id, fit FROM fits ORDER BY id DESC LIMIT ?", (limit,)).fetchall()
-        return [(int(t), r, None if f is None else json.loads(f)) for t, r, f in reversed(rows)]
+        with self._lock:
+            rows = self._query("SELECT t_ns, run_id, fit FROM fits WHERE fit IS NULL OR json_valid(fit) "
+                               "ORDER BY id DESC LIMIT ?", (int(limit),))
+            pending = [(op.t_ns, op.run_id, op.fit) for _k, op in sorted(self._calib.items())]
+        entries = [(int(t), r, f) for t, r, f in reversed(rows)] + pending
+        return [(t, r, _loads(f)) for t, r, f in entries[-max(0, int(limit)):]] if limit > 0 else []
 
-    # -- baselines -----------------------------------------------------------------------------
+    # -- baselines -----------------------------------------------------------------------------------
 
     def save_baseline(self, channel: str, record: Mapping[str, Any]) -> None:
-        """Insert or replace a channel's baseline."""
-        with self._transaction():
-            self._db.execute(
-                "INSERT OR REPLACE INTO baselines (channel, t_ns, record) VALUES (?, ?, ?)",
-                (channel, int(record.get("t_ns") or 0), _dumps(record)),
-            )
+        """Insert or replace a channel's baseline; returns at once."""
+        with self._lock:
+            self._baselines[channel] = (int(record.get("t_ns") or 0), _dumps(record))
+        self._submit(("baseline", channel))
 
     def load_baselines(self) -> dict[str, dict[str, Any]]:
         """Every stored baseline by channel."""
-        rows = self._db.execute("SELECT channel, record FROM baselines").fetchall()
-        return {c: json.loads(r) for c, r in rows}
+        with self._lock:
+            rows = self._query("SELECT channel, record FROM baselines WHERE json_valid(record)")
+            texts = {c: r for c, r in rows} | {c: text for c, (_t, text) in self._baselines.items()}
+        return {c: r for c, r in ((c, _loads(t)) for c, t in texts.items()) if isinstance(r, dict)}
+
+    # -- the writer's side ---------------------------------------------------------------------------
+
+    def _apply(self, db: sqlite3.Connection, op: Hashable) -> None:
+        """Write one operation (on the writer thread); the overlay entry goes once it is committed."""
+        assert isinstance(op, tuple)
+        kind, key = op
+        tables: dict[str, dict[Any, Any]] = {"run": self._runs, "baseline": self._baselines, "calib": self._calib}
+        with self._lock:
+            pending: Any = tables[kind].get(key)
+        if pending is None:
+            return  # written already by an earlier operation on the same key
+        db.execute("BEGIN IMMEDIATE")
+        if kind == "run":
+            db.execute("INSERT OR REPLACE INTO runs (run_id, seq, kernel, state, t_start_ns, record) VALUES (?,?,?,?,?,?)",
+                       (key, pending.seq, pending.kernel, pending.state, pending.t_start_ns, pending.record))
+        elif kind == "baseline":
+            db.execute("INSERT OR REPLACE INTO baselines (channel, t_ns, record) VALUES (?, ?, ?)", (key, *pending))
+        elif pending.state is None:
+            db.execute("DELETE FROM calibrator")
+            db.execute("INSERT INTO fits (t_ns, run_id, fit) VALUES (?, NULL, NULL)", (pending.t_ns,))
+        else:
+            db.execute("INSERT OR REPLACE INTO calibrator (id, t_ns, state) VALUES (1, ?, ?)",
+                       (pending.t_ns, pending.state))
+            db.execute("INSERT INTO fits (t_ns, run_id, fit) VALUES (?, ?, ?)", (pending.t_ns, pending.run_id, pending.fit))
+        # Commit and drop the overlay entry atomically for the readers (they hold the same lock).
+        with self._lock:
+            db.execute("COMMIT")
+            if tables[kind].get(key) is pending:
+                del tables[kind][key]
