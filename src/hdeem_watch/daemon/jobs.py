@@ -52,15 +52,23 @@ class Worker:
             wake = self._wake
             future.add_done_callback(lambda _f: wake())
 
-    def collect(self) -> None:
-        """Call the callbacks of the finished jobs (a failing callback is logged, not raised)."""
+    @property
+    def ready(self) -> bool:
+        """Whether a finished job's callback waits for :meth:`collect`."""
+        return any(future.done() for future, _done, _failed in self.pending)
+
+    def collect(self, limit: int | None = None) -> None:
+        """Call the callbacks of the finished jobs, at most ``limit`` of them (a failing callback is
+        logged, not raised); the rest wait for the next call."""
         if not self.pending:
             return
         remaining = []
+        budget = len(self.pending) if limit is None else limit
         for future, done, failed in self.pending:
-            if not future.done():
+            if budget <= 0 or not future.done():
                 remaining.append((future, done, failed))
                 continue
+            budget -= 1
             if future.cancelled():  # shutting down
                 continue
             try:

@@ -55,9 +55,14 @@ class StoreWorker:
         """Whether callbacks are waiting for :meth:`collect`."""
         return bool(self.jobs.pending)
 
-    def collect(self) -> None:
-        """Run the callbacks of finished calls (in the loop)."""
-        self.jobs.collect()
+    @property
+    def ready(self) -> bool:
+        """Whether a finished call's callback waits for :meth:`collect`."""
+        return self.jobs.ready
+
+    def collect(self, limit: int | None = None) -> None:
+        """Run the callbacks of finished calls (in the loop), at most ``limit``."""
+        self.jobs.collect(limit)
 
     def health(self) -> str:
         """``"ok"``, or ``"degraded: <why>"`` while writes wait for the disk."""

@@ -52,6 +52,11 @@ log = logging.getLogger("hdeem_watch.daemon")
 
 Clock = Callable[[], int]
 
+#: Control requests answered per loop iteration, and worker callbacks run per iteration: the loop
+#: polls the source between batches, so a crowd of clients delays replies, never samples.
+CONTROL_BATCH = 8
+CALLBACK_BATCH = 2
+
 
 class Daemon:
     """One node daemon.
@@ -286,23 +291,27 @@ class Daemon:
         # (at most one poll period late) instead of waking the loop once more for them.
         slowest_ns = min(heartbeat.interval_ns, republish.interval_ns) // 4
         coalesce = poll_timer.interval_ns <= slowest_ns
+        backlog = False
         while not self._stop:
             wake = poll_timer.next_ns if coalesce else min(poll_timer.next_ns, heartbeat.next_ns, republish.next_ns)
             timeout_ms = min(100, max(0, -(-(wake - clock()) // 1_000_000)))
+            if backlog:
+                timeout_ms = 0
             changed = False
-            for sock, _event in poller.poll(timeout_ms):
+            ready = poller.poll(timeout_ms)
+            now = clock()
+            if now >= poll_timer.next_ns:  # the stream first: control work waits, samples do not
+                poll_timer.advance(now)
+                self.poll_once()
+            for sock, _event in ready:
                 if sock is control_socket:
-                    control.handle()
+                    control.handle(max_messages=CONTROL_BATCH)
                 elif sock is pub_socket:
                     publisher.handle_subscriptions()
                     changed = True
                 elif sock == wake_fd:
                     with contextlib.suppress(BlockingIOError):
                         os.read(wake_fd, 4096)
-            now = clock()
-            if now >= poll_timer.next_ns:
-                poll_timer.advance(now)
-                self.poll_once()
             if now >= heartbeat.next_ns:
                 heartbeat.advance(now)
                 reporter.publish_status()
@@ -316,9 +325,10 @@ class Daemon:
                 reporter.publish_calib()
                 reporter.publish_baselines()
             if models.pending:
-                models.collect()
+                models.collect(CALLBACK_BATCH)
             if store.pending:
-                store.collect()
+                store.collect(CALLBACK_BATCH)
+            backlog = (models.pending and models.ready) or (store.pending and store.ready)
             if changed or len(book.windows) != open_windows:
                 open_windows = len(book.windows)
                 interval_ns = self._poll_interval_ns()
