@@ -16,12 +16,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hdeem_watch.daemon import baselines as bl
-from hdeem_watch.daemon.channels import ChannelAccount, SampleRing, count_missing
+from hdeem_watch.daemon.channels import ChannelAccount, RecentPower, count_missing
 from hdeem_watch.daemon.control import OpError, Pending, dispatch
-from hdeem_watch.daemon.metrics import DaemonMetrics
+from hdeem_watch.daemon.metrics import DaemonMetrics, NodeCollector
 from hdeem_watch.daemon.poller import IntervalTimer, next_deadline, wait_ms
 from hdeem_watch.daemon.protocol import ProtocolError, decode_reply
-from hdeem_watch.daemon.runs import finish_record, new_record, parse_run_args, window_energy
+from hdeem_watch.daemon.protocol import jsonable as protocol_jsonable
+from hdeem_watch.daemon.runs import RunRecord, parse_run_args, window_energy
 from hdeem_watch.daemon.store import SCHEMA_VERSION, Store, StoreError
 from hdeem_watch.daemon.windows import Window
 
@@ -70,7 +71,7 @@ def test_channel_account_energy_rate_and_gaps() -> None:
 
 def test_sample_ring_keeps_the_newest() -> None:
     """The ring returns the last capacity values, oldest first, across wrap-arounds."""
-    ring = SampleRing(5)
+    ring = RecentPower(5)
     ring.extend(np.arange(3.0))
     ring.extend(np.arange(3.0, 7.0))
     assert ring.values().tolist() == [2.0, 3.0, 4.0, 5.0, 6.0]
@@ -153,18 +154,20 @@ def test_window_deadline_and_unknown_values() -> None:
 
 def test_run_records() -> None:
     """run.start arguments are validated; a finished record has energies, mean powers and the DRAM sum."""
-    args = parse_run_args({"kernel": " Triad ", "threads": 24.0, "elements": 10, "metadata": {"a": 1}})
+    args = parse_run_args({"kernel": " Triad ", "threads": 24, "elements": 10, "metadata": {"a": 1}})
     assert (args.kernel, args.threads, args.repeat, args.name) == ("triad", 24, 1, "triad")
     for bad in ({"kernel": ""}, {"kernel": "x", "threads": 1.5}, {"kernel": "x", "repeat": 0},
                 {"kernel": "x", "elements": True}, {"kernel": "x", "name": 5}):
         with pytest.raises(ProtocolError) as info:
             parse_run_args(bad)
         assert info.value.code == "bad-args"
-    record = new_record("r3", args, t_wall_ns=1, node="n")
+    record = RunRecord.start("r3", args, t_wall_ns=1, node="n")
     energy = window_energy({"DDR_AB": 1.0, "DDR_CD": 1.0, "CPU0": math.nan}, {"DDR_AB": 3.0, "DDR_CD": 5.0, "CPU0": 9.0})
-    done = finish_record(record, energy_j=energy, window_s=2.0, dram_channels=("DDR_AB", "DDR_CD"), t_wall_ns=9)
-    assert done["dram_energy_j"] == 6.0 and done["mean_power_w"]["DDR_CD"] == 2.0 and done["state"] == "done"
-    assert math.isnan(done["energy_j"]["CPU0"]) and record["state"] == "running"
+    done = record.finish(energy_j=energy, window_s=2.0, dram_channels=("DDR_AB", "DDR_CD"), t_wall_ns=9)
+    assert done.dram_energy_j == 6.0 and done.mean_power_w is not None and done.mean_power_w["DDR_CD"] == 2.0
+    assert done.state == "modelling" and record.state == "running"
+    assert done.energy_j is not None and math.isnan(done.energy_j["CPU0"])
+    assert RunRecord.from_dict(json.loads(json.dumps(protocol_jsonable(done.to_dict())))).dram_energy_j == 6.0
 
 
 def test_dispatch_answers_everything() -> None:
@@ -184,17 +187,24 @@ def test_dispatch_answers_everything() -> None:
 
 
 def test_metrics_follow_prometheus_naming() -> None:
-    """Power is a gauge in watts, energy a counter in joules with _total; NaN deltas are not counted."""
-    m = DaemonMetrics("n1")
-    m.observe_channel("DDR_AB", power_w=4.0, energy_delta_j=2.0, samples=5, missing=1)
-    m.observe_channel("DDR_AB", power_w=math.nan, energy_delta_j=math.nan, samples=0, missing=0)
-    m.observe_fit({"currents": {"idd0": {"calibrated": 0.05}}, "error": {"after": 0.03}})
+    """Power is a gauge in watts, energy a counter in joules with _total, read at scrape time from the accounts."""
+    account = ChannelAccount("DDR_AB", 100.0, "dram")
+    account.update(np.array([10_000_000]), np.array([4.0]), energy_j=2.0, status="ok")
+    account.gaps = 1
+    fit: dict = {"currents": {"idd0": {"calibrated": 0.05}}, "error": {"after": 0.03}}
+    m = DaemonMetrics(NodeCollector("n1", accounts=lambda: {"DDR_AB": account}, baselines=lambda: {},
+                                    fit=lambda: fit, runs_finished=lambda: 2))
     text = m.exposition().decode()
     assert 'hdeem_watch_energy_joules_total{channel="DDR_AB",node="n1"} 2.0' in text
     assert 'hdeem_watch_missing_samples_total{channel="DDR_AB",node="n1"} 1.0' in text
     assert 'hdeem_watch_calibrated_current_amperes{current="idd0",node="n1"} 0.05' in text
+    assert 'hdeem_watch_runs_total{node="n1"} 2.0' in text
     assert "# TYPE hdeem_watch_power_watts gauge" in text
     assert "process_cpu_seconds_total" in text
+    # Unknown energy later: the counter holds its last value (a counter never goes down or NaN).
+    account.update(np.array([20_000_000]), np.array([np.nan]), energy_j=math.nan, status="stale")
+    account.update(np.array([30_000_000]), np.array([5.0]), energy_j=3.5, status="ok")
+    assert 'hdeem_watch_energy_joules_total{channel="DDR_AB",node="n1"} 3.5' in m.exposition().decode()
 
 
 def test_store_round_trip_and_schema_guard(tmp_path: Path) -> None:
@@ -256,126 +266,3 @@ def test_interval_change_takes_effect_within_one_new_period() -> None:
     assert timer.next_ns == 35
     timer.set_interval(250)
     assert timer.next_ns == 35 and timer.interval_ns == 250
-
-
-@pytest.mark.parametrize("failure", ["bad-preset", "crash"])
-def test_a_failing_model_still_answers_run_stop(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, failure: str) -> None:
-    """If the model cannot be built (bad memspec, or a crash), run.stop still replies with the energies and why."""
-    import threading
-
-    from hdeem_watch.daemon import jobs
-
-    if failure == "crash":
-        def broken(*args: object, **kwargs: object) -> None:
-            raise RuntimeError("no-such-preset: simulated crash")
-
-        monkeypatch.setattr(jobs, "RunModeller", broken)  # the model worker's first job builds it
-
-    from hdeem_watch.config import DaemonSettings
-    from hdeem_watch.daemon.client import ControlClient
-    from hdeem_watch.daemon.service import Daemon
-    from hdeem_watch.sources.sim import SimSource
-
-    settings = DaemonSettings(pub=f"ipc://{tmp_path}/p.sock", control=f"ipc://{tmp_path}/c.sock",
-                              state_dir=str(tmp_path / "s"), node="n", memspec="no-such-preset", speed=20.0)
-    daemon = Daemon(settings, source=SimSource(seed=2, speed=20.0))
-    daemon.start()
-    loop = threading.Thread(target=daemon.run)
-    loop.start()
-    try:
-        with ControlClient(settings.control or "", timeout_s=20.0) as client:
-            run_id = client.call("run.start", {"kernel": "triad", "elements": 2**20})["run_id"]
-            time.sleep(0.1)
-            record = client.call("run.stop", {"run_id": run_id})
-            calib = client.call("calib.get")
-    finally:
-        daemon.request_stop()
-        loop.join()
-        daemon.close()
-    assert record["state"] == "done" and record["dram_energy_j"] > 0
-    expected = "failed to build" if failure == "crash" else "no-such-preset"
-    assert record["model"] is None and expected in record["model_error"]
-    assert calib["fit"] is None and "no-such-preset" in calib["model_error"]
-
-
-class _FlakySource:
-    """A tiny in-test source: two DRAM channels at 100 Sa/s, NaN energy on demand, failures on demand."""
-
-    kind = "flaky"
-
-    def __init__(self) -> None:
-        self.fail = False
-        self.unknown_energy = False
-        self.k = 0
-        self.energy = 0.0
-        self.t0 = 0
-
-    def channels(self) -> list:
-        from hdeem_watch.sources.base import ChannelInfo
-
-        return [ChannelInfo("DDR_AB", 100.0, "dram"), ChannelInfo("DDR_CD", 100.0, "dram")]
-
-    def open(self) -> None:
-        self.t0 = time.monotonic_ns()
-
-    def close(self) -> None:
-        pass
-
-    def health(self) -> str:
-        return "ok"
-
-    def poll(self) -> object:
-        from hdeem_watch.sources.base import SourceBatch
-
-        if self.fail:
-            raise OSError("sensor bus timeout")
-        now = time.monotonic_ns()
-        k1 = (now - self.t0) // 10_000_000
-        ks = np.arange(self.k + 1, k1 + 1, dtype=np.int64)
-        self.k = int(k1)
-        power = np.full(ks.size, np.nan if self.unknown_energy else 2.0)
-        self.energy += 0.0 if self.unknown_energy else float(power.sum()) * 0.01
-        energy = math.nan if self.unknown_energy else self.energy
-        samples = {c: (ks * 10_000_000, power) for c in ("DDR_AB", "DDR_CD")}
-        return SourceBatch(now, now, samples, dict.fromkeys(samples, energy),
-                           dict.fromkeys(samples, "stale" if self.unknown_energy else "ok"))
-
-
-@pytest.mark.slow
-def test_source_failures_and_unknown_values_are_reported_not_fatal(tmp_path: Path) -> None:
-    """A failing poll shows as an error status and health, then recovers; unknown energy stays unknown (null)."""
-    import threading
-
-    from hdeem_watch.config import DaemonSettings
-    from hdeem_watch.daemon.client import ControlClient
-    from hdeem_watch.daemon.service import Daemon
-
-    source = _FlakySource()
-    settings = DaemonSettings(pub=f"ipc://{tmp_path}/p.sock", control=f"ipc://{tmp_path}/c.sock",
-                              state_dir=str(tmp_path / "s"), node="n", heartbeat_s=0.2)
-    daemon = Daemon(settings, source=source)
-    daemon.start()
-    loop = threading.Thread(target=daemon.run)
-    loop.start()
-    try:
-        with ControlClient(settings.control or "", timeout_s=20.0) as client:
-            time.sleep(0.3)
-            source.fail = True
-            time.sleep(0.5)
-            failing = client.call("status")
-            source.fail = False
-            time.sleep(0.5)
-            recovered = client.call("status")
-            source.unknown_energy = True
-            run_id = client.call("run.start", {"kernel": "idle"})["run_id"]
-            time.sleep(0.2)
-            record = client.call("run.stop", {"run_id": run_id})
-    finally:
-        daemon.request_stop()
-        loop.join()
-        daemon.close()
-    assert failing["source"]["health"].startswith("error: OSError: sensor bus timeout")
-    assert failing["channels"]["DDR_AB"]["status"].startswith("error")
-    assert recovered["source"]["health"] == "ok" and recovered["channels"]["DDR_AB"]["status"] == "ok"
-    assert record["energy_j"]["DDR_AB"] is None and record["dram_energy_j"] is None
-    assert record["model"] is None and "no measured DRAM energy" in record["model_error"]

@@ -13,6 +13,8 @@ Example:
     >>> p = np.r_[np.full(200, 9.0), np.full(200, 4.0) + np.tile([0.0, 0.125], 100)]
     >>> window = quiet_window(p, rate_hz=100.0, window_s=1.0, max_spread_w=0.25)
     >>> b = baseline_from_samples(p[window[0]:window[1]], t_ns=0, origin="quiet")
+    >>> baseline_from_samples(np.array([np.nan]), t_ns=0, origin="quiet") is None
+    True
     >>> round(b.power_w, 4), round(b.spread_w, 4), b.n
     (4.0625, 0.0625, 100)
 """
@@ -78,8 +80,11 @@ def baseline_from_samples(
     origin: Origin,
     energy_j: float | None = None,
     window_s: float | None = None,
-) -> Baseline:
-    """A baseline from the samples of an idle window.
+) -> Baseline | None:
+    """A baseline from the samples of an idle window; None when the window has no finite sample.
+
+    A window over a sensor gap measured nothing: it must not become a 0 W (or energy-only)
+    baseline that replaces a real one.
 
     Args:
         power_w: the window's samples (NaN ignored).
@@ -92,11 +97,13 @@ def baseline_from_samples(
     values = np.asarray(power_w, dtype=float)
     finite = values[np.isfinite(values)]
     n = int(finite.size)
+    if n == 0:
+        return None
     spread = float(np.std(finite)) if n > 1 else math.nan
     if energy_j is not None and window_s is not None and window_s > 0 and math.isfinite(energy_j):
         mean = float(energy_j) / float(window_s)
     else:
-        mean = float(np.mean(finite)) if n else math.nan
+        mean = float(np.mean(finite))
     return Baseline(power_w=mean, spread_w=spread, n=n, t_ns=int(t_ns), origin=origin)
 
 
@@ -160,16 +167,16 @@ def quiet_window(
     return start, start + width
 
 
-def merge(current: Baseline | None, new: Baseline, *, max_age_ns: int = 3600 * 10**9) -> Baseline:
+def merge(current: Baseline | None, new: Baseline, *, max_age_ns: int = 3600 * 10**9) -> Baseline | None:
     """The baseline to keep after ``new`` arrives.
 
     An idle-run baseline always wins over a quiet one and replaces an older idle-run baseline; a
     quiet baseline replaces a quiet one when it is lower (closer to idle) or the kept one is older
     than ``max_age_ns``; it replaces an idle-run baseline only when that is older than
-    ``max_age_ns``. Baselines without a finite power never replace anything.
+    ``max_age_ns``. Baselines without a finite power or without samples never replace anything.
     """
-    if not math.isfinite(new.power_w):
-        return current if current is not None else new
+    if not math.isfinite(new.power_w) or new.n <= 0:
+        return current
     if current is None or not math.isfinite(current.power_w):
         return new
     stale = new.t_ns - current.t_ns > max_age_ns

@@ -43,8 +43,9 @@ def count_missing(t_ns: np.ndarray, *, rate_hz: float, prev_t_ns: int | None) ->
     return int(np.sum(np.rint(large / period) - 1))
 
 
-class SampleRing:
-    """The last ``capacity`` float samples of a channel, oldest first on read.
+class RecentPower:
+    """A channel's recent power samples (the last ``capacity``, oldest first on read), where the
+    daemon looks for quiet periods (idle baselines).
 
     Appending is cheap (the daemon appends every poll): batches are queued and folded into the ring
     when it is read or when ``fold_every`` batches are waiting.
@@ -122,7 +123,7 @@ class ChannelAccount:
         self.samples = 0
         self.gaps = 0
         self.last_t_ns: int | None = None
-        self.history = SampleRing(round(history_s * rate_hz)) if kind == "dram" else None
+        self.history = RecentPower(round(history_s * rate_hz)) if kind == "dram" else None
         self._window_samples = 0
         self._window_start_t_ns: int | None = None
         self._period_ns = 1e9 / self.rate_hz if self.rate_hz > 0 else math.inf

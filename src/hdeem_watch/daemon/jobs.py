@@ -1,14 +1,13 @@
-"""The daemon's model worker: slow jobs (the kernel model, the refit) run off the poll loop.
+"""Work off the poll loop: one worker thread per kind of slow work, callbacks back in the loop.
 
-:func:`load_state` restores the daemon's stored baselines, fit history and calibrator at start and
-builds the run modeller as the worker's first job.
-
-A job runs on one worker thread; its ``done(result)`` or ``failed(error)`` callback runs later *in
-the loop* (:meth:`ModelJobs.collect`), so callbacks may touch sockets and the database. Jobs run in
-submission order.
+A job runs on the worker's thread; its ``done(result)`` or ``failed(error)`` callback runs later *in
+the loop* (:meth:`Worker.collect`), so callbacks may touch sockets. Jobs run in submission order.
+The daemon has two workers: the model worker (kernel model, refit; :class:`Calibration` holds its
+modeller and the latest ``calib`` body) and the store worker
+(:class:`~hdeem_watch.daemon.persistence.StoreWorker`).
 
 Example:
-    >>> jobs = ModelJobs()
+    >>> jobs = Worker("example")
     >>> seen = []
     >>> jobs.submit(lambda: 6 * 7, seen.append)
     >>> jobs.shutdown(); seen
@@ -19,41 +18,57 @@ from __future__ import annotations
 
 import concurrent.futures
 import logging
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
 
-from hdeem_watch.daemon import baselines as bl
 from hdeem_watch.daemon.modelling import MAX_HISTORY, RunModeller, compact_fit
-
-if TYPE_CHECKING:
-    from hdeem_watch.daemon.service import Daemon
 
 log = logging.getLogger("hdeem_watch.daemon")
 
 Job = tuple[concurrent.futures.Future[Any], Callable[[Any], None], Callable[[BaseException], None] | None]
 
 
-class ModelJobs:
-    """One worker thread and the callbacks of its finished jobs."""
+class Worker:
+    """One worker thread and the callbacks of its finished jobs.
 
-    def __init__(self) -> None:
-        self.worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="hdeem-model")
+    Args:
+        name: the thread's name (``hdeem-<name>``).
+        wake: called from the worker thread when a job finishes (e.g. to wake the poll loop).
+    """
+
+    def __init__(self, name: str = "model", wake: Callable[[], None] | None = None) -> None:
+        self.worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"hdeem-{name}")
+        self.name = name
         self.pending: list[Job] = []
+        self._wake = wake
 
     def submit(self, job: Callable[[], Any], done: Callable[[Any], None],
                failed: Callable[[BaseException], None] | None = None) -> None:
         """Run ``job`` on the worker; :meth:`collect` later calls ``done(result)`` or ``failed(error)``."""
-        self.pending.append((self.worker.submit(job), done, failed))
+        future = self.worker.submit(job)
+        self.pending.append((future, done, failed))
+        if self._wake is not None:
+            wake = self._wake
+            future.add_done_callback(lambda _f: wake())
 
-    def collect(self) -> None:
-        """Call the callbacks of the finished jobs (a failing callback is logged, not raised)."""
+    @property
+    def ready(self) -> bool:
+        """Whether a finished job's callback waits for :meth:`collect`."""
+        return any(future.done() for future, _done, _failed in self.pending)
+
+    def collect(self, limit: int | None = None) -> None:
+        """Call the callbacks of the finished jobs, at most ``limit`` of them (a failing callback is
+        logged, not raised); the rest wait for the next call."""
         if not self.pending:
             return
         remaining = []
+        budget = len(self.pending) if limit is None else limit
         for future, done, failed in self.pending:
-            if not future.done():
+            if budget <= 0 or not future.done():
                 remaining.append((future, done, failed))
                 continue
+            budget -= 1
             if future.cancelled():  # shutting down
                 continue
             try:
@@ -61,61 +76,93 @@ class ModelJobs:
                 if error is None:
                     done(future.result())
                 else:
-                    log.error("model job failed: %s: %s", type(error).__name__, error)
+                    log.error("%s job failed: %s: %s", self.name, type(error).__name__, error)
                     if failed is not None:
                         failed(error)
             except Exception:
-                log.exception("finishing a model job failed")
+                log.exception("finishing a worker job failed")
         self.pending = remaining
 
-    def shutdown(self) -> None:
-        """Finish the running job (queued ones are cancelled) and call the finished jobs' callbacks."""
-        self.worker.shutdown(wait=True, cancel_futures=True)
+    def shutdown(self, *, cancel_queued: bool = False) -> None:
+        """Finish the running job (and the queued ones unless ``cancel_queued``); call the callbacks."""
+        self.worker.shutdown(wait=True, cancel_futures=cancel_queued)
         self.collect()
 
 
-def load_state(daemon: Daemon) -> None:
-    """Restore stored baselines, fit history and calibrator; build the run modeller on the worker."""
-    assert daemon.store is not None
-    for channel, record in daemon.store.load_baselines().items():
-        try:
-            daemon.baselines[channel] = bl.Baseline.from_dict(record)
-        except (ValueError, TypeError):
-            log.warning("ignoring a malformed stored baseline of %s", channel)
+#: The model worker (kept under its old name for callers).
+ModelJobs = Worker
+
+
+@dataclass
+class Calibration:
+    """The node's calibration: the run modeller (built and used on the model worker only) and the
+    latest ``calib`` body (read and written in the loop).
+
+    Attributes:
+        body: the latest ``calib`` topic body (without the sim's truth).
+        modeller: set on the model worker by its first job (None until then, or when it failed).
+    """
+
+    body: dict[str, Any] = field(default_factory=dict)
+    modeller: RunModeller | None = None
+
+
+@dataclass(frozen=True)
+class ModelSettings:
+    """What the run modeller is built from (see :class:`~hdeem_watch.daemon.modelling.RunModeller`)."""
+
+    memspec: str
+    dimms: int = 8
+    currents: Sequence[str] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
+    half_life_s: float | None = None
+    max_requests: int | None = None
+
+
+def restore_calibration(calibration: Calibration, *, settings: ModelSettings,
+                        state: dict[str, Any] | None,
+                        fits: Sequence[tuple[int, str | None, dict[str, Any] | None]],
+                        submit: Callable[..., None], on_built: Callable[[], None]) -> None:
+    """Restore the stored fit history and calibrator; build the run modeller as the worker's first job.
+
+    Args:
+        calibration: filled with the stored body now and the modeller on the worker.
+        settings: the model's settings.
+        state: the stored calibrator state (None = none).
+        fits: the stored fit history, oldest first (a None fit is a ``calib.reset``).
+        submit: the model worker's ``submit``.
+        on_built: called in the loop once the modeller is built (or failed to build).
+    """
     history: list[dict[str, Any]] = []
-    for t_ns, _run_id, fit in daemon.store.fit_history(MAX_HISTORY):
+    for t_ns, _run_id, fit in fits[-MAX_HISTORY:]:
         if fit is None:
-            history.clear()  # a calib.reset
+            history.clear()
         else:
             history.append(compact_fit(t_ns, fit))
-    state = daemon.store.load_calibrator()
-    latest = next((fit for _t, _r, fit in reversed(daemon.store.fit_history(1))), None)
-    # Until the worker has built the model (importing the calibrator takes seconds), late
-    # joiners get the stored fit.
-    daemon.calib_body = {"fit": latest, "history": history, "runs": len((state or {}).get("observations", [])),
-                         "drift": {}, "memspec": daemon.settings.memspec, "model_error": None, "truth": None,
-                         "loading": True}
-    settings = daemon.settings
+    latest = fits[-1][2] if fits else None
+    # Until the worker has built the model (importing the calibrator takes seconds), late joiners
+    # get the stored fit.
+    calibration.body = {"fit": latest, "history": history, "runs": len((state or {}).get("observations", [])),
+                        "drift": {}, "memspec": settings.memspec, "model_error": None, "truth": None,
+                        "loading": True}
 
     def build() -> dict[str, Any]:
-        modeller = RunModeller(
-            settings.memspec, dimms=settings.dimms, currents=settings.currents,
-            half_life_s=settings.half_life_s or None, max_requests=settings.model_max_requests,
-            state=state, history=history,
-        )
+        modeller = RunModeller(settings.memspec, dimms=settings.dimms, currents=settings.currents,
+                               half_life_s=settings.half_life_s or None, max_requests=settings.max_requests,
+                               state=state, history=history)
         if modeller.restore_error:
             log.warning("calibrator state not restored: %s", modeller.restore_error)
         if modeller.error:
             log.warning("runs will not be modelled: %s", modeller.error)
-        daemon.modeller = modeller  # set on the worker: every later model job runs after this one
+        calibration.modeller = modeller  # set on the worker: every later model job runs after this one
         return modeller.body()
 
     def built(body: dict[str, Any]) -> None:
-        daemon.calib_body = body
-        daemon.reporter.publish_calib()
+        calibration.body = body
+        on_built()
 
     def not_built(error: BaseException) -> None:
-        daemon.calib_body = {**daemon.calib_body, "loading": False,
-                             "model_error": f"model failed to build: {type(error).__name__}: {error}"}
+        calibration.body = {**calibration.body, "loading": False,
+                            "model_error": f"model failed to build: {type(error).__name__}: {error}"}
+        on_built()
 
-    daemon.submit(build, built, not_built)
+    submit(build, built, not_built)

@@ -35,13 +35,20 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.daemon.runs import IDLE_KERNELS
+from hdeem_watch.daemon.runs import NO_TRAFFIC_KERNELS
 from hdeem_watch.errors import InputError
 
 #: Compact fit-history entries kept for the ``calib`` topic.
 MAX_HISTORY = 200
 #: Kinds of run kept as candidates for the suggested next run.
 MAX_CANDIDATES = 64
+#: Runs the daemon's calibrator keeps (the oldest are dropped first): its saved state stays small
+#: (~2 KB per run) although it is rewritten at every stop.
+MAX_CALIBRATION_RUNS = 256
+#: Fits the calibrator keeps in its own history.
+MAX_CALIBRATOR_HISTORY = 32
+#: Highest plausible mean DRAM power per DIMM (W): DDR4 RDIMMs draw a few watts, ~15 W at most.
+MAX_PLAUSIBLE_DIMM_W = 50.0
 
 
 def load_spec(memspec: str) -> Any:
@@ -122,7 +129,11 @@ class RunModeller:
                 except InputError as error:  # a state this version cannot read: start afresh
                     self.restore_error = str(error)
             if self.calibrator is None:
-                self.calibrator = OnlineCalibrator(self.spec, currents=self.currents, half_life_s=self.half_life_s)
+                self.calibrator = OnlineCalibrator(self.spec, currents=self.currents, half_life_s=self.half_life_s,
+                                                   max_runs=MAX_CALIBRATION_RUNS,
+                                                   max_history=MAX_CALIBRATOR_HISTORY)
+            self.calibrator.max_runs = min(self.calibrator.max_runs, MAX_CALIBRATION_RUNS)
+            self.calibrator.max_history = min(self.calibrator.max_history, MAX_CALIBRATOR_HISTORY)
         except ImportError as error:  # a model module not installed yet
             self.error = f"model not available: {error}"
         except InputError as error:
@@ -144,7 +155,7 @@ class RunModeller:
     def groups_for(self, kernel: str, elements: int, threads: int, repeat: int) -> list[tuple[Any, int]]:
         """Per socket, the modelled statistics of one of its DIMMs and how many DIMMs it has (cached;
         idle kernels and idle sockets have no commands)."""
-        if kernel in IDLE_KERNELS or elements == 0:
+        if kernel in NO_TRAFFIC_KERNELS or elements == 0:
             from hdeem_watch.dram.node import idle_channel_stats
 
             return [(idle_channel_stats(self.spec), self.dimms)]
@@ -191,8 +202,11 @@ class RunModeller:
         window_s = record.get("window_s")
         if not isinstance(measured, int | float) or not math.isfinite(measured) or measured <= 0:
             return None, None, f"run {name!r}: no measured DRAM energy ({measured!r})"
-        if not isinstance(window_s, int | float) or not window_s > 0:
+        if not isinstance(window_s, int | float) or not math.isfinite(window_s) or not window_s > 0:
             return None, None, f"run {name!r}: empty window"
+        if measured / window_s > MAX_PLAUSIBLE_DIMM_W * self.dimms:
+            return None, None, (f"run {name!r}: implausible measured DRAM power {measured / window_s:.4g} W "
+                                f"(more than {MAX_PLAUSIBLE_DIMM_W:g} W per DIMM); not calibrated")
         from hdeem_watch.calibrate.rows import node_observation
         from hdeem_watch.dram.node import node_counts
 
@@ -219,6 +233,8 @@ class RunModeller:
         if before is not None:
             vec, intercept = self._currents_vector(before)
             model["predicted_j"] = model["calibrated_j"] = obs.predicted_j(vec, intercept)
+        if self.has_run(str(record.get("run_id"))):  # modelled again after a crash: already in the fit
+            return model, None, "the calibrator already had this run (modelled again after a restart)"
         try:
             result = self.calibrator.add_run(obs)
         except InputError as error:
@@ -231,10 +247,17 @@ class RunModeller:
         del self.history[:-MAX_HISTORY]
         return model, fit, None
 
+    def has_run(self, run_id: str) -> bool:
+        """Whether the calibrator holds a row of run ``run_id``."""
+        if self.calibrator is None:
+            return False
+        prefix = f"{run_id}:"
+        return any(str(o.name).startswith(prefix) for o in self.calibrator.observations)
+
     def _remember_candidate(self, record: Mapping[str, Any], obs: Any) -> None:
         """Keep the row of each kind of run (kernel × threads) as a candidate for :meth:`suggest`."""
         kernel = str(record.get("kernel"))
-        key = "idle" if kernel in IDLE_KERNELS or not record.get("elements") else f"{kernel}-{record.get('threads')}t"
+        key = "idle" if kernel in NO_TRAFFIC_KERNELS or not record.get("elements") else f"{kernel}-{record.get('threads')}t"
         self._candidates[key] = obs
         while len(self._candidates) > MAX_CANDIDATES:
             self._candidates.pop(next(iter(self._candidates)))

@@ -1,53 +1,86 @@
-"""The control operations of the daemon, and the life of run and idle-baseline windows.
+"""The control operations of the daemon, over the run book and narrow ports.
 
 Ops (see ``docs/protocol.md``): ``ping``, ``status``, ``run.start``, ``run.stop``, ``runs.list``,
-``baseline.get``, ``baseline.measure``, ``calib.get``, ``calib.reset``.
+``baseline.get``, ``baseline.measure``, ``baseline.cancel``, ``calib.get``, ``calib.reset``.
 
-A run: ``run.start`` polls the source once (so the window starts at a poll boundary), opens a
-:class:`~hdeem_watch.daemon.windows.Window`, stores the record and tells the source
-(``on_run``, the sim reacts to it). ``run.stop`` polls again, tells the source, and asks the window
-to close at the first poll whose DRAM samples reach the stop; the reply is deferred until the
-window closed and the worker modelled the run and refitted the calibrator. An idle run (kernel
-``idle``) is also an idle baseline of every channel.
+``run.start`` polls the source, opens the run in the :class:`~hdeem_watch.daemon.node_state.NodeState`
+and tells the source (a :class:`~hdeem_watch.sources.base.RunAware` sim reacts to it); it replies once
+the record is stored. ``run.stop`` polls again, tells the source and asks the window to close; its
+reply comes when the window closed, the model worker modelled the run and refitted the calibrator,
+and the result is stored. A run that was being modelled when the daemon died is modelled again at
+the next start (:meth:`Operations.resume_modelling`). Everything that reads or writes the database
+runs on the store worker, never on the poll loop.
 
 Example:
     >>> sorted(Operations.OPS)[:3]
-    ['baseline.get', 'baseline.measure', 'calib.get']
+    ['baseline.cancel', 'baseline.get', 'baseline.measure']
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
-import time
-from typing import TYPE_CHECKING, Any, Literal
+from collections.abc import Callable
+from typing import Any, Literal
 
 from hdeem_watch import __version__
 from hdeem_watch.daemon import baselines as bl
 from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.control import Handler, OpError, Pending
-from hdeem_watch.daemon.runs import finish_record, new_record, parse_run_args
-from hdeem_watch.daemon.windows import Window
+from hdeem_watch.daemon.jobs import Calibration
+from hdeem_watch.daemon.node_state import ClosedWindow, Conflict, NodeState
+from hdeem_watch.daemon.persistence import StoreWorker
+from hdeem_watch.daemon.ports import PublisherPort, Reply, StorePort, Submit
+from hdeem_watch.daemon.reporting import Reporter
+from hdeem_watch.daemon.runs import FINISHED_STATES, RunRecord, parse_run_args, run_summary
 from hdeem_watch.errors import InputError
-
-if TYPE_CHECKING:
-    from hdeem_watch.daemon.service import Daemon
+from hdeem_watch.sources.base import RunAware, RunEvent, Source
 
 log = logging.getLogger("hdeem_watch.daemon")
 
-#: How long a closing window waits for lagging samples (monotonic seconds) before it closes anyway.
-CLOSE_GRACE_S = 3.0
-#: Longest ``baseline.measure`` window in seconds.
-MAX_BASELINE_S = 3600.0
+#: ``runs.list`` page sizes: summaries, and full records (``"full": true``).
+MAX_SUMMARIES = 1000
+MAX_FULL_RECORDS = 20
+#: Run ids a ``runs.list`` with ``before`` scans at most for one page.
+MAX_SCAN = 10_000
+#: Recent runs looked at on start for one whose modelling a crash interrupted.
+RESUME_SCAN = 50
+#: Waiters key of the idle measurement.
+BASELINE = "baseline"
 
 
 class Operations:
-    """Control handlers bound to one :class:`~hdeem_watch.daemon.service.Daemon`."""
+    """Control handlers of one node.
+
+    Args:
+        book: the node's run book.
+        calibration: the calibration (model worker side).
+        reporter: status, calib and baseline publishing.
+        store: the store worker.
+        publisher: the ``run`` topic.
+        source: told about runs when it is :class:`~hdeem_watch.sources.base.RunAware`.
+        submit: the model worker's ``submit``.
+        reply: sends a deferred control reply.
+        poll: polls the source once now (a tight window edge).
+    """
 
     OPS = ("ping", "status", "run.start", "run.stop", "runs.list", "baseline.get", "baseline.measure",
-           "calib.get", "calib.reset")
+           "baseline.cancel", "calib.get", "calib.reset")
 
-    def __init__(self, daemon: Daemon) -> None:
-        self.d = daemon
+    def __init__(self, book: NodeState, *, calibration: Calibration, reporter: Reporter, store: StoreWorker,
+                 publisher: PublisherPort, source: Source, submit: Submit, reply: Reply,
+                 poll: Callable[[], object]) -> None:
+        self.book = book
+        self.calibration = calibration
+        self.reporter = reporter
+        self.store = store
+        self.publisher = publisher
+        self.source = source
+        self.submit = submit
+        self.reply = reply
+        self.poll = poll
+        #: Deferred replies by run id (or :data:`BASELINE`), answered when that work is done.
+        self.waiters: dict[str, list[Pending]] = {}
 
     def handlers(self) -> dict[str, Handler]:
         """op name → handler."""
@@ -57,115 +90,122 @@ class Operations:
 
     def op_ping(self, args: dict[str, Any]) -> dict[str, Any]:
         """Liveness."""
-        return {"pong": True, "t_ns": time.time_ns()}
+        return {"pong": True, "t_ns": self.book.wall()}
 
     def op_status(self, args: dict[str, Any]) -> dict[str, Any]:
         """The heartbeat body plus node, version and counts."""
-        body = self.d.reporter.status_body()
-        assert self.d.store is not None
-        body.update({"node": self.d.node, "version": __version__, "runs": self.d.store.count_runs(),
-                     "model_error": self.d.calib_body.get("model_error")})
+        body = self.reporter.status_body()
+        body.update({"node": self.book.node, "version": __version__, "runs": self.book.next_seq - 1,
+                     "model_error": self.calibration.body.get("model_error")})
         return body
 
-    def op_runs_list(self, args: dict[str, Any]) -> dict[str, Any]:
-        """Stored runs, newest first."""
-        limit = args.get("limit", 100)
-        if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= 100_000:
-            raise OpError("bad-args", f"args.limit = {limit!r}: expected an integer 1..100000")
+    def op_runs_list(self, args: dict[str, Any]) -> Pending:
+        """Stored runs, newest first: summaries, or full records with ``"full": true`` (read off the loop)."""
+        full = args.get("full", False)
+        if not isinstance(full, bool):
+            raise OpError("bad-args", f"args.full = {full!r}: expected true or false")
+        most = MAX_FULL_RECORDS if full else MAX_SUMMARIES
+        limit = args.get("limit", most if not full else MAX_FULL_RECORDS)
+        if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= most:
+            raise OpError("bad-args", f"args.limit = {limit!r}: expected an integer 1..{most}"
+                          + ("" if full else " (full records: 1..20)"))
         kernel = args.get("kernel")
         if kernel is not None and not isinstance(kernel, str):
             raise OpError("bad-args", f"args.kernel = {kernel!r}: expected a string")
-        assert self.d.store is not None
-        return {"runs": self.d.store.list_runs(limit, kernel)}
+        before = args.get("before")
+        before_seq = None
+        if before is not None:
+            if not isinstance(before, str) or not before.startswith("r") or not before[1:].isdigit():
+                raise OpError("bad-args", f"args.before = {before!r}: expected a run id (the last one of a page)")
+            before_seq = int(before[1:])
+        pending = Pending("runs.list")
+
+        def read(store: StorePort) -> dict[str, Any]:
+            runs = list_page(store, limit=limit, kernel=kernel, before_seq=before_seq, full=full)
+            more = len(runs) == limit and runs[-1].get("run_id") not in (None, "r1")
+            return {"runs": runs, "next_before": runs[-1].get("run_id") if more else None}
+
+        self.store.read(read, lambda body: self.reply(pending, body, None),
+                        lambda error: self.reply(pending, None, ("internal", f"{type(error).__name__}: {error}")))
+        return pending
 
     def op_baseline_get(self, args: dict[str, Any]) -> dict[str, Any]:
         """The current baselines."""
-        return bl.baselines_body(self.d.baselines)
+        return bl.baselines_body(self.book.baselines)
 
     def op_calib_get(self, args: dict[str, Any]) -> dict[str, Any]:
         """The latest calibration (with the sim's truth when simulated)."""
-        return self.d.reporter.calib_with_truth()
+        return self.reporter.calib_with_truth()
 
     def op_calib_reset(self, args: dict[str, Any]) -> Pending:
         """Forget every calibration run (on the worker, after any refit in progress)."""
         pending = Pending("calib.reset")
+        calibration = self.calibration
 
         def job() -> dict[str, Any]:
-            modeller = self.d.modeller  # read on the worker, after the job that built it
+            modeller = calibration.modeller  # read on the worker, after the job that built it
             if modeller is None:
                 raise RuntimeError("the calibrator is not available (it failed to build; see the log)")
             modeller.reset()
             return modeller.body()
 
         def done(body: dict[str, Any]) -> None:
-            assert self.d.store is not None
-            self.d.store.clear_calibrator(time.time_ns())
-            self.d.calib_body = body
-            self.d.reporter.publish_calib()
-            self.d.complete(pending, self.d.reporter.calib_with_truth())
+            t_ns = self.book.wall()
+            calibration.body = body
+            self.store.write("calib.reset", lambda s: s.clear_calibrator(t_ns),
+                             lambda _written: self._after_reset(pending))
 
-        self.d.submit(job, done, failed=lambda error: self.d.complete(pending, error=("unavailable", str(error))))
+        self.submit(job, done, lambda error: self.reply(pending, None, ("unavailable", str(error))))
         return pending
+
+    def _after_reset(self, pending: Pending) -> None:
+        self.reporter.publish_calib()
+        self.reply(pending, self.reporter.calib_with_truth(), None)
 
     # -- runs ------------------------------------------------------------------------------------------
 
-    def _busy(self) -> None:
-        for window in self.d.windows:
-            if window.kind == "run":
-                raise OpError("conflict", f"run {window.context['record']['run_id']} is in progress; stop it first")
-            raise OpError("conflict", "an idle baseline measurement is in progress")
-
-    def _notify_source(self, kind: Literal["start", "stop"], record: dict[str, Any], t_mono_ns: int) -> None:
-        on_run = getattr(self.d.source, "on_run", None)
-        if on_run is None:
+    def _notify_source(self, kind: Literal["start", "stop"], record: RunRecord, t_mono_ns: int) -> None:
+        if not isinstance(self.source, RunAware):
             return
-        from hdeem_watch.sources.base import RunEvent
-
         try:
-            on_run(RunEvent(kind=kind, run_id=record["run_id"], kernel=record["kernel"], threads=record["threads"],
-                            elements=record["elements"], repeat=record["repeat"], t_mono_ns=t_mono_ns))
+            self.source.on_run(RunEvent(kind=kind, run_id=record.run_id, kernel=record.kernel, threads=record.threads,
+                                        elements=record.elements, repeat=record.repeat, t_mono_ns=t_mono_ns))
         except Exception as error:
             log.warning("source on_run(%s) failed: %s", kind, error)
 
-    def op_run_start(self, args: dict[str, Any]) -> dict[str, Any]:
-        """Open a run window."""
-        self._busy()
-        run_args = parse_run_args(args)
-        if not run_args.idle:
+    def op_run_start(self, args: dict[str, Any]) -> Pending:
+        """Open a run window; the reply comes once its record is stored."""
+        self._conflict(self.book.ensure_free)  # before the arguments: a busy node says so whatever was asked
+        run_args = parse_run_args(args, self.book.limits)
+        if not run_args.moves_no_traffic:
             try:
                 from hdeem_watch.dram.kernels import canonical_kernel
 
-                run_args = type(run_args)(**{**run_args.__dict__, "kernel": canonical_kernel(run_args.kernel)})
+                run_args = dataclasses.replace(run_args, kernel=canonical_kernel(run_args.kernel))
             except ImportError:
                 pass
             except InputError as error:
                 raise OpError("bad-args", f"args.kernel: {error} (or 'idle')") from None
-        d = self.d
-        assert d.store is not None and d.publisher is not None
-        run_id = d.store.next_run_id()
-        d.poll_once()
-        now = d.clock()
-        record = new_record(run_id, run_args, t_wall_ns=time.time_ns(), node=d.node)
-        d.store.save_run(record)
-        d.windows.append(Window(kind="run", start_energy_j=d.energies(), start_t_ns=d.last_sample_times(),
-                                dram_channels=d.dram_channels, t_start_mono_ns=now,
-                                context={"record": record, "waiters": []}))
-        self._notify_source("start", record, now)
-        for account in d.accounts.values():
-            if account.history is not None:
-                account.history.clear()
-        d.publisher.publish("run", {"event": "start", "run": record})
-        return {"run_id": run_id, "t_start_ns": record["t_start_ns"], "run": record}
+        self.poll()
+        record = self._conflict(lambda: self.book.start_run(run_args))
+        self._notify_source("start", record, self.book.windows[-1].t_start_mono_ns)
+        body = record.to_dict()
+        self.publisher.publish("run", {"event": "start", "run": body})
+        pending = Pending("run.start")
+        reply = {"run_id": record.run_id, "t_start_ns": record.t_start_ns, "run": body}
+        self.store.write(f"run {record.run_id}", lambda s: s.save_run(body),
+                         lambda _written: self.reply(pending, reply, None))
+        return pending
 
-    def _close_deadline(self, now: int, extra_s: float = 0.0) -> int:
-        # Long enough for a lagging source to catch up (the sim holds its sensors back while it
-        # plans a run, up to seconds on a loaded machine); a stalled channel ends the wait.
-        slowest = max((1.0 / a.rate_hz for a in self.d.accounts.values() if a.rate_hz > 0), default=0.0)
-        grace_s = max(CLOSE_GRACE_S, 4 * self.d.settings.poll_interval_s, 3 * slowest / self.d.speed)
-        return now + round((extra_s + grace_s) * 1e9)
+    @staticmethod
+    def _conflict(action: Callable[[], Any]) -> Any:
+        try:
+            return action()
+        except Conflict as error:
+            raise OpError("conflict", str(error)) from None
 
-    def op_run_stop(self, args: dict[str, Any]) -> Any:
-        """Close a run window; the reply (energies, model, fit) comes when it is modelled."""
+    def op_run_stop(self, args: dict[str, Any]) -> Pending:
+        """Close a run window; the reply (energies, model, fit) comes when it is modelled and stored."""
         run_id = args.get("run_id")
         if not isinstance(run_id, str | int) or isinstance(run_id, bool):
             raise OpError("bad-args", f"args.run_id = {run_id!r}: expected the run id run.start returned")
@@ -173,135 +213,165 @@ class Operations:
         abort = args.get("abort", False)
         if not isinstance(abort, bool):
             raise OpError("bad-args", f"args.abort = {abort!r}: expected true or false")
-        d = self.d
-        window = next((w for w in d.windows if w.kind == "run" and w.context["record"]["run_id"] == run_id), None)
-        if window is None:
-            assert d.store is not None
-            stored = d.store.get_run(run_id)
-            if stored is not None and stored.get("state") != "running":
-                return stored  # stopped before: the same answer again
-            raise OpError("not-found", f"no run {run_id!r} in progress")
         pending = Pending("run.stop")
-        window.context["waiters"].append(pending)
-        if window.closing:
+        if run_id in self.waiters:  # closing, modelling, or being modelled again after a restart
+            self.waiters[run_id].append(pending)
             return pending
-        window.context["abort"] = abort
-        d.poll_once()
-        now = d.clock()
-        self._notify_source("stop", window.context["record"], now)
-        # The stop on the source's sample-time axis; the window closes once every DRAM channel has
-        # delivered its samples up to it (a sensor may lag: the sim while it plans a run).
-        window.request_close(target_t_ns=d.sample_time_of(now), deadline_mono_ns=self._close_deadline(now),
-                             rates_hz=d.rates(), last_t_ns=d.last_sample_times(), energy_j=d.energies())
-        self.advance_windows(now)
+        running = self.book.running()
+        if running is None or running.run_id != run_id:
+            self.store.read(lambda s: s.get_run(run_id), lambda stored: self._stopped_before(pending, run_id, stored),
+                            lambda error: self.reply(pending, None, ("internal", f"{type(error).__name__}: {error}")))
+            return pending
+        self.waiters[run_id] = [pending]
+        self.poll()
+        window = self.book.stop_run(run_id, abort=abort)
+        assert window is not None
+        self._notify_source("stop", running, self.book.monotonic())
+        for closed in self.book.close_ready():
+            self.window_closed(closed)
         return pending
+
+    def _stopped_before(self, pending: Pending, run_id: str, stored: dict[str, Any] | None) -> None:
+        if stored is not None and stored.get("state") in FINISHED_STATES:
+            self.reply(pending, stored, None)  # stopped before: the same answer again
+        elif stored is not None and stored.get("state") == "modelling":
+            self.reply(pending, None, ("unavailable", f"run {run_id} is not modelled yet; ask again later"))
+        else:
+            self.reply(pending, None, ("not-found", f"no run {run_id!r} in progress"))
 
     # -- idle baselines --------------------------------------------------------------------------------
 
     def op_baseline_measure(self, args: dict[str, Any]) -> Pending:
-        """Measure an idle window of ``seconds``; the reply comes at its end."""
+        """Measure an idle window of ``seconds``; the reply comes at its end (or at baseline.cancel)."""
         seconds = args.get("seconds")
-        if isinstance(seconds, bool) or not isinstance(seconds, int | float) or not 0 < seconds <= MAX_BASELINE_S:
-            raise OpError("bad-args", f"args.seconds = {seconds!r}: expected a duration in (0, {MAX_BASELINE_S:g}] s")
-        self._busy()
-        d = self.d
-        d.poll_once()
-        now = d.clock()
-        window = Window(kind="baseline", start_energy_j=d.energies(), start_t_ns=d.last_sample_times(),
-                        dram_channels=d.dram_channels, t_start_mono_ns=now, context={"waiters": []})
-        last = [t for c in d.dram_channels if (t := d.accounts[c].last_t_ns) is not None]
-        start = max(last) if last else d.sample_time_of(now)
-        window.request_close(target_t_ns=start + round(seconds * 1e9),
-                             deadline_mono_ns=self._close_deadline(now, seconds / d.speed), rates_hz=d.rates())
+        self.poll()
+        try:
+            self._conflict(lambda: self.book.measure_baseline(seconds))  # type: ignore[arg-type]
+        except ValueError as error:
+            raise OpError("bad-args", str(error)) from None
         pending = Pending("baseline.measure")
-        window.context["waiters"].append(pending)
-        d.windows.append(window)
+        self.waiters[BASELINE] = [pending]
         return pending
+
+    def op_baseline_cancel(self, args: dict[str, Any]) -> dict[str, Any]:
+        """End the idle measurement in progress (its caller gets ``unavailable``)."""
+        closed = self.book.cancel_baseline()
+        if closed is None:
+            return {"cancelled": False}
+        self.window_closed(closed)
+        return {"cancelled": True, "window_s": closed.window_s}
 
     # -- closing windows -------------------------------------------------------------------------------
 
-    def advance_windows(self, now_mono_ns: int) -> None:
-        """Close every window that is ready (called after each poll)."""
-        if not self.d.windows:
-            return
-        for window in [w for w in self.d.windows if w.ready(now_mono_ns)]:
-            self.d.windows.remove(window)
-            try:
-                self._closed(window, now_mono_ns)
-            except Exception as error:
-                log.exception("closing a %s window failed", window.kind)
-                for pending in window.context.get("waiters", []):
-                    self.d.complete(pending, error=("internal", f"{type(error).__name__}: {error}"))
-
-    def _window_baselines(self, window: Window, energy: dict[str, float], spans: dict[str, float]) -> dict[str, bl.Baseline]:
-        found = {}
-        for name, account in self.d.accounts.items():
-            found[name] = bl.baseline_from_samples(window.channel_samples(name), t_ns=account.last_t_ns or 0,
-                                                   origin="idle-run", energy_j=energy.get(name),
-                                                   window_s=spans.get(name))
-        changed = [self.d.reporter.update_baseline(name, b) for name, b in found.items()]
-        if any(changed):
-            self.d.reporter.publish_baselines()
-        return found
-
-    def _closed(self, window: Window, now: int) -> None:
-        d = self.d
-        energy, window_s, spans = window.result(d.energies(), d.last_sample_times(), now_mono_ns=now, speed=d.speed)
-        waiters: list[Pending] = window.context.get("waiters", [])
-        if window.kind == "baseline":
-            found = self._window_baselines(window, energy, spans)
-            body = bl.baselines_body(found)
-            body["window_s"] = window_s
+    def window_closed(self, closed: ClosedWindow) -> None:
+        """Answer, store and model what a closed window measured (called after every batch)."""
+        self.reporter.baselines_kept(closed.kept)
+        if closed.run is None:
+            waiters = self.waiters.pop(BASELINE, [])
+            if closed.cancelled:
+                for pending in waiters:
+                    self.reply(pending, None, ("unavailable", "the measurement was cancelled (baseline.cancel)"))
+                return
+            body = bl.baselines_body(closed.baselines)
+            body["window_s"] = closed.window_s
             for pending in waiters:
-                d.complete(pending, body)
+                self.reply(pending, body, None)
             return
-        aborted = bool(window.context.get("abort"))
-        record = finish_record(window.context["record"], energy_j=energy, window_s=window_s,
-                               dram_channels=d.dram_channels, t_wall_ns=time.time_ns(), spans_s=spans,
-                               aborted=aborted)
-        # The window on each channel's sample axis: samples with first < t <= last are inside.
-        record["samples_ns"] = {c: list(span) for c, span in window.sample_spans_ns.items()}
-        assert d.store is not None
-        d.store.save_run(record)
-        if record["kernel"] in ("idle", "sleep") and not aborted:
-            self._window_baselines(window, energy, spans)
-        if aborted:
-            self._finish_run(record, waiters, None)
+        record = closed.run
+        self.waiters.setdefault(record.run_id, [])
+        body = record.to_dict()
+        if record.state == "aborted":
+            self.store.write(f"run {record.run_id}", lambda s: s.save_run(body),
+                             lambda _written: self._finished(record))
             return
+        self.store.write(f"run {record.run_id}", lambda s: s.save_run(body))
+        self.model(record)
+
+    def model(self, record: RunRecord) -> None:
+        """Model the run and refit on the model worker; store the result; then publish and reply."""
+        calibration = self.calibration
+        self.waiters.setdefault(record.run_id, [])
+        body = record.to_dict()
+
         def job() -> tuple[Any, ...]:
-            modeller = d.modeller  # read on the worker, after the job that built it
+            modeller = calibration.modeller  # read on the worker, after the job that built it
             if modeller is None:
                 raise RuntimeError("the model is not available (it failed to build; see the log)")
             try:
-                model, fit, error = modeller.evaluate(record)
+                model, fit, error = modeller.evaluate(body)
             except Exception as exc:  # a model bug must not lose the run or its reply
-                log.exception("modelling run %s failed", record["run_id"])
+                log.exception("modelling run %s failed", record.run_id)
                 model, fit, error = None, None, f"model failed: {type(exc).__name__}: {exc}"
-            # The calibrator's state grows with the runs (MBs after hundreds): serialise it here,
-            # not in the poll loop.
+            # The calibrator's state grows with the runs: serialise it here, not in the poll loop.
             state = protocol.dumps(modeller.state()).decode() if fit is not None else None
             return model, fit, error, modeller.body(), state
 
-        d.submit(job, lambda result: self._finish_run(record, waiters, result),
-                 failed=lambda error: self._finish_run(record, waiters, (None, None, str(error), d.calib_body, None)))
+        def failed(error: BaseException) -> None:
+            self._modelled(record, (None, None, str(error), calibration.body, None))
 
-    def _finish_run(self, record: dict[str, Any], waiters: list[Pending], result: tuple[Any, ...] | None) -> None:
-        d = self.d
-        assert d.store is not None and d.publisher is not None
-        if result is not None:
-            model, fit, error, body, state = result
-            record["model"], record["fit"], record["model_error"] = model, fit, error
-            d.store.save_run(record)
+        self.submit(job, lambda result: self._modelled(record, result), failed)
+
+    def _modelled(self, record: RunRecord, result: tuple[Any, ...]) -> None:
+        model, fit, error, calib_body, state = result
+        done = dataclasses.replace(record, state="done", model=model, fit=fit, model_error=error)
+        self.calibration.body = calib_body
+        body = done.to_dict()
+        t_ns = int(done.t_stop_ns or 0)
+
+        def save(store: StorePort) -> None:
+            # The calibration first: a crash between the two leaves the run "modelling", and the
+            # restart's remodelling finds the run already in the calibrator (it is not added twice).
             if fit is not None and state is not None:
-                d.store.save_calibration(int(record.get("t_stop_ns") or 0), state, fit, record["run_id"])
-            d.calib_body = body
-            if d.metrics is not None:
-                d.metrics.observe_fit(fit)
-        if d.metrics is not None:
-            d.metrics.observe_run()
-        d.publisher.publish("run", {"event": "stop", "run": record})
-        if result is not None:
-            d.reporter.publish_calib()
-        for pending in waiters:
-            d.complete(pending, record)
+                store.save_calibration(t_ns, state, fit, done.run_id)
+            store.save_run(body)
 
+        self.store.write(f"run {done.run_id}", save, lambda _written: self._finished(done, calib=True))
+
+    def _finished(self, record: RunRecord, *, calib: bool = False) -> None:
+        body = record.to_dict()
+        self.publisher.publish("run", {"event": "stop", "run": body})
+        if calib:
+            self.reporter.publish_calib()
+        for pending in self.waiters.pop(record.run_id, []):
+            self.reply(pending, body, None)
+
+    def resume_modelling(self, stored: list[dict[str, Any]]) -> int:
+        """Model again the runs a crash left ``modelling`` (``stored``: their records); return how many."""
+        count = 0
+        for data in sorted(stored, key=lambda r: int(str(r.get("run_id", "r0"))[1:] or 0)):
+            try:
+                record = RunRecord.from_dict(data)
+            except (KeyError, TypeError, ValueError) as error:
+                log.warning("stored run %s cannot be modelled again: %s", data.get("run_id"), error)
+                continue
+            log.info("run %s: modelling again (the daemon stopped while modelling it)", record.run_id)
+            self.model(record)
+            count += 1
+        return count
+
+
+def unfinished_runs(store: StorePort) -> list[dict[str, Any]]:
+    """The recent stored runs whose modelling a crash interrupted (state ``modelling``), full records."""
+    found = [store.get_run(str(r["run_id"])) for r in store.list_runs(RESUME_SCAN) if r.get("state") == "modelling"]
+    return [r for r in found if r is not None]
+
+
+def list_page(store: StorePort, *, limit: int, kernel: str | None, before_seq: int | None,
+              full: bool) -> list[dict[str, Any]]:
+    """One page of stored runs, newest first (on the store worker).
+
+    Without ``before_seq`` the newest runs; with it, the runs numbered below it (the ids are
+    sequential, ``r<n>``), at most :data:`MAX_SCAN` ids looked at.
+    """
+    if before_seq is None and not full:
+        return [run_summary(r) for r in store.list_runs(limit, kernel)]
+    top = before_seq if before_seq is not None else int(store.next_run_id()[1:])
+    page: list[dict[str, Any]] = []
+    for seq in range(top - 1, max(0, top - 1 - MAX_SCAN), -1):
+        record = store.get_run(f"r{seq}")
+        if record is None or (kernel is not None and record.get("kernel") != kernel):
+            continue
+        page.append(record if full else run_summary(record))
+        if len(page) >= limit:
+            break
+    return page

@@ -1,132 +1,142 @@
-"""What the daemon tells the world: heartbeat, calibration, baselines, Prometheus metrics.
+"""What the daemon tells the world: heartbeat, calibration and baselines.
 
-Bound to one :class:`~hdeem_watch.daemon.service.Daemon` (it reads the daemon's source, accounts,
-windows, publisher, store and settings): the status body and heartbeat, the ``calib`` body with the
-simulated source's truth, and the baselines — merging new ones (idle windows, quiet periods),
-storing and publishing them.
+The :class:`Reporter` reads the run book (:class:`~hdeem_watch.daemon.node_state.NodeState`), the
+calibration and the source's health through narrow ports, and publishes the ``status``, ``calib``
+and ``baseline`` topics; new baselines are stored through the store worker (never on the loop).
 """
 
 from __future__ import annotations
 
 import math
 import os
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import psutil
 
 from hdeem_watch.daemon import baselines as bl
+from hdeem_watch.daemon.jobs import Calibration
+from hdeem_watch.daemon.node_state import NodeState
+from hdeem_watch.daemon.persistence import StoreWorker
+from hdeem_watch.daemon.ports import PublisherPort, StorePort
+from hdeem_watch.sources.base import HasTruth, Source
 
-if TYPE_CHECKING:
-    from hdeem_watch.daemon.service import Daemon
+Clock = Callable[[], int]
+
+
+@dataclass(frozen=True)
+class Identity:
+    """What does not change while the daemon runs (in every status body)."""
+
+    kind: str
+    endpoints: Mapping[str, str]
+    curve_public_key: str | None = None
+    prometheus_port: int | None = None
 
 
 class Reporter:
-    """Heartbeat, calibration and baseline publishing of one daemon.
+    """Heartbeat, calibration and baseline publishing of one node.
 
     Args:
-        daemon: the daemon whose state it reports.
+        book: the node's run book.
+        calibration: the calibration (its ``calib`` body).
+        source: the source (health; truth when it :class:`~hdeem_watch.sources.base.HasTruth`).
+        publisher: where the topics go.
+        store: the store worker (baselines written there; its health in the status).
+        identity: the static part of the status.
+        poll_interval_ns: the current poll period.
+        clock: the monotonic clock (uptime).
     """
 
-    def __init__(self, daemon: Daemon) -> None:
-        self.d = daemon
+    def __init__(self, book: NodeState, calibration: Calibration, source: Source, publisher: PublisherPort,
+                 store: StoreWorker, identity: Identity, *, poll_interval_ns: Callable[[], int],
+                 clock: Clock) -> None:
+        self.book = book
+        self.calibration = calibration
+        self.source = source
+        self.publisher = publisher
+        self.store = store
+        self.identity = identity
+        self._poll_interval_ns = poll_interval_ns
+        self._clock = clock
+        self._t_open_ns = clock()
+        self._process = psutil.Process()
+        self._process.cpu_percent(None)
+        self._cpu_percent = math.nan
+
+    def source_health(self) -> str:
+        """The source's own health, or the last poll failure while polls fail."""
+        try:
+            health = str(self.source.health())
+        except Exception as error:
+            health = f"error: {error}"
+        failure = self.book.poll_error
+        return failure if failure is not None and health == "ok" else health
 
     def status_body(self) -> dict[str, Any]:
         """The heartbeat body (also the base of the ``status`` op)."""
-        try:
-            health = str(self.d.source.health())
-        except Exception as error:
-            health = f"error: {error}"
-        if self.d._last_health.startswith("error") and health == "ok":
-            health = self.d._last_health
-        memory = self.d._process.memory_info()
-        run = next((w.context.get("record") for w in self.d.windows if w.kind == "run"), None)
+        run = self.book.running()
         return {
-            "source": {"kind": getattr(self.d.source, "kind", self.d.settings.source), "health": health},
-            "channels": {name: a.status_entry() for name, a in self.d.accounts.items()},
-            "process": {"cpu_percent": self.d._cpu_percent, "rss_bytes": int(memory.rss), "pid": os.getpid()},
-            "run": run,
-            "uptime_s": (self.d.clock() - self.d._t_open_mono) / 1e9,
-            "endpoints": {"pub": self.d.pub_endpoint, "control": self.d.control_endpoint},
-            "curve_public_key": None if self.d.curve is None else self.d.curve.public.decode(),
-            "speed": self.d.speed,
-            "poll_interval_s": self.d.poll_interval_ns / 1e9,
-            "prometheus_port": self.d.metrics_port,
+            "source": {"kind": self.identity.kind, "health": self.source_health()},
+            "store": {"health": self.store.health()},
+            "channels": {name: a.status_entry() for name, a in self.book.accounts.items()},
+            "process": {"cpu_percent": self._cpu_percent, "rss_bytes": int(self._process.memory_info().rss),
+                        "pid": os.getpid()},
+            "run": None if run is None else run.to_dict(),
+            "uptime_s": (self._clock() - self._t_open_ns) / 1e9,
+            "endpoints": dict(self.identity.endpoints),
+            "curve_public_key": self.identity.curve_public_key,
+            "speed": self.book.speed,
+            "poll_interval_s": self._poll_interval_ns() / 1e9,
+            "prometheus_port": self.identity.prometheus_port,
         }
 
     def publish_status(self) -> None:
-        """Publish the heartbeat (and update the Prometheus metrics once a second)."""
-        assert self.d.publisher is not None
-        self.d._cpu_percent = float(self.d._process.cpu_percent(None))
-        self.d._last_health = "ok" if self.d.poll_errors == 0 else self.d._last_health
-        for account in self.d.accounts.values():
-            account.close_rate_window()
-        self.d.publisher.publish("status", self.status_body())
-        if self.d.recorder is not None:
-            self.d.recorder.flush()
-        if self.d.metrics is not None:
-            for name, account in self.d.accounts.items():
-                energy0, samples0, gaps0 = self.d._metric_last.get(name, (0.0, 0, 0))
-                energy = account.energy_j
-                self.d.metrics.observe_channel(name, power_w=account.power_w, energy_delta_j=energy - energy0,
-                                             samples=account.samples - samples0, missing=account.gaps - gaps0)
-                self.d._metric_last[name] = (energy if math.isfinite(energy) else energy0, account.samples,
-                                           account.gaps)
-        self.d.poll_errors = 0
+        """Publish the heartbeat (rates over the last heartbeat period, CPU share since the last)."""
+        self._cpu_percent = float(self._process.cpu_percent(None))
+        self.book.heartbeat()
+        self.publisher.publish("status", self.status_body())
 
     def truth(self) -> dict[str, Any] | None:
         """The simulated source's hidden truth, or None for real sensors."""
-        getter = getattr(self.d.source, "truth", None)
-        if getter is None:
+        if not isinstance(self.source, HasTruth):
             return None
         try:
-            return dict(getter())
+            return dict(self.source.truth())
         except Exception:
             return None
 
-    def publish_calib(self) -> None:
-        """Publish the ``calib`` body (cached by the publisher for late joiners)."""
-        if self.d.publisher is not None:
-            self.d.publisher.publish("calib", self.calib_with_truth())
-
     def calib_with_truth(self) -> dict[str, Any]:
         """The latest ``calib`` body with the sim's truth now."""
-        body = dict(self.d.calib_body)
+        body = dict(self.calibration.body)
         body["truth"] = self.truth()
         return body
 
+    def publish_calib(self) -> None:
+        """Publish the ``calib`` body (cached by the publisher for late joiners)."""
+        self.publisher.publish("calib", self.calib_with_truth())
+
     def publish_baselines(self) -> None:
         """Publish the ``baseline`` body (cached for late joiners)."""
-        if self.d.publisher is not None:
-            self.d.publisher.publish("baseline", bl.baselines_body(self.d.baselines))
-        if self.d.metrics is not None:
-            self.d.metrics.observe_baselines({c: b.power_w for c, b in self.d.baselines.items()})
+        self.publisher.publish("baseline", bl.baselines_body(self.book.baselines))
 
-    def update_baseline(self, channel: str, baseline: bl.Baseline) -> bool:
-        """Merge a new baseline; store it if it was kept. Returns whether it changed."""
-        kept = bl.merge(self.d.baselines.get(channel), baseline)
-        if kept is self.d.baselines.get(channel):
-            return False
-        self.d.baselines[channel] = kept
-        if self.d.store is not None:
-            self.d.store.save_baseline(channel, kept.to_dict())
-        return True
-
-    def look_for_quiet_periods(self) -> None:
-        """Baselines from quiet periods of the recent samples (only while no window is open)."""
-        if self.d.windows:
+    def baselines_kept(self, kept: Mapping[str, bl.Baseline]) -> None:
+        """Store and publish baselines that replaced the kept ones (nothing when empty)."""
+        if not kept:
             return
-        changed = False
-        for name in self.d.dram_channels:
-            account = self.d.accounts[name]
-            ring = account.history
-            if ring is None or len(ring) == 0:
-                continue
-            values = ring.values()
-            found = bl.quiet_window(values, rate_hz=account.rate_hz, window_s=self.d.settings.quiet_window_s,
-                                    max_spread_w=self.d.settings.quiet_max_spread_w)
-            if found is None:
-                continue
-            baseline = bl.baseline_from_samples(values[found[0]:found[1]], t_ns=account.last_t_ns or 0,
-                                                origin="quiet")
-            changed |= self.update_baseline(name, baseline)
-        if changed:
-            self.publish_baselines()
+        for channel, baseline in kept.items():
+            record = baseline.to_dict()
+            self.store.write(f"baseline {channel}", _save_baseline(channel, record))
+        self.publish_baselines()
 
+    def look_for_quiet_periods(self, *, window_s: float, max_spread_w: float) -> None:
+        """Baselines from quiet periods of the recent samples (only while no window is open)."""
+        self.baselines_kept(self.book.quiet_baselines(window_s=window_s, max_spread_w=max_spread_w))
+
+
+def _save_baseline(channel: str, record: dict[str, Any]) -> Callable[[StorePort], None]:
+    def save(store: StorePort) -> None:
+        store.save_baseline(channel, record)
+
+    return save

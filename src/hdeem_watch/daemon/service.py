@@ -1,11 +1,14 @@
-"""The node daemon process: sockets, the poll loop, heartbeat, persistence and the model worker.
+"""The node daemon process: the shell around the run book — sockets, the poll loop, the workers.
 
-One thread runs everything that touches sockets, the source and SQLite: a ZeroMQ poll loop that
-wakes for control requests, new subscriptions and three fixed-rate deadlines (poll the source,
-heartbeat, re-publish calibration/baselines and look for quiet periods). The kernel model and the
-refit run in one worker thread (:class:`~hdeem_watch.daemon.modelling.RunModeller`); their results
-are picked up by the loop, stored and published. The control operations are in
-:mod:`hdeem_watch.daemon.operations`.
+The decisions (accounting, run and idle windows, baselines) are the pure
+:class:`~hdeem_watch.daemon.node_state.NodeState`'s; this module wires it to the world. One thread
+runs the ZeroMQ poll loop: it wakes for control requests, new subscriptions, finished worker jobs
+and three fixed-rate deadlines (poll the source, heartbeat, re-publish calibration/baselines and
+look for quiet periods). Two worker threads do the slow work: the model worker (kernel model,
+refit; :mod:`hdeem_watch.daemon.jobs`) and the store worker (every database read and write after
+start; :mod:`hdeem_watch.daemon.persistence`). Their callbacks run in the loop. The control
+operations are in :mod:`hdeem_watch.daemon.operations`, the topics in
+:mod:`hdeem_watch.daemon.reporting`.
 
 Example:
     >>> from hdeem_watch.config import DaemonSettings
@@ -15,41 +18,44 @@ Example:
 
 from __future__ import annotations
 
-import collections
+import contextlib
 import fcntl
 import logging
-import math
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
-import psutil
 import zmq
 
 from hdeem_watch import __version__
 from hdeem_watch.config import DaemonSettings
 from hdeem_watch.daemon import baselines as bl
-from hdeem_watch.daemon.channels import ChannelAccount
-from hdeem_watch.daemon.client import default_endpoints, ipc_path
+from hdeem_watch.daemon.client import default_endpoints
 from hdeem_watch.daemon.control import ControlServer, Pending
-from hdeem_watch.daemon.jobs import ModelJobs, load_state
-from hdeem_watch.daemon.metrics import DaemonMetrics
-from hdeem_watch.daemon.modelling import RunModeller
-from hdeem_watch.daemon.operations import Operations
+from hdeem_watch.daemon.jobs import Calibration, ModelSettings, Worker, restore_calibration
+from hdeem_watch.daemon.metrics import DaemonMetrics, NodeCollector
+from hdeem_watch.daemon.modelling import MAX_HISTORY
+from hdeem_watch.daemon.node_state import NodeState
+from hdeem_watch.daemon.operations import Operations, unfinished_runs
+from hdeem_watch.daemon.persistence import StoreWorker
 from hdeem_watch.daemon.poller import IntervalTimer
 from hdeem_watch.daemon.publisher import Publisher
-from hdeem_watch.daemon.reporting import Reporter
+from hdeem_watch.daemon.reporting import Identity, Reporter
+from hdeem_watch.daemon.runs import RunLimits
 from hdeem_watch.daemon.store import Store, StoreError
-from hdeem_watch.daemon.windows import Window
 from hdeem_watch.errors import InputError
+from hdeem_watch.sources.base import Source, SourceBatch, SourceUnavailable, make_source, source_speed
 
 log = logging.getLogger("hdeem_watch.daemon")
 
-#: Longest stretch of source time between two idle polls (s).
-IDLE_MAX_SOURCE_S = 10.0
-
 Clock = Callable[[], int]
+
+#: Control requests answered per loop iteration, and worker callbacks run per iteration: the loop
+#: polls the source between batches, so a crowd of clients delays replies, never samples.
+CONTROL_BATCH = 8
+CALLBACK_BATCH = 2
 
 
 class Daemon:
@@ -58,49 +64,40 @@ class Daemon:
     Args:
         settings: the configuration.
         source: a ready source object (default: ``make_source(settings.source, ...)``).
-        clock: monotonic clock in ns (shared with the source's ``on_run`` events).
+        clock: monotonic clock in ns (shared with the source's run events).
+        wall_clock: wall clock in ns (labels: record and header times).
         context: ZeroMQ context.
     """
 
-    def __init__(self, settings: DaemonSettings, *, source: Any = None, clock: Clock = time.monotonic_ns,
-                 context: zmq.Context[Any] | None = None) -> None:
+    def __init__(self, settings: DaemonSettings, *, source: Source | None = None, clock: Clock = time.monotonic_ns,
+                 wall_clock: Clock = time.time_ns, context: zmq.Context[Any] | None = None) -> None:
         self.settings = settings
         self.node = settings.node
         self.clock = clock
+        self.wall_clock = wall_clock
         self.context = context or zmq.Context.instance()
         self.source = source
         default_pub, default_control = default_endpoints(settings.runtime_dir)
         self.pub_endpoint = settings.pub or default_pub
         self.control_endpoint = settings.control or default_control
-        self.accounts: dict[str, ChannelAccount] = {}
-        self.dram_channels: tuple[str, ...] = ()
-        self.baselines: dict[str, bl.Baseline] = {}
-        self.windows: list[Window] = []
-        self.calib_body: dict[str, Any] = {}
-        self.jobs = ModelJobs()
+        self.book: NodeState | None = None
+        self.calibration = Calibration()
         self.publisher: Publisher | None = None
         self.control: ControlServer | None = None
         self.store: Store | None = None
-        self.modeller: RunModeller | None = None
+        self.store_worker: StoreWorker | None = None
+        self.model_jobs: Worker | None = None
+        self.operations: Operations | None = None
+        self.reporter: Reporter | None = None
         self.metrics: DaemonMetrics | None = None
         self.metrics_port: int | None = None
         self.recorder: Any = None
         self.curve: Any = None
-        self.operations = Operations(self)
-        self.reporter = Reporter(self)
-        self._stop = False
-        self._lock_file: Any = None
-        self._process = psutil.Process()
-        self._t_open_mono = 0
-        self._last_health = "ok"
-        self._metric_last: dict[str, tuple[float, int, int]] = {}
-        self._cpu_percent = math.nan
         self.poll_interval_ns = round(settings.poll_interval_s * 1e9)
-        self.polls = 0
-        self.poll_errors = 0
-        self._offsets: collections.deque[int] = collections.deque(maxlen=400)
-        self._speed_of: object = None
-        self._speed = 1.0
+        self._stop = False
+        self._lock_file: IO[str] | None = None
+        self._wake_r, self._wake_w = -1, -1
+        self._source_open = False
 
     # -- lifecycle -------------------------------------------------------------------------------------
 
@@ -117,81 +114,119 @@ class Daemon:
             self.close()
             raise
 
-    def _start(self) -> None:
-        state_dir = Path(self.settings.state_dir)
+    def _lock(self, state_dir: Path) -> None:
         try:
             state_dir.mkdir(parents=True, exist_ok=True, mode=0o750)
-            self._lock_file = open(state_dir / "daemon.lock", "w")  # noqa: SIM115 - held for the process life
+            fd = os.open(state_dir / "daemon.lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+            self._lock_file = os.fdopen(fd, "w")
+            os.fchmod(fd, 0o600)  # the lock is the daemon's alone (an older daemon made it 0660)
             fcntl.flock(self._lock_file, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             raise InputError(f"state dir {state_dir}: another hdeem-watch daemon is using it") from None
         except OSError as error:
             raise InputError(f"state dir {state_dir}: {error.strerror}") from None
-        try:
-            self.store = Store(state_dir / "state.db")
-        except StoreError as error:
-            raise InputError(str(error)) from None
-        self.store.close_interrupted_runs(time.time_ns())
-        if self.source is None:
-            from hdeem_watch.sources.base import SourceUnavailable, make_source
 
+    def _open_source(self) -> Source:
+        if self.source is None:
+            kind = self.settings.source
             try:
-                self.source = make_source(self.settings.source, **self.settings.source_options())
+                self.source = make_source(kind, **self.settings.source_options())
                 self.source.open()
             except SourceUnavailable as error:
-                kind = self.settings.source
                 reason = error.reason[len(kind) + 1:].strip() if error.reason.startswith(f"{kind}:") else error.reason
                 raise InputError(f"source {kind}: {reason}") from None
         else:
             self.source.open()
-        infos = self.source.channels()
-        self.accounts = {
-            i.name: ChannelAccount(i.name, i.rate_hz, i.kind, history_s=self.settings.quiet_history_s) for i in infos
-        }
-        self.dram_channels = tuple(i.name for i in infos if i.kind == "dram")
-        if self.settings.record_file:
+        self._source_open = True
+        return self.source
+
+    def _start(self) -> None:
+        settings = self.settings
+        state_dir = Path(settings.state_dir)
+        self._lock(state_dir)
+        try:
+            store = self.store = Store(state_dir / "state.db")
+        except StoreError as error:
+            raise InputError(str(error)) from None
+        store.close_interrupted_runs(self.wall_clock())
+        source = self._open_source()
+        infos = source.channels()
+        baselines = {}
+        for channel, data in store.load_baselines().items():
+            try:
+                baselines[channel] = bl.Baseline.from_dict(data)
+            except (ValueError, TypeError):
+                log.warning("ignoring a malformed stored baseline of %s", channel)
+        book = self.book = NodeState(
+            infos, node=self.node, monotonic=self.clock, wall=self.wall_clock, speed=source_speed(source),
+            poll_interval_s=settings.poll_interval_s, history_s=settings.quiet_history_s,
+            next_seq=int(store.next_run_id()[1:]), baselines=baselines, limits=RunLimits.of_this_node())
+        if settings.record_file:
             from hdeem_watch.sources.replay import RecordingWriter
 
             try:
-                self.recorder = RecordingWriter(self.settings.record_file, node=self.node,
+                self.recorder = RecordingWriter(settings.record_file, node=self.node,
                                                 rate_hz={i.name: i.rate_hz for i in infos})
             except OSError as error:
-                raise InputError(f"record file {self.settings.record_file}: {error.strerror}") from None
+                raise InputError(f"record file {settings.record_file}: {error.strerror}") from None
+        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+        self.store_worker = StoreWorker(store, self._wake)
+        self.model_jobs = Worker("model", self._wake)
         secure = None
-        if self.settings.curve_secret_key_file:
+        if settings.curve_secret_key_file:
             from hdeem_watch.daemon.security import CurveServer
 
-            self.curve = CurveServer(self.context, self.settings.curve_secret_key_file, self.settings.curve_clients_dir)
+            self.curve = CurveServer(self.context, settings.curve_secret_key_file, settings.curve_clients_dir)
             secure = self.curve.apply
         try:
-            self.publisher = Publisher(self.context, self.pub_endpoint, node=self.node, sndhwm=self.settings.sndhwm,
+            self.publisher = Publisher(self.context, self.pub_endpoint, node=self.node, sndhwm=settings.sndhwm,
                                        secure=secure)
-            self.control = ControlServer(self.context, self.control_endpoint, self.operations.handlers(),
-                                         secure=secure)
+            self.control = ControlServer(self.context, self.control_endpoint, {}, secure=secure)
         except (zmq.ZMQError, OSError) as error:
             self._close_sockets()
             raise InputError(f"cannot bind {self.pub_endpoint} / {self.control_endpoint}: {error}") from None
         self.pub_endpoint, self.control_endpoint = self.publisher.endpoint, self.control.endpoint
-        load_state(self)
-        if self.settings.prometheus_port is not None:
-            self.metrics = DaemonMetrics(self.node)
+        if settings.prometheus_port is not None:
+            self.metrics = DaemonMetrics(NodeCollector(
+                self.node, accounts=lambda: book.accounts, baselines=lambda: book.baselines,
+                fit=lambda: self.calibration.body.get("fit"), runs_finished=lambda: book.runs_finished,
+                store_health=self.store_worker.health))
             try:
-                self.metrics_port = self.metrics.serve(self.settings.prometheus_port, self.settings.prometheus_addr)
+                self.metrics_port = self.metrics.serve(settings.prometheus_port, settings.prometheus_addr)
             except OSError as error:
                 self._close_sockets()
-                raise InputError(f"prometheus port {self.settings.prometheus_port}: {error.strerror}") from None
-        self._t_open_mono = self.clock()
-        self._process.cpu_percent(None)
+                raise InputError(f"prometheus port {settings.prometheus_port}: {error.strerror}") from None
+        identity = Identity(kind=getattr(source, "kind", settings.source),
+                            endpoints={"pub": self.pub_endpoint, "control": self.control_endpoint},
+                            curve_public_key=None if self.curve is None else self.curve.public.decode(),
+                            prometheus_port=self.metrics_port)
+        reporter = self.reporter = Reporter(book, self.calibration, source, self.publisher, self.store_worker,
+                                            identity, poll_interval_ns=lambda: self.poll_interval_ns, clock=self.clock)
+        self.operations = Operations(book, calibration=self.calibration, reporter=reporter, store=self.store_worker,
+                                     publisher=self.publisher, source=source, submit=self.model_jobs.submit,
+                                     reply=self.complete, poll=self.poll_once)
+        self.control.handlers = self.operations.handlers()
+        restore_calibration(
+            self.calibration,
+            settings=ModelSettings(settings.memspec, dimms=settings.dimms, currents=tuple(settings.currents),
+                                   half_life_s=settings.half_life_s or None, max_requests=settings.model_max_requests),
+            state=store.load_calibrator(), fits=store.fit_history(MAX_HISTORY), submit=self.model_jobs.submit,
+            on_built=reporter.publish_calib)
+        self.operations.resume_modelling(unfinished_runs(store))
         log.info("hdeem-watch daemon %s: node %s, source %s, pub %s, control %s", __version__, self.node,
-                 self.settings.source, self.pub_endpoint, self.control_endpoint)
+                 settings.source, self.pub_endpoint, self.control_endpoint)
 
     def request_stop(self) -> None:
         """Ask the loop to end (safe from a signal handler)."""
         self._stop = True
 
     def close(self) -> None:
-        """Finish the model jobs, close the sockets, the source and the database."""
-        self.jobs.shutdown()
+        """Finish the model jobs (queued ones are modelled again at the next start), write what is
+        queued for the database, close the sockets, the source and the database."""
+        if self.model_jobs is not None:
+            self.model_jobs.shutdown(cancel_queued=True)
+        if self.store_worker is not None:
+            self.store_worker.shutdown()
         self._close_sockets()
         if self.metrics is not None:
             self.metrics.close()
@@ -201,7 +236,8 @@ class Daemon:
         if self.curve is not None:
             self.curve.close()
             self.curve = None
-        if self.source is not None:
+        if self.source is not None and self._source_open:
+            self._source_open = False
             try:
                 self.source.close()
             except Exception as error:
@@ -212,68 +248,89 @@ class Daemon:
         if self._lock_file is not None:
             self._lock_file.close()
             self._lock_file = None
-        if self.polls:
-            log.info("hdeem-watch daemon stopped (%d polls)", self.polls)
+        for fd in (self._wake_r, self._wake_w):
+            if fd >= 0:
+                os.close(fd)
+        self._wake_r = self._wake_w = -1
+        if self.book is not None and self.book.polls:
+            log.info("hdeem-watch daemon stopped (%d polls)", self.book.polls)
 
     def _close_sockets(self) -> None:
+        # Each part unlinks the ipc socket file it created (and only that) in its own close().
         for part in (self.publisher, self.control):
             if part is not None:
                 part.close()
-                path = ipc_path(part.endpoint)
-                if path is not None:
-                    path.unlink(missing_ok=True)
         self.publisher = self.control = None
+
+    def _wake(self) -> None:
+        """Wake the poll loop (from a worker thread: a job finished)."""
+        with contextlib.suppress(OSError):  # full (the loop wakes anyway) or closed (shutting down)
+            os.write(self._wake_w, b"\0")
 
     # -- the loop --------------------------------------------------------------------------------------
 
     def run(self) -> None:
-        """Serve until :meth:`request_stop` (or SIGTERM/SIGINT via the command line).
-
-        One iteration per wake-up, kept lean (it runs 25 times a second): one clock read for the
-        timeout, one for the deadlines, ZeroMQ's compiled poll on a prebuilt list; the poll period is
-        re-derived only when subscriptions or windows changed.
-        """
-        assert self.publisher is not None and self.control is not None
-        clock = self.clock
+        """Serve until :meth:`request_stop` (or SIGTERM/SIGINT via the command line)."""
+        assert self.publisher is not None and self.control is not None and self.book is not None
+        assert self.reporter is not None and self.store_worker is not None and self.model_jobs is not None
+        clock, settings, book = self.clock, self.settings, self.book
         self.poll_interval_ns = self._poll_interval_ns()
         poll_timer = IntervalTimer(self.poll_interval_ns, clock=clock)
-        heartbeat = IntervalTimer(round(self.settings.heartbeat_s * 1e9), clock=clock)
-        republish = IntervalTimer(round(self.settings.republish_s * 1e9), clock=clock, start_ns=clock())
-        control_socket, pub_socket = self.control.socket, self.publisher.socket
-        zmq_poll = zmq.backend.zmq_poll  # what zmq.Poller.poll calls, without its Python layer
-        items = [(control_socket, zmq.POLLIN), (pub_socket, zmq.POLLIN)]
+        heartbeat = IntervalTimer(round(settings.heartbeat_s * 1e9), clock=clock)
+        republish = IntervalTimer(round(settings.republish_s * 1e9), clock=clock, start_ns=clock())
+        control, publisher, reporter, store, models = (self.control, self.publisher, self.reporter,
+                                                       self.store_worker, self.model_jobs)
+        poller = zmq.Poller()
+        poller.register(control.socket, zmq.POLLIN)
+        poller.register(publisher.socket, zmq.POLLIN)
+        poller.register(self._wake_r, zmq.POLLIN)
+        control_socket, pub_socket, wake_fd = control.socket, publisher.socket, self._wake_r
         self.poll_once()
-        open_windows = len(self.windows)
+        open_windows = len(book.windows)
         # The heartbeat and the re-publication are served at the first poll after their deadline
         # (at most one poll period late) instead of waking the loop once more for them.
         slowest_ns = min(heartbeat.interval_ns, republish.interval_ns) // 4
         coalesce = poll_timer.interval_ns <= slowest_ns
+        backlog = False
         while not self._stop:
             wake = poll_timer.next_ns if coalesce else min(poll_timer.next_ns, heartbeat.next_ns, republish.next_ns)
             timeout_ms = min(100, max(0, -(-(wake - clock()) // 1_000_000)))
+            if backlog:
+                timeout_ms = 0
             changed = False
-            for sock, _event in zmq_poll(items, timeout_ms):
-                if sock is control_socket:
-                    self.control.handle()
-                elif sock is pub_socket:
-                    self.publisher.handle_subscriptions()
-                    changed = True
+            ready = poller.poll(timeout_ms)
             now = clock()
-            if now >= poll_timer.next_ns:
+            if now >= poll_timer.next_ns:  # the stream first: control work waits, samples do not
                 poll_timer.advance(now)
                 self.poll_once()
+            for sock, _event in ready:
+                if sock is control_socket:
+                    control.handle(max_messages=CONTROL_BATCH)
+                elif sock is pub_socket:
+                    publisher.handle_subscriptions()
+                    changed = True
+                elif sock == wake_fd:
+                    with contextlib.suppress(BlockingIOError):
+                        os.read(wake_fd, 4096)
             if now >= heartbeat.next_ns:
                 heartbeat.advance(now)
-                self.reporter.publish_status()
+                reporter.publish_status()
+                store.retry()
+                if self.recorder is not None:
+                    self.recorder.flush()
             if now >= republish.next_ns:
                 republish.advance(now)
-                self.reporter.look_for_quiet_periods()
-                self.reporter.publish_calib()
-                self.reporter.publish_baselines()
-            if self.jobs.pending:
-                self.jobs.collect()
-            if changed or len(self.windows) != open_windows:
-                open_windows = len(self.windows)
+                reporter.look_for_quiet_periods(window_s=settings.quiet_window_s,
+                                                max_spread_w=settings.quiet_max_spread_w)
+                reporter.publish_calib()
+                reporter.publish_baselines()
+            if models.pending:
+                models.collect(CALLBACK_BATCH)
+            if store.pending:
+                store.collect(CALLBACK_BATCH)
+            backlog = (models.pending and models.ready) or (store.pending and store.ready)
+            if changed or len(book.windows) != open_windows:
+                open_windows = len(book.windows)
                 interval_ns = self._poll_interval_ns()
                 if interval_ns != poll_timer.interval_ns:
                     poll_timer.set_interval(interval_ns)
@@ -281,103 +338,46 @@ class Daemon:
                     self.poll_interval_ns = interval_ns
 
     def _poll_interval_ns(self) -> int:
-        """The fast poll period while someone receives samples or a window is open, else the idle one."""
-        fast, idle = self.settings.poll_interval_s, self.settings.idle_poll_interval_s
+        assert self.book is not None
         watched = self.publisher is not None and self.publisher.watched("samples")
-        if watched or idle <= 0 or self.windows:
-            return round(fast * 1e9)
-        # At most 10 s of source time per poll: a sped-up sim's sensor buffer (60 sim-s) must not overflow.
-        return round(max(fast, min(idle, IDLE_MAX_SOURCE_S / self.speed)) * 1e9)
-
-    def submit(self, job: Callable[[], Any], done: Callable[[Any], None],
-               failed: Callable[[BaseException], None] | None = None) -> None:
-        """Run ``job`` on the model worker; in the loop, call ``done(result)`` or ``failed(error)``."""
-        self.jobs.submit(job, done, failed)
+        return self.book.poll_interval_ns(watched=watched, idle_s=self.settings.idle_poll_interval_s)
 
     # -- polling ---------------------------------------------------------------------------------------
 
-    def poll_once(self) -> Any:
-        """Poll the source, account and publish every channel, advance the windows; return the batch."""
-        assert self.publisher is not None
-        self.polls += 1
+    def poll_once(self) -> SourceBatch | None:
+        """Poll the source; account, publish and window the batch; return it (None if the poll failed)."""
+        assert self.publisher is not None and self.book is not None and self.source is not None
+        book, operations = self.book, self.operations
+        batch: SourceBatch | None = None
         try:
             batch = self.source.poll()
         except Exception as error:  # a sensor failure must not end the daemon
-            self.poll_errors += 1
-            message = f"error: {type(error).__name__}: {error}"
-            if message != self._last_health:
+            before = book.poll_error
+            message = book.on_poll_error(error)
+            if message != before:
                 log.warning("source poll failed: %s", message)
-            self._last_health = message
-            for failed in self.accounts.values():
-                failed.status = message
-            return None
-        # The hot path (25 times a second): locals instead of attribute look-ups, nothing per poll
-        # that only changes with the windows.
-        windows = self.windows
-        keep_history = not (windows and any(w.kind == "run" for w in windows))
-        header_t_ns = time.time_ns()
-        accounts, energies, statuses, gaps = self.accounts, batch.energy_j, batch.status, batch.gaps
-        encode = self.publisher.samples_message
-        outgoing: list[list[bytes]] = []
-        nan = math.nan
-        for name, (t_ns, power_w) in batch.samples.items():
-            account = accounts.get(name)
-            if account is None:
-                continue
-            energy = energies.get(name, nan)
-            status = statuses.get(name, "ok")
-            # An empty batch is published only when it says something new (a rate-limited sensor,
-            # e.g. HDEEM read every 0.1 s, gives empty batches at most polls).
-            news = account.take(t_ns, power_w, energy, status, int(gaps.get(name, 0)) if gaps else 0, keep_history)
-            for window in windows:
-                window.observe(name, t_ns, power_w, energy_j=energy)
-            if news:
-                outgoing.append(encode(name, account.rate_hz, t_ns, power_w, energy, status, header_t_ns))
-        # All channels at once: one wake-up of the I/O thread per poll, not one per message.
-        self.publisher.send_all(outgoing)
-        speed = self.speed
-        self._offsets.append(batch.t_wall_ns - (batch.t_mono_ns if speed == 1.0 else round(batch.t_mono_ns * speed)))
-        if self.recorder is not None:
-            self.recorder.write_batch(batch)
-        if windows:
-            self.operations.advance_windows(self.clock())
+            closed = book.close_ready()  # a window's deadline passes even while the source fails
+        else:
+            fresh, closed = book.on_batch(batch)
+            if fresh:
+                # All channels at once: one wake-up of the I/O thread per poll, not one per message.
+                header_t_ns = self.wall_clock()
+                encode, accounts, samples = self.publisher.samples_message, book.accounts, batch.samples
+                outgoing = []
+                for name in fresh:
+                    account = accounts[name]
+                    t_ns, power_w = samples[name]
+                    outgoing.append(encode(name, account.rate_hz, t_ns, power_w, account.energy_j, account.status,
+                                           header_t_ns))
+                self.publisher.send_all(outgoing)
+            if self.recorder is not None:
+                self.recorder.write_batch(batch)
+        if closed and operations is not None:
+            for window in closed:
+                operations.window_closed(window)
         return batch
-
-    def sample_time_of(self, t_mono_ns: int) -> int:
-        """A monotonic instant on the source's sample-time axis (wall ns; the sim's own time).
-
-        From the recent polls' ``t_wall_ns − t_mono_ns × speed``: a source that lags (holds its
-        samples back for a while) only lowers that offset, so the largest recent one is the true
-        mapping.
-        """
-        if not self._offsets:
-            return time.time_ns()
-        return round(int(t_mono_ns) * self.speed) + max(self._offsets)
-
-    def rates(self) -> dict[str, float]:
-        """The nominal rate of every channel."""
-        return {name: a.rate_hz for name, a in self.accounts.items()}
-
-    def last_sample_times(self) -> dict[str, int | None]:
-        """The last sample time of every channel."""
-        return {name: a.last_t_ns for name, a in self.accounts.items()}
-
-    def energies(self) -> dict[str, float]:
-        """The cumulative energy of every channel."""
-        return {name: a.energy_j for name, a in self.accounts.items()}
-
-    @property
-    def speed(self) -> float:
-        """Source seconds per monotonic second (sim/replay speed; 1 for real sensors)."""
-        value = getattr(self.source, "speed", 1.0)
-        if value is self._speed_of:  # the same object as last time (read at every poll)
-            return self._speed
-        self._speed_of = value
-        self._speed = float(value) if isinstance(value, int | float) and value > 0 else 1.0
-        return self._speed
 
     def complete(self, pending: Pending, result: Any = None, error: tuple[str, str] | None = None) -> None:
         """Send a deferred control reply."""
         if self.control is not None:
             self.control.complete(pending, result, error=error)
-

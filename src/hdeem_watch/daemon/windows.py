@@ -35,11 +35,13 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Literal
 
 import numpy as np
 
-from hdeem_watch.daemon.runs import MAX_RUN_SAMPLES, window_energy
+from hdeem_watch.daemon.runs import MAX_RUN_SAMPLES, RunRecord, window_energy
+
+WindowKind = Literal["run", "baseline"]
 
 
 @dataclass
@@ -54,19 +56,21 @@ class Window:
         t_start_mono_ns: monotonic time of the start poll.
         target_t_ns: the end on the sample-time axis (None = still open).
         deadline_mono_ns: the window closes at this monotonic time whatever the samples say.
-        context: what the owner needs when the window closes (run record, pending reply, ...).
+        run: the run's record (``kind == "run"``), as it was started.
+        abort: the run was stopped with ``abort`` (its window is not modelled).
         cut: per channel, ``(cumulative energy at the end, time of the last sample kept)`` once the
             channel's samples have reached the target.
     """
 
-    kind: str
+    kind: WindowKind
     start_energy_j: dict[str, float]
     start_t_ns: dict[str, int | None]
     dram_channels: tuple[str, ...]
     t_start_mono_ns: int
     target_t_ns: int | None = None
     deadline_mono_ns: int | None = None
-    context: dict[str, Any] = field(default_factory=dict)
+    run: RunRecord | None = None
+    abort: bool = False
     samples: dict[str, list[np.ndarray]] = field(default_factory=dict)
     cut: dict[str, tuple[float, int]] = field(default_factory=dict)
     _counts: dict[str, int] = field(default_factory=dict)

@@ -21,7 +21,7 @@ Example:
 from __future__ import annotations
 
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol, runtime_checkable
 
@@ -125,7 +125,8 @@ class RunEvent:
 
 @runtime_checkable
 class Source(Protocol):
-    """A power source. ``on_run(event: RunEvent) -> None`` is optional (the sim implements it)."""
+    """A power source. What only some sources can do is a capability protocol of its own
+    (:class:`SpeedControlled`, :class:`HasTruth`, :class:`RunAware`)."""
 
     kind: str
 
@@ -148,6 +149,47 @@ class Source(Protocol):
     def health(self) -> str:
         """``"ok"`` or a short description of what is wrong."""
         ...
+
+
+@runtime_checkable
+class SpeedControlled(Protocol):
+    """A source whose time runs ``speed`` × the monotonic clock (the sim, a replay); fixed at open."""
+
+    speed: float
+
+
+@runtime_checkable
+class HasTruth(Protocol):
+    """A source that knows the truth behind its samples (the simulated node's hidden currents)."""
+
+    def truth(self) -> Mapping[str, Any]:
+        """The hidden truth as a JSON-ready mapping."""
+        ...
+
+
+@runtime_checkable
+class RunAware(Protocol):
+    """A source that reacts to benchmark runs (the sim plays the announced run's traffic)."""
+
+    def on_run(self, event: RunEvent) -> None:
+        """A run started or stopped."""
+        ...
+
+
+def source_speed(source: object) -> float:
+    """Source seconds per monotonic second: a :class:`SpeedControlled` source's positive finite
+    ``speed``, else 1.
+
+    >>> class Fast:
+    ...     speed = 20.0
+    >>> source_speed(Fast()), source_speed(object())
+    (20.0, 1.0)
+    """
+    if isinstance(source, SpeedControlled):
+        value = source.speed
+        if isinstance(value, int | float) and not isinstance(value, bool) and 0 < value < float("inf"):
+            return float(value)
+    return 1.0
 
 
 _SEP = re.compile(r"[\s_\-]+")
