@@ -11,8 +11,8 @@ from hdeem_watch.tui.braille import braille_envelope, sparkline
 from hdeem_watch.tui.downsample import minmax_columns
 from hdeem_watch.tui.headless import ProgressPrinter
 from hdeem_watch.tui.model import NodeModel
+from hdeem_watch.tui.recent_samples import RecentSamples
 from hdeem_watch.tui.records import calib_view, run_view
-from hdeem_watch.tui.ring import SampleRing
 
 S = 1_000_000_000
 
@@ -55,7 +55,7 @@ def test_downsampling_unknown_stays_unknown() -> None:
 
 def test_ring_keeps_newest_in_order_across_wraps() -> None:
     """After many wrapping appends the ring holds exactly the newest ``capacity`` samples in order."""
-    ring = SampleRing(capacity=7)
+    ring = RecentSamples(capacity=7)
     t_all = np.arange(40, dtype=np.int64)
     for lo, hi in [(0, 3), (3, 10), (10, 11), (11, 25), (25, 40)]:
         ring.extend(t_all[lo:hi], t_all[lo:hi].astype(float))
@@ -178,7 +178,7 @@ def test_column_cache_matches_a_fresh_computation_as_data_arrives() -> None:
     from hdeem_watch.tui.downsample import ColumnCache
 
     rng = np.random.default_rng(1)
-    ring = SampleRing(capacity=100_000)
+    ring = RecentSamples(capacity=100_000)
     cache = ColumnCache()
     t_all = np.arange(30_000, dtype=np.int64) * 1_000_000 + 7  # 1 kHz, 30 s
     p_all = rng.normal(10.0, 2.0, len(t_all))

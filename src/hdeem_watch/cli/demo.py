@@ -53,8 +53,8 @@ def _run(args: argparse.Namespace) -> int:
         print("hdeem-watch demo: standard output is not a terminal; printing progress as text (--headless)",
               file=sys.stderr)
         args.headless = True
-    from hdeem_watch.tui.demo_daemon import DaemonFailed, DemoDaemon
-    from hdeem_watch.tui.demo_schedule import DemoSchedule
+    from hdeem_watch.demo.daemon import DaemonFailed, DemoDaemon
+    from hdeem_watch.demo.schedule import DemoSchedule
 
     daemon = DemoDaemon(state_dir=args.state_dir, speed=args.speed)
     handled = (signal.SIGTERM, signal.SIGHUP)
@@ -107,7 +107,7 @@ def _tui(control: str, args: argparse.Namespace, schedule_cls: Any) -> int:
 
 
 def _headless(control: str, args: argparse.Namespace) -> int:
-    from hdeem_watch.tui.demo_schedule import RUN_LENGTHS_S, THREAD_ROUNDS, DemoSchedule, ScheduleEvent
+    from hdeem_watch.demo.schedule import RUN_LENGTHS_S, THREAD_ROUNDS, DemoSchedule, ScheduleEvent
     from hdeem_watch.tui.feed import FeedHub
     from hdeem_watch.tui.headless import print_progress
 

@@ -58,8 +58,11 @@ def measured_dram_j(record: Mapping[str, Any]) -> float:
     return math.nan
 
 
-def run_view(record: Mapping[str, Any], *, running: bool = False, elapsed_s: float = math.nan) -> RunView:
-    """A :class:`RunView` from a run record of the ``run`` topic or ``runs.list``."""
+def run_view(
+    record: Mapping[str, Any], *, running: bool = False, elapsed_s: float = math.nan, history: bool = False
+) -> RunView:
+    """A :class:`RunView` from a run record of the ``run`` topic or ``runs.list`` (``history``: stored
+    before the UI connected)."""
     metadata = record.get("metadata") if isinstance(record.get("metadata"), Mapping) else {}
     assert isinstance(metadata, Mapping)
     duration = first_num(record, "duration_s", "window_s", "seconds")
@@ -81,6 +84,7 @@ def run_view(record: Mapping[str, Any], *, running: bool = False, elapsed_s: flo
         ),
         running=running,
         simulated=bool(metadata.get("simulated", False) or record.get("simulated", False)),
+        history=history,
     )
 
 

@@ -69,6 +69,7 @@ class RunView:
         model_calibrated_j: the model's energy with the calibration of the time.
         running: True for the run in progress.
         simulated: the run was on a simulated node.
+        history: the daemon had it stored before the UI connected (not a new run to the user).
     """
 
     run_id: str
@@ -81,6 +82,7 @@ class RunView:
     model_calibrated_j: float
     running: bool = False
     simulated: bool = False
+    history: bool = False
 
     @property
     def error_datasheet(self) -> float:
@@ -189,7 +191,8 @@ class NodeSnapshot:
         built_mono_ns: monotonic time the snapshot was built (the app flags an old one).
         window_s: the plot's time window.
         channels: channels in display order.
-        runs: finished runs, newest last.
+        runs: finished runs, newest last (only the newest few: see ``runs_total``).
+        runs_total: how many runs the daemon has finished in all (0 if unknown).
         current_run: the run in progress, if any.
         calib: calibration state.
         health: connection and daemon health.
@@ -200,6 +203,7 @@ class NodeSnapshot:
     window_s: float
     channels: tuple[ChannelView, ...] = ()
     runs: tuple[RunView, ...] = ()
+    runs_total: int = 0
     current_run: RunView | None = None
     calib: CalibView = field(default_factory=CalibView)
     health: HealthView = field(default_factory=lambda: HealthView(state="connecting", endpoint=""))

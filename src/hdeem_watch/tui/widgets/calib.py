@@ -86,8 +86,6 @@ class CalibPanel(LinesWidget):
 
     def show(self, calib: CalibView) -> None:
         """Paint the panel."""
-        key = (id(calib), self.size)
-        if key == getattr(self, "_shown", None):
+        if self.already_showing(calib):
             return
-        self._shown = key
         self.set_text(calib_text(calib, self.size.width or 40))

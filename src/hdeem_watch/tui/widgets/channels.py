@@ -43,8 +43,6 @@ class ChannelTable(LinesWidget):
 
     def show(self, snapshot: NodeSnapshot) -> None:
         """Paint the table."""
-        key = (id(snapshot), self.size)
-        if key == getattr(self, "_shown", None):
+        if self.already_showing(snapshot):
             return
-        self._shown = key
         self.set_text(channel_table_text(snapshot, self.size.width or 40))

@@ -80,8 +80,6 @@ class PowerPlots(LinesWidget):
 
     def show(self, snapshot: NodeSnapshot) -> None:
         """Paint the strips."""
-        key = (id(snapshot), self.size)
-        if key == getattr(self, "_shown", None):
+        if self.already_showing(snapshot):
             return
-        self._shown = key
         self.set_runs(plot_lines(snapshot, self.size.width or 80, self.size.height or 14))

@@ -60,8 +60,6 @@ class RunsPanel(LinesWidget):
 
     def show(self, snapshot: NodeSnapshot) -> None:
         """Paint the panel."""
-        key = (id(snapshot), self.size)
-        if key == getattr(self, "_shown", None):
+        if self.already_showing(snapshot):
             return
-        self._shown = key
         self.set_text(runs_text(snapshot, self.size.width or 40, self.size.height or 10))
