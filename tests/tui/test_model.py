@@ -164,7 +164,7 @@ def test_headless_printer_reports_new_runs_and_calibration_once() -> None:
     model.apply(_msg("run", 0, {"event": "stop", "run": {"run_id": "r1", "kernel": "copy", "threads": 24,
                                                           "window_s": 1.5, "dram_energy_j": 10.0}}), 0)
     model.apply(_msg("calib", 0, {"fit": {"currents": {"idd0": {"datasheet": 0.05, "calibrated": 0.03}},
-                                          "error": {"before": 1.0, "after": 0.02}}}), 0)
+                                          "error": {"before": 1.0, "after": 0.02}, "n_runs": 3, "dof": 2}}), 0)
     printer = ProgressPrinter(power_every_s=60)
     snap = model.snapshot(now_mono_ns=0, now_wall_ns=0, window_s=10, width=None)
     lines = printer.lines(snap, now_s=0.0)

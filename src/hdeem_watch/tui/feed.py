@@ -378,4 +378,4 @@ def _reason(error: Exception, endpoint: str) -> str:
     text = str(error)
     if text.startswith(endpoint):
         text = text[len(endpoint) :].lstrip(": ")
-    return text[:80] or "unreachable"
+    return text[:200] or "unreachable"

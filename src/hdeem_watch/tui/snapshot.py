@@ -49,9 +49,21 @@ class ChannelView:
     columns: Columns | None = None
 
     @property
+    def baseline_is_idle(self) -> bool:
+        """Whether the baseline is this channel's true idle power.
+
+        A DRAM channel is idle during an idle run (no memory traffic). A CPU, blade or other
+        channel is not: the idle kernel keeps its threads spinning, and ``baseline.measure`` is
+        reported with the same origin (``idle-run``). Only a ``quiet`` baseline (the quietest
+        stretch while no run was going on) is their idle.
+        """
+        return self.kind == "dram" or self.baseline_origin == "quiet"
+
+    @property
     def above_w(self) -> float:
-        """Power above the idle baseline (NaN when either is unknown)."""
-        return self.power_w - self.baseline_w
+        """Power above the idle baseline (NaN when either is unknown, or when the baseline is not
+        a true idle: see :attr:`baseline_is_idle`)."""
+        return self.power_w - self.baseline_w if self.baseline_is_idle else math.nan
 
 
 @dataclass(frozen=True)
@@ -134,6 +146,8 @@ class CalibView:
         error_after: mean relative error after the fit.
         error_loo: leave-one-out error.
         n_runs: runs in the fit.
+        determined: the fit has more runs than unknowns (before that, its errors mean nothing:
+            an exact fit through every point has "after 0 %" and a wild leave-one-out).
         suggested_next: the run the calibrator suggests next ("" if none).
         simulated: the truth values come from the simulator.
         model_error: why the daemon cannot model runs, if it cannot ("" otherwise).
@@ -144,6 +158,7 @@ class CalibView:
     error_after: float = math.nan
     error_loo: float = math.nan
     n_runs: int = 0
+    determined: bool = True
     suggested_next: str = ""
     simulated: bool = False
     model_error: str = ""
