@@ -124,10 +124,9 @@ class HdeemWatchApp(App[int]):
         self._exit_after_s = exit_after_s
         self.baseline_s = baseline_s
         self._shown_once = False
-        self._notice = ""
+        self._feed_notice = ""  # the last notice the focused feed reported
+        self._notice = ""  # what the key line shows until _notice_until
         self._notice_until = 0
-        self._own_notice = ""
-        self._own_notice_until = 0
         self._keys_text = KEYS_LINE
 
     def compose(self) -> ComposeResult:
@@ -190,23 +189,25 @@ class HdeemWatchApp(App[int]):
         """What the bottom line shows now: the key hints, or a fresh control reply."""
         return self._keys_text
 
-    def _show_notice(self, notice: str) -> None:
-        """The last control reply replaces the key line for :data:`NOTICE_S` seconds."""
+    def _show_notice(self, feed_notice: str) -> None:
+        """The newest notice — a control reply from the feed, or the app's own — replaces the key
+        line for :data:`NOTICE_S` seconds."""
         now = self._clock()
-        if notice != self._notice:
-            self._notice = notice
-            self._notice_until = now + int(NOTICE_S * 1e9) if notice else 0
-        if now < self._own_notice_until:
-            text = f" {self._own_notice}"
-        elif notice and now < self._notice_until:
-            text = f" {notice}"
-        else:
-            text = KEYS_LINE
+        if feed_notice != self._feed_notice:
+            self._feed_notice = feed_notice
+            if feed_notice:
+                self._flash(feed_notice)
+        text = f" {self._notice}" if self._notice and now < self._notice_until else KEYS_LINE
         keys = self.query_one("#keys", Static)
         if text != self._keys_text:
             self._keys_text = text
             keys.update(text)
             keys.set_class(text != KEYS_LINE, "-notice")
+
+    def _flash(self, notice: str) -> None:
+        """Show ``notice`` on the key line for :data:`NOTICE_S` seconds."""
+        self._notice = notice
+        self._notice_until = self._clock() + int(NOTICE_S * 1e9)
 
     # ------------------------------------------------------------------ actions
 
@@ -237,10 +238,8 @@ class HdeemWatchApp(App[int]):
         snapshots = self.provider.snapshots()
         run = snapshots[self.focus_index % len(snapshots)].current_run if snapshots else None
         if run is None:
-            self._own_notice = "s: no run in progress"
-            self._own_notice_until = self._clock() + int(NOTICE_S * 1e9)
+            self._flash("s: no run in progress")
         else:
-            self._own_notice_until = 0
             self.provider.request(self.focus_index, "run.stop", {"run_id": run.run_id, "abort": True})
         self.paint()
 

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 from hdeem_watch.tui.downsample import Columns
 
+#: Baseline origins that are a true idle for every channel kind (see ChannelView.baseline_is_idle).
+IDLE_ORIGINS = ("quiet", "measured")
 #: Connection states shown in the health bar.
 CONNECTION_STATES = ("connecting", "live", "stale", "reconnecting", "paused")
 
@@ -55,9 +57,10 @@ class ChannelView:
         A DRAM channel is idle during an idle run (no memory traffic). A CPU, blade or other
         channel is not: the idle kernel keeps its threads spinning, and ``baseline.measure`` is
         reported with the same origin (``idle-run``). Only a ``quiet`` baseline (the quietest
-        stretch while no run was going on) is their idle.
+        stretch while no run was going on) or a ``measured`` one (``baseline.measure``, should the
+        daemon name it apart) is their idle.
         """
-        return self.kind == "dram" or self.baseline_origin == "quiet"
+        return self.kind == "dram" or self.baseline_origin in IDLE_ORIGINS
 
     @property
     def above_w(self) -> float:

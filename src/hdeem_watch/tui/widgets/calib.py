@@ -63,8 +63,10 @@ def calib_text(calib: CalibView, width: int) -> Text:
     if calib.determined:
         text.append(f"before {_pct(calib.error_before)} after {_pct(calib.error_after)} loo {_pct(calib.error_loo)}")
     else:  # an exact fit through every run: "after 0 %" and the leave-one-out would mean nothing
-        text.append(f"before {_pct(calib.error_before)} after – loo –")
-        text.append("  (runs < unknowns)", style="dim italic")
+        errors = f"before {_pct(calib.error_before)} after – loo –"
+        text.append(errors)
+        if len("error ") + len(errors) + 18 <= width:
+            text.append("  (runs < unknowns)", style="dim italic")
     if calib.suggested_next:
         text.append("\nsuggested run: ", style="bold")
         text.append(calib.suggested_next)
