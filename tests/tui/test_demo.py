@@ -45,6 +45,7 @@ def _has_calibration_table(screen: str) -> bool:
     return "calibration" in screen and "datash" in screen and len(rows) >= 3
 
 
+@pytest.mark.slow
 @pytest.mark.tmux
 @pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is installed by .ci/run")
 def test_demo_in_a_real_terminal() -> None:
@@ -83,6 +84,7 @@ def test_demo_in_a_real_terminal() -> None:
         subprocess.run(["tmux", "kill-session", "-t", session], capture_output=True, check=False)
 
 
+@pytest.mark.slow
 def test_demo_headless_prints_progress_and_stops_the_daemon() -> None:
     """--headless prints runs, calibration and power as text lines and leaves no daemon behind."""
     proc = subprocess.Popen(
@@ -189,6 +191,7 @@ def test_slurm_endpoints_use_the_documented_port() -> None:
         slurm_endpoints(env={})
 
 
+@pytest.mark.slow
 def test_tui_without_a_terminal_prints_text_lines(fake_node) -> None:  # type: ignore[no-untyped-def]
     """hdeem-watch tui with stdout not a terminal falls back to text progress (and says so on stderr)."""
     done = subprocess.run(

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import psutil
+import pytest
 
 from hdeem_watch.daemon.client import ControlClient
 from hdeem_watch.demo.daemon import RUNTIME_PREFIX, sweep_orphaned_runtime_dirs
@@ -29,6 +30,7 @@ def _daemon_children(pid: int, timeout_s: float = 30.0) -> list[psutil.Process]:
     raise AssertionError("the demo started no daemon subprocess")
 
 
+@pytest.mark.slow
 def test_kill_9_of_the_demo_takes_its_daemon_along_and_the_next_demo_sweeps_the_directory() -> None:
     """kill -9 of ``hdeem-watch demo`` left the daemon running (orphaned) and its temporary directory
     behind; now the daemon gets SIGTERM from the kernel (PR_SET_PDEATHSIG) and exits, and the
@@ -73,6 +75,7 @@ def test_sweep_leaves_live_and_unclaimed_directories_alone(tmp_path: Path) -> No
     assert live.exists() and unclaimed.exists() and not dead.exists()
 
 
+@pytest.mark.slow
 def test_the_log_is_kept_where_it_is_printed_and_counts_are_this_sessions(tmp_path: Path) -> None:
     """With --state-dir the daemon log is kept there and printed; without it no path is printed (it
     used to print one and then delete it). A second demo on the same state directory sums up the
@@ -81,7 +84,7 @@ def test_the_log_is_kept_where_it_is_printed_and_counts_are_this_sessions(tmp_pa
     outputs = []
     for _ in range(2):
         done = subprocess.run(
-            [sys.executable, "-m", "hdeem_watch", "demo", "--headless", "--duration", "6", "--speed", "4",
+            [sys.executable, "-m", "hdeem_watch", "demo", "--headless", "--duration", "4", "--speed", "4",
              "--state-dir", str(state)],
             capture_output=True, text=True, timeout=120, env={**os.environ, "COLUMNS": "200"},
         )  # fmt: skip
@@ -102,6 +105,7 @@ def test_the_log_is_kept_where_it_is_printed_and_counts_are_this_sessions(tmp_pa
     assert plain.returncode == 0 and "daemon log" not in plain.stdout
 
 
+@pytest.mark.slow
 def test_the_schedule_pauses_after_a_run_stopped_from_outside_so_b_can_measure(sim_daemon) -> None:  # type: ignore[no-untyped-def]
     """The TUI's s aborts the run in progress; the demo schedule then pauses, so b's idle baseline
     measurement is not refused with "conflict" by the next run (it always was)."""

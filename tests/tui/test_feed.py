@@ -65,6 +65,7 @@ def test_feed_counts_wire_gaps(fake_node: FakeNode) -> None:
         feed.stop()
 
 
+@pytest.mark.slow
 def test_feed_goes_stale_then_reconnects_to_a_restarted_daemon(sock_dir: Path) -> None:
     """A vanished daemon turns the node stale/reconnecting; a new one on the same endpoints is picked up again."""
     pub, ctl = f"ipc://{sock_dir}/r-pub", f"ipc://{sock_dir}/r-ctl"

@@ -9,6 +9,7 @@ import sys
 import time
 
 import numpy as np
+import pytest
 
 from hdeem_watch.daemon import protocol
 from hdeem_watch.tui.headless import ProgressPrinter, fit_width
@@ -93,6 +94,7 @@ def test_an_undetermined_calibration_prints_no_after_error() -> None:
     assert "after – (not determined yet)" in line and "loo" not in line and "2379" not in line
 
 
+@pytest.mark.slow
 def test_an_unreachable_daemon_is_an_error_not_exit_0(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """tui --headless against nothing: the state line names the endpoint and the reason, stderr says
     unreachable, and the exit code is 1 (it was "state ? connecting" and exit 0)."""

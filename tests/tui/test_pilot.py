@@ -6,6 +6,8 @@ import asyncio
 import time
 from collections.abc import Callable
 
+import pytest
+
 from hdeem_watch.daemon.client import ControlClient
 from hdeem_watch.demo.fakenode import FakeNode
 from hdeem_watch.tui.app import HdeemWatchApp
@@ -84,6 +86,7 @@ async def test_keys_zoom_node_switch_and_baseline_request(sim_daemon, fake_node)
         await until(lambda: "±" in shown(app, ChannelTable).splitlines()[1])
 
 
+@pytest.mark.slow
 async def test_reconnects_after_the_daemon_is_killed_and_restarted(sim_daemon) -> None:  # type: ignore[no-untyped-def]
     """kill -9 of the daemon turns the screen STALE/RECONNECTING; a restarted daemon makes it LIVE again."""
     hub = FeedHub([sim_daemon.control_endpoint], stale_after_s=2.0, control_timeout_s=0.5)
