@@ -1,6 +1,6 @@
 """TUI benchmark: frames/s and CPU share of ``hdeem-watch tui`` with 8 nodes × 7 channels live.
 
-Eight wire-protocol publishers (``hdeem_watch.tui.fakenode.FakeNode``: BLADE at 1000 Sa/s, six
+Eight wire-protocol publishers (``hdeem_watch.demo.fakenode.FakeNode``: BLADE at 1000 Sa/s, six
 channels at 100 Sa/s, batches every 100 ms, heartbeat every second) run in one separate process
 on real ipc sockets. The real ``hdeem-watch tui`` connects to all eight control endpoints inside a
 real terminal (tmux, 120×40) and writes its own figures each second (``--stats``). After a
@@ -33,7 +33,7 @@ TARGET_CPU_SHARE = 0.20
 
 def serve(directory: str, nodes: int) -> None:
     """Run ``nodes`` fake publishers until killed (the benchmark's load process)."""
-    from hdeem_watch.tui.fakenode import FakeNode
+    from hdeem_watch.demo.fakenode import FakeNode
 
     fakes = [
         FakeNode(f"node{i:02d}", f"ipc://{directory}/p{i}", f"ipc://{directory}/c{i}", seed=i).start_and_wait()

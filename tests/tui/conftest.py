@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from hdeem_watch.tui.fakenode import FakeNode
+from hdeem_watch.demo.fakenode import FakeNode
 
 
 @pytest.fixture
@@ -105,7 +105,7 @@ def frozen_snapshot():  # type: ignore[no-untyped-def]
 @pytest.fixture
 def sim_daemon():  # type: ignore[no-untyped-def]
     """A real ``hdeem-watch daemon --source sim`` subprocess on ipc endpoints (stopped afterwards)."""
-    from hdeem_watch.tui.demo_daemon import DemoDaemon
+    from hdeem_watch.demo.daemon import DemoDaemon
 
     daemon = DemoDaemon(node="pilot", start_timeout_s=60.0).start()
     try:

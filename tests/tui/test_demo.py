@@ -14,7 +14,7 @@ import numpy as np
 import psutil
 import pytest
 
-from hdeem_watch.tui.demo_schedule import (
+from hdeem_watch.demo.schedule import (
     IDLE_SECONDS,
     RUN_LENGTHS_S,
     TARGET_RUN_S,

@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
-from hdeem_watch.tui.fakenode import FakeNode
-from hdeem_watch.tui.feed import FeedHub, NodeFeed, ViewSettings, pub_endpoint_for
+from hdeem_watch.demo.fakenode import FakeNode
+from hdeem_watch.tui.endpoints import pub_endpoint_for, unreachable_stream
+from hdeem_watch.tui.feed import FeedHub, NodeFeed
+from hdeem_watch.tui.messages import ViewSettings
+from hdeem_watch.tui.model import NodeModel
 from hdeem_watch.tui.snapshot import NodeSnapshot
 
 
@@ -123,3 +128,67 @@ def test_a_malformed_message_does_not_end_the_feed(fake_node: FakeNode) -> None:
         assert feed.is_alive() and snap.health.state == "live"
     finally:
         feed.stop()
+
+
+def test_an_ipc_stream_behind_a_remote_control_endpoint_is_named_unreachable(sock_dir: Path) -> None:
+    """A daemon reached over TCP from another host whose stream is ipc: the feed says why within
+    seconds instead of waiting at "connecting" forever."""
+    node = FakeNode("remote1", f"ipc://{sock_dir}/r-pub", "tcp://127.0.0.1:*").start_and_wait()
+    feed = NodeFeed(node.control_endpoint, is_local=lambda host: False)  # as seen from another host
+    feed.start()
+    try:
+        snap = wait_for(feed, lambda s: "reachable only on 127.0.0.1" in s.health.detail, timeout_s=5.0)
+        assert snap.health.state == "connecting"
+        assert "--pub tcp://*:PORT" in snap.health.detail
+    finally:
+        feed.stop()
+        node.stop()
+
+
+def test_unreachable_stream_rules() -> None:
+    """Only an ipc stream behind a TCP control endpoint of another host is unreachable."""
+    remote = {"is_local": lambda host: False}
+    assert unreachable_stream("tcp://node7:5591", "ipc:///x/pub.sock", **remote) is not None
+    assert unreachable_stream("tcp://node7:5591", "tcp://node7:5592", **remote) is None
+    assert unreachable_stream("ipc:///x/control.sock", "ipc:///x/pub.sock", **remote) is None
+    assert unreachable_stream("tcp://127.0.0.1:5591", "ipc:///x/pub.sock") is None
+    assert unreachable_stream("tcp://localhost:5591", "ipc:///x/pub.sock") is None
+
+
+def test_request_outcomes_reach_the_model_only_on_the_feed_thread(fake_node: FakeNode) -> None:
+    """The notice of a control request is written by the feed thread (the model's owner), from a
+    message queued by the request thread; neither the app's thread nor the request thread touch it."""
+    writers: list[int] = []
+
+    class WatchedModel(NodeModel):
+        @property
+        def notice(self) -> str:
+            return self._notice
+
+        @notice.setter
+        def notice(self, value: str) -> None:
+            writers.append(threading.get_ident())
+            self._notice = value
+
+    feed = NodeFeed(fake_node.control_endpoint)
+    feed.model = WatchedModel(fake_node.control_endpoint)
+    writers.clear()
+    feed.start()
+    try:
+        wait_for(feed, lambda s: s.health.state == "live")
+        feed.request("baseline.measure", {"seconds": 0.2})
+        wait_for(feed, lambda s: s.health.notice.startswith("baseline.measure: ok"))
+        assert writers and set(writers) == {feed.ident}
+    finally:
+        feed.stop()
+
+
+def test_view_settings_are_immutable_and_swapped_whole(fake_node: FakeNode) -> None:
+    """The hub gives every feed a new ViewSettings; nobody mutates one in place."""
+    hub = FeedHub([fake_node.control_endpoint, fake_node.control_endpoint])
+    before = hub.view
+    hub.set_view(focus=1, window_s=30.0, width=64)
+    assert before == ViewSettings() and hub.view == ViewSettings(window_s=30.0, width=64, focus=1)
+    assert all(feed.view is hub.view for feed in hub.feeds)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        hub.view.focus = 0  # type: ignore[misc]

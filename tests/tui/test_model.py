@@ -11,8 +11,8 @@ from hdeem_watch.tui.braille import braille_envelope, sparkline
 from hdeem_watch.tui.downsample import minmax_columns
 from hdeem_watch.tui.headless import ProgressPrinter
 from hdeem_watch.tui.model import NodeModel
+from hdeem_watch.tui.recent_samples import RecentSamples
 from hdeem_watch.tui.records import calib_view, run_view
-from hdeem_watch.tui.ring import SampleRing
 
 S = 1_000_000_000
 
@@ -55,7 +55,7 @@ def test_downsampling_unknown_stays_unknown() -> None:
 
 def test_ring_keeps_newest_in_order_across_wraps() -> None:
     """After many wrapping appends the ring holds exactly the newest ``capacity`` samples in order."""
-    ring = SampleRing(capacity=7)
+    ring = RecentSamples(capacity=7)
     t_all = np.arange(40, dtype=np.int64)
     for lo, hi in [(0, 3), (3, 10), (10, 11), (11, 25), (25, 40)]:
         ring.extend(t_all[lo:hi], t_all[lo:hi].astype(float))
@@ -164,7 +164,7 @@ def test_headless_printer_reports_new_runs_and_calibration_once() -> None:
     model.apply(_msg("run", 0, {"event": "stop", "run": {"run_id": "r1", "kernel": "copy", "threads": 24,
                                                           "window_s": 1.5, "dram_energy_j": 10.0}}), 0)
     model.apply(_msg("calib", 0, {"fit": {"currents": {"idd0": {"datasheet": 0.05, "calibrated": 0.03}},
-                                          "error": {"before": 1.0, "after": 0.02}}}), 0)
+                                          "error": {"before": 1.0, "after": 0.02}, "n_runs": 3, "dof": 2}}), 0)
     printer = ProgressPrinter(power_every_s=60)
     snap = model.snapshot(now_mono_ns=0, now_wall_ns=0, window_s=10, width=None)
     lines = printer.lines(snap, now_s=0.0)
@@ -178,7 +178,7 @@ def test_column_cache_matches_a_fresh_computation_as_data_arrives() -> None:
     from hdeem_watch.tui.downsample import ColumnCache
 
     rng = np.random.default_rng(1)
-    ring = SampleRing(capacity=100_000)
+    ring = RecentSamples(capacity=100_000)
     cache = ColumnCache()
     t_all = np.arange(30_000, dtype=np.int64) * 1_000_000 + 7  # 1 kHz, 30 s
     p_all = rng.normal(10.0, 2.0, len(t_all))

@@ -9,8 +9,8 @@ from collections.abc import Callable
 import pytest
 
 from hdeem_watch.daemon.client import ControlClient
+from hdeem_watch.demo.fakenode import FakeNode
 from hdeem_watch.tui.app import HdeemWatchApp
-from hdeem_watch.tui.fakenode import FakeNode
 from hdeem_watch.tui.feed import FeedHub
 from hdeem_watch.tui.widgets import ChannelTable, HealthBar
 

@@ -40,7 +40,7 @@ def test_panel_and_headless_label_the_effective_truth() -> None:
     view = calib_view({"fit": FIT, "truth": TRUTH, "suggest": [["copy-1t", 0.4]]})
     wide = calib_text(view, 80).plain
     assert "incl. I/O" in wide and "core" in wide and "55.6" in wide and "66.1" in wide
-    assert "next run: copy-1t" in wide
+    assert "suggested run: copy-1t" in wide
     narrow = calib_text(view, 40).plain
     assert "core" not in narrow and "66.1" in narrow
     line = calib_line(view)

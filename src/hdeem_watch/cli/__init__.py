@@ -23,6 +23,19 @@ SUBCOMMAND_MODULES = ("demo", "daemon", "tui", "bench", "model", "calibrate")
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+#: The top-level help's closing text: one example per subcommand, and the exit codes.
+EPILOG = """examples (COMMAND --help for each command's options and examples):
+  hdeem-watch demo                                   # simulated node + daemon + schedule + TUI
+  hdeem-watch daemon --source sim                    # a node daemon (here on the simulated node)
+  hdeem-watch tui --connect tcp://node7:5591         # watch one or more daemons
+  hdeem-watch bench --kernels triad --threads 1,4    # benchmark sweep (--daemon EP announces runs)
+  hdeem-watch model energy --memspec ddr4-2133-x8-4gb --trace T.csv   # DRAM energy of a trace
+  hdeem-watch calibrate --runs RUNS.json             # fit the memspec currents to measured runs
+
+exit codes: 0 success, 1 failure (one line on stderr), 2 bad input (one line on stderr),
+  130 interrupted (Ctrl-C)"""
 
 
 class _ArgumentParser(argparse.ArgumentParser):
@@ -43,6 +56,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = _ArgumentParser(
         prog="hdeem-watch",
         description="DRAM power monitoring and DRAM power-model calibration on HPC nodes.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"hdeem-watch {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_ArgumentParser)
@@ -67,7 +82,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"hdeem-watch: error: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        return 130
+        return EXIT_INTERRUPTED
     except BrokenPipeError:
         return EXIT_OK
 

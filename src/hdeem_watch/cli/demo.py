@@ -6,7 +6,8 @@ runtime directory, a schedule thread that announces runs (idle + the seven kerne
 then other thread counts) and the TUI connected to the daemon through the wire protocol. Within a
 minute the calibration panel converges from the datasheet currents (about 2× too much energy)
 toward the simulation's hidden truth. ``--headless`` prints the same progress as text lines. The
-daemon is stopped on exit, on Ctrl-C, on SIGTERM and when the terminal hangs up (SIGHUP).
+daemon is stopped on exit, on Ctrl-C, on SIGTERM and when the terminal hangs up (SIGHUP), and
+gets SIGTERM from the kernel when the demo is killed outright (``kill -9``; Linux).
 """
 
 from __future__ import annotations
@@ -21,6 +22,10 @@ from typing import Any
 
 from hdeem_watch.errors import InputError
 
+#: The demo's initial plot window: its runs last 1–2 s, so 30 s shows a dozen of them as steps
+#: (the tui's default is 60 s, for real benchmark runs of tens of seconds).
+DEMO_WINDOW_S = 30.0
+
 
 def register(subparsers: Any) -> None:
     """Add the ``demo`` subcommand."""
@@ -29,12 +34,23 @@ def register(subparsers: Any) -> None:
         help="simulated node + daemon + benchmark schedule + live TUI (the embedded default)",
         description="Run a simulated Haswell node with its daemon, a benchmark schedule and the live TUI; "
         "watch the DRAM model's currents calibrate. Ctrl-C or q stops everything.",
+        epilog="examples:\n"
+        "  hdeem-watch demo                             # the TUI until q\n"
+        "  hdeem-watch demo --headless --duration 60    # text lines for 60 s (CI, dumb terminals)\n"
+        "  hdeem-watch demo --state-dir ~/hw-demo       # keep the state and the daemon log\n"
+        "exit codes: 0 done, 1 the daemon did not start, 2 bad input, 130 interrupted (--headless)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--headless", action="store_true", help="print progress as text lines instead of the TUI")
-    parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
-    parser.add_argument("--state-dir", default=None, metavar="DIR", help="daemon state directory (default: temporary)")
+    parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: until q or Ctrl-C)")
+    parser.add_argument("--state-dir", default=None, metavar="DIR",
+                        help="daemon state directory, kept afterwards with the daemon's log DIR/daemon.log "
+                        "(default: a temporary directory, removed with its log)")
     parser.add_argument("--speed", type=float, default=1.0, help="time factor of the simulated node (default 1)")
-    parser.add_argument("--fps", type=float, default=10.0, help="TUI frames per second")
+    parser.add_argument("--fps", type=float, default=10.0, help="TUI frames per second (default 10)")
+    parser.add_argument("--window", type=float, default=DEMO_WINDOW_S, metavar="S",
+                        help=f"initial plot window in seconds (default {DEMO_WINDOW_S:g}: shorter than the tui's 60, "
+                        "so the demo's 1–2 s runs show as steps; +/- zoom)")
     parser.set_defaults(func=_run)
 
 
@@ -45,6 +61,8 @@ def _check(args: argparse.Namespace) -> None:
         raise InputError(f"--speed {args.speed}: expected a positive time factor")
     if not args.fps > 0:
         raise InputError(f"--fps {args.fps}: expected a positive number of frames per second")
+    if not args.window > 0:
+        raise InputError(f"--window {args.window}: expected a positive number of seconds")
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -53,8 +71,8 @@ def _run(args: argparse.Namespace) -> int:
         print("hdeem-watch demo: standard output is not a terminal; printing progress as text (--headless)",
               file=sys.stderr)
         args.headless = True
-    from hdeem_watch.tui.demo_daemon import DaemonFailed, DemoDaemon
-    from hdeem_watch.tui.demo_schedule import DemoSchedule
+    from hdeem_watch.demo.daemon import DaemonFailed, DemoDaemon
+    from hdeem_watch.demo.schedule import DemoSchedule
 
     daemon = DemoDaemon(state_dir=args.state_dir, speed=args.speed)
     handled = (signal.SIGTERM, signal.SIGHUP)
@@ -69,7 +87,8 @@ def _run(args: argparse.Namespace) -> int:
         signal.signal(sig, _terminate)
     try:
         if args.headless:
-            print(f"demo: starting a simulated node (daemon log: {daemon.log_path})", flush=True)
+            kept = f" (daemon log: {daemon.log_path})" if daemon.log_kept else ""
+            print(f"demo: starting a simulated node{kept}", flush=True)
         try:
             daemon.start()
         except DaemonFailed as error:
@@ -97,7 +116,7 @@ def _tui(control: str, args: argparse.Namespace, schedule_cls: Any) -> int:
 
     schedule = schedule_cls(control, speed=args.speed)
     hub = FeedHub([control], snapshot_hz=min(10.0, max(1.0, args.fps)))
-    app = HdeemWatchApp(hub, fps=args.fps, window_s=30.0, exit_after_s=args.duration)
+    app = HdeemWatchApp(hub, fps=args.fps, window_s=args.window, exit_after_s=args.duration)
     schedule.start()
     try:
         app.run()
@@ -107,19 +126,21 @@ def _tui(control: str, args: argparse.Namespace, schedule_cls: Any) -> int:
 
 
 def _headless(control: str, args: argparse.Namespace) -> int:
-    from hdeem_watch.tui.demo_schedule import RUN_LENGTHS_S, THREAD_ROUNDS, DemoSchedule, ScheduleEvent
+    from hdeem_watch.demo.schedule import RUN_LENGTHS_S, THREAD_ROUNDS, DemoSchedule, ScheduleEvent
     from hdeem_watch.tui.feed import FeedHub
-    from hdeem_watch.tui.headless import print_progress
+    from hdeem_watch.tui.headless import fit_width, print_progress, terminal_width
 
     def on_event(event: ScheduleEvent) -> None:
         if event.event == "error":
             print(f"error  run {event.index} {event.spec.kernel} {event.spec.threads}t: {event.detail}", flush=True)
 
-    print(
-        f"demo: daemon at {control}; schedule: rounds of an idle run + 7 kernels at "
-        f"{'/'.join(THREAD_ROUNDS)} threads, runs of {'/'.join(f'{s:g}' for s in RUN_LENGTHS_S)} s; Ctrl-C stops",
-        flush=True,
-    )
+    intro = [
+        f"demo: daemon at {control};",
+        f"schedule: rounds of an idle run + 7 kernels at {'/'.join(THREAD_ROUNDS)} threads,",
+        f"runs of {'/'.join(f'{s:g}' for s in RUN_LENGTHS_S)} s; Ctrl-C stops",
+    ]
+    for line in fit_width(intro, terminal_width()):
+        print(line, flush=True)
     hub = FeedHub([control], snapshot_hz=4.0)
     hub.set_view(focus=-1, window_s=10.0, width=0)
     schedule = DemoSchedule(control, speed=args.speed, on_event=on_event)
@@ -131,6 +152,7 @@ def _headless(control: str, args: argparse.Namespace) -> int:
     finally:
         schedule.stop()
         hub.stop()
-    snap = hub.snapshots()[0]
-    print(f"demo: done after {time.monotonic() - start:.0f} s, {len(snap.runs)} runs", flush=True)
+    calib = hub.snapshots()[0].calib
+    print(f"demo: done after {time.monotonic() - start:.0f} s, {schedule.completed} runs "
+          f"(the calibration holds {calib.n_runs})", flush=True)
     return 0

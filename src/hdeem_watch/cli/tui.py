@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from typing import Any
+from typing import Any, TextIO
 
 from hdeem_watch.errors import InputError
 
@@ -28,7 +28,15 @@ def register(subparsers: Any) -> None:
         "tui",
         help="live terminal UI: power per DIMM pair, baselines, runs, calibration",
         description="Live terminal UI of one or more hdeem-watch daemons (keys: p pause, n node, "
-        "+/- zoom, b baseline, ? help, q quit).",
+        "+/- zoom, b baseline, s stop run, ? help, q quit).",
+        epilog="examples:\n"
+        "  hdeem-watch tui                                      # the local daemon\n"
+        f"  hdeem-watch tui --connect tcp://node7:{SLURM_CONTROL_PORT} --fps 2   # a remote node over slow ssh\n"
+        "  hdeem-watch tui --slurm                              # every node of the allocation\n"
+        "  hdeem-watch tui --headless --duration 60             # text lines for 60 s\n"
+        "exit codes: 0 done, 1 a daemon never sent its stream (--headless; the reason on stderr),\n"
+        "  2 bad input, 130 interrupted (--headless)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
         "--connect",
@@ -44,12 +52,13 @@ def register(subparsers: Any) -> None:
         default=None,
         help=f"control port of the daemons for --slurm (default ${PORT_ENV} or {SLURM_CONTROL_PORT})",
     )
-    parser.add_argument("--fps", type=float, default=10.0, help="frames per second (lower it over slow ssh)")
-    parser.add_argument("--window", type=float, default=60.0, help="initial plot window in seconds")
+    parser.add_argument("--fps", type=float, default=10.0, help="frames per second (default 10; lower it over slow ssh)")
+    parser.add_argument("--window", type=float, default=60.0, metavar="S",
+                        help="initial plot window in seconds (default 60; +/- zoom 5..600)")
     parser.add_argument(
         "--headless", action="store_true", help="print runs, calibration and power as text lines instead of the UI"
     )
-    parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
+    parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: until q or Ctrl-C)")
     parser.add_argument(
         "--stats", metavar="FILE", default=None, help="append frames/CPU/messages each second as JSON lines (benchmarks)"
     )
@@ -110,19 +119,22 @@ def _run(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration {args.duration}: expected a positive number of seconds")
     endpoints = resolve_endpoints(args)
+    stats_file = _open_stats(args.stats) if args.stats else None
     from hdeem_watch.tui.feed import FeedHub
 
     if args.headless or not (sys.stdout.isatty() and os.environ.get("TERM", "") != "dumb"):
+        if stats_file is not None:
+            stats_file.close()
         return _headless(FeedHub(endpoints, snapshot_hz=4.0), args)
     from hdeem_watch.tui.app import HdeemWatchApp
 
     hub = FeedHub(endpoints, snapshot_hz=min(10.0, max(1.0, args.fps)))
     app = HdeemWatchApp(hub, fps=args.fps, window_s=args.window, exit_after_s=args.duration)
     stats = None
-    if args.stats:
+    if stats_file is not None:
         from hdeem_watch.tui.stats import StatsWriter
 
-        stats = StatsWriter(args.stats, lambda: app.frames, hub)
+        stats = StatsWriter(stats_file, lambda: app.frames, hub)
         stats.start()
     try:
         app.run()
@@ -132,8 +144,22 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _open_stats(path: str) -> TextIO:
+    """Open the ``--stats`` file for appending, before anything starts.
+
+    Raises:
+        InputError: it cannot be written (missing directory, permissions, a directory).
+    """
+    try:
+        return open(path, "a", encoding="utf-8")
+    except OSError as error:
+        raise InputError(f"--stats {path}: cannot write it ({error.strerror or error})") from None
+
+
 def _headless(hub: Any, args: argparse.Namespace) -> int:
-    from hdeem_watch.tui.headless import print_progress
+    """Text lines until ``--duration`` or Ctrl-C; exit 1 when a daemon never sent its stream (said
+    on stderr, with the reason), so a script can tell."""
+    from hdeem_watch.tui.headless import print_progress, silent_nodes
 
     if not args.headless:
         print("hdeem-watch tui: standard output is not a terminal; printing progress as text (--headless)",
@@ -146,4 +172,8 @@ def _headless(hub: Any, args: argparse.Namespace) -> int:
         return 130
     finally:
         hub.stop()
-    return 0
+    silent = silent_nodes(hub.snapshots())
+    for snap in silent:
+        reason = snap.health.detail or "no reply"
+        print(f"hdeem-watch tui: {snap.health.endpoint}: unreachable: {reason}", file=sys.stderr)
+    return 1 if silent else 0

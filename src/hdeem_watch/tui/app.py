@@ -1,5 +1,5 @@
 """The Textual app: paints the newest snapshots at a fixed rate; keys for pause, node, zoom,
-baseline and help.
+baseline, stopping the run in progress, and help.
 
 The app never reads sockets. A :class:`~hdeem_watch.tui.provider.Provider` (live:
 :class:`~hdeem_watch.tui.feed.FeedHub`) builds immutable snapshots in the background; a timer at
@@ -35,21 +35,28 @@ BASELINE_SECONDS = 10.0
 #: Seconds a control reply stays on the key line.
 NOTICE_S = 8.0
 
-KEYS_LINE = " p pause  n/N/tab node  +/- zoom  b baseline  ? help  q quit"
+KEYS_LINE = " p pause  n/N/tab node  +/- zoom  b baseline  s stop run  ? help  q quit"
 
 HELP_TEXT = f"""[b]hdeem-watch[/b]: live DRAM power and model calibration
 
 [b]p[/b]          pause / resume painting (data keeps arriving)
 [b]n[/b] [b]tab[/b]      next node   [b]N[/b] [b]shift+tab[/b]  previous node
 [b]+[/b] [b]-[/b]        zoom the time window ({"/".join(f"{w:g}" for w in WINDOWS_S)} s)
-[b]b[/b]          measure this node's idle baseline ({BASELINE_SECONDS:g} s)
+[b]b[/b]          measure this node's idle baseline ({BASELINE_SECONDS:g} s, between runs)
+[b]s[/b]          stop (abort) the run in progress, e.g. to let [b]b[/b] measure
 [b]?[/b]          this help   [b]q[/b] [b]ctrl+c[/b]  quit
 
-Plots: min/max envelope per column (short spikes stay visible).
+[b]above[/b]: power over the idle baseline; – where the baseline is not
+  idle (CPU/BLADE in an idle run: its kernel keeps the CPUs busy).
+Plots: min/max envelope per column; left: name, range lo–hi in W.
+[b]ds %[/b] / [b]cal %[/b]: a run's model error, datasheet / calibrated currents.
+[b]error[/b] before/after the fit, mean over runs; [b]loo[/b]: each run predicted
+  without it; – until there are more runs than unknowns.
+Currents in mA per device; id ✓ = determined by the runs so far.
+sim: the simulated node's hidden true currents.
+suggested run: the calibrator's pick for the next run (not a plan).
 STALE: no message for 3 s.  RECONNECTING: daemon unreachable.
 gaps: messages lost on the wire (from sequence numbers).
-sim: the simulated node's hidden true currents.
-Currents in mA per device; id ✓ = determined by the runs so far.
 Press any key to close."""
 
 
@@ -91,6 +98,7 @@ class HdeemWatchApp(App[int]):
         Binding("plus,equals_sign", "zoom(-1)", "zoom in"),
         Binding("minus,underscore", "zoom(1)", "zoom out"),
         Binding("b", "baseline", "baseline"),
+        Binding("s", "stop_run", "stop run"),
         Binding("question_mark", "help", "help"),
     ]
 
@@ -116,7 +124,8 @@ class HdeemWatchApp(App[int]):
         self._exit_after_s = exit_after_s
         self.baseline_s = baseline_s
         self._shown_once = False
-        self._notice = ""
+        self._feed_notice = ""  # the last notice the focused feed reported
+        self._notice = ""  # what the key line shows until _notice_until
         self._notice_until = 0
         self._keys_text = KEYS_LINE
 
@@ -180,18 +189,25 @@ class HdeemWatchApp(App[int]):
         """What the bottom line shows now: the key hints, or a fresh control reply."""
         return self._keys_text
 
-    def _show_notice(self, notice: str) -> None:
-        """The last control reply replaces the key line for :data:`NOTICE_S` seconds."""
+    def _show_notice(self, feed_notice: str) -> None:
+        """The newest notice — a control reply from the feed, or the app's own — replaces the key
+        line for :data:`NOTICE_S` seconds."""
         now = self._clock()
-        if notice != self._notice:
-            self._notice = notice
-            self._notice_until = now + int(NOTICE_S * 1e9) if notice else 0
-        text = f" {notice}" if notice and now < self._notice_until else KEYS_LINE
+        if feed_notice != self._feed_notice:
+            self._feed_notice = feed_notice
+            if feed_notice:
+                self._flash(feed_notice)
+        text = f" {self._notice}" if self._notice and now < self._notice_until else KEYS_LINE
         keys = self.query_one("#keys", Static)
         if text != self._keys_text:
             self._keys_text = text
             keys.update(text)
             keys.set_class(text != KEYS_LINE, "-notice")
+
+    def _flash(self, notice: str) -> None:
+        """Show ``notice`` on the key line for :data:`NOTICE_S` seconds."""
+        self._notice = notice
+        self._notice_until = self._clock() + int(NOTICE_S * 1e9)
 
     # ------------------------------------------------------------------ actions
 
@@ -216,6 +232,16 @@ class HdeemWatchApp(App[int]):
         """Ask the focused node's daemon to measure its idle baseline."""
         self.provider.request(self.focus_index, "baseline.measure", {"seconds": self.baseline_s})
         self.paint()  # the key line says "sent" now and shows the daemon's reply when it comes
+
+    def action_stop_run(self) -> None:
+        """Ask the focused node's daemon to stop (abort: not calibrated) the run in progress."""
+        snapshots = self.provider.snapshots()
+        run = snapshots[self.focus_index % len(snapshots)].current_run if snapshots else None
+        if run is None:
+            self._flash("s: no run in progress")
+        else:
+            self.provider.request(self.focus_index, "run.stop", {"run_id": run.run_id, "abort": True})
+        self.paint()
 
     def action_help(self) -> None:
         """Show the key help."""

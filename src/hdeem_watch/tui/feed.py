@@ -13,22 +13,36 @@ different PUB endpoint is re-subscribed); back again → the late-join state is 
 
 Control requests from the UI (e.g. ``baseline.measure``, whose reply comes only when the
 measurement ends) run in short-lived threads with their own sockets (a ZeroMQ socket belongs to
-one thread), so the stream never waits for them; their outcome is shown as the health bar's notice.
+one thread), so the stream never waits for them. Their outcome comes back as a message
+(:mod:`~hdeem_watch.tui.messages`) through the feed's queue; the feed thread, the model's only
+owner, shows it as the notice.
+
+What the app shows (:class:`~hdeem_watch.tui.messages.ViewSettings`) is immutable: the app swaps
+in a new one whole and the feeds read it once per snapshot.
 """
 
 from __future__ import annotations
 
 import math
+import queue
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import zmq
 
 from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
+from hdeem_watch.tui.endpoints import is_local_host, pub_endpoint_for, unreachable_stream
+from hdeem_watch.tui.messages import (
+    RequestDone,
+    RequestFailed,
+    RequestOutcome,
+    RequestSent,
+    RequestUnanswered,
+    ViewSettings,
+)
 from hdeem_watch.tui.model import NodeModel
 from hdeem_watch.tui.snapshot import NodeSnapshot
 
@@ -38,32 +52,6 @@ BACKGROUND_PERIOD_NS = 500_000_000
 REQUEST_TIMEOUT_S = 5.0
 #: How many queued messages one wake-up handles before building a snapshot (bounds latency).
 DRAIN_LIMIT = 5000
-
-
-@dataclass
-class ViewSettings:
-    """What the app currently shows; written by the app thread, read by the feeds.
-
-    Attributes:
-        window_s: the plot's time window.
-        width: plot columns per channel.
-        focus: index of the node whose plots are computed (others get table values only).
-    """
-
-    window_s: float = 60.0
-    width: int = 120
-    focus: int = 0
-
-
-def pub_endpoint_for(control_endpoint: str, pub: str) -> str:
-    """The PUB endpoint to connect to: a wildcard bind host is replaced by the control endpoint's host."""
-    if not pub.startswith("tcp://"):
-        return pub
-    host, _, port = pub[len("tcp://") :].rpartition(":")
-    if host in ("*", "0.0.0.0", "[::]", "::", ""):
-        control_host = control_endpoint[len("tcp://") :].rpartition(":")[0] if control_endpoint.startswith("tcp://") else ""
-        return f"tcp://{control_host or '127.0.0.1'}:{port}"
-    return pub
 
 
 class NodeFeed(threading.Thread):
@@ -79,6 +67,7 @@ class NodeFeed(threading.Thread):
         control_timeout_s: timeout of each control call.
         clock: monotonic clock in ns (injectable).
         wall_clock: wall clock in ns (injectable).
+        is_local: whether a host is this machine (an ``ipc://`` stream of another host is unreachable).
     """
 
     def __init__(
@@ -93,6 +82,7 @@ class NodeFeed(threading.Thread):
         control_timeout_s: float = 1.0,
         clock: Callable[[], int] = time.monotonic_ns,
         wall_clock: Callable[[], int] = time.time_ns,
+        is_local: Callable[[str], bool] = is_local_host,
     ) -> None:
         super().__init__(name=f"hdeem-watch-feed-{index}", daemon=True)
         self.endpoint = endpoint
@@ -103,6 +93,7 @@ class NodeFeed(threading.Thread):
         self._stale_ns = int(stale_after_s * 1e9)
         self._clock = clock
         self._wall = wall_clock
+        self._is_local = is_local
         self.model = NodeModel(endpoint, stale_after_s=stale_after_s)
         self._control = ControlClient(endpoint, timeout_s=control_timeout_s, context=self._context)
         self._sub: zmq.Socket[Any] | None = None
@@ -111,7 +102,10 @@ class NodeFeed(threading.Thread):
         self._wake = threading.Event()
         self._workers: list[threading.Thread] = []
         self._last_probe_ns = 0
+        self._subscribed_ns = 0
         self._reachable = False
+        self._late_joined = False
+        self._outcomes: queue.SimpleQueue[RequestOutcome] = queue.SimpleQueue()
         self.latest: NodeSnapshot = self._build(self._clock())
         self.messages = 0
         self.decode_errors = 0
@@ -120,30 +114,48 @@ class NodeFeed(threading.Thread):
 
     def request(self, op: str, args: dict[str, Any] | None = None) -> None:
         """Send a control request from a short-lived thread of its own (replies such as
-        ``baseline.measure`` come only after the measurement); the outcome becomes the health
-        bar's notice."""
+        ``baseline.measure`` come only after the measurement); the outcome comes back through the
+        feed's queue and becomes the health bar's notice."""
         args = dict(args or {})
         seconds = args.get("seconds")
-        timeout_s = REQUEST_TIMEOUT_S + (float(seconds) if isinstance(seconds, int | float) else 0.0)
-        self.model.notice = f"{op}: sent" + (f" ({seconds:g} s)" if isinstance(seconds, int | float) else "")
+        measure_s = float(seconds) if isinstance(seconds, int | float) and not isinstance(seconds, bool) else None
+        timeout_s = REQUEST_TIMEOUT_S + (measure_s or 0.0)
+        self._tell(RequestSent(op, measure_s))
         worker = threading.Thread(
             target=self._request, args=(op, args, timeout_s), name=f"hdeem-watch-request-{op}", daemon=True
         )
+        self._workers = [w for w in self._workers if w.is_alive()]
         self._workers.append(worker)
         worker.start()
 
     def _request(self, op: str, args: dict[str, Any], timeout_s: float) -> None:
         client = ControlClient(self.endpoint, timeout_s=timeout_s, context=self._context)
+        outcome: RequestOutcome
         try:
             result = client.call(op, args)
         except ControlError as error:
-            self.model.notice = f"{op}: {error.code}: {error.message}"[:120]
+            outcome = RequestFailed(op, error.code, error.message)
         except DaemonUnreachable:
-            self.model.notice = f"{op}: no reply within {timeout_s:g} s"
+            outcome = RequestUnanswered(op, timeout_s)
         else:
-            self.model.notice = f"{op}: ok" + (f" ({_short(result)})" if result else "")
+            outcome = RequestDone(op, _short(result) if result else "")
         finally:
             client.close()
+        self._tell(outcome)
+
+    def _tell(self, outcome: RequestOutcome) -> None:
+        """Queue a request's outcome for the feed thread and wake it."""
+        self._outcomes.put(outcome)
+        self._wake.set()
+
+    def _take_outcomes(self) -> None:
+        """Show the newest queued request outcome (feed thread only)."""
+        while True:
+            try:
+                outcome = self._outcomes.get_nowait()
+            except queue.Empty:
+                return
+            self.model.notice = outcome.notice
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Stop the thread and close its sockets."""
@@ -167,6 +179,7 @@ class NodeFeed(threading.Thread):
                 if self._wake.wait(wait_s):
                     self._wake.clear()
                     next_snapshot = self._clock()
+                self._take_outcomes()
                 if self._sub is not None:
                     self._drain()
                 now = self._clock()
@@ -233,7 +246,10 @@ class NodeFeed(threading.Thread):
         assert isinstance(endpoints, dict)
         pub = pub_endpoint_for(self.endpoint, str(endpoints.get("pub", "")))
         node = status.get("node")
-        if pub and (self._sub is None or pub != self._pub_endpoint):
+        why_not = unreachable_stream(self.endpoint, pub, is_local=self._is_local) if pub else "its status names no stream endpoint"
+        if why_not is not None:
+            self._close_sub()
+        elif self._sub is None or pub != self._pub_endpoint:
             self._subscribe(pub, node if isinstance(node, str) else None)
         self.model.apply_status(status, wall_ns=self._wall())
         if not self._reachable:
@@ -241,6 +257,12 @@ class NodeFeed(threading.Thread):
             self._late_join()
         if self.model.connection == "reconnecting":
             self.model.set_connection("connecting", "daemon back; waiting for its stream")
+        if why_not is not None:
+            self.model.set_connection("connecting", f"control answers, but {why_not}")
+        elif self.model.last_rx_mono_ns is None and now - self._subscribed_ns > self._stale_ns:
+            self.model.set_connection(
+                "connecting", f"control answers, but nothing arrives from its stream {pub} (firewall? another host?)"
+            )
 
     def _subscribe(self, pub: str, node: str | None) -> None:
         self._close_sub()
@@ -253,6 +275,7 @@ class NodeFeed(threading.Thread):
         sub.connect(pub)
         self._sub = sub
         self._pub_endpoint = pub
+        self._subscribed_ns = self._clock()
 
     def _close_sub(self) -> None:
         if self._sub is not None:
@@ -260,7 +283,11 @@ class NodeFeed(threading.Thread):
             self._sub = None
 
     def _late_join(self) -> None:
-        """Fetch what the stream only sends on change: runs, calibration, baselines."""
+        """Fetch what the stream only sends on change: runs, calibration, baselines.
+
+        The runs found at the first connection are the daemon's history (marked so: a headless
+        printer does not report them as new); after a reconnection they are the runs missed.
+        """
         for op, apply in (
             ("runs.list", self._apply_runs),
             ("calib.get", self.model.apply_calib),
@@ -272,11 +299,14 @@ class NodeFeed(threading.Thread):
                 continue
             if result is not None:
                 apply(result)
+        self._late_joined = True
 
     def _apply_runs(self, result: Any) -> None:
         runs = result.get("runs") if isinstance(result, dict) else result
         if isinstance(runs, list):
-            self.model.add_runs([r for r in runs if isinstance(r, dict) and not _running(r)])
+            finished = [r for r in runs if isinstance(r, dict) and not _running(r)]
+            # runs.list is newest first; the model keeps them oldest first
+            self.model.add_runs(list(reversed(finished)), history=not self._late_joined)
 
 def _running(run: dict[str, Any]) -> bool:
     stop = run.get("t_stop_ns", run.get("stop_ns", 0))
@@ -323,14 +353,15 @@ class FeedHub:
         return [feed.latest for feed in self.feeds]
 
     def set_view(self, *, focus: int, window_s: float, width: int) -> None:
-        """Tell the feeds what the app shows (a changed view is served at once)."""
-        changed = (focus, window_s, width) != (self.view.focus, self.view.window_s, self.view.width)
-        self.view.focus = focus
-        self.view.window_s = window_s
-        self.view.width = width
-        if changed:
-            for feed in self.feeds:
-                feed.wake()
+        """Tell the feeds what the app shows: a new immutable view, swapped in whole (a changed
+        view is served at once)."""
+        view = ViewSettings(window_s=window_s, width=width, focus=focus)
+        if view == self.view:
+            return
+        self.view = view
+        for feed in self.feeds:
+            feed.view = view
+            feed.wake()
 
     def request(self, index: int, op: str, args: dict[str, Any] | None = None) -> None:
         """Queue a control request to daemon ``index``."""
@@ -347,4 +378,4 @@ def _reason(error: Exception, endpoint: str) -> str:
     text = str(error)
     if text.startswith(endpoint):
         text = text[len(endpoint) :].lstrip(": ")
-    return text[:80] or "unreachable"
+    return text[:200] or "unreachable"

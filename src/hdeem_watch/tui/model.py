@@ -29,8 +29,8 @@ import numpy as np
 
 from hdeem_watch.daemon.protocol import Message
 from hdeem_watch.tui.downsample import ColumnCache
+from hdeem_watch.tui.recent_samples import RecentSamples
 from hdeem_watch.tui.records import calib_view, first_num, num, run_view
-from hdeem_watch.tui.ring import SampleRing
 from hdeem_watch.tui.snapshot import CalibView, ChannelView, HealthView, NodeSnapshot, RunView
 
 #: Display order of the HDEEM channels; others follow alphabetically.
@@ -67,7 +67,7 @@ class _Channel:
     def __init__(self, name: str, rate_hz: float, max_window_s: float) -> None:
         self.name = name
         self.rate_hz = rate_hz
-        self.ring = SampleRing(int(max(rate_hz, 1.0) * max_window_s) + 64)
+        self.ring = RecentSamples(int(max(rate_hz, 1.0) * max_window_s) + 64)
         self.energy_j = math.nan
         self.status = "?"
         self.source_gaps = 0
@@ -100,6 +100,9 @@ class NodeModel:
         self._status: Mapping[str, Any] = {}
         self._baselines: dict[str, Mapping[str, Any]] = {}
         self._runs: dict[str, Mapping[str, Any]] = {}
+        self._history_ids: set[str] = set()
+        self._stored_runs: int | None = None  # the daemon's count at the last status reply
+        self._runs_since_status = 0
         self._current_run: Mapping[str, Any] | None = None
         self._calib_body: Mapping[str, Any] = {}
         self._calib_cache: tuple[int, CalibView] | None = None
@@ -188,6 +191,10 @@ class NodeModel:
         run = body.get("run")
         if "run" in body:
             self._current_run = run if isinstance(run, Mapping) else None
+        stored = body.get("runs")  # the status reply counts the stored runs (the heartbeat does not)
+        if isinstance(stored, int) and not isinstance(stored, bool):
+            self._stored_runs = stored
+            self._runs_since_status = 0
 
     def apply_run_event(self, body: Mapping[str, Any]) -> None:
         """Take a ``run`` message: ``{"event": "start"|"stop", "run": {...}}``."""
@@ -197,18 +204,33 @@ class NodeModel:
         if body.get("event") == "start":
             self._current_run = run
         else:
+            if str(run.get("run_id", run.get("id", ""))) not in self._runs:
+                self._runs_since_status += 1
             self.add_runs([run])
             if self._current_run is not None and self._current_run.get("run_id") == run.get("run_id"):
                 self._current_run = None
 
-    def add_runs(self, runs: list[Any]) -> None:
-        """Add finished run records (from the ``run`` topic or ``runs.list``)."""
+    def add_runs(self, runs: list[Any], *, history: bool = False) -> None:
+        """Add finished run records, oldest first (from the ``run`` topic or ``runs.list``).
+
+        ``history``: runs the daemon had stored before this UI connected (not new to the user).
+        """
         for run in runs:
             if isinstance(run, Mapping):
                 key = str(run.get("run_id", run.get("id", len(self._runs))))
+                if key not in self._runs and history:
+                    self._history_ids.add(key)
                 self._runs[key] = run
         while len(self._runs) > MAX_RUNS:
+            self._history_ids.discard(next(iter(self._runs)))
             self._runs.pop(next(iter(self._runs)))
+
+    def runs_total(self) -> int:
+        """Finished runs of the daemon: its stored count at the last status reply plus the runs
+        finished since, else the runs this model holds (the snapshot carries only the newest)."""
+        if self._stored_runs is None:
+            return len(self._runs)
+        return max(len(self._runs), self._stored_runs + self._runs_since_status)
 
     def apply_calib(self, body: Mapping[str, Any]) -> None:
         """Take a ``calib`` message body or the ``calib.get`` result."""
@@ -311,7 +333,10 @@ class NodeModel:
             self._channel_view(self._channels[name], t0, t1, width)
             for name in sorted(self._channels, key=_order_key)
         )
-        runs = tuple(run_view(r) for r in list(self._runs.values())[-max_runs:])
+        runs = tuple(
+            run_view(record, history=key in self._history_ids)
+            for key, record in list(self._runs.items())[-max_runs:]
+        )
         current: RunView | None = None
         if self._current_run is not None:
             started = first_num(self._current_run, "t_start_ns", "start_ns", "t_ns", "started_ns")
@@ -323,6 +348,7 @@ class NodeModel:
             window_s=window_s,
             channels=channels,
             runs=runs,
+            runs_total=max(self.runs_total(), len(runs)),
             current_run=current,
             calib=self._calib(),
             health=self.health(now_mono_ns),

@@ -58,8 +58,11 @@ def measured_dram_j(record: Mapping[str, Any]) -> float:
     return math.nan
 
 
-def run_view(record: Mapping[str, Any], *, running: bool = False, elapsed_s: float = math.nan) -> RunView:
-    """A :class:`RunView` from a run record of the ``run`` topic or ``runs.list``."""
+def run_view(
+    record: Mapping[str, Any], *, running: bool = False, elapsed_s: float = math.nan, history: bool = False
+) -> RunView:
+    """A :class:`RunView` from a run record of the ``run`` topic or ``runs.list`` (``history``: stored
+    before the UI connected)."""
     metadata = record.get("metadata") if isinstance(record.get("metadata"), Mapping) else {}
     assert isinstance(metadata, Mapping)
     duration = first_num(record, "duration_s", "window_s", "seconds")
@@ -81,6 +84,7 @@ def run_view(record: Mapping[str, Any], *, running: bool = False, elapsed_s: flo
         ),
         running=running,
         simulated=bool(metadata.get("simulated", False) or record.get("simulated", False)),
+        history=history,
     )
 
 
@@ -182,6 +186,7 @@ def calib_view(body: Mapping[str, Any], *, history_len: int = 40) -> CalibView:
     assert isinstance(error, Mapping)
     n_runs = first_num(fit, "n_runs", "runs", "n_observations", "observability.n_runs")
     return CalibView(
+        determined=fit_determined(fit, len(currents), n_runs),
         currents=tuple(currents),
         error_before=num(error.get("before")),
         error_after=num(error.get("after")),
@@ -191,6 +196,16 @@ def calib_view(body: Mapping[str, Any], *, history_len: int = 40) -> CalibView:
         simulated=simulated,
         model_error=model_error,
     )
+
+
+def fit_determined(fit: Mapping[str, Any], n_currents: int, n_runs: float) -> bool:
+    """Whether a fit has more runs than unknowns: its residual degrees of freedom (``dof``) are
+    positive; without ``dof``, more runs than currents (+ the intercept when fitted)."""
+    dof = first_num(fit, "dof")
+    if math.isfinite(dof):
+        return dof > 0
+    unknowns = n_currents + (1 if fit.get("intercept_fitted") else 0)
+    return math.isfinite(n_runs) and n_runs > unknowns
 
 
 def _ci_half_width(ci: Any, value: float) -> float:

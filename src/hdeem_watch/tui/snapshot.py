@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 from hdeem_watch.tui.downsample import Columns
 
+#: Baseline origins that are a true idle for every channel kind (see ChannelView.baseline_is_idle).
+IDLE_ORIGINS = ("quiet", "measured")
 #: Connection states shown in the health bar.
 CONNECTION_STATES = ("connecting", "live", "stale", "reconnecting", "paused")
 
@@ -49,9 +51,22 @@ class ChannelView:
     columns: Columns | None = None
 
     @property
+    def baseline_is_idle(self) -> bool:
+        """Whether the baseline is this channel's true idle power.
+
+        A DRAM channel is idle during an idle run (no memory traffic). A CPU, blade or other
+        channel is not: the idle kernel keeps its threads spinning, and ``baseline.measure`` is
+        reported with the same origin (``idle-run``). Only a ``quiet`` baseline (the quietest
+        stretch while no run was going on) or a ``measured`` one (``baseline.measure``, should the
+        daemon name it apart) is their idle.
+        """
+        return self.kind == "dram" or self.baseline_origin in IDLE_ORIGINS
+
+    @property
     def above_w(self) -> float:
-        """Power above the idle baseline (NaN when either is unknown)."""
-        return self.power_w - self.baseline_w
+        """Power above the idle baseline (NaN when either is unknown, or when the baseline is not
+        a true idle: see :attr:`baseline_is_idle`)."""
+        return self.power_w - self.baseline_w if self.baseline_is_idle else math.nan
 
 
 @dataclass(frozen=True)
@@ -69,6 +84,7 @@ class RunView:
         model_calibrated_j: the model's energy with the calibration of the time.
         running: True for the run in progress.
         simulated: the run was on a simulated node.
+        history: the daemon had it stored before the UI connected (not a new run to the user).
     """
 
     run_id: str
@@ -81,6 +97,7 @@ class RunView:
     model_calibrated_j: float
     running: bool = False
     simulated: bool = False
+    history: bool = False
 
     @property
     def error_datasheet(self) -> float:
@@ -132,6 +149,8 @@ class CalibView:
         error_after: mean relative error after the fit.
         error_loo: leave-one-out error.
         n_runs: runs in the fit.
+        determined: the fit has more runs than unknowns (before that, its errors mean nothing:
+            an exact fit through every point has "after 0 %" and a wild leave-one-out).
         suggested_next: the run the calibrator suggests next ("" if none).
         simulated: the truth values come from the simulator.
         model_error: why the daemon cannot model runs, if it cannot ("" otherwise).
@@ -142,6 +161,7 @@ class CalibView:
     error_after: float = math.nan
     error_loo: float = math.nan
     n_runs: int = 0
+    determined: bool = True
     suggested_next: str = ""
     simulated: bool = False
     model_error: str = ""
@@ -189,7 +209,8 @@ class NodeSnapshot:
         built_mono_ns: monotonic time the snapshot was built (the app flags an old one).
         window_s: the plot's time window.
         channels: channels in display order.
-        runs: finished runs, newest last.
+        runs: finished runs, newest last (only the newest few: see ``runs_total``).
+        runs_total: how many runs the daemon has finished in all (0 if unknown).
         current_run: the run in progress, if any.
         calib: calibration state.
         health: connection and daemon health.
@@ -200,6 +221,7 @@ class NodeSnapshot:
     window_s: float
     channels: tuple[ChannelView, ...] = ()
     runs: tuple[RunView, ...] = ()
+    runs_total: int = 0
     current_run: RunView | None = None
     calib: CalibView = field(default_factory=CalibView)
     health: HealthView = field(default_factory=lambda: HealthView(state="connecting", endpoint=""))

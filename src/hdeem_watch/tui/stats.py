@@ -13,7 +13,7 @@ import os
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
+from typing import TextIO
 
 from hdeem_watch.tui.feed import FeedHub
 
@@ -22,15 +22,16 @@ class StatsWriter(threading.Thread):
     """Appends a stats line every ``period_s`` until stopped.
 
     Args:
-        path: the JSON-lines file.
+        out: the JSON-lines file, opened for appending by the caller (so that a path that cannot be
+            written is a one-line error before the UI starts); closed when the writer stops.
         frames: returns the frames painted so far.
         hub: the feeds (messages and gaps).
         period_s: seconds between lines.
     """
 
-    def __init__(self, path: str | os.PathLike[str], frames: Callable[[], int], hub: FeedHub, period_s: float = 1.0) -> None:
+    def __init__(self, out: TextIO, frames: Callable[[], int], hub: FeedHub, period_s: float = 1.0) -> None:
         super().__init__(name="hdeem-watch-stats", daemon=True)
-        self.path = Path(path)
+        self._out = out
         self._frames = frames
         self._hub = hub
         self._period_s = period_s
@@ -48,7 +49,7 @@ class StatsWriter(threading.Thread):
         }
 
     def run(self) -> None:
-        with open(self.path, "a", encoding="utf-8") as out:
+        with self._out as out:
             while not self._halt.wait(self._period_s):
                 out.write(json.dumps(self.line()) + "\n")
                 out.flush()

@@ -1,5 +1,5 @@
 """The calibration panel: datasheet vs calibrated currents, intervals, identifiability, errors,
-the history of each current (aging), the suggested next run, and the simulator's hidden truth
+the history of each current (aging), the daemon's suggestion for the next run, and the simulator's hidden truth
 (marked "simulation"): the *effective* truth a fit can recover (incl. the I/O energy per burst and
 the sensor offsets) in the ``sim`` column, the core truth in ``core`` when the panel is wide enough."""
 
@@ -22,7 +22,7 @@ def _ma(value_a: float, width: int) -> str:
 def calib_text(calib: CalibView, width: int) -> Text:
     """The panel's lines (currents in mA)."""
     text = Text(no_wrap=True, overflow="ellipsis")
-    title = f"calibration ({calib.n_runs} runs)" if calib.n_runs else "calibration"
+    title = f"calibration ({calib.n_runs} run{'' if calib.n_runs == 1 else 's'})" if calib.n_runs else "calibration"
     text.append(title, style="bold")
     if calib.simulated:
         effective = any(math.isfinite(_core(c)) for c in calib.currents)
@@ -60,9 +60,15 @@ def calib_text(calib: CalibView, width: int) -> Text:
             text.append(" " + sparkline(c.history_a[-(spark_width - 1) :]), style="cyan")
     text.append("\n")
     text.append("error ", style="bold")
-    text.append(f"before {_pct(calib.error_before)} after {_pct(calib.error_after)} loo {_pct(calib.error_loo)}")
+    if calib.determined:
+        text.append(f"before {_pct(calib.error_before)} after {_pct(calib.error_after)} loo {_pct(calib.error_loo)}")
+    else:  # an exact fit through every run: "after 0 %" and the leave-one-out would mean nothing
+        errors = f"before {_pct(calib.error_before)} after – loo –"
+        text.append(errors)
+        if len("error ") + len(errors) + 18 <= width:
+            text.append("  (runs < unknowns)", style="dim italic")
     if calib.suggested_next:
-        text.append("\nnext run: ", style="bold")
+        text.append("\nsuggested run: ", style="bold")
         text.append(calib.suggested_next)
     if calib.model_error:
         text.append(f"\nmodel: {calib.model_error}", style="yellow")
@@ -86,8 +92,6 @@ class CalibPanel(LinesWidget):
 
     def show(self, calib: CalibView) -> None:
         """Paint the panel."""
-        key = (id(calib), self.size)
-        if key == getattr(self, "_shown", None):
+        if self.already_showing(calib):
             return
-        self._shown = key
         self.set_text(calib_text(calib, self.size.width or 40))

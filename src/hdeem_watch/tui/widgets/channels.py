@@ -1,4 +1,8 @@
-"""The channel table: current value, idle baseline ± spread, power above baseline, status."""
+"""The channel table: current value, idle baseline ± spread, power above baseline, status.
+
+``above`` is "–" for a channel whose baseline is not its true idle (a CPU or blade channel
+measured during an idle run, whose kernel keeps the CPUs busy); that baseline is dimmed.
+"""
 
 from __future__ import annotations
 
@@ -28,7 +32,8 @@ def channel_table_text(snapshot: NodeSnapshot, width: int) -> Text:
             base = f"{ch.baseline_w:.1f}±{ch.spread_w:.1f}" if math.isfinite(ch.spread_w) else f"{ch.baseline_w:.1f}"
         else:
             base = "–"
-        text.append(f"{base:>14.14}", style="dim" if not math.isfinite(ch.baseline_w) else "")
+        idle = math.isfinite(ch.baseline_w) and ch.baseline_is_idle
+        text.append(f"{base:>14.14}", style="" if idle else "dim")
         above = ch.above_w
         style = "bold green" if math.isfinite(above) and above > max(0.5, 2 * (ch.spread_w or 0)) else ""
         text.append(fixed(above, 7, 1, sign=True), style=style)
@@ -43,8 +48,6 @@ class ChannelTable(LinesWidget):
 
     def show(self, snapshot: NodeSnapshot) -> None:
         """Paint the table."""
-        key = (id(snapshot), self.size)
-        if key == getattr(self, "_shown", None):
+        if self.already_showing(snapshot):
             return
-        self._shown = key
         self.set_text(channel_table_text(snapshot, self.size.width or 40))

@@ -40,6 +40,19 @@ def state_label(snapshot: NodeSnapshot, *, paused: bool, stalled: bool) -> tuple
     return word, _STATE_STYLE.get(health.state, "bold")
 
 
+def short_endpoint(endpoint: str, width: int = 28) -> str:
+    """An endpoint cut in the middle to ``width`` characters (the end of an ipc path says the most).
+
+    >>> short_endpoint("ipc:///tmp/hdeem-watch-demo-abc123/control.sock", 24)
+    'ipc://…c123/control.sock'
+    """
+    if len(endpoint) <= width:
+        return endpoint
+    scheme, sep, rest = endpoint.partition("://")
+    head = scheme + sep
+    return head + "…" + rest[-(width - len(head) - 1) :]
+
+
 def health_text(
     snapshots: Sequence[NodeSnapshot],
     focus: int,
@@ -49,18 +62,27 @@ def health_text(
     window_s: float,
     width: int,
 ) -> Text:
-    """The bar's text for the focused node (plus one dot per node when there are several)."""
+    """The bar's text for the focused node (plus one dot per node when there are several).
+
+    While the node is not live, the reason comes right after its name, before the figures that
+    mean little then, so a narrow terminal still shows why.
+    """
     snap = snapshots[focus]
     health = snap.health
     word, style = state_label(snap, paused=paused, stalled=stalled)
     text = Text(no_wrap=True, overflow="ellipsis")
     text.append(f" {word} ", style=style)
-    text.append(f" {snap.node if snap.node != '?' else health.endpoint}", style="bold")
+    text.append(f" {snap.node if snap.node != '?' else short_endpoint(health.endpoint)}", style="bold")
     if len(snapshots) > 1:
         text.append(f" {focus + 1}/{len(snapshots)} ")
         for i, other in enumerate(snapshots):
             dot_style = _DOT_STYLE.get(other.health.state, "red")
             text.append("●" if i == focus else "•", style=dot_style)
+    detail = health.detail if health.state != "live" or health.detail.startswith("bad message") else ""
+    if detail.startswith("no daemon socket"):
+        detail = "no daemon socket"  # at the endpoint's path, shown already
+    if detail:
+        text.append("  " + detail, style="italic")
     source = health.source_kind or "?"
     if health.source_health:
         source += f":{health.source_health}"
@@ -75,11 +97,6 @@ def health_text(
     cpu = f"{health.cpu_percent:.1f}%" if math.isfinite(health.cpu_percent) else "–"
     text.append(f"{cpu} {megabytes(health.rss_bytes)}")
     text.append(f"  win {window_s:g}s", style="dim")
-    detail = health.detail if health.state != "live" or health.detail.startswith("bad message") else ""
-    if snap.node == "?" and detail.startswith("no daemon socket"):
-        detail = "no daemon socket"
-    if detail and width > len(text) + 6:
-        text.append("  " + detail, style="italic")
     text.truncate(max(1, width), overflow="ellipsis")
     return text
 

@@ -38,7 +38,22 @@ class LinesWidget(Widget):
         self._last: object = None
         self._rendered: dict[tuple[int, int], Strip] = {}
         self._base = Style()
+        self._source: object = None
+        self._source_size: object = None
         self.plain = ""
+
+    def already_showing(self, source: object) -> bool:
+        """Whether ``source`` (a snapshot or a part of one) is what this widget last painted, at
+        this size; if not, remember it as painted now.
+
+        The widget keeps a reference to ``source`` and compares by identity: an ``id()`` alone is
+        reused by CPython as soon as the old snapshot is freed, and a new snapshot would be skipped.
+        """
+        if source is self._source and self.size == self._source_size:
+            return True
+        self._source = source
+        self._source_size = self.size
+        return False
 
     def set_text(self, text: Text) -> None:
         """Show ``text`` (one Strip per line); nothing happens when it did not change."""

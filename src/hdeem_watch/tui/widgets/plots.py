@@ -1,4 +1,8 @@
-"""Power plots: one strip per channel, a Braille min/max envelope of the time window."""
+"""Power plots: one strip per channel, a Braille min/max envelope of the time window.
+
+Left of each strip: the channel's name and the strip's vertical range in W (``lo–hi`` under the
+name in a two-row strip; the top on the second row and the bottom on the last in a taller one).
+"""
 
 from __future__ import annotations
 
@@ -30,6 +34,19 @@ def strip_heights(n_channels: int, rows: int, kinds: list[str]) -> list[int]:
     return heights
 
 
+def range_label(lo: float, hi: float, width: int) -> str:
+    """A strip's vertical range in at most ``width`` characters, e.g. ``1.1–2.3`` or ``66–185``.
+
+    >>> range_label(1.12, 2.34, 7), range_label(65.7, 185.2, 7), range_label(1234.0, 56789.0, 7)
+    ('1.1–2.3', '66–185', '1e+03–6e+04')
+    """
+    for decimals in (1, 0):
+        text = f"{lo:.{decimals}f}–{hi:.{decimals}f}"
+        if len(text) <= width:
+            return text
+    return f"{lo:.0e}–{hi:.0e}"
+
+
 def _strip(ch: ChannelView, height: int, plot_width: int) -> list[list[Run]]:
     columns = ch.columns
     name = (f"{ch.name:<{LABEL_WIDTH}.{LABEL_WIDTH - 1}}", KIND_STYLE.get(ch.kind, "bold"))
@@ -46,6 +63,8 @@ def _strip(ch: ChannelView, height: int, plot_width: int) -> list[list[Run]]:
     for i in range(height):
         if i == 0:
             label = name
+        elif height == 2:  # one row for the label: the range as "lo–hi"
+            label = (range_label(lo, hi, LABEL_WIDTH - 1).rjust(LABEL_WIDTH - 1) + " ", "dim")
         elif i == height - 1:
             label = (fixed(lo, LABEL_WIDTH - 1, 1) + " ", "dim")
         elif i == 1:
@@ -80,8 +99,6 @@ class PowerPlots(LinesWidget):
 
     def show(self, snapshot: NodeSnapshot) -> None:
         """Paint the strips."""
-        key = (id(snapshot), self.size)
-        if key == getattr(self, "_shown", None):
+        if self.already_showing(snapshot):
             return
-        self._shown = key
         self.set_runs(plot_lines(snapshot, self.size.width or 80, self.size.height or 14))

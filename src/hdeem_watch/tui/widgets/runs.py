@@ -36,7 +36,7 @@ def runs_text(snapshot: NodeSnapshot, width: int, rows: int) -> Text:
     wide = width >= len(HEADER_WIDE)
     text = Text(no_wrap=True, overflow="ellipsis")
     header = HEADER_WIDE if wide else HEADER_NARROW
-    text.append(f"runs ({len(snapshot.runs)})", style="bold")
+    text.append(f"runs ({max(snapshot.runs_total, len(snapshot.runs))})", style="bold")
     if any(r.simulated for r in snapshot.runs) or (snapshot.current_run and snapshot.current_run.simulated):
         text.append("  simulated node", style="dim italic")
     text.append("  (model: datasheet vs calibrated currents)" if wide else "", style="dim")
@@ -60,8 +60,6 @@ class RunsPanel(LinesWidget):
 
     def show(self, snapshot: NodeSnapshot) -> None:
         """Paint the panel."""
-        key = (id(snapshot), self.size)
-        if key == getattr(self, "_shown", None):
+        if self.already_showing(snapshot):
             return
-        self._shown = key
         self.set_text(runs_text(snapshot, self.size.width or 40, self.size.height or 10))

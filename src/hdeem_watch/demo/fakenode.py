@@ -108,6 +108,9 @@ class FakeNode(threading.Thread):
         ctl = self._context.socket(zmq.ROUTER)
         ctl.setsockopt(zmq.LINGER, 0)
         ctl.bind(self.control_endpoint)
+        # a tcp://host:* endpoint binds an ephemeral port: publish the real endpoints
+        self.pub_endpoint = pub.getsockopt(zmq.LAST_ENDPOINT).decode()
+        self.control_endpoint = ctl.getsockopt(zmq.LAST_ENDPOINT).decode()
         self._ready.set()
         poller = zmq.Poller()
         poller.register(ctl, zmq.POLLIN)

@@ -4,6 +4,12 @@
 --source sim`` with its PUB and control sockets there, waits until it answers ``status``, and on
 exit (normal, exception or Ctrl-C) terminates it (SIGTERM, then SIGKILL) and removes the directory.
 
+When the demo itself dies without cleaning up (``kill -9``), the daemon does not stay behind: on
+Linux it is started with ``PR_SET_PDEATHSIG`` = SIGTERM (the kernel signals it when its parent
+dies), and the next demo removes runtime directories whose owner process is gone (each holds an
+``owner.pid``). The daemon's log is kept only with a ``state_dir`` (``<state_dir>/daemon.log``);
+otherwise it lives and goes with the temporary directory.
+
 Example:
     >>> with DemoDaemon() as daemon:  # doctest: +SKIP
     ...     daemon.control_endpoint
@@ -12,6 +18,7 @@ Example:
 
 from __future__ import annotations
 
+import ctypes
 import os
 import shutil
 import signal
@@ -19,10 +26,67 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 
 from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
+
+#: Prefix of the demo's temporary runtime directories.
+RUNTIME_PREFIX = "hdeem-watch-demo-"
+#: ``prctl`` option: the signal a process gets when its parent dies (linux/prctl.h).
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent() -> Callable[[], None] | None:
+    """A ``preexec_fn`` that makes the child get SIGTERM when its parent dies (Linux), else None.
+
+    ``prctl`` is looked up here, in the parent, so the child only makes the call between fork and
+    exec. The child also checks that its parent did not die before the call took effect.
+    """
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    parent = os.getpid()
+
+    def preexec() -> None:
+        prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        if os.getppid() != parent:  # the parent died before the call: act as if the signal came
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    return preexec
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def sweep_orphaned_runtime_dirs(root: str | os.PathLike[str] | None = None) -> list[Path]:
+    """Remove this user's demo runtime directories whose owner process is gone; return them.
+
+    A directory without a readable ``owner.pid`` is left alone (it may be starting up).
+    """
+    removed = []
+    for path in Path(root or tempfile.gettempdir()).glob(RUNTIME_PREFIX + "*"):
+        try:
+            if not path.is_dir() or path.stat().st_uid != os.getuid():
+                continue
+            pid = int((path / "owner.pid").read_text().strip())
+        except (OSError, ValueError):
+            continue
+        if not _alive(pid):
+            shutil.rmtree(path, ignore_errors=True)
+            removed.append(path)
+    return removed
 
 
 class DaemonFailed(RuntimeError):
@@ -49,15 +113,19 @@ class DemoDaemon:
         start_timeout_s: float = 30.0,
         extra_args: tuple[str, ...] = (),
     ) -> None:
-        self.runtime_dir = Path(tempfile.mkdtemp(prefix="hdeem-watch-demo-"))
+        sweep_orphaned_runtime_dirs()
+        self.runtime_dir = Path(tempfile.mkdtemp(prefix=RUNTIME_PREFIX))
+        (self.runtime_dir / "owner.pid").write_text(f"{os.getpid()}\n")
         self.state_dir = Path(state_dir) if state_dir is not None else self.runtime_dir / "state"
+        #: whether the log outlives the demo (it does in a given state directory)
+        self.log_kept = state_dir is not None
         self.node = node
         self.speed = speed
         self.start_timeout_s = start_timeout_s
         self.extra_args = extra_args
         self.pub_endpoint = f"ipc://{self.runtime_dir / 'pub.sock'}"
         self.control_endpoint = f"ipc://{self.runtime_dir / 'control.sock'}"
-        self.log_path = self.runtime_dir / "daemon.log"
+        self.log_path = (self.state_dir if self.log_kept else self.runtime_dir) / "daemon.log"
         self.process: subprocess.Popen[bytes] | None = None
 
     def command(self) -> list[str]:
@@ -80,10 +148,12 @@ class DemoDaemon:
             DaemonFailed: it exited or did not answer in time.
         """
         self.state_dir.mkdir(parents=True, exist_ok=True)
-        with open(self.log_path, "wb") as log:
-            # same process group: a hang-up of the terminal (or Ctrl-C outside the TUI) reaches it too
+        with open(self.log_path, "ab") as log:
+            # same process group: a hang-up of the terminal (or Ctrl-C outside the TUI) reaches it
+            # too; and it gets SIGTERM when the demo dies without cleaning up (kill -9)
             self.process = subprocess.Popen(
                 self.command(), stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                preexec_fn=die_with_parent(),
             )  # fmt: skip
         client = ControlClient(self.control_endpoint, timeout_s=1.0)
         deadline = time.monotonic() + self.start_timeout_s

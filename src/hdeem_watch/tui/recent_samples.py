@@ -1,11 +1,15 @@
-"""A fixed-capacity ring buffer of timed samples (int64 ns, float64 W) for one channel.
+"""The recent samples of one channel that the UI plots: a fixed-capacity ring of timed samples
+(int64 ns, float64 W), read back by time window.
+
+(Not the daemon's per-channel history: this one belongs to the UI's node model and holds the
+longest plot window at the channel's rate.)
 
 Appending is O(batch) with numpy slices; reading a time window returns its samples in time order.
 The buffer forgets the oldest samples when full, so memory stays bounded however long the UI runs.
 
 Example:
     >>> import numpy as np
-    >>> ring = SampleRing(capacity=4)
+    >>> ring = RecentSamples(capacity=4)
     >>> ring.extend(np.array([1, 2, 3]), np.array([1.0, 2.0, 3.0]))
     >>> ring.extend(np.array([4, 5]), np.array([4.0, 5.0]))
     >>> ring.window(0, 10)[0].tolist()
@@ -17,8 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 
-class SampleRing:
-    """Last ``capacity`` samples of one channel.
+class RecentSamples:
+    """The last ``capacity`` samples of one channel, for the plots.
 
     Args:
         capacity: how many samples to keep (at least 1).

@@ -40,6 +40,11 @@ ELEMENTS = 1 << 24
 THREAD_ROUNDS = ("24", "4", "12", "1")
 #: Pause between runs, seconds (the plots show the steps).
 GAP_S = 0.4
+#: Pause after a run was stopped by someone else (the TUI's ``s`` key), wall-clock seconds: room
+#: for the ``b`` key's 10 s idle baseline measurement.
+PAUSE_AFTER_ABORT_S = 15.0
+#: Wait before trying a run again that the daemon refused (``conflict``: a baseline measurement).
+RETRY_S = 1.0
 
 
 def repeat_for(kernel: str, threads: int, elements: int = ELEMENTS, target_s: float = TARGET_RUN_S) -> int:
@@ -104,7 +109,9 @@ class ScheduleEvent:
     Attributes:
         index: run number (from 1).
         spec: the run.
-        event: ``start``, ``stop`` or ``error``.
+        event: ``start``, ``stop``, ``aborted`` (stopped by someone else, e.g. the TUI's ``s``; the
+            schedule pauses for :data:`PAUSE_AFTER_ABORT_S`), ``waiting`` (the daemon is busy with
+            a baseline measurement; the run is tried again) or ``error``.
         detail: the run id, or the error.
         result: the ``run.stop`` result (None otherwise).
     """
@@ -158,13 +165,15 @@ class DemoSchedule(threading.Thread):
                     if self._halt.is_set() or (self.max_runs is not None and index >= self.max_runs):
                         return
                     index += 1
-                    self._one(client, index, run)
+                    while not self._one(client, index, run) and not self._halt.is_set():
+                        pass
                     self._halt.wait(GAP_S / self.speed)
                 round_no += 1
         finally:
             client.close()
 
-    def _one(self, client: ControlClient, index: int, run: DemoRun) -> None:
+    def _one(self, client: ControlClient, index: int, run: DemoRun) -> bool:
+        """Hold one run; False when the daemon was busy and the run should be tried again."""
         spec = run.spec
         args = {
             "name": f"{spec.kernel}-{spec.threads}t",
@@ -176,13 +185,31 @@ class DemoSchedule(threading.Thread):
         }
         try:
             started = client.call("run.start", args)
-            run_id = started.get("run_id") if isinstance(started, dict) else started
-            self.on_event(ScheduleEvent(index, spec, "start", str(run_id)))
-            self._halt.wait(run.seconds / self.speed)
+        except ControlError as error:
+            if error.code != "conflict":
+                self.on_event(ScheduleEvent(index, spec, "error", str(error)))
+                self._halt.wait(RETRY_S)
+                return True
+            self.on_event(ScheduleEvent(index, spec, "waiting", str(error)))
+            self._halt.wait(RETRY_S)
+            return False
+        except DaemonUnreachable as error:
+            self.on_event(ScheduleEvent(index, spec, "error", str(error)))
+            self._halt.wait(RETRY_S)
+            return True
+        run_id = started.get("run_id") if isinstance(started, dict) else started
+        self.on_event(ScheduleEvent(index, spec, "start", str(run_id)))
+        self._halt.wait(run.seconds / self.speed)
+        try:
             result = client.call("run.stop", {"run_id": run_id})
         except (ControlError, DaemonUnreachable) as error:
             self.on_event(ScheduleEvent(index, spec, "error", str(error)))
-            self._halt.wait(1.0)
-            return
+            self._halt.wait(RETRY_S)
+            return True
+        if isinstance(result, dict) and result.get("state") == "aborted":  # stopped by someone else
+            self.on_event(ScheduleEvent(index, spec, "aborted", str(run_id), result))
+            self._halt.wait(PAUSE_AFTER_ABORT_S)
+            return True
         self.completed += 1
         self.on_event(ScheduleEvent(index, spec, "stop", str(run_id), result))
+        return True
