@@ -135,10 +135,12 @@ class RaplSource:
 
     kind = "rapl"
 
-    def __init__(self, root: str | Path = DEFAULT_ROOT, *, interval_s: float = 0.1, max_power_w: float = 500.0,
+    def __init__(self, root: str | Path = DEFAULT_ROOT, *, method: str = "powercap", interval_s: float = 0.1,
+                 max_power_w: float = 500.0,
                  clock: Callable[[], int] = time.monotonic_ns, wall_clock: Callable[[], int] = time.time_ns,
                  read_text: Callable[[Path], str] = _read_text) -> None:
         self.root = Path(root)
+        self.method = method
         self.interval_s = interval_s
         self.interval_ns = int(interval_s * 1e9)
         #: samples/s of the ΔE/Δt channels (10 when polled without a limit)
