@@ -46,7 +46,7 @@ def touched(tree: Path) -> dict[str, list[str]]:
                 else:
                     ok &= env.get(key) == value
             if ok:
-                for key, op, value in terms:
+                for key, _op, value in terms:
                     if key == "RUN":
                         argv = shlex.split(value.replace("%p", devpath))
                         out.setdefault(" ".join(argv[:-1]), []).append(argv[-1])
