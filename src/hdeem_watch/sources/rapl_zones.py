@@ -27,8 +27,8 @@ from hdeem_watch.sources.cpu_vendor import no_dram_reason, read_cpuinfo
 
 DEFAULT_ROOT = "/sys/class/powercap"
 UDEV_RULE = "systemd/90-hdeem-watch-rapl.rules"
-PERMISSION_FIX = ("energy_uj is root-only since the CVE-2020-8694 fix (Linux 5.10; backported to 4.4.242, "
-                  "4.9.243, 4.14.205, 5.4.77, 5.9.7); install " + UDEV_RULE + " (makes only the dram zones "
+PERMISSION_FIX = ("energy_uj is root-only since the CVE-2020-8694 fix (Linux 5.10; backported to 4.4.243, "
+                  "4.9.243, 4.14.206, 4.19.157, 5.4.77, 5.9.7); install " + UDEV_RULE + " (makes only the dram zones "
                   "readable by the group hdeem-watch), run the daemon as the privileged collector (root), or "
                   "use rapl_method = 'perf' (the power PMU; needs perf_event_paranoid <= 0 or CAP_PERFMON)")
 
