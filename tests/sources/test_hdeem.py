@@ -203,8 +203,10 @@ def test_global_method_measured_rates(fake_hdeem):
     """The global readout gives BLADE and VR samples at the measured rates (1003.07 / 98.66 Sa/s, not
     the nominal 1000 / 100) in 0.125 W steps, each sample once."""
     fake_hdeem.control("run_external", 1)          # a user's measurement (e.g. Score-P) runs
+    fake_hdeem.advance(0.1)
     src = opened(fake_hdeem, method="global")
     try:
+        assert src.channels()[0].rate_hz == pytest.approx(1003.074)   # measured at open already
         fake_hdeem.set_power(6, 1.3)          # quantised to 1.25
         fake_hdeem.advance(0.5)
         batch = src.poll()

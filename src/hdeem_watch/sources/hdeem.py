@@ -227,6 +227,11 @@ class HdeemSource:
         assert self._e_last is not None
         self._e0 = self._e_last.copy()
         self._energy_j = dict.fromkeys(self._names, 0.0)
+        if self.method == "global" and self._status.start_ns:   # measured rates for channels() at once
+            assert self.lib is not None and self._handle is not None
+            with contextlib.suppress(HdeemError):
+                stats = self.lib.stats(self._handle, False, len(self._names))
+                self.periods_ns = measured_periods_ns(self._status.start_ns, stats.counts, stats.read_ns)
 
     def _connect(self) -> None:
         assert self.lib is not None
