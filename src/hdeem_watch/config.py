@@ -88,8 +88,20 @@ class DaemonSettings:
         record_file: append every sample the daemon receives to this recording (the replay
             source's CSV format), for post-mortem analysis and demos (None = off).
         rapl_root: powercap root of the ``rapl`` source (default ``/sys/class/powercap``).
+        rapl_method: ``auto`` (powercap, else the perf ``power`` PMU), ``powercap`` or ``perf``.
         hdeem_include_dir: directory of the real ``hdeem.h`` (``hdeem`` source).
         hdeem_lib_dir: directory of ``libhdeem.so`` (``hdeem`` source).
+        hdeem_lib_names: libhdeem file names looked for in ``hdeem_lib_dir``, comma-separated
+            (None = ``libhdeem.so,libhdeem.so.1,libhdeem.a``).
+        hdeem_method: ``energy`` (totals since power-on, ΔE/Δt per read; default) or ``global``
+            (the running measurement's samples at the native rates).
+        hdeem_own_measurement: start, re-arm and stop the HDEEM measurement. Default false: the
+            daemon never calls hdeem_start/clear/stop (they belong to the node's users, e.g.
+            Score-P's HDEEM plugin); true destroys any other tool's measurement (docs/sources.md).
+        hdeem_bmc_host, hdeem_bmc_user: out-of-band access to the BMC (e.g. ``NODE-bmc``); None = in-band.
+        hdeem_bmc_password_file: file holding the BMC password (mode 0600/0400; never logged).
+        hdeem_cflags: extra compiler flags for the shim (shell words), e.g. ``-DHWS_NO_GPIO_FIELDS``.
+        hdeem_poll_interval_s: read the BMC at most this often (None = the idle poll period, ≥ 0.1 s).
         memspec: preset name or DRAMPower JSON file of one DIMM, used for the run model.
         dimms: DIMMs on the node (the measured DRAM energy is the sum of all DRAM channels).
         currents: the currents the embedded calibrator fits.
@@ -127,9 +139,19 @@ class DaemonSettings:
     replay_file: str | None = None
     replay_loop: bool = False
     record_file: str | None = None
+    # -- sources (hdeem_watch.sources.options turns these into source options) --
     rapl_root: str | None = None
+    rapl_method: str = "auto"
     hdeem_include_dir: str | None = None
     hdeem_lib_dir: str | None = None
+    hdeem_lib_names: str | None = None
+    hdeem_method: str = "energy"
+    hdeem_own_measurement: bool = False
+    hdeem_bmc_host: str | None = None
+    hdeem_bmc_user: str | None = None
+    hdeem_bmc_password_file: str | None = None
+    hdeem_cflags: str = ""
+    hdeem_poll_interval_s: float | None = None
     memspec: str = "samsung-m393a1g43db0-cpb"
     dimms: int = 8
     currents: tuple[str, ...] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
@@ -179,6 +201,9 @@ class DaemonSettings:
                 raise SettingError(name, f"{name} = {endpoint!r}: TCP on a non-loopback address without CURVE is "
                                    "open to anyone who can reach it; set curve_secret_key_file (see --gen-keys), "
                                    "or allow_insecure_tcp = true to accept that")
+        from hdeem_watch.sources import options as source_settings
+
+        source_settings.validate(self)
 
     def source_options(self) -> dict[str, Any]:
         """Keyword options for ``make_source(self.source, ...)``."""
@@ -189,14 +214,11 @@ class DaemonSettings:
             return options
         if self.source == "replay":
             return {"path": self.replay_file, "speed": self.speed, "loop": self.replay_loop}
+        from hdeem_watch.sources import options as source_settings
+
         if self.source == "rapl":
-            return {} if self.rapl_root is None else {"root": self.rapl_root}
-        options = {}
-        if self.hdeem_include_dir:
-            options["include_dir"] = self.hdeem_include_dir
-        if self.hdeem_lib_dir:
-            options["lib_dir"] = self.hdeem_lib_dir
-        return options
+            return source_settings.rapl_options(self)
+        return source_settings.hdeem_options(self)
 
 
 _FIELDS = {f.name: f for f in dataclasses.fields(DaemonSettings)}

@@ -24,6 +24,7 @@ class FakeHdeem:
         self.lib.hdeem_fake_control.restype = ctypes.c_longlong
         self.lib.hdeem_fake_control.argtypes = [ctypes.c_char_p, ctypes.c_longlong]
         self.lib.hdeem_fake_set_power.argtypes = [ctypes.c_int, ctypes.c_double]
+        self.lib.hdeem_fake_calls.argtypes = [ctypes.c_char_p, ctypes.c_int]
 
     def control(self, key: str, value: int = 0) -> int:
         return int(self.lib.hdeem_fake_control(key.encode(), value))
@@ -34,16 +35,28 @@ class FakeHdeem:
     def set_power(self, sensor: int, watts: float) -> None:
         assert self.lib.hdeem_fake_set_power(sensor, watts) == 0
 
+    def calls(self) -> list[str]:
+        """The libhdeem API calls made since the last reset, in order (``"init"``, ``"start"``, ...)."""
+        buf = ctypes.create_string_buffer(1 << 16)
+        self.lib.hdeem_fake_calls(buf, len(buf))
+        return [c for c in buf.value.decode().split(",") if c]
+
     def options(self, **kw) -> dict:
         opts = dict(include_dir=str(self.include_dir), lib_dir=str(self.lib_dir), cache_dir=str(self.cache_dir))
         opts.update(kw)
         return opts
 
     def reset(self) -> None:
-        for key in ("fail_init", "fail_calls", "slow_calls", "overflow", "names_style", "deny"):
+        for key in ("fail_init", "fail_calls", "slow_calls", "overflow", "names_style", "deny", "blade_cap"):
             self.control(key, 0)
+        self.control("run_external", -1)
         self.control("stop_ms", 20)
         self.control("slow_ms", 300)
+        self.control("blade_mhz", 1003074)   # the real rates of Taurus capture 6415.txt
+        self.control("vr_mhz", 98663)
+        self.control("vr_offset_us", 29400)  # Score-P's time_offset_vr, -(35000 - 5600) us
+        self.control("buffer_s", 8 * 3600)
+        self.control("log_reset")
 
 
 def _cc(args: list[str]) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -94,6 +95,7 @@ def test_original_timestamps_without_restamp(tmp_path, fake_clock):
     batch = src.poll()
     assert np.array_equal(batch.samples["CPU0"][0], t)
     assert batch.status["CPU0"] == "stale"           # an unknown (NaN) sample is flagged
+    assert batch.gaps == {"CPU0": 1}                 # ... and counted missing (issue 22.10), not 0 W
     assert batch.energy_j["CPU0"] == pytest.approx(22.0 * 0.1)
 
 
@@ -105,6 +107,14 @@ def test_original_timestamps_without_restamp(tmp_path, fake_clock):
     ("# hdeem-watch recording v1\nt_ns,channel,power_w\n1.5,BLADE,1\n", 3, "integer"),
     ("# hdeem-watch recording v1\nt_ns,channel,power_w\n1,BLADE,watt\n", 3, "not a number"),
     ("# hdeem-watch recording v1\nt_ns,channel,power_w\n5,BLADE,1\n5,BLADE,1\n", 4, "does not increase"),
+    # issue 22.10: accepted or tracebacks before
+    ("# hdeem-watch recording v1\nt_ns,channel,power_w\n1,BLADE,1e300\n", 3, "power_w 1e.300 is implausible"),
+    ("# hdeem-watch recording v1\nt_ns,channel,power_w\n1,BLADE,inf\n", 3, "power_w 'inf' is not finite"),
+    ("# hdeem-watch recording v1\nt_ns,channel,power_w\n1,BLADE,-Infinity\n", 3, "not finite"),
+    ("# hdeem-watch recording v1\nt_ns,channel,power_w\n18446744073709551616,BLADE,1\n", 3,
+     "t_ns 18446744073709551616 is out of range"),
+    ("# hdeem-watch recording v1\nt_ns,channel,power_w\n-5,BLADE,1\n", 3, "t_ns -5 is out of range"),
+    ("# hdeem-watch recording v1\nt_ns,channel,power_w\n1,DDR/AB,1\n", 3, "channel 'DDR/AB' is not a valid name"),
 ])
 def test_malformed_recording_names_the_line(tmp_path, text, line, what):
     """Each malformed recording is an InputError naming the file, the line and what was wrong."""
@@ -112,3 +122,32 @@ def test_malformed_recording_names_the_line(tmp_path, text, line, what):
     path.write_text(text)
     with pytest.raises(InputError, match=f"bad.csv:{line}: .*{what}"):
         ReplaySource(path)
+
+
+@pytest.mark.parametrize("rate", ["-100", "0", "nan", "inf"])
+def test_bad_rate_metadata_names_the_value(tmp_path, rate):
+    """rate_hz negative (energies and baselines of the wrong sign), 0 or NaN (tracebacks before): one
+    InputError naming the file, the field and the value."""
+    path = tmp_path / "r.csv"
+    path.write_text(f"# hdeem-watch recording v1\n# rate_hz: BLADE={rate}\nt_ns,channel,power_w\n1,BLADE,1\n2,BLADE,1\n")
+    with pytest.raises(InputError, match=rf"r.csv: metadata rate_hz 'BLADE={re.escape(rate)}'.*finite number > 0"):
+        ReplaySource(path)
+
+
+def test_daemon_with_a_bad_recording_exits_2_with_one_line(tmp_path):
+    """`hdeem-watch daemon --source replay` on a recording with t_ns = 2**64: exit 2, one line naming
+    file, line and value, no traceback."""
+    import os
+    import subprocess
+    import sys
+
+    path = tmp_path / "bad.csv"
+    path.write_text("# hdeem-watch recording v1\nt_ns,channel,power_w\n18446744073709551616,DDR_AB,1\n")
+    src = Path(__file__).resolve().parents[2] / "src"
+    proc = subprocess.run([sys.executable, "-m", "hdeem_watch", "daemon", "--source", "replay", "--replay-file",
+                           str(path), "--pub", f"ipc://{tmp_path}/p.sock", "--control", f"ipc://{tmp_path}/c.sock",
+                           "--state-dir", str(tmp_path / "state")], capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "PYTHONPATH": str(src)})
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    assert "bad.csv:3: t_ns 18446744073709551616 is out of range" in proc.stderr

@@ -1,21 +1,32 @@
 /*
  * hdeem-watch's shim over libhdeem: flat C functions with plain types, loaded with ctypes.
  *
- * The exact C types and layouts of hdeem.h are not public. EVERY assumption about them is in this
- * file, which is compiled on the node against the installed hdeem.h:
+ * hdeem.h (Bull/Atos) is not public. EVERY assumption about it is in this file, compiled on the node
+ * against the installed header:
  *   cc -shared -fPIC -O2 hdeem_shim.c -I<include> -L<lib> -lhdeem -lfreeipmi -lrt -o libhdeem_shim.so
- * Assumed (from the documented API): the functions hdeem_init/close/start/stop/clear/check_status/
- * get_stats/get_stats_total/stats_free/get_global/data_free, all returning int 0 on success; the
- * fields bmc.{host,user,password,nb_blade_sensors,nb_vr_sensors,name_blade_sensors[i],
- * name_vr_sensors[i]}; stats.{max,min,average,instant}_{blade,vr}_values.value[s] (W),
- * stats.energy_{blade,vr}_values.value[s] (J), stats.nb_{blade,vr}_values, stats.read_time_{blade,vr}
- * (struct timespec); global.nb_{blade,vr}_values, global.{blade,vr}_power[i].value[s],
- * global.first_blade_value (struct timespec); bmc.hasGPIO/hasPCIe (1 for in-band, 0 for
- * out-of-band; build with -DHWS_NO_GPIO_FIELDS if the header lacks them); the status macros
- * IsBmcPolling, IsFpgaPolling, IsBmcOverflow, IsFpgaBladeOverflow, IsFpgaVrOverflow taking the int
- * status word status.status; hdeem_data_free() is safe (and needed) after a failed get_global.
+ * The assumptions are what public code compiled against the real header shows (tud-zih-energy/phdeem,
+ * tud-zih-energy/hdeem_cxx, tud-zih-energy/metricq-source-hdeem, score-p/scorep_plugin_hdeem,
+ * tud-zih-energy/pwrapi-ref; see docs/sources.md), and the shim depends on nothing public code
+ * leaves open: it never uses a result no public caller uses (hdeem_close, hdeem_data_free and
+ * hdeem_stats_free are called as statements), reads integers into long long, goes through fields
+ * by name, and keeps three function sets apart so one can fail to build without the others:
  *
- * Sensors are numbered blade sensors first, then VR sensors. Times are wall-clock ns.
+ *  - core (always): hdeem_init/close/start/stop/clear/check_status (the int word status.status and
+ *    the IsBmcPolling... macros), get_stats/get_stats_total/stats_free (stats.{max,min,average,
+ *    instant}_{blade,vr}_values.value[s] in W, energy_{blade,vr}_values.value[s] in J,
+ *    nb_{blade,vr}_values, read_time_{blade,vr} as struct timespec), bmc.{host,user,password,
+ *    nb_blade_sensors,nb_vr_sensors,name_blade_sensors[i],name_vr_sensors[i]}, and bmc.hasGPIO /
+ *    hasPCIe (1 in-band, 0 out-of-band; -DHWS_NO_GPIO_FIELDS for a header without them).
+ *  - status times (unless -DHWS_NO_STATUS_TIMES): status.start_time_blade / stop_time_blade as
+ *    struct timespec (Score-P's hdeem_plugin.cpp derives the sampling periods from them).
+ *  - global readings (unless -DHWS_NO_GLOBAL): hdeem_get_global / hdeem_data_free,
+ *    global.first_blade_value an integer sample index (phdeem testPhdeem.c), nb_{blade,vr}_values,
+ *    {blade,vr}_power[i].value[s]; hdeem_data_free() also after a failed hdeem_get_global.
+ *
+ * hdeem_lib.build_shim compiles with every set first and drops the sets that do not compile, so the
+ * energy path (core) works against any header whose core fields are as above. hws_features() says
+ * which sets were built. Sensors are numbered blade sensors first, then VR sensors. Times are
+ * wall-clock ns.
  */
 #include <hdeem.h>
 
@@ -29,18 +40,33 @@
 #define HWS_BLADE_OVERFLOW 0x08
 #define HWS_VR_OVERFLOW 0x10
 
+#define HWS_FEATURE_STATUS_TIMES 0x01
+#define HWS_FEATURE_GLOBAL 0x02
+
 typedef struct {
     hdeem_bmc_data_t bmc;
-    hdeem_global_reading_t global;
-    int have_global;
     char *host, *user, *password;
+    void *global;   /* hdeem_global_reading_t * of the global set, or NULL */
 } hws_t;
 
 static long long ts_ns(struct timespec ts) { return (long long)ts.tv_sec * 1000000000LL + ts.tv_nsec; }
 
 static char *dup_or_null(const char *s) { return (s && *s) ? strdup(s) : NULL; }
 
-int hws_abi_version(void) { return 1; }
+int hws_abi_version(void) { return 2; }
+
+int hws_features(void) {
+    int f = 0;
+#ifndef HWS_NO_STATUS_TIMES
+    f |= HWS_FEATURE_STATUS_TIMES;
+#endif
+#ifndef HWS_NO_GLOBAL
+    f |= HWS_FEATURE_GLOBAL;
+#endif
+    return f;
+}
+
+static void global_release(hws_t *h);
 
 /* Connect; returns a handle, or NULL with *err = hdeem_init's code (or -12 out of memory). */
 void *hws_open(const char *host, const char *user, const char *password, int *err) {
@@ -72,16 +98,17 @@ void *hws_open(const char *host, const char *user, const char *password, int *er
     return h;
 }
 
-int hws_close(void *handle) {
+/* Disconnect and free the handle. hdeem_close's result is not used (no public caller uses one). */
+void hws_close(void *handle) {
     hws_t *h = handle;
-    if (!h) return 0;
-    if (h->have_global) hdeem_data_free(&h->global);
-    int rc = hdeem_close(&h->bmc);
+    if (!h) return;
+    global_release(h);
+    hdeem_close(&h->bmc);
+    if (h->password) memset(h->password, 0, strlen(h->password));
     free(h->host);
     free(h->user);
     free(h->password);
     free(h);
-    return rc;
 }
 
 int hws_sensor_count(void *handle, int *nb_blade, int *nb_vr) {
@@ -94,8 +121,7 @@ int hws_sensor_count(void *handle, int *nb_blade, int *nb_vr) {
 int hws_sensor_name(void *handle, int index, char *buf, int len) {
     hws_t *h = handle;
     const char *name = NULL;
-    if (len <= 0) return -1;
-    if (index < 0) return -1;
+    if (len <= 0 || index < 0) return -1;
     if (index < h->bmc.nb_blade_sensors) name = h->bmc.name_blade_sensors[index];
     else if (index < h->bmc.nb_blade_sensors + h->bmc.nb_vr_sensors)
         name = h->bmc.name_vr_sensors[index - h->bmc.nb_blade_sensors];
@@ -110,7 +136,11 @@ int hws_start(void *handle) { return hdeem_start(&((hws_t *)handle)->bmc); }
 int hws_stop(void *handle) { return hdeem_stop(&((hws_t *)handle)->bmc); }
 int hws_clear(void *handle) { return hdeem_clear(&((hws_t *)handle)->bmc); }
 
-int hws_status(void *handle, int *flags) {
+/*
+ * Status flags (HWS_* bits) and, with the status-times set, the measurement's start and stop times
+ * (wall ns; 0 where the library reports none). Without that set both times are -1.
+ */
+int hws_status(void *handle, int *flags, long long *start_ns, long long *stop_ns) {
     hws_t *h = handle;
     hdeem_status_t st;
     memset(&st, 0, sizeof(st));
@@ -123,6 +153,13 @@ int hws_status(void *handle, int *flags) {
     if (IsFpgaBladeOverflow(s)) f |= HWS_BLADE_OVERFLOW;
     if (IsFpgaVrOverflow(s)) f |= HWS_VR_OVERFLOW;
     *flags = f;
+#ifndef HWS_NO_STATUS_TIMES
+    *start_ns = ts_ns(st.start_time_blade);
+    *stop_ns = ts_ns(st.stop_time_blade);
+#else
+    *start_ns = -1;
+    *stop_ns = -1;
+#endif
     return 0;
 }
 
@@ -136,7 +173,10 @@ int hws_stats(void *handle, int total, int n, double *energy_j, double *avg_w, d
     hdeem_stats_reading_t st;
     memset(&st, 0, sizeof(st));
     int rc = total ? hdeem_get_stats_total(&h->bmc, &st) : hdeem_get_stats(&h->bmc, &st);
-    if (rc != 0) return rc;
+    if (rc != 0) {
+        hdeem_stats_free(&st);   /* also after a failure (hdeem_cxx commit 5b77f10) */
+        return rc;
+    }
     int nb = h->bmc.nb_blade_sensors, nv = h->bmc.nb_vr_sensors;
     for (int i = 0; i < n && i < nb + nv; i++) {
         int blade = i < nb;
@@ -155,23 +195,36 @@ int hws_stats(void *handle, int total, int n, double *energy_j, double *avg_w, d
     return 0;
 }
 
-/* Read the global buffer (all samples since start) and keep it; counts[2], *first_ns. */
-int hws_global_fetch(void *handle, long long *counts, long long *first_ns) {
-    hws_t *h = handle;
-    if (h->have_global) {
-        hdeem_data_free(&h->global);
-        h->have_global = 0;
+#ifndef HWS_NO_GLOBAL
+/* ---- the global-readings set ---------------------------------------------------------------- */
+static void global_release(hws_t *h) {
+    if (h->global) {
+        hdeem_data_free((hdeem_global_reading_t *)h->global);
+        free(h->global);
+        h->global = NULL;
     }
-    memset(&h->global, 0, sizeof(h->global));
-    int rc = hdeem_get_global(&h->bmc, &h->global);
+}
+
+/*
+ * Read the global buffer (the samples of the running or last measurement) and keep it in the
+ * handle: counts[2] = samples held (blade, vr); *first_index = the buffer's first blade sample as
+ * an index since hdeem_start (1-based, as the library reports first_blade_value).
+ */
+int hws_global_fetch(void *handle, long long *counts, long long *first_index) {
+    hws_t *h = handle;
+    global_release(h);
+    hdeem_global_reading_t *g = calloc(1, sizeof(hdeem_global_reading_t));
+    if (!g) return -12;
+    int rc = hdeem_get_global(&h->bmc, g);
     if (rc != 0) {
-        hdeem_data_free(&h->global);   /* pointers are NULL or allocated even on error */
+        hdeem_data_free(g);   /* pointers are NULL or allocated even on error */
+        free(g);
         return rc;
     }
-    h->have_global = 1;
-    counts[0] = (long long)h->global.nb_blade_values;
-    counts[1] = (long long)h->global.nb_vr_values;
-    *first_ns = ts_ns(h->global.first_blade_value);
+    h->global = g;
+    counts[0] = (long long)g->nb_blade_values;
+    counts[1] = (long long)g->nb_vr_values;
+    *first_index = (long long)g->first_blade_value;
     return 0;
 }
 
@@ -181,15 +234,19 @@ int hws_global_fetch(void *handle, long long *counts, long long *first_ns) {
  */
 long long hws_global_copy(void *handle, int sensor, long long from, long long count, double *out) {
     hws_t *h = handle;
-    if (!h->have_global) return -1;
+    hdeem_global_reading_t *g = h->global;
+    if (!g) return -1;
     int nb = h->bmc.nb_blade_sensors;
     int blade = sensor < nb;
     int s = blade ? sensor : sensor - nb;
-    long long total = blade ? (long long)h->global.nb_blade_values : (long long)h->global.nb_vr_values;
+    long long total = blade ? (long long)g->nb_blade_values : (long long)g->nb_vr_values;
     if (from < 0) from = 0;
     if (from + count > total) count = total - from;
     if (count < 0) count = 0;
     for (long long i = 0; i < count; i++)
-        out[i] = blade ? h->global.blade_power[from + i].value[s] : h->global.vr_power[from + i].value[s];
+        out[i] = blade ? g->blade_power[from + i].value[s] : g->vr_power[from + i].value[s];
     return count;
 }
+#else
+static void global_release(hws_t *h) { (void)h; }
+#endif

@@ -14,6 +14,12 @@ gives nominal rates, otherwise the median sample spacing is used); then the head
 ``t_ns,channel,power_w``; ``t_ns`` = wall-clock integer ns at the end of the sample's interval,
 ``power_w`` in W (``nan`` or empty = unknown). Timestamps must increase strictly per channel.
 
+Checked at load, one line naming file, line, field and value (exit 2 in the CLI): ``t_ns`` an integer
+in ``0 .. 2**63 - 1``; ``power_w`` finite (``inf`` is not a reading), ``>= 0`` and at most
+:data:`MAX_POWER_W`; channel names of letters, digits and ``_`` (they become topic and metric
+names); ``rate_hz`` finite and > 0. Unknown samples (``nan``) are played as NaN with status
+``"stale"``, counted in the batch's ``gaps`` and left out of ``energy_j`` — never taken as 0 W.
+
 Playback: the recording's time runs ``speed`` × the injected clock since :meth:`ReplaySource.open`;
 published timestamps are ``wall clock at open + offset in the recording`` (the rates hold in
 timestamp time, as in the sim), or the recorded timestamps with ``restamp=False``. With ``loop`` the
@@ -31,6 +37,7 @@ Example:
 from __future__ import annotations
 
 import math
+import re
 import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -50,6 +57,11 @@ from hdeem_watch.sources.base import (
 )
 
 MAGIC = "# hdeem-watch recording v"
+#: The largest power a recorded sample may have (W): no sensor of one node reads more.
+MAX_POWER_W = 100_000.0
+#: Timestamps are int64 nanoseconds.
+MAX_T_NS = 2**63 - 1
+_CHANNEL = re.compile(r"^[A-Z0-9_]+$")
 VERSION = 1
 HEADER = "t_ns,channel,power_w"
 
@@ -179,14 +191,24 @@ def parse_recording(lines: Iterable[str], where: str = "recording") -> Recording
         try:
             t = int(parts[0])
         except ValueError:
-            raise InputError(f"{where}:{lineno}: t_ns {parts[0]!r} is not an integer (ns)") from None
+            raise InputError(f"{where}:{lineno}: t_ns {parts[0][:40]!r} is not an integer (ns)") from None
+        if not 0 <= t <= MAX_T_NS:
+            raise InputError(f"{where}:{lineno}: t_ns {t} is out of range; expected 0 .. 2**63 - 1 ns")
         try:
             p = float(parts[2]) if parts[2].strip() else math.nan
         except ValueError:
-            raise InputError(f"{where}:{lineno}: power_w {parts[2]!r} is not a number") from None
+            raise InputError(f"{where}:{lineno}: power_w {parts[2][:40]!r} is not a number") from None
+        if math.isinf(p):
+            raise InputError(f"{where}:{lineno}: power_w {parts[2].strip()!r} is not finite; write nan (or "
+                             "nothing) for an unknown sample")
         if p < 0:
             raise InputError(f"{where}:{lineno}: power_w {p} is negative")
+        if p > MAX_POWER_W:
+            raise InputError(f"{where}:{lineno}: power_w {p:g} is implausible; expected at most {MAX_POWER_W:g} W")
         name = normalise_channel_name(parts[1])
+        if not _CHANNEL.match(name):
+            raise InputError(f"{where}:{lineno}: channel {parts[1].strip()[:40]!r} is not a valid name; expected "
+                             "letters, digits and '_' (e.g. DDR_AB)")
         ts, ps = data.setdefault(name, ([], []))
         if ts and t <= ts[-1]:
             raise InputError(f"{where}:{lineno}: t_ns {t} of {name} does not increase (previous {ts[-1]})")
@@ -199,9 +221,12 @@ def parse_recording(lines: Iterable[str], where: str = "recording") -> Recording
     for item in meta.get("rate_hz", "").split():
         key, _, value = item.partition("=")
         try:
-            rates[normalise_channel_name(key)] = float(value)
+            rate = float(value)
         except ValueError:
-            raise InputError(f"{where}: metadata rate_hz {item!r}; expected NAME=number") from None
+            raise InputError(f"{where}: metadata rate_hz {item[:60]!r}; expected NAME=number") from None
+        if not (math.isfinite(rate) and rate > 0):
+            raise InputError(f"{where}: metadata rate_hz {item[:60]!r}: the rate must be a finite number > 0 (Sa/s)")
+        rates[normalise_channel_name(key)] = rate
     for name, (times, _) in channels.items():
         if name not in rates:
             rates[name] = 1e9 / float(np.median(np.diff(times))) if len(times) > 1 else 1.0
@@ -283,6 +308,7 @@ class ReplaySource:
         self._cursor = b
         samples: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         status: dict[str, str] = {}
+        gaps: dict[str, int] = {}
         for name, (_, power) in self.recording.channels.items():
             rel = self._rel[name]
             ts, ps = [], []
@@ -298,7 +324,10 @@ class ReplaySource:
             samples[name] = (t + base, p)
             finite = p[np.isfinite(p)]
             self._energy_j[name] += float(finite.sum()) / self.recording.rate_hz[name]
-            status[name] = STATUS_STALE if len(finite) < len(p) else STATUS_OK
+            unknown = len(p) - len(finite)   # unknown samples: marked, counted missing, not in the energy
+            status[name] = STATUS_STALE if unknown else STATUS_OK
+            if unknown:
+                gaps[name] = unknown
         if not self.loop and b >= self.length_ns:
             self._state = "ended"
-        return SourceBatch(now, int(self._wall()), samples, dict(self._energy_j), status)
+        return SourceBatch(now, int(self._wall()), samples, dict(self._energy_j), status, gaps)
