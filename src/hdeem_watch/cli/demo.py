@@ -35,6 +35,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--state-dir", default=None, metavar="DIR", help="daemon state directory (default: temporary)")
     parser.add_argument("--speed", type=float, default=1.0, help="time factor of the simulated node (default 1)")
     parser.add_argument("--fps", type=float, default=10.0, help="TUI frames per second")
+    parser.add_argument("--report", default=None, metavar="DIR",
+                        help="write the report (hdeem-watch report) of the demo's state into DIR at the end")
     parser.set_defaults(func=_run)
 
 
@@ -83,6 +85,10 @@ def _run(args: argparse.Namespace) -> int:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        if args.report:
+            from hdeem_watch.report.demo import report_at_end
+
+            report_at_end(daemon.state_dir, args.report)
         daemon.stop()
 
 
