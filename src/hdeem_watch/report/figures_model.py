@@ -48,6 +48,9 @@ def energy_figure(data: ReportData) -> ReportFigure:
                     markersize=6, markeredgecolor="#333333", markeredgewidth=0.5)
     bottom.axhline(0.0, color="#333333", linewidth=0.8)
     percent_axis(bottom, "error vs measured (%)")
+    errors = [v for g in groups for v in (g.datasheet_error_pct, g.calibrated_error_pct) if math.isfinite(v)]
+    if errors:  # room above and below the extreme points on the symmetric-log axis
+        bottom.set_ylim(min(-2.0, 2.0 * min(errors)), max(2.0, 2.0 * max(errors)))
     legend_outside(bottom)
     bottom.set_xticks(x, [f"{g.label}" + (f" ×{g.n}" if g.n > 1 else "") for g in groups], rotation=60,
                       ha="right")
