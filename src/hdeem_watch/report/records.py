@@ -79,11 +79,16 @@ class RunRow:
 
 @dataclass(frozen=True)
 class FitEntry:
-    """One fit of the history (``FitResult.to_dict()``; None after a calibrator reset)."""
+    """One fit of the history (``FitResult.to_dict()``; None after a calibrator reset).
+
+    Older fits of a daemon state are read without their per-run details and correlation matrix
+    (only the newest is read whole); ``row`` is the fit's row id in the state (0 = none).
+    """
 
     t_ns: int
     run_id: str | None
     fit: Mapping[str, Any] | None
+    row: int = 0
 
 
 @dataclass(frozen=True)

@@ -91,8 +91,12 @@ def read_state(path: str | Path) -> ReportData:
         tables = _tables(db)
         if "runs" not in tables:
             raise InputError(f"{file}: not a hdeem-watch state (no 'runs' table)")
-        records = [r for r in (_json(t) for (t,) in db.execute("SELECT record FROM runs ORDER BY seq")) if r]
+        # a run record carries the whole fit after it (its per-run list grows with the runs): leave
+        # that to SQLite's JSON functions rather than parse it once per run here
+        slim = "json_remove(record, '$.fit', '$.samples_ns')" if _has_json(db) else "record"
+        records = [r for r in (_json(t) for (t,) in db.execute(f"SELECT {slim} FROM runs ORDER BY seq")) if r]
         history, pair_history = _fit_history(db, tables)
+        history = _with_full_latest(db, history)
         calibrator = _json(db.execute("SELECT state FROM calibrator WHERE id = 1").fetchone()[0]) \
             if "calibrator" in tables and db.execute("SELECT count(*) FROM calibrator").fetchone()[0] else None
         stored_baselines = _stored_baselines(db, tables)
@@ -128,17 +132,37 @@ def _fit_history(db: sqlite3.Connection, tables: Mapping[str, list[str]]
     if "fits" not in tables:
         return [], {}
     group_column = next((c for c in _GROUP_COLUMNS if c in tables["fits"]), None)
-    select = f'SELECT t_ns, run_id, fit, "{group_column}" FROM fits ORDER BY id' if group_column \
-        else "SELECT t_ns, run_id, fit, NULL FROM fits ORDER BY id"
+    fit = "json_remove(fit, '$.runs', '$.observability.correlation')" if _has_json(db) else "fit"
+    select = f'SELECT t_ns, run_id, {fit}, "{group_column}", id FROM fits ORDER BY id' if group_column \
+        else f"SELECT t_ns, run_id, {fit}, NULL, id FROM fits ORDER BY id"
     node: list[FitEntry] = []
     groups: dict[str, list[FitEntry]] = {}
-    for t_ns, run_id, text, group in db.execute(select):
-        entry = FitEntry(t_ns=int(t_ns or 0), run_id=run_id, fit=_json(text))
+    for t_ns, run_id, text, group, row in db.execute(select):
+        entry = FitEntry(t_ns=int(t_ns or 0), run_id=run_id, fit=_json(text), row=int(row))
         if group in (None, "", "node"):
             node.append(entry)
         else:
             groups.setdefault(str(group), []).append(entry)
     return node, groups
+
+
+def _has_json(db: sqlite3.Connection) -> bool:
+    """Whether this SQLite has the JSON functions (built in since 3.38)."""
+    try:
+        db.execute("SELECT json_remove('{}', '$.x')").fetchone()
+    except sqlite3.OperationalError:
+        return False
+    return True
+
+
+def _with_full_latest(db: sqlite3.Connection, history: list[FitEntry]) -> list[FitEntry]:
+    """The history with the newest fit read whole (per-run details and correlation included)."""
+    for i in range(len(history) - 1, -1, -1):
+        if history[i].fit is not None:
+            (text,) = db.execute("SELECT fit FROM fits WHERE id = ?", (history[i].row,)).fetchone()
+            history[i] = FitEntry(t_ns=history[i].t_ns, run_id=history[i].run_id, fit=_json(text), row=history[i].row)
+            break
+    return history
 
 
 def _stored_baselines(db: sqlite3.Connection, tables: Mapping[str, list[str]]) -> list[BaselinePoint]:
