@@ -127,3 +127,21 @@ def test_missing_or_foreign_state_is_one_line_of_input_error(tmp_path: Path) -> 
     other.write_bytes(b"this is not sqlite" * 100)
     with pytest.raises(InputError, match="cannot read the state database"):
         read_state(tmp_path)
+
+
+def test_damaged_rows_are_left_out_and_said(state_dir: Path) -> None:
+    """A run record or fit that is not JSON does not stop the report: it is left out and the page
+    says how many; a daemon's quarantine table is counted too."""
+    db = sqlite3.connect(state_dir / "state.db")
+    db.execute("UPDATE runs SET record = '{broken' WHERE run_id = 'r3'")
+    db.execute("UPDATE fits SET fit = 'not json' WHERE run_id = 'r2'")
+    db.execute("CREATE TABLE quarantine (id INTEGER PRIMARY KEY, t_ns INTEGER, source TEXT, row_key TEXT, "
+               "content TEXT, reason TEXT)")
+    db.execute("INSERT INTO quarantine (t_ns, source, row_key, content, reason) VALUES (1, 'runs', 'r9', '{', 'bad')")
+    db.commit()
+    db.close()
+    data = read_state(state_dir)
+    assert "r3" not in [r.run_id for r in data.runs] and len(data.runs) == 28
+    assert [h.fit for h in data.fit_history if h.run_id == "r2"] == [None]
+    assert any("1 run record(s)" in n for n in data.notes)
+    assert any("set 1 damaged row(s)" in n for n in data.notes)

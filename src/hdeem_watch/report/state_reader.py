@@ -93,19 +93,27 @@ def read_state(path: str | Path) -> ReportData:
             raise InputError(f"{file}: not a hdeem-watch state (no 'runs' table)")
         # a run record carries the whole fit after it (its per-run list grows with the runs): leave
         # that to SQLite's JSON functions rather than parse it once per run here
-        slim = "json_remove(record, '$.fit', '$.samples_ns')" if _has_json(db) else "record"
-        records = [r for r in (_json(t) for (t,) in db.execute(f"SELECT {slim} FROM runs ORDER BY seq")) if r]
+        texts = [t for (t,) in db.execute(f"SELECT {_slim(db, 'record', '$.fit', '$.samples_ns')} FROM runs "
+                                          "ORDER BY seq")]
+        records = [r for r in (_json(t) for t in texts) if isinstance(r, dict)]
+        damaged = len(texts) - len(records)
         history, pair_history = _fit_history(db, tables)
         history = _with_full_latest(db, history)
         calibrator = _json(db.execute("SELECT state FROM calibrator WHERE id = 1").fetchone()[0]) \
             if "calibrator" in tables and db.execute("SELECT count(*) FROM calibrator").fetchone()[0] else None
         stored_baselines = _stored_baselines(db, tables)
         job_records = _job_table(db, tables)
+        quarantined = db.execute("SELECT count(*) FROM quarantine").fetchone()[0] if "quarantine" in tables else 0
     except sqlite3.DatabaseError as error:
         raise InputError(f"{file}: cannot read the state database ({error})") from None
     finally:
         db.close()
     notes: list[str] = []
+    if damaged:
+        notes.append(f"{damaged} run record(s) of the state are not readable JSON and are left out")
+    if quarantined:
+        notes.append(f"the daemon set {quarantined} damaged row(s) of its state aside (table quarantine); "
+                     "they are not shown")
     spec = _spec_of(records, notes)
     fit = next((entry.fit for entry in reversed(history) if entry.fit is not None), None)
     if history and history[-1].fit is None:
@@ -132,7 +140,7 @@ def _fit_history(db: sqlite3.Connection, tables: Mapping[str, list[str]]
     if "fits" not in tables:
         return [], {}
     group_column = next((c for c in _GROUP_COLUMNS if c in tables["fits"]), None)
-    fit = "json_remove(fit, '$.runs', '$.observability.correlation')" if _has_json(db) else "fit"
+    fit = _slim(db, "fit", "$.runs", "$.observability.correlation")
     select = f'SELECT t_ns, run_id, {fit}, "{group_column}", id FROM fits ORDER BY id' if group_column \
         else f"SELECT t_ns, run_id, {fit}, NULL, id FROM fits ORDER BY id"
     node: list[FitEntry] = []
@@ -144,6 +152,15 @@ def _fit_history(db: sqlite3.Connection, tables: Mapping[str, list[str]]
         else:
             groups.setdefault(str(group), []).append(entry)
     return node, groups
+
+
+def _slim(db: sqlite3.Connection, column: str, *paths: str) -> str:
+    """SQL for ``column`` without the JSON members ``paths`` (NULL for damaged JSON), or the column
+    itself when this SQLite has no JSON functions."""
+    if not _has_json(db):
+        return column
+    removed = ", ".join(f"'{p}'" for p in paths)
+    return f"CASE WHEN json_valid({column}) THEN json_remove({column}, {removed}) END"
 
 
 def _has_json(db: sqlite3.Connection) -> bool:
