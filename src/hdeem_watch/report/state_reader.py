@@ -48,7 +48,7 @@ def state_path(path: str | Path) -> Path:
     if path.is_dir():
         path = path / "state.db"
     if not path.is_file():
-        raise InputError(f"--state-dir {path}: no daemon state (state.db) there")
+        raise InputError(f"{path}: no daemon state there (expected a state directory with state.db)")
     return path
 
 
