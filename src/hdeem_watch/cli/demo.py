@@ -51,6 +51,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--window", type=float, default=DEMO_WINDOW_S, metavar="S",
                         help=f"initial plot window in seconds (default {DEMO_WINDOW_S:g}: shorter than the tui's 60, "
                         "so the demo's 1–2 s runs show as steps; +/- zoom)")
+    parser.add_argument("--report", default=None, metavar="DIR",
+                        help="write the report (hdeem-watch report) of the demo's state into DIR at the end")
     parser.set_defaults(func=_run)
 
 
@@ -102,6 +104,10 @@ def _run(args: argparse.Namespace) -> int:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        if args.report:
+            from hdeem_watch.report.demo import report_at_end
+
+            report_at_end(daemon.state_dir, args.report)
         daemon.stop()
 
 

@@ -1,0 +1,248 @@
+"""The numbers behind the figures: pure functions over report records (no I/O, no plotting).
+
+Example:
+    >>> from hdeem_watch.report.records import RunRow
+    >>> runs = [RunRow("r1", "t", "triad", 24, 1, 2.0, 10.0, 20.0, 11.0),
+    ...         RunRow("r2", "t", "triad", 24, 2, 2.0, 12.0, 22.0, 11.0)]
+    >>> [(g.label, g.measured_j, round(g.calibrated_error_pct, 2)) for g in energy_groups(runs)]
+    [('triad 24t', 11.0, 0.0)]
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, replace
+from datetime import UTC
+from typing import Any
+
+import numpy as np
+
+from hdeem_watch.errors import InputError
+from hdeem_watch.report.records import BaselinePoint, FitEntry, JobRow, ReportData, RunRow, finite
+
+#: Energy components of the figure "energy by component", from :data:`hdeem_watch.dram.energy.COMPONENTS`.
+COMPONENT_GROUPS: dict[str, tuple[str, ...]] = {
+    "ACT/PRE": ("act_j", "pre_j"),
+    "RD": ("rd_j", "rda_j"),
+    "WR": ("wr_j", "wra_j"),
+    "background": ("bg_act_j", "bg_pre_j"),
+    "refresh": ("ref_j",),
+    "power-down": ("pdna_j", "pdnp_j", "sref_j"),
+}
+
+
+def model_currents(spec: Any, fit: Mapping[str, Any] | None) -> tuple[np.ndarray, float]:
+    """Every current of the energy model (``energy.CURRENT_NAMES`` order, A) and the intercept (J):
+    the fit's calibrated values where it has them, the datasheet's elsewhere (as the daemon does)."""
+    from hdeem_watch.dram.energy import CURRENT_NAMES
+
+    values = {name: float(spec.currents.get(name, 0.0)) for name in CURRENT_NAMES}
+    intercept = 0.0
+    if fit is not None:
+        for name, entry in (fit.get("currents") or {}).items():
+            value = finite((entry or {}).get("calibrated"))
+            if name in values and math.isfinite(value):
+                values[name] = value
+        value = finite(fit.get("intercept_j"))
+        intercept = value if math.isfinite(value) else 0.0
+    return np.array([values[name] for name in CURRENT_NAMES]), intercept
+
+
+def fit_runs_by_name(fit: Mapping[str, Any] | None) -> dict[str, Mapping[str, Any]]:
+    """The fit's per-run entries (``before_j``, ``after_j``, ``loo_j``) by observation name."""
+    return {str(r.get("name")): r for r in (fit or {}).get("runs") or [] if isinstance(r, Mapping)}
+
+
+@dataclass(frozen=True)
+class EnergyGroup:
+    """Mean energies of the runs of one kernel and thread count (J)."""
+
+    label: str
+    kernel: str
+    threads: int
+    n: int
+    measured_j: float
+    datasheet_j: float
+    calibrated_j: float
+
+    @property
+    def datasheet_error_pct(self) -> float:
+        """Datasheet model against the measurement, % (mean energies)."""
+        return (self.datasheet_j - self.measured_j) / self.measured_j * 100.0
+
+    @property
+    def calibrated_error_pct(self) -> float:
+        """Calibrated model against the measurement, % (mean energies)."""
+        return (self.calibrated_j - self.measured_j) / self.measured_j * 100.0
+
+
+def energy_groups(runs: Iterable[RunRow]) -> list[EnergyGroup]:
+    """Runs grouped by kernel and thread count (idle first, then kernels by name and threads)."""
+    buckets: dict[tuple[str, int], list[RunRow]] = {}
+    for run in runs:
+        threads = 0 if run.kernel == "idle" else run.threads
+        buckets.setdefault((run.kernel, threads), []).append(run)
+    out = []
+    for (kernel, threads), rows in sorted(buckets.items(), key=lambda kv: (kv[0][0] != "idle", kv[0])):
+        out.append(EnergyGroup(label=rows[0].label, kernel=kernel, threads=threads, n=len(rows),
+                               measured_j=float(np.mean([r.measured_j for r in rows])),
+                               datasheet_j=float(np.mean([r.datasheet_j for r in rows])),
+                               calibrated_j=float(np.mean([r.calibrated_j for r in rows]))))
+    return out
+
+
+def drift_flags(history: Sequence[FitEntry], lag_s: float | None) -> list[dict[str, bool]]:
+    """For each fit of the history, the currents the calibrator's drift rule flags at that fit.
+
+    The rule of :meth:`hdeem_watch.calibrate.OnlineCalibrator.drift`: a current has drifted when the
+    fit puts it outside the 95 % interval of the newest fit at least ``lag_s`` older, both fits
+    determining it. Without a lag nothing is flagged.
+    """
+    flags: list[dict[str, bool]] = []
+    for i, entry in enumerate(history):
+        current = entry.fit
+        row: dict[str, bool] = {}
+        flags.append(row)
+        if current is None or lag_s is None:
+            continue
+        cutoff = entry.t_ns - lag_s * 1e9
+        reference = next((h.fit for h in reversed(history[:i]) if h.fit is not None and h.t_ns <= cutoff), None)
+        if reference is None:
+            continue
+        for name, now in (current.get("currents") or {}).items():
+            before = (reference.get("currents") or {}).get(name)
+            if not before:
+                continue
+            low, high = (finite(v) for v in (before.get("ci95") or [None, None]))
+            value = finite(now.get("calibrated"))
+            usable = bool(before.get("identifiable") and now.get("identifiable")) and math.isfinite(low + high)
+            row[name] = bool(usable and not low <= value <= high)
+    return flags
+
+
+def run_groups(spec: Any, run: RunRow) -> list[tuple[Any, float]]:
+    """The run's command statistics per channel group: as given, or re-modelled the way the daemon does."""
+    if run.stats_groups is not None:
+        return [(stats, float(n)) for stats, n in run.stats_groups]
+    from hdeem_watch.dram.node import node_run_stats, topology_for
+
+    topology = topology_for(run.dimms or 8)
+    return [(stats, float(n)) for stats, n in node_run_stats(spec, run.kernel, run.elements, max(1, run.threads),
+                                                               run.repeat, topology)]
+
+
+def component_energies(spec: Any, fit: Mapping[str, Any] | None, run: RunRow) -> dict[str, float]:
+    """Energy of each of :data:`COMPONENT_GROUPS` for one run with the calibrated currents (J).
+
+    The statistics are stretched to the measured window as for the calibration row, so the
+    components sum to the calibrated model energy less the fit's intercept (``offset``, its own entry).
+    """
+    from hdeem_watch.calibrate.rows import stretch_stats
+    from hdeem_watch.dram.energy import energy_columns
+
+    currents, intercept = model_currents(spec, fit)
+    totals = dict.fromkeys(COMPONENT_GROUPS, 0.0)
+    for stats, channels in run_groups(spec, run):
+        linear = energy_columns(spec, stretch_stats(spec, stats, run.window_s, name=run.name))
+        for group, parts in COMPONENT_GROUPS.items():
+            for part in parts:
+                column = linear.component_columns.get(part)
+                if column is not None:
+                    totals[group] += channels * float(column @ currents + linear.component_constants_j.get(part, 0.0))
+    totals["offset"] = intercept
+    return totals
+
+
+def representative_runs(runs: Sequence[RunRow]) -> list[RunRow]:
+    """Per kernel, its latest run at its highest thread count (idle first, then by kernel name)."""
+    best: dict[str, RunRow] = {}
+    for run in runs:
+        kept = best.get(run.kernel)
+        if kept is None or (run.threads, run.t_ns) >= (kept.threads, kept.t_ns):
+            best[run.kernel] = run
+    return [best[k] for k in sorted(best, key=lambda k: (k != "idle", k))]
+
+
+def jobs_from_runs(records: Sequence[Mapping[str, Any]], baselines: Sequence[BaselinePoint]) -> list[JobRow]:
+    """Jobs from the runs' SLURM metadata (``slurm_job_id``): summed DRAM energy, and the energy the
+    idle baseline (each channel's latest before the run) would have drawn over the same windows."""
+    jobs: dict[tuple[str, str], list[float]] = {}
+    for record in records:
+        job = (record.get("metadata") or {}).get("slurm_job_id")
+        energy, window = finite(record.get("dram_energy_j")), finite(record.get("window_s"))
+        if not job or record.get("state") != "done" or not math.isfinite(energy) or not math.isfinite(window):
+            continue
+        t_ns = int(record.get("t_start_ns") or 0)
+        channels = [c for c in record.get("energy_j") or {} if c.lower().startswith(("ddr", "dram"))]
+        powers = [_baseline_before(baselines, c, t_ns) for c in channels]
+        baseline = sum(powers) * window if powers else math.nan
+        node = str(record.get("node") or (record.get("metadata") or {}).get("slurm_node") or "")
+        entry = jobs.setdefault((str(job), node), [0.0, 0.0, 0.0, 0.0])
+        entry[0] += energy
+        entry[1] += baseline
+        entry[2] += window
+        entry[3] += 1
+    return [JobRow(job_id=job, node=node, dram_energy_j=v[0], baseline_j=v[1], window_s=v[2], runs=int(v[3]))
+            for (job, node), v in sorted(jobs.items())]
+
+
+def _baseline_before(baselines: Sequence[BaselinePoint], channel: str, t_ns: int) -> float:
+    earlier = [b for b in baselines if b.channel == channel and b.t_ns <= t_ns]
+    return earlier[-1].power_w if earlier else math.nan
+
+
+_DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(s|m|h|d|w)\s*$")
+_UNIT_S = {"s": 1.0, "m": 60.0, "h": 3600.0, "d": 86400.0, "w": 7 * 86400.0}
+
+
+def parse_since(text: str, now_ns: int) -> int:
+    """``--since``: an age (``90m``, ``12h``, ``7d``, ``2w``) before ``now_ns``, or an ISO 8601 date or
+    time (UTC unless it names its offset) → wall-clock ns.
+
+    Raises:
+        InputError: neither form.
+
+    Example:
+        >>> parse_since("2h", 10_000 * 10**9) // 10**9
+        2800
+        >>> parse_since("2026-01-01T00:00:00+00:00", 0) // 10**9
+        1767225600
+    """
+    from datetime import datetime
+
+    match = _DURATION.match(text)
+    if match:
+        return int(now_ns - float(match.group(1)) * _UNIT_S[match.group(2)] * 1e9)
+    try:
+        moment = datetime.fromisoformat(text.strip())
+    except ValueError:
+        raise InputError(f"--since {text!r}: expected an age like 12h/7d or an ISO date/time like "
+                         "2026-11-01 or 2026-11-01T08:00+01:00") from None
+    if moment.tzinfo is None:
+        moment = moment.replace(tzinfo=UTC)
+    return int(moment.timestamp() * 1e9)
+
+
+def select(data: ReportData, *, since_ns: int | None = None, group: str | None = None) -> ReportData:
+    """``data`` restricted to runs, fits, baselines and jobs from ``since_ns`` on, and to the DIMM pair
+    ``group`` (``node`` or None = all) for the per-pair figures.
+
+    Raises:
+        InputError: a group the data does not have.
+    """
+    notes = list(data.notes)
+    if group not in (None, "node") and group not in data.channels:
+        known = ", ".join(("node", *data.channels))
+        raise InputError(f"--group {group!r}: not a DRAM channel of this input; expected one of {known}")
+    if since_ns is not None:
+        runs = tuple(r for r in data.runs if r.t_ns >= since_ns)
+        history = tuple(h for h in data.fit_history if h.t_ns >= since_ns)
+        baselines = tuple(b for b in data.baselines if b.t_ns >= since_ns)
+        data = replace(data, runs=runs, fit_history=history, baselines=baselines)
+    if group not in (None, "node"):
+        data = replace(data, baselines=tuple(b for b in data.baselines if b.channel == group),
+                       channels=(group,), pair_fits={k: v for k, v in data.pair_fits.items() if k == group})
+        notes.append(f"per-pair figures restricted to {group}; the energy and current figures are the node's")
+    return replace(data, notes=tuple(notes))

@@ -1,0 +1,132 @@
+"""Draw every figure of a report and write the page and the files (the one I/O shell of the package).
+
+Files in the output directory: ``index.html`` (self-contained), one file per figure in the chosen
+format (``fig1-energy.png`` ...; none for ``html``), ``numbers.json`` (every figure's tables) and
+``memspec-calibrated.json`` (when there is a calibration).
+
+Example::
+
+    from hdeem_watch.report.state_reader import read_state
+    written = build_report(read_state("state/"), "report/", fmt="png")
+    written.page       # Path('report/index.html')
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from hdeem_watch.errors import InputError
+from hdeem_watch.report.figure import ReportFigure
+from hdeem_watch.report.figures_model import (
+    calibrated_memspec,
+    components_figure,
+    currents_figure,
+    energy_figure,
+)
+from hdeem_watch.report.figures_time import aging_figure, jobs_figure, residuals_figure
+from hdeem_watch.report.page import render_page
+from hdeem_watch.report.records import ReportData
+from hdeem_watch.report.style import pyplot
+
+#: Formats of the figure files (``html``: the page only).
+FORMATS = ("html", "png", "svg", "pdf")
+#: The figure builders, in page order.
+BUILDERS: tuple[Callable[[ReportData], ReportFigure], ...] = (
+    energy_figure, currents_figure, residuals_figure, aging_figure, components_figure, jobs_figure)
+
+
+@dataclass(frozen=True)
+class WrittenReport:
+    """What :func:`build_report` wrote.
+
+    Attributes:
+        page: the HTML page.
+        figures: the figure files (empty for ``html``).
+        numbers: ``numbers.json``.
+        memspec: ``memspec-calibrated.json`` (None without a calibration).
+        missing: per figure key, what it had no data for.
+    """
+
+    page: Path
+    figures: tuple[Path, ...]
+    numbers: Path
+    memspec: Path | None
+    missing: dict[str, tuple[str, ...]]
+
+
+def build_report(data: ReportData, out_dir: str | Path, *, fmt: str = "png",
+                 clock: Callable[[], float] = time.time) -> WrittenReport:
+    """Draw the figures of ``data`` and write the report into ``out_dir`` (created if missing).
+
+    Args:
+        data: what to show.
+        out_dir: the output directory.
+        fmt: format of the figure files, one of :data:`FORMATS`.
+        clock: wall clock (s) for the "drawn at" line.
+
+    Raises:
+        InputError: an unknown format or an output directory that cannot be written.
+        MissingPlotting: matplotlib is not installed.
+    """
+    if fmt not in FORMATS:
+        raise InputError(f"--format {fmt!r}: expected one of {', '.join(FORMATS)}")
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise InputError(f"--out {out}: cannot create the directory: {error.strerror or error}") from None
+    plt = pyplot()
+    figures: list[dict[str, Any]] = []
+    tables = {}
+    files: list[Path] = []
+    try:
+        for builder in BUILDERS:
+            drawn = builder(data)
+            try:
+                svg = io.BytesIO()
+                drawn.figure.savefig(svg, format="svg")
+                if fmt != "html":
+                    path = out / f"{drawn.key}.{fmt}"
+                    drawn.figure.savefig(path, format=fmt)
+                    files.append(path)
+            finally:
+                plt.close(drawn.figure)
+            figures.append({"key": drawn.key, "title": drawn.title, "how_to_read": drawn.how_to_read,
+                            "svg": svg.getvalue(), "missing": drawn.missing})
+            tables[drawn.title] = drawn.tables
+        memspec = calibrated_memspec(data)
+        generated = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(clock()))
+        page = out / "index.html"
+        page.write_text(render_page("hdeem-watch report", data.source, figures, tables, memspec,
+                                    notes=data.notes, generated=generated), encoding="utf-8")
+        numbers = out / "numbers.json"
+        numbers.write_text(json.dumps(_numbers(tables), indent=1, allow_nan=False) + "\n", encoding="utf-8")
+        memspec_path = None
+        if memspec is not None:
+            memspec_path = out / "memspec-calibrated.json"
+            memspec_path.write_text(json.dumps(memspec, indent=2) + "\n", encoding="utf-8")
+    except OSError as error:
+        raise InputError(f"--out {out}: cannot write the report: {error.strerror or error}") from None
+    return WrittenReport(page=page, figures=tuple(files), numbers=numbers, memspec=memspec_path,
+                         missing={f["key"]: tuple(f["missing"]) for f in figures})
+
+
+def _numbers(tables: dict[str, Any]) -> dict[str, Any]:
+    """Every table as JSON (NaN as null)."""
+    import math
+
+    def cell(value: Any) -> Any:
+        if isinstance(value, float) and not math.isfinite(value):
+            return None
+        if hasattr(value, "item"):  # numpy scalars
+            return cell(value.item())
+        return value
+
+    return {title: {caption: {"columns": list(t.columns), "rows": [[cell(v) for v in row] for row in t.rows]}
+                    for caption, t in captioned.items()} for title, captioned in tables.items()}

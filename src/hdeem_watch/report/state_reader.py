@@ -1,0 +1,289 @@
+"""Read a daemon's state directory (``state.db``) into :class:`~hdeem_watch.report.records.ReportData`.
+
+The database is opened read-only (``mode=ro``), so a report can be drawn while the daemon runs and
+never changes the state. Only the tables and columns of schema version 1 are required (``runs``,
+``fits``, ``calibrator``, ``baselines``); tables a newer daemon adds are ignored unless they are
+known here (a ``jobs`` table of JSON job records; a ``group`` column of ``fits`` for per-pair fits;
+further ``baseline*`` tables with ``channel``/``t_ns``/``record`` columns as baseline history).
+
+Example::
+
+    data = read_state("/var/lib/hdeem-watch")
+    [run.label for run in data.runs]     # ['idle', 'triad 24t', ...]
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sqlite3
+import urllib.parse
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from hdeem_watch.errors import InputError
+from hdeem_watch.report.analysis import fit_runs_by_name, jobs_from_runs, model_currents
+from hdeem_watch.report.records import (
+    BaselinePoint,
+    FitEntry,
+    JobRow,
+    ReportData,
+    RunRow,
+    finite,
+    is_dram_channel,
+)
+
+#: Column names under which a newer schema may keep the sensor group of a fit.
+_GROUP_COLUMNS = ("group", "grp", "sensor_group")
+
+
+def state_path(path: str | Path) -> Path:
+    """The ``state.db`` of a state directory (or the file itself when given one).
+
+    Raises:
+        InputError: no such directory or file.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "state.db"
+    if not path.is_file():
+        raise InputError(f"{path}: no daemon state there (expected a state directory with state.db)")
+    return path
+
+
+def _connect(path: Path) -> sqlite3.Connection:
+    uri = f"file:{urllib.parse.quote(str(path.resolve()))}?mode=ro"
+    try:
+        db = sqlite3.connect(uri, uri=True, timeout=5.0)
+        db.execute("SELECT count(*) FROM sqlite_master").fetchone()
+    except sqlite3.DatabaseError as error:
+        raise InputError(f"{path}: cannot read the state database ({error})") from None
+    return db
+
+
+def _tables(db: sqlite3.Connection) -> dict[str, list[str]]:
+    names = [r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")]
+    return {name: [c[1] for c in db.execute(f'PRAGMA table_info("{name}")')] for name in names}
+
+
+def _json(text: Any) -> Any:
+    if text is None:
+        return None
+    try:
+        return json.loads(text)
+    except (TypeError, ValueError):
+        return None
+
+
+def read_state(path: str | Path) -> ReportData:
+    """Everything a report shows from a daemon's state.
+
+    Args:
+        path: the state directory (or its ``state.db``).
+
+    Raises:
+        InputError: no state there, or not a hdeem-watch state (missing ``runs`` table).
+    """
+    file = state_path(path)
+    db = _connect(file)
+    try:
+        tables = _tables(db)
+        if "runs" not in tables:
+            raise InputError(f"{file}: not a hdeem-watch state (no 'runs' table)")
+        # a run record carries the whole fit after it (its per-run list grows with the runs): leave
+        # that to SQLite's JSON functions rather than parse it once per run here
+        texts = [t for (t,) in db.execute(f"SELECT {_slim(db, 'record', '$.fit', '$.samples_ns')} FROM runs "
+                                          "ORDER BY seq")]
+        records = [r for r in (_json(t) for t in texts) if isinstance(r, dict)]
+        damaged = len(texts) - len(records)
+        history, pair_history = _fit_history(db, tables)
+        history = _with_full_latest(db, history)
+        calibrator = _json(db.execute("SELECT state FROM calibrator WHERE id = 1").fetchone()[0]) \
+            if "calibrator" in tables and db.execute("SELECT count(*) FROM calibrator").fetchone()[0] else None
+        stored_baselines = _stored_baselines(db, tables)
+        job_records = _job_table(db, tables)
+        quarantined = db.execute("SELECT count(*) FROM quarantine").fetchone()[0] if "quarantine" in tables else 0
+    except sqlite3.DatabaseError as error:
+        raise InputError(f"{file}: cannot read the state database ({error})") from None
+    finally:
+        db.close()
+    notes: list[str] = []
+    if damaged:
+        notes.append(f"{damaged} run record(s) of the state are not readable JSON and are left out")
+    if quarantined:
+        notes.append(f"the daemon set {quarantined} damaged row(s) of its state aside (table quarantine); "
+                     "they are not shown")
+    spec = _spec_of(records, notes)
+    fit = next((entry.fit for entry in reversed(history) if entry.fit is not None), None)
+    if history and history[-1].fit is None:
+        notes.append("the calibrator was reset after the last fit; the figures show the last fit before the reset")
+    runs = _runs(records, spec, fit)
+    channels = tuple(sorted({c for r in runs for c in r.channel_energy_j}))
+    from_runs = _idle_run_baselines(records)
+    # the stored baseline of an idle run is that run's point again (its time differs by the window cut)
+    baselines = from_runs + [b for b in stored_baselines if not any(
+        p.channel == b.channel and p.origin == b.origin and abs(p.t_ns - b.t_ns) < 60e9 for p in from_runs)]
+    jobs = job_records if job_records else jobs_from_runs(records, baselines)
+    settings = (calibrator or {}).get("settings") or {}
+    lag = settings.get("drift_lag_s") or settings.get("half_life_s")
+    pair_fits = {group: entries[-1].fit for group, entries in pair_history.items() if entries and entries[-1].fit}
+    return ReportData(source=f"daemon state {file}", spec=spec, runs=tuple(runs), fit=fit,
+                      fit_history=tuple(history), drift_lag_s=float(lag) if lag else None,
+                      baselines=tuple(sorted(baselines, key=lambda b: (b.t_ns, b.channel))), jobs=tuple(jobs),
+                      pair_fits=pair_fits, channels=channels, notes=tuple(notes))
+
+
+def _fit_history(db: sqlite3.Connection, tables: Mapping[str, list[str]]
+                 ) -> tuple[list[FitEntry], dict[str, list[FitEntry]]]:
+    """The node's fit history and, when the schema has a group column, each group's."""
+    if "fits" not in tables:
+        return [], {}
+    group_column = next((c for c in _GROUP_COLUMNS if c in tables["fits"]), None)
+    fit = _slim(db, "fit", "$.runs", "$.observability.correlation")
+    select = f'SELECT t_ns, run_id, {fit}, "{group_column}", id FROM fits ORDER BY id' if group_column \
+        else f"SELECT t_ns, run_id, {fit}, NULL, id FROM fits ORDER BY id"
+    node: list[FitEntry] = []
+    groups: dict[str, list[FitEntry]] = {}
+    for t_ns, run_id, text, group, row in db.execute(select):
+        entry = FitEntry(t_ns=int(t_ns or 0), run_id=run_id, fit=_json(text), row=int(row))
+        if group in (None, "", "node"):
+            node.append(entry)
+        else:
+            groups.setdefault(str(group), []).append(entry)
+    return node, groups
+
+
+def _slim(db: sqlite3.Connection, column: str, *paths: str) -> str:
+    """SQL for ``column`` without the JSON members ``paths`` (NULL for damaged JSON), or the column
+    itself when this SQLite has no JSON functions."""
+    if not _has_json(db):
+        return column
+    removed = ", ".join(f"'{p}'" for p in paths)
+    return f"CASE WHEN json_valid({column}) THEN json_remove({column}, {removed}) END"
+
+
+def _has_json(db: sqlite3.Connection) -> bool:
+    """Whether this SQLite has the JSON functions (built in since 3.38)."""
+    try:
+        db.execute("SELECT json_remove('{}', '$.x')").fetchone()
+    except sqlite3.OperationalError:
+        return False
+    return True
+
+
+def _with_full_latest(db: sqlite3.Connection, history: list[FitEntry]) -> list[FitEntry]:
+    """The history with the newest fit read whole (per-run details and correlation included)."""
+    for i in range(len(history) - 1, -1, -1):
+        if history[i].fit is not None:
+            (text,) = db.execute("SELECT fit FROM fits WHERE id = ?", (history[i].row,)).fetchone()
+            history[i] = FitEntry(t_ns=history[i].t_ns, run_id=history[i].run_id, fit=_json(text), row=history[i].row)
+            break
+    return history
+
+
+def _stored_baselines(db: sqlite3.Connection, tables: Mapping[str, list[str]]) -> list[BaselinePoint]:
+    """Baselines from every ``baseline*`` table with ``channel`` and ``record`` columns."""
+    out = []
+    for name, columns in tables.items():
+        if not name.startswith("baseline") or not {"channel", "record"} <= set(columns):
+            continue
+        for channel, text in db.execute(f'SELECT channel, record FROM "{name}"'):
+            record = _json(text) or {}
+            power = finite(record.get("power_w"))
+            if is_dram_channel(str(channel)) and math.isfinite(power):
+                out.append(BaselinePoint(channel=str(channel), t_ns=int(record.get("t_ns") or 0), power_w=power,
+                                         spread_w=finite(record.get("spread_w")),
+                                         origin=str(record.get("origin") or "stored")))
+    return out
+
+
+def _job_table(db: sqlite3.Connection, tables: Mapping[str, list[str]]) -> list[JobRow]:
+    """Job records of a ``jobs`` table (JSON in a ``record`` column), if a newer daemon keeps one."""
+    if "jobs" not in tables or "record" not in tables["jobs"]:
+        return []
+    jobs = []
+    for (text,) in db.execute("SELECT record FROM jobs"):
+        record = _json(text) or {}
+        energy = finite(record.get("dram_energy_j"))
+        if not math.isfinite(energy):
+            continue
+        baseline = finite(record.get("baseline_j"))
+        if not math.isfinite(baseline) and math.isfinite(finite(record.get("above_baseline_j"))):
+            baseline = energy - finite(record.get("above_baseline_j"))
+        jobs.append(JobRow(job_id=str(record.get("job_id", "?")), node=str(record.get("node", "")),
+                           dram_energy_j=energy, baseline_j=baseline, window_s=finite(record.get("window_s")),
+                           runs=int(record.get("runs") or 0)))
+    return jobs
+
+
+def _spec_of(records: list[Mapping[str, Any]], notes: list[str]) -> Any:
+    """The datasheet memspec the daemon modelled the runs with (found by its memoryId among the presets)."""
+    from hdeem_watch.dram.memspec import memspec_from, preset
+    from hdeem_watch.dram.presets import PRESETS
+
+    names = {str((r.get("model") or {}).get("memspec")) for r in records if r.get("model")}
+    names.discard("None")
+    if not names:
+        notes.append("no run was modelled: the memspec is unknown")
+        return None
+    wanted = sorted(names)[-1]
+    for name in PRESETS:
+        spec = preset(name)
+        if wanted in (name, spec.memory_id):
+            return spec
+    try:
+        return memspec_from(wanted)
+    except InputError:
+        notes.append(f"memspec {wanted!r} is neither a preset nor a readable file: energies by component "
+                     "and the calibrated memspec cannot be shown")
+        return None
+
+
+def _runs(records: list[Mapping[str, Any]], spec: Any, fit: Mapping[str, Any] | None) -> list[RunRow]:
+    import numpy as np
+
+    currents = model_currents(spec, fit) if spec is not None and fit is not None else None
+    by_name = fit_runs_by_name(fit)
+    out = []
+    for record in records:
+        measured = finite(record.get("dram_energy_j"))
+        if record.get("state") != "done" or not measured > 0:
+            continue
+        model = record.get("model") or {}
+        observation = model.get("observation") or {}
+        key = observation.get("name") or f"{record.get('run_id')}:{record.get('name')}"
+        in_fit = by_name.get(str(key), {})
+        calibrated = finite(in_fit.get("after_j"))
+        if currents is not None and observation.get("columns"):
+            vector, intercept = currents
+            columns = np.asarray(observation["columns"], dtype=float)
+            if columns.shape == vector.shape:
+                calibrated = float(columns @ vector + finite(observation.get("constant_j")) + intercept)
+        energies = {str(c): finite(e) for c, e in (record.get("energy_j") or {}).items() if is_dram_channel(str(c))}
+        kernel = str(record.get("kernel", "?"))
+        out.append(RunRow(
+            run_id=str(record.get("run_id")), name=str(record.get("name") or record.get("run_id")), kernel=kernel,
+            threads=int(record.get("threads") or 0), t_ns=int(record.get("t_stop_ns") or 0),
+            window_s=finite(record.get("window_s")), measured_j=measured,
+            datasheet_j=finite(model.get("datasheet_j")), calibrated_j=calibrated,
+            predicted_j=finite(model.get("predicted_j")), loo_j=finite(in_fit.get("loo_j")),
+            elements=int(record.get("elements") or 0), repeat=int(record.get("repeat") or 1),
+            dimms=int(model.get("dimms") or 0), channel_energy_j=energies))
+    return out
+
+
+def _idle_run_baselines(records: list[Mapping[str, Any]]) -> list[BaselinePoint]:
+    """Each finished idle run's mean power per DRAM channel: the baseline at that time."""
+    out = []
+    for record in records:
+        if record.get("state") != "done" or str(record.get("kernel")) not in ("idle", "sleep"):
+            continue
+        for channel, power in (record.get("mean_power_w") or {}).items():
+            value = finite(power)
+            if is_dram_channel(str(channel)) and math.isfinite(value):
+                out.append(BaselinePoint(channel=str(channel), t_ns=int(record.get("t_stop_ns") or 0),
+                                         power_w=value, spread_w=math.nan, origin="idle-run"))
+    return out
+
+

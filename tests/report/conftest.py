@@ -1,0 +1,28 @@
+"""Fixtures of the report tests: a real demo state unpacked into a temporary directory, a RUNS.json."""
+
+from __future__ import annotations
+
+import gzip
+import shutil
+from pathlib import Path
+
+import pytest
+
+DATA = Path(__file__).parent / "data"
+
+
+@pytest.fixture
+def state_dir(tmp_path: Path) -> Path:
+    """A state directory holding the 60-second demo's ``state.db`` (see data/README.md)."""
+    directory = tmp_path / "state"
+    directory.mkdir()
+    with gzip.open(DATA / "state-demo60.db.gz", "rb") as source, open(directory / "state.db", "wb") as target:
+        shutil.copyfileobj(source, target)
+    return directory
+
+
+@pytest.fixture
+def runs_json() -> Path:
+    """The RUNS.json made from that state (see data/README.md)."""
+    return DATA / "runs.json"
+

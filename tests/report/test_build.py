@@ -1,0 +1,138 @@
+"""The report built from a real demo state: every figure drawn and written, the page self-contained,
+and the numbers on it equal to the state's."""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hdeem_watch.report.build import build_report
+from hdeem_watch.report.records import ReportData
+from hdeem_watch.report.runs_reader import read_runs
+from hdeem_watch.report.state_reader import read_state
+
+FIGURES = ("fig1-energy", "fig2-currents", "fig3-residuals", "fig4-aging", "fig5-components", "fig6-jobs")
+
+
+@pytest.fixture
+def built(state_dir: Path, tmp_path: Path) -> tuple[ReportData, Path]:
+    data = read_state(state_dir)
+    build_report(data, tmp_path / "out", fmt="png", clock=lambda: 1.8e9)
+    return data, tmp_path / "out"
+
+
+def _table(numbers: dict, figure_prefix: str, caption: str) -> list[dict]:
+    title = next(t for t in numbers if t.startswith(figure_prefix))
+    table = numbers[title][caption]
+    return [dict(zip(table["columns"], row)) for row in table["rows"]]
+
+
+def test_every_figure_is_written_with_sane_sizes(built: tuple[ReportData, Path]) -> None:
+    """Six PNG figures between 5 KB and 2 MB, each at least 600×300 px and not one flat colour."""
+    import matplotlib.image
+
+    _, out = built
+    for key in FIGURES:
+        path = out / f"{key}.png"
+        assert 5_000 < path.stat().st_size < 2_000_000, key
+        pixels = matplotlib.image.imread(path)
+        assert pixels.shape[1] >= 600 and pixels.shape[0] >= 300, key
+        assert float(np.std(pixels[..., :3])) > 0.05, key
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        [f"{k}.png" for k in FIGURES] + ["index.html", "numbers.json", "memspec-calibrated.json"])
+
+
+def test_page_is_self_contained(built: tuple[ReportData, Path]) -> None:
+    """The page embeds every figure as a data: SVG and refers to nothing outside itself."""
+    _, out = built
+    page = (out / "index.html").read_text()
+    images = re.findall(r'<img src="data:image/svg\+xml;base64,([A-Za-z0-9+/=]+)"', page)
+    assert len(images) == len(FIGURES)
+    for encoded in images:
+        svg = base64.b64decode(encoded)
+        assert svg.lstrip().startswith(b"<?xml") and b"<svg" in svg and len(svg) > 1_000
+        assert not re.search(rb'(?:href|src)="(?!#|data:)', svg)  # no external references in the figures
+    assert not re.search(r'(?:href|src)="(?!#|data:)', page)
+    assert "<script" not in page
+    for key in FIGURES:
+        assert f'id="{key}"' in page
+
+
+def test_numbers_equal_the_states(built: tuple[ReportData, Path], state_dir: Path) -> None:
+    """Checked values of the tables are the state's: a run's measured energy, the mean of the idle
+    runs, a calibrated current and its interval, the fit's LOO error and the written memspec."""
+    import sqlite3
+
+    data, out = built
+    numbers = json.loads((out / "numbers.json").read_text())
+    db = sqlite3.connect(state_dir / "state.db")
+    records = [json.loads(t) for (t,) in db.execute("SELECT record FROM runs")]
+    db.close()
+    energy = {(r["kernel"], r["threads"]): r for r in _table(numbers, "Energy per kernel", "mean energy per kernel and thread count")}
+    triad = [r for r in records if r["kernel"] == "triad" and r["threads"] == 24]
+    assert len(triad) == 1 and energy[("triad", 24)]["measured J"] == triad[0]["dram_energy_j"]
+    assert energy[("triad", 24)]["datasheet J"] == triad[0]["model"]["datasheet_j"]
+    idle = [r["dram_energy_j"] for r in records if r["kernel"] == "idle"]
+    assert energy[("idle", None)]["runs"] == len(idle)
+    assert energy[("idle", None)]["measured J"] == pytest.approx(np.mean(idle), rel=1e-12)
+    currents = {r["current"]: r for r in _table(numbers, "Currents", "currents")}
+    assert data.fit is not None
+    idd4r = data.fit["currents"]["idd4r"]
+    assert currents["idd4r"]["calibrated mA"] == pytest.approx(idd4r["calibrated"] * 1e3, rel=1e-12)
+    assert currents["idd4r"]["95 % high mA"] == pytest.approx(idd4r["ci95"][1] * 1e3, rel=1e-12)
+    (summary,) = _table(numbers, "Currents", "fit summary")
+    assert summary["leave-one-out error %"] == pytest.approx(data.fit["error"]["loo"] * 100, rel=1e-12)
+    memspec = json.loads((out / "memspec-calibrated.json").read_text())["memspec"]["mempowerspec"]
+    assert memspec["idd4r"] == pytest.approx(idd4r["calibrated"], rel=1e-12)
+    page = (out / "index.html").read_text()
+    assert f"{idd4r['calibrated'] * 1e3:.4g}" in page
+
+
+def test_what_the_state_lacks_is_said(built: tuple[ReportData, Path]) -> None:
+    """No job records, no per-pair fits and no drift reference are said on the page, not failed on."""
+    _, out = built
+    page = (out / "index.html").read_text()
+    assert "No data: job records." in page
+    assert "No data: per-DIMM-pair fits" in page
+    assert "No data: drift alarms" in page
+
+
+@pytest.mark.parametrize("fmt", ["svg", "pdf", "html"])
+def test_other_formats(state_dir: Path, tmp_path: Path, fmt: str) -> None:
+    """svg and pdf figure files start with their format's magic; html writes the page only."""
+    build_report(read_state(state_dir), tmp_path, fmt=fmt)
+    files = sorted(tmp_path.glob("fig*"))
+    if fmt == "html":
+        assert files == []
+        return
+    magic = {"svg": b"<?xml", "pdf": b"%PDF-"}[fmt]
+    assert [p.stem for p in files] == list(FIGURES)
+    assert all(p.read_bytes().startswith(magic) for p in files)
+
+
+def test_a_runs_json_report(runs_json: Path, tmp_path: Path) -> None:
+    """From a RUNS.json: the energy, current, residual and component figures have data; the
+    time-series and job figures say what a RUNS.json lacks."""
+    written = build_report(read_runs(runs_json), tmp_path, fmt="png")
+    assert written.missing["fig1-energy"] == ()
+    assert written.missing["fig5-components"] == ()
+    assert "idle baselines" in written.missing["fig4-aging"]
+    assert written.missing["fig6-jobs"] == ("job records",)
+    assert len(written.figures) == len(FIGURES)
+
+
+def test_an_empty_state_draws_every_figure_saying_no_data(tmp_path: Path) -> None:
+    """A fresh daemon state (no runs, no fits) still gives every figure, each saying it has no data."""
+    from hdeem_watch.daemon.store import Store
+
+    Store(tmp_path / "state" / "state.db").close()
+    written = build_report(read_state(tmp_path / "state"), tmp_path / "out", fmt="png")
+    assert len(written.figures) == len(FIGURES)
+    assert written.memspec is None
+    assert written.missing["fig1-energy"] == ("runs",)
+    assert "No data: no calibration" in written.page.read_text()
