@@ -128,3 +128,24 @@ def test_node_table_errors(table: dict[str, object], expect: str) -> None:
     with pytest.raises(InputError) as info:
         parse_node_table(table)
     assert expect in str(info.value) and "\n" not in str(info.value)
+
+
+def test_choice_gives_the_dimm_organisation() -> None:
+    """The choice carries ranks and devices per rank, so the preset can be reshaped to the DIMM."""
+    dimm = Dimm("X", size_bytes=32 << 30, type="DDR4", speed_mts=2933, ranks=2, total_width=72,
+                part_number="M393A4K40DB2-CVF")
+    choice = choose_memspec([dimm])
+    assert (choice.ranks, choice.devices_per_rank, choice.device_width, choice.die_gbit) == (2, 18, 4, 8)
+    spec = for_dimm(preset(choice.name), choice.ranks, choice.devices_per_rank)  # type: ignore[arg-type]
+    assert (spec.nbr_of_ranks, spec.nbr_of_devices) == (2, 18)
+
+
+def test_letter_only_slot_names_are_flagged(tmp_path: Path) -> None:
+    """Bare slot names ('A1') are placed by a guess, and the notes say so."""
+    text = "".join(
+        f"Handle 0x00{i:02X}, DMI type 17, 84 bytes\nMemory Device\n\tSize: 16 GB\n\tLocator: {name}\n"
+        f"\tBank Locator: Not Specified\n\tType: DDR4\n\tRank: 2\n\n"
+        for i, name in enumerate(("A1", "B1", "C1", "D1")))
+    node = describe_node(tmp_path, text, "dmi.txt")
+    assert any("board-specific" in n for n in node.notes)
+    assert all(d.sources["socket"].startswith("unknown") for d in node.dimms)

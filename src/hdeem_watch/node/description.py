@@ -185,6 +185,9 @@ def _place(dimms: list[tuple[Dimm, SlotGuess]], every: list[SlotGuess], sockets:
         else:
             by_socket[g.socket + shift].add(k)
     letter_socket: dict[tuple[int, int, str], tuple[int, int]] = {}
+    if unsocketed:
+        notes.append("slot names without a socket (e.g. 'A1') are board-specific (on some servers the letter is "
+                     "the CPU, not the channel): check channels_per_socket and set it in the [node] table if wrong")
     if unsocketed and not by_socket and sockets:
         ordered = sorted(unsocketed)
         block = len(ordered) // sockets if len(ordered) % sockets == 0 else 0

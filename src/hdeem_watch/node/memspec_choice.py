@@ -47,6 +47,8 @@ class MemspecChoice:
         confidence: ``exact``, ``high``, ``medium``, ``low`` or ``none``.
         die_gbit: die density worked out for the DIMMs (``None`` unknown).
         device_width: device width worked out (``None`` unknown).
+        ranks: ranks of the DIMMs (for :func:`for_dimm`; ``None`` unknown).
+        devices_per_rank: devices per rank, ECC devices included (``None`` unknown).
     """
 
     name: str | None
@@ -54,11 +56,14 @@ class MemspecChoice:
     confidence: str
     die_gbit: int | None = None
     device_width: int | None = None
+    ranks: int | None = None
+    devices_per_rank: int | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """``{"name", "reason", "confidence", "die_gbit", "device_width"}``."""
+        """``{"name", "reason", "confidence", "die_gbit", "device_width", "ranks", "devices_per_rank"}``."""
         return {"name": self.name, "reason": self.reason, "confidence": self.confidence,
-                "die_gbit": self.die_gbit, "device_width": self.device_width}
+                "die_gbit": self.die_gbit, "device_width": self.device_width, "ranks": self.ranks,
+                "devices_per_rank": self.devices_per_rank}
 
 
 def width_from_part_number(part: str, ranks: int | None) -> int | None:
@@ -100,7 +105,7 @@ def choose_memspec(dimms: Sequence[Dimm]) -> MemspecChoice:
         name = KNOWN_MODULES[part.strip().upper()]
         info = PRESET_INFO[name]
         return MemspecChoice(name, f"part number {part} is a known module ({info.die}){mixed}", "exact",
-                             info.die_gbit, info.width)
+                             info.die_gbit, info.width, ranks, devices_per_rank(dimm, info.width))
     if mem_type is not None and mem_type.upper() != "DDR4":
         return MemspecChoice(None, f"memory type {mem_type}: only DDR4 presets exist{mixed}", "none")
     width = width or (width_from_part_number(part, ranks) if part else None)
@@ -133,7 +138,7 @@ def choose_memspec(dimms: Sequence[Dimm]) -> MemspecChoice:
         why += f"; differs in {', '.join(mismatched)}"
     if part:
         why += f"; part number {part} not in the known-module table"
-    return MemspecChoice(best, why + mixed, confidence, density, width)
+    return MemspecChoice(best, why + mixed, confidence, density, width, ranks, devices_per_rank(dimm, width))
 
 
 def for_dimm(spec: Any, ranks: int | None, devices_per_rank: int | None) -> Any:
