@@ -36,21 +36,14 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hdeem_watch.sources.base import (
-    CHANNELS,
-    STATUS_GAP,
-    STATUS_OK,
-    ChannelInfo,
-    RunEvent,
-    SourceBatch,
-    hdeem_channel_infos,
-)
+from hdeem_watch.sources.base import STATUS_GAP, STATUS_OK, ChannelInfo, RunEvent, SourceBatch
 from hdeem_watch.sources.sim_fast import IdleBlocks, NoiseBank
+from hdeem_watch.sources.sim_layout import TAURUS, SimLayout, layout_for_node
 from hdeem_watch.sources.sim_model import (
-    DIMM_PAIR,
     RunPlan,
     TruthModel,
     idle_power_w,
@@ -62,6 +55,9 @@ from hdeem_watch.sources.sim_model import (
 )
 from hdeem_watch.sources.sim_signal import NOISE_W, channel_power_w, deposit_owed, flat_power_w, mean_power_w
 from hdeem_watch.sources.sim_truth import truth_report
+
+if TYPE_CHECKING:
+    from hdeem_watch.node.description import NodeDescription
 
 __all__ = ["SimSource", "modelled_line_rate", "socket_shares", "threads_per_socket"]
 
@@ -79,7 +75,7 @@ class _Pending:
 
 
 class SimSource:
-    """The modelled Haswell-EP node with 8 DIMMs behind HDEEM's seven channels.
+    """The modelled Haswell-EP node with 8 DIMMs behind HDEEM's seven channels (or any other node).
 
     Args:
         seed: seeds the hidden currents, offsets and noise (deterministic for the same poll times).
@@ -102,6 +98,10 @@ class SimSource:
         block_s: while the node is idle, its samples are generated this far (sim s) ahead of the
             polls, in one computation per block (the hidden currents' drift is evaluated once per
             block); a run drops the unpublished rest at once. 0 = one block per poll.
+        layout: the node modelled (default :data:`~hdeem_watch.sources.sim_layout.TAURUS`): its
+            sockets, cores and channels; channels ``BLADE``, ``CPU<n>`` per socket and one
+            ``DDR_<letters>`` sensor per pair of channels.
+        node: a node description to model instead (one DIMM per channel); overrides ``layout``.
 
     Example:
         >>> sim = SimSource(seed=1)
@@ -115,7 +115,8 @@ class SimSource:
                  wall_clock: Callable[[], int] = time.time_ns, *, noise: bool = True, quantum_w: float = 0.125,
                  io_j_per_line: float = 0.5e-9, offsets: bool = True, aging_per_h: float = 0.005,
                  temp_amp_c: float = 3.0, dimm_spread: float = 0.10, buffer_s: float = 60.0,
-                 background_plans: bool = True, block_s: float = 1.0) -> None:
+                 background_plans: bool = True, block_s: float = 1.0, layout: SimLayout = TAURUS,
+                 node: NodeDescription | None = None) -> None:
         if not speed > 0 or not math.isfinite(speed):
             from hdeem_watch.errors import InputError
 
@@ -129,10 +130,12 @@ class SimSource:
         self.io_j_per_line = float(io_j_per_line)
         self.buffer_ns = int(buffer_s * 1e9)
         self.block_ns = max(0, int(block_s * 1e9))
-        self.model = load_model()
+        self.layout = layout_for_node(node) if node is not None else layout
+        self.model = load_model(self.layout)
         self.truth_model = TruthModel(self.model.names, self.model.datasheet, self.seed,
-                                      aging_per_h=aging_per_h, temp_amp_c=temp_amp_c, dimm_spread=dimm_spread)
-        self._infos = hdeem_channel_infos()
+                                      aging_per_h=aging_per_h, temp_amp_c=temp_amp_c, dimm_spread=dimm_spread,
+                                      dimms=len(self.layout.dimm_names))
+        self._infos = self.layout.channel_infos()
         rng = np.random.default_rng([self.seed, 104729])
         self._offset_w = {
             info.name: (float(rng.uniform(-0.1, 0.3)) if info.kind == "dram" else float(rng.uniform(-1.0, 1.0)))
@@ -171,7 +174,7 @@ class SimSource:
 
     # -- Source protocol -------------------------------------------------------------------------------
     def channels(self) -> list[ChannelInfo]:
-        """BLADE 1000 Sa/s; CPU0, CPU1, DDR_AB, DDR_CD, DDR_EF, DDR_GH 100 Sa/s."""
+        """BLADE 1000 Sa/s; CPU0, CPU1, DDR_AB, DDR_CD, DDR_EF, DDR_GH 100 Sa/s (the default node)."""
         return list(self._infos)
 
     def open(self) -> None:
@@ -180,8 +183,8 @@ class SimSource:
             return
         self._t0_mono = int(self._clock())
         self._t0_wall = int(self._wall_clock())
-        self._next_k = {name: 1 for name in CHANNELS}
-        self._energy_j = {name: 0.0 for name in CHANNELS}
+        self._next_k = {info.name: 1 for info in self._infos}
+        self._energy_j = {info.name: 0.0 for info in self._infos}
         self._sim_ns = 0
         self._generated_ns = 0
         self._idle.blocks = [None] * len(self._groups)
@@ -254,11 +257,12 @@ class SimSource:
                 keep_from = k1 - self.buffer_ns // period + 1
                 lost = keep_from - k0
                 self._energy_j[name] += mean_power_w(name, k0 * period - period, (keep_from - 1) * period, idle,
-                                                     plans, offset_w=offset) * (keep_from - k0) * period * 1e-9
+                                                     plans, offset_w=offset, layout=self.layout) \
+                    * (keep_from - k0) * period * 1e-9
                 k0 = keep_from
             ks = np.arange(k0, k1 + 1, dtype=np.int64)
             t_end = ks * period
-            power = channel_power_w(name, t_end, period, idle, plans, offset_w=offset)
+            power = channel_power_w(name, t_end, period, idle, plans, offset_w=offset, layout=self.layout)
             if name in self._owed:
                 keep = deposit_owed(self._owed[name], t_end, period, power)
                 if keep:
@@ -280,7 +284,8 @@ class SimSource:
     def _flat_w(self, sim_now: int) -> dict[str, float]:
         """Every channel's noise-free idle power at ``sim_now`` (both groups' new blocks usually start together)."""
         if self._flat_at != sim_now:
-            self._flat = flat_power_w(idle_power_w(self.model, self.truth_model.currents(sim_now * 1e-9)), self._offset_w)
+            self._flat = flat_power_w(idle_power_w(self.model, self.truth_model.currents(sim_now * 1e-9)), self._offset_w,
+                                      self.layout)
             self._flat_at = sim_now
         return self._flat
 
@@ -316,7 +321,7 @@ class SimSource:
         stopped, owed = plan.stopped(t)
         self._plans[run_id] = stopped
         if np.any(owed > 0):
-            for d, pair in enumerate(DIMM_PAIR):
+            for d, pair in enumerate(self.layout.dimm_sensor):
                 self._add_owed(pair, t, float(owed[d]))
             self._add_owed("BLADE", t, float(owed.sum()))
 

@@ -2,7 +2,9 @@
 
 The modelled node is a 2-socket Haswell-EP (2 × 12 cores, logical CPUs 0–11 on socket 0, 12–23 on
 socket 1, 24–35 and 36–47 their hyper-threads) with 8 DIMMs of the Samsung M393A1G43DB0-CPB, one
-per memory channel, 4 channels per socket. HDEEM's DIMM-pair sensors: DDR_AB = DIMMs A, B and
+per memory channel, 4 channels per socket — by default; any node with one DIMM per channel can be
+modelled instead (:class:`~hdeem_watch.sources.sim_layout.SimLayout`, e.g. from a detected
+:class:`~hdeem_watch.node.description.NodeDescription`). HDEEM's DIMM-pair sensors: DDR_AB = DIMMs A, B and
 DDR_CD = C, D on socket 0; DDR_EF = E, F and DDR_GH = G, H on socket 1.
 
 Traffic split (:func:`hdeem_watch.dram.node.node_run_stats`, the same function the daemon's
@@ -36,15 +38,17 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.dram.node import HASWELL_EP, lines_of, node_capacity_lines_s, node_run_stats
+from hdeem_watch.dram.node import lines_of, node_capacity_lines_s, node_run_stats
 from hdeem_watch.dram.stats import CommandStats, RankStats
 from hdeem_watch.sources.sim_currents import truth_parts
+from hdeem_watch.sources.sim_layout import TAURUS, SimLayout
 
-#: DIMM names, in channel order (A..H), and the HDEEM pair channel and socket of each.
-DIMMS = ("A", "B", "C", "D", "E", "F", "G", "H")
-DIMM_PAIR = ("DDR_AB", "DDR_AB", "DDR_CD", "DDR_CD", "DDR_EF", "DDR_EF", "DDR_GH", "DDR_GH")
-DIMM_SOCKET = (0, 0, 0, 0, 1, 1, 1, 1)
-TOPOLOGY = HASWELL_EP
+#: The default (Taurus) layout's DIMM names, in channel order (A..H), and the HDEEM pair channel
+#: and socket of each; other layouts: :class:`~hdeem_watch.sources.sim_layout.SimLayout`.
+DIMMS = TAURUS.dimm_names
+DIMM_PAIR = TAURUS.dimm_sensor
+DIMM_SOCKET = TAURUS.dimm_socket
+TOPOLOGY = TAURUS.topology
 CORES_PER_SOCKET = TOPOLOGY.cores_per_socket
 SOCKETS = TOPOLOGY.sockets
 CHANNELS_PER_SOCKET = TOPOLOGY.channels_per_socket
@@ -102,7 +106,7 @@ def line_rate_of(model: DramModel, kernel: str, threads: int, groups: list[tuple
     traffic = kernel_traffic_lines(kernel, 8)
     if traffic is None or threads <= 0:
         return 0.0
-    counts = TOPOLOGY.threads_per_socket(threads)
+    counts = model.layout.topology.threads_per_socket(threads)
     lines = [lines_of(stats) * n for stats, n in groups]
     total = sum(lines)
     if total <= 0:
@@ -118,7 +122,8 @@ def line_rate_of(model: DramModel, kernel: str, threads: int, groups: list[tuple
     return 0.0 if rate == math.inf else float(rate)
 
 
-def modelled_line_rate(kernel: str, threads: int, elements: int = REFERENCE_ELEMENTS) -> float:
+def modelled_line_rate(kernel: str, threads: int, elements: int = REFERENCE_ELEMENTS,
+                       layout: SimLayout = TAURUS) -> float:
     """64-byte lines per second the modelled node moves for ``kernel`` with ``threads`` threads.
 
     0.0 for a kernel without DRAM traffic (compute-only / idle). ``elements`` sets the array size
@@ -126,24 +131,29 @@ def modelled_line_rate(kernel: str, threads: int, elements: int = REFERENCE_ELEM
     """
     if kernel_traffic_lines(kernel, 8) is None or threads <= 0:
         return 0.0
-    return _cached_rate(str(kernel), int(threads), int(elements))
+    return _cached_rate(str(kernel), int(threads), int(elements), layout)
 
 
 @functools.lru_cache(maxsize=512)
-def _cached_rate(kernel: str, threads: int, elements: int) -> float:
-    model = default_model()
+def _cached_rate(kernel: str, threads: int, elements: int, layout: SimLayout = TAURUS) -> float:
+    model = model_for(layout)
     return line_rate_of(model, kernel, threads, model.node_stats(kernel, elements, threads, 1))
 
 
 class DramModel:
-    """The DRAM model (memspec, energy columns, node statistics) of the sim's DIMMs."""
+    """The DRAM model (memspec, energy columns, node statistics) of the sim's DIMMs.
+
+    Args:
+        layout: the node's sockets, cores and channels (default: the Taurus Haswell-EP node).
+    """
 
     backend = "dram"
 
-    def __init__(self) -> None:
+    def __init__(self, layout: SimLayout = TAURUS) -> None:
         from hdeem_watch.dram.energy import CURRENT_NAMES
         from hdeem_watch.dram.memspec import preset
 
+        self.layout = layout
         self.spec: Any = preset(MEMSPEC_PRESET)
         self.names: tuple[str, ...] = tuple(CURRENT_NAMES)
         self.datasheet = np.array([float(self.spec.currents.get(n, 0.0)) for n in self.names])
@@ -151,10 +161,10 @@ class DramModel:
         self._node_stats = functools.lru_cache(maxsize=256)(self._compute_node_stats)
 
     def _compute_node_stats(self, kernel: str, elements: int, threads: int, repeat: int) -> tuple[tuple[CommandStats, int], ...]:
-        return tuple(node_run_stats(self.spec, kernel, elements, threads, repeat, TOPOLOGY))
+        return tuple(node_run_stats(self.spec, kernel, elements, threads, repeat, self.layout.topology))
 
     def node_stats(self, kernel: str, elements: int, threads: int, repeat: int) -> list[tuple[CommandStats, int]]:
-        """``node_run_stats(spec, ..., TOPOLOGY)`` (cached): per socket, one channel's stats and count."""
+        """``node_run_stats(spec, ..., layout.topology)`` (cached): per socket, one channel's stats and count."""
         if kernel_traffic_lines(kernel, 8) is None:
             kernel = "idle"
         return list(self._node_stats(str(kernel), int(elements), int(threads), int(repeat)))
@@ -191,15 +201,20 @@ class DramModel:
 Model = DramModel
 
 
-@functools.lru_cache(maxsize=1)
+@functools.lru_cache(maxsize=8)
+def model_for(layout: SimLayout) -> DramModel:
+    """The shared DRAM model of a layout (built once per layout)."""
+    return DramModel(layout)
+
+
 def default_model() -> DramModel:
-    """The shared DRAM model (built once)."""
-    return DramModel()
+    """The shared DRAM model of the default (Taurus) node."""
+    return model_for(TAURUS)
 
 
-def load_model() -> Model:
-    """The DRAM model of the sim's DIMMs (shared, built once)."""
-    return default_model()
+def load_model(layout: SimLayout = TAURUS) -> Model:
+    """The DRAM model of the sim's DIMMs (shared, built once per layout)."""
+    return model_for(layout)
 
 
 def effective_currents(model: Model, currents: np.ndarray, io_j_per_line: float, offsets_w: float = 0.0,
@@ -235,7 +250,7 @@ def effective_currents(model: Model, currents: np.ndarray, io_j_per_line: float,
     idx = [names.index(n) for n in calibrated if n in names]
     out[..., idx] = truth[..., idx]
     f_ref = float(spec.trfc) / float(spec.timings["REFI"])
-    per_dimm_w = offsets_w / len(DIMMS)
+    per_dimm_w = offsets_w / len(model.layout.dimm_names)
     i5b = names.index("idd5b")
     refresh_w = (truth[..., i5b] - model.datasheet[i5b]) * model.standby_w_per_a() * f_ref
     shift = (per_dimm_w + refresh_w) / (model.standby_w_per_a() * (1.0 - f_ref))
@@ -266,14 +281,15 @@ class TruthModel:
     """
 
     def __init__(self, names: tuple[str, ...], datasheet: np.ndarray, seed: int, *,
-                 aging_per_h: float = 0.005, temp_amp_c: float = 3.0, dimm_spread: float = 0.10) -> None:
+                 aging_per_h: float = 0.005, temp_amp_c: float = 3.0, dimm_spread: float = 0.10,
+                 dimms: int = len(DIMMS)) -> None:
         rng = np.random.default_rng([int(seed), 7919])
         base = rng.uniform(0.35, 0.70, size=len(names))
-        per_dimm = rng.uniform(1.0 - dimm_spread, 1.0 + dimm_spread, size=(len(DIMMS), len(names)))
+        per_dimm = rng.uniform(1.0 - dimm_spread, 1.0 + dimm_spread, size=(dimms, len(names)))
         self.names = names
         self.datasheet = np.asarray(datasheet, dtype=float)
         self.ratio = np.clip(base[None, :] * per_dimm, 0.35, 0.85)
-        self.phase = rng.uniform(0.0, 2 * math.pi, size=len(DIMMS))
+        self.phase = rng.uniform(0.0, 2 * math.pi, size=dimms)
         self.aging_per_h = aging_per_h
         self.temp_amp_c = temp_amp_c
         self._floor, self._increment = truth_parts(names, self.datasheet, self.ratio, _BACKGROUND)
@@ -283,7 +299,7 @@ class TruthModel:
         return 40.0 + self.temp_amp_c * np.sin(2 * math.pi * t_s / 3600.0 + self.phase)
 
     def currents(self, t_s: float) -> np.ndarray:
-        """True currents (A per device), shape (8 DIMMs, len(names)), at ``t_s`` seconds of sim time."""
+        """True currents (A per device), shape (DIMMs, len(names)), at ``t_s`` seconds of sim time."""
         aging = 1.0 + self.aging_per_h * t_s / 3600.0
         warm = (self.temperature_c(t_s) - 40.0)[:, None]
         return (self._floor * (1.0 + 0.005 * warm) + self._increment * (1.0 + 0.001 * warm)) * aging
@@ -313,7 +329,7 @@ class RunPlan:
     dyn_j: np.ndarray
     io_j: np.ndarray
     idle_w: np.ndarray
-    threads: tuple[int, int]
+    threads: tuple[int, ...]
     traffic_end_ns: int
     cpu_end_ns: int | None = None
 
@@ -336,7 +352,7 @@ class RunPlan:
 
 
 def idle_power_w(model: Model, currents: np.ndarray) -> np.ndarray:
-    """Idle power (W) per DIMM for per-DIMM ``currents`` (8 × names)."""
+    """Idle power (W) per DIMM for per-DIMM ``currents`` (DIMMs × names)."""
     cached = getattr(model, "_idle_per_s", None)
     if cached is None:
         cached = model.linear(model.idle_stats(1.0))
@@ -347,11 +363,12 @@ def idle_power_w(model: Model, currents: np.ndarray) -> np.ndarray:
 
 def plan_run(model: Model, currents: np.ndarray, run_id: str, t0_ns: int, kernel: str, elements: int,
              threads: int, repeat: int, io_j_per_line: float) -> RunPlan:
-    """The energy plan of a run starting at ``t0_ns`` with the true ``currents`` (8 × names) then."""
+    """The energy plan of a run starting at ``t0_ns`` with the true ``currents`` (DIMMs × names) then."""
     idle = idle_power_w(model, currents)
-    tps = threads_per_socket(threads)
+    layout = model.layout
+    tps = layout.topology.threads_per_socket(threads)
     traffic = kernel_traffic_lines(kernel, elements)
-    zeros = np.zeros(len(DIMMS))
+    zeros = np.zeros(len(layout.dimm_names))
     if traffic is None or repeat <= 0 or sum(traffic) == 0 or threads <= 0:
         return RunPlan(run_id, t0_ns, 0, zeros, zeros, zeros, idle, tps, t0_ns)
     groups = model.node_stats(kernel, elements, threads, repeat)
@@ -363,8 +380,8 @@ def plan_run(model: Model, currents: np.ndarray, run_id: str, t0_ns: int, kernel
     for socket, (stats, _channels) in enumerate(groups):
         c1, k1 = model.linear(model.stretched(stats, duration_s))
         c2, k2 = model.linear(model.stretched(stats, 2 * duration_s))
-        for d in range(len(DIMMS)):
-            if DIMM_SOCKET[d] != socket:
+        for d, dimm_socket in enumerate(layout.dimm_socket):
+            if dimm_socket != socket:
                 continue
             e1 = float(currents[d] @ c1 + k1)
             e2 = float(currents[d] @ c2 + k2)
@@ -377,12 +394,12 @@ def plan_run(model: Model, currents: np.ndarray, run_id: str, t0_ns: int, kernel
 
 def run_truth_energy_j(model: Model, currents: np.ndarray, kernel: str, elements: int, threads: int,
                        repeat: int, window_s: float) -> float:
-    """Core energy (J) of the 8 DIMMs for a run evaluated over ``window_s`` (no I/O, no offsets)."""
+    """Core energy (J) of the node's DIMMs for a run evaluated over ``window_s`` (no I/O, no offsets)."""
     groups = model.node_stats(kernel, elements, threads, repeat)
     total = 0.0
     for socket, (stats, _channels) in enumerate(groups):
         cols, const = model.linear(model.stretched(stats, window_s))
-        for d in range(len(DIMMS)):
-            if DIMM_SOCKET[d] == socket:
+        for d, dimm_socket in enumerate(model.layout.dimm_socket):
+            if dimm_socket == socket:
                 total += float(currents[d] @ cols + const)
     return total

@@ -1,4 +1,4 @@
-"""The simulated node's noise-free signal: each HDEEM channel's mean power over its sample intervals.
+"""The simulated node's noise-free signal: each channel's mean power over its sample intervals.
 
 Pure functions of the idle power per DIMM, the active :class:`~hdeem_watch.sources.sim_model.RunPlan`
 objects and the channel's board offset. A sample ending at ``t`` is the mean power over
@@ -10,7 +10,7 @@ Example:
     >>> idle = np.full(8, 0.5)
     >>> channel_power_w("DDR_AB", np.array([10, 20]), 10, idle, [], offset_w=0.25).tolist()
     [1.25, 1.25]
-    >>> float(flat_power_w(idle, {n: 0.0 for n in ("BLADE", "CPU0", "CPU1", *DRAM_CHANNELS)})["BLADE"])
+    >>> float(flat_power_w(idle, dict.fromkeys(TAURUS.channels, 0.0))["BLADE"])
     69.0
 """
 
@@ -21,8 +21,8 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-from hdeem_watch.sources.base import DRAM_CHANNELS
-from hdeem_watch.sources.sim_model import DIMM_PAIR, DIMMS, RunPlan
+from hdeem_watch.sources.sim_layout import TAURUS, SimLayout
+from hdeem_watch.sources.sim_model import RunPlan
 
 #: Idle CPU package power (W) per socket and the extra power per busy core / hyper-thread.
 CPU_IDLE_W = (12.0, 8.0)
@@ -32,9 +32,8 @@ CPU_HT_W = 0.3
 BLADE_BASE_W = 45.0
 #: Noise σ (W) per channel kind.
 NOISE_W = {"blade": 0.8, "cpu": 0.25, "dram": 0.05}
-#: The DIMMs (indices) behind each DIMM-pair channel.
-PAIR_DIMMS = {name: [d for d in range(len(DIMMS)) if DIMM_PAIR[d] == name] for name in DRAM_CHANNELS}
-_PAIR_INDEX = np.array([PAIR_DIMMS[name] for name in DRAM_CHANNELS])
+#: The DIMMs (indices) behind each DIMM-pair channel of the default node.
+PAIR_DIMMS = {name: TAURUS.sensor_dimms(name) for name in TAURUS.sensors}
 
 
 def overlap(t_end: np.ndarray, period: int, a: int, b: float) -> np.ndarray:
@@ -55,47 +54,58 @@ def dram_w(dimms: list[int], t_end: np.ndarray, period: int, idle_w: np.ndarray,
     return power
 
 
-def cpu_w(socket: int, t_end: np.ndarray, period: int, plans: Iterable[RunPlan]) -> np.ndarray:
+def cpu_idle_w(socket: int) -> float:
+    """Idle package power of ``socket`` (W): socket 0 carries the OS, the others idle lower."""
+    return CPU_IDLE_W[min(socket, len(CPU_IDLE_W) - 1)]
+
+
+def cpu_w(socket: int, t_end: np.ndarray, period: int, plans: Iterable[RunPlan], cores: int = 12) -> np.ndarray:
     """Mean package power of ``socket`` over each interval: idle plus the busy cores of every run."""
-    power = np.full(len(t_end), CPU_IDLE_W[socket])
+    power = np.full(len(t_end), cpu_idle_w(socket))
     for plan in plans:
-        n = plan.threads[socket]
+        n = plan.threads[socket] if socket < len(plan.threads) else 0
         if n <= 0:
             continue
-        extra = CPU_CORE_W * min(n, 12) + CPU_HT_W * max(n - 12, 0)
+        extra = CPU_CORE_W * min(n, cores) + CPU_HT_W * max(n - cores, 0)
         end = math.inf if plan.cpu_end_ns is None else plan.cpu_end_ns
         power += extra * overlap(t_end, period, plan.t0_ns, end)
     return power
 
 
 def channel_power_w(name: str, t_end: np.ndarray, period: int, idle_w: np.ndarray, plans: Iterable[RunPlan],
-                    *, offset_w: float) -> np.ndarray:
+                    *, offset_w: float, layout: SimLayout = TAURUS) -> np.ndarray:
     """Noise-free mean power of channel ``name`` over each interval ``(t − period, t]`` (W)."""
     plans = list(plans)
-    if name in DRAM_CHANNELS:
-        power = dram_w(PAIR_DIMMS[name], t_end, period, idle_w, plans)
-    elif name in ("CPU0", "CPU1"):
-        power = cpu_w(int(name[-1]), t_end, period, plans)
-    else:  # BLADE: base + both sockets + all DIMMs
-        power = BLADE_BASE_W + cpu_w(0, t_end, period, plans) + cpu_w(1, t_end, period, plans)
-        power = power + dram_w(list(range(len(DIMMS))), t_end, period, idle_w, plans)
+    cores = layout.topology.cores_per_socket
+    if name in layout.sensors:
+        power = dram_w(layout.sensor_dimms(name), t_end, period, idle_w, plans)
+    elif name in layout.cpu_channels:
+        power = cpu_w(int(name[3:]), t_end, period, plans, cores)
+    else:  # BLADE: base + every socket + all DIMMs
+        power = BLADE_BASE_W + cpu_w(0, t_end, period, plans, cores)
+        for socket in range(1, layout.sockets):
+            power = power + cpu_w(socket, t_end, period, plans, cores)
+        power = power + dram_w(list(range(len(layout.dimm_names))), t_end, period, idle_w, plans)
     return power + offset_w
 
 
-def mean_power_w(name: str, a: int, b: int, idle_w: np.ndarray, plans: Iterable[RunPlan], *, offset_w: float) -> float:
+def mean_power_w(name: str, a: int, b: int, idle_w: np.ndarray, plans: Iterable[RunPlan], *, offset_w: float,
+                 layout: SimLayout = TAURUS) -> float:
     """Noise-free mean power of ``name`` over ``(a, b]`` (for samples lost to the sensor buffer)."""
     if b <= a:
         return 0.0
-    return float(channel_power_w(name, np.array([b], dtype=np.int64), b - a, idle_w, plans, offset_w=offset_w)[0])
+    return float(channel_power_w(name, np.array([b], dtype=np.int64), b - a, idle_w, plans, offset_w=offset_w,
+                                 layout=layout)[0])
 
 
-def flat_power_w(idle_w: np.ndarray, offset_w: Mapping[str, float]) -> dict[str, float]:
+def flat_power_w(idle_w: np.ndarray, offset_w: Mapping[str, float], layout: SimLayout = TAURUS) -> dict[str, float]:
     """Noise-free power of every channel of an idle node (W), summed as :func:`channel_power_w` sums."""
-    flat = {name: pair + offset_w[name]
-            for name, pair in zip(DRAM_CHANNELS, idle_w[_PAIR_INDEX].sum(axis=1).tolist())}
-    flat["CPU0"] = CPU_IDLE_W[0] + offset_w["CPU0"]
-    flat["CPU1"] = CPU_IDLE_W[1] + offset_w["CPU1"]
-    flat["BLADE"] = BLADE_BASE_W + CPU_IDLE_W[0] + CPU_IDLE_W[1] + float(idle_w.sum()) + offset_w["BLADE"]
+    flat = {name: float(idle_w[layout.sensor_dimms(name)].sum()) + offset_w[name] for name in layout.sensors}
+    cpu_total = 0.0
+    for socket, name in enumerate(layout.cpu_channels):
+        flat[name] = cpu_idle_w(socket) + offset_w[name]
+        cpu_total += cpu_idle_w(socket)
+    flat["BLADE"] = BLADE_BASE_W + cpu_total + float(idle_w.sum()) + offset_w["BLADE"]
     return flat
 
 

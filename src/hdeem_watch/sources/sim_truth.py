@@ -20,8 +20,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from hdeem_watch.sources.base import DRAM_CHANNELS
-from hdeem_watch.sources.sim_model import DIMM_PAIR, DIMM_SOCKET, DIMMS, Model, TruthModel, effective_currents
+from hdeem_watch.sources.sim_model import Model, TruthModel, effective_currents
 
 
 def truth_report(model: Model, truth: TruthModel, t_s: float, *, t_ns: int, offset_w: Mapping[str, float],
@@ -39,7 +38,8 @@ def truth_report(model: Model, truth: TruthModel, t_s: float, *, t_ns: int, offs
     currents = truth.currents(t_s)
     temps = truth.temperature_c(t_s)
     names = model.names
-    offsets = float(sum(offset_w[c] for c in DRAM_CHANNELS))
+    layout = model.layout
+    offsets = float(sum(offset_w[c] for c in layout.sensors))
     effective = effective_currents(model, currents, io_j_per_line, offsets)
     return {
         "simulated": True,
@@ -52,10 +52,10 @@ def truth_report(model: Model, truth: TruthModel, t_s: float, *, t_ns: int, offs
         "effective_note": "core truth + I/O energy per burst (IDD4R/IDD4W) + DIMM-pair sensor offsets",
         "dimms": {
             f"DIMM_{dimm}": {
-                "channel": DIMM_PAIR[d], "socket": DIMM_SOCKET[d], "temperature_c": float(temps[d]),
+                "channel": layout.dimm_sensor[d], "socket": layout.dimm_socket[d], "temperature_c": float(temps[d]),
                 "currents_a": {n: float(v) for n, v in zip(names, currents[d])},
             }
-            for d, dimm in enumerate(DIMMS)
+            for d, dimm in enumerate(layout.dimm_names)
         },
         "offsets_w": dict(offset_w),
         "io_j_per_line": io_j_per_line,

@@ -1,0 +1,44 @@
+"""The node report behind ``hdeem-watch node``: description, memspec choice and sensor map as JSON.
+
+Example:
+    >>> from pathlib import Path
+    >>> report = node_report(describe_node(Path("/nonexistent"), None, "not given"))
+    >>> sorted(k for k in report if k in ("sockets", "dimms", "memspec", "sensors"))
+    ['dimms', 'memspec', 'sensors', 'sockets']
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hdeem_watch.node.description import NodeDescription, describe_node
+from hdeem_watch.node.memspec_choice import MemspecChoice, choose_memspec
+from hdeem_watch.node.overrides import NodeOverrides
+from hdeem_watch.node.sensors import sensor_map
+
+__all__ = ["describe_node", "node_report"]
+
+
+def node_report(node: NodeDescription, overrides: NodeOverrides | None = None) -> dict[str, Any]:
+    """One JSON object: every count (plain and with its source), the DIMMs, memspec, sensors, notes.
+
+    Args:
+        node: the (overridden) description.
+        overrides: the ``[node]`` table, for a configured memspec and sensor map.
+    """
+    if overrides is not None and overrides.memspec:
+        choice = MemspecChoice(overrides.memspec, "set in the [node] table", "configured")
+    else:
+        choice = choose_memspec(node.dimms)
+    sensors = sensor_map(node)
+    if overrides is not None and overrides.sensors:
+        sensors = {**sensors, **overrides.sensors}
+    facts = node.facts()
+    out: dict[str, Any] = {name: fact.value for name, fact in facts.items()}
+    out["facts"] = {name: fact.to_json() for name, fact in facts.items()}
+    out["cpus_by_socket"] = {str(s): cpus for s, cpus in sorted(node.cpus_by_socket.items())}
+    out["dimms"] = [d.to_json(node.channel_letter(d)) for d in node.dimms]
+    out["memspec"] = choice.to_json()
+    out["sensors"] = sensors
+    out["notes"] = list(node.notes)
+    return out

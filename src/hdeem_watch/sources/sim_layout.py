@@ -1,0 +1,114 @@
+"""The simulated node's layout: sockets, cores, channels (one DIMM each) and the sensors over them.
+
+The default is the Taurus Haswell-EP node HDEEM was built for (:data:`TAURUS`: 2 sockets × 12
+cores, 4 channels per socket, DIMMs A–H, sensors DDR_AB, DDR_CD on socket 0 and DDR_EF, DDR_GH on
+socket 1). :func:`layout_for_node` makes the layout of any detected or configured
+:class:`~hdeem_watch.node.description.NodeDescription` with one DIMM per channel, so the sim can
+stand in for a 2 × 28-core Ice Lake or a 1-socket node: DIMMs are named by the node-wide channel
+letters, one sensor per pair of consecutive channels of a socket (the
+:func:`~hdeem_watch.node.sensors.sensor_map` rule), one ``CPU<n>`` channel per socket.
+
+Example:
+    >>> TAURUS.dimm_sensor
+    ('DDR_AB', 'DDR_AB', 'DDR_CD', 'DDR_CD', 'DDR_EF', 'DDR_EF', 'DDR_GH', 'DDR_GH')
+    >>> SimLayout.regular(1, 8, 6).sensors
+    ('DDR_AB', 'DDR_CD', 'DDR_EF')
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+from hdeem_watch.dram.node import NodeTopology
+from hdeem_watch.errors import InputError
+from hdeem_watch.sources.base import ChannelInfo
+
+if TYPE_CHECKING:
+    from hdeem_watch.node.description import NodeDescription
+
+
+def _letter(index: int) -> str:
+    return chr(ord("A") + index) if index < 26 else f"CH{index}"
+
+
+@dataclass(frozen=True)
+class SimLayout:
+    """Where the simulated node's DIMMs are and which sensor sees each.
+
+    Attributes:
+        topology: sockets, cores per socket, channels per socket (one DIMM per channel).
+        dimm_names: DIMM names (node-wide channel letters), in channel order.
+        dimm_socket: the socket of each DIMM.
+        dimm_sensor: the DRAM sensor channel that measures each DIMM.
+        sensors: the DRAM sensor channels, in order.
+    """
+
+    topology: NodeTopology
+    dimm_names: tuple[str, ...]
+    dimm_socket: tuple[int, ...]
+    dimm_sensor: tuple[str, ...]
+    sensors: tuple[str, ...] = field(default=())
+
+    @classmethod
+    def regular(cls, sockets: int, cores_per_socket: int, channels_per_socket: int) -> SimLayout:
+        """``sockets`` × ``channels_per_socket`` DIMMs, sensors over pairs of consecutive channels."""
+        topology = NodeTopology(sockets=sockets, cores_per_socket=cores_per_socket,
+                                channels_per_socket=channels_per_socket)
+        names, socket_of, sensor_of = [], [], []
+        for s in range(sockets):
+            for c in range(channels_per_socket):
+                index = s * channels_per_socket + c
+                first = s * channels_per_socket + (c // 2) * 2
+                last = min(first + 1, s * channels_per_socket + channels_per_socket - 1)
+                names.append(_letter(index))
+                socket_of.append(s)
+                sensor_of.append("DDR_" + "".join(_letter(i) for i in sorted({first, last})))
+        sensors = tuple(dict.fromkeys(sensor_of))
+        return cls(topology, tuple(names), tuple(socket_of), tuple(sensor_of), sensors)
+
+    @property
+    def sockets(self) -> int:
+        """Sockets."""
+        return self.topology.sockets
+
+    @property
+    def cpu_channels(self) -> tuple[str, ...]:
+        """``CPU0``, ``CPU1``, ... (one package power channel per socket)."""
+        return tuple(f"CPU{s}" for s in range(self.sockets))
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        """Every channel the sim publishes: BLADE, the CPU packages, the DRAM sensors."""
+        return ("BLADE", *self.cpu_channels, *self.sensors)
+
+    def channel_infos(self) -> list[ChannelInfo]:
+        """BLADE at 1000 Sa/s, the CPU and DRAM channels at 100 Sa/s (HDEEM's rates)."""
+        return ([ChannelInfo("BLADE", 1000.0, "blade")] + [ChannelInfo(n, 100.0, "cpu") for n in self.cpu_channels]
+                + [ChannelInfo(n, 100.0, "dram") for n in self.sensors])
+
+    def sensor_dimms(self, sensor: str) -> list[int]:
+        """Indices of the DIMMs behind ``sensor``."""
+        return [d for d, s in enumerate(self.dimm_sensor) if s == sensor]
+
+
+#: The Taurus Haswell-EP node (the sim's default).
+TAURUS = SimLayout.regular(2, 12, 4)
+
+
+def layout_for_node(node: NodeDescription) -> SimLayout:
+    """The sim layout of a node description (sockets, cores and channels must be known).
+
+    Raises:
+        InputError: a count the description does not know, or more than one DIMM per channel
+            (the sim models one DIMM per channel).
+    """
+    missing = [name for name, fact in (("sockets", node.sockets), ("cores_per_socket", node.cores_per_socket),
+                                       ("channels_per_socket", node.channels_per_socket)) if fact.value is None]
+    if missing:
+        raise InputError(f"sim: the node description does not know {', '.join(missing)}; set them in the [node] table")
+    dpc = node.dimms_per_channel.value
+    if dpc is not None and dpc != 1:
+        raise InputError(f"sim: {dpc} DIMMs per channel; the simulated node models one DIMM per channel")
+    return SimLayout.regular(int(node.sockets.value or 0), int(node.cores_per_socket.value or 0),
+                             int(node.channels_per_socket.value or 0))

@@ -1,0 +1,216 @@
+"""Writes the fixture trees of tests/node/fixtures/ (run once; the trees are checked in).
+
+Each node: a sysfs subset laid out as Linux prints it (``devices/system/cpu``, ``devices/system/node``,
+``devices/system/edac/mc``) and a ``dmidecode -t 17`` print-out in the spelling of the dmidecode
+version such a node ran. Sizes, speeds, part numbers and core counts are those of real products
+(Xeon E5-2680 v3, Gold 6148, Gold 6330, Silver 4116, EPYC 7302; the modules named in each file).
+
+Usage: ``python3 tests/node/make_fixtures.py`` from the repository root.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent / "fixtures"
+
+
+def cpu_list(cpus: list[int]) -> str:
+    """Kernel CPU-list spelling of sorted CPUs (``0-11,24-35``)."""
+    out: list[str] = []
+    start = prev = cpus[0]
+    for c in cpus[1:]:
+        if c == prev + 1:
+            prev = c
+            continue
+        out.append(f"{start}-{prev}" if prev != start else f"{start}")
+        start = prev = c
+    out.append(f"{start}-{prev}" if prev != start else f"{start}")
+    return ",".join(out)
+
+
+def write(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text + "\n")
+
+
+def cpus(root: Path, sockets: int, cores: int, threads: int, *, die_id: bool, numa: list[list[int]] | None = None) -> None:
+    """Linux numbering: socket s core c thread t -> CPU t*sockets*cores + s*cores + c (only the
+    topology files the reader needs: physical_package_id, core_id, die_id on kernels >= 5.2)."""
+    total = sockets * cores * threads
+    base = root / "devices" / "system" / "cpu"
+    write(base / "online", cpu_list(list(range(total))))
+    write(base / "possible", cpu_list(list(range(total))))
+    for s in range(sockets):
+        for c in range(cores):
+            siblings = [t * sockets * cores + s * cores + c for t in range(threads)]
+            for cpu in siblings:
+                topo = base / f"cpu{cpu}" / "topology"
+                write(topo / "physical_package_id", str(s))
+                write(topo / "core_id", str(c))
+                if die_id:
+                    write(topo / "die_id", "0")
+    nodes = numa or [sorted(t * sockets * cores + s * cores + k for t in range(threads) for k in range(cores))
+                     for s in range(sockets)]
+    nbase = root / "devices" / "system" / "node"
+    write(nbase / "online", cpu_list(list(range(len(nodes)))))
+    for n, members in enumerate(nodes):
+        write(nbase / f"node{n}" / "cpulist", cpu_list(sorted(members)))
+
+
+def edac(root: Path, mcs: list[list[tuple[str, str, int]]], mc_name: str, mem_type: str, dev_type: str) -> None:
+    """mcs[m] = [(label, location, size_mb)] of populated DIMMs of controller m."""
+    base = root / "devices" / "system" / "edac" / "mc"
+    for m, dimms in enumerate(mcs):
+        mc = base / f"mc{m}"
+        write(mc / "mc_name", mc_name)
+        write(mc / "size_mb", str(sum(d[2] for d in dimms)))
+        write(mc / "ce_count", "0")
+        write(mc / "ue_count", "0")
+        for i, (label, location, size) in enumerate(dimms):
+            d = mc / f"dimm{i}"
+            write(d / "size", str(size))
+            write(d / "dimm_label", label)
+            write(d / "dimm_location", location + " ")
+            write(d / "dimm_mem_type", mem_type)
+            write(d / "dimm_dev_type", dev_type)
+            write(d / "dimm_edac_mode", "SECDED")
+            write(d / "dimm_ce_count", "0")
+
+
+def dmi_record(handle: int, version: str, size_gb: int | None, locator: str, bank: str, *, speed: int, conf: int,
+               ranks: int, maker: str, part: str, total_width: int = 72) -> str:
+    """One DMI type 17 record as dmidecode ``version`` ("2.12", "3.2", "3.3") prints it."""
+    old = version.startswith("2.")
+    unit = "MHz" if old else "MT/s"
+    conf_key = "Configured Clock Speed" if version in ("2.12", "3.0", "3.1") else "Configured Memory Speed"
+    lines = [f"Handle 0x{handle:04X}, DMI type 17, {40 if old else 84} bytes", "Memory Device",
+             "\tArray Handle: 0x0026", "\tError Information Handle: Not Provided"]
+    if size_gb is None:
+        lines += ["\tTotal Width: Unknown", "\tData Width: Unknown", "\tSize: No Module Installed",
+                  "\tForm Factor: DIMM", "\tSet: None", f"\tLocator: {locator}", f"\tBank Locator: {bank}",
+                  "\tType: Unknown", "\tType Detail: None", "\tSpeed: Unknown", "\tManufacturer: NO DIMM",
+                  "\tSerial Number: NO DIMM", "\tAsset Tag: NO DIMM", "\tPart Number: NO DIMM", "\tRank: Unknown",
+                  f"\t{conf_key}: Unknown"]
+    else:
+        size = f"{size_gb * 1024} MB" if old else f"{size_gb} GB"
+        lines += [f"\tTotal Width: {total_width} bits", "\tData Width: 64 bits", f"\tSize: {size}",
+                  "\tForm Factor: DIMM", "\tSet: None", f"\tLocator: {locator}", f"\tBank Locator: {bank}",
+                  "\tType: DDR4", "\tType Detail: Synchronous Registered (Buffered)", f"\tSpeed: {speed} {unit}",
+                  f"\tManufacturer: {maker}", f"\tSerial Number: {0x1A2B3C00 + handle:08X}",
+                  f"\tAsset Tag: {locator}_AssetTag", f"\tPart Number: {part:<20}", f"\tRank: {ranks}",
+                  f"\t{conf_key}: {conf} {unit}"]
+        if not old:
+            lines += ["\tMinimum Voltage: 1.2 V", "\tMaximum Voltage: 1.2 V", "\tConfigured Voltage: 1.2 V"]
+    return "\n".join(lines) + "\n"
+
+
+def dmidecode_file(path: Path, version: str, records: list[str]) -> None:
+    head = f"# dmidecode {version}\n"
+    head += "SMBIOS 2.8 present.\n" if version.startswith("2.") else "Getting SMBIOS data from sysfs.\nSMBIOS 3.2.0 present.\n"
+    path.write_text(head + "\n" + "\n".join(records))
+
+
+def haswell() -> None:
+    """Taurus Haswell-EP: 2 x E5-2680 v3 (12 cores, HT), 4 channels/socket, 1 DPC, 8 x M393A1G43DB0-CPB."""
+    root = HERE / "haswell-ep-taurus"
+    cpus(root / "sys", 2, 12, 2, die_id=False)
+    edac(root / "sys", [[(f"CPU_SrcID#{s}_Ha#0_Chan#{c}_DIMM#0", f"channel {c} slot 0", 8192) for c in range(4)]
+                        for s in range(2)], "Haswell SrcID#0_Ha#0", "Registered-DDR4", "x8")
+    recs = []
+    h = 0x30
+    for s in range(2):
+        for c, letter in enumerate("ABCD"):
+            recs.append(dmi_record(h, "2.12", 8, f"P{s + 1}-DIMM{letter}1", f"P{s}_Node{s}_Channel{c}_Dimm0",
+                                   speed=2133, conf=2133, ranks=2, maker="Samsung", part="M393A1G43DB0-CPB"))
+            h += 2
+    dmidecode_file(root / "dmidecode.txt", "2.12", recs)
+
+
+def skylake(name: str, numa: list[list[int]] | None) -> None:
+    """2 x Xeon Gold 6148 (20 cores, HT), 6 channels/socket, 2 slots/channel, 1 populated:
+    12 x Samsung M393A2K43BB1-CTD (16 GB 2Rx8, 8 Gb B-die, DDR4-2666)."""
+    root = HERE / name
+    cpus(root / "sys", 2, 20, 2, die_id=False, numa=numa)
+    mcs = [[(f"CPU_SrcID#{s}_MC#{m}_Chan#{c}_DIMM#0", f"channel {c} slot 0", 16384) for c in range(3)]
+           for s in range(2) for m in range(2)]
+    edac(root / "sys", mcs, "Intel_Skylake_SP", "Registered-DDR4", "x8")
+    recs = []
+    h = 0x40
+    for s in range(2):
+        for letter in "ABCDEF":
+            for slot in (1, 2):
+                size = 16 if slot == 1 else None
+                recs.append(dmi_record(h, "3.2", size, f"CPU{s + 1}_DIMM_{letter}{slot}", f"NODE {s + 1}", speed=2666,
+                                       conf=2666, ranks=2, maker="Samsung", part="M393A2K43BB1-CTD"))
+                h += 1
+    dmidecode_file(root / "dmidecode.txt", "3.2", recs)
+
+
+def icelake() -> None:
+    """2 x Xeon Gold 6330 (28 cores, HT), 8 channels/socket, 2 DPC: 32 x Micron MTA36ASF4G72PZ-3G2R1
+    (32 GB 2Rx4, 8 Gb dies, DDR4-3200 run at 2933)."""
+    root = HERE / "icelake-sp-2dpc"
+    cpus(root / "sys", 2, 28, 2, die_id=True)
+    mcs = [[(f"CPU_SrcID#{s}_MC#{m}_Chan#{c}_DIMM#{d}", f"channel {c} slot {d}", 32768) for c in range(2) for d in range(2)]
+           for s in range(2) for m in range(4)]
+    edac(root / "sys", mcs, "Intel_10nm_Icelake-SP", "Registered-DDR4", "x4")
+    recs = []
+    h = 0x50
+    for s in range(2):
+        for c, letter in enumerate("ABCDEFGH"):
+            for d in range(2):
+                recs.append(dmi_record(h, "3.3", 32, f"P{s + 1}-DIMM{letter}{d + 1}", f"P{s}_Node{s}_Channel{c}_Dimm{d}",
+                                       speed=3200, conf=2933, ranks=2, maker="Micron Technology",
+                                       part="MTA36ASF4G72PZ-3G2R1"))
+                h += 1
+    dmidecode_file(root / "dmidecode.txt", "3.3", recs)
+
+
+def epyc() -> None:
+    """2 x AMD EPYC 7302 (16 cores, SMT), NPS1, 8 channels/socket, 1 DPC, no EDAC driver loaded:
+    16 x Samsung M393A4K40DB2-CVF (32 GB 2Rx4, 8 Gb D-die, DDR4-2933)."""
+    root = HERE / "epyc-rome-8ch"
+    cpus(root / "sys", 2, 16, 2, die_id=True)
+    recs = []
+    h = 0x60
+    for s in range(2):
+        for letter in "ABCDEFGH":
+            recs.append(dmi_record(h, "3.2", 32, "DIMM 0", f"P{s} CHANNEL {letter}", speed=2933, conf=2933,
+                                   ranks=2, maker="Samsung", part="M393A4K40DB2-CVF"))
+            h += 1
+    dmidecode_file(root / "dmidecode.txt", "3.2", recs)
+
+
+def one_socket() -> None:
+    """1 x Xeon Silver 4116 (12 cores, HT), 6 channels, 1 DPC: 6 x SK hynix HMA82GR7AFR8N-VK (16 GB 2Rx8, 8 Gb A-die,
+    DDR4-2666 run at 2400)."""
+    root = HERE / "one-socket-skylake"
+    cpus(root / "sys", 1, 12, 2, die_id=True)
+    edac(root / "sys", [[(f"CPU_SrcID#0_MC#{m}_Chan#{c}_DIMM#0", f"channel {c} slot 0", 16384) for c in range(3)]
+                        for m in range(2)], "Intel_Skylake_SP", "Registered-DDR4", "x8")
+    recs = []
+    h = 0x70
+    for c, letter in enumerate("ABCDEF"):
+        recs.append(dmi_record(h, "3.3", 16, f"P1-DIMM{letter}1", f"P0_Node0_Channel{c}_Dimm0", speed=2666, conf=2400,
+                               ranks=2, maker="SK Hynix", part="HMA82GR7AFR8N-VK"))
+        h += 1
+    dmidecode_file(root / "dmidecode.txt", "3.3", recs)
+
+
+def main() -> None:
+    shutil.rmtree(HERE, ignore_errors=True)
+    haswell()
+    skylake("skylake-sp", None)
+    # SNC2: each socket's 20 cores split into two NUMA nodes of 10 (with their hyper-threads)
+    snc = [[c + t * 40 for t in range(2) for c in range(s * 20 + h * 10, s * 20 + h * 10 + 10)]
+           for s in range(2) for h in range(2)]
+    skylake("skylake-sp-snc2", snc)
+    icelake()
+    epyc()
+    one_socket()
+
+
+if __name__ == "__main__":
+    main()
