@@ -209,8 +209,11 @@ def test_site_library_named_so_1_is_found_and_linked(fake_hdeem, tmp_path):
     assert probe(str(fake_hdeem.include_dir), str(lib_dir)) is None
 
 
-def _daemon(tmp_path: Path, fake, extra_env: dict[str, str]) -> list[str]:
-    """Run a real daemon process on the fake for ~2 s; return the libhdeem calls it made."""
+def _daemon(tmp_path: Path, fake, extra_env: dict[str, str]) -> tuple[list[str], str]:
+    """Run a real daemon process on the fake for ~2 s; return the libhdeem calls it made and the
+    source health its status op reported."""
+    from hdeem_watch.daemon.client import ControlClient
+
     log = tmp_path / "calls.log"
     env = {**os.environ, "PYTHONPATH": str(SRC), "HDEEM_FAKE_LOG": str(log), "XDG_CACHE_HOME": str(tmp_path / "cache"),
            "HDEEM_WATCH_HDEEM_INCLUDE_DIR": str(fake.include_dir), "HDEEM_WATCH_HDEEM_LIB_DIR": str(fake.lib_dir),
@@ -223,18 +226,25 @@ def _daemon(tmp_path: Path, fake, extra_env: dict[str, str]) -> list[str]:
         if log.exists() and log.read_text().count("get_stats_total") >= 5:
             break
         time.sleep(0.1)
+    health = ""
+    if proc.poll() is None:
+        with ControlClient(f"ipc://{tmp_path}/c.sock", timeout_s=10.0) as client:
+            health = str(client.call("status")["source"]["health"])
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err.decode()[-2000:]
-    return log.read_text().split()
+    return log.read_text().split(), health
 
 
 def test_the_passive_daemon_makes_no_ownership_call(fake_hdeem, tmp_path):
-    """A real `hdeem-watch daemon --source hdeem` process: polls through get_stats_total and never
-    calls hdeem_start/clear/stop; with HDEEM_WATCH_HDEEM_OWN_MEASUREMENT=1 it starts and stops."""
-    passive = _daemon(tmp_path / "a", fake_hdeem, {}) if (tmp_path / "a").mkdir() is None else []
+    """A real `hdeem-watch daemon --source hdeem` process: polls through get_stats_total, never calls
+    hdeem_start/clear/stop, and its status says no measurement runs; with
+    HDEEM_WATCH_HDEEM_OWN_MEASUREMENT=1 it starts and stops one."""
+    (tmp_path / "a").mkdir()
+    passive, health = _daemon(tmp_path / "a", fake_hdeem, {})
     assert passive.count("get_stats_total") >= 5 and passive[-1] == "close"
     assert not OWNERSHIP_CALLS & set(passive), passive
+    assert "no HDEEM measurement running" in health
     (tmp_path / "b").mkdir()
-    owning = _daemon(tmp_path / "b", fake_hdeem, {"HDEEM_WATCH_HDEEM_OWN_MEASUREMENT": "1"})
-    assert "start" in owning and "stop" in owning
+    owning, health = _daemon(tmp_path / "b", fake_hdeem, {"HDEEM_WATCH_HDEEM_OWN_MEASUREMENT": "1"})
+    assert "start" in owning and "stop" in owning and health == "ok"

@@ -53,6 +53,7 @@ from hdeem_watch.sources.base import (
     SourceUnavailable,
     normalise_channel_name,
 )
+from hdeem_watch.sources.hdeem_global import GlobalReader
 from hdeem_watch.sources.hdeem_lib import (
     BLADE_OVERFLOW,
     BMC_OVERFLOW,
@@ -73,7 +74,6 @@ from hdeem_watch.sources.hdeem_lib import (
     find_library,
     shim_build_notes,
 )
-from hdeem_watch.sources.hdeem_timing import VR_OFFSET_NS, measured_periods_ns, sample_end_times_ns
 
 PERMISSION_FIX = ("run the daemon as the privileged collector (root, or the service user with access to "
                   "/dev/ipmi0 / the BMC credentials), e.g. the hdeem-watchd systemd unit")
@@ -179,9 +179,7 @@ class HdeemSource:
         self._e0: np.ndarray | None = None
         self._e_last: np.ndarray | None = None
         self._read_last: list[int] = [0, 0]
-        self._global_next = [0, 0]
-        self._global_start_ns: int | None = None
-        self.periods_ns: tuple[float, float] | None = None
+        self._global: GlobalReader | None = None
         self._armed_at = 0
         self._energy_j: dict[str, float] = {}
         self.reconnects = 0
@@ -228,10 +226,9 @@ class HdeemSource:
         self._e0 = self._e_last.copy()
         self._energy_j = dict.fromkeys(self._names, 0.0)
         if self.method == "global" and self._status.start_ns:   # measured rates for channels() at once
-            assert self.lib is not None and self._handle is not None
+            assert self._handle is not None
             with contextlib.suppress(HdeemError):
-                stats = self.lib.stats(self._handle, False, len(self._names))
-                self.periods_ns = measured_periods_ns(self._status.start_ns, stats.counts, stats.read_ns)
+                self._reader().measure(self._handle, self._status.start_ns)
 
     def _connect(self) -> None:
         assert self.lib is not None
@@ -407,16 +404,28 @@ class HdeemSource:
             self._energy_j = {n: float(self._e_last[i] - self._e0[i]) for i, n in enumerate(self._names)}
         return SourceBatch(now, wall, samples, dict(self._energy_j), status)
 
+    @property
+    def periods_ns(self) -> tuple[float, float] | None:
+        """Global method: the measured sampling periods (blade, VR) in ns, once known."""
+        return self._global.periods_ns if self._global is not None else None
+
+    def _reader(self) -> GlobalReader:
+        assert self.lib is not None
+        if self._global is None or self._global.names != self._names:
+            self._global = GlobalReader(self.lib, self._names, self._nblade)
+        return self._global
+
     def _poll_global(self, now: int) -> SourceBatch:
         assert self.lib is not None and self._handle is not None
         if not self._status.running and self._status.start_ns in (None, 0):
             empty = {n: (np.zeros(0, dtype=np.int64), np.zeros(0)) for n in self._names}
             return SourceBatch(now, int(self._wall()), empty, dict(self._energy_j),
                                dict.fromkeys(self._names, STATUS_STALE))
-        samples, gaps = self._collect_global()
+        reader = self._reader()
+        samples, gaps = reader.collect(self._handle, self._energy_j)
         if self.own_measurement and now - self._armed_at >= self.rearm_ns:  # take what is left, re-arm
             self.stop()
-            rest, rest_gaps = self._collect_global()
+            rest, rest_gaps = reader.collect(self._handle, self._energy_j)
             samples = {n: (np.concatenate([samples[n][0], rest[n][0]]), np.concatenate([samples[n][1], rest[n][1]]))
                        for n in samples}
             t_stop = int(self._clock())
@@ -424,40 +433,9 @@ class HdeemSource:
             self._start()
             self.rearms += 1
             lost_s = (int(self._clock()) - t_stop) * 1e-9
-            assert self.periods_ns is not None
+            periods = reader.periods_ns or (1e6, 1e7)
             gaps = {n: gaps.get(n, 0) + rest_gaps.get(n, 0)
-                    + max(1, round(lost_s * 1e9 / self.periods_ns[0 if i < self._nblade else 1]))
+                    + max(1, round(lost_s * 1e9 / periods[0 if i < self._nblade else 1]))
                     for i, n in enumerate(self._names)}
         status = {n: STATUS_GAP if gaps.get(n) else self._group_status(i) for i, n in enumerate(self._names)}
         return SourceBatch(now, int(self._wall()), samples, dict(self._energy_j), status, gaps)
-
-    def _collect_global(self) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict[str, int]]:
-        """The samples of the measurement's buffer not published yet, stamped on the measured grids,
-        and the samples known lost (the buffer no longer holds them)."""
-        assert self.lib is not None and self._handle is not None
-        status = self.lib.status(self._handle)
-        self._status = status
-        assert status.start_ns is not None
-        if status.start_ns != self._global_start_ns:   # a new measurement: its samples count from 0
-            self._global_start_ns = status.start_ns
-            self._global_next = [0, 0]
-        stats = self.lib.stats(self._handle, False, len(self._names))
-        self.periods_ns = measured_periods_ns(status.start_ns, stats.counts, stats.read_ns)
-        counts, first_index = self.lib.global_fetch(self._handle)
-        held_from = (max(0, first_index - 1), 0)   # index since start of the first sample held (blade, VR)
-        samples: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        gaps: dict[str, int] = {}
-        nxt = list(self._global_next)
-        for i, name in enumerate(self._names):
-            g = 0 if i < self._nblade else 1
-            begin = max(self._global_next[g], held_from[g])
-            values = self.lib.global_copy(self._handle, i, begin - held_from[g], held_from[g] + counts[g] - begin)
-            origin = status.start_ns + (VR_OFFSET_NS if g else 0)
-            samples[name] = (sample_end_times_ns(origin, self.periods_ns[g], begin, len(values)), values)
-            if begin > self._global_next[g]:
-                gaps[name] = begin - self._global_next[g]
-            finite = values[np.isfinite(values)]
-            self._energy_j[name] = self._energy_j.get(name, 0.0) + float(finite.sum()) * self.periods_ns[g] * 1e-9
-            nxt[g] = begin + len(values)
-        self._global_next = nxt
-        return samples, gaps

@@ -98,7 +98,8 @@ def _topology(cpu_dir: Path, cpu: int) -> tuple[int, int]:
 def _denied_reason(exc: OSError, paranoid: int | None) -> str:
     return (f"rapl: perf_event_open of power/{EVENT} denied ({exc.strerror}; perf_event_paranoid = "
             f"{paranoid if paranoid is not None else '?'}); set kernel.perf_event_paranoid = 0 (sysctl) or give "
-            "the daemon CAP_PERFMON (AmbientCapabilities=CAP_PERFMON in the unit)")
+            "the daemon CAP_PERFMON (AmbientCapabilities=CAP_PERFMON in the unit); under systemd also allow the "
+            "system call (SystemCallFilter=perf_event_open: it is in @debug, not @system-service)")
 
 
 def perf_counters(sysfs: str | Path = PMU_DIR, cpu_dir: str | Path = CPU_DIR, opener: Opener = open_system_wide,
