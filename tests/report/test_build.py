@@ -136,3 +136,16 @@ def test_an_empty_state_draws_every_figure_saying_no_data(tmp_path: Path) -> Non
     assert written.memspec is None
     assert written.missing["fig1-energy"] == ("runs",)
     assert "No data: no calibration" in written.page.read_text()
+
+
+def test_components_that_disagree_with_the_daemons_rows_are_flagged(state_dir: Path, tmp_path: Path) -> None:
+    """When re-modelling a run does not reproduce the daemon's calibration row (here: a state whose
+    runs claim 4 DIMMs while the rows were built for 8), the figure says by how much."""
+    from dataclasses import replace
+
+    data = read_state(state_dir)
+    moved = replace(data, runs=tuple(replace(r, dimms=4) for r in data.runs))
+    written = build_report(moved, tmp_path, fmt="html")
+    (note,) = written.missing["fig5-components"]
+    assert "differs from the daemon's calibration rows by up to" in note
+    assert build_report(data, tmp_path / "ok", fmt="html").missing["fig5-components"] == ()
