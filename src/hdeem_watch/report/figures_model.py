@@ -154,7 +154,7 @@ def components_figure(data: ReportData) -> ReportFigure:
     # the components re-model each run; where that disagrees with the daemon's own row, say by how much
     gaps = [abs(sum(e.values()) - run.calibrated_j) / run.calibrated_j for e, run in zip(energies, chosen)
             if math.isfinite(run.calibrated_j) and run.calibrated_j > 0]
-    missing = ()
+    missing: tuple[str, ...] = ()
     if gaps and max(gaps) > 1e-3:
         missing = (f"an exact split: re-modelling the runs differs from the daemon's calibration rows by up to "
                    f"{max(gaps) * 100:.2g} % (another node topology or memspec than this report assumes)",)
