@@ -136,3 +136,21 @@ def test_an_empty_state_draws_every_figure_saying_no_data(tmp_path: Path) -> Non
     assert written.memspec is None
     assert written.missing["fig1-energy"] == ("runs",)
     assert "No data: no calibration" in written.page.read_text()
+
+
+def test_components_that_disagree_with_the_daemons_rows_are_flagged(state_dir: Path) -> None:
+    """When re-modelling a run does not reproduce the daemon's calibration row (here: a state whose
+    runs claim 4 DIMMs while the rows were built for 8), the figure says by how much."""
+    from dataclasses import replace
+
+    from hdeem_watch.report.figures_model import components_figure
+    from hdeem_watch.report.style import pyplot
+
+    data = read_state(state_dir)
+    moved = components_figure(replace(data, runs=tuple(replace(r, dimms=4) for r in data.runs)))
+    exact = components_figure(data)
+    for drawn in (moved, exact):
+        pyplot().close(drawn.figure)
+    (note,) = moved.missing
+    assert "differs from the daemon's calibration rows by up to" in note
+    assert exact.missing == ()

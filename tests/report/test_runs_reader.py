@@ -77,11 +77,11 @@ def _trace(path: Path, reads: int, writes: int, rows: int, gap: int) -> None:
 def test_trace_runs_without_times(tmp_path: Path) -> None:
     """Runs given as command traces (no time_ns) are read, fitted and drawn: their components come
     from the traces and add up to the calibrated energy; the time axes fall back to run numbers."""
-    from hdeem_watch.calibrate.rows import stretch_stats
-    from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+    from hdeem_watch.dram.command_trace import read_command_trace
     from hdeem_watch.dram.energy import core_energy
     from hdeem_watch.dram.memspec import preset
     from hdeem_watch.report.build import build_report
+    from hdeem_watch.report.compat import stretch_stats, trace_stats
 
     spec = preset("ddr4-2133-x8-4gb")
     truth = spec.with_currents({n: spec.currents[n] * r for n, r in

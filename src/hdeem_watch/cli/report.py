@@ -14,8 +14,6 @@ import sys
 import time
 from typing import Any
 
-from hdeem_watch.errors import InputError
-
 EXIT_MISSING_EXTRA = 2
 
 
@@ -42,10 +40,9 @@ def register(subparsers: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    try:
-        from hdeem_watch.report.style import MissingPlotting, pyplot
-    except ImportError as error:  # pragma: no cover - the package itself is always there
-        raise InputError(str(error)) from None
+    from hdeem_watch.report.build import write_report
+    from hdeem_watch.report.style import MissingPlotting, pyplot
+
     try:
         pyplot()
     except MissingPlotting:
@@ -59,29 +56,3 @@ def _run(args: argparse.Namespace) -> int:
         for what in missing:
             print(f"report: {key}: no data: {what}")
     return 0
-
-
-def write_report(*, state_dir: str | None = None, runs: str | None = None, since: str | None = None,
-                 group: str | None = None, out: str = "hdeem-watch-report", fmt: str = "png",
-                 now_ns: int | None = None) -> Any:
-    """Read a state (or RUNS.json), select, draw and write; returns the
-    :class:`~hdeem_watch.report.build.WrittenReport` (also used by ``demo --report``).
-
-    Raises:
-        InputError: bad input (a missing state, a malformed RUNS.json, a bad --since or --group).
-        MissingPlotting: matplotlib is not installed.
-    """
-    from hdeem_watch.report.analysis import parse_since, select
-    from hdeem_watch.report.build import build_report
-
-    if runs is not None:
-        from hdeem_watch.report.runs_reader import read_runs
-
-        data = read_runs(runs)
-    else:
-        from hdeem_watch.config import default_state_dir
-        from hdeem_watch.report.state_reader import read_state
-
-        data = read_state(state_dir or default_state_dir())
-    since_ns = parse_since(since, time.time_ns() if now_ns is None else now_ns) if since else None
-    return build_report(select(data, since_ns=since_ns, group=group), out, fmt=fmt)

@@ -8,6 +8,7 @@ Example::
 
     from hdeem_watch.report.state_reader import read_state
     written = build_report(read_state("state/"), "report/", fmt="png")
+    written = write_report(state_dir="state/", since="7d", out="report/")   # read, select and build in one call
     written.page       # Path('report/index.html')
 """
 
@@ -130,3 +131,28 @@ def _numbers(tables: dict[str, Any]) -> dict[str, Any]:
 
     return {title: {caption: {"columns": list(t.columns), "rows": [[cell(v) for v in row] for row in t.rows]}
                     for caption, t in captioned.items()} for title, captioned in tables.items()}
+
+
+def write_report(*, state_dir: str | None = None, runs: str | None = None, since: str | None = None,
+                 group: str | None = None, out: str = "hdeem-watch-report", fmt: str = "png",
+                 now_ns: int | None = None) -> WrittenReport:
+    """Read a state (``state_dir``; default the daemon's) or a RUNS.json (``runs``), keep what
+    ``since``/``group`` select, draw and write into ``out`` (``hdeem-watch report``, ``demo --report``).
+
+    Raises:
+        InputError: bad input (a missing state, a malformed RUNS.json, a bad --since or --group).
+        MissingPlotting: matplotlib is not installed.
+    """
+    from hdeem_watch.report.analysis import parse_since, select
+
+    if runs is not None:
+        from hdeem_watch.report.runs_reader import read_runs
+
+        data = read_runs(runs)
+    else:
+        from hdeem_watch.config import default_state_dir
+        from hdeem_watch.report.state_reader import read_state
+
+        data = read_state(state_dir or default_state_dir())
+    since_ns = parse_since(since, time.time_ns() if now_ns is None else now_ns) if since else None
+    return build_report(select(data, since_ns=since_ns, group=group), out, fmt=fmt)

@@ -22,7 +22,7 @@ def report_at_end(state_dir: str | Path, out_dir: str | Path, *, stream: TextIO 
 
     out = sys.stdout if stream is None else stream
     try:
-        from hdeem_watch.cli.report import write_report
+        from hdeem_watch.report.build import write_report
 
         written = write_report(state_dir=str(state_dir), out=str(out_dir))
     except MissingPlotting:

@@ -82,7 +82,8 @@ def _stats(spec: Any, run: Any, name: str, base: Path) -> Any:
 
     if "stats" in run:
         return CommandStats.from_dict(run["stats"], where=f"run {name!r}: stats")
-    from hdeem_watch.dram.command_trace import read_command_trace, trace_stats
+    from hdeem_watch.dram.command_trace import read_command_trace
+    from hdeem_watch.report.compat import trace_stats
 
     trace = Path(run["trace"])
     try:

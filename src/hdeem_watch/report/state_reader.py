@@ -18,7 +18,7 @@ import json
 import math
 import sqlite3
 import urllib.parse
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -217,7 +217,7 @@ def _job_table(db: sqlite3.Connection, tables: Mapping[str, list[str]]) -> list[
     return jobs
 
 
-def _spec_of(records: list[Mapping[str, Any]], notes: list[str]) -> Any:
+def _spec_of(records: Sequence[Mapping[str, Any]], notes: list[str]) -> Any:
     """The datasheet memspec the daemon modelled the runs with (found by its memoryId among the presets)."""
     from hdeem_watch.dram.memspec import memspec_from, preset
     from hdeem_watch.dram.presets import PRESETS
@@ -240,7 +240,7 @@ def _spec_of(records: list[Mapping[str, Any]], notes: list[str]) -> Any:
         return None
 
 
-def _runs(records: list[Mapping[str, Any]], spec: Any, fit: Mapping[str, Any] | None) -> list[RunRow]:
+def _runs(records: Sequence[Mapping[str, Any]], spec: Any, fit: Mapping[str, Any] | None) -> list[RunRow]:
     import numpy as np
 
     currents = model_currents(spec, fit) if spec is not None and fit is not None else None
@@ -273,7 +273,7 @@ def _runs(records: list[Mapping[str, Any]], spec: Any, fit: Mapping[str, Any] | 
     return out
 
 
-def _idle_run_baselines(records: list[Mapping[str, Any]]) -> list[BaselinePoint]:
+def _idle_run_baselines(records: Sequence[Mapping[str, Any]]) -> list[BaselinePoint]:
     """Each finished idle run's mean power per DRAM channel: the baseline at that time."""
     out = []
     for record in records:
