@@ -7,7 +7,7 @@ import importlib
 
 import pytest
 
-MODULES = ("analysis", "compat", "figure", "page", "records", "runs_reader")
+MODULES = ("analysis", "figure", "page", "records", "runs_reader")
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -38,13 +38,6 @@ SRC = Path(__file__).resolve().parents[2] / "src"
 LEGACY = Path(__file__).resolve().parent / "fake_hdeem" / "legacy"
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0
-
-    def __call__(self) -> int:
-        return self.t
-
 
 def test_passive_energy_source_never_starts_clears_or_stops(fake_hdeem):
     """Default (passive): open, polls, a reconnect and close make none of hdeem_start/clear/stop;
@@ -86,10 +79,10 @@ def test_passive_global_reads_a_users_measurement_and_leaves_it_running(fake_hde
     assert fake_hdeem.control("running") == 1
 
 
-def test_owning_mode_rearms_before_the_bmc_buffer_overflows(fake_hdeem):
+def test_owning_mode_rearms_before_the_bmc_buffer_overflows(fake_hdeem, fake_clock):
     """hdeem_own_measurement: started at open, re-armed every rearm_s (< 8 h), stopped at close; over
     20 hours of fake time the BMC's 8-hour buffer never overflows (it would without re-arming)."""
-    clock = Clock()
+    clock = fake_clock()
     src = HdeemSource(**fake_hdeem.options(interval_s=0.0, own_measurement=True, clock=clock))
     src.open()
     assert fake_hdeem.control("running") == 1

@@ -24,13 +24,6 @@ FIXTURES = Path(__file__).resolve().parent / "fixtures"
 DEVICES = Path("devices/virtual/powercap/intel-rapl")
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.t = 1_000_000_000
-
-    def __call__(self) -> int:
-        return self.t
-
 
 def copy(tmp_path: Path, name: str) -> Path:
     shutil.copytree(FIXTURES / name, tmp_path / name, symlinks=True)
@@ -42,9 +35,8 @@ def bump(tree: Path, zone: str, delta_uj: int) -> None:
     path.write_text(f"{int(path.read_text()) + delta_uj}\n")
 
 
-def powers(tree: Path, bumps: dict[str, int]) -> dict[str, float]:
+def powers(tree: Path, bumps: dict[str, int], clock) -> dict[str, float]:  # clock: a fake_clock()
     """Open the source on class/powercap, bump zones (µJ) over 1 s, return the published powers."""
-    clock = Clock()
     src = RaplSource(root=tree / "class" / "powercap", clock=clock)
     src.open()
     for zone, delta in bumps.items():
@@ -54,33 +46,33 @@ def powers(tree: Path, bumps: dict[str, int]) -> dict[str, float]:
     return {ch: float(p[0]) for ch, (_, p) in batch.samples.items() if len(p)}
 
 
-def test_registration_order_is_not_socket_order(tmp_path):
+def test_registration_order_is_not_socket_order(tmp_path, fake_clock):
     """intel-rapl:0 is package-1 here: its DRAM zone is DRAM1, not DRAM0."""
     tree = copy(tmp_path, "powercap_2s_swapped")
     zones = find_dram_zones(tree / "class" / "powercap")
     assert [(z.channel, z.path.name) for z in zones] == [("DRAM0", "intel-rapl:1:0"), ("DRAM1", "intel-rapl:0:0")]
-    assert powers(tree, {"intel-rapl:0:0": 3_000_000, "intel-rapl:1:0": 1_000_000}) == {
+    assert powers(tree, {"intel-rapl:0:0": 3_000_000, "intel-rapl:1:0": 1_000_000}, fake_clock(1_000_000_000)) == {
         "DRAM0": pytest.approx(1.0), "DRAM1": pytest.approx(3.0)}
 
 
-def test_four_sockets_registered_out_of_order(tmp_path):
+def test_four_sockets_registered_out_of_order(tmp_path, fake_clock):
     """4 sockets registered 2, 0, 3, 1 (and a psys zone): DRAM0..DRAM3 each read their own socket."""
     tree = copy(tmp_path, "powercap_4s")
     zones = find_dram_zones(tree / "class" / "powercap")
     assert [z.channel for z in zones] == ["DRAM0", "DRAM1", "DRAM2", "DRAM3"]
     assert [z.path.name for z in zones] == ["intel-rapl:1:0", "intel-rapl:3:0", "intel-rapl:0:0", "intel-rapl:2:0"]
-    got = powers(tree, {f"intel-rapl:{i}:0": (i + 1) * 1_000_000 for i in range(4)})
+    got = powers(tree, {f"intel-rapl:{i}:0": (i + 1) * 1_000_000 for i in range(4)}, fake_clock(1_000_000_000))
     assert got == {"DRAM2": pytest.approx(1.0), "DRAM0": pytest.approx(2.0), "DRAM3": pytest.approx(3.0),
                    "DRAM1": pytest.approx(4.0)}
 
 
-def test_multi_die_packages_name_socket_and_die(tmp_path):
+def test_multi_die_packages_name_socket_and_die(tmp_path, fake_clock):
     """package-X-die-Y zones give DRAM<X>_DIE<Y>; a die without a DRAM zone gives no channel."""
     tree = copy(tmp_path, "powercap_multidie")
     zones = find_dram_zones(tree / "class" / "powercap")
     assert [(z.channel, z.socket, z.die) for z in zones] == [("DRAM0_DIE0", 0, 0), ("DRAM1_DIE0", 1, 0),
                                                               ("DRAM1_DIE1", 1, 1)]
-    assert powers(tree, {"intel-rapl:2:0": 2_000_000})["DRAM0_DIE0"] == pytest.approx(2.0)
+    assert powers(tree, {"intel-rapl:2:0": 2_000_000}, fake_clock(1_000_000_000))["DRAM0_DIE0"] == pytest.approx(2.0)
 
 
 def test_nested_tree_without_symlinks_maps_the_same(tmp_path):
@@ -90,7 +82,7 @@ def test_nested_tree_without_symlinks_maps_the_same(tmp_path):
     assert (zones[0].channel, zones[0].path.name) == ("DRAM0", "intel-rapl:1:0")
 
 
-def test_health_recovers_when_every_channel_reads_again(tmp_path):
+def test_health_recovers_when_every_channel_reads_again(tmp_path, fake_clock):
     """Issue 22.12: a read error makes health 'error: ...'; once every counter reads again it is 'ok'."""
     tree = copy(tmp_path, "powercap_2s_swapped")
     failing: set[str] = set()
@@ -100,7 +92,7 @@ def test_health_recovers_when_every_channel_reads_again(tmp_path):
             raise OSError(5, "Input/output error")
         return path.read_text()
 
-    clock = Clock()
+    clock = fake_clock(1_000_000_000)
     src = RaplSource(root=tree / "class" / "powercap", clock=clock, read_text=read)
     src.open()
     failing.add("intel-rapl:0:0")
@@ -115,13 +107,13 @@ def test_health_recovers_when_every_channel_reads_again(tmp_path):
     assert batch.status == {"DRAM0": "ok", "DRAM1": "ok"} and src.health() == "ok"
 
 
-def test_idle_polling_reports_no_false_missing_samples(tmp_path):
+def test_idle_polling_reports_no_false_missing_samples(tmp_path, fake_clock):
     """Issue 22.12: the daemon's idle poll (0.25 s, with jitter) over the rapl source built from the
     settings gives no 'missing' samples (was ~6.4 per second per channel at a nominal 10 Sa/s)."""
     tree = copy(tmp_path, "powercap_2s_swapped")
     settings = load_settings(env={"HDEEM_WATCH_SOURCE": "rapl", "HDEEM_WATCH_RAPL_ROOT": str(tree / "class/powercap")})
-    clock = Clock()
-    wall = Clock()
+    clock = fake_clock(1_000_000_000)
+    wall = fake_clock(1_000_000_000)
     src = make_source("rapl", **settings.source_options(), clock=clock, wall_clock=wall)
     src.open()
     rate = {c.name: c.rate_hz for c in src.channels()}

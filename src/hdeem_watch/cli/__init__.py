@@ -33,6 +33,8 @@ EPILOG = """examples (COMMAND --help for each command's options and examples):
   hdeem-watch bench --kernels triad --threads 1,4    # benchmark sweep (--daemon EP announces runs)
   hdeem-watch model energy --memspec ddr4-2133-x8-4gb --trace T.csv   # DRAM energy of a trace
   hdeem-watch calibrate --runs RUNS.json             # fit the memspec currents to measured runs
+  hdeem-watch report --runs RUNS.json --out DIR      # the paper's figures as a self-contained HTML page
+  hdeem-watch node --json                            # this node's sockets, channels, DIMMs, memspec, sensors
 
 exit codes: 0 success, 1 failure (one line on stderr), 2 bad input (one line on stderr),
   130 interrupted (Ctrl-C)"""

@@ -360,19 +360,19 @@ def preset(name: str) -> MemSpec:
     from hdeem_watch.dram.presets import PRESETS, preset_path
 
     if name not in PRESETS:
-        raise InputError(f"unknown memspec preset {name!r}; expected one of {sorted(PRESETS)}")
+        raise InputError(f"unknown memspec preset {name!r}; expected one of: {', '.join(sorted(PRESETS))}")
     return load_memspec(preset_path(name))
 
 
 def memspec_from(value: str | Path, *, allow_unphysical: bool = False) -> MemSpec:
     """A memspec named the way users name one: an existing file, else a preset by that name.
 
-    A value that is neither an existing file nor a preset name is read as a file when it looks like
-    a path (``.json`` or a directory part) and as a preset otherwise, so the error names the right
-    thing (the missing file, or the known presets).
+    ``preset:NAME`` always names a preset. A value that is neither an existing file nor a preset
+    name is read as a file when it looks like a path (``.json`` or a directory part) and as a preset
+    otherwise, so the error names the right thing (the missing file, or the known presets).
 
     Args:
-        value: a file path or a preset name.
+        value: a file path, or a preset as ``NAME`` or ``preset:NAME``.
         allow_unphysical: load a file whose currents give a negative per-command energy (presets
             are always physical).
 
@@ -381,8 +381,10 @@ def memspec_from(value: str | Path, *, allow_unphysical: bool = False) -> MemSpe
     """
     from hdeem_watch.dram.presets import PRESETS
 
-    path = Path(value)
     text = str(value)
+    if text.startswith("preset:"):
+        return preset(text.removeprefix("preset:"))
+    path = Path(value)
     if path.exists() or (text not in PRESETS and (text.endswith(".json") or len(path.parts) > 1)):
         return load_memspec(path, allow_unphysical=allow_unphysical)
     return preset(text)

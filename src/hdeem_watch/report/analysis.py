@@ -140,7 +140,7 @@ def component_energies(spec: Any, fit: Mapping[str, Any] | None, run: RunRow) ->
     components sum to the calibrated model energy less the fit's intercept (``offset``, its own entry).
     """
     from hdeem_watch.dram.energy import energy_columns
-    from hdeem_watch.report.compat import stretch_stats
+    from hdeem_watch.dram.stats import stretch_stats
 
     currents, intercept = model_currents(spec, fit)
     totals = dict.fromkeys(COMPONENT_GROUPS, 0.0)

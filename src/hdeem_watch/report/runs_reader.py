@@ -83,7 +83,7 @@ def _stats(spec: Any, run: Any, name: str, base: Path) -> Any:
     if "stats" in run:
         return CommandStats.from_dict(run["stats"], where=f"run {name!r}: stats")
     from hdeem_watch.dram.command_trace import read_command_trace
-    from hdeem_watch.report.compat import trace_stats
+    from hdeem_watch.dram.trace_state import trace_stats
 
     trace = Path(run["trace"])
     try:
