@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from hdeem_watch.calibrate import OnlineCalibrator, fit, observation_from_run
+from hdeem_watch.calibrate import FitOptions, OnlineCalibrator, fit, observation_from_run
 from hdeem_watch.dram.energy import core_energy
 from hdeem_watch.dram.memspec import preset
 from hdeem_watch.dram.stats import CommandStats, RankStats
@@ -74,11 +74,11 @@ def main() -> None:
     spec, rows = make_rows(args.runs + added)
     base, extra = rows[: args.runs], rows[args.runs:]
 
-    fit(base, spec, currents=CURRENTS)  # warm-up (imports, caches)
+    fit(base, spec, FitOptions(currents=CURRENTS))  # warm-up (imports, caches)
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
-        result = fit(base, spec, currents=CURRENTS)
+        result = fit(base, spec, FitOptions(currents=CURRENTS))
         times.append(time.perf_counter() - start)
     batch_ms = statistics.median(times) * 1e3
     print(f"batch refit, {args.runs} runs x {len(CURRENTS)} currents + intercept: {batch_ms:.2f} ms median "
@@ -86,7 +86,7 @@ def main() -> None:
           f"status {result.status}, loo {result.error_loo * 100:.2f} %)")
 
     start = time.perf_counter()
-    fit(base, spec, currents=CURRENTS, loo="exact")
+    fit(base, spec, FitOptions(currents=CURRENTS, loo="exact"))
     exact_ms = (time.perf_counter() - start) * 1e3
     print(f"  (same with exact leave-one-out, {args.runs} refits: {exact_ms:.0f} ms)")
 
