@@ -135,9 +135,10 @@ def _haswell_broadwell(clock: ImcEvent) -> dict[str, tuple[ImcEvent, ...]]:
     }
 
 
-def _skylake_cascade_lake() -> dict[str, tuple[ImcEvent, ...]]:
-    """Skylake-SP (SKX V1.37) and Cascade Lake-SP (CLX V1.25) publish identical IMC encodings."""
-    return {
+def _skylake_cascade_lake(refresh: bool) -> dict[str, tuple[ImcEvent, ...]]:
+    """Skylake-SP (SKX V1.37) and Cascade Lake-SP (CLX V1.25) publish identical IMC encodings, except
+    that CLX publishes no ``DRAM_REFRESH`` event (``refresh=False``)."""
+    roles = {
         "dclk": (ImcEvent("UNC_M_CLOCKTICKS", 0x00, 0x00),),
         "cas_rd": (ImcEvent("UNC_M_CAS_COUNT.RD", 0x04, 0x03),),
         "cas_wr": (ImcEvent("UNC_M_CAS_COUNT.WR", 0x04, 0x0C),),
@@ -151,6 +152,9 @@ def _skylake_cascade_lake() -> dict[str, tuple[ImcEvent, ...]]:
         "ppd_cycles": (ImcEvent("UNC_M_POWER_CHANNEL_PPD", 0x85, 0x00),),
         "sref_cycles": (ImcEvent("UNC_M_POWER_SELF_REFRESH", 0x43, 0x00),),
     }
+    if not refresh:
+        del roles["refresh"]
+    return roles
 
 
 _GAPS_PRE_ICX = (
@@ -181,12 +185,15 @@ TABLES: dict[str, EventTable] = {
     "skylake-sp": EventTable(
         generation="skylake-sp", title="Skylake-SP (Xeon Scalable 1st gen)", memory="DDR4",
         sources=("SKX/events/skylakex_uncore.json V1.37", "SKX/events/skylakex_uncore_experimental.json V1.37"),
-        roles=_skylake_cascade_lake(), refresh_complete=False, gaps=_GAPS_PRE_ICX),
+        roles=_skylake_cascade_lake(refresh=True), refresh_complete=False, gaps=_GAPS_PRE_ICX),
     "cascade-lake-sp": EventTable(
         generation="cascade-lake-sp", title="Cascade Lake-SP (Xeon Scalable 2nd gen)", memory="DDR4",
         sources=("CLX/events/cascadelakex_uncore.json V1.25",
                  "CLX/events/cascadelakex_uncore_experimental.json V1.25"),
-        roles=_skylake_cascade_lake(), refresh_complete=False, gaps=_GAPS_PRE_ICX),
+        roles=_skylake_cascade_lake(refresh=False), refresh_complete=False,
+        gaps=(*_GAPS_PRE_ICX[:1],
+              "refresh: the CLX files publish no DRAM_REFRESH event (refreshes are nominal, one per tREFI)",
+              *_GAPS_PRE_ICX[2:])),
     "ice-lake-sp": EventTable(
         generation="ice-lake-sp", title="Ice Lake-SP (Xeon Scalable 3rd gen)", memory="DDR4",
         sources=("ICX/events/icelakex_uncore.json V1.30", "ICX/events/icelakex_uncore_experimental.json V1.30"),

@@ -15,7 +15,7 @@ documented behaviour (``perf_event_open(2)``): the count accrues only while the 
 times grow with an injected clock, and a multiplexed event runs a fixed share of the time.
 
 Example:
-    >>> clock = iter([0, 0, 1_000]).__next__
+    >>> clock = iter([0, 1_000]).__next__
     >>> fake = FakeCounterReader(lambda t, c, cpu, ns: ns // 10, clock=clock, running_share=0.5)
     >>> h = fake.open(13, 0x304, 0)
     >>> fake.read(h)
