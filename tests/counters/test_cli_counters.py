@@ -62,6 +62,7 @@ def test_permissions_explained(capsys):
     code, out, _ = run(capsys, *host("sysfs_haswell_ep", "haswell_ep", proc="proc_unprivileged"))
     assert code == 0 and "cannot count on this host" in out
     assert "perf_event_paranoid = 2" in out and "CAP_PERFMON" in out and "AmbientCapabilities" in out
+    assert "events per channel: 14" in out  # what it would use is still listed
 
 
 def test_bad_input_is_one_line_exit_2(capsys, tmp_path):

@@ -80,8 +80,8 @@ class HostPlan:
         table: the generation's event table.
         pmus: every IMC PMU found (programmable and free-running).
         other_pmus: names of the other PMUs the kernel registered (context for "no IMC PMU").
-        channels: channels to count (empty when not usable).
-        events: events per channel (empty when not usable).
+        channels: channels to count (empty without an event table or programmable IMC PMU).
+        events: events per channel (same condition; listed even when permissions forbid opening them).
         access: the permission verdict.
         reasons: why counting cannot work here (empty when :attr:`usable`).
         notes: facts worth knowing even when usable (multiplexing, gaps).
@@ -223,12 +223,10 @@ def plan_host(sysfs_root: str | Path = DEFAULT_SYSFS_ROOT, cpuinfo_text: str | N
         if distinct > GENERIC_COUNTERS_PER_BOX:
             notes.append(f"{distinct} events per channel on {GENERIC_COUNTERS_PER_BOX} counters: the kernel "
                          "multiplexes them; counts are scaled by time_enabled/time_running per window")
-        notes.extend(f"cannot tell apart: {gap}" for gap in table.gaps)
+        notes.extend(f"gap: {gap}" for gap in table.gaps)
         if any(p.free_running for p in pmus):
             notes.append("uncore_imc_free_running_* PMUs (per controller: DCLK, read/write bandwidth) are "
                          "listed but not used: they have no ACT/PRE/power-state events")
-    channels = channels_of(programmable)
-    usable = not reasons
     return HostPlan(cpu=cpu, generation=generation, table=table, pmus=pmus, other_pmus=others,
-                    channels=channels if usable else (), events=events if usable else (),
+                    channels=channels_of(programmable) if events else (), events=events,
                     access=access, reasons=tuple(reasons), notes=tuple(notes))
