@@ -18,7 +18,7 @@ from hdeem_watch import __version__
 from hdeem_watch.errors import InputError
 
 #: Subcommand modules, in the order ``--help`` lists them.
-SUBCOMMAND_MODULES = ("demo", "daemon", "tui", "bench", "model", "calibrate", "report", "node")
+SUBCOMMAND_MODULES = ("demo", "daemon", "tui", "bench", "model", "calibrate", "report", "node", "counters")
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -35,6 +35,7 @@ EPILOG = """examples (COMMAND --help for each command's options and examples):
   hdeem-watch calibrate --runs RUNS.json             # fit the memspec currents to measured runs
   hdeem-watch report --runs RUNS.json --out DIR      # the paper's figures as a self-contained HTML page
   hdeem-watch node --json                            # this node's sockets, channels, DIMMs, memspec, sensors
+  hdeem-watch counters                               # the memory-controller counters this host offers
 
 exit codes: 0 success, 1 failure (one line on stderr), 2 bad input (one line on stderr),
   130 interrupted (Ctrl-C)"""

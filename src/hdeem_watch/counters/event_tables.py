@@ -1,0 +1,243 @@
+"""IMC event encodings per CPU generation, each entry traceable to Intel's public event files.
+
+Every :class:`ImcEvent` below is copied by name, ``EventCode`` and ``UMask`` from Intel's perfmon
+event files (github.com/intel/perfmon, the upstream of the Linux kernel's
+``tools/perf/pmu-events/arch/x86/<gen>/uncore-memory.json``), read at perfmon commit
+:data:`PERFMON_COMMIT`; :attr:`EventTable.sources` names the file(s) and version per table, and
+``experimental`` marks events from the ``*_uncore_experimental.json`` files. Nothing is derived:
+where a role needs several published sub-events (Haswell-EP's activates: ``ACT_COUNT.RD + .WR +
+.BYP``), the table lists each and the reader sums them. A role the files do not cover is absent
+from the table (and listed in :attr:`EventTable.gaps`); it is never guessed.
+
+Roles (what a counter means for the DRAM model, per channel):
+
+==================  ===============================================================================
+``dclk``            DRAM clock ticks while the IMC has a clock (stops in package C3/C6).
+``cas_rd``          read CAS commands (with and without auto-precharge, underfills included).
+``cas_wr``          write CAS commands (with and without auto-precharge).
+``cas_rd_autopre``  the subset of ``cas_rd`` with auto-precharge (RDA) — Ice Lake-SP and later only.
+``cas_wr_autopre``  the subset of ``cas_wr`` with auto-precharge (WRA) — Ice Lake-SP and later only.
+``act``             activates (all ranks and banks of the channel together).
+``pre_page_miss``   explicit precharges for a page miss (the bank scheduler's rd/wr requests).
+``pre_page_close``  explicit precharges by the page-close timer (idle page closed).
+``refresh``         refresh commands (see :attr:`EventTable.refresh_complete`).
+``cke_on_rank<n>``  cycles rank n has CKE on (not in power-down or self-refresh).
+``ppd_cycles``      cycles every rank of the channel is in precharge power-down.
+``sref_cycles``     cycles the IMC is in self-refresh while it still has a clock.
+==================  ===============================================================================
+
+Example:
+    >>> table = TABLES["haswell-ep"]
+    >>> [(e.name, hex(e.event), hex(e.umask)) for e in table.events_of("cas_rd")]
+    [('UNC_M_CAS_COUNT.RD', '0x4', '0x3')]
+    >>> [e.name for e in table.events_of("act")]
+    ['UNC_M_ACT_COUNT.RD', 'UNC_M_ACT_COUNT.WR', 'UNC_M_ACT_COUNT.BYP']
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+#: The intel/perfmon commit the tables were read from (2026-08-13).
+PERFMON_COMMIT = "6dadedf3aa483393943e044ba5ec88a4507cd040"
+#: Width of the IMC's programmable counters (``perf_ctr_bits = 48`` of ``hswep_uncore_imc``,
+#: ``bdx_uncore_imc``, ``skx_uncore_imc``, ``icx_uncore_imc`` in the kernel's uncore_snbep.c).
+IMC_COUNTER_BITS = 48
+#: Ranks per channel whose CKE residency the pre-Ice-Lake ``POWER_CKE_CYCLES.RANK<n>`` umasks select.
+MAX_CKE_RANKS = 8
+
+ROLES = ("dclk", "cas_rd", "cas_wr", "cas_rd_autopre", "cas_wr_autopre", "act", "pre_page_miss",
+         "pre_page_close", "refresh", *(f"cke_on_rank{n}" for n in range(MAX_CKE_RANKS)),
+         "ppd_cycles", "sref_cycles")
+
+
+@dataclass(frozen=True)
+class ImcEvent:
+    """One published IMC event.
+
+    Attributes:
+        name: Intel's ``EventName``.
+        event: ``EventCode``.
+        umask: ``UMask``.
+        experimental: from the ``*_uncore_experimental.json`` file (published, not validated by Intel).
+    """
+
+    name: str
+    event: int
+    umask: int
+    experimental: bool = False
+
+    def fields(self) -> dict[str, int]:
+        """The format-field values (``event``, ``umask``) to encode with the PMU's ``format/``."""
+        return {"event": self.event, "umask": self.umask}
+
+
+@dataclass(frozen=True)
+class EventTable:
+    """The IMC events of one CPU generation.
+
+    Attributes:
+        generation: key, e.g. ``"haswell-ep"``.
+        title: human name, e.g. ``"Haswell-EP (Xeon E5 v3)"``.
+        sources: the perfmon files (path, version) the entries come from.
+        roles: role → the events whose counts add up to it.
+        refresh_complete: ``False`` when the files publish only some refresh causes (panic/high
+            priority, not opportunistic): ``refresh`` is then a lower bound.
+        memory: the DRAM standard the IMC drives (``DDR4`` or ``DDR5``).
+        gaps: what this generation's public files do not give, in words.
+    """
+
+    generation: str
+    title: str
+    sources: tuple[str, ...]
+    roles: Mapping[str, tuple[ImcEvent, ...]]
+    refresh_complete: bool
+    memory: str
+    gaps: tuple[str, ...] = field(default=())
+
+    def events_of(self, role: str) -> tuple[ImcEvent, ...]:
+        """The events of ``role`` (empty when the generation does not count it)."""
+        return self.roles.get(role, ())
+
+    def events(self) -> tuple[ImcEvent, ...]:
+        """Every distinct event of the table, in role order."""
+        seen: dict[str, ImcEvent] = {}
+        for role in ROLES:
+            for event in self.events_of(role):
+                seen.setdefault(event.name, event)
+        return tuple(seen.values())
+
+    def cke_ranks(self) -> int:
+        """How many ranks have a CKE-on residency counter."""
+        return sum(1 for n in range(MAX_CKE_RANKS) if f"cke_on_rank{n}" in self.roles)
+
+
+def _cke_ranks(experimental: bool) -> dict[str, tuple[ImcEvent, ...]]:
+    return {f"cke_on_rank{n}": (ImcEvent(f"UNC_M_POWER_CKE_CYCLES.RANK{n}", 0x83, 1 << n, experimental),)
+            for n in range(MAX_CKE_RANKS)}
+
+
+def _haswell_broadwell(clock: ImcEvent) -> dict[str, tuple[ImcEvent, ...]]:
+    """Haswell-EP and Broadwell-EP publish the same IMC encodings (HSX V29, BDX V23, all non-experimental)."""
+    return {
+        "dclk": (clock,),
+        "cas_rd": (ImcEvent("UNC_M_CAS_COUNT.RD", 0x04, 0x03),),
+        "cas_wr": (ImcEvent("UNC_M_CAS_COUNT.WR", 0x04, 0x0C),),
+        "act": (ImcEvent("UNC_M_ACT_COUNT.RD", 0x01, 0x01), ImcEvent("UNC_M_ACT_COUNT.WR", 0x01, 0x02),
+                ImcEvent("UNC_M_ACT_COUNT.BYP", 0x01, 0x08)),
+        "pre_page_miss": (ImcEvent("UNC_M_PRE_COUNT.PAGE_MISS", 0x02, 0x01),),
+        "pre_page_close": (ImcEvent("UNC_M_PRE_COUNT.PAGE_CLOSE", 0x02, 0x02),),
+        "refresh": (ImcEvent("UNC_M_DRAM_REFRESH.PANIC", 0x05, 0x02), ImcEvent("UNC_M_DRAM_REFRESH.HIGH", 0x05, 0x04)),
+        **_cke_ranks(experimental=False),
+        "ppd_cycles": (ImcEvent("UNC_M_POWER_CHANNEL_PPD", 0x85, 0x00),),
+        "sref_cycles": (ImcEvent("UNC_M_POWER_SELF_REFRESH", 0x43, 0x00),),
+    }
+
+
+def _skylake_cascade_lake(refresh: bool) -> dict[str, tuple[ImcEvent, ...]]:
+    """Skylake-SP (SKX V1.37) and Cascade Lake-SP (CLX V1.25) publish identical IMC encodings, except
+    that CLX publishes no ``DRAM_REFRESH`` event (``refresh=False``)."""
+    roles = {
+        "dclk": (ImcEvent("UNC_M_CLOCKTICKS", 0x00, 0x00),),
+        "cas_rd": (ImcEvent("UNC_M_CAS_COUNT.RD", 0x04, 0x03),),
+        "cas_wr": (ImcEvent("UNC_M_CAS_COUNT.WR", 0x04, 0x0C),),
+        "act": (ImcEvent("UNC_M_ACT_COUNT.RD", 0x01, 0x01, True), ImcEvent("UNC_M_ACT_COUNT.WR", 0x01, 0x02),
+                ImcEvent("UNC_M_ACT_COUNT.BYP", 0x01, 0x08, True)),
+        "pre_page_miss": (ImcEvent("UNC_M_PRE_COUNT.PAGE_MISS", 0x02, 0x01),),
+        "pre_page_close": (ImcEvent("UNC_M_PRE_COUNT.PAGE_CLOSE", 0x02, 0x02, True),),
+        "refresh": (ImcEvent("UNC_M_DRAM_REFRESH.PANIC", 0x05, 0x02, True),
+                    ImcEvent("UNC_M_DRAM_REFRESH.HIGH", 0x05, 0x04, True)),
+        **_cke_ranks(experimental=True),
+        "ppd_cycles": (ImcEvent("UNC_M_POWER_CHANNEL_PPD", 0x85, 0x00),),
+        "sref_cycles": (ImcEvent("UNC_M_POWER_SELF_REFRESH", 0x43, 0x00),),
+    }
+    if not refresh:
+        del roles["refresh"]
+    return roles
+
+
+_GAPS_PRE_ICX = (
+    "RDA/WRA: CAS_COUNT.RD/.WR include auto-precharge CASes; no published umask separates them",
+    "refresh: only DRAM_REFRESH.PANIC and .HIGH are published (no opportunistic refreshes)",
+    "activates, precharges and CASes per rank: the counters are per channel",
+    "active vs precharge standby: no event counts cycles with a bank open",
+    "active vs precharge power-down per rank: only the channel-wide all-ranks-in-PPD count exists",
+)
+_GAPS_ICX_SPR = (
+    "CKE residency per rank: the published POWER_CKE_CYCLES.LOW_<n> umasks select a DIMM ID and "
+    "their description (CKE on) contradicts their name (CKE low); not used",
+    "activates, precharges and CASes per rank: the counters are per channel",
+    "active vs precharge standby: no event counts cycles with a bank open",
+)
+
+TABLES: dict[str, EventTable] = {
+    "haswell-ep": EventTable(
+        generation="haswell-ep", title="Haswell-EP (Xeon E5 v3)", memory="DDR4",
+        sources=("HSX/events/haswellx_uncore.json V29",),
+        roles=_haswell_broadwell(ImcEvent("UNC_M_DCLOCKTICKS", 0x00, 0x00)),
+        refresh_complete=False, gaps=_GAPS_PRE_ICX),
+    "broadwell-ep": EventTable(
+        generation="broadwell-ep", title="Broadwell-EP (Xeon E5 v4)", memory="DDR4",
+        sources=("BDX/events/broadwellx_uncore.json V23",),
+        roles=_haswell_broadwell(ImcEvent("UNC_M_DCLOCKTICKS", 0x00, 0x00)),
+        refresh_complete=False, gaps=_GAPS_PRE_ICX),
+    "skylake-sp": EventTable(
+        generation="skylake-sp", title="Skylake-SP (Xeon Scalable 1st gen)", memory="DDR4",
+        sources=("SKX/events/skylakex_uncore.json V1.37", "SKX/events/skylakex_uncore_experimental.json V1.37"),
+        roles=_skylake_cascade_lake(refresh=True), refresh_complete=False, gaps=_GAPS_PRE_ICX),
+    "cascade-lake-sp": EventTable(
+        generation="cascade-lake-sp", title="Cascade Lake-SP (Xeon Scalable 2nd gen)", memory="DDR4",
+        sources=("CLX/events/cascadelakex_uncore.json V1.25",
+                 "CLX/events/cascadelakex_uncore_experimental.json V1.25"),
+        roles=_skylake_cascade_lake(refresh=False), refresh_complete=False,
+        gaps=(*_GAPS_PRE_ICX[:1],
+              "refresh: the CLX files publish no DRAM_REFRESH event (refreshes are nominal, one per tREFI)",
+              *_GAPS_PRE_ICX[2:])),
+    "ice-lake-sp": EventTable(
+        generation="ice-lake-sp", title="Ice Lake-SP (Xeon Scalable 3rd gen)", memory="DDR4",
+        sources=("ICX/events/icelakex_uncore.json V1.30", "ICX/events/icelakex_uncore_experimental.json V1.30"),
+        roles={
+            "dclk": (ImcEvent("UNC_M_CLOCKTICKS", 0x00, 0x00),),
+            "cas_rd": (ImcEvent("UNC_M_CAS_COUNT.RD", 0x04, 0x0F),),
+            "cas_wr": (ImcEvent("UNC_M_CAS_COUNT.WR", 0x04, 0x30),),
+            "cas_rd_autopre": (ImcEvent("UNC_M_CAS_COUNT.RD_PRE_REG", 0x04, 0x02, True),
+                               ImcEvent("UNC_M_CAS_COUNT.RD_PRE_UNDERFILL", 0x04, 0x08, True)),
+            "cas_wr_autopre": (ImcEvent("UNC_M_CAS_COUNT.WR_PRE", 0x04, 0x20, True),),
+            "act": (ImcEvent("UNC_M_ACT_COUNT.ALL", 0x01, 0x0B),),
+            "pre_page_miss": (ImcEvent("UNC_M_PRE_COUNT.PAGE_MISS", 0x02, 0x0C, True),),
+            "pre_page_close": (ImcEvent("UNC_M_PRE_COUNT.PGT", 0x02, 0x10),),
+            "refresh": (ImcEvent("UNC_M_DRAM_REFRESH.OPPORTUNISTIC", 0x45, 0x01),
+                        ImcEvent("UNC_M_DRAM_REFRESH.PANIC", 0x45, 0x02),
+                        ImcEvent("UNC_M_DRAM_REFRESH.HIGH", 0x45, 0x04)),
+            "ppd_cycles": (ImcEvent("UNC_M_POWER_CHANNEL_PPD", 0x85, 0x00, True),),
+            "sref_cycles": (ImcEvent("UNC_M_POWER_SELF_REFRESH", 0x43, 0x00, True),),
+        },
+        refresh_complete=True,
+        gaps=(*_GAPS_ICX_SPR,
+              "inactive channels: the kernel registers 3 boxes per controller (uncore_imc_<3m+2> is the third "
+              "channel, inactive on most parts) and an inactive box reads 0 (kernel commit 496a18f09374)")),
+    "sapphire-rapids": EventTable(
+        generation="sapphire-rapids", title="Sapphire Rapids (Xeon Scalable 4th gen)", memory="DDR5",
+        sources=("SPR/events/sapphirerapids_uncore.json V1.39",
+                 "SPR/events/sapphirerapids_uncore_experimental.json V1.39"),
+        roles={
+            "dclk": (ImcEvent("UNC_M_CLOCKTICKS", 0x01, 0x01),),
+            "cas_rd": (ImcEvent("UNC_M_CAS_COUNT.RD", 0x05, 0xCF),),
+            "cas_wr": (ImcEvent("UNC_M_CAS_COUNT.WR", 0x05, 0xF0),),
+            "cas_rd_autopre": (ImcEvent("UNC_M_CAS_COUNT.RD_PRE_REG", 0x05, 0xC2, True),
+                               ImcEvent("UNC_M_CAS_COUNT.RD_PRE_UNDERFILL", 0x05, 0xC8, True)),
+            "cas_wr_autopre": (ImcEvent("UNC_M_CAS_COUNT.WR_PRE", 0x05, 0xE0, True),),
+            "act": (ImcEvent("UNC_M_ACT_COUNT.ALL", 0x02, 0xFF),),
+            "pre_page_miss": (ImcEvent("UNC_M_PRE_COUNT.RD", 0x03, 0x11), ImcEvent("UNC_M_PRE_COUNT.WR", 0x03, 0x22)),
+            "pre_page_close": (ImcEvent("UNC_M_PRE_COUNT.PGT", 0x03, 0x88),),
+            "refresh": (ImcEvent("UNC_M_DRAM_REFRESH.PANIC", 0x45, 0x12, True),
+                        ImcEvent("UNC_M_DRAM_REFRESH.HIGH", 0x45, 0x24, True)),
+            "ppd_cycles": (ImcEvent("UNC_M_POWER_CHANNEL_PPD", 0x85, 0x00, True),),
+            "sref_cycles": (ImcEvent("UNC_M_POWER_SELF_REFRESH", 0x43, 0x00, True),),
+        },
+        refresh_complete=False,
+        gaps=(*_GAPS_ICX_SPR,
+              "refresh: only DRAM_REFRESH.PANIC and .HIGH are published (no opportunistic refreshes)",
+              "DDR5: each channel has two sub-channels; the DDR4 model of this project does not apply as is")),
+}

@@ -1,0 +1,73 @@
+"""Every event-table entry against its public source: Intel's perfmon files and the kernel's aliases."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from hdeem_watch.counters.event_tables import PERFMON_COMMIT, ROLES, TABLES
+
+FIXTURES = Path(__file__).resolve().parent / "fixtures"
+PERFMON = FIXTURES / "perfmon"
+
+
+def published(sources: tuple[str, ...]) -> dict[str, tuple[int, int, bool]]:
+    """Event name → (code, umask, experimental) from the perfmon excerpts a table cites."""
+    events: dict[str, tuple[int, int, bool]] = {}
+    for source in sources:
+        path, version = source.split(" ")
+        data = json.loads((PERFMON / Path(path).name).read_text())
+        assert data["source"].endswith(path) and PERFMON_COMMIT in data["source"]
+        assert f"V{data['version']}".replace("VV", "V") == version
+        for event in data["Events"]:
+            events[event["EventName"]] = (int(event["EventCode"], 16), int(event["UMask"], 16),
+                                          "experimental" in path)
+    return events
+
+
+@pytest.mark.parametrize("generation", sorted(TABLES))
+def test_every_entry_is_published_exactly(generation):
+    """Name, code, umask and the experimental flag of each entry equal the cited perfmon file's."""
+    table = TABLES[generation]
+    source = published(table.sources)
+    assert table.events()
+    for event in table.events():
+        assert event.name in source, f"{generation}: {event.name} is not in {table.sources}"
+        assert (event.event, event.umask, event.experimental) == source[event.name], event.name
+
+
+@pytest.mark.parametrize("generation", sorted(TABLES))
+def test_roles_are_known_and_core_roles_present(generation):
+    """Every role is a documented one; CAS, ACT, PRE, power states and DRAM clock exist on every generation,
+    refresh on all but Cascade Lake-SP (its files publish no DRAM_REFRESH event)."""
+    table = TABLES[generation]
+    assert set(table.roles) <= set(ROLES)
+    for role in ("dclk", "cas_rd", "cas_wr", "act", "pre_page_miss", "pre_page_close", "ppd_cycles",
+                 "sref_cycles"):
+        assert table.events_of(role), f"{generation} lacks {role}"
+    assert bool(table.events_of("refresh")) is (generation != "cascade-lake-sp")
+
+
+def test_autoprecharge_and_cke_gaps_follow_the_files():
+    """RDA/WRA exist from Ice Lake-SP on; per-rank CKE residency only before it; refresh complete only on ICX."""
+    for generation in ("haswell-ep", "broadwell-ep", "skylake-sp", "cascade-lake-sp"):
+        assert not TABLES[generation].events_of("cas_rd_autopre")
+        assert TABLES[generation].cke_ranks() == 8
+    for generation in ("ice-lake-sp", "sapphire-rapids"):
+        assert TABLES[generation].events_of("cas_wr_autopre")
+        assert TABLES[generation].cke_ranks() == 0
+    assert [g for g, t in TABLES.items() if t.refresh_complete] == ["ice-lake-sp"]
+
+
+@pytest.mark.parametrize(("generation", "tree"), [("haswell-ep", "sysfs_haswell_ep"),
+                                                  ("ice-lake-sp", "sysfs_ice_lake_sp")])
+def test_cas_and_clock_agree_with_the_kernel_aliases(generation, tree):
+    """The kernel's own ``events/`` aliases (cas_count_read/write, clockticks) encode like our table."""
+    events_dir = FIXTURES / tree / "bus/event_source/devices/uncore_imc_0/events"
+    table = TABLES[generation]
+    for alias, role in (("cas_count_read", "cas_rd"), ("cas_count_write", "cas_wr"), ("clockticks", "dclk")):
+        fields = dict(part.split("=") for part in (events_dir / alias).read_text().strip().split(","))
+        (event,) = table.events_of(role)
+        assert (int(fields["event"], 16), int(fields["umask"], 16)) == (event.event, event.umask)

@@ -1,0 +1,69 @@
+"""IMC PMU discovery on fixture sysfs trees laid out like real hosts (see fixtures/README.md)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from hdeem_watch.counters.pmu_discovery import discover_imc_pmus, list_pmus, parse_cpu_list
+from hdeem_watch.errors import InputError
+
+FIXTURES = Path(__file__).resolve().parent / "fixtures"
+HASWELL_SYSFS = FIXTURES / "sysfs_haswell_ep"
+ICE_LAKE_SYSFS = FIXTURES / "sysfs_ice_lake_sp"
+VM_SYSFS = FIXTURES / "sysfs_vm"
+
+
+def test_haswell_ep_boxes_and_sockets():
+    """Haswell-EP with two home agents: boxes 0, 1, 4, 5, each counting both sockets via CPUs 0 and 12."""
+    pmus = discover_imc_pmus(HASWELL_SYSFS)
+    assert [p.name for p in pmus] == ["uncore_imc_0", "uncore_imc_1", "uncore_imc_4", "uncore_imc_5"]
+    assert [p.box for p in pmus] == [0, 1, 4, 5]
+    assert all(p.cpus == (0, 12) and not p.free_running for p in pmus)
+    assert len({p.pmu_type for p in pmus}) == 4
+    assert pmus[0].formats["umask"].describe() == "config:8-15"
+
+
+def test_ice_lake_sp_programmable_then_free_running():
+    """Ice Lake-SP: 12 channel boxes, then 4 per-controller free-running PMUs (not mistaken for channels)."""
+    pmus = discover_imc_pmus(ICE_LAKE_SYSFS)
+    programmable = [p for p in pmus if not p.free_running]
+    free = [p for p in pmus if p.free_running]
+    assert [p.box for p in programmable] == list(range(12))
+    assert [p.name for p in free] == [f"uncore_imc_free_running_{i}" for i in range(4)]
+    assert pmus.index(free[0]) == 12
+
+
+def test_vm_has_no_imc_pmu():
+    """This VM's PMU list has no uncore PMU: discovery returns nothing (not an error)."""
+    assert discover_imc_pmus(VM_SYSFS) == []
+    assert list_pmus(VM_SYSFS) == ["breakpoint", "msr", "software", "tracepoint", "uprobe"]
+    assert discover_imc_pmus(VM_SYSFS / "absent") == []
+
+
+def test_malformed_pmu_directory_is_named(tmp_path):
+    """A bad ``type`` or ``cpumask``, or a missing ``format/``, is an InputError naming the file."""
+    root = tmp_path / "sysfs"
+    shutil.copytree(HASWELL_SYSFS, root)
+    pmu = root / "bus/event_source/devices/uncore_imc_4"
+    (pmu / "cpumask").write_text("0,x\n")
+    with pytest.raises(InputError, match="uncore_imc_4/cpumask"):
+        discover_imc_pmus(root)
+    (pmu / "cpumask").write_text("0,12\n")
+    (pmu / "type").write_text("imc\n")
+    with pytest.raises(InputError, match="uncore_imc_4/type"):
+        discover_imc_pmus(root)
+    (pmu / "type").write_text("12\n")
+    shutil.rmtree(pmu / "format")
+    with pytest.raises(InputError, match="uncore_imc_4/format"):
+        discover_imc_pmus(root)
+
+
+def test_cpu_lists():
+    """Kernel CPU lists: single CPUs, ranges and both."""
+    assert parse_cpu_list("0,12\n") == (0, 12)
+    assert parse_cpu_list("0-2,8") == (0, 1, 2, 8)
+    with pytest.raises(InputError):
+        parse_cpu_list("")
