@@ -195,7 +195,7 @@ class Daemon:
             except OSError as error:
                 self._close_sockets()
                 raise InputError(f"prometheus port {settings.prometheus_port}: {error.strerror}") from None
-        identity = Identity(kind=getattr(source, "kind", settings.source),
+        identity = Identity(kind=source.kind,
                             endpoints={"pub": self.pub_endpoint, "control": self.control_endpoint},
                             curve_public_key=None if self.curve is None else self.curve.public.decode(),
                             prometheus_port=self.metrics_port)
