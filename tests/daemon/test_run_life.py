@@ -242,6 +242,10 @@ def test_a_run_from_start_to_reply(node: Node) -> None:
     page = node.call("runs.list", {"full": True, "limit": 1})
     assert page["runs"][0]["model"]["observation"] and page["next_before"] == "r2"
     assert [r["run_id"] for r in node.call("runs.list", {"full": True, "before": "r2"})["runs"]] == ["r1"]
+    # The same page again is answered at once from the last read, until a run is written.
+    assert node.ops.handlers()["runs.list"]({}) == listed
+    node.call("run.start", {"kernel": "idle"})
+    assert [r["run_id"] for r in node.call("runs.list")["runs"]] == ["r3", "r2", "r1"]
 
 
 def test_conflicts_abort_and_bad_arguments(node: Node) -> None:

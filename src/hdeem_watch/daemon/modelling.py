@@ -134,6 +134,11 @@ class RunModeller:
                                                    max_history=MAX_CALIBRATOR_HISTORY)
             self.calibrator.max_runs = min(self.calibrator.max_runs, MAX_CALIBRATION_RUNS)
             self.calibrator.max_history = min(self.calibrator.max_history, MAX_CALIBRATOR_HISTORY)
+            observations = self.calibrator.observations
+            if len(observations) > self.calibrator.max_runs:  # a state saved by an unbounded daemon
+                newest = sorted(range(len(observations)), key=lambda i: observations[i].time_ns)
+                keep = set(newest[len(observations) - self.calibrator.max_runs:])
+                self.calibrator.observations = [o for i, o in enumerate(observations) if i in keep]
         except ImportError as error:  # a model module not installed yet
             self.error = f"model not available: {error}"
         except InputError as error:

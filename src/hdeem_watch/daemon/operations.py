@@ -38,13 +38,16 @@ from hdeem_watch.sources.base import RunAware, RunEvent, Source
 
 log = logging.getLogger("hdeem_watch.daemon")
 
-#: ``runs.list`` page sizes: summaries, and full records (``"full": true``).
+#: ``runs.list`` page sizes: summaries (default, most), and full records (``"full": true``).
+DEFAULT_SUMMARIES = 100
 MAX_SUMMARIES = 1000
 MAX_FULL_RECORDS = 20
 #: Run ids a ``runs.list`` with ``before`` scans at most for one page.
 MAX_SCAN = 10_000
 #: Recent runs looked at on start for one whose modelling a crash interrupted.
 RESUME_SCAN = 50
+#: ``runs.list`` pages kept for repeated requests (all dropped when a run is written).
+MAX_CACHED_PAGES = 64
 #: Waiters key of the idle measurement.
 BASELINE = "baseline"
 
@@ -81,6 +84,9 @@ class Operations:
         self.poll = poll
         #: Deferred replies by run id (or :data:`BASELINE`), answered when that work is done.
         self.waiters: dict[str, list[Pending]] = {}
+        #: ``runs.list`` pages already read, valid until a run is written (``_runs_generation``).
+        self._pages: dict[tuple[Any, ...], dict[str, Any]] = {}
+        self._runs_generation = 0
 
     def handlers(self) -> dict[str, Handler]:
         """op name → handler."""
@@ -99,13 +105,13 @@ class Operations:
                      "model_error": self.calibration.body.get("model_error")})
         return body
 
-    def op_runs_list(self, args: dict[str, Any]) -> Pending:
+    def op_runs_list(self, args: dict[str, Any]) -> Pending | dict[str, Any]:
         """Stored runs, newest first: summaries, or full records with ``"full": true`` (read off the loop)."""
         full = args.get("full", False)
         if not isinstance(full, bool):
             raise OpError("bad-args", f"args.full = {full!r}: expected true or false")
         most = MAX_FULL_RECORDS if full else MAX_SUMMARIES
-        limit = args.get("limit", most if not full else MAX_FULL_RECORDS)
+        limit = args.get("limit", MAX_FULL_RECORDS if full else DEFAULT_SUMMARIES)
         if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= most:
             raise OpError("bad-args", f"args.limit = {limit!r}: expected an integer 1..{most}"
                           + ("" if full else " (full records: 1..20)"))
@@ -118,16 +124,45 @@ class Operations:
             if not isinstance(before, str) or not before.startswith("r") or not before[1:].isdigit():
                 raise OpError("bad-args", f"args.before = {before!r}: expected a run id (the last one of a page)")
             before_seq = int(before[1:])
+        key = (limit, kernel, before_seq, full)
+        cached = self._pages.get(key)
+        if cached is not None:  # many clients asking for the same page: one read until a run changes
+            return cached
         pending = Pending("runs.list")
+        generation = self._runs_generation
 
         def read(store: StorePort) -> dict[str, Any]:
             runs = list_page(store, limit=limit, kernel=kernel, before_seq=before_seq, full=full)
             more = len(runs) == limit and runs[-1].get("run_id") not in (None, "r1")
             return {"runs": runs, "next_before": runs[-1].get("run_id") if more else None}
 
-        self.store.read(read, lambda body: self.reply(pending, body, None),
+        def done(body: dict[str, Any]) -> None:
+            if generation == self._runs_generation:
+                if len(self._pages) >= MAX_CACHED_PAGES:
+                    self._pages.clear()
+                self._pages[key] = body
+            self.reply(pending, body, None)
+
+        self.store.read(read, done,
                         lambda error: self.reply(pending, None, ("internal", f"{type(error).__name__}: {error}")))
         return pending
+
+    def _save_run(self, record: RunRecord | dict[str, Any], done: Callable[[bool], None] | None = None,
+                  calibration: tuple[int, str, dict[str, Any]] | None = None) -> None:
+        """Store a run record (and first the calibration that came with it) on the store worker."""
+        body = record.to_dict() if isinstance(record, RunRecord) else record
+        self._runs_generation += 1
+        self._pages.clear()
+
+        def save(store: StorePort) -> None:
+            # The calibration first: a crash between the two leaves the run "modelling", and the
+            # restart's remodelling finds the run already in the calibrator (it is not added twice).
+            if calibration is not None:
+                t_ns, state, fit = calibration
+                store.save_calibration(t_ns, state, fit, str(body["run_id"]))
+            store.save_run(body)
+
+        self.store.write(f"run {body['run_id']}", save, done)
 
     def op_baseline_get(self, args: dict[str, Any]) -> dict[str, Any]:
         """The current baselines."""
@@ -193,8 +228,7 @@ class Operations:
         self.publisher.publish("run", {"event": "start", "run": body})
         pending = Pending("run.start")
         reply = {"run_id": record.run_id, "t_start_ns": record.t_start_ns, "run": body}
-        self.store.write(f"run {record.run_id}", lambda s: s.save_run(body),
-                         lambda _written: self.reply(pending, reply, None))
+        self._save_run(body, lambda _written: self.reply(pending, reply, None))
         return pending
 
     @staticmethod
@@ -281,10 +315,9 @@ class Operations:
         self.waiters.setdefault(record.run_id, [])
         body = record.to_dict()
         if record.state == "aborted":
-            self.store.write(f"run {record.run_id}", lambda s: s.save_run(body),
-                             lambda _written: self._finished(record))
+            self._save_run(body, lambda _written: self._finished(record))
             return
-        self.store.write(f"run {record.run_id}", lambda s: s.save_run(body))
+        self._save_run(body)
         self.model(record)
 
     def model(self, record: RunRecord) -> None:
@@ -315,17 +348,8 @@ class Operations:
         model, fit, error, calib_body, state = result
         done = dataclasses.replace(record, state="done", model=model, fit=fit, model_error=error)
         self.calibration.body = calib_body
-        body = done.to_dict()
-        t_ns = int(done.t_stop_ns or 0)
-
-        def save(store: StorePort) -> None:
-            # The calibration first: a crash between the two leaves the run "modelling", and the
-            # restart's remodelling finds the run already in the calibrator (it is not added twice).
-            if fit is not None and state is not None:
-                store.save_calibration(t_ns, state, fit, done.run_id)
-            store.save_run(body)
-
-        self.store.write(f"run {done.run_id}", save, lambda _written: self._finished(done, calib=True))
+        calibration = (int(done.t_stop_ns or 0), state, fit) if fit is not None and state is not None else None
+        self._save_run(done, lambda _written: self._finished(done, calib=True), calibration)
 
     def _finished(self, record: RunRecord, *, calib: bool = False) -> None:
         body = record.to_dict()

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import time
 from collections.abc import Callable
 from typing import Any, TypeVar
 
@@ -32,6 +33,9 @@ log = logging.getLogger("hdeem_watch.daemon")
 T = TypeVar("T")
 Action = Callable[[StorePort], Any]
 
+#: Pause of the store worker after each read: a crowd of ``runs.list`` callers must not keep the
+#: poll loop waiting for the interpreter lock.
+READ_PAUSE_S = 0.002
 #: Failed writes kept for a retry (beyond it the oldest are dropped, with an error in the log).
 MAX_BACKLOG = 10_000
 
@@ -83,7 +87,13 @@ class StoreWorker:
     def read(self, action: Callable[[StorePort], T], done: Callable[[T], None],
              failed: Callable[[BaseException], None]) -> None:
         """Run ``action(store)`` on the worker; ``done(result)`` or ``failed(error)`` in the loop."""
-        self.jobs.submit(lambda: action(self.store), done, failed)
+        def job() -> T:
+            try:
+                return action(self.store)
+            finally:
+                time.sleep(READ_PAUSE_S)  # hand the interpreter to the poll loop between large reads
+
+        self.jobs.submit(job, done, failed)
 
     def retry(self) -> None:
         """Try the failed writes again (at every heartbeat)."""

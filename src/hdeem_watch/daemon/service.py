@@ -52,10 +52,9 @@ log = logging.getLogger("hdeem_watch.daemon")
 
 Clock = Callable[[], int]
 
-#: Control requests answered per loop iteration, and worker callbacks run per iteration: the loop
-#: polls the source between batches, so a crowd of clients delays replies, never samples.
-CONTROL_BATCH = 8
-CALLBACK_BATCH = 2
+#: Longest slice of control work (requests, worker callbacks) between two looks at the poll
+#: deadline: a crowd of clients delays replies, not samples.
+WORK_SLICE_NS = 4_000_000
 
 
 class Daemon:
@@ -196,7 +195,7 @@ class Daemon:
             except OSError as error:
                 self._close_sockets()
                 raise InputError(f"prometheus port {settings.prometheus_port}: {error.strerror}") from None
-        identity = Identity(kind=getattr(source, "kind", settings.source),
+        identity = Identity(kind=source.kind,
                             endpoints={"pub": self.pub_endpoint, "control": self.control_endpoint},
                             curve_public_key=None if self.curve is None else self.curve.public.decode(),
                             prometheus_port=self.metrics_port)
@@ -278,8 +277,7 @@ class Daemon:
         poll_timer = IntervalTimer(self.poll_interval_ns, clock=clock)
         heartbeat = IntervalTimer(round(settings.heartbeat_s * 1e9), clock=clock)
         republish = IntervalTimer(round(settings.republish_s * 1e9), clock=clock, start_ns=clock())
-        control, publisher, reporter, store, models = (self.control, self.publisher, self.reporter,
-                                                       self.store_worker, self.model_jobs)
+        control, publisher, reporter, store = self.control, self.publisher, self.reporter, self.store_worker
         poller = zmq.Poller()
         poller.register(control.socket, zmq.POLLIN)
         poller.register(publisher.socket, zmq.POLLIN)
@@ -297,21 +295,17 @@ class Daemon:
             timeout_ms = min(100, max(0, -(-(wake - clock()) // 1_000_000)))
             if backlog:
                 timeout_ms = 0
-            changed = False
-            ready = poller.poll(timeout_ms)
+            ready = dict(poller.poll(timeout_ms))
             now = clock()
             if now >= poll_timer.next_ns:  # the stream first: control work waits, samples do not
                 poll_timer.advance(now)
                 self.poll_once()
-            for sock, _event in ready:
-                if sock is control_socket:
-                    control.handle(max_messages=CONTROL_BATCH)
-                elif sock is pub_socket:
-                    publisher.handle_subscriptions()
-                    changed = True
-                elif sock == wake_fd:
-                    with contextlib.suppress(BlockingIOError):
-                        os.read(wake_fd, 4096)
+            changed = pub_socket in ready
+            if changed:
+                publisher.handle_subscriptions()
+            if wake_fd in ready:
+                with contextlib.suppress(BlockingIOError):
+                    os.read(wake_fd, 4096)
             if now >= heartbeat.next_ns:
                 heartbeat.advance(now)
                 reporter.publish_status()
@@ -324,11 +318,7 @@ class Daemon:
                                                 max_spread_w=settings.quiet_max_spread_w)
                 reporter.publish_calib()
                 reporter.publish_baselines()
-            if models.pending:
-                models.collect(CALLBACK_BATCH)
-            if store.pending:
-                store.collect(CALLBACK_BATCH)
-            backlog = (models.pending and models.ready) or (store.pending and store.ready)
+            backlog = self._work_slice(clock() + WORK_SLICE_NS, control_waiting=control_socket in ready)
             if changed or len(book.windows) != open_windows:
                 open_windows = len(book.windows)
                 interval_ns = self._poll_interval_ns()
@@ -336,6 +326,24 @@ class Daemon:
                     poll_timer.set_interval(interval_ns)
                     coalesce = interval_ns <= slowest_ns
                     self.poll_interval_ns = interval_ns
+
+    def _work_slice(self, end_ns: int, *, control_waiting: bool) -> bool:
+        """Answer control requests and run worker callbacks one at a time until ``end_ns``; return
+        whether work is left (the loop then comes back at once, after a poll if one is due)."""
+        assert self.control is not None and self.model_jobs is not None and self.store_worker is not None
+        control, models, store, clock = self.control, self.model_jobs, self.store_worker, self.clock
+        sock = control.socket
+        while True:
+            if control_waiting:
+                control.handle(max_messages=1)
+            if models.pending and models.ready:
+                models.collect(1)
+            if store.pending and store.ready:
+                store.collect(1)
+            control_waiting = bool(sock.getsockopt(zmq.EVENTS) & zmq.POLLIN)
+            left = control_waiting or (models.pending and models.ready) or (store.pending and store.ready)
+            if not left or clock() >= end_ns:
+                return bool(left)
 
     def _poll_interval_ns(self) -> int:
         assert self.book is not None
