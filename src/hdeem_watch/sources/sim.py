@@ -124,7 +124,7 @@ class SimSource:
                  background_plans: bool = True, block_s: float = 1.0, layout: SimLayout = TAURUS,
                  node: NodeDescription | None = None, age: Mapping[str, float] | None = None,
                  age_start_s: Mapping[str, float] | None = None, part_spread: float = 0.10, gains: bool = True,
-                 ambient_c: float = 40.0, pd_entry_s: float = 60e-9) -> None:
+                 ambient_c: float = 40.0, pd_entry_s: float = PowerPhysics.pd_entry_s) -> None:
         if not speed > 0 or not math.isfinite(speed):
             from hdeem_watch.errors import InputError
 
