@@ -106,3 +106,12 @@ def test_aging_starts_when_told(fake_clock) -> None:
         idd0.append(sim.truth()["pairs"]["DDR_GH"]["currents_a"]["idd0"])
     assert idd0[1] == pytest.approx(idd0[0], rel=1e-12)
     assert idd0[2] == pytest.approx(idd0[0] * 1.15, rel=1e-3)
+
+
+def test_sim_age_options_build_an_aging_sim() -> None:
+    """The options of a --sim-age value go straight into SimSource; none for an unset value."""
+    from hdeem_watch.sources.sim_age import sim_age_options
+
+    assert sim_age_options(None) == {} and sim_age_options("  ") == {}
+    sim = SimSource(seed=1, **sim_age_options("DDR_CD=+30%/h@10min"))
+    assert sim.truth()["aging"] == {"DDR_CD": {"rate_per_h": 0.3, "start_s": 600.0, "factor": 1.0}}

@@ -13,6 +13,8 @@ Example:
     {'DDR_CD': 600.0}
     >>> round(age_factor(0.3, 0.0, 1800.0), 6)
     1.15
+    >>> sim_age_options("DDR_CD=+30%/h@10min")
+    {'age': {'DDR_CD': 0.3}, 'age_start_s': {'DDR_CD': 600.0}}
 """
 
 from __future__ import annotations
@@ -68,6 +70,17 @@ def parse_sim_age_start(text: str) -> dict[str, float]:
     """The start of each pair's drift in ``--sim-age`` (sim seconds since open; 0 without ``@``)."""
     return {match["pair"].upper(): float(match["start"]) * _SECONDS[match["start_unit"]] if match["start"] else 0.0
             for match in _items(text)}
+
+
+def sim_age_options(text: str | None) -> dict[str, dict[str, float]]:
+    """``SimSource`` keyword options of a ``--sim-age`` value (``{}`` for None or empty).
+
+    Raises:
+        InputError: as :func:`parse_sim_age`.
+    """
+    if text is None or not str(text).strip():
+        return {}
+    return {"age": parse_sim_age(text), "age_start_s": parse_sim_age_start(text)}
 
 
 def check_pairs(age: Mapping[str, float], pairs: Iterable[str]) -> dict[str, float]:
