@@ -63,6 +63,9 @@ __all__ = ["SimSource", "modelled_line_rate", "socket_shares", "threads_per_sock
 
 log = logging.getLogger(__name__)
 
+#: How often (sim s) ``truth()`` runs the memspec check on the hidden currents again.
+CHECK_EVERY_S = 60.0
+
 
 @dataclass
 class _Pending:
@@ -188,6 +191,8 @@ class SimSource:
         self._owed: dict[str, list[tuple[int, float]]] = {}  # channel -> [(sim ns, J)] to deposit
         self._sim_ns = 0
         self._generated_ns = 0
+        #: (sim s, violations) of the latest memspec check of the truth (it changes only slowly)
+        self._checked: tuple[float, dict[int, list[str]]] | None = None
 
     # -- Source protocol -------------------------------------------------------------------------------
     def channels(self) -> list[ChannelInfo]:
@@ -373,8 +378,11 @@ class SimSource:
         """The hidden truth now — currents (A per device) per DIMM, per pair and averaged, the aging
         state, and which effects a node-level fit cannot absorb; simulation only
         (:func:`~hdeem_watch.sources.sim_truth.truth_report`)."""
-        return truth_report(self.truth_node, self.truth_model, self._sim_ns * 1e-9, t_ns=self._t0_wall + self._sim_ns,
-                            offset_w=self._offset_w, gain=self._gain)
+        t_s = self._sim_ns * 1e-9
+        if self._checked is None or abs(t_s - self._checked[0]) > CHECK_EVERY_S:
+            self._checked = (t_s, self.truth_node.physical_violations(self.truth_model.currents(t_s)))
+        return truth_report(self.truth_node, self.truth_model, t_s, t_ns=self._t0_wall + self._sim_ns,
+                            offset_w=self._offset_w, gain=self._gain, violations=self._checked[1])
 
     # -- energy owed by stopped runs -------------------------------------------------------------------
     def _add_owed(self, name: str, t_ns: int, joules: float) -> None:

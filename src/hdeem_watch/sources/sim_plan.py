@@ -46,6 +46,13 @@ class TruthNode:
         self.spec = self.model.spec
         self.physics = physics or PowerPhysics()
         self._idle = {hot: idle_columns(self.spec, hot) for hot in (False, True)}
+        self._model_idle: tuple[np.ndarray, float] | None = None
+
+    def model_idle_columns(self) -> tuple[np.ndarray, float]:
+        """The model's idle DIMM per second (precharged standby, a refresh every tREFI): columns, constant."""
+        if self._model_idle is None:
+            self._model_idle = self.model.linear(self.model.idle_stats(1.0))
+        return self._model_idle
 
     def idle_power_w(self, currents: np.ndarray, temps_c: np.ndarray) -> np.ndarray:
         """Idle power (W) per DIMM for per-DIMM ``currents`` (DIMMs × names) at ``temps_c``."""

@@ -73,7 +73,7 @@ def absorbable_currents(node: TruthNode, currents: np.ndarray, temps_c: np.ndarr
     out[:, index["idd4r"]] += node.physics.io_read_j / burst_j_per_a
     out[:, index["idd4w"]] += node.physics.io_write_j / burst_j_per_a
     out[:, index["idd0"]] += (currents[:, index["ipp0"]] - model.datasheet[index["ipp0"]]) * float(spec.vpp) / float(spec.vdd)
-    idle_cols, idle_const = model.linear(model.idle_stats(1.0))
+    idle_cols, idle_const = node.model_idle_columns()
     model_idle_w = out @ idle_cols + idle_const
     out[:, index["idd2n"]] += (node.idle_power_w(currents, temps_c) - model_idle_w) / idle_cols[index["idd2n"]]
     out[:, calibrated] *= gains[:, None]
@@ -86,7 +86,7 @@ def absorbable_currents(node: TruthNode, currents: np.ndarray, temps_c: np.ndarr
 
 
 def truth_report(node: TruthNode, parts: PartCurrents, t_s: float, *, t_ns: int, offset_w: Mapping[str, float],
-                 gain: Mapping[str, float]) -> dict[str, Any]:
+                 gain: Mapping[str, float], violations: Mapping[int, list[str]] | None = None) -> dict[str, Any]:
     """The hidden truth at ``t_s`` sim seconds: currents (A per device) per DIMM, per pair and averaged.
 
     Args:
@@ -96,6 +96,7 @@ def truth_report(node: TruthNode, parts: PartCurrents, t_s: float, *, t_ns: int,
         t_ns: the report's timestamp (wall ns).
         offset_w: the sensor offset of every channel (W).
         gain: the sensor gain of every channel.
+        violations: the memspec check of the truth per DIMM, if already known (else checked now).
     """
     model, layout = node.model, node.layout
     names = model.names
@@ -141,7 +142,8 @@ def truth_report(node: TruthNode, parts: PartCurrents, t_s: float, *, t_ns: int,
                           "(IDD4R/IDD4W) + real vs model idle power (IDD2N), × sensor gain, + sensor offsets; "
                           "the effects marked 'no' keep a fit a few percent off",
         "physical_violations": {f"DIMM_{layout.dimm_names[d]}": v
-                                for d, v in node.physical_violations(currents).items()},
+                                for d, v in (node.physical_violations(currents) if violations is None
+                                             else violations).items()},
         "effects": [{"effect": e, "node_fit_absorbs": a, "why": w} for e, a, w in EFFECTS],
         "pairs": pairs,
         "aging": {pair: {"rate_per_h": float(rate), "start_s": float(parts.age_start_s[pair]),
