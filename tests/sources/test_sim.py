@@ -9,19 +9,14 @@ import pytest
 
 from hdeem_watch.sources.base import CHANNELS, DRAM_CHANNELS, RunEvent, Source, make_source
 from hdeem_watch.sources.sim import SimSource, modelled_line_rate
-from hdeem_watch.sources.sim_model import (
-    DIMM_PAIR,
-    effective_currents,
-    kernel_traffic_lines,
-    run_truth_energy_j,
-    socket_shares,
-)
+from hdeem_watch.sources.sim_model import DIMM_PAIR, kernel_traffic_lines, run_truth_energy_j, socket_shares
 
 S = 1_000_000_000
 
 
 def quiet_sim(clock, **kw) -> SimSource:
-    opts = dict(noise=False, quantum_w=0.0, io_j_per_line=0.0, offsets=False, aging_per_h=0.0, temp_amp_c=0.0)
+    opts = dict(noise=False, quantum_w=0.0, io_j_per_line=0.0, offsets=False, gains=False, aging_per_h=0.0,
+                temp_amp_c=0.0)
     opts.update(kw)
     sim = SimSource(seed=5, clock=clock, wall_clock=lambda: 1_700_000_000 * S, **opts)
     sim.open()
@@ -175,11 +170,17 @@ def test_threads_fill_socket0_first(fake_clock):
     assert d24["BLADE"] > d12["BLADE"]
 
 
+def plan_energy_j(plan, until_ns: int | None = None) -> float:
+    """The plan's DRAM energy over its traffic (all of its commands and I/O; background up to ``until_ns``)."""
+    end = plan.duration_ns if until_ns is None else min(plan.duration_ns, until_ns - plan.t0_ns)
+    return float((plan.bg_w * end * 1e-9 + plan.dyn_j + plan.io_j).sum())
+
+
 @pytest.mark.parametrize("threads", [8, 20])
-def test_completed_run_energy_equals_truth_model(threads, fake_clock):
-    """A run's DRAM energy over its modelled duration equals the truth model of the calibrator's counts."""
+def test_completed_run_energy_equals_its_plan(threads, fake_clock):
+    """A run's DRAM samples hold exactly its plan's energy (background, commands, I/O) plus idle power around it."""
     clock = fake_clock()
-    sim = quiet_sim(clock)
+    sim = quiet_sim(clock, io_j_per_line=0.5e-9)
     kernel, elements, repeat = "triad", 2_000_000, 20
     clock.t = S // 10
     sim.poll()
@@ -188,18 +189,14 @@ def test_completed_run_energy_equals_truth_model(threads, fake_clock):
     lines = sum(kernel_traffic_lines(kernel, elements)) * repeat
     duration_s = lines / modelled_line_rate(kernel, threads, elements)
     assert plan.duration_ns == pytest.approx(duration_s * 1e9, abs=1)
+    assert float(plan.io_j.sum()) > 0
     # poll well after the end of traffic: the batch holds the whole run plus idle time
     clock.t = S // 10 + plan.duration_ns + S // 2
     batch = sim.poll()
-    measured = 0.0
-    for ch in DRAM_CHANNELS:
-        _t, p = batch.samples[ch]
-        measured += float(p.sum()) * 0.01
-    currents = sim.truth_model.currents(0.0)
+    measured = dram_energy([batch])
     window_s = (batch.samples["DDR_AB"][0][-1] - batch.samples["DDR_AB"][0][0] + 10_000_000) * 1e-9
-    expected_run = run_truth_energy_j(sim.model, currents, kernel, elements, threads, repeat, duration_s)
     idle_w = float(plan.idle_w.sum())
-    assert measured == pytest.approx(expected_run + idle_w * (window_s - duration_s), rel=1e-9)
+    assert measured == pytest.approx(plan_energy_j(plan) + idle_w * (window_s - plan.duration_ns * 1e-9), rel=1e-9)
 
 
 def test_early_stop_conserves_energy(fake_clock):
@@ -216,31 +213,35 @@ def test_early_stop_conserves_energy(fake_clock):
     clock.t = stop + 10_000_000
     second = sim.poll()
     measured = dram_energy([first, second]) - float(plan.idle_w.sum()) * 0.01  # one sample after the stop
-    currents = sim.truth_model.currents(0.0)
-    expected = run_truth_energy_j(sim.model, currents, kernel, elements, threads, repeat, stop * 1e-9)
-    assert measured == pytest.approx(expected, rel=1e-9)
+    assert measured == pytest.approx(plan_energy_j(plan, stop), rel=1e-9)
     # after the stop the node is idle again
     clock.t += S // 10
     later = sim.poll()
     assert float(later.samples["DDR_AB"][1].mean()) == pytest.approx(float(plan.idle_w[:2].sum()))
 
 
-def test_equal_dimms_match_core_energy_of_the_groups(fake_clock):
-    """With identical DIMMs the run energy is the core energy of each socket group's channel × its channels."""
+def test_run_energy_is_drampower_of_the_sims_own_statistics(fake_clock):
+    """The truth prices the sim's own per-DIMM statistics with DRAMPower's energies at each DIMM's currents."""
     from hdeem_watch.dram.energy import core_energy
-    from hdeem_watch.dram.stats import stretch_stats
 
     clock = fake_clock()
-    sim = quiet_sim(clock, dimm_spread=0.0)
-    kernel, elements, threads, repeat, window = "scale", 3_000_000, 18, 10, 0.7
+    sim = quiet_sim(clock)
+    kernel, elements, threads, repeat = "scale", 3_000_000, 18, 10
+    sim.on_run(RunEvent("start", "r", kernel, threads, elements, repeat, 0))
+    plan = sim.run_plan("r", timeout_s=120)
+    d_s = plan.duration_ns * 1e-9
     currents = sim.truth_model.currents(0.0)
+    stats = sim.truth_node.dimm_stats(kernel, elements, threads, repeat, d_s, sim.truth_model.temperature_c(0.0))
     model = sim.model
-    total = run_truth_energy_j(model, currents, kernel, elements, threads, repeat, window)
-    truth_spec = model.spec.with_currents(dict(zip(model.names, currents[0])))
-    groups = model.node_stats(kernel, elements, threads, repeat)
-    expected = sum(core_energy(truth_spec, stretch_stats(model.spec, stats, window)).core_j * n for stats, n in groups)
-    assert total == pytest.approx(expected, rel=1e-9)
-    assert groups[0][0].total("rd") == pytest.approx(2 * groups[1][0].total("rd"), rel=0.01)  # 12 vs 6 threads
+    for d, dimm_stats in enumerate(stats):
+        assert dimm_stats is not None   # 18 threads: both sockets
+        spec = model.spec.with_currents(dict(zip(model.names, map(float, currents[d]), strict=True)))
+        core = core_energy(spec, dimm_stats).core_j
+        assert plan.bg_w[d] * d_s + plan.dyn_j[d] == pytest.approx(core, rel=1e-7)
+    socket0 = stats[0]
+    socket1 = stats[4]
+    assert socket0 is not None and socket1 is not None
+    assert socket0.total("rd") == pytest.approx(2 * socket1.total("rd"), rel=0.05)  # 12 vs 6 threads
 
 
 def test_speed_and_factory(fake_clock):
@@ -257,18 +258,16 @@ def test_background_plan_holds_samples_back_without_loss(monkeypatch, fake_clock
     """While a run's plan is computed in the background, samples after its start wait; none are lost."""
     import threading
 
-    import hdeem_watch.sources.sim as sim_module
-
     gate = threading.Event()
-    real_plan_run = sim_module.plan_run
-
-    def slow_plan_run(*args):
-        gate.wait(30)
-        return real_plan_run(*args)
-
-    monkeypatch.setattr(sim_module, "plan_run", slow_plan_run)
     clock = fake_clock()
     sim = quiet_sim(clock)
+    real_plan = sim.truth_node.plan
+
+    def slow_plan(*args):
+        gate.wait(30)
+        return real_plan(*args)
+
+    monkeypatch.setattr(sim.truth_node, "plan", slow_plan)
     clock.t = S // 10
     sim.poll()
     sim.on_run(RunEvent("start", "r", "add", 4, 1_000_000, 10, clock.t))   # returns at once
@@ -285,79 +284,18 @@ def test_background_plan_holds_samples_back_without_loss(monkeypatch, fake_clock
     assert len(t) == 90 and t[0] == 1_700_000_000 * S + 110_000_000   # 0.1 s .. 1.0 s, nothing lost
 
 
-@pytest.mark.parametrize(("kernel", "threads"), [("idle", 4), ("triad", 24), ("read", 24), ("copy", 6), ("add", 18)])
-def test_run_energy_equals_the_calibrators_row_at_the_truth(kernel, threads, fake_clock):
-    """With identical DIMMs the sim's DRAM energy over a run's window is the daemon's calibration row at the truth."""
-    from hdeem_watch.daemon.modelling import RunModeller
-
-    clock = fake_clock()
-    sim = quiet_sim(clock, dimm_spread=0.0)
-    elements, repeat = 40_000_000, 8
-    sim.on_run(RunEvent("start", "r", kernel, threads, elements, repeat, 0))
-    plan = sim.run_plan("r", timeout_s=120)
-    # stop on a sample edge inside the traffic: the rest is booked at the stop, in the window
-    window_ns = (plan.duration_ns // 10_000_000) * 10_000_000 if plan.duration_ns > 0 else 300_000_000
-    assert window_ns > 0
-    sim.on_run(RunEvent("stop", "r", kernel, threads, elements, repeat, window_ns))
-    clock.t = window_ns + 10_000_000
-    batch = sim.poll()
-    measured = sum(float(batch.samples[ch][1][: window_ns // 10_000_000].sum()) * 0.01 for ch in DRAM_CHANNELS)
-    truth = sim.truth_model.currents(0.0)[0]
-    modeller = RunModeller("samsung-m393a1g43db0-cpb", dimms=8)
-    model, _fit, error = modeller.evaluate({"run_id": "r", "kernel": kernel, "threads": threads, "elements":
-                                            elements if kernel != "idle" else 0, "repeat": repeat,
-                                            "window_s": window_ns * 1e-9, "dram_energy_j": measured})
-    assert error is None and model is not None
-    from hdeem_watch.calibrate import Observation
-
-    row = Observation.from_dict(model["observation"])
-    assert measured == pytest.approx(row.predicted_j(truth), rel=1e-6)
-
-
-def test_effective_currents_reproduce_the_signal_with_the_other_currents_at_datasheet(fake_clock):
-    """The effective truth (I/O per burst, sensor offsets, refresh and IPP0 deviations folded into the five
-    calibrated currents, the rest at datasheet) gives the sim's measured energy through the calibration row."""
-    from hdeem_watch.calibrate import Observation
-    from hdeem_watch.daemon.modelling import RunModeller
-
-    clock = fake_clock()
-    sim = quiet_sim(clock, dimm_spread=0.0, io_j_per_line=0.5e-9, offsets=True)
-    kernel, threads, elements, repeat = "triad", 24, 40_000_000, 8
-    sim.on_run(RunEvent("start", "r", kernel, threads, elements, repeat, 0))
-    plan = sim.run_plan("r", timeout_s=120)
-    window_ns = (plan.duration_ns // 10_000_000) * 10_000_000
-    sim.on_run(RunEvent("stop", "r", kernel, threads, elements, repeat, window_ns))
-    clock.t = window_ns + 10_000_000
-    batch = sim.poll()
-    measured = sum(float(batch.samples[ch][1][: window_ns // 10_000_000].sum()) * 0.01 for ch in DRAM_CHANNELS)
-    model, _fit, _error = RunModeller("samsung-m393a1g43db0-cpb", dimms=8).evaluate(
-        {"run_id": "r", "kernel": kernel, "threads": threads, "elements": elements, "repeat": repeat,
-         "window_s": window_ns * 1e-9, "dram_energy_j": measured})
-    assert model is not None
-    row = Observation.from_dict(model["observation"])
-    truth = sim.truth()
-    names = sim.model.names
-    effective = np.array([truth["effective_currents_a"][n] for n in names])
-    core = sim.truth_model.currents(0.0)[0]
-    # the refresh current's deviation is folded in exactly only with a refresh every tREFI: 0.2 %
-    assert measured == pytest.approx(row.predicted_j(effective), rel=2e-3)
-    assert abs(measured - row.predicted_j(core)) > 5 * abs(measured - row.predicted_j(effective))
-    direct = effective_currents(sim.model, core, 0.5e-9, sum(truth["offsets_w"][c] for c in DRAM_CHANNELS))
-    assert np.allclose(direct, effective)
-    io_share = float(plan.io_j.sum()) / (float(plan.bg_w.sum()) * plan.duration_ns * 1e-9 + float(plan.dyn_j.sum()))
-    assert 0.01 < io_share < 0.10   # I/O: a modest share of the DIMMs' energy under full load
-
-
 def test_datasheet_model_overestimates_the_sim_node():
     """On kernel runs the datasheet model overestimates the sim's DRAM energy 1.3–2.5× (field: ~2×)."""
-    from hdeem_watch.sources.sim_model import TruthModel, default_model, plan_run
+    from hdeem_watch.sources.sim_currents import PartCurrents
+    from hdeem_watch.sources.sim_plan import TruthNode
 
-    model = default_model()
     ratios = []
     for seed in (0, 1, 2):
-        truth = TruthModel(model.names, model.datasheet, seed)
+        node = TruthNode(seed)
+        model = node.model
+        parts = PartCurrents(model.names, model.datasheet, seed, pairs=node.layout.dimm_sensor)
         for kernel, threads in (("read", 24), ("triad", 12), ("copy", 4)):
-            plan = plan_run(model, truth.currents(0.0), "r", 0, kernel, 1 << 22, threads, 20, 0.5e-9)
+            plan = node.plan(parts.currents(0.0), parts.temperature_c(0.0), "r", 0, kernel, 1 << 22, threads, 20)
             d_s = plan.duration_ns * 1e-9
             sim_j = float((plan.bg_w * d_s + plan.dyn_j + plan.io_j).sum())
             datasheet = np.broadcast_to(model.datasheet, (8, len(model.names)))

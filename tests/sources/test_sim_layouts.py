@@ -12,7 +12,7 @@ from hdeem_watch.node.description import describe_node
 from hdeem_watch.sources.base import CHANNELS, RunEvent, hdeem_channel_infos
 from hdeem_watch.sources.sim import SimSource
 from hdeem_watch.sources.sim_layout import TAURUS, SimLayout, layout_for_node
-from hdeem_watch.sources.sim_model import kernel_traffic_lines, modelled_line_rate, run_truth_energy_j
+from hdeem_watch.sources.sim_model import kernel_traffic_lines, modelled_line_rate
 
 S = 1_000_000_000
 FIXTURES = Path(__file__).resolve().parents[1] / "node" / "fixtures"
@@ -30,7 +30,7 @@ class Clock:
 
 def quiet_sim(clock: Clock, layout: SimLayout) -> SimSource:
     sim = SimSource(seed=5, clock=clock, wall_clock=lambda: 1_700_000_000 * S, noise=False, quantum_w=0.0,
-                    io_j_per_line=0.0, offsets=False, aging_per_h=0.0, temp_amp_c=0.0, layout=layout,
+                    io_j_per_line=0.0, offsets=False, gains=False, aging_per_h=0.0, temp_amp_c=0.0, layout=layout,
                     background_plans=False)
     sim.open()
     return sim
@@ -77,7 +77,7 @@ def test_channels_of_other_nodes(layout: SimLayout, channels: tuple[str, ...]) -
 
 
 def _run_energy(sim: SimSource, clock: Clock, threads: int) -> tuple[dict[str, float], float, float]:
-    """Per DRAM sensor, the energy above idle of one run; the measured and the modelled node total."""
+    """Per DRAM sensor, the energy above idle of one run; the measured and the planned (truth) node total."""
     kernel, elements, repeat = "triad", 2_000_000, 5
     clock.t = S // 10
     idle_batch = sim.poll()
@@ -92,9 +92,9 @@ def _run_energy(sim: SimSource, clock: Clock, threads: int) -> tuple[dict[str, f
     duration_s = sum(kernel_traffic_lines(kernel, elements)) * repeat / modelled_line_rate(
         kernel, threads, elements, sim.layout)
     assert plan.duration_ns == pytest.approx(duration_s * 1e9, abs=1)
-    modelled = run_truth_energy_j(sim.model, sim.truth_model.currents(0.0), kernel, elements, threads, repeat,
-                                  duration_s) + float(plan.idle_w.sum()) * (window_s - duration_s)
-    return above, measured, modelled
+    d_s = plan.duration_ns * 1e-9
+    planned = float((plan.bg_w * d_s + plan.dyn_j + plan.io_j).sum()) + float(plan.idle_w.sum()) * (window_s - d_s)
+    return above, measured, planned
 
 
 def test_ice_lake_run_on_one_socket_leaves_the_other_idle() -> None:
@@ -112,8 +112,8 @@ def test_ice_lake_run_on_one_socket_leaves_the_other_idle() -> None:
     assert np.all(np.abs(plan.excess_w[8:]) < 1e-12) and np.all(plan.excess_w[:8] > 0.0)
 
 
-def test_one_socket_node_run_energy_is_the_truth_model() -> None:
-    """On a 1-socket node every run lands on its 6 channels; the energy equals the truth model's."""
+def test_one_socket_node_run_energy_is_the_truth_plan() -> None:
+    """On a 1-socket node every run lands on its 6 channels; the energy equals the sim's truth plan."""
     clock = Clock()
     sim = quiet_sim(clock, ONE_SOCKET)
     above, measured, modelled = _run_energy(sim, clock, 16)

@@ -7,14 +7,16 @@ import pytest
 
 from hdeem_watch.dram.memspec_check import physical_violations
 from hdeem_watch.sources.sim_currents import truth_parts
-from hdeem_watch.sources.sim_model import DIMMS, TruthModel, default_model, idle_power_w, plan_run
+from hdeem_watch.sources.sim_model import DIMMS, TruthModel, default_model
+from hdeem_watch.sources.sim_plan import TruthNode
 
 
 @pytest.mark.parametrize("seed", range(12))
 def test_truth_passes_the_physical_check(seed: int) -> None:
-    """Every DIMM's true currents, at any temperature and age, give no negative command energy."""
+    """Every DIMM's true currents, at any temperature and age (a pair aging too), give no negative command energy."""
     model = default_model()
-    truth = TruthModel(model.names, model.datasheet, seed, temp_amp_c=15.0, aging_per_h=0.05)
+    truth = TruthModel(model.names, model.datasheet, seed, temp_amp_c=15.0, aging_per_h=0.05, age={"P1": 0.30},
+                       ambient_c=70.0)
     for t_s in (0.0, 900.0, 1800.0, 2700.0, 36_000.0):
         currents = truth.currents(t_s)
         for d in range(len(DIMMS)):
@@ -54,10 +56,11 @@ def test_truth_parts_keeps_ratios_in_range() -> None:
 @pytest.mark.parametrize(("kernel", "threads"), [("read", 1), ("copy", 2), ("triad", 4), ("read", 24)])
 def test_runs_never_draw_below_idle(seed: int, kernel: str, threads: int) -> None:
     """DDR "above baseline" is never negative: a run's per-DIMM power is at least the idle power."""
-    model = default_model()
-    truth = TruthModel(model.names, model.datasheet, seed)
-    currents = truth.currents(0.0)
-    plan = plan_run(model, currents, "r", 0, kernel, 1 << 20, threads, 5, 0.0)
+    node = TruthNode(seed)
+    model = node.model
+    truth = TruthModel(model.names, model.datasheet, seed, pairs=node.layout.dimm_sensor)
+    currents, temps = truth.currents(0.0), truth.temperature_c(0.0)
+    plan = node.plan(currents, temps, "r", 0, kernel, 1 << 20, threads, 5)
     assert plan.duration_ns > 0
     assert np.all(plan.excess_w >= -1e-12), plan.excess_w
-    assert np.all(idle_power_w(model, currents) > 0)
+    assert np.all(node.idle_power_w(currents, temps) > 0)

@@ -15,8 +15,13 @@ late by more than ``buffer_s`` (the sensor buffer), the older samples are lost (
 (like HDEEM's energy totals). ``energy_j`` is the integral of the published (quantised) samples
 plus that of lost ones.
 
-What the calibrator does not model is in the signal on purpose: I/O energy per line
-(``io_j_per_line``), a board offset per channel, Gaussian noise, 0.125 W quantisation.
+The hidden truth comes from the sim's own generator (:mod:`hdeem_watch.sources.sim_plan`), not
+from the daemon's model path, and has what real DIMMs do that the model leaves out: its own page
+placement, channel and bank hash (other row-hit rates), power-down after idle time, refresh twice as
+often above 85 °C, I/O energy per burst, a part per DIMM pair (±10 % currents), a gain and offset
+per sensor, Gaussian noise, 0.125 W quantisation, and optionally aging of a pair
+(``age={"DDR_CD": 0.30}`` = +30 %/h of sim time; the CLI form ``DDR_CD=+30%/h`` is parsed by
+:func:`~hdeem_watch.sources.sim_age.parse_sim_age`). :meth:`SimSource.truth` reports it all.
 
 Example:
     >>> t = [0]
@@ -32,7 +37,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
@@ -41,18 +46,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hdeem_watch.sources.base import STATUS_GAP, STATUS_OK, ChannelInfo, RunEvent, SourceBatch
+from hdeem_watch.sources.sim_age import check_pairs
+from hdeem_watch.sources.sim_currents import PartCurrents
 from hdeem_watch.sources.sim_fast import IdleBlocks, NoiseBank
 from hdeem_watch.sources.sim_layout import TAURUS, SimLayout, layout_for_node
-from hdeem_watch.sources.sim_model import (
-    RunPlan,
-    TruthModel,
-    idle_power_w,
-    load_model,
-    modelled_line_rate,
-    plan_run,
-    socket_shares,
-    threads_per_socket,
-)
+from hdeem_watch.sources.sim_model import RunPlan, modelled_line_rate, socket_shares, threads_per_socket
+from hdeem_watch.sources.sim_plan import TruthNode
+from hdeem_watch.sources.sim_power import PowerPhysics
 from hdeem_watch.sources.sim_signal import NOISE_W, channel_power_w, deposit_owed, flat_power_w, mean_power_w
 from hdeem_watch.sources.sim_truth import truth_report
 
@@ -62,6 +62,9 @@ if TYPE_CHECKING:
 __all__ = ["SimSource", "modelled_line_rate", "socket_shares", "threads_per_socket"]
 
 log = logging.getLogger(__name__)
+
+#: How often (sim s) ``truth()`` runs the memspec check on the hidden currents again.
+CHECK_EVERY_S = 60.0
 
 
 @dataclass
@@ -84,13 +87,13 @@ class SimSource:
         wall_clock: wall clock in ns (read once at open).
         noise: add Gaussian noise.
         quantum_w: quantisation step (0 = none).
-        io_j_per_line: I/O energy per 64-byte line on the DIMM rails (VDDQ drivers and termination;
-            not in the core model). The default 0.5 nJ (≈ 1 pJ/bit) is ~2–4 % of the DIMMs' power
-            under STREAM load and adds ~12 mA per device to the IDD4R/IDD4W a fit recovers.
-        offsets: add a board offset per channel (DIMM pairs −0.1…+0.3 W, others ±1 W).
-        aging_per_h: relative growth of every true current per sim hour.
+        io_j_per_line: mean I/O energy per 64-byte line on the DIMM rails (VDDQ drivers and
+            termination; not in the core model): reads 0.9×, writes 1.1× this. The default 0.5 nJ
+            (≈ 1 pJ/bit) is a few % of the DIMMs' power under STREAM load.
+        offsets: add a sensor offset per channel (DIMM pairs −0.1…+0.3 W, others ±1 W).
+        aging_per_h: relative growth of every true current per sim hour (all pairs).
         temp_amp_c: amplitude of the DIMM temperature swing (°C, period 1 sim hour).
-        dimm_spread: relative spread of the true currents between DIMMs.
+        dimm_spread: relative spread of the true currents between DIMMs (per current).
         buffer_s: sensor buffer (sim s): samples older than this at a poll are lost.
         background_plans: compute a run's energy plan (``kernel_stats``, seconds for big runs) in a
             worker thread; until it is ready the sim's sensors lag (samples after the run's start are
@@ -102,6 +105,12 @@ class SimSource:
             sockets, cores and channels; channels ``BLADE``, ``CPU<n>`` per socket and one
             ``DDR_<letters>`` sensor per pair of channels.
         node: a node description to model instead (one DIMM per channel); overrides ``layout``.
+        age: ``{pair: relative growth per sim hour}`` of the DIMM pairs that age (0.30 = +30 %/h).
+        age_start_s: ``{pair: sim s}`` when each pair's drift starts (default 0, the open).
+        part_spread: relative spread of the parts, one factor on every current per DIMM pair.
+        gains: give every sensor a gain (DIMM pairs ±3 %, others ±2 %); False = 1.
+        ambient_c: the DIMMs' mean temperature (°C; above 85 °C refresh doubles).
+        pd_entry_s: idle time after which the controller puts a rank into power-down.
 
     Example:
         >>> sim = SimSource(seed=1)
@@ -113,10 +122,12 @@ class SimSource:
 
     def __init__(self, seed: int = 0, clock: Callable[[], int] = time.monotonic_ns, speed: float = 1.0,
                  wall_clock: Callable[[], int] = time.time_ns, *, noise: bool = True, quantum_w: float = 0.125,
-                 io_j_per_line: float = 0.5e-9, offsets: bool = True, aging_per_h: float = 0.005,
-                 temp_amp_c: float = 3.0, dimm_spread: float = 0.10, buffer_s: float = 60.0,
+                 io_j_per_line: float = 0.5e-9, offsets: bool = True, aging_per_h: float = 0.0,
+                 temp_amp_c: float = 3.0, dimm_spread: float = 0.03, buffer_s: float = 60.0,
                  background_plans: bool = True, block_s: float = 1.0, layout: SimLayout = TAURUS,
-                 node: NodeDescription | None = None) -> None:
+                 node: NodeDescription | None = None, age: Mapping[str, float] | None = None,
+                 age_start_s: Mapping[str, float] | None = None, part_spread: float = 0.10, gains: bool = True,
+                 ambient_c: float = 40.0, pd_entry_s: float = PowerPhysics.pd_entry_s) -> None:
         if not speed > 0 or not math.isfinite(speed):
             from hdeem_watch.errors import InputError
 
@@ -131,10 +142,16 @@ class SimSource:
         self.buffer_ns = int(buffer_s * 1e9)
         self.block_ns = max(0, int(block_s * 1e9))
         self.layout = layout_for_node(node) if node is not None else layout
-        self.model = load_model(self.layout)
-        self.truth_model = TruthModel(self.model.names, self.model.datasheet, self.seed,
-                                      aging_per_h=aging_per_h, temp_amp_c=temp_amp_c, dimm_spread=dimm_spread,
-                                      dimms=len(self.layout.dimm_names))
+        physics = PowerPhysics(io_read_j=0.9 * self.io_j_per_line, io_write_j=1.1 * self.io_j_per_line,
+                               pd_entry_s=float(pd_entry_s))
+        self.truth_node = TruthNode(self.seed, self.layout, physics)
+        self.model = self.truth_node.model
+        age = check_pairs(age or {}, self.layout.sensors)
+        starts = {str(p).upper(): float(s) for p, s in (age_start_s or {}).items()}
+        self.truth_model = PartCurrents(self.model.names, self.model.datasheet, self.seed, aging_per_h=aging_per_h,
+                                        temp_amp_c=temp_amp_c, dimm_spread=dimm_spread, part_spread=part_spread,
+                                        pairs=self.layout.dimm_sensor, age=age, age_start_s=starts,
+                                        ambient_c=ambient_c)
         self._infos = self.layout.channel_infos()
         rng = np.random.default_rng([self.seed, 104729])
         self._offset_w = {
@@ -142,6 +159,9 @@ class SimSource:
             if offsets else 0.0
             for info in self._infos
         }
+        gain_rng = np.random.default_rng([self.seed, 104723])
+        self._gain = {info.name: float(1.0 + gain_rng.uniform(-1.0, 1.0) * (0.03 if info.kind == "dram" else 0.02))
+                      if gains else 1.0 for info in self._infos}
         self._noise = NoiseBank({info.name: np.random.default_rng([self.seed, i + 1]) for i, info in enumerate(self._infos)},
                                 {info.name: NOISE_W[info.kind] for info in self._infos})
         self._period_ns = {info.name: round(1e9 / info.rate_hz) for info in self._infos}
@@ -171,6 +191,8 @@ class SimSource:
         self._owed: dict[str, list[tuple[int, float]]] = {}  # channel -> [(sim ns, J)] to deposit
         self._sim_ns = 0
         self._generated_ns = 0
+        #: (sim s, violations) of the latest memspec check of the truth (it changes only slowly)
+        self._checked: tuple[float, dict[int, list[str]]] | None = None
 
     # -- Source protocol -------------------------------------------------------------------------------
     def channels(self) -> list[ChannelInfo]:
@@ -244,25 +266,25 @@ class SimSource:
     def _poll_general(self, sim_now: int, samples: dict[str, tuple[np.ndarray, np.ndarray]],
                       status: dict[str, str], gaps: dict[str, int]) -> None:
         """Every channel not served from an idle block, computed for this poll alone (runs, lost stretches)."""
-        idle = idle_power_w(self.model, self.truth_model.currents(sim_now * 1e-9))
+        idle = self._idle_w(sim_now)
         plans = list(self._plans.values())
         for info in self._infos:
             name, period = info.name, self._period_ns[info.name]
             if name in samples:
                 continue
-            offset = self._offset_w[name]
+            offset, gain = self._offset_w[name], self._gain[name]
             k0, k1 = self._next_k[name], sim_now // period
             lost = 0
             if (k1 - k0 + 1) * period > self.buffer_ns:
                 keep_from = k1 - self.buffer_ns // period + 1
                 lost = keep_from - k0
                 self._energy_j[name] += mean_power_w(name, k0 * period - period, (keep_from - 1) * period, idle,
-                                                     plans, offset_w=offset, layout=self.layout) \
+                                                     plans, offset_w=offset, layout=self.layout, gain=gain) \
                     * (keep_from - k0) * period * 1e-9
                 k0 = keep_from
             ks = np.arange(k0, k1 + 1, dtype=np.int64)
             t_end = ks * period
-            power = channel_power_w(name, t_end, period, idle, plans, offset_w=offset, layout=self.layout)
+            power = channel_power_w(name, t_end, period, idle, plans, offset_w=offset, layout=self.layout, gain=gain)
             if name in self._owed:
                 keep = deposit_owed(self._owed[name], t_end, period, power)
                 if keep:
@@ -284,10 +306,14 @@ class SimSource:
     def _flat_w(self, sim_now: int) -> dict[str, float]:
         """Every channel's noise-free idle power at ``sim_now`` (both groups' new blocks usually start together)."""
         if self._flat_at != sim_now:
-            self._flat = flat_power_w(idle_power_w(self.model, self.truth_model.currents(sim_now * 1e-9)), self._offset_w,
-                                      self.layout)
+            self._flat = flat_power_w(self._idle_w(sim_now), self._offset_w, self.layout, self._gain)
             self._flat_at = sim_now
         return self._flat
+
+    def _idle_w(self, sim_ns: int) -> np.ndarray:
+        """Every DIMM's true idle power (W) at ``sim_ns``."""
+        t_s = sim_ns * 1e-9
+        return self.truth_node.idle_power_w(self.truth_model.currents(t_s), self.truth_model.temperature_c(t_s))
 
     # -- runs ------------------------------------------------------------------------------------------
     def on_run(self, event: RunEvent) -> None:
@@ -297,15 +323,14 @@ class SimSource:
         t = max(0, self.sim_time_ns(event.t_mono_ns))
         if event.kind == "start":
             t = max(t, self._generated_ns)   # samples already published cannot change
-            currents = self.truth_model.currents(t * 1e-9)
-            args = (self.model, currents, event.run_id, t, event.kernel, int(event.elements), int(event.threads),
-                    int(event.repeat), self.io_j_per_line)
+            args = (self.truth_model.currents(t * 1e-9), self.truth_model.temperature_c(t * 1e-9), event.run_id, t,
+                    event.kernel, int(event.elements), int(event.threads), int(event.repeat))
             if not self.background_plans:
-                self._plans[event.run_id] = plan_run(*args)
+                self._plans[event.run_id] = self.truth_node.plan(*args)
                 return
             if self._executor is None:
                 self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-plan")
-            self._pending[event.run_id] = _Pending(self._executor.submit(plan_run, *args), t, event)
+            self._pending[event.run_id] = _Pending(self._executor.submit(self.truth_node.plan, *args), t, event)
         elif event.kind == "stop":
             t = max(t, self._generated_ns)   # the run's power is in what was published up to here
             pending = self._pending.get(event.run_id)
@@ -322,8 +347,8 @@ class SimSource:
         self._plans[run_id] = stopped
         if np.any(owed > 0):
             for d, pair in enumerate(self.layout.dimm_sensor):
-                self._add_owed(pair, t, float(owed[d]))
-            self._add_owed("BLADE", t, float(owed.sum()))
+                self._add_owed(pair, t, float(owed[d]) * self._gain[pair])
+            self._add_owed("BLADE", t, float(owed.sum()) * self._gain["BLADE"])
 
     def _resolve_plans(self, timeout_s: float | None = 0.0) -> None:
         """Move finished background plans into the active set (a failed plan = compute-only run)."""
@@ -335,8 +360,9 @@ class SimSource:
             except Exception as error:  # never let a model failure stop the sensors
                 log.warning("sim: modelling run %s failed (%s); treating it as compute-only", run_id, error)
                 ev = pending.event
-                plan = plan_run(self.model, self.truth_model.currents(pending.t0_ns * 1e-9), run_id, pending.t0_ns,
-                                "idle", 0, int(ev.threads), 1, 0.0)
+                t_s = pending.t0_ns * 1e-9
+                plan = self.truth_node.plan(self.truth_model.currents(t_s), self.truth_model.temperature_c(t_s), run_id,
+                                            pending.t0_ns, "idle", 0, int(ev.threads), 1)
             del self._pending[run_id]
             self._plans[run_id] = plan
             if pending.stop_ns is not None:
@@ -349,10 +375,14 @@ class SimSource:
         return self._plans[run_id]
 
     def truth(self) -> dict:
-        """The hidden true currents now (A per device), per DIMM and averaged — simulation only
+        """The hidden truth now — currents (A per device) per DIMM, per pair and averaged, the aging
+        state, and which effects a node-level fit cannot absorb; simulation only
         (:func:`~hdeem_watch.sources.sim_truth.truth_report`)."""
-        return truth_report(self.model, self.truth_model, self._sim_ns * 1e-9, t_ns=self._t0_wall + self._sim_ns,
-                            offset_w=self._offset_w, io_j_per_line=self.io_j_per_line)
+        t_s = self._sim_ns * 1e-9
+        if self._checked is None or abs(t_s - self._checked[0]) > CHECK_EVERY_S:
+            self._checked = (t_s, self.truth_node.physical_violations(self.truth_model.currents(t_s)))
+        return truth_report(self.truth_node, self.truth_model, t_s, t_ns=self._t0_wall + self._sim_ns,
+                            offset_w=self._offset_w, gain=self._gain, violations=self._checked[1])
 
     # -- energy owed by stopped runs -------------------------------------------------------------------
     def _add_owed(self, name: str, t_ns: int, joules: float) -> None:

@@ -1,4 +1,10 @@
-"""The pure model behind the simulated node: bandwidth, hidden true currents, run energy plans.
+"""The daemon's model of the simulated node: bandwidth, the DRAM model, and the model's view of a run.
+
+The sim's truth does NOT come from here (:mod:`hdeem_watch.sources.sim_plan` is its own generator);
+this module holds what the sim shares with the daemon's model — the node's bandwidth (how long a
+run's traffic lasts, which the demo's schedule uses to hold runs) and the DRAM model (memspec,
+energy columns) — and :func:`plan_run` / :func:`run_truth_energy_j` / :func:`effective_currents`,
+the model's view of a run at given currents, kept to measure how far the truth is from it.
 
 The modelled node is a 2-socket Haswell-EP (2 × 12 cores, logical CPUs 0–11 on socket 0, 12–23 on
 socket 1, 24–35 and 36–47 their hyper-threads) with 8 DIMMs of the Samsung M393A1G43DB0-CPB, one
@@ -17,7 +23,7 @@ kernels that write lose ``WRITE_FACTOR`` = 12 % to read/write turnarounds; and a
 more than its channels can serve in the controller model (channels / (cycles per line × tCK)). The
 run ends when the socket with the most work per bandwidth is done.
 
-Energy of a run (:func:`plan_run`): per DIMM, the statistics of its socket's group stretched to the
+The model's energy of a run (:func:`plan_run`): per DIMM, the statistics of its socket's group stretched to the
 modelled duration exactly as the calibrator stretches them to a measured window
 (:func:`hdeem_watch.calibrate.rows.stretch_stats`), and the energy is
 ``energy_columns(spec, stats) @ truth_currents + constant`` (identical to ``core_energy``). On top
@@ -40,7 +46,7 @@ import numpy as np
 
 from hdeem_watch.dram.node import lines_of, node_capacity_lines_s, node_run_stats
 from hdeem_watch.dram.stats import CommandStats, RankStats
-from hdeem_watch.sources.sim_currents import truth_parts
+from hdeem_watch.sources.sim_currents import PartCurrents
 from hdeem_watch.sources.sim_layout import TAURUS, SimLayout
 
 #: The default (Taurus) layout's DIMM names, in channel order (A..H), and the HDEEM pair channel
@@ -63,8 +69,6 @@ LINE_BYTES = 64
 REFERENCE_ELEMENTS = 1 << 24
 #: The currents the daemon's fit calibrates (DESIGN.md §4 default), for :func:`effective_currents`.
 CALIBRATED = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
-#: Currents whose temperature coefficient is the larger (standby, refresh, power-down).
-_BACKGROUND = ("idd2n", "idd3n", "idd2p", "idd3p", "idd6n", "idd5b", "ipp2n", "ipp3n", "ipp5b", "ipp6n")
 
 
 def threads_per_socket(threads: int) -> tuple[int, int]:
@@ -267,42 +271,8 @@ def effective_currents(model: Model, currents: np.ndarray, io_j_per_line: float,
     return out
 
 
-class TruthModel:
-    """Hidden per-DIMM currents: datasheet × seeded ratios in [0.35, 0.85], with aging and temperature.
-
-    Ratios: a base ratio per current drawn in [0.35, 0.70] (the seed paper's calibrated/datasheet
-    ratios for this module are 0.35–0.58, VAMPIRE's for DDR3 0.43–0.83; the demo shows the ~1.5–2×
-    overestimate of the datasheet model), times a per-DIMM factor in [0.90, 1.10],
-    clipped to [0.35, 0.85]; the ratios scale the datasheet's increments so the truth keeps its
-    physical order (:func:`hdeem_watch.sources.sim_currents.truth_parts`). Drift: every current ×
-    (1 + ``aging_per_h`` × hours since open); temperature of DIMM d, T = 40 °C + ``temp_amp_c`` ×
-    sin(2π t / 1 h + φ_d): background currents and the standby floor of command currents
-    × (1 + 0.5 %/K (T − 40)), the command increments × (1 + 0.1 %/K (T − 40)).
-    """
-
-    def __init__(self, names: tuple[str, ...], datasheet: np.ndarray, seed: int, *,
-                 aging_per_h: float = 0.005, temp_amp_c: float = 3.0, dimm_spread: float = 0.10,
-                 dimms: int = len(DIMMS)) -> None:
-        rng = np.random.default_rng([int(seed), 7919])
-        base = rng.uniform(0.35, 0.70, size=len(names))
-        per_dimm = rng.uniform(1.0 - dimm_spread, 1.0 + dimm_spread, size=(dimms, len(names)))
-        self.names = names
-        self.datasheet = np.asarray(datasheet, dtype=float)
-        self.ratio = np.clip(base[None, :] * per_dimm, 0.35, 0.85)
-        self.phase = rng.uniform(0.0, 2 * math.pi, size=dimms)
-        self.aging_per_h = aging_per_h
-        self.temp_amp_c = temp_amp_c
-        self._floor, self._increment = truth_parts(names, self.datasheet, self.ratio, _BACKGROUND)
-
-    def temperature_c(self, t_s: float) -> np.ndarray:
-        """DIMM temperatures (°C) at ``t_s`` seconds of sim time."""
-        return 40.0 + self.temp_amp_c * np.sin(2 * math.pi * t_s / 3600.0 + self.phase)
-
-    def currents(self, t_s: float) -> np.ndarray:
-        """True currents (A per device), shape (DIMMs, len(names)), at ``t_s`` seconds of sim time."""
-        aging = 1.0 + self.aging_per_h * t_s / 3600.0
-        warm = (self.temperature_c(t_s) - 40.0)[:, None]
-        return (self._floor * (1.0 + 0.005 * warm) + self._increment * (1.0 + 0.001 * warm)) * aging
+#: The hidden per-DIMM currents (the name the model side has always used).
+TruthModel = PartCurrents
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,8 @@
 Pure functions of the idle power per DIMM, the active :class:`~hdeem_watch.sources.sim_model.RunPlan`
 objects and the channel's board offset. A sample ending at ``t`` is the mean power over
 ``(t − period, t]``; a run adds its DRAM excess over the overlap of that interval with its traffic
-and its cores' power over the overlap with its CPU load (threads fill socket 0 first).
+and its cores' power over the overlap with its CPU load (threads fill socket 0 first). A sensor
+reads ``gain × power + offset`` (its own gain and offset).
 
 Example:
     >>> import numpy as np
@@ -73,8 +74,9 @@ def cpu_w(socket: int, t_end: np.ndarray, period: int, plans: Iterable[RunPlan],
 
 
 def channel_power_w(name: str, t_end: np.ndarray, period: int, idle_w: np.ndarray, plans: Iterable[RunPlan],
-                    *, offset_w: float, layout: SimLayout = TAURUS) -> np.ndarray:
-    """Noise-free mean power of channel ``name`` over each interval ``(t − period, t]`` (W)."""
+                    *, offset_w: float, layout: SimLayout = TAURUS, gain: float = 1.0) -> np.ndarray:
+    """Noise-free reading of channel ``name`` over each interval ``(t − period, t]``: ``gain`` × its
+    mean power + ``offset_w`` (W)."""
     plans = list(plans)
     cores = layout.topology.cores_per_socket
     if name in layout.sensors:
@@ -86,26 +88,28 @@ def channel_power_w(name: str, t_end: np.ndarray, period: int, idle_w: np.ndarra
         for socket in range(1, layout.sockets):
             power = power + cpu_w(socket, t_end, period, plans, cores)
         power = power + dram_w(list(range(len(layout.dimm_names))), t_end, period, idle_w, plans)
-    return power + offset_w
+    return power * gain + offset_w if gain != 1.0 else power + offset_w
 
 
 def mean_power_w(name: str, a: int, b: int, idle_w: np.ndarray, plans: Iterable[RunPlan], *, offset_w: float,
-                 layout: SimLayout = TAURUS) -> float:
+                 layout: SimLayout = TAURUS, gain: float = 1.0) -> float:
     """Noise-free mean power of ``name`` over ``(a, b]`` (for samples lost to the sensor buffer)."""
     if b <= a:
         return 0.0
     return float(channel_power_w(name, np.array([b], dtype=np.int64), b - a, idle_w, plans, offset_w=offset_w,
-                                 layout=layout)[0])
+                                 layout=layout, gain=gain)[0])
 
 
-def flat_power_w(idle_w: np.ndarray, offset_w: Mapping[str, float], layout: SimLayout = TAURUS) -> dict[str, float]:
-    """Noise-free power of every channel of an idle node (W), summed as :func:`channel_power_w` sums."""
-    flat = {name: float(idle_w[layout.sensor_dimms(name)].sum()) + offset_w[name] for name in layout.sensors}
+def flat_power_w(idle_w: np.ndarray, offset_w: Mapping[str, float], layout: SimLayout = TAURUS,
+                 gain: Mapping[str, float] | None = None) -> dict[str, float]:
+    """Noise-free reading of every channel of an idle node (W), summed as :func:`channel_power_w` sums."""
+    g = gain if gain is not None else dict.fromkeys(offset_w, 1.0)
+    flat = {name: float(idle_w[layout.sensor_dimms(name)].sum()) * g[name] + offset_w[name] for name in layout.sensors}
     cpu_total = 0.0
     for socket, name in enumerate(layout.cpu_channels):
-        flat[name] = cpu_idle_w(socket) + offset_w[name]
+        flat[name] = cpu_idle_w(socket) * g[name] + offset_w[name]
         cpu_total += cpu_idle_w(socket)
-    flat["BLADE"] = BLADE_BASE_W + cpu_total + float(idle_w.sum()) + offset_w["BLADE"]
+    flat["BLADE"] = (BLADE_BASE_W + cpu_total + float(idle_w.sum())) * g["BLADE"] + offset_w["BLADE"]
     return flat
 
 
