@@ -39,9 +39,10 @@ _RUN_KEYS = {"name", "measured_j", "hdeem_printout", "printout_block", "trace", 
              "time_ns", "weight"}
 
 
-def load_spec(value: str, base: Path, where: str) -> MemSpec:
+def load_spec(value: str, base: Path, where: str, *, allow_unphysical: bool = False) -> MemSpec:
     """The memspec named by ``value``: a file (relative to ``base``), else a preset by its name,
-    spelled ``NAME`` or ``preset:NAME`` (a file of that name wins over a bare preset name).
+    spelled ``NAME`` or ``preset:NAME`` (a file of that name wins over a bare preset name);
+    ``allow_unphysical`` loads a file whose currents break the physical ordering.
 
     Raises:
         InputError: an unknown preset, a missing file, or a malformed memspec (naming ``where``).
@@ -58,15 +59,17 @@ def load_spec(value: str, base: Path, where: str) -> MemSpec:
     if not path.is_file():
         raise InputError(f"{where}: {not_a_file_error(path, 'memspec file')} (presets: "
                          f"{', '.join(sorted(PRESETS))})")
-    return load_memspec(path)
+    return load_memspec(path, allow_unphysical=allow_unphysical)
 
 
-def read_runs_file(path: str | Path, memspec: str | Path | None = None) -> tuple[MemSpec, list[Observation]]:
+def read_runs_file(path: str | Path, memspec: str | Path | None = None, *,
+                   allow_unphysical: bool = False) -> tuple[MemSpec, list[Observation]]:
     """Read RUNS.json into the memspec and one :class:`Observation` per run.
 
     Args:
         path: the RUNS.json file.
         memspec: a memspec overriding the file's ``memspec`` (path, or ``preset:NAME``).
+        allow_unphysical: load a memspec file whose currents break the physical ordering.
 
     Raises:
         InputError: an unreadable or malformed file, a missing or malformed trace, a bad energy,
@@ -86,12 +89,12 @@ def read_runs_file(path: str | Path, memspec: str | Path | None = None) -> tuple
         raise InputError(f"{where}: expected an object with 'memspec' and 'runs'")
     base = path.resolve().parent
     if memspec is not None:
-        spec = load_spec(str(memspec), Path.cwd(), "--memspec")
+        spec = load_spec(str(memspec), Path.cwd(), "--memspec", allow_unphysical=allow_unphysical)
     else:
         value = data.get("memspec")
         if not isinstance(value, str) or not value:
             raise InputError(f"{where}: memspec: expected a path (or give --memspec)")
-        spec = load_spec(value, base, f"{where}: memspec")
+        spec = load_spec(value, base, f"{where}: memspec", allow_unphysical=allow_unphysical)
     runs = data.get("runs")
     if not isinstance(runs, list) or not runs:
         raise InputError(f"{where}: runs: expected a non-empty list of runs")
