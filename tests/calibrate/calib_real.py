@@ -109,8 +109,15 @@ def draw_runs(planned: list[Planned], idle_s: tuple[float, ...], rng: np.random.
 
 
 def draw_truth(spec: Any, rng: np.random.Generator) -> dict[str, float]:
-    """Hidden currents: each of :data:`CURRENTS` = datasheet × U(0.35, 0.85)."""
-    return {name: float(spec.currents[name] * rng.uniform(0.35, 0.85)) for name in CURRENTS}
+    """Hidden currents: each of :data:`CURRENTS` = datasheet × U(0.35, 0.85), drawn again until
+    they are physically consistent (IDD3N ≥ IDD2N, IDD4R/IDD4W ≥ IDD3N, ...:
+    :mod:`hdeem_watch.dram.memspec_check`), as a real device's are."""
+    from hdeem_watch.dram.memspec_check import physical_violations
+
+    while True:
+        truth = {name: float(spec.currents[name] * rng.uniform(0.35, 0.85)) for name in CURRENTS}
+        if not physical_violations(spec.with_currents(truth)):
+            return truth
 
 
 def observations(spec: Any, runs: list[tuple[str, Any, float]], truth: dict[str, float],

@@ -21,16 +21,16 @@ from hdeem_watch.dram.trace_state import trace_stats
 
 REFERENCE = Path(__file__).resolve().parents[1] / "data" / "drampower"
 MEMSPEC = REFERENCE / "memspecs" / "ddr4_2133_x8_2r_8dev.json"
-RATIOS = {"idd0": 0.55, "idd2n": 0.6, "idd3n": 0.4, "idd4r": 0.5, "idd4w": 0.45}
+RATIOS = {"idd0": 0.55, "idd2n": 0.6, "idd3n": 0.7, "idd4r": 0.5, "idd4w": 0.45}  # physical: IDD3N 29.2 >= IDD2N 21.6 mA
 
 
 def _write_runs(tmp_path: Path, synth, *, read_only: bool = False, n_kernel: int = 12, extra: dict | None = None,
-                traces: bool = True) -> tuple[Path, dict[str, float]]:
+                traces: bool = True, ratios: dict[str, float] | None = None) -> tuple[Path, dict[str, float]]:
     """A RUNS.json (memspec and traces copied next to it, relative paths) measured on a hidden
     truth; returns its path and the truth."""
     shutil.copy(MEMSPEC, tmp_path / "M.json")
     spec = load_memspec(MEMSPEC)
-    truth = {n: spec.currents[n] * r for n, r in RATIOS.items()}
+    truth = {n: spec.currents[n] * r for n, r in (ratios or RATIOS).items()}
     truth_spec = spec.with_currents(truth)
     rng = np.random.default_rng(4)
     runs = []
@@ -66,7 +66,9 @@ def test_json_contract_and_recovered_truth(tmp_path, synth, capsys) -> None:
     for name, value in truth.items():
         entry = data["currents"][name]
         assert set(entry) >= {"datasheet", "calibrated", "ci95", "identifiable"}
-        assert entry["calibrated"] == pytest.approx(value, rel=1e-6)
+        # rel 1e-5: the two trace rows refresh window/tREFI times in the model but a whole number
+        # of REF commands in the trace (a sub-ppm mismatch, times the condition number ~1.7e3)
+        assert entry["calibrated"] == pytest.approx(value, rel=1e-5)
     assert data["intercept_j"] == pytest.approx(0.01, rel=1e-3)
     assert set(data["error"]) == {"before", "after", "loo"}
     assert data["error"]["after"] < 1e-6 < data["error"]["before"]
@@ -88,12 +90,54 @@ def test_table_and_written_memspec(tmp_path, synth, capsys) -> None:
     written = load_memspec(out_spec)
     original = load_memspec(MEMSPEC)
     for name, value in truth.items():
-        assert written.currents[name] == pytest.approx(value, rel=1e-6)
+        assert written.currents[name] == pytest.approx(value, rel=1e-5)
     assert written.currents["idd5b"] == original.currents["idd5b"]
     raw_new = json.loads(out_spec.read_text())["memspec"]
     raw_old = json.loads(MEMSPEC.read_text())["memspec"]
     assert raw_new["memtimingspec"] == raw_old["memtimingspec"]
     assert set(raw_new["mempowerspec"]) == set(raw_old["mempowerspec"])
+
+
+def test_unphysical_fit_is_warned_marked_and_loads_only_when_allowed(tmp_path, synth, capsys) -> None:
+    """Measured on currents that break an ordering between two calibrated currents (IDD3N 25 <
+    IDD2N 32 mA, which no box bound can forbid): the fit says so on stderr and in the JSON, the
+    written memspec is marked, refuses to load as a physical one (exit 2 from ``calibrate
+    --memspec`` with the reason) and loads with --allow-unphysical."""
+    ratios = dict(RATIOS, idd2n=0.9, idd3n=0.6)
+    runs, truth = _write_runs(tmp_path, synth, ratios=ratios, traces=False)
+    out_spec = tmp_path / "calibrated.json"
+    assert main(["calibrate", "--runs", str(runs), "--json", "--write-memspec", str(out_spec)]) == 0
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)
+    assert data["physical"] is False
+    assert any(v.startswith("background: IDD3N") for v in data["violations"]), data["violations"]
+    assert "unphysical" in captured.err and "--allow-unphysical" in captured.err
+    assert data["currents"]["idd3n"]["calibrated"] == pytest.approx(truth["idd3n"], rel=1e-6)
+    mark = json.loads(out_spec.read_text())["calibration"]
+    assert mark["physical"] is False and mark["violations"] == data["violations"]
+    with pytest.raises(Exception, match="unphysical currents"):
+        load_memspec(out_spec)
+    assert load_memspec(out_spec, allow_unphysical=True).currents["idd3n"] == pytest.approx(truth["idd3n"], rel=1e-6)
+    assert main(["calibrate", "--runs", str(runs), "--memspec", str(out_spec)]) == 2
+    assert "unphysical currents" in capsys.readouterr().err
+    assert main(["calibrate", "--runs", str(runs), "--memspec", str(out_spec), "--allow-unphysical", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["physical"] is False
+
+
+def test_physical_bounds_keep_currents_above_fixed_ones(tmp_path, synth, capsys) -> None:
+    """IDD3N measured below the fixed IDD3P (16.7 < 22.5 mA): with the physical bounds the fit
+    stops at IDD3P, flags it at its lower bound and the fit status is not 'ok'; without them it
+    goes below (and is reported unphysical)."""
+    runs, _truth = _write_runs(tmp_path, synth, ratios=dict(RATIOS, idd3n=0.4), traces=False)
+    assert main(["calibrate", "--runs", str(runs), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["currents"]["idd3n"]["calibrated"] == pytest.approx(0.0225, rel=1e-9)
+    assert data["currents"]["idd3n"]["at_bound"] == "lower"
+    assert data["status"] == "at-bound"
+    assert main(["calibrate", "--runs", str(runs), "--json", "--no-physical-bounds"]) == 0
+    free = json.loads(capsys.readouterr().out)
+    assert free["currents"]["idd3n"]["calibrated"] < 0.02
+    assert free["physical"] is False
 
 
 def test_rank_deficient_runs_are_solved_and_reported(tmp_path, synth, capsys) -> None:

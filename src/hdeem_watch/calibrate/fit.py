@@ -4,7 +4,8 @@ Rows are :class:`~hdeem_watch.calibrate.observation.Observation` s. The currents
 their memspec values and move into each row's constant. The problem solved is
 
     minimise  Σ_i w_i ((Σ_j c_ij I_j + k_i + b − m_i) / m_i)²   (+ prior)
-    subject to lower_j ≤ I_j ≤ upper_j (default 0..datasheet),  b ≥ 0
+    subject to lower_j ≤ I_j ≤ upper_j (default 0..datasheet, narrowed to the physically
+               consistent limits of :mod:`hdeem_watch.calibrate.physical`),  b ≥ 0
 
 i.e. *relative* residuals (measurement error grows with the energy; every run counts alike
 whatever its length), on columns scaled by the datasheet value, so every unknown is a fraction of
@@ -41,6 +42,7 @@ from hdeem_watch.calibrate.observation import (
     current_names,
     stack,
 )
+from hdeem_watch.calibrate.physical import physical_bounds
 from hdeem_watch.calibrate.result import FitModel, FitResult, FitSettings
 from hdeem_watch.dram.memspec import MAX_DEVICE_CURRENT_A
 from hdeem_watch.errors import InputError
@@ -63,6 +65,9 @@ class FitOptions:
         currents: names of the currents to calibrate (memspec keys, any case; a single name is
             taken as a one-element tuple).
         bounds: ``{name: (lower_a, upper_a)}`` overriding the default ``(0, datasheet)``.
+        physical: narrow the default bounds to the physically consistent limits against the
+            currents not calibrated (:func:`~hdeem_watch.calibrate.physical.physical_bounds`;
+            e.g. IDD3N ≥ IDD3P); explicit ``bounds`` are taken as given.
         intercept: fit a per-run energy ``≥ 0`` the model does not cover (else it is 0).
         prior_weight: λ of a Gaussian prior toward the datasheet on the relative currents; 1 means
             a 100 % deviation costs as much as a 100 % error on one run. 0 = off.
@@ -86,6 +91,7 @@ class FitOptions:
 
     currents: Sequence[str] = DEFAULT_CURRENTS
     bounds: Mapping[str, tuple[float, float]] | None = None
+    physical: bool = True
     intercept: bool = True
     prior_weight: float = 0.0
     uncertainty: str = "analytic"
@@ -147,7 +153,8 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
     index = np.array([names.index(c) for c in chosen], dtype=int)
     all_a = np.array([float(spec.currents.get(nm, 0.0)) for nm in names])
     datasheet = all_a[index]
-    lower_a, upper_a = _bounds(chosen, datasheet, options.bounds)
+    lower_a, upper_a = _bounds(chosen, datasheet, options.bounds,
+                               physical_bounds(spec, chosen) if options.physical else None)
     scales = np.where(datasheet > 0, datasheet, np.where(np.isfinite(upper_a) & (upper_a > 0), upper_a, 1.0))
     fixed = np.ones(len(names), dtype=bool)
     fixed[index] = False
@@ -219,6 +226,8 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
     elif rank < p:
         status = "rank-deficient"
     at_bound = tuple({-1: "lower", 1: "upper"}.get(int(a)) for a in sol.active[:k])
+    if status == "ok" and any(at_bound):
+        status = "at-bound"
     loo_list = [v if v == v and abs(v) != math.inf else None for v in loo_j.tolist()]
     runs = tuple(
         {"name": obs.name, "measured_j": m, "before_j": b, "after_j": a, "loo_j": lo, "weight": w}
@@ -268,10 +277,15 @@ def _check_currents(currents: Sequence[str], names: tuple[str, ...], spec: SpecL
     return tuple(chosen)
 
 
-def _bounds(chosen: tuple[str, ...], datasheet: np.ndarray,
-            bounds: Mapping[str, tuple[float, float]] | None) -> tuple[np.ndarray, np.ndarray]:
+def _bounds(chosen: tuple[str, ...], datasheet: np.ndarray, bounds: Mapping[str, tuple[float, float]] | None,
+            physical: Mapping[str, tuple[float, float]] | None = None) -> tuple[np.ndarray, np.ndarray]:
     lower = np.zeros(len(chosen))
     upper = datasheet.astype(float).copy()
+    for j, name in enumerate(chosen):
+        lo, hi = (physical or {}).get(name, (0.0, math.inf))
+        lo, hi = max(lower[j], lo), min(upper[j], hi)
+        if lo < hi:  # an empty range would mean the memspec itself is unphysical: keep the default
+            lower[j], upper[j] = lo, hi
     for name in bounds or {}:
         if name not in chosen:
             raise InputError(f"bounds: {name!r} is not a calibrated current ({', '.join(chosen)})")

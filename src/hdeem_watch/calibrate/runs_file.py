@@ -18,6 +18,11 @@ command trace CSV) or ``stats`` (:meth:`CommandStats.to_dict` form), and optiona
 many such channels the measured energy covers, default 1), ``window_s`` (the measured window; the
 model's residency and refresh are stretched to it; default: the trace's/statistics' own window),
 ``time_ns`` and ``weight``.
+
+Instead of ``trace`` or ``stats`` a run may give its calibration row as the daemon built it
+(``hdeem-watch calib export`` writes these): ``columns`` (current name → J per A of the whole
+measured energy, e.g. ``{"idd0": 812.5, "idd2n": 96.1, ...}``; currents not named count 0) and
+``constant_j`` (the model energy that depends on no current); ``scale`` then multiplies both.
 """
 
 from __future__ import annotations
@@ -28,6 +33,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from hdeem_watch.calibrate.observation import Observation, check_measured
 from hdeem_watch.calibrate.rows import observation_from_run, stats_window_s
 from hdeem_watch.dram.memspec import MemSpec, load_memspec, preset
@@ -36,12 +43,13 @@ from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError, not_a_file_error
 
 _RUN_KEYS = {"name", "measured_j", "hdeem_printout", "printout_block", "trace", "stats", "scale", "window_s",
-             "time_ns", "weight"}
+             "time_ns", "weight", "columns", "constant_j"}
 
 
-def load_spec(value: str, base: Path, where: str) -> MemSpec:
+def load_spec(value: str, base: Path, where: str, *, allow_unphysical: bool = False) -> MemSpec:
     """The memspec named by ``value``: a file (relative to ``base``), else a preset by its name,
-    spelled ``NAME`` or ``preset:NAME`` (a file of that name wins over a bare preset name).
+    spelled ``NAME`` or ``preset:NAME`` (a file of that name wins over a bare preset name);
+    ``allow_unphysical`` loads a file whose currents break the physical ordering.
 
     Raises:
         InputError: an unknown preset, a missing file, or a malformed memspec (naming ``where``).
@@ -58,15 +66,17 @@ def load_spec(value: str, base: Path, where: str) -> MemSpec:
     if not path.is_file():
         raise InputError(f"{where}: {not_a_file_error(path, 'memspec file')} (presets: "
                          f"{', '.join(sorted(PRESETS))})")
-    return load_memspec(path)
+    return load_memspec(path, allow_unphysical=allow_unphysical)
 
 
-def read_runs_file(path: str | Path, memspec: str | Path | None = None) -> tuple[MemSpec, list[Observation]]:
+def read_runs_file(path: str | Path, memspec: str | Path | None = None, *,
+                   allow_unphysical: bool = False) -> tuple[MemSpec, list[Observation]]:
     """Read RUNS.json into the memspec and one :class:`Observation` per run.
 
     Args:
         path: the RUNS.json file.
         memspec: a memspec overriding the file's ``memspec`` (path, or ``preset:NAME``).
+        allow_unphysical: load a memspec file whose currents break the physical ordering.
 
     Raises:
         InputError: an unreadable or malformed file, a missing or malformed trace, a bad energy,
@@ -86,12 +96,12 @@ def read_runs_file(path: str | Path, memspec: str | Path | None = None) -> tuple
         raise InputError(f"{where}: expected an object with 'memspec' and 'runs'")
     base = path.resolve().parent
     if memspec is not None:
-        spec = load_spec(str(memspec), Path.cwd(), "--memspec")
+        spec = load_spec(str(memspec), Path.cwd(), "--memspec", allow_unphysical=allow_unphysical)
     else:
         value = data.get("memspec")
         if not isinstance(value, str) or not value:
             raise InputError(f"{where}: memspec: expected a path (or give --memspec)")
-        spec = load_spec(value, base, f"{where}: memspec")
+        spec = load_spec(value, base, f"{where}: memspec", allow_unphysical=allow_unphysical)
     runs = data.get("runs")
     if not isinstance(runs, list) or not runs:
         raise InputError(f"{where}: runs: expected a non-empty list of runs")
@@ -123,9 +133,16 @@ def _observation(spec: MemSpec, run: Any, i: int, base: Path, where: str) -> Obs
         raise InputError(f"run {name!r}: measured_j missing; expected the measured energy in J (or hdeem_printout)")
     else:
         measured = check_measured(name, run["measured_j"])
+    if "columns" in run:
+        if "trace" in run or "stats" in run:
+            raise InputError(f"run {name!r}: give columns, trace or stats, not several")
+        return _row_observation(run, name, measured, printout_window)
+    if "constant_j" in run:
+        raise InputError(f"run {name!r}: constant_j belongs to a 'columns' row")
     has_trace, has_stats = "trace" in run, "stats" in run
     if has_trace == has_stats:
-        raise InputError(f"run {name!r}: expected exactly one of 'trace' (a path) or 'stats' (an object)")
+        raise InputError(f"run {name!r}: expected exactly one of 'trace' (a path), 'stats' (an object) "
+                         "or 'columns' (a model row)")
     if has_trace:
         stats = _trace_stats(spec, run["trace"], name, base)
     else:
@@ -154,6 +171,33 @@ def _observation(spec: MemSpec, run: Any, i: int, base: Path, where: str) -> Obs
         window = default_window
     return observation_from_run(spec, stats, window, measured, scale=scale, name=name, time_ns=time_ns,
                                 weight=weight)
+
+
+def _row_observation(run: Mapping[str, Any], name: str, measured: float, printout_window: float) -> Observation:
+    """A run given as a model row (``columns`` by current name, ``constant_j``)."""
+    from hdeem_watch.dram.energy import CURRENT_NAMES
+
+    columns = run["columns"]
+    if not isinstance(columns, Mapping) or not columns:
+        raise InputError(f"run {name!r}: columns: expected an object of current name -> J per A")
+    values = dict.fromkeys(CURRENT_NAMES, 0.0)
+    for key, value in columns.items():
+        if str(key).lower() not in values:
+            raise InputError(f"run {name!r}: columns.{key}: unknown current; expected some of {', '.join(CURRENT_NAMES)}")
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise InputError(f"run {name!r}: columns.{key} = {value!r}; expected a finite number (J per A)")
+        values[str(key).lower()] = float(value)
+    constant = run.get("constant_j", 0.0)
+    if isinstance(constant, bool) or not isinstance(constant, int | float) or not math.isfinite(constant):
+        raise InputError(f"run {name!r}: constant_j = {constant!r}; expected a finite number (J)")
+    scale = _number(run, "scale", name, 1.0)
+    time_ns = run.get("time_ns", 0)
+    if isinstance(time_ns, bool) or not isinstance(time_ns, int):
+        raise InputError(f"run {name!r}: time_ns = {time_ns!r}; expected an integer (ns)")
+    window = _number(run, "window_s", name, 1.0) if "window_s" in run else printout_window
+    return Observation(name=name, columns=np.array([values[n] for n in CURRENT_NAMES]) * scale,
+                       constant_j=float(constant) * scale, measured_j=measured, time_ns=time_ns,
+                       weight=run.get("weight", 1.0), window_s=window)
 
 
 def _trace_stats(spec: MemSpec, value: Any, name: str, base: Path) -> CommandStats:

@@ -18,7 +18,7 @@ from hdeem_watch import __version__
 from hdeem_watch.errors import InputError
 
 #: Subcommand modules, in the order ``--help`` lists them.
-SUBCOMMAND_MODULES = ("demo", "daemon", "tui", "bench", "model", "calibrate", "report", "node", "counters")
+SUBCOMMAND_MODULES = ("demo", "daemon", "tui", "bench", "model", "calibrate", "calib", "report", "node", "counters")
 
 EXIT_OK = 0
 EXIT_FAILURE = 1

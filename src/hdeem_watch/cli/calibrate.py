@@ -6,6 +6,14 @@ chosen currents and an intercept by bounded least squares, and prints a table (o
 ``--json``, one JSON object: ``currents.<name>.{datasheet, calibrated, ci95, identifiable}``,
 ``intercept_j``, ``error.{before, after, loo}``, ``observability.{condition_number,
 singular_values}``, ...). ``--write-memspec`` writes the memspec with the calibrated currents.
+
+The fit keeps the currents within physically consistent limits where a box bound can say so
+(:mod:`hdeem_watch.calibrate.physical`; ``--no-physical-bounds`` turns that off). A fit that still
+breaks an ordering rule between two calibrated currents (e.g. IDD3N < IDD2N) is reported: a
+warning naming the rules, ``"physical": false`` and ``"violations"`` in the JSON, and a memspec
+written with it carries ``"calibration": {"physical": false, "violations": [...]}`` beside its
+``memspec`` object — loading it needs ``--allow-unphysical`` (here, for ``--memspec`` or the
+memspec RUNS.json names) or ``allow_unphysical=True``.
 """
 
 from __future__ import annotations
@@ -14,12 +22,15 @@ import argparse
 import json
 import math
 import sys
+from pathlib import Path
 from typing import Any
 
 from hdeem_watch.calibrate.fit import FitOptions, check_bound_a, fit
 from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS
+from hdeem_watch.calibrate.physical import fit_violations
 from hdeem_watch.calibrate.result import FitResult, energy_units_warning
 from hdeem_watch.calibrate.runs_file import read_runs_file
+from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.errors import InputError
 
 
@@ -38,6 +49,12 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--bounds", default="", metavar="NAME=LO:HI,...",
                         help="bounds in A overriding 0..datasheet, e.g. idd4r=0:0.2")
     parser.add_argument("--no-intercept", action="store_true", help="do not fit a per-run energy offset")
+    parser.add_argument("--no-physical-bounds", action="store_true",
+                        help="bound currents by 0..datasheet only (default: also by the physically "
+                             "consistent limits against the currents not calibrated, e.g. IDD3N >= IDD3P)")
+    parser.add_argument("--allow-unphysical", action="store_true",
+                        help="load a memspec whose currents break the physical ordering (e.g. one "
+                             "written from an unphysical fit)")
     parser.add_argument("--prior-weight", type=float, default=0.0, metavar="W",
                         help="weight of a prior toward the datasheet values (0 = off)")
     parser.add_argument("--uncertainty", choices=("analytic", "bootstrap"), default="analytic",
@@ -54,27 +71,29 @@ def _run(args: argparse.Namespace) -> int:
     if not math.isfinite(args.prior_weight) or args.prior_weight < 0:
         raise InputError(f"--prior-weight: {args.prior_weight!r}; expected a number >= 0")
     bounds = parse_bounds(args.bounds)
-    spec, observations = read_runs_file(args.runs, args.memspec)
+    spec, observations = read_runs_file(args.runs, args.memspec, allow_unphysical=args.allow_unphysical)
     options = FitOptions(currents=currents, bounds=bounds, intercept=not args.no_intercept,
-                         prior_weight=args.prior_weight, uncertainty=args.uncertainty)
+                         prior_weight=args.prior_weight, uncertainty=args.uncertainty,
+                         physical=not args.no_physical_bounds)
     result = fit(observations, spec, options)
+    violations = fit_violations(spec, result.calibrated)
     warnings = [w for w in (energy_units_warning(result.runs),) if w]
+    if violations:
+        warnings.append(f"the calibrated currents are unphysical ({'; '.join(violations)}): the runs do not "
+                        "separate these currents, or the model misses an effect; a memspec written from "
+                        "this fit is marked and loads only with --allow-unphysical")
     for warning in warnings:
         print(f"hdeem-watch calibrate: warning: {warning}", file=sys.stderr)
     written = None
     if args.write_memspec:
-        from hdeem_watch.dram.memspec import save_memspec
-
-        try:
-            save_memspec(spec.with_currents(result.calibrated), args.write_memspec)
-        except OSError as error:
-            raise InputError(f"--write-memspec {args.write_memspec}: cannot write: "
-                             f"{error.strerror or error}") from None
+        write_calibrated_memspec(spec, result, violations, args.write_memspec)
         written = str(args.write_memspec)
     if args.json:
         out = result.to_dict()
         out["memspec"] = spec.memory_id
         out["written_memspec"] = written
+        out["physical"] = not violations
+        out["violations"] = violations
         out["warnings"] = warnings
         print(json.dumps(out, allow_nan=False))
     else:
@@ -82,6 +101,23 @@ def _run(args: argparse.Namespace) -> int:
         if written:
             print(f"calibrated memspec written to {written}")
     return 0
+
+
+def write_calibrated_memspec(spec: MemSpec, result: FitResult, violations: list[str], path: str) -> None:
+    """Write ``spec`` with the calibrated currents to ``path``, marked with ``"calibration":
+    {"physical", "violations", "status", "n_runs"}`` beside its ``memspec`` object (DRAMPower
+    reads only ``memspec``).
+
+    Raises:
+        InputError: the file cannot be written.
+    """
+    tree = spec.with_currents(result.calibrated).to_json_dict()
+    tree["calibration"] = {"physical": not violations, "violations": violations, "status": result.status,
+                           "n_runs": result.n_runs}
+    try:
+        Path(path).write_text(json.dumps(tree, indent=2) + "\n", encoding="utf-8")
+    except OSError as error:
+        raise InputError(f"--write-memspec {path}: cannot write: {error.strerror or error}") from None
 
 
 def parse_bounds(text: str) -> dict[str, tuple[float, float]] | None:

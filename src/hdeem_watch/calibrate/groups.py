@@ -1,0 +1,378 @@
+"""Per-sensor-group calibration: one online fit per sensor group (each HDEEM DIMM pair, each RAPL
+socket) beside the node-level fit, with guard rails, drift detection and a sibling comparison.
+
+A **sensor group** is a sensor and the DIMMs it measures, counted per socket
+(:func:`sensor_groups` turns the node's sensor map — sensor → DIMM locators, see
+:func:`hdeem_watch.node.sensors.sensor_map` — into groups). The model of a run gives the statistics
+of ONE channel per socket (:func:`hdeem_watch.dram.node.node_run_stats`); a group's row is that
+socket's row times the group's DIMMs on it, against the group's own measured energy
+(:func:`group_observation`). The node-level row is the sum of the groups' rows against the sum of
+their energies.
+
+Guard rails: a run with fewer than ``min_samples`` sensor samples in a group's window (default 100:
+1 s at HDEEM's 100 Sa/s) or without a measured energy is recorded in :attr:`GroupCalibrators.skipped`
+with the reason and not fitted (a 10 ms run is one sample: it measures nothing). A group
+fit whose currents hit a bound has status ``at-bound`` (:func:`~hdeem_watch.calibrate.fit.fit`).
+
+Aging: per group a :class:`~hdeem_watch.calibrate.drift.ResidualCusum` on the out-of-sample
+residuals (against the siblings' median), and after each refit
+:func:`~hdeem_watch.calibrate.drift.sibling_outliers` over the groups' identifiable currents.
+
+Pure: no clock, no I/O; the daemon persists :meth:`GroupCalibrators.to_dict` and serves
+:meth:`GroupCalibrators.body` as ``calib.get``'s ``groups``/``node`` (docs/calibration.md).
+
+Example::
+
+    groups = sensor_groups(sensor_map(node), {d.locator: d.socket for d in node.dimms}, sockets=2)
+    calib = GroupCalibrators(spec, groups)
+    update = calib.add_run(MeasuredRun("triad", t_ns, 2.0, node_run_stats(spec, "triad", n, 24, 1),
+                                       {"DDR_AB": 9.1, "DDR_CD": 9.3, ...}))
+    update.skipped, update.alarms, calib.body()["groups"]["DDR_AB"]["fit"]["currents"]
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hdeem_watch.calibrate.drift import (
+    DriftAlarm,
+    ResidualCusum,
+    identifiable_currents,
+    sibling_outliers,
+    sibling_residuals,
+)
+from hdeem_watch.calibrate.observation import Observation
+from hdeem_watch.calibrate.online import OnlineCalibrator
+from hdeem_watch.calibrate.result import FitResult
+from hdeem_watch.calibrate.rows import observation_from_run
+from hdeem_watch.dram.memspec import MemSpec
+from hdeem_watch.dram.stats import CommandStats
+from hdeem_watch.errors import InputError
+
+#: The node-level fit's key beside the groups.
+NODE = "node"
+#: Default fewest sensor samples per channel for a run to be fitted: 1 s at 100 Sa/s.
+DEFAULT_MIN_SAMPLES = 100
+#: Skipped runs and alarms kept (oldest dropped first).
+MAX_RECORDS = 200
+_STATE_VERSION = 1
+
+
+@dataclass(frozen=True)
+class SensorGroup:
+    """A sensor and how many of each socket's DIMMs (channels) it measures.
+
+    Example:
+        >>> SensorGroup("DDR_EF", (0, 2)).dimms
+        2
+    """
+
+    name: str
+    dimms_per_socket: tuple[int, ...]
+
+    @property
+    def dimms(self) -> int:
+        """DIMMs behind the sensor."""
+        return sum(self.dimms_per_socket)
+
+
+def sensor_groups(sensors: Mapping[str, Sequence[str]], dimm_socket: Mapping[str, int], sockets: int, *,
+                  prefix: str | None = None) -> list[SensorGroup]:
+    """The groups of a sensor map.
+
+    Args:
+        sensors: sensor → DIMM locators (:func:`hdeem_watch.node.sensors.sensor_map`).
+        dimm_socket: DIMM locator → socket.
+        sockets: sockets of the node.
+        prefix: keep only sensors starting with it (``"DDR_"``: HDEEM pairs, ``"DRAM"``: RAPL).
+
+    Raises:
+        InputError: a DIMM without a socket, or a socket out of range.
+
+    Example:
+        >>> sensor_groups({"DDR_AB": ["A", "B"], "DDR_CD": ["C"]}, {"A": 0, "B": 0, "C": 1}, 2)
+        [SensorGroup(name='DDR_AB', dimms_per_socket=(2, 0)), SensorGroup(name='DDR_CD', dimms_per_socket=(0, 1))]
+    """
+    out = []
+    for name, dimms in sensors.items():
+        if prefix is not None and not name.startswith(prefix):
+            continue
+        counts = [0] * int(sockets)
+        for locator in dimms:
+            socket = dimm_socket.get(locator)
+            if socket is None or not 0 <= int(socket) < sockets:
+                raise InputError(f"sensor map: {name}: DIMM {locator!r} has socket {socket!r}; expected 0..{sockets - 1}")
+            counts[int(socket)] += 1
+        if any(counts):
+            out.append(SensorGroup(name, tuple(counts)))
+    return out
+
+
+def group_observation(spec: MemSpec, socket_stats: Sequence[tuple[CommandStats, int]], group: SensorGroup,
+                      window_s: float, measured_j: float, *, name: str = "run", time_ns: int = 0) -> Observation:
+    """ONE calibration row of ``group``: each socket's one-channel row times the group's DIMMs on
+    that socket, summed, against the group's measured energy.
+
+    Raises:
+        InputError: the group names more sockets than the model has, or a bad window/energy.
+    """
+    if len(group.dimms_per_socket) > len(socket_stats):
+        raise InputError(f"group {group.name}: {len(group.dimms_per_socket)} sockets; the model has {len(socket_stats)}")
+    rows = [observation_from_run(spec, stats, window_s, measured_j, scale=float(k), name=name, time_ns=time_ns)
+            for (stats, _n), k in zip(socket_stats, group.dimms_per_socket) if k > 0]
+    if not rows:
+        raise InputError(f"group {group.name}: measures no DIMM")
+    return _summed(rows, measured_j)
+
+
+def _summed(rows: Sequence[Observation], measured_j: float) -> Observation:
+    first = rows[0]
+    return Observation(name=first.name, columns=np.sum([r.columns for r in rows], axis=0),
+                       constant_j=float(sum(r.constant_j for r in rows)), measured_j=float(measured_j),
+                       time_ns=first.time_ns, weight=first.weight, window_s=first.window_s)
+
+
+@dataclass(frozen=True)
+class MeasuredRun:
+    """A finished run as the groups see it.
+
+    Attributes:
+        name: unique name (e.g. ``"r12:triad"``).
+        time_ns: end of the run (wall clock, ns).
+        window_s: measured window (s).
+        socket_stats: per socket, the model's statistics of one channel and the channel count
+            (:func:`hdeem_watch.dram.node.node_run_stats`).
+        energy_j: measured energy per sensor (J; NaN = unknown).
+        samples: sensor samples inside the window per sensor (None: ``window_s × nominal rate``).
+    """
+
+    name: str
+    time_ns: int
+    window_s: float
+    socket_stats: tuple[tuple[CommandStats, int], ...]
+    energy_j: Mapping[str, float]
+    samples: Mapping[str, int] | None = None
+
+
+@dataclass(frozen=True)
+class SkippedRun:
+    """A run (or one group's part of it) recorded but not fitted, and why."""
+
+    name: str
+    time_ns: int
+    group: str
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form."""
+        return {"name": self.name, "time_ns": int(self.time_ns), "group": self.group, "reason": self.reason}
+
+
+@dataclass(frozen=True)
+class GroupUpdate:
+    """What one run changed: the refits (group or :data:`NODE` → fit), what was skipped, new alarms."""
+
+    fits: dict[str, FitResult] = field(default_factory=dict)
+    skipped: tuple[SkippedRun, ...] = ()
+    alarms: tuple[DriftAlarm, ...] = ()
+
+
+class GroupCalibrators:
+    """One :class:`~hdeem_watch.calibrate.online.OnlineCalibrator` per sensor group plus the node's.
+
+    Args:
+        spec: the memspec of one DIMM.
+        groups: the sensor groups (:func:`sensor_groups`).
+        min_samples: fewest samples per sensor for a run to be fitted.
+        nominal_rate_hz: samples per second assumed when a run does not say how many it had.
+        calibrator: keyword arguments of every :class:`OnlineCalibrator` (currents, half_life_s, ...).
+        cusum: keyword arguments of every :class:`~hdeem_watch.calibrate.drift.ResidualCusum`.
+        detect_after: a group's residuals feed its detector once its fit has this many runs
+            (default: twice the unknowns).
+        sibling_tolerance: see :func:`~hdeem_watch.calibrate.drift.sibling_outliers`.
+    """
+
+    def __init__(self, spec: MemSpec, groups: Sequence[SensorGroup], *, min_samples: int = DEFAULT_MIN_SAMPLES,
+                 nominal_rate_hz: float = 100.0, calibrator: Mapping[str, Any] | None = None,
+                 cusum: Mapping[str, Any] | None = None, detect_after: int | None = None,
+                 sibling_tolerance: float = 0.25) -> None:
+        if not groups:
+            raise InputError("groups: no sensor groups to calibrate")
+        names = [g.name for g in groups]
+        if len(set(names)) != len(names) or NODE in names:
+            raise InputError(f"groups: names must be unique and not {NODE!r}: {names}")
+        if isinstance(min_samples, bool) or not isinstance(min_samples, int) or min_samples < 1:
+            raise InputError(f"min_samples: {min_samples!r}; expected an integer >= 1")
+        self.spec = spec
+        self.groups = {g.name: g for g in groups}
+        self.min_samples = min_samples
+        self.nominal_rate_hz = float(nominal_rate_hz)
+        self.calibrator_options = dict(calibrator or {})
+        self.cusum_options = dict(cusum or {})
+        self.sibling_tolerance = float(sibling_tolerance)
+        self.calibrators = {name: OnlineCalibrator(spec, **self.calibrator_options) for name in [*names, NODE]}
+        unknowns = len(self.calibrators[NODE].currents) + int(self.calibrators[NODE].intercept)
+        self.detect_after = 2 * unknowns if detect_after is None else int(detect_after)
+        self.detectors = {name: ResidualCusum(name, **self.cusum_options) for name in [*names, NODE]}
+        self.skipped: list[SkippedRun] = []
+        self.alarms: list[DriftAlarm] = []
+        self._raised: set[tuple[str, str, str]] = set()
+
+    def _samples(self, run: MeasuredRun, sensor: str) -> int:
+        if run.samples is not None and sensor in run.samples:
+            return int(run.samples[sensor])
+        return math.floor(run.window_s * self.nominal_rate_hz + 1e-9)
+
+    def _why_not(self, run: MeasuredRun, group: SensorGroup) -> str | None:
+        energy = run.energy_j.get(group.name)
+        if energy is None or not math.isfinite(energy) or energy <= 0:
+            return f"run {run.name!r}: no measured energy of {group.name} ({energy!r})"
+        samples = self._samples(run, group.name)
+        if samples < self.min_samples:
+            return (f"run {run.name!r}: {samples} samples of {group.name} in {run.window_s:.3g} s; at least "
+                    f"{self.min_samples} are needed to measure a run (run it longer)")
+        return None
+
+    def predicted_j(self, group: str, obs: Observation) -> float:
+        """``obs`` predicted by ``group``'s latest fit (NaN without one)."""
+        calib = self.calibrators[group]
+        fit = calib.latest
+        if fit is None:
+            return math.nan
+        values = dict(self.spec.currents)
+        values.update(fit.calibrated)
+        vec = np.array([values.get(n, 0.0) for n in calib.names])
+        return obs.predicted_j(vec, fit.intercept_j)
+
+    def add_run(self, run: MeasuredRun) -> GroupUpdate:
+        """Fit the run into every group it measured enough of (and the node if all of them), feed
+        the detectors, compare siblings.
+
+        Raises:
+            InputError: the model's statistics do not fit the memspec (a bad row).
+        """
+        skipped: list[SkippedRun] = []
+        rows: dict[str, Observation] = {}
+        for name, group in self.groups.items():
+            reason = self._why_not(run, group)
+            if reason is not None:
+                skipped.append(SkippedRun(run.name, run.time_ns, name, reason))
+                continue
+            rows[name] = group_observation(self.spec, run.socket_stats, group, run.window_s,
+                                           float(run.energy_j[name]), name=run.name, time_ns=run.time_ns)
+        if len(rows) == len(self.groups):
+            rows[NODE] = _summed(list(rows.values()), sum(r.measured_j for r in rows.values()))
+        else:
+            skipped.append(SkippedRun(run.name, run.time_ns, NODE, "not every group was measured: "
+                                      + "; ".join(s.reason for s in skipped)))
+        residuals = {}
+        for name, obs in rows.items():
+            calib = self.calibrators[name]
+            if calib.latest is not None and len(calib.observations) >= self.detect_after:
+                residuals[name] = obs.measured_j / self.predicted_j(name, obs) - 1.0
+        against = sibling_residuals({g: r for g, r in residuals.items() if g != NODE})
+        if NODE in residuals:
+            against[NODE] = residuals[NODE]
+        alarms = [a for g, d in against.items() if (a := self.detectors[g].update(d, run.time_ns)) is not None]
+        fits = {name: self.calibrators[name].add_run(obs) for name, obs in rows.items()}
+        if fits:
+            per_group = {g: identifiable_currents(c.latest) for g, c in self.calibrators.items()
+                         if g != NODE and c.latest is not None}
+            for alarm in sibling_outliers(per_group, time_ns=run.time_ns, tolerance=self.sibling_tolerance):
+                key = (alarm.group, alarm.current, alarm.kind)
+                if key not in self._raised:
+                    self._raised.add(key)
+                    alarms.append(alarm)
+        self.skipped = (self.skipped + skipped)[-MAX_RECORDS:]
+        self.alarms = (self.alarms + alarms)[-MAX_RECORDS:]
+        return GroupUpdate(fits=fits, skipped=tuple(skipped), alarms=tuple(alarms))
+
+    def reset(self, group: str | None = None) -> None:
+        """Forget the runs, fits, detector state and alarms of ``group`` (None: every group and the node).
+
+        Raises:
+            InputError: an unknown group.
+        """
+        names = list(self.calibrators) if group is None else [group]
+        for name in names:
+            if name not in self.calibrators:
+                raise InputError(f"calib reset: unknown group {name!r}; expected one of {', '.join(self.calibrators)}")
+            self.calibrators[name].reset()
+            self.detectors[name].reset()
+        self.alarms = [a for a in self.alarms if a.group not in names]
+        self.skipped = [s for s in self.skipped if s.group not in names]
+        self._raised = {k for k in self._raised if k[0] not in names}
+
+    def group_body(self, name: str) -> dict[str, Any]:
+        """One entry of :meth:`body`'s ``groups`` (or its ``node``)."""
+        calib = self.calibrators[name]
+        history = [{"time_ns": int(t), "status": r.status, "error_loo": _num(r.error_loo),
+                    "currents": {c: _num(v) for c, v in r.calibrated.items()}} for t, r in calib.history[-64:]]
+        group = self.groups.get(name)
+        return {
+            "fit": None if calib.latest is None else calib.latest.to_dict(),
+            "runs": len(calib.observations),
+            "dimms_per_socket": list(group.dimms_per_socket) if group else None,
+            "drift": calib.drift(),
+            "detector": self.detectors[name].to_dict(),
+            "alarms": [a.to_dict() for a in self.alarms if a.group == name],
+            "history": history,
+        }
+
+    def body(self) -> dict[str, Any]:
+        """The ``calib.get`` shape: ``{"groups": {name: entry}, "node": entry, "alarms", "skipped",
+        "min_samples"}`` (docs/calibration.md, "Per-sensor-group fits")."""
+        return {
+            "groups": {name: self.group_body(name) for name in self.groups},
+            "node": self.group_body(NODE),
+            "alarms": [a.to_dict() for a in self.alarms],
+            "skipped": [s.to_dict() for s in self.skipped],
+            "min_samples": self.min_samples,
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready state (each calibrator's own state, detectors, alarms, skipped runs)."""
+        return {
+            "version": _STATE_VERSION,
+            "groups": {name: list(g.dimms_per_socket) for name, g in self.groups.items()},
+            "min_samples": self.min_samples, "nominal_rate_hz": self.nominal_rate_hz,
+            "detect_after": self.detect_after, "sibling_tolerance": self.sibling_tolerance,
+            "cusum": self.cusum_options,
+            "calibrators": {name: c.to_dict() for name, c in self.calibrators.items()},
+            "detectors": {name: d.to_dict() for name, d in self.detectors.items()},
+            "alarms": [a.to_dict() for a in self.alarms],
+            "skipped": [s.to_dict() for s in self.skipped],
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], spec: MemSpec) -> GroupCalibrators:
+        """Restore from :meth:`to_dict`.
+
+        Raises:
+            InputError: an unknown version or a malformed state.
+        """
+        if not isinstance(data, Mapping) or data.get("version") != _STATE_VERSION:
+            raise InputError("group calibrators state: unknown version; expected "
+                             f"{_STATE_VERSION}")
+        try:
+            groups = [SensorGroup(n, tuple(int(k) for k in v)) for n, v in data["groups"].items()]
+            out = cls(spec, groups, min_samples=int(data["min_samples"]),
+                      nominal_rate_hz=float(data["nominal_rate_hz"]), cusum=data.get("cusum") or {},
+                      detect_after=int(data["detect_after"]), sibling_tolerance=float(data["sibling_tolerance"]))
+            out.calibrators = {n: OnlineCalibrator.from_dict(s, spec) for n, s in data["calibrators"].items()}
+            out.detectors = {n: ResidualCusum.from_dict(n, s) for n, s in data["detectors"].items()}
+            out.alarms = [DriftAlarm(**a) for a in data.get("alarms", [])]
+            out.skipped = [SkippedRun(**s) for s in data.get("skipped", [])]
+        except (KeyError, TypeError, ValueError) as error:
+            raise InputError(f"group calibrators state: malformed ({error!r})") from None
+        out._raised = {(a.group, a.current, a.kind) for a in out.alarms if a.kind == "sibling"}
+        return out
+
+
+def _num(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None

@@ -1,0 +1,201 @@
+"""``hdeem-watch calib show|reset|export``: inspect, reset and export a running daemon's calibration.
+
+``calib show [--group G] [--json]`` prints the fits ``calib.get`` returns: the node fit and, from a
+daemon with per-group calibration (docs/calibration.md, "Per-sensor-group fits"), one per sensor
+group, with their drift alarms and the runs that were too short to fit. ``calib reset [--group G]``
+forgets the runs of every fit (or of one group). ``calib export --out RUNS.json [--group G]`` writes
+the calibration rows of the daemon's finished runs as a RUNS.json that ``hdeem-watch calibrate
+--runs`` reads back (each run's model columns, constant and measured energy). ``--connect EP``
+names the daemon's control endpoint (default: the local daemon's).
+
+Exit codes: 0 done, 1 the daemon is unreachable or refused, 2 bad input (an unknown group).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from hdeem_watch.errors import InputError
+
+NODE = "node"
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``calib`` subcommand."""
+    parser = subparsers.add_parser(
+        "calib", help="show, reset or export a running daemon's calibration",
+        description="Inspect, reset or export the calibration of a running daemon (over its control socket).")
+    actions = parser.add_subparsers(dest="action", metavar="ACTION", parser_class=type(parser))
+    for name, text in (("show", "print the node fit and the per-group fits"),
+                       ("reset", "forget the calibration runs (of every fit, or of --group)"),
+                       ("export", "write the calibration rows as RUNS.json for 'hdeem-watch calibrate'")):
+        sub = actions.add_parser(name, help=text, description=text)
+        sub.add_argument("--group", metavar="G", help="one sensor group (e.g. DDR_CD, DRAM1) or 'node'")
+        sub.add_argument("--connect", metavar="EP", help="the daemon's control endpoint (default: the local daemon)")
+        sub.add_argument("--timeout", type=float, default=10.0, metavar="S", help="reply timeout in seconds")
+        if name == "show":
+            sub.add_argument("--json", action="store_true", help="print one JSON object")
+        if name == "export":
+            sub.add_argument("--out", required=True, metavar="RUNS.json", help="where to write the runs")
+        sub.set_defaults(func=_run)
+    parser.set_defaults(func=lambda _args: (parser.print_help(sys.stderr), 2)[1])
+
+
+def _client(args: argparse.Namespace) -> Any:
+    from hdeem_watch.daemon.client import ControlClient, default_endpoints
+
+    if not (args.timeout > 0 and math.isfinite(args.timeout)):
+        raise InputError(f"--timeout: {args.timeout!r}; expected seconds > 0")
+    return ControlClient(args.connect or default_endpoints()[1], timeout_s=args.timeout)
+
+
+def fits_of(body: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Name → entry (``fit``, ``runs``, ``alarms``, ...) of a ``calib.get`` body: ``node`` first,
+    then the groups; a daemon without groups gives its one fit as ``node``."""
+    if isinstance(body.get("node"), dict):
+        node = dict(body["node"])
+    else:
+        node = {"fit": body.get("fit"), "runs": body.get("runs"), "drift": body.get("drift"), "alarms": []}
+    return {NODE: node, **{str(k): dict(v) for k, v in (body.get("groups") or {}).items()}}
+
+
+def _select(fits: dict[str, dict[str, Any]], group: str | None) -> dict[str, dict[str, Any]]:
+    if group is None:
+        return fits
+    if group not in fits:
+        raise InputError(f"--group {group}: unknown group; this daemon has {', '.join(fits)}")
+    return {group: fits[group]}
+
+
+def _run(args: argparse.Namespace) -> int:
+    from hdeem_watch.daemon.client import ControlError, DaemonUnreachable
+
+    try:
+        with _client(args) as client:
+            body = client.call("calib.get")
+            fits = fits_of(body)
+            chosen = _select(fits, args.group)
+            if args.action == "show":
+                return _show(body, chosen, as_json=args.json)
+            if args.action == "reset":
+                return _reset(client, body, args.group)
+            return _export(client, body, args.group, Path(args.out))
+    except DaemonUnreachable as error:
+        print(f"hdeem-watch calib: error: no reply from the daemon ({error})", file=sys.stderr)
+        return 1
+    except ControlError as error:
+        print(f"hdeem-watch calib: error: the daemon refused: {error}", file=sys.stderr)
+        return 1
+
+
+def _show(body: dict[str, Any], chosen: dict[str, dict[str, Any]], *, as_json: bool) -> int:
+    alarms = [a for a in body.get("alarms") or [] if a.get("group") in chosen]
+    skipped = [s for s in body.get("skipped") or [] if s.get("group") in chosen]
+    if as_json:
+        out = {"memspec": body.get("memspec"), "node": chosen.get(NODE),
+               "groups": {k: v for k, v in chosen.items() if k != NODE}, "alarms": alarms, "skipped": skipped}
+        print(json.dumps(out, allow_nan=False))
+        return 0
+    print(format_fits(chosen, alarms, skipped))
+    return 0
+
+
+def _ma(value: Any) -> str:
+    return "—" if not isinstance(value, int | float) or not math.isfinite(value) else f"{value * 1e3:.2f}"
+
+
+def format_fits(chosen: dict[str, dict[str, Any]], alarms: list[dict[str, Any]], skipped: list[dict[str, Any]]) -> str:
+    """The human-readable ``calib show``: one block per fit, then the alarms and skipped runs."""
+    lines = []
+    for name, entry in chosen.items():
+        fit = entry.get("fit")
+        if not fit:
+            lines.append(f"{name}: no fit yet ({entry.get('runs') or 0} runs)")
+            continue
+        loo = (fit.get("error") or {}).get("loo")
+        loo_text = "—" if loo is None else f"{loo * 100:.2f} %"
+        lines.append(f"{name}: {fit.get('n_runs')} runs, status {fit.get('status')}, leave-one-out {loo_text}")
+        for current, c in (fit.get("currents") or {}).items():
+            lo, hi = (c.get("ci95") or [None, None])[:2]
+            flags = "" if c.get("identifiable") else "  not determined"
+            flags += f"  at {c['at_bound']} bound" if c.get("at_bound") else ""
+            lines.append(f"  {current:<6} {_ma(c.get('calibrated')):>8} mA  [{_ma(lo)}, {_ma(hi)}]  "
+                         f"datasheet {_ma(c.get('datasheet'))}{flags}")
+    for a in alarms:
+        lines.append(f"ALARM {a.get('group')} {a.get('current')} ({a.get('kind')}, {a.get('direction')}): "
+                     f"{a.get('statistic')} > {a.get('threshold')}")
+    for s in skipped[-5:]:
+        lines.append(f"not fitted: {s.get('reason')}")
+    return "\n".join(lines)
+
+
+def _reset(client: Any, body: dict[str, Any], group: str | None) -> int:
+    if group is not None and group != NODE and not body.get("groups"):
+        raise InputError(f"--group {group}: this daemon keeps no per-group fits; 'calib reset' without "
+                         "--group resets its node fit")
+    reply = client.call("calib.reset", {"group": group} if group else {})
+    after = fits_of(reply)
+    names = [group] if group else list(after)
+    print(f"calibration reset: {', '.join(names)} "
+          f"({', '.join(str((after.get(n) or {}).get('runs') or 0) for n in names)} runs left)")
+    return 0
+
+
+def _export(client: Any, body: dict[str, Any], group: str | None, out: Path) -> int:
+    from hdeem_watch.dram.energy import CURRENT_NAMES
+
+    memspec = body.get("memspec")
+    if not isinstance(memspec, str) or not memspec:
+        raise InputError("calib export: the daemon names no memspec")
+    spec_path = Path(memspec)
+    if spec_path.is_file():
+        memspec = str(spec_path.resolve())
+    runs: list[dict[str, Any]] = []
+    before = None
+    while True:
+        page = client.call("runs.list", {"full": True, "limit": 20, **({"before": before} if before else {})})
+        for record in page.get("runs") or []:
+            row = _row_of(record, group)
+            if row is not None:
+                runs.append(_run_entry(record, row, CURRENT_NAMES))
+        before = page.get("next_before")
+        if not before:
+            break
+    if not runs:
+        where = f" of group {group}" if group else ""
+        raise InputError(f"calib export: the daemon has no modelled runs{where} to export")
+    runs.reverse()  # oldest first
+    try:
+        out.write_text(json.dumps({"memspec": memspec, "runs": runs}, indent=1) + "\n", encoding="utf-8")
+    except OSError as error:
+        raise InputError(f"--out {out}: cannot write: {error.strerror or error}") from None
+    print(f"{len(runs)} runs written to {out} (hdeem-watch calibrate --runs {out})")
+    return 0
+
+
+def _row_of(record: dict[str, Any], group: str | None) -> dict[str, Any] | None:
+    model = record.get("model") or {}
+    if record.get("state") != "done":
+        return None
+    if group in (None, NODE):
+        row = model.get("observation")
+    else:
+        row = (model.get("group_observations") or {}).get(group)
+    return row if isinstance(row, dict) and row.get("columns") else None
+
+
+def _run_entry(record: dict[str, Any], row: dict[str, Any], names: tuple[str, ...]) -> dict[str, Any]:
+    columns = list(row["columns"])
+    entry: dict[str, Any] = {"name": str(row.get("name") or record.get("run_id")),
+                             "measured_j": float(row["measured_j"]),
+                             "columns": {n: float(c) for n, c in zip(names, columns)},
+                             "constant_j": float(row.get("constant_j") or 0.0),
+                             "time_ns": int(row.get("time_ns") or 0)}
+    if row.get("window_s") is not None:
+        entry["window_s"] = float(row["window_s"])
+    return entry
