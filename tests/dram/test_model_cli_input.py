@@ -17,10 +17,10 @@ import pytest
 
 from hdeem_watch.cli import main
 from hdeem_watch.cli.numbers import whole_number
-from hdeem_watch.dram.presets import PRESETS
 from hdeem_watch.cli.progress import Progress
 from hdeem_watch.dram.controller import CHUNK_REQUESTS
 from hdeem_watch.dram.kernels import kernel_requests
+from hdeem_watch.dram.presets import PRESETS
 from hdeem_watch.dram.request_traces import write_requests
 
 PRESET = "ddr4-2133-x8-4gb"

@@ -80,9 +80,9 @@ def test_trace_runs_without_times(tmp_path: Path) -> None:
     from hdeem_watch.dram.command_trace import read_command_trace
     from hdeem_watch.dram.energy import core_energy
     from hdeem_watch.dram.memspec import preset
-    from hdeem_watch.report.build import build_report
     from hdeem_watch.dram.stats import stretch_stats
     from hdeem_watch.dram.trace_state import trace_stats
+    from hdeem_watch.report.build import build_report
 
     spec = preset("ddr4-2133-x8-4gb")
     truth = spec.with_currents({n: spec.currents[n] * r for n, r in
