@@ -172,3 +172,39 @@ def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factor
     sub = daemon.subscriber(protocol.subscription(daemon.node, "samples"))
     assert receive(sub, 5.0, until=lambda m: len(m) >= 3)
     sub.close()
+
+
+def test_a_client_does_not_talk_to_a_squatted_fallback_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The impostor's side of #22.13: a control socket in someone else's /tmp/hdeem-watch-<uid> is refused."""
+    from hdeem_watch.daemon import client as client_module
+    from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+
+    fallback = tmp_path / "hdeem-watch-fallback"
+    fallback.mkdir()
+    os.chmod(fallback, 0o777)
+    monkeypatch.setattr(client_module, "fallback_runtime_dir", lambda: fallback)
+    impostor = ControlServer(zmq.Context.instance(), f"ipc://{fallback}/control.sock", {"ping": lambda a: {"pong": 1}})
+    try:
+        with ControlClient(f"ipc://{fallback}/control.sock", timeout_s=2.0) as client, \
+                pytest.raises(DaemonUnreachable, match="refusing to talk to it.*mode 0777"):
+            client.call("ping")
+        os.chmod(fallback, 0o700)  # now it is this user's private directory: served
+        import threading
+
+        stop = threading.Event()
+
+        def serve() -> None:
+            while not stop.is_set():
+                if impostor.socket.poll(20):
+                    impostor.handle()
+
+        server = threading.Thread(target=serve)
+        server.start()
+        try:
+            with ControlClient(f"ipc://{fallback}/control.sock", timeout_s=5.0) as client:
+                assert client.call("ping") == {"pong": 1}
+        finally:
+            stop.set()
+            server.join()
+    finally:
+        impostor.close()

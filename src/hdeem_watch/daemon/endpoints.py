@@ -43,7 +43,7 @@ from typing import Any
 import zmq
 
 from hdeem_watch.daemon.addresses import is_loopback
-from hdeem_watch.daemon.client import fallback_runtime_dir, ipc_path
+from hdeem_watch.daemon.client import PRIVATE_DIR_MODE, directory_problem, fallback_runtime_dir, ipc_path
 from hdeem_watch.errors import InputError
 
 __all__ = ["Binding", "IpcFile", "bind", "bind_endpoint", "is_loopback", "private_directory"]
@@ -51,7 +51,7 @@ __all__ = ["Binding", "IpcFile", "bind", "bind_endpoint", "is_loopback", "privat
 log = logging.getLogger("hdeem_watch.daemon")
 
 #: Mode of a directory the daemon creates for its sockets, and the most an adopted fallback may have.
-DIR_MODE = 0o750
+DIR_MODE = PRIVATE_DIR_MODE
 #: Mode of an ipc socket file: the owner and the group may connect.
 SOCKET_MODE = 0o660
 #: Longest path of a Unix socket (sun_path holds 108 bytes with the terminating NUL).
@@ -139,16 +139,7 @@ def private_directory(directory: Path, *, strict: bool) -> None:
             strict = True
     if not (strict or created):
         return
-    st = os.lstat(directory)
-    problem = None
-    if stat.S_ISLNK(st.st_mode):
-        problem = "is a symlink"
-    elif not stat.S_ISDIR(st.st_mode):
-        problem = "is not a directory"
-    elif st.st_uid != os.geteuid():
-        problem = f"is owned by uid {st.st_uid}, not by this daemon's user (uid {os.geteuid()})"
-    elif st.st_mode & 0o7777 & ~DIR_MODE:
-        problem = f"has mode {st.st_mode & 0o7777:04o}; expected at most {DIR_MODE:04o}"
+    problem = directory_problem(directory)
     if problem:
         raise InputError(f"runtime dir {directory}: {problem}; refusing to put the daemon's sockets there "
                          "(remove it, or set --runtime-dir / HDEEM_WATCH_RUNTIME_DIR)")
