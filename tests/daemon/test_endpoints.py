@@ -8,6 +8,7 @@ import os
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -186,11 +187,9 @@ def test_a_client_does_not_talk_to_a_squatted_fallback_dir(tmp_path: Path, monke
     impostor = ControlServer(zmq.Context.instance(), f"ipc://{fallback}/control.sock", {"ping": lambda a: {"pong": 1}})
     try:
         with ControlClient(f"ipc://{fallback}/control.sock", timeout_s=2.0) as client, \
-                pytest.raises(DaemonUnreachable, match="refusing to talk to it.*mode 0777"):
+                pytest.raises(DaemonUnreachable, match=r"refusing to talk to it.*mode 0777"):
             client.call("ping")
         os.chmod(fallback, 0o700)  # now it is this user's private directory: served
-        import threading
-
         stop = threading.Event()
 
         def serve() -> None:
