@@ -216,3 +216,15 @@ def test_a_file_that_is_no_database_is_one_store_error(tmp_path: Path) -> None:
     path.write_bytes(b"\x00garbage" * 1000)
     with pytest.raises(StoreError, match="cannot use the state database"):
         Store(path)
+
+
+def test_a_garbled_schema_version_is_one_store_error(tmp_path: Path) -> None:
+    """meta.schema_version that is no number: StoreError (old: ValueError traceback)."""
+    path = tmp_path / "state.db"
+    Store(path).close()
+    db = sqlite3.connect(path, isolation_level=None)
+    db.execute("UPDATE meta SET value = 'one' WHERE key = 'schema_version'")
+    db.close()
+    with pytest.raises(StoreError, match="schema_version = 'one'"):
+        Store(path)
+

@@ -182,7 +182,11 @@ class Store:
         if not exists:
             return None
         row = self._db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
-        return int(row[0]) if row else None
+        try:
+            return int(row[0]) if row else None
+        except (TypeError, ValueError):
+            raise StoreError(f"{self.path}: meta.schema_version = {row[0]!r} is not a version number; "
+                             "refusing to guess what the file holds") from None
 
     @property
     def schema_version(self) -> int:
