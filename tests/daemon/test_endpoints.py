@@ -155,7 +155,8 @@ def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factor
     """A subscription flood costs the daemon a bounded amount of memory; other subscribers come back."""
     daemon = daemon_factory("--speed", "10").start()
     process = psutil.Process(daemon.proc.pid)
-    time.sleep(1.0)
+    legit = daemon.subscriber(protocol.subscription(daemon.node, "samples"))  # connected before the flood
+    assert receive(legit, 1.0)
     rss_before = process.memory_info().rss
     flood = subprocess.Popen([sys.executable, "-c", FLOOD, daemon.pub], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                              text=True, env=daemon.env)
@@ -173,6 +174,9 @@ def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factor
     sub = daemon.subscriber(protocol.subscription(daemon.node, "samples"))
     assert receive(sub, 5.0, until=lambda m: len(m) >= 3)
     sub.close()
+    receive(legit, 1.0)  # what was queued before the drop
+    assert receive(legit, 5.0, until=lambda m: len(m) >= 3)  # reconnected and subscribed again by itself
+    legit.close()
 
 
 def test_a_client_does_not_talk_to_a_squatted_fallback_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -207,3 +211,39 @@ def test_a_client_does_not_talk_to_a_squatted_fallback_dir(tmp_path: Path, monke
             server.join()
     finally:
         impostor.close()
+
+
+@pytest.mark.parametrize("transport", ["tcp", "ipc"])
+def test_dropping_connections_rebinds_the_same_endpoint(tmp_path: Path, transport: str) -> None:
+    """Beyond the bound the publisher unbinds and binds the same endpoint again (the old TCP listener is
+    released asynchronously: an immediate bind met EADDRINUSE and raised out of the loop)."""
+    from hdeem_watch.daemon.publisher import Publisher
+
+    context = zmq.Context.instance()
+    endpoint = "tcp://127.0.0.1:0" if transport == "tcp" else f"ipc://{tmp_path}/s.sock"
+    pub = Publisher(context, endpoint, node="n", max_subscriptions=50)
+    legit = context.socket(zmq.SUB)
+    flood = context.socket(zmq.SUB)
+    try:
+        legit.connect(pub.endpoint)
+        legit.setsockopt(zmq.SUBSCRIBE, b"hw1/n/status")
+        flood.connect(pub.endpoint)
+        for i in range(120):
+            flood.setsockopt(zmq.SUBSCRIBE, b"hw1/n/junk-%d" % i)
+        deadline = time.monotonic() + 5
+        while pub.resets == 0 and time.monotonic() < deadline:
+            pub.handle_subscriptions()
+            time.sleep(0.01)
+        assert pub.resets >= 1 and len(pub.prefixes) <= 50
+        flood.close(0)
+        received = False
+        deadline = time.monotonic() + 5
+        while not received and time.monotonic() < deadline:
+            pub.handle_subscriptions()
+            pub.publish("status", {"up": True})
+            received = bool(legit.poll(50))  # polling lets the subscriber reconnect and resubscribe
+        assert received
+    finally:
+        legit.close(0)
+        flood.close(0)
+        pub.close()
