@@ -247,3 +247,29 @@ def test_dropping_connections_rebinds_the_same_endpoint(tmp_path: Path, transpor
         legit.close(0)
         flood.close(0)
         pub.close()
+
+
+def test_the_socket_mode_is_never_set_through_a_symlink(tmp_path: Path) -> None:
+    """A symlink swapped in for the socket (to /etc/shadow, say) is refused; its target keeps its mode.
+
+    (Old code: ``os.chmod(path)`` after the bind followed it and made the target 0660.)
+    """
+    from hdeem_watch.daemon.endpoints import chmod_socket
+
+    victim = tmp_path / "shadow"
+    victim.write_text("secret")
+    os.chmod(victim, 0o600)
+    planted = tmp_path / "control.sock"
+    planted.symlink_to(victim)
+    with pytest.raises(InputError, match="not the socket just bound"):
+        chmod_socket(planted, 0o660)
+    assert (victim.stat().st_mode & 0o777) == 0o600
+    real = tmp_path / "real.sock"
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(str(real))
+    try:
+        os.chmod(real, 0o600)
+        ipc = chmod_socket(real, 0o660)
+        assert (real.stat().st_mode & 0o777) == 0o660 and ipc.inode == real.stat().st_ino
+    finally:
+        listener.close()
