@@ -25,10 +25,12 @@ ROOT = "hdeem_watch"
 TIERS: dict[str, int] = {
     "": 0,  # __version__
     "errors": 0,
+    "channels": 0,  # the channel vocabulary (HDEEM names, DIMM pairs, sockets)
     "dram": 1,  # the DRAM model: memspecs, statistics, energy, controller
     "calibrate": 2,  # rows and fits on the model
     "sources": 2,  # power sensors (the sim models its DRAM with dram/)
     "node": 2,  # facts about this machine (topology, DIMMs, sensor map)
+    "counters": 2,  # memory-controller counters -> command statistics (uses dram/)
     "config": 3,  # the daemon's settings (with each source's options)
     "daemon": 4,
     "slurm": 5,  # the SLURM adapter (talks to the daemon)

@@ -190,8 +190,8 @@ class DaemonSettings:
             raise SettingError("node", f"node = {self.node!r}; expected a non-empty name without '/'")
         if self.source == "replay" and not self.replay_file:
             raise SettingError("replay_file", "source = 'replay' needs replay_file (--replay-file FILE)")
-        if self.seed is not None and not 0 <= self.seed < 2**32:
-            raise SettingError("seed", f"seed = {self.seed!r}; expected an integer 0..4294967295")
+        if self.seed is not None and not 0 <= self.seed < 2**63:
+            raise SettingError("seed", f"seed = {self.seed!r}; expected an integer >= 0")
         if not self.currents:
             raise SettingError("currents", "currents = []; expected at least one current to calibrate")
         for name in ("pub", "control"):

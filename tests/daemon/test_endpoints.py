@@ -8,6 +8,7 @@ import os
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -154,7 +155,8 @@ def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factor
     """A subscription flood costs the daemon a bounded amount of memory; other subscribers come back."""
     daemon = daemon_factory("--speed", "10").start()
     process = psutil.Process(daemon.proc.pid)
-    time.sleep(1.0)
+    legit = daemon.subscriber(protocol.subscription(daemon.node, "samples"))  # connected before the flood
+    assert receive(legit, 1.0)
     rss_before = process.memory_info().rss
     flood = subprocess.Popen([sys.executable, "-c", FLOOD, daemon.pub], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                              text=True, env=daemon.env)
@@ -172,3 +174,102 @@ def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factor
     sub = daemon.subscriber(protocol.subscription(daemon.node, "samples"))
     assert receive(sub, 5.0, until=lambda m: len(m) >= 3)
     sub.close()
+    receive(legit, 1.0)  # what was queued before the drop
+    assert receive(legit, 5.0, until=lambda m: len(m) >= 3)  # reconnected and subscribed again by itself
+    legit.close()
+
+
+def test_a_client_does_not_talk_to_a_squatted_fallback_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The impostor's side of #22.13: a control socket in someone else's /tmp/hdeem-watch-<uid> is refused."""
+    from hdeem_watch.daemon import client as client_module
+    from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+
+    fallback = tmp_path / "hdeem-watch-fallback"
+    fallback.mkdir()
+    os.chmod(fallback, 0o777)
+    monkeypatch.setattr(client_module, "fallback_runtime_dir", lambda: fallback)
+    impostor = ControlServer(zmq.Context.instance(), f"ipc://{fallback}/control.sock", {"ping": lambda a: {"pong": 1}})
+    try:
+        with ControlClient(f"ipc://{fallback}/control.sock", timeout_s=2.0) as client, \
+                pytest.raises(DaemonUnreachable, match=r"refusing to talk to it.*mode 0777"):
+            client.call("ping")
+        os.chmod(fallback, 0o700)  # now it is this user's private directory: served
+        stop = threading.Event()
+
+        def serve() -> None:
+            while not stop.is_set():
+                if impostor.socket.poll(20):
+                    impostor.handle()
+
+        server = threading.Thread(target=serve)
+        server.start()
+        try:
+            with ControlClient(f"ipc://{fallback}/control.sock", timeout_s=5.0) as client:
+                assert client.call("ping") == {"pong": 1}
+        finally:
+            stop.set()
+            server.join()
+    finally:
+        impostor.close()
+
+
+@pytest.mark.parametrize("transport", ["tcp", "ipc"])
+def test_dropping_connections_rebinds_the_same_endpoint(tmp_path: Path, transport: str) -> None:
+    """Beyond the bound the publisher unbinds and binds the same endpoint again (the old TCP listener is
+    released asynchronously: an immediate bind met EADDRINUSE and raised out of the loop)."""
+    from hdeem_watch.daemon.publisher import Publisher
+
+    context = zmq.Context.instance()
+    endpoint = "tcp://127.0.0.1:0" if transport == "tcp" else f"ipc://{tmp_path}/s.sock"
+    pub = Publisher(context, endpoint, node="n", max_subscriptions=50)
+    legit = context.socket(zmq.SUB)
+    flood = context.socket(zmq.SUB)
+    try:
+        legit.connect(pub.endpoint)
+        legit.setsockopt(zmq.SUBSCRIBE, b"hw1/n/status")
+        flood.connect(pub.endpoint)
+        for i in range(120):
+            flood.setsockopt(zmq.SUBSCRIBE, b"hw1/n/junk-%d" % i)
+        deadline = time.monotonic() + 5
+        while pub.resets == 0 and time.monotonic() < deadline:
+            pub.handle_subscriptions()
+            time.sleep(0.01)
+        assert pub.resets >= 1 and len(pub.prefixes) <= 50
+        flood.close(0)
+        received = False
+        deadline = time.monotonic() + 5
+        while not received and time.monotonic() < deadline:
+            pub.handle_subscriptions()
+            pub.publish("status", {"up": True})
+            received = bool(legit.poll(50))  # polling lets the subscriber reconnect and resubscribe
+        assert received
+    finally:
+        legit.close(0)
+        flood.close(0)
+        pub.close()
+
+
+def test_the_socket_mode_is_never_set_through_a_symlink(tmp_path: Path) -> None:
+    """A symlink swapped in for the socket (to /etc/shadow, say) is refused; its target keeps its mode.
+
+    (Old code: ``os.chmod(path)`` after the bind followed it and made the target 0660.)
+    """
+    from hdeem_watch.daemon.endpoints import chmod_socket
+
+    victim = tmp_path / "shadow"
+    victim.write_text("secret")
+    os.chmod(victim, 0o600)
+    planted = tmp_path / "control.sock"
+    planted.symlink_to(victim)
+    with pytest.raises(InputError, match="not the socket just bound"):
+        chmod_socket(planted, 0o660)
+    assert (victim.stat().st_mode & 0o777) == 0o600
+    real = tmp_path / "real.sock"
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(str(real))
+    try:
+        os.chmod(real, 0o600)
+        ipc = chmod_socket(real, 0o660)
+        assert (real.stat().st_mode & 0o777) == 0o660 and ipc.inode == real.stat().st_ino
+    finally:
+        listener.close()

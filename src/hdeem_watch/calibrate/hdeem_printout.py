@@ -27,8 +27,8 @@ import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from hdeem_watch.channels import DRAM_CHANNELS, normalise_channel_name
 from hdeem_watch.errors import InputError
-from hdeem_watch.sources.base import DRAM_CHANNELS, normalise_channel_name
 
 NAN = math.nan
 _NUM = r"[-+]?\d+(?:\.\d+)?"

@@ -33,6 +33,7 @@ EPILOG = """examples (COMMAND --help for each command's options and examples):
   hdeem-watch bench --kernels triad --threads 1,4    # benchmark sweep (--daemon EP announces runs)
   hdeem-watch model energy --memspec ddr4-2133-x8-4gb --trace T.csv   # DRAM energy of a trace
   hdeem-watch calibrate --runs RUNS.json             # fit the memspec currents to measured runs
+  hdeem-watch calib show --json                      # a running daemon's node and per-pair fits
   hdeem-watch report --runs RUNS.json --out DIR      # the paper's figures as a self-contained HTML page
   hdeem-watch node --json                            # this node's sockets, channels, DIMMs, memspec, sensors
   hdeem-watch counters                               # the memory-controller counters this host offers

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import stat
 import time
 from pathlib import Path
 from typing import Any
@@ -79,6 +80,30 @@ def fallback_runtime_dir() -> Path:
     (:func:`hdeem_watch.daemon.endpoints.private_directory`).
     """
     return Path(f"/tmp/hdeem-watch-{os.getuid()}")
+
+
+#: The most a private socket directory may allow: owner all, group read and search.
+PRIVATE_DIR_MODE = 0o750
+
+
+def directory_problem(directory: str | os.PathLike[str]) -> str | None:
+    """Why ``directory`` is not a private socket directory of this user, or None when it is.
+
+    Private: a real directory (not a symlink) owned by the effective user, mode at most 0750.
+    """
+    try:
+        st = os.lstat(directory)
+    except FileNotFoundError:
+        return "does not exist"
+    if stat.S_ISLNK(st.st_mode):
+        return "is a symlink"
+    if not stat.S_ISDIR(st.st_mode):
+        return "is not a directory"
+    if st.st_uid != os.geteuid():
+        return f"is owned by uid {st.st_uid}, not by this user (uid {os.geteuid()})"
+    if st.st_mode & 0o7777 & ~PRIVATE_DIR_MODE:
+        return f"has mode {st.st_mode & 0o7777:04o}; expected at most {PRIVATE_DIR_MODE:04o}"
+    return None
 
 
 def default_endpoints(runtime_dir_path: str | os.PathLike[str] | None = None) -> tuple[str, str]:
@@ -157,6 +182,12 @@ class ControlClient:
         path = ipc_path(self.endpoint)
         if path is not None and not path.exists():
             raise DaemonUnreachable(f"{self.endpoint}: no daemon socket at {path}")
+        if path is not None and path.parent == fallback_runtime_dir():
+            # In world-writable /tmp another user may have put a socket of their own there.
+            problem = directory_problem(path.parent)
+            if problem is not None:
+                raise DaemonUnreachable(f"{self.endpoint}: refusing to talk to it: {path.parent} {problem} "
+                                        "(not this user's daemon)")
         request_id = next(self._ids)
         data = protocol.encode_request(op, args, request_id)
         reply = self._roundtrip(data, request_id, self.timeout_s if timeout_s is None else timeout_s)

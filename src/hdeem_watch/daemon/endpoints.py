@@ -12,8 +12,8 @@ An ipc endpoint is a file, and files are shared with other users and other daemo
   given the first one's endpoint would silently take it over. :func:`bind` first connects to an
   existing socket file: if someone answers, the endpoint is in use and nothing is touched; a
   stale file (connection refused) is replaced. A path that is not a socket is never replaced.
-* **Permissions.** The socket is made 0660 after checking (``lstat``) that the path is the socket
-  just bound, not a symlink planted in its place.
+* **Permissions.** The socket is made 0660 through a descriptor that pins it (``O_PATH |
+  O_NOFOLLOW``), never through a symlink planted in its place.
 * **Clean-up.** :meth:`IpcFile.unlink_if_ours` removes the socket file only if it is still the
   one this process created (same device and inode), never a successor's.
 
@@ -43,15 +43,15 @@ from typing import Any
 import zmq
 
 from hdeem_watch.daemon.addresses import is_loopback
-from hdeem_watch.daemon.client import fallback_runtime_dir, ipc_path
+from hdeem_watch.daemon.client import PRIVATE_DIR_MODE, directory_problem, fallback_runtime_dir, ipc_path
 from hdeem_watch.errors import InputError
 
-__all__ = ["Binding", "IpcFile", "bind", "bind_endpoint", "is_loopback", "private_directory"]
+__all__ = ["Binding", "IpcFile", "bind", "bind_endpoint", "chmod_socket", "is_loopback", "private_directory"]
 
 log = logging.getLogger("hdeem_watch.daemon")
 
 #: Mode of a directory the daemon creates for its sockets, and the most an adopted fallback may have.
-DIR_MODE = 0o750
+DIR_MODE = PRIVATE_DIR_MODE
 #: Mode of an ipc socket file: the owner and the group may connect.
 SOCKET_MODE = 0o660
 #: Longest path of a Unix socket (sun_path holds 108 bytes with the terminating NUL).
@@ -108,12 +108,40 @@ def bind(sock: zmq.Socket[Any], endpoint: str) -> Binding:
     private_directory(path.parent, strict=path.parent == fallback_runtime_dir())
     _refuse_live_socket(endpoint, path)
     sock.bind(endpoint)
-    st = os.lstat(path)
-    if not stat.S_ISSOCK(st.st_mode):
+    try:
+        ipc = chmod_socket(path, SOCKET_MODE)
+    except InputError:
         sock.unbind(endpoint)
-        raise InputError(f"{endpoint}: {path} was replaced while binding; refusing to use it")
-    os.chmod(path, SOCKET_MODE)
-    return Binding(_last_endpoint(sock), IpcFile(path, st.st_dev, st.st_ino))
+        raise
+    return Binding(_last_endpoint(sock), ipc)
+
+
+def chmod_socket(path: Path, mode: int) -> IpcFile:
+    """Set the mode of the socket file at ``path`` without ever following a symlink.
+
+    The file is opened with ``O_PATH | O_NOFOLLOW`` (pinning the inode), checked to be a socket,
+    and changed through ``/proc/self/fd``, so a symlink swapped in at the path cannot redirect the
+    change to another file. Without ``/proc`` it falls back to ``lstat`` then ``chmod``.
+
+    Raises:
+        InputError: the path is not a socket (e.g. a symlink planted after the bind).
+    """
+    try:
+        fd = os.open(path, os.O_PATH | os.O_NOFOLLOW)
+    except OSError as error:
+        raise InputError(f"{path}: the socket just bound is gone ({error.strerror})") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISSOCK(st.st_mode):
+            raise InputError(f"{path}: not the socket just bound (replaced while binding); refusing to use it")
+        pinned = f"/proc/self/fd/{fd}"
+        if os.path.exists(pinned):
+            os.chmod(pinned, mode)
+        elif stat.S_ISSOCK(os.lstat(path).st_mode):
+            os.chmod(path, mode)
+    finally:
+        os.close(fd)
+    return IpcFile(path, st.st_dev, st.st_ino)
 
 
 def bind_endpoint(sock: zmq.Socket[Any], endpoint: str) -> str:
@@ -139,16 +167,7 @@ def private_directory(directory: Path, *, strict: bool) -> None:
             strict = True
     if not (strict or created):
         return
-    st = os.lstat(directory)
-    problem = None
-    if stat.S_ISLNK(st.st_mode):
-        problem = "is a symlink"
-    elif not stat.S_ISDIR(st.st_mode):
-        problem = "is not a directory"
-    elif st.st_uid != os.geteuid():
-        problem = f"is owned by uid {st.st_uid}, not by this daemon's user (uid {os.geteuid()})"
-    elif st.st_mode & 0o7777 & ~DIR_MODE:
-        problem = f"has mode {st.st_mode & 0o7777:04o}; expected at most {DIR_MODE:04o}"
+    problem = directory_problem(directory)
     if problem:
         raise InputError(f"runtime dir {directory}: {problem}; refusing to put the daemon's sockets there "
                          "(remove it, or set --runtime-dir / HDEEM_WATCH_RUNTIME_DIR)")

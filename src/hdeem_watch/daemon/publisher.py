@@ -208,14 +208,26 @@ class Publisher:
             except zmq.Again:
                 break
         self.prefixes.clear()
+        self._rebind()
+
+    def _rebind(self, timeout_s: float = 2.0) -> None:
+        """Bind the endpoint again once libzmq's I/O thread has let go of it.
+
+        The old listener closes asynchronously: its ipc file is removed (bind only after that, or
+        the removal would take the new file with it) and its TCP port freed a moment later.
+        """
+        deadline = time.monotonic() + timeout_s
         if self._ipc is not None:
-            # libzmq removes the old socket file from its I/O thread; bind only once it is gone,
-            # or that removal would take the new file with it.
-            deadline = time.monotonic() + 2.0
             while os.path.lexists(self._ipc.path) and time.monotonic() < deadline:
                 time.sleep(0.005)
-        binding = bind(self.socket, self.endpoint)
-        self._ipc = binding.ipc
+        while True:
+            try:
+                self._ipc = bind(self.socket, self.endpoint).ipc
+                return
+            except zmq.ZMQError as error:
+                if error.errno != zmq.EADDRINUSE or time.monotonic() >= deadline:
+                    raise
+                time.sleep(0.01)
 
     def watched(self, kind: str) -> bool:
         """Whether some subscriber receives messages of ``kind`` (e.g. ``"samples"``)."""

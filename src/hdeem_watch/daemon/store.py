@@ -162,6 +162,7 @@ class Store:
         self._read_health = "ok"
         self._count = int((self._query("SELECT COUNT(*) FROM runs WHERE json_valid(record)") or [(0,)])[0][0])
         self._sync_wait_s = sync_wait_s
+        self._stalled_at = 0
         self._writer = BackgroundWriter(lambda: self._connect(2.0), self._apply, retry_min_s=retry_min_s,
                                         retry_max_s=retry_max_s)
 
@@ -181,7 +182,11 @@ class Store:
         if not exists:
             return None
         row = self._db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
-        return int(row[0]) if row else None
+        try:
+            return int(row[0]) if row else None
+        except (TypeError, ValueError):
+            raise StoreError(f"{self.path}: meta.schema_version = {row[0]!r} is not a version number; "
+                             "refusing to guess what the file holds") from None
 
     @property
     def schema_version(self) -> int:
@@ -209,8 +214,11 @@ class Store:
 
     def _submit(self, op: Hashable) -> None:
         ticket = self._writer.submit(op)
-        if self._sync_wait_s > 0 and self._writer.health == "ok":
-            self._writer.wait_for(ticket, self._sync_wait_s)
+        # Wait for the write while the database keeps up; after one wait timed out, not again
+        # until that write went through (a lock or a slow disk costs the loop one wait, not one per save).
+        waiting = self._sync_wait_s > 0 and self._writer.health == "ok" and self._writer.completed >= self._stalled_at
+        if waiting and not self._writer.wait_for(ticket, self._sync_wait_s):
+            self._stalled_at = ticket
 
     # -- reading -------------------------------------------------------------------------------------
 

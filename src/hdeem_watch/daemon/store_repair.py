@@ -125,7 +125,9 @@ def salvage_if_corrupt(path: Path, *, t_ns: int) -> list[str]:
     """
     if not path.exists():
         return []
-    source = sqlite3.connect(f"file:{path}?mode=ro", uri=True, isolation_level=None, timeout=0.5)
+    # Read-write (a read-only open cannot recover a WAL left without its -shm), but only reading.
+    source = sqlite3.connect(str(path), isolation_level=None, timeout=0.5)
+    source.execute("PRAGMA query_only = 1")
     try:
         problem = is_corrupt(source)
         if problem is None:

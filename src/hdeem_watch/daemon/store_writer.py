@@ -70,6 +70,11 @@ class BackgroundWriter:
         return self._health
 
     @property
+    def completed(self) -> int:
+        """Tickets written so far (every ticket up to this one is written)."""
+        return self._completed
+
+    @property
     def pending(self) -> int:
         """Operations submitted and not yet written."""
         with self._cond:

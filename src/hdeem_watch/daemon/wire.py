@@ -87,6 +87,7 @@ def dumps(value: Any) -> bytes:
 
 
 _STRING_LITERAL = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"', re.DOTALL)
+_SURROGATE_ESCAPE = re.compile(r"\\u[dD][89a-fA-F]")
 _OPENING = np.frombuffer(b"[{", dtype=np.uint8)
 _CLOSING = np.frombuffer(b"]}", dtype=np.uint8)
 
@@ -170,8 +171,8 @@ def loads_object(data: bytes, what: str = "frame", *, max_depth: int = MAX_JSON_
         text = data.decode("utf-8")
     except UnicodeDecodeError as error:
         raise ProtocolError(f"{what}: not UTF-8 ({error})", code="bad-json") from None
-    depth = nesting_depth(text)
-    if depth > max_depth:
+    # Counting brackets is cheap (C); only text with more of them than the bound needs the scan.
+    if text.count("[") + text.count("{") > max_depth and (depth := nesting_depth(text)) > max_depth:
         raise ProtocolError(f"{what}: nested {depth} deep; at most {max_depth} levels", code="bad-json")
     try:
         value = (_STRICT if strict else _LENIENT).decode(text)
@@ -181,5 +182,6 @@ def loads_object(data: bytes, what: str = "frame", *, max_depth: int = MAX_JSON_
         raise ProtocolError(f"{what}: not JSON ({error})", code="bad-json") from None
     if not isinstance(value, dict):
         raise ProtocolError(f"{what}: expected a JSON object, got {type(value).__name__}", code="bad-json")
-    _check_strings(value, what)
+    if _SURROGATE_ESCAPE.search(text):  # raw UTF-8 cannot hold a surrogate; only an escape can
+        _check_strings(value, what)
     return value

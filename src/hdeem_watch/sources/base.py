@@ -20,21 +20,20 @@ Example:
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-#: The HDEEM channels of a Haswell node, in HDEEM's own order.
-CHANNELS = ("BLADE", "CPU0", "CPU1", "DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
-#: The DIMM-pair channels (each covers two DIMMs, one per memory channel).
-DRAM_CHANNELS = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
-#: Which socket each DIMM pair hangs off (DDR_AB, DDR_CD on socket 0; DDR_EF, DDR_GH on socket 1).
-DRAM_SOCKET = {"DDR_AB": 0, "DDR_CD": 0, "DDR_EF": 1, "DDR_GH": 1}
-#: RAPL reports DRAM per socket, not per pair: ``DRAM<n>`` covers these HDEEM channels.
-RAPL_DRAM_COVERS = {"DRAM0": ("DDR_AB", "DDR_CD"), "DRAM1": ("DDR_EF", "DDR_GH")}
+from hdeem_watch.channels import (  # noqa: F401 - re-exported: the sources' channel vocabulary
+    CHANNELS,
+    DRAM_CHANNELS,
+    DRAM_SOCKET,
+    RAPL_DRAM_COVERS,
+    normalise_channel_name,
+)
+
 #: Source kinds :func:`make_source` knows.
 SOURCE_KINDS = ("sim", "hdeem", "rapl", "replay")
 
@@ -192,25 +191,6 @@ def source_speed(source: object) -> float:
     return 1.0
 
 
-_SEP = re.compile(r"[\s_\-]+")
-
-
-def normalise_channel_name(name: str) -> str:
-    """Map a sensor name as a library or printout spells it onto :data:`CHANNELS`.
-
-    Case, spaces, ``-`` and ``_`` vary between firmware versions ("ddr ab", "Ddr_Ab", "DDRAB");
-    unknown names are returned upper-cased with separators replaced by ``_``.
-
-    >>> normalise_channel_name(" ddr ab ")
-    'DDR_AB'
-    >>> normalise_channel_name("Blade")
-    'BLADE'
-    """
-    squashed = _SEP.sub("", name).upper()
-    for known in CHANNELS:
-        if known.replace("_", "") == squashed:
-            return known
-    return _SEP.sub("_", name.strip()).upper()
 
 
 def hdeem_channel_infos() -> list[ChannelInfo]:

@@ -13,9 +13,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from hdeem_watch.channels import DRAM_CHANNELS
 from hdeem_watch.tui.snapshot import CalibView, CurrentView, RunView
-
-DRAM_CHANNELS = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
 
 
 @dataclass(frozen=True)
