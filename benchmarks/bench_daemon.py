@@ -204,13 +204,15 @@ for info in hdeem_channel_infos():
     n = max(1, round(info.rate_hz * interval_s))
     t = np.arange(n, dtype=np.int64) * round(1e9 / info.rate_hz)
     messages.append(publisher.samples_message(info.name, info.rate_hz, t, np.full(n, 5.0), 1.0, "ok", 0))
-items = [(control, zmq.POLLIN), (publisher.socket, zmq.POLLIN)]
+poller = zmq.Poller()
+poller.register(control, zmq.POLLIN)
+poller.register(publisher.socket, zmq.POLLIN)
 interval_ns = round(interval_s * 1e9)
 deadline = time.monotonic_ns()
 print("up", flush=True)
 while True:
     deadline += interval_ns
-    for sock, _event in zmq.backend.zmq_poll(items, max(0, -(-(deadline - time.monotonic_ns()) // 1_000_000))):
+    for sock, _event in poller.poll(max(0, -(-(deadline - time.monotonic_ns()) // 1_000_000))):
         if sock is publisher.socket:
             publisher.handle_subscriptions()
     publisher.send_all(messages)

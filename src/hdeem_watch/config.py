@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hdeem_watch.daemon.addresses import is_loopback
+from hdeem_watch.addresses import is_loopback
 from hdeem_watch.errors import InputError
 
 ENV_PREFIX = "HDEEM_WATCH_"

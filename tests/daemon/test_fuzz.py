@@ -143,10 +143,8 @@ def test_a_frame_beyond_the_socket_limit_drops_only_that_peer(shared_daemon: Any
     assert shared_daemon.proc.poll() is None
 
 
-@pytest.mark.xfail(strict=True, reason="H3a's side of #22.3: runs.parse_run_args must bound threads/elements/repeat "
-                   "(integers only, threads <= CPUs x margin, elements bounded by memory); remove this mark then")
 def test_absurd_run_sizes_are_refused(daemon_factory: Any) -> None:
-    """run.start with an absurd size is bad-args (today accepted: the sim books 4e290 J, the fit is poisoned).
+    """run.start with an absurd size is bad-args (was accepted: the sim booked 4e290 J, the fit was poisoned).
 
     Its own daemon: an accepted absurd run poisons the energies of every later test on the daemon.
     """

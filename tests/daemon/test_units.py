@@ -253,8 +253,11 @@ def test_store_survives_kill9_mid_write(tmp_path: Path) -> None:
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     store = Store(path)
-    assert store.count_runs() >= acknowledged >= 50
-    assert store.get_run(f"r{acknowledged}") is not None
+    try:
+        assert store.count_runs() >= acknowledged >= 50
+        assert store.get_run(f"r{acknowledged}") is not None
+    finally:
+        store.close()  # its writer thread must not outlive the test (a forked pipeline worker checks)
 
 
 def test_interval_change_takes_effect_within_one_new_period() -> None:

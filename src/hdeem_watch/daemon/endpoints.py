@@ -17,7 +17,7 @@ An ipc endpoint is a file, and files are shared with other users and other daemo
 * **Clean-up.** :meth:`IpcFile.unlink_if_ours` removes the socket file only if it is still the
   one this process created (same device and inode), never a successor's.
 
-TCP: :func:`~hdeem_watch.daemon.addresses.is_loopback` tells which endpoints stay on the node
+TCP: :func:`~hdeem_watch.addresses.is_loopback` tells which endpoints stay on the node
 (insecure TCP elsewhere needs ``allow_insecure_tcp``, see :mod:`hdeem_watch.config`).
 
 Example:
@@ -42,7 +42,7 @@ from typing import Any
 
 import zmq
 
-from hdeem_watch.daemon.addresses import is_loopback
+from hdeem_watch.addresses import is_loopback
 from hdeem_watch.daemon.client import PRIVATE_DIR_MODE, directory_problem, fallback_runtime_dir, ipc_path
 from hdeem_watch.errors import InputError
 

@@ -32,7 +32,7 @@ from hdeem_watch.daemon.node_state import ClosedWindow, Conflict, NodeState
 from hdeem_watch.daemon.persistence import StoreWorker
 from hdeem_watch.daemon.ports import PublisherPort, Reply, StorePort, Submit
 from hdeem_watch.daemon.reporting import Reporter
-from hdeem_watch.daemon.runs import FINISHED_STATES, RunRecord, parse_run_args, run_summary
+from hdeem_watch.daemon.runs import FINISHED_STATES, RunRecord, parse_run_args
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import RunAware, RunEvent, Source
 
@@ -42,8 +42,6 @@ log = logging.getLogger("hdeem_watch.daemon")
 DEFAULT_SUMMARIES = 100
 MAX_SUMMARIES = 1000
 MAX_FULL_RECORDS = 20
-#: Run ids a ``runs.list`` with ``before`` scans at most for one page.
-MAX_SCAN = 10_000
 #: Recent runs looked at on start for one whose modelling a crash interrupted.
 RESUME_SCAN = 50
 #: ``runs.list`` pages kept for repeated requests (all dropped when a run is written).
@@ -382,20 +380,6 @@ def unfinished_runs(store: StorePort) -> list[dict[str, Any]]:
 
 def list_page(store: StorePort, *, limit: int, kernel: str | None, before_seq: int | None,
               full: bool) -> list[dict[str, Any]]:
-    """One page of stored runs, newest first (on the store worker).
-
-    Without ``before_seq`` the newest runs; with it, the runs numbered below it (the ids are
-    sequential, ``r<n>``), at most :data:`MAX_SCAN` ids looked at.
-    """
-    if before_seq is None and not full:
-        return [run_summary(r) for r in store.list_runs(limit, kernel)]
-    top = before_seq if before_seq is not None else int(store.next_run_id()[1:])
-    page: list[dict[str, Any]] = []
-    for seq in range(top - 1, max(0, top - 1 - MAX_SCAN), -1):
-        record = store.get_run(f"r{seq}")
-        if record is None or (kernel is not None and record.get("kernel") != kernel):
-            continue
-        page.append(record if full else run_summary(record))
-        if len(page) >= limit:
-            break
-    return page
+    """One page of stored runs, newest first (on the store worker): summaries unless ``full``;
+    with ``before_seq`` the runs numbered below it (the ids are sequential, ``r<n>``)."""
+    return store.list_runs(limit, kernel, full=full, before=before_seq)

@@ -10,6 +10,7 @@ Example:
     >>> class Memory:
     ...     def __init__(self): self.runs = {}
     ...     def save_run(self, record): self.runs[record["run_id"]] = record
+    ...     def health(self): return "ok"
     >>> store = Memory()
     >>> writer = StoreWorker(store)                   # type: ignore[arg-type]
     >>> writer.write("run r1", lambda s: s.save_run({"run_id": "r1"}))
@@ -69,8 +70,14 @@ class StoreWorker:
         self.jobs.collect(limit)
 
     def health(self) -> str:
-        """``"ok"``, or ``"degraded: <why>"`` while writes wait for the disk."""
-        return "ok" if self._error is None else f"degraded: {self._error}"
+        """``"ok"``, or ``"degraded: <why>"`` while writes wait for the disk (here, or in the
+        store's own writer, which keeps failed writes in memory and retries them)."""
+        if self._error is not None:
+            return f"degraded: {self._error}"
+        try:
+            return str(self.store.health())
+        except Exception as error:  # a store without a health report is not a reason to fail
+            return f"degraded: store health unknown: {type(error).__name__}"
 
     def write(self, what: str, action: Action, done: Callable[[bool], None] | None = None) -> None:
         """Run ``action(store)`` on the worker; ``done(written)`` in the loop (False: kept for a retry)."""

@@ -26,8 +26,7 @@ Reply = Callable[[Pending, Any, "tuple[str, str] | None"], None]
 class StorePort(Protocol):
     """The state database as the daemon uses it (see :class:`~hdeem_watch.daemon.store.Store`)."""
 
-    # TODO(lead, after merging H3b): add ``def health(self) -> str`` and let
-    # StoreWorker.health() report it (H3b's Store queues failed writes instead of raising).
+    def health(self) -> str: ...
 
     def next_run_id(self) -> str: ...
 
@@ -35,7 +34,8 @@ class StorePort(Protocol):
 
     def get_run(self, run_id: str) -> dict[str, Any] | None: ...
 
-    def list_runs(self, limit: int = 100, kernel: str | None = None) -> list[dict[str, Any]]: ...
+    def list_runs(self, limit: int = 100, kernel: str | None = None, *, full: bool = False,
+                  before: str | int | None = None) -> list[dict[str, Any]]: ...
 
     def count_runs(self) -> int: ...
 

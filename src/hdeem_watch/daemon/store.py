@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from hdeem_watch.daemon.protocol import jsonable
+from hdeem_watch.daemon.runs import run_summary
 from hdeem_watch.daemon.store_repair import SCHEMA, quarantine_bad_rows, salvage_if_corrupt
 from hdeem_watch.daemon.store_writer import BackgroundWriter
 
@@ -51,8 +52,11 @@ log = logging.getLogger("hdeem_watch.daemon.store")
 SCHEMA_VERSION = 1
 #: Fields left out of a run summary (``list_runs(full=False)``): the refit and the model's
 #: calibration row, which grow with the number of runs (tens of KB per record).
-SUMMARY_OMITS = ("fit", "model.observation")
-_SUMMARY_SQL = "json_remove(record, " + ", ".join(f"'$.{f}'" for f in SUMMARY_OMITS) + ")"
+#: A summary read in SQL: the record without the parts that grow with the calibration, and the two
+#: figures of the fit a summary keeps (:func:`~hdeem_watch.daemon.runs.run_summary` shapes the rest).
+_SUMMARY_SQL = ("json_remove(record, '$.fit', '$.model.observation'), json_type(record, '$.fit'), "
+                "json_extract(record, '$.fit.n_runs'), json_type(record, '$.fit.error'), "
+                "json_extract(record, '$.fit.error.after')")
 #: How long a read waits for a lock held by another process before it gives up (s).
 READ_TIMEOUT_S = 0.05
 #: How long a save waits for its own write while the database is healthy (s): a record is then
@@ -74,13 +78,19 @@ def _dumps(value: Any) -> str:
     return json.dumps(jsonable(value), separators=(",", ":"), allow_nan=False)
 
 
-def summary_of(record: Mapping[str, Any]) -> dict[str, Any]:
-    """A run record without the fields that grow with the calibration (:data:`SUMMARY_OMITS`)."""
-    summary = {k: v for k, v in record.items() if k != "fit"}
-    model = summary.get("model")
-    if isinstance(model, Mapping):
-        summary["model"] = {k: v for k, v in model.items() if k != "observation"}
-    return summary
+def _summary_from_sql(text: str, fit_type: str | None, n_runs: Any, error_type: str | None,
+                      error_after: Any) -> dict[str, Any] | None:
+    """A :func:`run_summary` from the columns of :data:`_SUMMARY_SQL` (the fit never parsed)."""
+    record = _loads(text)
+    if not isinstance(record, dict):
+        return None
+    if fit_type == "object":
+        record["fit"] = {"n_runs": n_runs}
+        if error_type == "object":
+            record["fit"]["error"] = {"after": error_after}
+    elif fit_type is not None:
+        record["fit"] = None
+    return run_summary(record)
 
 
 def _loads(text: str | None) -> Any:
@@ -246,7 +256,7 @@ class Store:
         run_id = str(record["run_id"])
         row = _RunRow(seq=int(run_id.lstrip("r")), kernel=str(record.get("kernel", "")),
                       state=str(record.get("state", "")), t_start_ns=int(record.get("t_start_ns") or 0),
-                      record=_dumps(record), summary=_dumps(summary_of(record)))
+                      record=_dumps(record), summary=_dumps(run_summary(record)))
         with self._lock:
             self._runs[run_id] = row
             if row.seq > self._max_seq:
@@ -265,7 +275,7 @@ class Store:
 
     def list_runs(self, limit: int = 100, kernel: str | None = None, *, full: bool = False,
                   before: str | int | None = None) -> list[dict[str, Any]]:
-        """Run records, newest first: summaries (:func:`summary_of`) unless ``full``.
+        """Run records, newest first: summaries (:func:`~hdeem_watch.daemon.runs.run_summary`) unless ``full``.
 
         Args:
             limit: at most this many.
@@ -285,12 +295,14 @@ class Store:
         column = "record" if full else _SUMMARY_SQL
         sql = f"SELECT seq, {column} FROM runs WHERE {' AND '.join(where)} ORDER BY seq DESC LIMIT ?"
         with self._lock:
-            found = {int(seq): text for seq, text in self._query(sql, (*params, int(limit)))}
+            found: dict[int, Any] = {}
+            for seq, text, *fit in self._query(sql, (*params, int(limit))):
+                found[int(seq)] = _loads(text) if full else _summary_from_sql(text, *fit)
             for row in self._runs.values():
                 if (kernel is None or row.kernel == kernel) and (before_seq is None or row.seq < before_seq):
-                    found[row.seq] = row.record if full else row.summary
+                    found[row.seq] = _loads(row.record if full else row.summary)
         newest = sorted(found, reverse=True)[: max(0, int(limit))]
-        return [r for r in (_loads(found[seq]) for seq in newest) if isinstance(r, dict)]
+        return [r for r in (found[seq] for seq in newest) if isinstance(r, dict)]
 
     def close_interrupted_runs(self, t_ns: int) -> int:
         """Mark runs left ``running`` by a crashed daemon as ``aborted``; return how many."""
