@@ -303,3 +303,20 @@ def test_datasheet_model_overestimates_the_sim_node():
             ratios.append(ds_j / sim_j)
     assert 1.3 < float(np.mean(ratios)) < 2.5, ratios
     assert min(ratios) > 1.1
+
+
+def test_a_start_behind_the_published_samples_keeps_the_runs_energy(fake_clock):
+    """A start announced for a time whose samples were already published (a sped-up sim between polls) runs
+    its traffic from that time: the energy those idle samples could not show comes in the next sample."""
+    clock = fake_clock()
+    sim = quiet_sim(clock, io_j_per_line=0.5e-9)
+    clock.t = S
+    before = sim.poll()
+    sim.on_run(RunEvent("start", "r", "read", 24, 1 << 22, 40, S // 2))   # 0.5 s: already published
+    plan = sim.run_plan("r", timeout_s=120)
+    assert plan.t0_ns == S // 2 and plan.duration_ns > 0
+    clock.t = S // 2 + plan.duration_ns + S
+    after = sim.poll()
+    total_s = (clock.t // 10_000_000) * 0.01   # the last whole sample
+    expected = float(plan.idle_w.sum()) * total_s + float(plan.excess_w.sum()) * plan.duration_ns * 1e-9
+    assert dram_energy([before, after]) == pytest.approx(expected, rel=1e-9)

@@ -123,7 +123,7 @@ class SimSource:
     def __init__(self, seed: int = 0, clock: Callable[[], int] = time.monotonic_ns, speed: float = 1.0,
                  wall_clock: Callable[[], int] = time.time_ns, *, noise: bool = True, quantum_w: float = 0.125,
                  io_j_per_line: float = 0.5e-9, offsets: bool = True, aging_per_h: float = 0.0,
-                 temp_amp_c: float = 3.0, dimm_spread: float = 0.03, buffer_s: float = 60.0,
+                 temp_amp_c: float = 1.0, dimm_spread: float = 0.03, buffer_s: float = 60.0,
                  background_plans: bool = True, block_s: float = 1.0, layout: SimLayout = TAURUS,
                  node: NodeDescription | None = None, age: Mapping[str, float] | None = None,
                  age_start_s: Mapping[str, float] | None = None, part_spread: float = 0.10, gains: bool = True,
@@ -322,15 +322,17 @@ class SimSource:
             raise RuntimeError("SimSource.on_run() before open()")
         t = max(0, self.sim_time_ns(event.t_mono_ns))
         if event.kind == "start":
-            t = max(t, self._generated_ns)   # samples already published cannot change
+            # the traffic starts at t; what samples already published could not show is booked after them
+            published = max(t, self._generated_ns)
             args = (self.truth_model.currents(t * 1e-9), self.truth_model.temperature_c(t * 1e-9), event.run_id, t,
                     event.kernel, int(event.elements), int(event.threads), int(event.repeat))
             if not self.background_plans:
-                self._plans[event.run_id] = self.truth_node.plan(*args)
+                self._activate(self.truth_node.plan(*args), published)
                 return
             if self._executor is None:
                 self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-plan")
-            self._pending[event.run_id] = _Pending(self._executor.submit(self.truth_node.plan, *args), t, event)
+            self._pending[event.run_id] = _Pending(self._executor.submit(self.truth_node.plan, *args), published,
+                                                   event)
         elif event.kind == "stop":
             t = max(t, self._generated_ns)   # the run's power is in what was published up to here
             pending = self._pending.get(event.run_id)
@@ -338,6 +340,18 @@ class SimSource:
                 pending.stop_ns = t
                 return
             self._stop(event.run_id, t)
+
+    def _activate(self, plan: RunPlan, published_ns: int) -> None:
+        """Make ``plan`` active; the DRAM energy its traffic drew before ``published_ns`` (in samples already
+        published as idle) goes into the first sample after them."""
+        self._plans[plan.run_id] = plan
+        if plan.duration_ns <= 0 or published_ns <= plan.t0_ns:
+            return
+        missed_s = (min(published_ns, plan.traffic_end_ns) - plan.t0_ns) * 1e-9
+        missed = plan.excess_w * missed_s
+        for d, pair in enumerate(self.layout.dimm_sensor):
+            self._add_owed(pair, published_ns, float(missed[d]) * self._gain[pair])
+        self._add_owed("BLADE", published_ns, float(missed.sum()) * self._gain["BLADE"])
 
     def _stop(self, run_id: str, t: int) -> None:
         plan = self._plans.get(run_id)
@@ -364,7 +378,7 @@ class SimSource:
                 plan = self.truth_node.plan(self.truth_model.currents(t_s), self.truth_model.temperature_c(t_s), run_id,
                                             pending.t0_ns, "idle", 0, int(ev.threads), 1)
             del self._pending[run_id]
-            self._plans[run_id] = plan
+            self._activate(plan, pending.t0_ns)
             if pending.stop_ns is not None:
                 self._stop(run_id, pending.stop_ns)
 
