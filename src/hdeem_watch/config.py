@@ -83,6 +83,8 @@ class DaemonSettings:
         republish_s: period at which ``calib`` and ``baseline`` are re-published for late joiners.
         speed: time factor of the ``sim`` and ``replay`` sources (1 = real time).
         seed: random seed of the ``sim`` source (None = fixed default of the sim).
+        sim_age: aging of DIMM pairs of the ``sim`` source, ``PAIR=±X%/h`` comma-separated, with an
+            optional start ``@<n>s|min|h`` in sim time (None = no aging).
         replay_file: recording played by the ``replay`` source.
         replay_loop: start the recording again at its end.
         record_file: append every sample the daemon receives to this recording (the replay
@@ -136,6 +138,7 @@ class DaemonSettings:
     republish_s: float = 10.0
     speed: float = 1.0
     seed: int | None = None
+    sim_age: str | None = None
     replay_file: str | None = None
     replay_loop: bool = False
     record_file: str | None = None
@@ -201,6 +204,13 @@ class DaemonSettings:
                 raise SettingError(name, f"{name} = {endpoint!r}: TCP on a non-loopback address without CURVE is "
                                    "open to anyone who can reach it; set curve_secret_key_file (see --gen-keys), "
                                    "or allow_insecure_tcp = true to accept that")
+        if self.sim_age:
+            from hdeem_watch.sources.sim_age import parse_sim_age
+
+            try:
+                parse_sim_age(self.sim_age)
+            except InputError as error:
+                raise SettingError("sim_age", str(error)) from None
         from hdeem_watch.sources import options as source_settings
 
         source_settings.validate(self)
@@ -211,6 +221,10 @@ class DaemonSettings:
             options: dict[str, Any] = {"speed": self.speed}
             if self.seed is not None:
                 options["seed"] = self.seed
+            if self.sim_age:
+                from hdeem_watch.sources.sim_age import sim_age_options
+
+                options.update(sim_age_options(self.sim_age))
             return options
         if self.source == "replay":
             return {"path": self.replay_file, "speed": self.speed, "loop": self.replay_loop}

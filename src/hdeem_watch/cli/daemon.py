@@ -16,6 +16,7 @@ import sys
 from typing import Any
 
 from hdeem_watch.config import SOURCE_KINDS, load_settings
+from hdeem_watch.sources.options import add_source_flags, source_flag_overrides
 
 
 def register(subparsers: Any) -> None:
@@ -47,7 +48,12 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--prometheus", type=int, metavar="PORT", help="serve Prometheus metrics on PORT")
     parser.add_argument("--poll-interval", type=float, metavar="S", help="source poll period in s (default 0.04)")
     parser.add_argument("--memspec", metavar="PRESET|FILE", help="memspec of one DIMM for the run model")
-    parser.add_argument("--log-level", choices=("debug", "info", "warning", "error"))
+    parser.add_argument("--sim-age", metavar="PAIR=±X%/h",
+                        help="sim: a DIMM pair's currents drift in sim time, e.g. DDR_CD=+30%%/h "
+                        "(comma-separated; @600s delays the start)")
+    parser.add_argument("--log-level", choices=("debug", "info", "warning", "error"),
+                        help="log verbosity on stderr (default: log_level from the config file, else info)")
+    add_source_flags(parser)
     parser.set_defaults(func=_run)
 
 
@@ -68,7 +74,8 @@ def _run(args: argparse.Namespace) -> int:
             "replay_file": args.replay_file, "record_file": args.record,
             "curve_secret_key_file": args.curve_secret_key, "curve_clients_dir": args.curve_clients, "prometheus_port": args.prometheus,
             "poll_interval_s": args.poll_interval, "memspec": args.memspec, "log_level": args.log_level,
-            "allow_insecure_tcp": args.allow_insecure_tcp,
+            "allow_insecure_tcp": args.allow_insecure_tcp, "sim_age": args.sim_age,
+            **source_flag_overrides(args),
         },
         check_model=True,
     )

@@ -51,6 +51,10 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--window", type=float, default=DEMO_WINDOW_S, metavar="S",
                         help=f"initial plot window in seconds (default {DEMO_WINDOW_S:g}: shorter than the tui's 60, "
                         "so the demo's 1–2 s runs show as steps; +/- zoom)")
+    parser.add_argument("--sim-age", default=None, metavar="PAIR=±X%/h",
+                        help="a DIMM pair of the simulated node ages: its currents drift in sim time, e.g. "
+                        "DDR_CD=+30%%/h (with --speed 60 an hour passes in a minute); the calibration's "
+                        "drift detector should name that pair")
     parser.add_argument("--report", default=None, metavar="DIR",
                         help="write the report (hdeem-watch report) of the demo's state into DIR at the end")
     parser.set_defaults(func=_run)
@@ -65,6 +69,10 @@ def _check(args: argparse.Namespace) -> None:
         raise InputError(f"--fps {args.fps}: expected a positive number of frames per second")
     if not args.window > 0:
         raise InputError(f"--window {args.window}: expected a positive number of seconds")
+    if args.sim_age is not None:
+        from hdeem_watch.sources.sim_age import parse_sim_age
+
+        parse_sim_age(args.sim_age)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -76,7 +84,8 @@ def _run(args: argparse.Namespace) -> int:
     from hdeem_watch.demo.daemon import DaemonFailed, DemoDaemon
     from hdeem_watch.demo.schedule import DemoSchedule
 
-    daemon = DemoDaemon(state_dir=args.state_dir, speed=args.speed)
+    daemon = DemoDaemon(state_dir=args.state_dir, speed=args.speed,
+                        extra_args=("--sim-age", args.sim_age) if args.sim_age else ())
     handled = (signal.SIGTERM, signal.SIGHUP)
     previous = {sig: signal.getsignal(sig) for sig in handled}
 
