@@ -86,7 +86,8 @@ def test_trace_runs_without_times(tmp_path: Path) -> None:
 
     spec = preset("ddr4-2133-x8-4gb")
     truth = spec.with_currents({n: spec.currents[n] * r for n, r in
-                                {"idd0": 0.6, "idd2n": 0.7, "idd3n": 0.5, "idd4r": 0.55, "idd4w": 0.5}.items()})
+                                {"idd0": 0.6, "idd2n": 0.5, "idd3n": 0.55, "idd4r": 0.55, "idd4w": 0.5}.items()})
+    # (a physical truth: the calibrator's bounds keep IDD3N >= IDD2N, so an unphysical one is not reached)
     runs = []
     for i, (reads, writes, rows, gap) in enumerate([(8, 0, 64, 0), (0, 8, 64, 0), (4, 4, 64, 10), (16, 0, 32, 200),
                                                     (0, 16, 32, 200), (1, 0, 128, 0), (0, 0, 8, 3000),

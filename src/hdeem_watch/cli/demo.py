@@ -163,7 +163,7 @@ def _headless(control: str, args: argparse.Namespace) -> int:
     schedule.start()
     start = time.monotonic()
     try:
-        print_progress(hub, duration_s=args.duration)
+        print_progress(hub, duration_s=args.duration, at_end=schedule.stop)
     finally:
         schedule.stop()
         hub.stop()

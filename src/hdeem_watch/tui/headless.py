@@ -23,8 +23,8 @@ import shutil
 import sys
 import textwrap
 import time
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, TextIO
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, TextIO
 
 from hdeem_watch.tui.snapshot import CalibView, NodeSnapshot, RunView
 from hdeem_watch.tui.widgets.fmt import percent
@@ -213,20 +213,25 @@ def print_progress(
     power_every_s: float = 5.0,
     width: int | None = None,
     give_up_s: float | None = GIVE_UP_S,
+    at_end: Callable[[], None] | None = None,
 ) -> int:
     """Print the progress of every node of ``hub`` until ``duration_s`` (None: until interrupted),
     or until ``give_up_s`` have passed with a node that sent nothing (see :func:`silent_nodes`).
 
     Lines are prefixed with the node's name when there are several nodes, and fit ``width``
-    (default: the terminal's). Returns the number of lines printed.
+    (default: the terminal's). ``at_end`` (e.g. stopping a benchmark schedule, which lets its run
+    in progress finish) is called when the duration is over; what happened until it returned is
+    printed before this returns, so no finished run goes unprinted. Returns the number of lines
+    printed.
     """
     stream = out if out is not None else sys.stdout
     columns = width if width is not None else terminal_width()
     printers = [ProgressPrinter(power_every_s=power_every_s) for _ in hub.feeds]
     start = time.monotonic()
     count = 0
-    while duration_s is None or time.monotonic() - start < duration_s:
-        time.sleep(period_s)
+
+    def print_new() -> list[Any]:
+        nonlocal count
         now = time.monotonic() - start
         snapshots = hub.snapshots()
         for printer, snapshot in zip(printers, snapshots):
@@ -235,6 +240,15 @@ def print_progress(
             for line in printer.lines(snapshot, now):
                 print(prefix + line, file=stream, flush=True)
                 count += 1
-        if give_up_s is not None and now >= give_up_s and silent_nodes(snapshots):
-            break
+        return snapshots
+
+    while duration_s is None or time.monotonic() - start < duration_s:
+        time.sleep(period_s)
+        snapshots = print_new()
+        if give_up_s is not None and time.monotonic() - start >= give_up_s and silent_nodes(snapshots):
+            return count
+    if at_end is not None:
+        at_end()
+        time.sleep(period_s)  # the last runs' records reach the snapshots
+        print_new()
     return count
