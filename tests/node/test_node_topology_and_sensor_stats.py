@@ -95,3 +95,18 @@ def test_bad_sensor_maps_are_named() -> None:
         split_by_sensor(topo, groups, {"DDR_XY": []}, dimm_channels(node))
     with pytest.raises(InputError, match="1 model groups; the node has 2 memory domains"):
         split_by_sensor(topo, groups[:1], sensor_map(node), dimm_channels(node))
+
+
+def test_snc_domains_come_from_the_kernels_numa_cpu_lists() -> None:
+    """Where the kernel's NUMA nodes do not follow the core order (here: even cores in cluster 0, odd in
+    cluster 1), its node*/cpulist decides; a list that does not fit the counts falls back to the core split."""
+    from hdeem_watch.node.description import NodeDescription
+    from hdeem_watch.node.facts import Fact
+
+    n = lambda v: Fact(v, "t")  # noqa: E731
+    base = NodeDescription(n(1), n(1), n(4), n(1), n(2), n(6), n(1), cpus_by_socket={0: [0, 1, 2, 3]},
+                           cpus_by_numa={0: [0, 2], 1: [1, 3]})
+    assert topology_from_node(base).cpu_domains == (0, 1, 0, 1)
+    odd = NodeDescription(n(1), n(1), n(4), n(1), n(2), n(6), n(1), cpus_by_socket={0: [0, 1, 2, 3]},
+                          cpus_by_numa={0: [0, 1, 2, 3]})
+    assert topology_from_node(odd).cpu_domains == (0, 0, 1, 1)

@@ -5,10 +5,9 @@
 per socket and DIMMs per channel must be known (set them in the ``[node]`` table where they cannot
 be detected); NUMA nodes per socket, threads per core and DIMMs per channel default to 1 when
 unknown, and the ranks are the DIMMs' when they all agree (else the memspec's). Each logical CPU's
-memory domain comes from the socket CPU lists sysfs gave; with SNC/NPS a socket's CPUs are split
-over its NUMA nodes by core, in order (the kernel's ``node*/cpulist`` is not kept in the
-description, and Intel and AMD both number a socket's cores so that its first half sits in its
-first cluster).
+memory domain comes from the socket CPU lists sysfs gave; with SNC/NPS from the kernel's NUMA node
+CPU lists (``node*/cpulist``), or, where those do not fit the counts (e.g. a ``[node]`` override),
+from a socket's cores split evenly over its NUMA nodes in order.
 
 Example:
     >>> from hdeem_watch.node.description import NodeDescription
@@ -26,16 +25,35 @@ from hdeem_watch.errors import InputError
 from hdeem_watch.node.description import NodeDescription
 
 
+def _numa_domains(node: NodeDescription, numa_per_socket: int) -> dict[int, int] | None:
+    """CPU → domain from the kernel's NUMA node CPU lists, when each node lies on one socket and
+    every socket has ``numa_per_socket`` of them (else None)."""
+    socket_of = {cpu: int(s) for s, cpus in node.cpus_by_socket.items() for cpu in cpus}
+    nodes_of: dict[int, list[int]] = {}
+    for numa, cpus in sorted(node.cpus_by_numa.items()):
+        sockets = {socket_of.get(c) for c in cpus}
+        if len(sockets) != 1 or None in sockets:
+            return None
+        nodes_of.setdefault(int(sockets.pop() or 0), []).append(numa)
+    if not nodes_of or any(len(v) != numa_per_socket for v in nodes_of.values()):
+        return None
+    return {cpu: socket * numa_per_socket + nodes.index(numa)
+            for socket, nodes in nodes_of.items() for numa in nodes for cpu in node.cpus_by_numa[numa]}
+
+
 def _cpu_domains(node: NodeDescription, cores_per_socket: int, numa_per_socket: int) -> tuple[int, ...]:
-    """Memory domain of each logical CPU (``-1``: no such CPU) from the socket CPU lists."""
+    """Memory domain of each logical CPU (``-1``: no such CPU): the kernel's NUMA CPU lists, else the
+    socket CPU lists with each socket's cores split evenly over its NUMA nodes."""
     if not node.cpus_by_socket:
         return ()
     highest = max((c for cpus in node.cpus_by_socket.values() for c in cpus), default=-1)
     domains = [-1] * (highest + 1)
+    by_numa = _numa_domains(node, numa_per_socket) if numa_per_socket > 1 else None
     for socket, cpus in node.cpus_by_socket.items():
         for position, cpu in enumerate(sorted(cpus)):
             core = position % cores_per_socket  # SMT siblings come after every core's first thread
-            domains[cpu] = int(socket) * numa_per_socket + core * numa_per_socket // cores_per_socket
+            default = int(socket) * numa_per_socket + core * numa_per_socket // cores_per_socket
+            domains[cpu] = by_numa.get(cpu, default) if by_numa is not None else default
     return tuple(domains)
 
 
