@@ -20,9 +20,12 @@ import concurrent.futures
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hdeem_watch.daemon.modelling import MAX_HISTORY, RunModeller, compact_fit
+
+if TYPE_CHECKING:
+    from hdeem_watch.dram.node import NodeTopology
 
 log = logging.getLogger("hdeem_watch.daemon")
 
@@ -118,7 +121,7 @@ class ModelSettings:
 
     memspec: str
     dimms: int = 8
-    topology: Any = None
+    topology: NodeTopology | None = None
     currents: Sequence[str] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
     half_life_s: float | None = None
     max_requests: int | None = None

@@ -35,12 +35,15 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from hdeem_watch.daemon.runs import NO_TRAFFIC_KERNELS
 from hdeem_watch.errors import InputError
+
+if TYPE_CHECKING:
+    from hdeem_watch.dram.node import NodeTopology
 
 #: Compact fit-history entries kept for the ``calib`` topic.
 MAX_HISTORY = 200
@@ -144,7 +147,7 @@ class RunModeller:
         memspec: str,
         *,
         dimms: int = 8,
-        topology: Any = None,
+        topology: NodeTopology | None = None,
         currents: Sequence[str] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w"),
         half_life_s: float | None = None,
         max_requests: int | None = None,
