@@ -264,9 +264,11 @@ class RunModeller:
         """Model a finished run, add it to the calibrator and refit.
 
         Returns:
-            ``(model, fit, error)``: ``model`` = ``{"memspec", "dimms", "groups", "datasheet_j",
-            "predicted_j", "calibrated_j" (= predicted_j: the fit before this run), "fitted_j" (after
-            the refit), "counts", "observation"}`` (None when the run cannot be modelled),
+            ``(model, fit, error)``: ``model`` = ``{"memspec", "dimms", "groups" (DIMMs per memory
+            domain), "placement" (:meth:`placement`: where the CPUs came from, threads and DIMMs per
+            domain, the topology), "datasheet_j", "predicted_j", "calibrated_j" (= predicted_j: the
+            fit before this run), "fitted_j" (after the refit), "counts", "observation"}`` (None
+            when the run cannot be modelled),
             ``fit`` = the refit's ``to_dict()`` (None without a refit) and ``error`` = why not.
         """
         if self.error is not None:
