@@ -110,3 +110,16 @@ def test_snc_domains_come_from_the_kernels_numa_cpu_lists() -> None:
     odd = NodeDescription(n(1), n(1), n(4), n(1), n(2), n(6), n(1), cpus_by_socket={0: [0, 1, 2, 3]},
                           cpus_by_numa={0: [0, 1, 2, 3]})
     assert topology_from_node(odd).cpu_domains == (0, 0, 1, 1)
+
+
+def test_the_node_report_says_what_the_model_makes_of_the_node(tmp_path: Path) -> None:
+    """``hdeem-watch node --json``'s ``model``: memory domains and DIMMs of the SNC fixture; on a node without
+    counts, the error naming the [node] keys."""
+    from hdeem_watch.node.report import node_report
+
+    view = node_report(fixture("skylake-sp-snc2"))["model"]
+    assert view["error"] is None
+    assert (view["memory_domains"], view["channels_per_domain"], view["dimms"]) == (4, 3, 12)
+    assert view["cpu_numbering"] == "sysfs"
+    empty = node_report(describe_node(tmp_path, None, "none"))
+    assert "set sockets" in empty["model"]["error"] and empty["cpus_by_numa"] == {}
