@@ -58,7 +58,8 @@ def daemon(tmp_path: Path) -> Iterator[str]:
 
 def test_runs_are_announced_to_a_real_daemon(daemon: str) -> None:
     """Each bench run becomes a daemon run with the same parameters, whose window encloses the
-    bench's measured window, with DRAM energy integrated over it; runs.list lists them."""
+    bench's measured window, with DRAM energy integrated over it, announced with the CPUs it was
+    pinned to (and modelled there); runs.list lists them."""
     proc = subprocess.run([sys.executable, "-m", "hdeem_watch", "bench", "--kernels", "triad,idle", "--threads",
                            "1", "--elements", "262144", "--repeat", "3", "--daemon", daemon, "--json"],
                           capture_output=True, text=True, timeout=120, env=_env())
@@ -72,6 +73,11 @@ def test_runs_are_announced_to_a_real_daemon(daemon: str) -> None:
             assert run[key] == record[key], key
         assert run["name"] == f"{record['kernel']}-1t"
         assert run["t_start_ns"] <= record["t_start_ns"] <= record["t_end_ns"] <= run["t_stop_ns"]
+        # where it ran: the CPUs the workers were pinned to, and the arrays' size; the daemon modelled it there
+        assert run["metadata"]["cpus"] == record["cpus"]
+        if record["kernel"] == "triad":
+            assert run["metadata"]["array_bytes"] == 2 * 262144 * 8  # a and b (c is the constant)
+        assert run["model"]["placement"]["cpus"] == "announced cpus", run["model"]
         dram = [v for k, v in run["energy_j"].items() if k.startswith("DDR_")]
         assert len(dram) == 4 and all(v is not None and math.isfinite(v) and v > 0 for v in dram)
     with ControlClient(daemon, timeout_s=5.0) as client:

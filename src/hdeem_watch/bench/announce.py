@@ -1,7 +1,8 @@
 """Announce benchmark runs to the node daemon (``run.start`` / ``run.stop`` on its control socket).
 
 The daemon integrates the DRAM energy over each announced window and refits its calibration when
-the run stops. An :class:`Announcer` gives the runner's ``on_start``/``on_stop`` hooks; a failing
+the run stops. ``run.start`` carries the CPUs the workers were pinned to and the arrays' size
+(``metadata.cpus``, ``metadata.array_bytes``), so the daemon models the run on the sockets it ran on. An :class:`Announcer` gives the runner's ``on_start``/``on_stop`` hooks; a failing
 daemon in the middle of a sweep turns announcing off (with a warning) instead of losing the sweep.
 A daemon that refuses ``run.start`` because another run is open (``conflict``: another bench, the
 TUI's baseline, a SLURM job's announcement) is asked again every ``retry_s`` for up to ``wait_s``
@@ -94,11 +95,24 @@ class Announcer:
         return result if isinstance(result, Mapping) else {}
 
     def start_args(self, spec: RunSpec) -> dict[str, Any]:
-        """Return the ``run.start`` arguments for ``spec``."""
+        """Return the ``run.start`` arguments for ``spec``.
+
+        A placed spec (:class:`~hdeem_watch.bench.runner.PlacedRunSpec`, what the runner passes)
+        adds ``metadata.cpus`` (the CPU of each worker) and ``metadata.array_bytes``: in the
+        metadata, which every daemon version stores, so older daemons keep accepting the call
+        and newer ones model the run on the sockets it ran on.
+        """
+        placement: dict[str, Any] = {}
+        cpus = getattr(spec, "cpus", ())
+        if cpus:
+            placement["cpus"] = [int(c) for c in cpus]
+        array_bytes = getattr(spec, "array_bytes", 0)
+        if array_bytes:
+            placement["array_bytes"] = int(array_bytes)
         return {"name": run_name(spec), "kernel": spec.kernel, "threads": spec.threads,
                 "elements": spec.elements, "repeat": spec.repeat,
                 "metadata": {"host": socket.gethostname(), "pid": os.getpid(), "tool": "hdeem-watch bench",
-                             **self.metadata}}
+                             **placement, **self.metadata}}
 
     def on_start(self, spec: RunSpec) -> dict[str, Any]:
         """Runner hook: announce the start; return ``{"run_id": ...}`` (empty if disabled)."""

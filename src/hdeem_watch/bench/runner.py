@@ -137,6 +137,22 @@ class RunResult:
 Hook = Callable[[RunSpec], Mapping[str, Any] | None]
 
 
+@dataclass(frozen=True)
+class PlacedRunSpec(RunSpec):
+    """A run as the ``on_start``/``on_stop`` hooks see it: the spec and where it was placed.
+
+    A :class:`RunSpec` (hooks that only want the spec keep working); the announcer sends the
+    placement to the daemon, which models the run on the sockets it really ran on.
+
+    Attributes:
+        cpus: the CPU each worker was pinned to, in worker order.
+        array_bytes: bytes of the run's arrays (all of them, all workers).
+    """
+
+    cpus: tuple[int, ...] = ()
+    array_bytes: int = 0
+
+
 def choose_cpus(threads: int, allowed: list[int] | None = None, *, oversubscribe: bool = False) -> list[int]:
     """Pick one CPU per worker from the allowed set (socket 0 and physical cores first).
 
@@ -193,7 +209,8 @@ def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None
         allowed: CPUs to use (default: :func:`hdeem_watch.slurm.allowed_cpus`, the affinity mask
             cut to the task's share inside a SLURM allocation).
         oversubscribe: allow more workers than CPUs (round-robin pinning).
-        on_start: called after the arrays are ready, just before the window opens; may return a
+        on_start: called with a :class:`PlacedRunSpec` (the spec, the CPUs pinned to, the array
+            bytes) after the arrays are ready, just before the window opens; may return a
             mapping stored in ``RunResult.announce`` (e.g. ``{"run_id": ...}``).
         on_stop: called just after the window closes; its mapping is merged into ``announce``.
         keep_arrays: return the arrays in the result (tests check the arithmetic).
@@ -225,14 +242,15 @@ def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None
     ranges = K.split_lines(lines, spec.threads)
     runner = _run_threads if backend == "thread" else _run_processes
     announce: dict[str, Any] = {}
+    placed = PlacedRunSpec(kernel, spec.threads, spec.elements, spec.repeat, cpus=tuple(cpus), array_bytes=needed)
 
     def start_hook() -> None:
         if on_start is not None:
-            announce.update(on_start(spec) or {})
+            announce.update(on_start(placed) or {})
 
     def stop_hook() -> None:
         if on_stop is not None:
-            announce.update(on_stop(spec) or {})
+            announce.update(on_stop(placed) or {})
 
     arrays, t0_ns, t1_ns, seconds, reports = runner(kernel, spec, cpus, ranges, start_hook, stop_hook,
                                                           keep_arrays, scratch_n)

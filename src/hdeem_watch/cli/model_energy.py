@@ -2,7 +2,7 @@
 
 Usage::
 
-    hdeem-watch model energy --memspec M.json --trace T.csv [--json]
+    hdeem-watch model energy --memspec M.json --trace T.csv [--allow-unphysical] [--json]
 
 ``--memspec`` takes a DRAMPower JSON memspec file or a preset name (``ddr4-2133-x8-4gb``,
 ``samsung-m393a1g43db0-cpb``). The default output is a table; ``--json`` prints one JSON object:
@@ -11,7 +11,9 @@ Usage::
 rd, wr, rda, wra, ref``) and ``cycles`` (``act, pre, pdna, pdnp, sref``) as lists indexed by rank,
 and ``ranks`` (per rank: ``rank``, ``core_j``, ``components``, ``counts``, ``cycles``,
 ``bank_active_cycles``). Bad input
-(memspec or trace) is one line on stderr and exit code 2.
+(memspec or trace) is one line on stderr and exit code 2; so is a memspec file whose currents give a
+negative per-command energy (:mod:`hdeem_watch.dram.memspec_check`), unless ``--allow-unphysical``
+is given (to study a fit's raw output; presets are always physical).
 """
 
 from __future__ import annotations
@@ -42,16 +44,30 @@ def register(subparsers: Any) -> None:
                              f"{', '.join(sorted(PRESETS))}")
     parser.add_argument("--trace", required=True, metavar="T.csv",
                         help="DRAMPower CLI command trace: cycle,CMD,rank,bankgroup,bank,row,column[,data]")
+    add_allow_unphysical(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     parser.set_defaults(func=run)
 
 
-def resolve_memspec(value: str) -> MemSpec:
+def add_allow_unphysical(parser: argparse.ArgumentParser) -> None:
+    """The ``--allow-unphysical`` flag of every ``model`` command that takes ``--memspec``."""
+    parser.add_argument("--allow-unphysical", action="store_true",
+                        help="load a memspec file whose currents give a negative per-command energy (e.g. IDD0 "
+                             "below the tRAS/tRC mix of IDD3N and IDD2N) instead of refusing it: for studying a "
+                             "fit's raw output")
+
+
+def resolve_memspec(value: str, *, allow_unphysical: bool = False) -> MemSpec:
     """A memspec file, or a preset by name (``NAME`` when no such file exists, or ``preset:NAME``,
     the spelling RUNS.json uses).
 
+    Args:
+        value: the ``--memspec`` argument.
+        allow_unphysical: load a file that fails the physical check (``--allow-unphysical``).
+
     Raises:
-        InputError: an unknown preset, a missing file, or a malformed memspec.
+        InputError: an unknown preset, a missing file, a malformed memspec, or (without
+            ``allow_unphysical``) an unphysical one.
     """
     from hdeem_watch.dram.memspec import memspec_from, preset
 
@@ -68,7 +84,7 @@ def resolve_memspec(value: str) -> MemSpec:
     if not path.exists() and text not in PRESETS and not (text.endswith(".json") or len(path.parts) > 1):
         raise InputError(f"--memspec {text!r}: no such file and no such preset; expected a DRAMPower JSON "
                          f"memspec or a preset: {known}")
-    return memspec_from(text)
+    return memspec_from(text, allow_unphysical=allow_unphysical)
 
 
 def report(spec: MemSpec, stats: CommandStats, energy: EnergyBreakdown, *, trace_path: str,
@@ -134,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     from hdeem_watch.dram.energy import core_energy
     from hdeem_watch.dram.trace_state import trace_stats
 
-    spec = resolve_memspec(args.memspec)
+    spec = resolve_memspec(args.memspec, allow_unphysical=args.allow_unphysical)
     trace = read_command_trace(args.trace)
     stats = trace_stats(spec, trace)
     energy = core_energy(spec, stats)

@@ -4,9 +4,10 @@ Usage::
 
     hdeem-watch model stats --trace FILE --format ramulator|ramulator2|pinatrace|lackey|drampower
                             --memspec M.json [--mapping SCHEME] [--xor-bank] [--policy open|closed]
-                            [--llc-bytes N --llc-ways W] [--emit-drampower OUT.csv] [--json]
+                            [--llc-bytes N --llc-ways W] [--emit-drampower OUT.csv] [--allow-unphysical] [--json]
     hdeem-watch model kernel --kernel NAME --elements N --threads T --memspec M.json
-                             [--repeat K] [--channels C] [--mapping SCHEME] [--policy P] [--json]
+                             [--repeat K] [--channels C] [--mapping SCHEME] [--policy P] [--allow-unphysical]
+                             [--json]
 
 ``stats`` runs a request trace through the controller model (``drampower``: reads a command trace
 directly); ``kernel`` models a STREAM-like kernel run. ``--json`` prints one object with
@@ -26,6 +27,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from hdeem_watch.cli.model_energy import add_allow_unphysical
 from hdeem_watch.cli.numbers import SPELLINGS, count_at_least
 from hdeem_watch.cli.progress import Progress
 from hdeem_watch.dram.kernels import KERNELS
@@ -37,10 +39,10 @@ from hdeem_watch.errors import InputError
 STATS_FORMATS = ("ramulator", "ramulator2", "pinatrace", "lackey", "drampower")
 
 
-def _spec(value: str) -> MemSpec:
+def _spec(value: str, allow_unphysical: bool = False) -> MemSpec:
     from hdeem_watch.cli.model_energy import resolve_memspec
 
-    return resolve_memspec(value)
+    return resolve_memspec(value, allow_unphysical=allow_unphysical)
 
 
 def register(subparsers: Any) -> None:
@@ -82,6 +84,7 @@ def _controller_options(parser: argparse.ArgumentParser) -> None:
                         help=f"address mapping, MSB to LSB (default RoBaRaCoCh; e.g. {', '.join(SCHEMES)})")
     parser.add_argument("--xor-bank", action="store_true", help="XOR bank hashing")
     parser.add_argument("--policy", choices=("open", "closed"), default="open", help="row-buffer policy")
+    add_allow_unphysical(parser)
 
 
 def _energy(spec: MemSpec, stats: CommandStats) -> dict[str, Any] | None:
@@ -126,7 +129,7 @@ def _print(data: dict[str, Any], as_json: bool) -> None:
 
 def run_stats(args: argparse.Namespace) -> int:
     """``model stats``."""
-    spec = _spec(args.memspec)
+    spec = _spec(args.memspec, args.allow_unphysical)
     progress = Progress(sys.stderr)
     try:
         data, stats = _trace_summary(spec, args, progress)
@@ -187,7 +190,7 @@ def run_kernel(args: argparse.Namespace) -> int:
     """``model kernel``."""
     from hdeem_watch.dram.kernels import canonical_kernel, kernel_stats
 
-    spec = _spec(args.memspec)
+    spec = _spec(args.memspec, args.allow_unphysical)
     name = canonical_kernel(args.kernel)
     model = kernel_stats(spec, name, args.elements, args.threads, repeat=args.repeat, channels=args.channels,
                          mapping=args.mapping, policy=args.policy, xor_bank=args.xor_bank)

@@ -20,9 +20,12 @@ import concurrent.futures
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hdeem_watch.daemon.modelling import MAX_HISTORY, RunModeller, compact_fit
+
+if TYPE_CHECKING:
+    from hdeem_watch.dram.node import NodeTopology
 
 log = logging.getLogger("hdeem_watch.daemon")
 
@@ -109,10 +112,16 @@ class Calibration:
 
 @dataclass(frozen=True)
 class ModelSettings:
-    """What the run modeller is built from (see :class:`~hdeem_watch.daemon.modelling.RunModeller`)."""
+    """What the run modeller is built from (see :class:`~hdeem_watch.daemon.modelling.RunModeller`).
+
+    ``topology`` is the node's :class:`~hdeem_watch.dram.node.NodeTopology`
+    (:func:`hdeem_watch.node.topology.topology_from_node` of the configured/detected node); None =
+    the legacy guess from ``dimms`` (the Taurus Haswell-EP blade for 8 DIMMs).
+    """
 
     memspec: str
     dimms: int = 8
+    topology: NodeTopology | None = None
     currents: Sequence[str] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
     half_life_s: float | None = None
     max_requests: int | None = None
@@ -146,9 +155,9 @@ def restore_calibration(calibration: Calibration, *, settings: ModelSettings,
                         "loading": True}
 
     def build() -> dict[str, Any]:
-        modeller = RunModeller(settings.memspec, dimms=settings.dimms, currents=settings.currents,
-                               half_life_s=settings.half_life_s or None, max_requests=settings.max_requests,
-                               state=state, history=history)
+        modeller = RunModeller(settings.memspec, dimms=settings.dimms, topology=settings.topology,
+                               currents=settings.currents, half_life_s=settings.half_life_s or None,
+                               max_requests=settings.max_requests, state=state, history=history)
         if modeller.restore_error:
             log.warning("calibrator state not restored: %s", modeller.restore_error)
         if modeller.error:

@@ -1,12 +1,16 @@
 """The model side of a finished run, and the embedded online calibrator.
 
 For a run of kernel K with T threads over N elements, repeated R times, the command statistics come
-from :func:`hdeem_watch.dram.node.node_run_stats` — the traffic split of the node (threads fill
-socket 0 first; each socket's threads load that socket's channels, with XOR bank hashing; a socket
-without threads is idle), the same function the simulated node uses. The calibration row is
-:func:`hdeem_watch.dram.node.node_observation`: per socket group
+from :func:`hdeem_watch.dram.node.node_run_stats` on the node's topology (a
+:class:`~hdeem_watch.dram.node.NodeTopology`, from the node description with
+:func:`hdeem_watch.node.topology.topology_from_node`; default the Taurus Haswell-EP blade): the
+traffic split of the node — each memory domain's threads load that domain's channels and DIMMs,
+with XOR bank hashing; a domain without threads is idle — the same function the simulated node
+uses. Where the threads ran: the CPU list the run announced (``metadata.cpus`` of ``run.start``,
+sent by ``hdeem-watch bench``), else threads fill socket 0 first. The calibration row is
+:func:`hdeem_watch.calibrate.rows.node_observation`: per domain
 :func:`hdeem_watch.calibrate.observation_from_run` (background residency and refresh stretched to the
-measured window, scaled by the group's DIMMs), summed, against the node's total measured DRAM
+measured window, scaled by the domain's DIMMs), summed, against the node's total measured DRAM
 energy. An idle run is a row with no commands. The row is added to the
 :class:`~hdeem_watch.calibrate.OnlineCalibrator`, which refits.
 
@@ -31,12 +35,15 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from hdeem_watch.daemon.runs import NO_TRAFFIC_KERNELS
 from hdeem_watch.errors import InputError
+
+if TYPE_CHECKING:
+    from hdeem_watch.dram.node import NodeTopology
 
 #: Compact fit-history entries kept for the ``calib`` topic.
 MAX_HISTORY = 200
@@ -51,6 +58,31 @@ MAX_CALIBRATOR_HISTORY = 32
 MAX_PLAUSIBLE_DIMM_W = 50.0
 
 
+def announced_cpus(record: Mapping[str, Any]) -> tuple[tuple[int, ...] | None, str]:
+    """The CPU list a run announced (``metadata.cpus``), and where the placement comes from.
+
+    A list that is not one non-negative integer per thread is ignored (with the reason), so a run
+    is never modelled on a made-up placement.
+
+    Example:
+        >>> announced_cpus({"threads": 2, "metadata": {"cpus": [28, 29]}})
+        ((28, 29), 'announced cpus')
+        >>> announced_cpus({"threads": 2, "metadata": {}})[1]
+        'default: no cpus announced; threads fill socket 0 first'
+    """
+    metadata = record.get("metadata")
+    cpus = metadata.get("cpus") if isinstance(metadata, Mapping) else None
+    if cpus is None:
+        return None, "default: no cpus announced; threads fill socket 0 first"
+    threads = record.get("threads")
+    ok = (isinstance(cpus, list | tuple) and all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in cpus)
+          and len(cpus) == threads)
+    if not ok:
+        return None, (f"default: metadata.cpus {str(cpus)[:80]!r} is not one CPU per thread ({threads!r}); "
+                      "threads fill socket 0 first")
+    return tuple(int(c) for c in cpus), "announced cpus"
+
+
 def load_spec(memspec: str) -> Any:
     """A preset by name, or a DRAMPower JSON file.
 
@@ -60,6 +92,15 @@ def load_spec(memspec: str) -> Any:
     from hdeem_watch.dram.memspec import memspec_from
 
     return memspec_from(memspec)
+
+
+def with_ranks(spec: Any, ranks: int | None) -> Any:
+    """``spec`` with ``ranks`` ranks per DIMM (the node's DIMMs), unchanged when ``ranks`` is None."""
+    if ranks is None or int(ranks) == int(spec.nbr_of_ranks):
+        return spec
+    import dataclasses
+
+    return dataclasses.replace(spec, nbr_of_ranks=int(ranks))
 
 
 def idle_stats(spec: Any) -> Any:
@@ -87,7 +128,10 @@ class RunModeller:
 
     Args:
         memspec: preset name or memspec file of one DIMM.
-        dimms: DIMMs the node's DRAM channels cover.
+        dimms: DIMMs the node's DRAM channels cover (used only without ``topology``: the legacy
+            guess :func:`~hdeem_watch.dram.node.topology_for`).
+        topology: the node (:func:`hdeem_watch.node.topology.topology_from_node`); its DIMM
+            count replaces ``dimms``, its ranks per DIMM (when known) the memspec's.
         currents: currents to calibrate.
         half_life_s: forgetting half-life (0 or None = never forget).
         max_requests: prefix size of the kernel model (None = its default).
@@ -103,6 +147,7 @@ class RunModeller:
         memspec: str,
         *,
         dimms: int = 8,
+        topology: NodeTopology | None = None,
         currents: Sequence[str] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w"),
         half_life_s: float | None = None,
         max_requests: int | None = None,
@@ -110,7 +155,7 @@ class RunModeller:
         history: Sequence[Mapping[str, Any]] = (),
     ) -> None:
         self.memspec = memspec
-        self.dimms = int(dimms)
+        self.dimms = int(topology.dimms) if topology is not None else int(dimms)
         self.currents = tuple(currents)
         self.half_life_s = half_life_s if half_life_s else None
         self.max_requests = max_requests
@@ -120,7 +165,7 @@ class RunModeller:
         self.calibrator: Any = None
         self.history: list[dict[str, Any]] = [dict(h) for h in history][-MAX_HISTORY:]
         try:
-            self.spec = load_spec(memspec)
+            self.spec = with_ranks(load_spec(memspec), getattr(topology, "ranks_per_dimm", None))
             from hdeem_watch.calibrate import OnlineCalibrator
 
             if state:
@@ -143,32 +188,56 @@ class RunModeller:
             self.error = f"model not available: {error}"
         except InputError as error:
             self.error = str(error)
-        self.topology: Any = None
+        self.topology: Any = topology
         self._candidates: dict[str, Any] = {}
-        if self.error is None:
+        if self.error is None and self.topology is None:
             from hdeem_watch.dram.node import topology_for
 
             self.topology = topology_for(self.dimms)
         self._stats_cache = functools.lru_cache(maxsize=64)(self._kernel_stats)
 
-    def _kernel_stats(self, kernel: str, elements: int, threads: int, repeat: int) -> Any:
+    def _kernel_stats(self, kernel: str, elements: int, threads: int, repeat: int,
+                      cpus: tuple[int, ...] | None) -> Any:
         from hdeem_watch.dram.node import node_run_stats
 
-        return tuple(node_run_stats(self.spec, kernel, elements, threads, repeat, self.topology,
+        return tuple(node_run_stats(self.spec, kernel, elements, threads, repeat, self.topology, cpus=cpus,
                                     max_requests=self.max_requests))
 
-    def groups_for(self, kernel: str, elements: int, threads: int, repeat: int) -> list[tuple[Any, int]]:
-        """Per socket, the modelled statistics of one of its DIMMs and how many DIMMs it has (cached;
-        idle kernels and idle sockets have no commands)."""
+    def groups_for(self, kernel: str, elements: int, threads: int, repeat: int,
+                   cpus: Sequence[int] | None = None) -> list[tuple[Any, int]]:
+        """Per memory domain (socket, or NUMA node under SNC), the modelled statistics of one of its
+        DIMMs and how many DIMMs it has (cached; idle kernels and idle domains have no commands).
+
+        Args:
+            kernel, elements, threads, repeat: the run.
+            cpus: the CPUs its threads were pinned to (None: threads fill socket 0 first).
+
+        Raises:
+            InputError: a CPU the node does not have, an unknown kernel.
+        """
         if kernel in NO_TRAFFIC_KERNELS or elements == 0:
             from hdeem_watch.dram.node import idle_channel_stats
 
-            return [(idle_channel_stats(self.spec), self.dimms)]
-        return list(self._stats_cache(kernel, int(elements), int(threads), int(repeat)))
+            idle = idle_channel_stats(self.spec)
+            return [(idle, self.topology.dimms_per_domain)] * self.topology.domains
+        return list(self._stats_cache(kernel, int(elements), int(threads), int(repeat),
+                                      None if cpus is None else tuple(int(c) for c in cpus)))
 
     def stats_for(self, kernel: str, elements: int, threads: int, repeat: int) -> Any:
         """Modelled statistics of one DIMM of socket 0 for a run (see :meth:`groups_for`)."""
         return self.groups_for(kernel, elements, threads, repeat)[0][0]
+
+    def placement(self, threads: int, cpus: Sequence[int] | None, source: str) -> dict[str, Any]:
+        """The ``model.placement`` entry: threads and DIMMs per memory domain, and where the CPUs came from."""
+        topo = self.topology
+        per_domain = topo.domain_threads(threads, cpus)
+        return {"cpus": source, "domains": [
+            {"socket": topo.socket_of_domain(d), "numa_node": d % topo.numa_nodes_per_socket, "threads": n,
+             "dimms": topo.dimms_per_domain} for d, n in enumerate(per_domain)],
+            "topology": {"sockets": topo.sockets, "cores_per_socket": topo.cores_per_socket,
+                         "numa_nodes_per_socket": topo.numa_nodes_per_socket,
+                         "channels_per_socket": topo.channels_per_socket,
+                         "dimms_per_channel": topo.dimms_per_channel, "ranks_per_dimm": int(self.spec.nbr_of_ranks)}}
 
     def latest_fit(self) -> dict[str, Any] | None:
         """``FitResult.to_dict()`` of the latest fit, or None."""
@@ -195,9 +264,11 @@ class RunModeller:
         """Model a finished run, add it to the calibrator and refit.
 
         Returns:
-            ``(model, fit, error)``: ``model`` = ``{"memspec", "dimms", "groups", "datasheet_j",
-            "predicted_j", "calibrated_j" (= predicted_j: the fit before this run), "fitted_j" (after
-            the refit), "counts", "observation"}`` (None when the run cannot be modelled),
+            ``(model, fit, error)``: ``model`` = ``{"memspec", "dimms", "groups" (DIMMs per memory
+            domain), "placement" (:meth:`placement`: where the CPUs came from, threads and DIMMs per
+            domain, the topology), "datasheet_j", "predicted_j", "calibrated_j" (= predicted_j: the
+            fit before this run), "fitted_j" (after the refit), "counts", "observation"}`` (None
+            when the run cannot be modelled),
             ``fit`` = the refit's ``to_dict()`` (None without a refit) and ``error`` = why not.
         """
         if self.error is not None:
@@ -215,9 +286,17 @@ class RunModeller:
         from hdeem_watch.calibrate.rows import node_observation
         from hdeem_watch.dram.node import node_counts
 
+        cpus, cpus_source = announced_cpus(record)
         try:
-            groups = self.groups_for(str(record["kernel"]), int(record["elements"]), int(record["threads"]),
-                                     int(record["repeat"]))
+            try:
+                groups = self.groups_for(str(record["kernel"]), int(record["elements"]), int(record["threads"]),
+                                         int(record["repeat"]), cpus)
+            except InputError as error:  # an announced CPU this node does not have: say so, model the default
+                if cpus is None:
+                    raise
+                cpus, cpus_source = None, f"default: {error}; threads fill socket 0 first"
+                groups = self.groups_for(str(record["kernel"]), int(record["elements"]), int(record["threads"]),
+                                         int(record["repeat"]))
             obs = node_observation(self.spec, groups, float(window_s), float(measured),
                                    name=f"{record.get('run_id')}:{name}", time_ns=int(record.get("t_stop_ns") or 0))
         except InputError as error:
@@ -228,6 +307,7 @@ class RunModeller:
             "memspec": getattr(self.spec, "memory_id", self.memspec),
             "dimms": self.dimms,
             "groups": [n for _stats, n in groups],
+            "placement": self.placement(int(record["threads"]), cpus, cpus_source),
             "datasheet_j": obs.predicted_j(datasheet_vec),
             "predicted_j": None,
             "calibrated_j": None,

@@ -56,6 +56,7 @@ class CpuTopology:
         numa_nodes_per_socket: NUMA nodes per socket (> 1: SNC on Intel, NPS on AMD).
         cpus_by_socket: logical CPUs of each socket (empty when unknown).
         numa_by_socket: NUMA node ids of each socket.
+        cpus_by_numa: logical CPUs of each NUMA node (``node*/cpulist``; empty when unknown).
     """
 
     sockets: Fact[int]
@@ -65,6 +66,7 @@ class CpuTopology:
     numa_nodes_per_socket: Fact[int]
     cpus_by_socket: dict[int, list[int]] = field(default_factory=dict)
     numa_by_socket: dict[int, list[int]] = field(default_factory=dict)
+    cpus_by_numa: dict[int, list[int]] = field(default_factory=dict)
 
 
 def _uniform(counts: list[int], what: str, source: str) -> Fact[int]:
@@ -106,7 +108,8 @@ def read_cpu_topology(root: Path = SYSFS_ROOT) -> CpuTopology:
     if not package:
         why = "no devices/system/cpu/cpu*/topology (not Linux, or sysfs not mounted)"
         unknown: Fact[int] = Fact.unknown(why)
-        return CpuTopology(unknown, unknown, unknown, unknown, _numa(root, {})[0])
+        numa_fact, _by_socket, cpus_by_numa = _numa(root, {})
+        return CpuTopology(unknown, unknown, unknown, unknown, numa_fact, cpus_by_numa=cpus_by_numa)
     by_socket: dict[int, list[int]] = defaultdict(list)
     for cpu, socket in sorted(package.items()):
         by_socket[socket].append(cpu)
@@ -114,7 +117,7 @@ def read_cpu_topology(root: Path = SYSFS_ROOT) -> CpuTopology:
     threads = [len(cs) // max(1, cores_by_socket[s]) for s, cs in by_socket.items()]
     die_fact = _uniform([len(d) for d in dies.values()], "dies", f"{source}/die_id") if has_die else \
         Fact(1, f"{source} (no die_id: kernel < 5.2; one die per package assumed)")
-    numa_fact, numa_by_socket = _numa(root, package)
+    numa_fact, numa_by_socket, cpus_by_numa = _numa(root, package)
     return CpuTopology(
         sockets=Fact(len(by_socket), f"{source}/physical_package_id"),
         dies_per_socket=die_fact,
@@ -123,25 +126,30 @@ def read_cpu_topology(root: Path = SYSFS_ROOT) -> CpuTopology:
         numa_nodes_per_socket=numa_fact,
         cpus_by_socket=dict(by_socket),
         numa_by_socket=numa_by_socket,
+        cpus_by_numa=cpus_by_numa,
     )
 
 
-def _numa(root: Path, package: dict[int, int]) -> tuple[Fact[int], dict[int, list[int]]]:
-    """NUMA nodes per socket from ``node/node*/cpulist`` and the CPUs' packages."""
+def _numa(root: Path, package: dict[int, int]) -> tuple[Fact[int], dict[int, list[int]], dict[int, list[int]]]:
+    """NUMA nodes per socket from ``node/node*/cpulist`` and the CPUs' packages; the NUMA nodes of
+    each socket; the CPUs of each NUMA node."""
     node_dir = root / "devices" / "system" / "node"
     source = "sysfs: devices/system/node/node*/cpulist"
     nodes = sorted(int(m.group(1)) for p in node_dir.glob("node[0-9]*") if (m := re.fullmatch(r"node(\d+)", p.name)))
     if not nodes:
-        return Fact.unknown("no devices/system/node/node* (kernel without NUMA)"), {}
+        return Fact.unknown("no devices/system/node/node* (kernel without NUMA)"), {}, {}
     by_socket: dict[int, list[int]] = defaultdict(list)
+    cpus_by_numa: dict[int, list[int]] = {}
     for node in nodes:
         text = _read(node_dir / f"node{node}" / "cpulist")
         cpus = parse_cpu_list(text) if text else []
+        if cpus:
+            cpus_by_numa[node] = cpus
         sockets = {package[c] for c in cpus if c in package}
         if len(sockets) == 1:
             by_socket[sockets.pop()].append(node)
     if not by_socket:
         if len(nodes) == 1:
-            return Fact(1, source), {}
-        return Fact.unknown(f"{len(nodes)} NUMA nodes, none mapped to one socket (memory-only nodes?)"), {}
-    return _uniform([len(v) for v in by_socket.values()], "NUMA nodes", source), dict(by_socket)
+            return Fact(1, source), {}, cpus_by_numa
+        return Fact.unknown(f"{len(nodes)} NUMA nodes, none mapped to one socket (memory-only nodes?)"), {}, cpus_by_numa
+    return _uniform([len(v) for v in by_socket.values()], "NUMA nodes", source), dict(by_socket), cpus_by_numa

@@ -87,6 +87,7 @@ class NodeDescription:
         dimms: the installed DIMMs.
         cpus_by_socket: logical CPUs of each socket.
         notes: what could not be detected, and why (one line each).
+        cpus_by_numa: logical CPUs of each NUMA node (sysfs ``node*/cpulist``).
     """
 
     sockets: Fact[int]
@@ -99,6 +100,7 @@ class NodeDescription:
     dimms: tuple[Dimm, ...] = ()
     cpus_by_socket: dict[int, list[int]] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    cpus_by_numa: dict[int, list[int]] = field(default_factory=dict)
 
     def channel_letter(self, dimm: Dimm) -> str | None:
         """The node-wide channel letter of ``dimm`` (socket 0: A, B, ...; socket 1 continues)."""
@@ -308,4 +310,4 @@ def describe_node(sysfs_root: Path, dmidecode_text: str | None, dmidecode_note: 
         sockets=cpu.sockets, dies_per_socket=cpu.dies_per_socket, cores_per_socket=cpu.cores_per_socket,
         threads_per_core=cpu.threads_per_core, numa_nodes_per_socket=cpu.numa_nodes_per_socket,
         channels_per_socket=channels, dimms_per_channel=_dimms_per_channel(dimms), dimms=tuple(dimms),
-        cpus_by_socket=cpu.cpus_by_socket, notes=tuple(notes))
+        cpus_by_socket=cpu.cpus_by_socket, notes=tuple(notes), cpus_by_numa=cpu.cpus_by_numa)

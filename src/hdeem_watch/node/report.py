@@ -1,4 +1,5 @@
-"""The node report behind ``hdeem-watch node``: description, memspec choice and sensor map as JSON.
+"""The node report behind ``hdeem-watch node``: description, memspec choice, sensor map and what the
+run model makes of the node (``model``: memory domains, DIMMs) as JSON.
 
 Example:
     >>> from pathlib import Path
@@ -11,10 +12,12 @@ from __future__ import annotations
 
 from typing import Any
 
+from hdeem_watch.errors import InputError
 from hdeem_watch.node.description import NodeDescription, describe_node
 from hdeem_watch.node.memspec_choice import MemspecChoice, choose_memspec
 from hdeem_watch.node.overrides import NodeOverrides
 from hdeem_watch.node.sensors import sensor_map
+from hdeem_watch.node.topology import topology_from_node
 
 __all__ = ["describe_node", "node_report"]
 
@@ -40,5 +43,20 @@ def node_report(node: NodeDescription, overrides: NodeOverrides | None = None) -
     out["dimms"] = [d.to_json(node.channel_letter(d)) for d in node.dimms]
     out["memspec"] = choice.to_json()
     out["sensors"] = sensors
+    out["cpus_by_numa"] = {str(n): cpus for n, cpus in sorted(node.cpus_by_numa.items())}
+    out["model"] = model_view(node)
     out["notes"] = list(node.notes)
     return out
+
+
+def model_view(node: NodeDescription) -> dict[str, Any]:
+    """What the daemon's run model makes of the node (``model`` in ``--json``): its memory domains
+    (NUMA nodes) with their channels and DIMMs, or why it cannot model it (``error``)."""
+    try:
+        topo = topology_from_node(node)
+    except InputError as error:
+        return {"error": str(error)}
+    return {"error": None, "sockets": topo.sockets, "memory_domains": topo.domains,
+            "channels_per_domain": topo.channels_per_domain, "dimms_per_channel": topo.dimms_per_channel,
+            "dimms": topo.dimms, "ranks_per_dimm": topo.ranks_per_dimm,
+            "cpu_numbering": "sysfs" if topo.cpu_domains else "default (CPU i on socket (i // cores) % sockets)"}
