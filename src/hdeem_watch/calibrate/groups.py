@@ -192,15 +192,18 @@ class GroupCalibrators:
         nominal_rate_hz: samples per second assumed when a run does not say how many it had.
         calibrator: keyword arguments of every :class:`OnlineCalibrator` (currents, half_life_s, ...).
         cusum: keyword arguments of every :class:`~hdeem_watch.calibrate.drift.ResidualCusum`.
-        detect_after: a group's residuals feed its detector once its fit has this many runs
-            (default: twice the unknowns).
+        detect_after: a group's residuals feed its detector, and its currents the sibling
+            comparison, once its fit has this many runs (default: twice the unknowns).
         sibling_tolerance: see :func:`~hdeem_watch.calibrate.drift.sibling_outliers`.
+        node_detector: run a residual CUSUM on the node fit too. Off by default: the node has no
+            siblings to difference against, so what the model leaves out stays in its residuals
+            (it raised most false alarms in the benchmark); the groups' detectors name the pair.
     """
 
     def __init__(self, spec: MemSpec, groups: Sequence[SensorGroup], *, min_samples: int = DEFAULT_MIN_SAMPLES,
                  nominal_rate_hz: float = 100.0, calibrator: Mapping[str, Any] | None = None,
                  cusum: Mapping[str, Any] | None = None, detect_after: int | None = None,
-                 sibling_tolerance: float = 0.25) -> None:
+                 sibling_tolerance: float = 0.25, node_detector: bool = False) -> None:
         if not groups:
             raise InputError("groups: no sensor groups to calibrate")
         names = [g.name for g in groups]
@@ -215,6 +218,7 @@ class GroupCalibrators:
         self.calibrator_options = dict(calibrator or {})
         self.cusum_options = dict(cusum or {})
         self.sibling_tolerance = float(sibling_tolerance)
+        self.node_detector = bool(node_detector)
         self.calibrators = {name: OnlineCalibrator(spec, **self.calibrator_options) for name in [*names, NODE]}
         unknowns = len(self.calibrators[NODE].currents) + int(self.calibrators[NODE].intercept)
         self.detect_after = 2 * unknowns if detect_after is None else int(detect_after)
@@ -278,11 +282,13 @@ class GroupCalibrators:
         against = sibling_residuals({g: r for g, r in residuals.items() if g != NODE})
         if NODE in residuals:
             against[NODE] = residuals[NODE]
+        if not self.node_detector:
+            against.pop(NODE, None)
         alarms = [a for g, d in against.items() if (a := self.detectors[g].update(d, run.time_ns)) is not None]
         fits = {name: self.calibrators[name].add_run(obs) for name, obs in rows.items()}
         if fits:
             per_group = {g: identifiable_currents(c.latest) for g, c in self.calibrators.items()
-                         if g != NODE and c.latest is not None}
+                         if g != NODE and c.latest is not None and len(c.observations) >= self.detect_after}
             for alarm in sibling_outliers(per_group, time_ns=run.time_ns, tolerance=self.sibling_tolerance):
                 key = (alarm.group, alarm.current, alarm.kind)
                 if key not in self._raised:
@@ -342,6 +348,7 @@ class GroupCalibrators:
             "groups": {name: list(g.dimms_per_socket) for name, g in self.groups.items()},
             "min_samples": self.min_samples, "nominal_rate_hz": self.nominal_rate_hz,
             "detect_after": self.detect_after, "sibling_tolerance": self.sibling_tolerance,
+            "node_detector": self.node_detector,
             "cusum": self.cusum_options,
             "calibrators": {name: c.to_dict() for name, c in self.calibrators.items()},
             "detectors": {name: d.to_dict() for name, d in self.detectors.items()},
@@ -363,7 +370,8 @@ class GroupCalibrators:
             groups = [SensorGroup(n, tuple(int(k) for k in v)) for n, v in data["groups"].items()]
             out = cls(spec, groups, min_samples=int(data["min_samples"]),
                       nominal_rate_hz=float(data["nominal_rate_hz"]), cusum=data.get("cusum") or {},
-                      detect_after=int(data["detect_after"]), sibling_tolerance=float(data["sibling_tolerance"]))
+                      detect_after=int(data["detect_after"]), sibling_tolerance=float(data["sibling_tolerance"]),
+                      node_detector=bool(data.get("node_detector", False)))
             out.calibrators = {n: OnlineCalibrator.from_dict(s, spec) for n, s in data["calibrators"].items()}
             out.detectors = {n: ResidualCusum.from_dict(n, s) for n, s in data["detectors"].items()}
             out.alarms = [DriftAlarm(**a) for a in data.get("alarms", [])]
