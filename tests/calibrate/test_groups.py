@@ -168,3 +168,22 @@ def test_body_is_json_and_state_round_trips(spec: Any, planned: list[Any]) -> No
     assert again.body()["groups"]["DDR_AB"]["runs"] == 0 and again.body()["groups"]["DDR_CD"]["runs"] == 8
     with pytest.raises(InputError, match="unknown group 'DDR_XY'"):
         again.reset("DDR_XY")
+
+
+def test_a_daemon_record_becomes_a_measured_run(spec: Any, planned: list[Any]) -> None:
+    """A run record's per-channel energies and window (with the sensors' rates) make the groups'
+    input; a 10 ms record is skipped with the reason, a 2 s one fitted."""
+    from hdeem_watch.calibrate.groups import measured_run, unmeasured_reason
+
+    rates = {"DDR_AB": 100.0, "DDR_CD": 100.0, "DDR_EF": 100.0, "DDR_GH": 100.0}
+    calib = GroupCalibrators(spec, NODE_SIM.sensor_groups())
+    for window, fitted in ((0.01, False), (2.0, True)):
+        record = {"run_id": "r1", "name": "triad", "t_stop_ns": 5, "window_s": window,
+                  "energy_j": {"BLADE": 900.0 * window, "DDR_AB": 5.0 * window, "DDR_CD": 5.1 * window,
+                               "DDR_EF": 4.0 * window, "DDR_GH": None}}
+        run = measured_run(record, planned[2].socket_stats, rates)
+        assert run.name == "r1:triad" and run.samples is not None and run.samples["DDR_AB"] == int(window * 100)
+        update = calib.add_run(run)
+        assert ("DDR_AB" in update.fits) is fitted
+        assert any("no measured energy of DDR_GH (nan)" in s.reason for s in update.skipped)
+    assert unmeasured_reason("r", "DDR_AB", 1.0, 100, 1.0) is None

@@ -137,6 +137,40 @@ def _summed(rows: Sequence[Observation], measured_j: float) -> Observation:
                        time_ns=first.time_ns, weight=first.weight, window_s=first.window_s)
 
 
+def unmeasured_reason(run: str, sensor: str, energy_j: float | None, samples: int, window_s: float,
+                      min_samples: int = DEFAULT_MIN_SAMPLES) -> str | None:
+    """Why a run cannot calibrate ``sensor`` (None: it can) — the guard rail, usable on its own.
+
+    Example:
+        >>> unmeasured_reason("r3:triad", "DDR_AB", 0.05, 1, 0.01)
+        "run 'r3:triad': 1 samples of DDR_AB in 0.01 s; at least 100 are needed to measure a run (run it longer)"
+    """
+    if energy_j is None or not math.isfinite(energy_j) or energy_j <= 0:
+        return f"run {run!r}: no measured energy of {sensor} ({energy_j!r})"
+    if samples < min_samples:
+        return (f"run {run!r}: {samples} samples of {sensor} in {window_s:.3g} s; at least "
+                f"{min_samples} are needed to measure a run (run it longer)")
+    return None
+
+
+def measured_run(record: Mapping[str, Any], socket_stats: Sequence[tuple[CommandStats, int]],
+                 rates_hz: Mapping[str, float]) -> MeasuredRun:
+    """The :class:`MeasuredRun` of a daemon run record (``hdeem_watch.daemon.runs.RunRecord.to_dict()``
+    form: ``run_id``, ``name``, ``t_stop_ns``, ``window_s``, ``energy_j`` per channel).
+
+    Args:
+        record: the finished run's record.
+        socket_stats: the run's model (:func:`hdeem_watch.dram.node.node_run_stats`).
+        rates_hz: each sensor's sample rate; the samples in the window are ``window_s × rate``.
+    """
+    window = float(record.get("window_s") or 0.0)
+    energies = {str(k): (math.nan if v is None else float(v)) for k, v in (record.get("energy_j") or {}).items()}
+    return MeasuredRun(name=f"{record.get('run_id')}:{record.get('name') or record.get('kernel')}",
+                       time_ns=int(record.get("t_stop_ns") or 0), window_s=window, socket_stats=tuple(socket_stats),
+                       energy_j=energies,
+                       samples={c: math.floor(window * float(r) + 1e-9) for c, r in rates_hz.items()})
+
+
 @dataclass(frozen=True)
 class MeasuredRun:
     """A finished run as the groups see it.
@@ -233,14 +267,8 @@ class GroupCalibrators:
         return math.floor(run.window_s * self.nominal_rate_hz + 1e-9)
 
     def _why_not(self, run: MeasuredRun, group: SensorGroup) -> str | None:
-        energy = run.energy_j.get(group.name)
-        if energy is None or not math.isfinite(energy) or energy <= 0:
-            return f"run {run.name!r}: no measured energy of {group.name} ({energy!r})"
-        samples = self._samples(run, group.name)
-        if samples < self.min_samples:
-            return (f"run {run.name!r}: {samples} samples of {group.name} in {run.window_s:.3g} s; at least "
-                    f"{self.min_samples} are needed to measure a run (run it longer)")
-        return None
+        return unmeasured_reason(run.name, group.name, run.energy_j.get(group.name), self._samples(run, group.name),
+                                 run.window_s, self.min_samples)
 
     def predicted_j(self, group: str, obs: Observation) -> float:
         """``obs`` predicted by ``group``'s latest fit (NaN without one)."""
