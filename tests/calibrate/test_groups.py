@@ -187,3 +187,15 @@ def test_a_daemon_record_becomes_a_measured_run(spec: Any, planned: list[Any]) -
         assert ("DDR_AB" in update.fits) is fitted
         assert any("no measured energy of DDR_GH (nan)" in s.reason for s in update.skipped)
     assert unmeasured_reason("r", "DDR_AB", 1.0, 100, 1.0) is None
+
+
+def test_one_model_for_the_whole_node_stands_for_every_socket(spec: Any) -> None:
+    """The daemon models an idle run as ONE channel's statistics for all DIMMs: each group's row is
+    then that row × its DIMMs."""
+    from hdeem_watch.calibrate.rows import observation_from_run
+    from hdeem_watch.dram.node import idle_channel_stats
+
+    idle = idle_channel_stats(spec)
+    row = group_observation(spec, [(idle, 8)], SensorGroup("DDR_EF", (0, 2)), 3.0, 4.0)
+    single = observation_from_run(spec, idle, 3.0, 4.0)
+    assert np.allclose(row.columns, 2 * single.columns)

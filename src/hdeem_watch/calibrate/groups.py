@@ -116,11 +116,14 @@ def sensor_groups(sensors: Mapping[str, Sequence[str]], dimm_socket: Mapping[str
 def group_observation(spec: MemSpec, socket_stats: Sequence[tuple[CommandStats, int]], group: SensorGroup,
                       window_s: float, measured_j: float, *, name: str = "run", time_ns: int = 0) -> Observation:
     """ONE calibration row of ``group``: each socket's one-channel row times the group's DIMMs on
-    that socket, summed, against the group's measured energy.
+    that socket, summed, against the group's measured energy. A model of one entry (the daemon's
+    shortcut for idle runs: one channel's statistics for every DIMM) stands for every socket.
 
     Raises:
         InputError: the group names more sockets than the model has, or a bad window/energy.
     """
+    if len(socket_stats) == 1 and len(group.dimms_per_socket) > 1:  # one model for the whole node (idle runs)
+        socket_stats = [socket_stats[0]] * len(group.dimms_per_socket)
     if len(group.dimms_per_socket) > len(socket_stats):
         raise InputError(f"group {group.name}: {len(group.dimms_per_socket)} sockets; the model has {len(socket_stats)}")
     rows = [observation_from_run(spec, stats, window_s, measured_j, scale=float(k), name=name, time_ns=time_ns)
