@@ -199,3 +199,22 @@ def test_one_model_for_the_whole_node_stands_for_every_socket(spec: Any) -> None
     row = group_observation(spec, [(idle, 8)], SensorGroup("DDR_EF", (0, 2)), 3.0, 4.0)
     single = observation_from_run(spec, idle, 3.0, 4.0)
     assert np.allclose(row.columns, 2 * single.columns)
+
+
+def test_calib_show_reads_the_group_shape(spec: Any, planned: list[Any]) -> None:
+    """``hdeem-watch calib show`` reads the body of a daemon with groups: node first, then each group;
+    --group picks one, an unknown one is a one-line error listing the groups; alarms are printed."""
+    from hdeem_watch.cli.calib import _select, fits_of, format_fits
+
+    node = NODE_SIM.SyntheticNode(spec, 4, planned=planned)
+    node.truth["DDR_GH"] = {n: v * 1.6 for n, v in node.truth["DDR_GH"].items()}
+    calib = GroupCalibrators(spec, NODE_SIM.sensor_groups())
+    for i in range(28):
+        calib.add_run(node.run(config=i % len(planned)))
+    body = json.loads(json.dumps(calib.body(), allow_nan=False))
+    fits = fits_of(body)
+    assert list(fits) == ["node", "DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"]
+    text = format_fits(_select(fits, "DDR_GH"), [a for a in body["alarms"] if a["group"] == "DDR_GH"], [])
+    assert text.startswith("DDR_GH: 28 runs") and "ALARM DDR_GH" in text and "sibling" in text
+    with pytest.raises(InputError, match="--group DDR_XY: unknown group; this daemon has node, DDR_AB"):
+        _select(fits, "DDR_XY")
