@@ -85,10 +85,12 @@ class SyntheticNode:
         aging: group → relative change of its currents per sim hour.
         age_start_s: sim time the aging starts.
         misspecified: False = measurements are exactly the model (plus noise).
+        noise: False = no run noise and no quantisation (for the effective truth: what the
+            model's currents converge to on these measurements).
     """
 
     def __init__(self, spec: Any, seed: int, *, aging: dict[str, float] | None = None, age_start_s: float = 0.0,
-                 misspecified: bool = True, planned: list[Planned] | None = None) -> None:
+                 misspecified: bool = True, planned: list[Planned] | None = None, noise: bool = True) -> None:
         self.spec = spec
         self.rng = np.random.default_rng(seed)
         self.planned = planned if planned is not None else plan(spec)
@@ -99,6 +101,7 @@ class SyntheticNode:
         self.aging = dict(aging or {})
         self.age_start_s = age_start_s
         self.misspecified = misspecified
+        self.noise = noise
         self.clock_s = 0.0
 
     def truth_at(self, group: str, t_s: float) -> dict[str, float]:
@@ -152,9 +155,11 @@ class SyntheticNode:
         for name, counts in GROUPS:
             e = self._energy(name, counts, p, window, t_s, repeat)
             e = e * self.gain[name] + self.offset_w[name] * window
-            e *= 1 + 0.005 * float(self.rng.standard_normal())
-            samples = max(1, int(window * 100))
-            e += 0.125 / np.sqrt(12 * samples) * window * float(self.rng.standard_normal())
+            draws = self.rng.standard_normal(2)
+            if self.noise:
+                e *= 1 + 0.005 * float(draws[0])
+                samples = max(1, int(window * 100))
+                e += 0.125 / np.sqrt(12 * samples) * window * float(draws[1])
             energies[name] = e
         stats = tuple((s.scaled(repeat), n) for s, n in p.socket_stats)
         return MeasuredRun(f"{p.kernel}-{p.threads}t@{t_s:.0f}", int(t_s * 1e9), window, stats, energies,

@@ -168,3 +168,53 @@ def test_body_is_json_and_state_round_trips(spec: Any, planned: list[Any]) -> No
     assert again.body()["groups"]["DDR_AB"]["runs"] == 0 and again.body()["groups"]["DDR_CD"]["runs"] == 8
     with pytest.raises(InputError, match="unknown group 'DDR_XY'"):
         again.reset("DDR_XY")
+
+
+def test_a_daemon_record_becomes_a_measured_run(spec: Any, planned: list[Any]) -> None:
+    """A run record's per-channel energies and window (with the sensors' rates) make the groups'
+    input; a 10 ms record is skipped with the reason, a 2 s one fitted."""
+    from hdeem_watch.calibrate.groups import measured_run, unmeasured_reason
+
+    rates = {"DDR_AB": 100.0, "DDR_CD": 100.0, "DDR_EF": 100.0, "DDR_GH": 100.0}
+    calib = GroupCalibrators(spec, NODE_SIM.sensor_groups())
+    for window, fitted in ((0.01, False), (2.0, True)):
+        record = {"run_id": "r1", "name": "triad", "t_stop_ns": 5, "window_s": window,
+                  "energy_j": {"BLADE": 900.0 * window, "DDR_AB": 5.0 * window, "DDR_CD": 5.1 * window,
+                               "DDR_EF": 4.0 * window, "DDR_GH": None}}
+        run = measured_run(record, planned[2].socket_stats, rates)
+        assert run.name == "r1:triad" and run.samples is not None and run.samples["DDR_AB"] == int(window * 100)
+        update = calib.add_run(run)
+        assert ("DDR_AB" in update.fits) is fitted
+        assert any("no measured energy of DDR_GH (nan)" in s.reason for s in update.skipped)
+    assert unmeasured_reason("r", "DDR_AB", 1.0, 100, 1.0) is None
+
+
+def test_one_model_for_the_whole_node_stands_for_every_socket(spec: Any) -> None:
+    """The daemon models an idle run as ONE channel's statistics for all DIMMs: each group's row is
+    then that row × its DIMMs."""
+    from hdeem_watch.calibrate.rows import observation_from_run
+    from hdeem_watch.dram.node import idle_channel_stats
+
+    idle = idle_channel_stats(spec)
+    row = group_observation(spec, [(idle, 8)], SensorGroup("DDR_EF", (0, 2)), 3.0, 4.0)
+    single = observation_from_run(spec, idle, 3.0, 4.0)
+    assert np.allclose(row.columns, 2 * single.columns)
+
+
+def test_calib_show_reads_the_group_shape(spec: Any, planned: list[Any]) -> None:
+    """``hdeem-watch calib show`` reads the body of a daemon with groups: node first, then each group;
+    --group picks one, an unknown one is a one-line error listing the groups; alarms are printed."""
+    from hdeem_watch.cli.calib import _select, fits_of, format_fits
+
+    node = NODE_SIM.SyntheticNode(spec, 4, planned=planned)
+    node.truth["DDR_GH"] = {n: v * 1.6 for n, v in node.truth["DDR_GH"].items()}
+    calib = GroupCalibrators(spec, NODE_SIM.sensor_groups())
+    for i in range(28):
+        calib.add_run(node.run(config=i % len(planned)))
+    body = json.loads(json.dumps(calib.body(), allow_nan=False))
+    fits = fits_of(body)
+    assert list(fits) == ["node", "DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"]
+    text = format_fits(_select(fits, "DDR_GH"), [a for a in body["alarms"] if a["group"] == "DDR_GH"], [])
+    assert text.startswith("DDR_GH: 28 runs") and "ALARM DDR_GH" in text and "sibling" in text
+    with pytest.raises(InputError, match="--group DDR_XY: unknown group; this daemon has node, DDR_AB"):
+        _select(fits, "DDR_XY")

@@ -1,13 +1,10 @@
 """Per-sensor-group calibration: one online fit per sensor group (each HDEEM DIMM pair, each RAPL
 socket) beside the node-level fit, with guard rails, drift detection and a sibling comparison.
 
-A **sensor group** is a sensor and the DIMMs it measures, counted per socket
-(:func:`sensor_groups` turns the node's sensor map — sensor → DIMM locators, see
-:func:`hdeem_watch.node.sensors.sensor_map` — into groups). The model of a run gives the statistics
-of ONE channel per socket (:func:`hdeem_watch.dram.node.node_run_stats`); a group's row is that
-socket's row times the group's DIMMs on it, against the group's own measured energy
-(:func:`group_observation`). The node-level row is the sum of the groups' rows against the sum of
-their energies.
+The groups and their rows are :mod:`hdeem_watch.calibrate.group_rows` (re-exported here): a
+group's row is each socket's one-channel row times the group's DIMMs on it, against the group's own
+measured energy. The node-level row is the sum of the groups' rows against the sum of their
+energies.
 
 Guard rails: a run with fewer than ``min_samples`` sensor samples in a group's window (default 100:
 1 s at HDEEM's 100 Sa/s) or without a measured energy is recorded in :attr:`GroupCalibrators.skipped`
@@ -46,117 +43,30 @@ from hdeem_watch.calibrate.drift import (
     sibling_outliers,
     sibling_residuals,
 )
+from hdeem_watch.calibrate.group_rows import (
+    DEFAULT_MIN_SAMPLES,
+    MeasuredRun,
+    SensorGroup,
+    group_observation,
+    measured_run,
+    sensor_groups,
+    summed,
+    unmeasured_reason,
+)
 from hdeem_watch.calibrate.observation import Observation
 from hdeem_watch.calibrate.online import OnlineCalibrator
 from hdeem_watch.calibrate.result import FitResult
-from hdeem_watch.calibrate.rows import observation_from_run
 from hdeem_watch.dram.memspec import MemSpec
-from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError
+
+__all__ = ["DEFAULT_MIN_SAMPLES", "NODE", "GroupCalibrators", "GroupUpdate", "MeasuredRun", "SensorGroup",
+           "SkippedRun", "group_observation", "measured_run", "sensor_groups", "unmeasured_reason"]
 
 #: The node-level fit's key beside the groups.
 NODE = "node"
-#: Default fewest sensor samples per channel for a run to be fitted: 1 s at 100 Sa/s.
-DEFAULT_MIN_SAMPLES = 100
 #: Skipped runs and alarms kept (oldest dropped first).
 MAX_RECORDS = 200
 _STATE_VERSION = 1
-
-
-@dataclass(frozen=True)
-class SensorGroup:
-    """A sensor and how many of each socket's DIMMs (channels) it measures.
-
-    Example:
-        >>> SensorGroup("DDR_EF", (0, 2)).dimms
-        2
-    """
-
-    name: str
-    dimms_per_socket: tuple[int, ...]
-
-    @property
-    def dimms(self) -> int:
-        """DIMMs behind the sensor."""
-        return sum(self.dimms_per_socket)
-
-
-def sensor_groups(sensors: Mapping[str, Sequence[str]], dimm_socket: Mapping[str, int], sockets: int, *,
-                  prefix: str | None = None) -> list[SensorGroup]:
-    """The groups of a sensor map.
-
-    Args:
-        sensors: sensor → DIMM locators (:func:`hdeem_watch.node.sensors.sensor_map`).
-        dimm_socket: DIMM locator → socket.
-        sockets: sockets of the node.
-        prefix: keep only sensors starting with it (``"DDR_"``: HDEEM pairs, ``"DRAM"``: RAPL).
-
-    Raises:
-        InputError: a DIMM without a socket, or a socket out of range.
-
-    Example:
-        >>> sensor_groups({"DDR_AB": ["A", "B"], "DDR_CD": ["C"]}, {"A": 0, "B": 0, "C": 1}, 2)
-        [SensorGroup(name='DDR_AB', dimms_per_socket=(2, 0)), SensorGroup(name='DDR_CD', dimms_per_socket=(0, 1))]
-    """
-    out = []
-    for name, dimms in sensors.items():
-        if prefix is not None and not name.startswith(prefix):
-            continue
-        counts = [0] * int(sockets)
-        for locator in dimms:
-            socket = dimm_socket.get(locator)
-            if socket is None or not 0 <= int(socket) < sockets:
-                raise InputError(f"sensor map: {name}: DIMM {locator!r} has socket {socket!r}; expected 0..{sockets - 1}")
-            counts[int(socket)] += 1
-        if any(counts):
-            out.append(SensorGroup(name, tuple(counts)))
-    return out
-
-
-def group_observation(spec: MemSpec, socket_stats: Sequence[tuple[CommandStats, int]], group: SensorGroup,
-                      window_s: float, measured_j: float, *, name: str = "run", time_ns: int = 0) -> Observation:
-    """ONE calibration row of ``group``: each socket's one-channel row times the group's DIMMs on
-    that socket, summed, against the group's measured energy.
-
-    Raises:
-        InputError: the group names more sockets than the model has, or a bad window/energy.
-    """
-    if len(group.dimms_per_socket) > len(socket_stats):
-        raise InputError(f"group {group.name}: {len(group.dimms_per_socket)} sockets; the model has {len(socket_stats)}")
-    rows = [observation_from_run(spec, stats, window_s, measured_j, scale=float(k), name=name, time_ns=time_ns)
-            for (stats, _n), k in zip(socket_stats, group.dimms_per_socket) if k > 0]
-    if not rows:
-        raise InputError(f"group {group.name}: measures no DIMM")
-    return _summed(rows, measured_j)
-
-
-def _summed(rows: Sequence[Observation], measured_j: float) -> Observation:
-    first = rows[0]
-    return Observation(name=first.name, columns=np.sum([r.columns for r in rows], axis=0),
-                       constant_j=float(sum(r.constant_j for r in rows)), measured_j=float(measured_j),
-                       time_ns=first.time_ns, weight=first.weight, window_s=first.window_s)
-
-
-@dataclass(frozen=True)
-class MeasuredRun:
-    """A finished run as the groups see it.
-
-    Attributes:
-        name: unique name (e.g. ``"r12:triad"``).
-        time_ns: end of the run (wall clock, ns).
-        window_s: measured window (s).
-        socket_stats: per socket, the model's statistics of one channel and the channel count
-            (:func:`hdeem_watch.dram.node.node_run_stats`).
-        energy_j: measured energy per sensor (J; NaN = unknown).
-        samples: sensor samples inside the window per sensor (None: ``window_s × nominal rate``).
-    """
-
-    name: str
-    time_ns: int
-    window_s: float
-    socket_stats: tuple[tuple[CommandStats, int], ...]
-    energy_j: Mapping[str, float]
-    samples: Mapping[str, int] | None = None
 
 
 @dataclass(frozen=True)
@@ -192,15 +102,18 @@ class GroupCalibrators:
         nominal_rate_hz: samples per second assumed when a run does not say how many it had.
         calibrator: keyword arguments of every :class:`OnlineCalibrator` (currents, half_life_s, ...).
         cusum: keyword arguments of every :class:`~hdeem_watch.calibrate.drift.ResidualCusum`.
-        detect_after: a group's residuals feed its detector once its fit has this many runs
-            (default: twice the unknowns).
+        detect_after: a group's residuals feed its detector, and its currents the sibling
+            comparison, once its fit has this many runs (default: twice the unknowns).
         sibling_tolerance: see :func:`~hdeem_watch.calibrate.drift.sibling_outliers`.
+        node_detector: run a residual CUSUM on the node fit too. Off by default: the node has no
+            siblings to difference against, so what the model leaves out stays in its residuals
+            (it raised most false alarms in the benchmark); the groups' detectors name the pair.
     """
 
     def __init__(self, spec: MemSpec, groups: Sequence[SensorGroup], *, min_samples: int = DEFAULT_MIN_SAMPLES,
                  nominal_rate_hz: float = 100.0, calibrator: Mapping[str, Any] | None = None,
                  cusum: Mapping[str, Any] | None = None, detect_after: int | None = None,
-                 sibling_tolerance: float = 0.25) -> None:
+                 sibling_tolerance: float = 0.25, node_detector: bool = False) -> None:
         if not groups:
             raise InputError("groups: no sensor groups to calibrate")
         names = [g.name for g in groups]
@@ -215,6 +128,7 @@ class GroupCalibrators:
         self.calibrator_options = dict(calibrator or {})
         self.cusum_options = dict(cusum or {})
         self.sibling_tolerance = float(sibling_tolerance)
+        self.node_detector = bool(node_detector)
         self.calibrators = {name: OnlineCalibrator(spec, **self.calibrator_options) for name in [*names, NODE]}
         unknowns = len(self.calibrators[NODE].currents) + int(self.calibrators[NODE].intercept)
         self.detect_after = 2 * unknowns if detect_after is None else int(detect_after)
@@ -229,14 +143,8 @@ class GroupCalibrators:
         return math.floor(run.window_s * self.nominal_rate_hz + 1e-9)
 
     def _why_not(self, run: MeasuredRun, group: SensorGroup) -> str | None:
-        energy = run.energy_j.get(group.name)
-        if energy is None or not math.isfinite(energy) or energy <= 0:
-            return f"run {run.name!r}: no measured energy of {group.name} ({energy!r})"
-        samples = self._samples(run, group.name)
-        if samples < self.min_samples:
-            return (f"run {run.name!r}: {samples} samples of {group.name} in {run.window_s:.3g} s; at least "
-                    f"{self.min_samples} are needed to measure a run (run it longer)")
-        return None
+        return unmeasured_reason(run.name, group.name, run.energy_j.get(group.name), self._samples(run, group.name),
+                                 run.window_s, self.min_samples)
 
     def predicted_j(self, group: str, obs: Observation) -> float:
         """``obs`` predicted by ``group``'s latest fit (NaN without one)."""
@@ -266,7 +174,7 @@ class GroupCalibrators:
             rows[name] = group_observation(self.spec, run.socket_stats, group, run.window_s,
                                            float(run.energy_j[name]), name=run.name, time_ns=run.time_ns)
         if len(rows) == len(self.groups):
-            rows[NODE] = _summed(list(rows.values()), sum(r.measured_j for r in rows.values()))
+            rows[NODE] = summed(list(rows.values()), sum(r.measured_j for r in rows.values()))
         else:
             skipped.append(SkippedRun(run.name, run.time_ns, NODE, "not every group was measured: "
                                       + "; ".join(s.reason for s in skipped)))
@@ -278,11 +186,13 @@ class GroupCalibrators:
         against = sibling_residuals({g: r for g, r in residuals.items() if g != NODE})
         if NODE in residuals:
             against[NODE] = residuals[NODE]
+        if not self.node_detector:
+            against.pop(NODE, None)
         alarms = [a for g, d in against.items() if (a := self.detectors[g].update(d, run.time_ns)) is not None]
         fits = {name: self.calibrators[name].add_run(obs) for name, obs in rows.items()}
         if fits:
             per_group = {g: identifiable_currents(c.latest) for g, c in self.calibrators.items()
-                         if g != NODE and c.latest is not None}
+                         if g != NODE and c.latest is not None and len(c.observations) >= self.detect_after}
             for alarm in sibling_outliers(per_group, time_ns=run.time_ns, tolerance=self.sibling_tolerance):
                 key = (alarm.group, alarm.current, alarm.kind)
                 if key not in self._raised:
@@ -342,6 +252,7 @@ class GroupCalibrators:
             "groups": {name: list(g.dimms_per_socket) for name, g in self.groups.items()},
             "min_samples": self.min_samples, "nominal_rate_hz": self.nominal_rate_hz,
             "detect_after": self.detect_after, "sibling_tolerance": self.sibling_tolerance,
+            "node_detector": self.node_detector,
             "cusum": self.cusum_options,
             "calibrators": {name: c.to_dict() for name, c in self.calibrators.items()},
             "detectors": {name: d.to_dict() for name, d in self.detectors.items()},
@@ -363,7 +274,8 @@ class GroupCalibrators:
             groups = [SensorGroup(n, tuple(int(k) for k in v)) for n, v in data["groups"].items()]
             out = cls(spec, groups, min_samples=int(data["min_samples"]),
                       nominal_rate_hz=float(data["nominal_rate_hz"]), cusum=data.get("cusum") or {},
-                      detect_after=int(data["detect_after"]), sibling_tolerance=float(data["sibling_tolerance"]))
+                      detect_after=int(data["detect_after"]), sibling_tolerance=float(data["sibling_tolerance"]),
+                      node_detector=bool(data.get("node_detector", False)))
             out.calibrators = {n: OnlineCalibrator.from_dict(s, spec) for n, s in data["calibrators"].items()}
             out.detectors = {n: ResidualCusum.from_dict(n, s) for n, s in data["detectors"].items()}
             out.alarms = [DriftAlarm(**a) for a in data.get("alarms", [])]
