@@ -153,8 +153,9 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
     index = np.array([names.index(c) for c in chosen], dtype=int)
     all_a = np.array([float(spec.currents.get(nm, 0.0)) for nm in names])
     datasheet = all_a[index]
+    used = {name for name, column in zip(names, cols.T) if np.any(column != 0)}
     lower_a, upper_a = _bounds(chosen, datasheet, options.bounds,
-                               physical_bounds(spec, chosen) if options.physical else None)
+                               physical_bounds(spec, chosen, used) if options.physical else None)
     scales = np.where(datasheet > 0, datasheet, np.where(np.isfinite(upper_a) & (upper_a > 0), upper_a, 1.0))
     fixed = np.ones(len(names), dtype=bool)
     fixed[index] = False

@@ -18,7 +18,7 @@ Example:
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 
 from hdeem_watch.calibrate.observation import SpecLike
 
@@ -28,21 +28,29 @@ def _refresh_current(spec: SpecLike) -> str:
     return str(names[0]) if names else "idd5b"
 
 
-def physical_bounds(spec: SpecLike, chosen: Sequence[str]) -> dict[str, tuple[float, float]]:
+def physical_bounds(spec: SpecLike, chosen: Sequence[str],
+                    used: Collection[str] | None = None) -> dict[str, tuple[float, float]]:
     """Per calibrated current, ``(lower_a, upper_a)`` implied by the ordering rules against the
     currents that are *not* calibrated (``0`` / ``inf`` where no rule applies).
+
+    A rule against a current the data never uses (``used``: the currents whose energy column is
+    not zero in any run) does not apply: when no run has power-down residency, say, the model
+    books a DIMM's idle time as standby, so the fitted IDD2N is the *effective* idle current (the
+    controller's power-down included) and may well lie below IDD2P.
 
     Args:
         spec: the memspec (its ``currents``; ``timings``, ``fact_rho`` and ``refresh_currents``
             when it has them, as a :class:`~hdeem_watch.dram.memspec.MemSpec` does).
         chosen: the calibrated currents (lower-case names).
+        used: the currents the data uses (None: all of them).
     """
     cur: Mapping[str, float] = spec.currents
     free = set(chosen)
 
     def fixed(name: str) -> float | None:
         value = cur.get(name)
-        return None if name in free or value is None else float(value)
+        unused = used is not None and name not in used
+        return None if name in free or value is None or unused else float(value)
 
     def most(*values: float | None) -> float:
         return max((v for v in values if v is not None), default=0.0)
