@@ -113,6 +113,9 @@ def test_baseline_merge_policy() -> None:
     assert bl.merge(idle, stale) is stale
     assert bl.merge(idle, bl.Baseline(math.nan, math.nan, 0, 50, "idle-run")) is idle
     assert bl.Baseline.from_dict(json.loads(json.dumps(idle.to_dict()))) == idle
+    measured = bl.Baseline(3.5, 0.1, 100, 40, "measured")  # baseline.measure: an explicit window too
+    assert bl.merge(newer_idle, measured) is measured and bl.merge(measured, quiet_low) is measured
+    assert bl.Baseline.from_dict(measured.to_dict()) == measured
 
 
 def test_idle_baseline_mean_from_exact_energy() -> None:

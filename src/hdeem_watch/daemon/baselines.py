@@ -3,8 +3,9 @@
 A baseline is the power a channel draws when the node does nothing: the reference a run's energy
 is compared against, and the row that pins the standby currents in the calibration. It comes from
 
-* an explicit idle window (``baseline.measure``, or a run with kernel ``idle``): origin
-  ``"idle-run"``; its mean is the window's exact energy divided by its duration;
+* an explicit idle window: ``baseline.measure`` (origin ``"measured"``: nothing runs, the CPUs
+  are idle too) or a run with kernel ``idle`` (origin ``"idle-run"``: the DIMMs are idle, the
+  benchmark's threads may not be); its mean is the window's exact energy divided by its duration;
 * a *quiet period* found in the recent samples while no run is going on: the window with the
   lowest mean among those whose spread (standard deviation) is small; origin ``"quiet"``.
 
@@ -28,8 +29,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-Origin = Literal["idle-run", "quiet"]
-ORIGINS = ("idle-run", "quiet")
+Origin = Literal["idle-run", "measured", "quiet"]
+ORIGINS = ("idle-run", "measured", "quiet")
+#: Origins of an explicit idle window (they win over quiet periods).
+WINDOW_ORIGINS = ("idle-run", "measured")
 
 
 @dataclass(frozen=True)
@@ -41,7 +44,7 @@ class Baseline:
         spread_w: standard deviation of the samples in the window.
         n: number of (finite) samples.
         t_ns: wall-clock time of the end of the window.
-        origin: ``"idle-run"`` or ``"quiet"``.
+        origin: ``"idle-run"``, ``"measured"`` or ``"quiet"``.
     """
 
     power_w: float
@@ -170,17 +173,17 @@ def quiet_window(
 def merge(current: Baseline | None, new: Baseline, *, max_age_ns: int = 3600 * 10**9) -> Baseline | None:
     """The baseline to keep after ``new`` arrives.
 
-    An idle-run baseline always wins over a quiet one and replaces an older idle-run baseline; a
-    quiet baseline replaces a quiet one when it is lower (closer to idle) or the kept one is older
-    than ``max_age_ns``; it replaces an idle-run baseline only when that is older than
-    ``max_age_ns``. Baselines without a finite power or without samples never replace anything.
+    A baseline of an explicit idle window (``idle-run`` or ``measured``) always wins over a quiet one
+    and replaces an older window baseline; a quiet baseline replaces a quiet one when it is lower
+    (closer to idle) or the kept one is older than ``max_age_ns``; it replaces a window baseline
+    only when that is older than ``max_age_ns``. Baselines without a finite power or without samples never replace anything.
     """
     if not math.isfinite(new.power_w) or new.n <= 0:
         return current
     if current is None or not math.isfinite(current.power_w):
         return new
     stale = new.t_ns - current.t_ns > max_age_ns
-    if new.origin == "idle-run":
+    if new.origin in WINDOW_ORIGINS:
         return new
     if current.origin == "quiet":
         return new if (new.power_w <= current.power_w or stale) else current

@@ -305,7 +305,7 @@ class NodeState:
                                                 speed=self.speed)
         run = window.run
         if run is None:
-            found = self._window_baselines(window, energy, spans)
+            found = self._window_baselines(window, energy, spans, origin="measured")
             return ClosedWindow(kind="baseline", window_s=window_s, baselines=found, kept=self._keep(found))
         record = run.finish(energy_j=energy, window_s=window_s, dram_channels=self.dram_channels,
                             t_wall_ns=self.wall(), spans_s=spans, aborted=window.abort)
@@ -314,18 +314,18 @@ class NodeState:
         self.runs_finished += 1
         found, kept = {}, {}
         if record.moves_no_traffic and not window.abort:
-            found = self._window_baselines(window, energy, spans)
+            found = self._window_baselines(window, energy, spans, origin="idle-run")
             kept = self._keep(found)
         return ClosedWindow(kind="run", window_s=window_s, run=record, baselines=found, kept=kept)
 
     # -- baselines --------------------------------------------------------------------------------
 
-    def _window_baselines(self, window: Window, energy: Mapping[str, float],
-                          spans: Mapping[str, float]) -> dict[str, bl.Baseline]:
+    def _window_baselines(self, window: Window, energy: Mapping[str, float], spans: Mapping[str, float],
+                          origin: bl.Origin) -> dict[str, bl.Baseline]:
         found = {}
         for name, account in self.accounts.items():
             baseline = bl.baseline_from_samples(window.channel_samples(name), t_ns=account.last_t_ns or 0,
-                                                origin="idle-run", energy_j=energy.get(name),
+                                                origin=origin, energy_j=energy.get(name),
                                                 window_s=spans.get(name))
             if baseline is not None:
                 found[name] = baseline
