@@ -82,8 +82,15 @@ def jsonable(value: Any) -> Any:
 
 
 def dumps(value: Any) -> bytes:
-    """Compact UTF-8 JSON, NaN/inf as ``null`` (strict JSON, every parser reads it)."""
-    return json.dumps(jsonable(value), separators=(",", ":"), allow_nan=False).encode()
+    """Compact UTF-8 JSON, NaN/inf as ``null`` (strict JSON, every parser reads it).
+
+    Plain JSON-ready values (most replies: stored records hold no NaN) go straight to the C
+    encoder; only a value it refuses (NaN, a numpy scalar) is rewritten by :func:`jsonable` first.
+    """
+    try:
+        return json.dumps(value, separators=(",", ":"), allow_nan=False).encode()
+    except (ValueError, TypeError):
+        return json.dumps(jsonable(value), separators=(",", ":"), allow_nan=False).encode()
 
 
 _STRING_LITERAL = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"', re.DOTALL)
