@@ -18,7 +18,8 @@ from hdeem_watch import __version__
 from hdeem_watch.errors import InputError
 
 #: Subcommand modules, in the order ``--help`` lists them.
-SUBCOMMAND_MODULES = ("demo", "daemon", "tui", "bench", "model", "calibrate", "report", "node", "counters")
+SUBCOMMAND_MODULES = ("demo", "daemon", "tui", "bench", "model", "calibrate", "report", "node", "counters",
+                      "metricq_source")
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -36,6 +37,7 @@ EPILOG = """examples (COMMAND --help for each command's options and examples):
   hdeem-watch report --runs RUNS.json --out DIR      # the paper's figures as a self-contained HTML page
   hdeem-watch node --json                            # this node's sockets, channels, DIMMs, memspec, sensors
   hdeem-watch counters                               # the memory-controller counters this host offers
+  hdeem-watch metricq-source --server amqp://HOST/   # publish the daemon's stream to MetricQ
 
 exit codes: 0 success, 1 failure (one line on stderr), 2 bad input (one line on stderr),
   130 interrupted (Ctrl-C)"""
