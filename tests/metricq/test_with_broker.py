@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import subprocess
 import sys
 import time
@@ -45,6 +46,7 @@ class StreamRecorder:
         self.socket.setsockopt(zmq.SUBSCRIBE, b"hw1/")
         self.samples: dict[str, dict[int, float]] = defaultdict(dict)
         self.baselines: dict[str, set[float]] = defaultdict(set)
+        self.currents: dict[str, set[float]] = defaultdict(set)
         self.task = asyncio.get_running_loop().create_task(self._run())
 
     async def _run(self) -> None:
@@ -57,6 +59,9 @@ class StreamRecorder:
                 for ch, entry in m.header["channels"].items():
                     if entry.get("power_w") is not None:
                         self.baselines[ch].add(float(entry["power_w"]))
+            elif m.kind == "calib" and m.header.get("fit"):
+                for name, entry in m.header["fit"]["currents"].items():
+                    self.currents[name].add(entry["calibrated"])
 
     async def close(self) -> None:
         self.task.cancel()
@@ -117,8 +122,17 @@ async def test_every_metric_arrives_with_its_metadata_and_the_daemon_values(
     proc, status_path = start_source(tmp_path, broker.url, sim_daemon.pub)
     sink = standin.RecordingSink(broker.url)
     try:
-        wanted = expected_metrics()
+        with sim_daemon.client(timeout_s=20.0) as daemon:  # one run: the daemon fits the currents
+            run_id = daemon.call("run.start", {"kernel": "triad", "threads": 2, "elements": 2**24})["run_id"]
+            await asyncio.sleep(0.5)
+            daemon.call("run.stop", {"run_id": run_id})
+            fit = daemon.call("calib.get")["fit"]
+        assert fit is not None
+        currents = [f"{PREFIX}.testnode.dram.calibrated.{name}.current" for name in fit["currents"]]
+        wanted = expected_metrics() + currents
         await wait_for(lambda: all(m in manager.metadata for m in wanted), 60, "the source's declarations")
+        meta = manager.metadata[currents[0]]
+        assert (meta["unit"], meta["scope"], meta["rate"]) == ("A", "next", 0.1)
         for channel, (path, rate) in CHANNELS.items():
             meta = manager.metadata[f"{PREFIX}.testnode.{path}.power"]
             assert (meta["unit"], meta["rate"], meta["scope"]) == ("W", rate, "last")
@@ -155,6 +169,11 @@ async def test_every_metric_arrives_with_its_metadata_and_the_daemon_values(
             known = ~np.isnan(v)
             baselines = power[known] - v[known]
             assert all(any(abs(b - k) < 1e-9 for k in recorder.baselines[pair]) for b in baselines), pair
+        for name, metric in zip(fit["currents"], currents):
+            t, v = sink.series(metric)
+            assert t.size >= 2, f"{name}: the calib re-publications every 0.5 s"
+            published = recorder.currents[name]  # None (unknown) arrives as NaN
+            assert all(x in published or (math.isnan(x) and None in published) for x in v.tolist()), name
         status = read_status(status_path)
         assert status["broker"] == "connected" and status["daemon"] == "streaming"
         assert status["points_dropped"] == 0 and status["nodes"] == 1

@@ -37,7 +37,7 @@ EPILOG = """examples (COMMAND --help for each command's options and examples):
   hdeem-watch report --runs RUNS.json --out DIR      # the paper's figures as a self-contained HTML page
   hdeem-watch node --json                            # this node's sockets, channels, DIMMs, memspec, sensors
   hdeem-watch counters                               # the memory-controller counters this host offers
-  hdeem-watch metricq-source --server amqp://HOST/   # publish the daemon's stream to MetricQ
+  hdeem-watch metricq_source --server amqp://HOST/   # (= metricq-source) the daemon's stream to MetricQ
 
 exit codes: 0 success, 1 failure (one line on stderr), 2 bad input (one line on stderr),
   130 interrupted (Ctrl-C)"""
