@@ -147,6 +147,7 @@ class ManagerStandIn(Agent):
         super().__init__("manager", url)
         self.metadata: dict[str, dict[str, Any]] = {}
         self.registered: list[str] = []
+        self.declarations: dict[str, int] = defaultdict(int)
         self.subscriptions: list[tuple[str, list[str]]] = []
         self._data_connection: Any = None
         self._management_queue: Any = None
@@ -192,6 +193,7 @@ class ManagerStandIn(Agent):
             doc.update(given)
             doc["source"] = from_token
             self.metadata[name] = doc
+            self.declarations[name] += 1
 
     @rpc_handler("sink.subscribe")
     async def _subscribe(self, from_token: str, metadata: bool = True, **body: Any) -> dict[str, Any]:

@@ -174,6 +174,7 @@ async def test_every_metric_arrives_with_its_metadata_and_the_daemon_values(
             assert t.size >= 2, f"{name}: the calib re-publications every 0.5 s"
             published = recorder.currents[name]  # None (unknown) arrives as NaN
             assert all(x in published or (math.isnan(x) and None in published) for x in v.tolist()), name
+        assert max(manager.declarations.values()) == 1, "a metric declared again without a change"
         status = read_status(status_path)
         assert status["broker"] == "connected" and status["daemon"] == "streaming"
         assert status["points_dropped"] == 0 and status["nodes"] == 1

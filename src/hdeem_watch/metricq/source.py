@@ -198,24 +198,25 @@ class SourceRunner:
         try:
             last = self.clock()
             while True:
-                message = await reader.receive(timeout_s=0.5)
+                messages = await reader.receive(timeout_s=0.5)
                 self.status.stream_gaps = reader.gaps.missed
                 self.status.daemon_restarts = reader.gaps.restarts
-                if message is None:
+                if not messages:
                     if self.status.daemon == "streaming" and self.clock() - last > self.settings.daemon_silence_s:
                         self.status.daemon = "silent"
                         log.warning("no message from the daemon for %.0f s", self.settings.daemon_silence_s)
                     continue
                 last = self.clock()
                 if self.status.daemon != "streaming":
-                    log.info("daemon stream: %s", "streaming")
+                    log.info("daemon stream: streaming")
                 self.status.daemon = "streaming"
-                self.status.messages += 1
-                self._nodes.add(message.node)
-                translation = self.translator.translate(message)
-                self._pending_declarations.update(translation.declarations)
-                self.status.points_in += sum(len(p) for p in translation.points)
-                self.outbox.push(translation.points)
+                for message in messages:
+                    self.status.messages += 1
+                    self._nodes.add(message.node)
+                    translation = self.translator.translate(message)
+                    self._pending_declarations.update(translation.declarations)
+                    self.status.points_in += sum(len(p) for p in translation.points)
+                    self.outbox.push(translation.points)
         finally:
             reader.close()
 
@@ -265,7 +266,9 @@ class SourceRunner:
                     declarations = self._pending_declarations
                     self._pending_declarations = {}
                     try:
-                        await asyncio.wait_for(source.declare_metrics(declarations), PUBLISH_TIMEOUT_S)
+                        # metricq adds chunkSize to the metadata dicts it is given: hand it copies.
+                        copies = {name: dict(meta) for name, meta in declarations.items()}
+                        await asyncio.wait_for(source.declare_metrics(copies), PUBLISH_TIMEOUT_S)
                     except BaseException:
                         self._pending_declarations = {**declarations, **self._pending_declarations}
                         raise
