@@ -204,6 +204,8 @@ async def bench(args: argparse.Namespace) -> dict[str, Any]:
                   f"{one['source_cpu_percent'][0]:.2f} % of one core (target <= 5 %, ratio "
                   f"{5 / max(one['source_cpu_percent'][0], 1e-9):.2f}); lost {one['lost_points']}", flush=True)
             ladder = [n for n in ((1, 4, 8) if args.quick else (1, 4, 8, 16, 32, 64)) if n <= args.max_nodes]
+            if args.nodes_list:
+                ladder = [int(n) for n in args.nodes_list.split(",")]
             ceiling = 0
             results["nodes"] = []
             for n in ladder:
@@ -229,6 +231,7 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, help="seconds per case (default 60, --quick 10)")
     parser.add_argument("--sources", type=int, default=4, help="source processes sharing the nodes (default 4)")
     parser.add_argument("--max-nodes", type=int, default=64)
+    parser.add_argument("--nodes-list", default="", help="comma-separated node counts instead of the ladder")
     parser.add_argument("--flush-interval", type=float, default=0.2, help="the sources' --flush-interval")
     parser.add_argument("--json", action="store_true", help="print the results as JSON at the end")
     parser.add_argument("--role", default="bench", help=argparse.SUPPRESS)

@@ -144,7 +144,7 @@ class ManagerStandIn(Agent):
     """The manager RPCs of a source and a sink (see the module docstring for what is emulated)."""
 
     def __init__(self, url: str) -> None:
-        super().__init__("manager", url)
+        super().__init__("manager", url)  # an Agent has no client version
         self.metadata: dict[str, dict[str, Any]] = {}
         self.registered: list[str] = []
         self.declarations: dict[str, int] = defaultdict(int)
@@ -231,7 +231,7 @@ class RecordingSink(Sink):
     """A real MetricQ sink keeping every ``(time ns, value)`` per metric, and when each chunk came."""
 
     def __init__(self, url: str) -> None:
-        super().__init__("sink-hdeem-watch-test", url)
+        super().__init__("sink-hdeem-watch-test", url, client_version="test")
         self.times: dict[str, list[np.ndarray]] = defaultdict(list)
         self.values: dict[str, list[np.ndarray]] = defaultdict(list)
         self.arrivals: dict[str, list[tuple[float, int]]] = defaultdict(list)

@@ -133,3 +133,15 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path: Path, capsys: pytest.Cap
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "chmod 600" in err
     assert main(["metricq-source", "--server", "amqp://localhost/", "--duration", "0"]) == 2
+
+
+def test_default_token_names_the_host_and_a_token_file_is_read(tmp_path: Path) -> None:
+    import socket
+
+    s = load_source_settings(None, env={}, overrides={"server": "amqp://x/"})
+    assert s.token == f"source-hdeem-watch-{socket.gethostname().split('.')[0]}"
+    token = tmp_path / "token"
+    token.write_text("source-hdeem-node7\n")
+    token.chmod(0o600)
+    s = load_source_settings(None, env={"HDEEM_WATCH_METRICQ_TOKEN_FILE": str(token)}, overrides={"server": "amqp://x/"})
+    assert s.token == "source-hdeem-node7"

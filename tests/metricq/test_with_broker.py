@@ -246,3 +246,20 @@ async def test_source_started_before_the_broker_connects_when_it_comes(tmp_path:
         code = stop(proc)
         broker.close()
     assert code == 0, (tmp_path / "source.err").read_text()
+
+
+async def test_daemon_restart_is_survived(tmp_path: Path, broker: Any, manager: Any, sim_daemon: Any) -> None:
+    proc, status_path = start_source(tmp_path, broker.url, sim_daemon.pub)
+    try:
+        await wait_for(lambda: read_status(status_path).get("points_sent", 0) > 1000, 60, "data flowing")
+        assert await asyncio.to_thread(sim_daemon.terminate) == 0
+        await wait_for(lambda: read_status(status_path).get("daemon") == "silent", 20, "the daemon shown silent")
+        await asyncio.to_thread(sim_daemon.start)
+        sent = read_status(status_path)["points_sent"]
+        await wait_for(lambda: read_status(status_path).get("daemon") == "streaming", 20, "streaming again")
+        await wait_for(lambda: read_status(status_path).get("points_sent", 0) > sent + 1000, 20, "data again")
+        status = read_status(status_path)
+        assert status["daemon_restarts"] >= 1 and status["broker"] == "connected"
+    finally:
+        code = stop(proc)
+    assert code == 0, (tmp_path / "source.err").read_text()

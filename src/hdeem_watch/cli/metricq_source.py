@@ -44,7 +44,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--config", metavar="FILE", help="TOML file whose [metricq] table holds the settings")
     parser.add_argument("--server", metavar="URL", help="AMQP URL of the MetricQ broker (amqp://USER:PASSWORD@HOST/)")
     parser.add_argument("--server-file", metavar="FILE", help="file holding the AMQP URL (mode 0600)")
-    parser.add_argument("--token", metavar="TOKEN", help="this source's MetricQ token (default: source-hdeem-watch)")
+    parser.add_argument("--token", metavar="TOKEN", help="this source's MetricQ token (default: source-hdeem-watch-HOST)")
     parser.add_argument("--token-file", metavar="FILE", help="file holding the token (mode 0600)")
     parser.add_argument("--prefix", metavar="PREFIX", help="site prefix of every metric name (default: hdeem)")
     parser.add_argument("--metrics", metavar="LIST",
@@ -92,10 +92,9 @@ def run(args: argparse.Namespace) -> int:
 
     endpoints = [e.strip() for e in settings.connect.split(",") if e.strip()] or [default_endpoints()[0]]
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    if not args.verbose:
-        logging.getLogger("metricq").setLevel(logging.ERROR)
-        logging.getLogger("aio_pika").setLevel(logging.ERROR)
-        logging.getLogger("aiormq").setLevel(logging.ERROR)
+    if not args.verbose:  # the source logs each failure itself, in one line
+        for name in ("metricq", "aio_pika", "aiormq"):
+            logging.getLogger(name).setLevel(logging.CRITICAL)
     runner = SourceRunner(settings, endpoints, flush_interval_s=args.flush_interval)
     asyncio.run(_main(runner, args.duration))
     print(runner.status.line())

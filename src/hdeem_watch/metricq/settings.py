@@ -19,6 +19,7 @@ Example:
 from __future__ import annotations
 
 import os
+import socket
 import stat
 import tomllib
 from collections.abc import Mapping
@@ -40,7 +41,8 @@ class SourceSettings:
     Attributes:
         server: AMQP URL of the MetricQ management broker (``amqp://user:password@host/vhost``).
         server_file: a file holding the URL (permissions checked); used when ``server`` is empty.
-        token: this source's MetricQ token (its identity at the manager).
+        token: this source's MetricQ token (its identity at the manager; unique per source, as its
+            RPC queue is exclusive); default ``source-hdeem-watch-<short host name>``.
         token_file: a file holding the token (permissions checked); used when ``token`` is empty.
         prefix: the site prefix of every metric name.
         metrics: the metric families to publish (``power``, ``above_baseline``, ``calibrated_currents``).
@@ -54,7 +56,7 @@ class SourceSettings:
 
     server: str = ""
     server_file: str = ""
-    token: str = "source-hdeem-watch"
+    token: str = ""
     token_file: str = ""
     prefix: str = "hdeem"
     metrics: tuple[str, ...] = FAMILIES
@@ -216,4 +218,12 @@ def load_source_settings(
         settings = replace(settings, server=read_secret_file(settings.server_file))
     if settings.token_file and not values.get("token"):
         settings = replace(settings, token=read_secret_file(settings.token_file))
+    if not settings.token and "token" not in values:
+        settings = replace(settings, token=default_token())
     return settings.check()
+
+
+def default_token() -> str:
+    """``source-hdeem-watch-<short host name>`` (tokens must differ between sources)."""
+    host = socket.gethostname().split(".")[0] or "localhost"
+    return f"source-hdeem-watch-{host}"
