@@ -183,6 +183,9 @@ async def test_every_metric_arrives_with_its_metadata_and_the_daemon_values(
         code = stop(proc)
         await recorder.close()
     assert code == 0, (tmp_path / "source.err").read_text()
+    final = read_status(status_path)  # stopped: what was read went out first
+    assert final["broker"] == "stopped" and final["points_waiting"] == 0
+    assert final["points_sent"] == final["points_in"] > 0
 
 
 async def test_broker_down_and_restarted_mid_stream(tmp_path: Path, broker: Any, manager: Any,

@@ -39,6 +39,8 @@ log = logging.getLogger("hdeem-watch.metricq")
 
 #: How long one connection attempt (register at the manager, open the data connection) may take.
 CONNECT_TIMEOUT_S = 20.0
+#: How long waiting points may take to go out when the source is stopped.
+STOP_FLUSH_S = 2.0
 #: How long one publish round may wait for the broker before the agent is replaced.
 PUBLISH_TIMEOUT_S = 30.0
 
@@ -157,22 +159,24 @@ class SourceRunner:
         self._nodes: set[str] = set()
 
     def stop(self) -> None:
-        """Ask both tasks to end (the publisher sends what is waiting first if connected)."""
+        """Ask the tasks to end: reading stops at once, waiting points get up to ``STOP_FLUSH_S`` to go."""
         self._stop.set()
 
     async def run(self) -> None:
-        """Run until :meth:`stop`; returns after both tasks ended."""
+        """Run until :meth:`stop`; returns after every task ended (the status file shows ``stopped``)."""
         reader = asyncio.create_task(self._read())
         publisher = asyncio.create_task(self._publish_forever())
         reporter = asyncio.create_task(self._report())
         await self._stop.wait()
-        for task in (reader, publisher, reporter):
-            task.cancel()
-        for task in (reader, publisher, reporter):
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+        await _cancel(reader)
+        deadline = time.monotonic() + STOP_FLUSH_S
+        while len(self.outbox) and self.status.broker == "connected" and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        await _cancel(publisher)
+        await _cancel(reporter)
         self.status.broker = "stopped"
         self._refresh()
+        self._write_status()
 
     def _refresh(self) -> None:
         s = self.status
@@ -186,12 +190,15 @@ class SourceRunner:
         while True:
             self._refresh()
             log.info("%s", self.status.line())
-            if self.settings.status_file:
-                try:
-                    self.status.write(self.settings.status_file)
-                except OSError as error:
-                    log.warning("cannot write the status file %s: %s", self.settings.status_file, error)
+            self._write_status()
             await asyncio.sleep(self.settings.status_interval_s)
+
+    def _write_status(self) -> None:
+        if self.settings.status_file:
+            try:
+                self.status.write(self.settings.status_file)
+            except OSError as error:
+                log.warning("cannot write the status file %s: %s", self.settings.status_file, error)
 
     async def _read(self) -> None:
         reader = StreamReader(self.endpoints)
@@ -286,6 +293,12 @@ class SourceRunner:
             raise RuntimeError("the MetricQ agent stopped")
         finally:
             stopped.cancel()
+
+
+async def _cancel(task: asyncio.Task[None]) -> None:
+    task.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await task
 
 
 async def _stop_quietly(source: HdeemSource) -> None:
