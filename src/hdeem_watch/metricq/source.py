@@ -40,7 +40,7 @@ log = logging.getLogger("hdeem-watch.metricq")
 #: How long one connection attempt (register at the manager, open the data connection) may take.
 CONNECT_TIMEOUT_S = 20.0
 #: How long waiting points may take to go out when the source is stopped.
-STOP_FLUSH_S = 2.0
+STOP_FLUSH_S = 5.0
 #: How long one publish round may wait for the broker before the agent is replaced.
 PUBLISH_TIMEOUT_S = 30.0
 
@@ -157,6 +157,7 @@ class SourceRunner:
         self._pending_declarations: dict[str, dict[str, Any]] = {}
         self._stop = asyncio.Event()
         self._nodes: set[str] = set()
+        self._publishing = False  # a batch taken from the outbox is on its way
 
     def stop(self) -> None:
         """Ask the tasks to end: reading stops at once, waiting points get up to ``STOP_FLUSH_S`` to go."""
@@ -170,7 +171,8 @@ class SourceRunner:
         await self._stop.wait()
         await _cancel(reader)
         deadline = time.monotonic() + STOP_FLUSH_S
-        while len(self.outbox) and self.status.broker == "connected" and time.monotonic() < deadline:
+        while ((len(self.outbox) or self._publishing) and self.status.broker == "connected"
+               and time.monotonic() < deadline):
             await asyncio.sleep(0.05)
         await _cancel(publisher)
         await _cancel(reporter)
@@ -283,11 +285,14 @@ class SourceRunner:
                 if not batch:
                     continue
                 sent: set[str] = set()
+                self._publishing = True
                 try:
                     await asyncio.wait_for(source.publish(batch, sent), PUBLISH_TIMEOUT_S)
                 except BaseException:
                     self.outbox.requeue([p for p in batch if p.metric not in sent])
                     raise
+                finally:
+                    self._publishing = False
                 self.status.points_sent += sum(len(p) for p in batch)
             stopped.result()
             raise RuntimeError("the MetricQ agent stopped")
