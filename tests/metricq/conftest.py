@@ -36,6 +36,12 @@ def standin_fixture() -> ModuleType:
     return standin
 
 
+@pytest.fixture(name="daemon_fixtures")
+def daemon_fixtures_fixture() -> ModuleType:
+    """tests/daemon/conftest.py as a module (make_daemon, DaemonProcess)."""
+    return daemon_fixtures
+
+
 @pytest.fixture
 def broker(tmp_path: Path) -> Iterator[object]:
     """A running private RabbitMQ node, closed (with its epmd) at the end."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -145,3 +146,31 @@ def test_default_token_names_the_host_and_a_token_file_is_read(tmp_path: Path) -
     token.chmod(0o600)
     s = load_source_settings(None, env={"HDEEM_WATCH_METRICQ_TOKEN_FILE": str(token)}, overrides={"server": "amqp://x/"})
     assert s.token == "source-hdeem-node7"
+
+
+@pytest.mark.timeout(120)
+async def test_stream_reader_reads_a_curve_daemon_with_its_key(tmp_path: Path, daemon_fixtures: Any) -> None:
+    """A daemon with CURVE on TCP: the reader with the daemon's public key gets its stream, one without nothing."""
+    import asyncio
+    import subprocess
+
+    from hdeem_watch.daemon.security import generate_keys, load_public_key
+    from hdeem_watch.metricq.settings import SourceSettings
+    from hdeem_watch.metricq.source import curve_options
+    from hdeem_watch.metricq.stream import StreamReader
+
+    public, secret = generate_keys(tmp_path / "keys", "server")
+    d = daemon_fixtures.make_daemon(tmp_path / "d", "--curve-secret-key", str(secret), tcp=True)
+    with open(d.stderr_path, "ab") as err:  # a plain readiness ping would be refused: start by hand
+        d.proc = subprocess.Popen(d.command(), env=d.env, stdout=subprocess.DEVNULL, stderr=err)
+    options = curve_options(SourceSettings(server="amqp://x/", curve_server_key_file=str(public)))
+    assert options["curve_server_key"] == load_public_key(public)
+    keyed, plain = StreamReader([d.pub], **options), StreamReader([d.pub])
+    try:
+        messages = await keyed.receive(timeout_s=30.0)
+        assert messages and all(m.node == d.node for m in messages)
+        assert await plain.receive(timeout_s=1.0) == []
+    finally:
+        keyed.close()
+        plain.close()
+        assert await asyncio.to_thread(d.terminate) == 0, d.stderr()

@@ -51,6 +51,10 @@ def register(subparsers: Any) -> None:
                         help=f"comma-separated metric families (default: all of {','.join(FAMILIES)})")
     parser.add_argument("--connect", metavar="EP", action="append",
                         help="a daemon's stream endpoint; repeat for several (default: the local daemon)")
+    parser.add_argument("--curve-server-key", metavar="FILE",
+                        help="the daemons' public CURVE certificate (server.key) for TCP streams with CURVE")
+    parser.add_argument("--curve-client-key", metavar="FILE",
+                        help="this source's secret CURVE certificate (.key_secret) for daemons with an allow-list")
     parser.add_argument("--status-file", metavar="FILE", help="write the status as JSON to FILE")
     parser.add_argument("--status-interval", metavar="S", type=float, help="status period in s (default: 10)")
     parser.add_argument("--reconnect-max", metavar="S", type=float,
@@ -71,7 +75,8 @@ def settings_from(args: argparse.Namespace) -> SourceSettings:
         "token_file": args.token_file, "prefix": args.prefix, "metrics": args.metrics,
         "connect": ",".join(args.connect) if args.connect else None, "status_file": args.status_file,
         "status_interval_s": args.status_interval, "reconnect_max_s": args.reconnect_max,
-        "buffer_points": args.buffer_points,
+        "buffer_points": args.buffer_points, "curve_server_key_file": args.curve_server_key,
+        "curve_client_key_file": args.curve_client_key,
     }
     return load_source_settings(args.config, overrides=overrides)
 
@@ -84,12 +89,13 @@ def run(args: argparse.Namespace) -> int:
     if not args.flush_interval > 0:
         raise InputError(f"--flush-interval {args.flush_interval!r}: expected a positive number of seconds")
     try:
-        from hdeem_watch.metricq.source import SourceRunner
+        from hdeem_watch.metricq.source import SourceRunner, curve_options
     except ImportError as error:
         raise InputError(f"the metricq package is not installed ({error}); "
                          "pip install 'hdeem-watch[metricq]'") from None
     from hdeem_watch.daemon.client import default_endpoints
 
+    curve_options(settings)  # a bad certificate is bad input, before anything starts
     endpoints = [e.strip() for e in settings.connect.split(",") if e.strip()] or [default_endpoints()[0]]
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     if not args.verbose:  # the source logs each failure itself, in one line

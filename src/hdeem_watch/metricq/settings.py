@@ -52,6 +52,10 @@ class SourceSettings:
         status_file: where to write the status as JSON (refreshed every ``status_interval_s``); "" = nowhere.
         status_interval_s: how often the status is logged and written.
         daemon_silence_s: the daemon counts as silent after this long without a message.
+        curve_server_key_file: the daemons' public CURVE certificate (``server.key``) for TCP
+            streams of daemons running with CURVE; "" = plain.
+        curve_client_key_file: this source's secret certificate (``.key_secret``) when the daemons
+            admit listed clients only; "" = an ephemeral key pair.
     """
 
     server: str = ""
@@ -66,6 +70,8 @@ class SourceSettings:
     status_file: str = ""
     status_interval_s: float = 10.0
     daemon_silence_s: float = 5.0
+    curve_server_key_file: str = ""
+    curve_client_key_file: str = ""
 
     def check(self) -> SourceSettings:
         """Return self if every value is in range.

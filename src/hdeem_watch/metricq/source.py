@@ -203,7 +203,7 @@ class SourceRunner:
                 log.warning("cannot write the status file %s: %s", self.settings.status_file, error)
 
     async def _read(self) -> None:
-        reader = StreamReader(self.endpoints)
+        reader = StreamReader(self.endpoints, **curve_options(self.settings))
         try:
             last = self.clock()
             while True:
@@ -298,6 +298,20 @@ class SourceRunner:
             raise RuntimeError("the MetricQ agent stopped")
         finally:
             stopped.cancel()
+
+
+def curve_options(settings: SourceSettings) -> dict[str, Any]:
+    """The :class:`StreamReader` CURVE arguments of ``settings`` (none for plain streams).
+
+    Raises:
+        InputError: an unreadable certificate, or a client certificate without its secret key.
+    """
+    if not settings.curve_server_key_file:
+        return {}
+    from hdeem_watch.daemon.security import load_public_key, load_secret_key
+
+    client = load_secret_key(settings.curve_client_key_file) if settings.curve_client_key_file else None
+    return {"curve_server_key": load_public_key(settings.curve_server_key_file), "curve_client_keys": client}
 
 
 async def _cancel(task: asyncio.Task[None]) -> None:

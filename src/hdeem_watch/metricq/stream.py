@@ -42,10 +42,12 @@ class StreamReader:
         endpoints: the daemons' pub endpoints (ipc or tcp).
         drain_interval_s: how often waiting messages are taken.
         curve_server_key: the daemons' CURVE public key (Z85) when they run with CURVE.
+        curve_client_keys: ``(public, secret)`` of this client (default: an ephemeral pair).
     """
 
     def __init__(self, endpoints: Sequence[str], *, drain_interval_s: float = 0.04,
-                 curve_server_key: bytes | None = None) -> None:
+                 curve_server_key: bytes | None = None,
+                 curve_client_keys: tuple[bytes, bytes] | None = None) -> None:
         if not endpoints:
             raise ValueError("no stream endpoint")
         self.drain_interval_s = drain_interval_s
@@ -56,7 +58,7 @@ class StreamReader:
         if curve_server_key is not None:
             from hdeem_watch.daemon.security import secure_client
 
-            secure_client(self._socket, curve_server_key, None)
+            secure_client(self._socket, curve_server_key, curve_client_keys)
         # Kinds sit after the node in the topic, so every message is subscribed to and filtered here
         # (the others are a heartbeat a second and the rare run events).
         self._socket.setsockopt(zmq.SUBSCRIBE, protocol.subscription())
