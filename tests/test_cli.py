@@ -33,7 +33,7 @@ def test_top_level_help_has_an_example_per_subcommand_and_the_exit_codes(capsys)
         assert done.code == 0
     out = capsys.readouterr().out
     examples = [line.split() for line in out.splitlines() if line.strip().startswith("hdeem-watch ")]
-    assert {words[1] for words in examples} == set(SUBCOMMAND_MODULES)
+    assert {words[1].replace("-", "_") for words in examples} == set(SUBCOMMAND_MODULES)
     for code in ("0 success", "1 failure", "2 bad input", "130 interrupted"):
         assert code in out, code
 

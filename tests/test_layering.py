@@ -38,6 +38,7 @@ TIERS: dict[str, int] = {
     "tui": 6,
     "bench": 6,
     "report": 6,  # figures from a daemon's state or a RUNS.json
+    "metricq": 6,  # the daemon's stream to a MetricQ broker (a client of the daemon)
     "demo": 7,  # a demo node: daemon + bench schedule, shown by the TUI
     "cli": 8,
     "__main__": 9,

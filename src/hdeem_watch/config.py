@@ -32,6 +32,10 @@ from hdeem_watch.errors import InputError
 ENV_PREFIX = "HDEEM_WATCH_"
 
 
+#: Tables of the daemon's config file that other commands read (the daemon leaves them alone).
+OTHER_TABLES = ("metricq",)
+
+
 class SettingError(InputError):
     """A setting with a value out of range; :func:`load_settings` adds where the value came from.
 
@@ -320,12 +324,14 @@ def load_settings(
             raise InputError(f"{path}: not a text file (not UTF-8); expected a TOML config file") from None
         except tomllib.TOMLDecodeError as error:
             raise InputError(f"{path}: not valid TOML ({error})") from None
-        if "daemon" in data and isinstance(data["daemon"], dict):
-            rest = {k: v for k, v in data.items() if k != "daemon"}
+        # [metricq] belongs to `hdeem-watch metricq-source`, which reads the same file.
+        own = {k: v for k, v in data.items() if k not in OTHER_TABLES}
+        if "daemon" in own and isinstance(own["daemon"], dict):
+            rest = {k: v for k, v in own.items() if k != "daemon"}
             _apply(values, rest, str(path), origins)
-            _apply(values, data["daemon"], f"{path} [daemon]", origins)
+            _apply(values, own["daemon"], f"{path} [daemon]", origins)
         else:
-            _apply(values, data, str(path), origins)
+            _apply(values, own, str(path), origins)
     environment = os.environ if env is None else env
     for name in _FIELDS:
         key = ENV_PREFIX + name.upper()

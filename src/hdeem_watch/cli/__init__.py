@@ -18,7 +18,8 @@ from hdeem_watch import __version__
 from hdeem_watch.errors import InputError
 
 #: Subcommand modules, in the order ``--help`` lists them.
-SUBCOMMAND_MODULES = ("demo", "daemon", "tui", "bench", "model", "calibrate", "calib", "report", "node", "counters")
+SUBCOMMAND_MODULES = ("demo", "daemon", "tui", "bench", "model", "calibrate", "calib", "report", "node", "counters",
+                      "metricq_source")
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -37,6 +38,7 @@ EPILOG = """examples (COMMAND --help for each command's options and examples):
   hdeem-watch report --runs RUNS.json --out DIR      # the paper's figures as a self-contained HTML page
   hdeem-watch node --json                            # this node's sockets, channels, DIMMs, memspec, sensors
   hdeem-watch counters                               # the memory-controller counters this host offers
+  hdeem-watch metricq-source --server amqp://HOST/   # the daemon's stream to a centre's MetricQ
 
 exit codes: 0 success, 1 failure (one line on stderr), 2 bad input (one line on stderr),
   130 interrupted (Ctrl-C)"""
@@ -76,7 +78,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         arguments = list(sys.argv[1:] if argv is None else argv)
         first = next((a for a in arguments if not a.startswith("-")), None)
-        parser = build_parser(first if first in SUBCOMMAND_MODULES else None)
+        module = first.replace("-", "_") if first else None  # metricq-source lives in metricq_source.py
+        parser = build_parser(module if module in SUBCOMMAND_MODULES else None)
         args = parser.parse_args(arguments)
         if getattr(args, "func", None) is None:
             parser.print_help(sys.stderr)
