@@ -160,8 +160,9 @@ def test_runs_on_one_socket_are_modelled_there_and_calibrate_as_well_as_on_the_d
         name: str, tmp_path: Path, default_node: Any) -> None:
     """Every run announced on socket 0's CPUs: the model puts all its threads there and loads only socket 0's
     DIMMs (socket 1's are an idle group: no commands), with the node's DIMM count; the same schedule fits the
-    sim's energies as well as on the default node (in-sample and leave-one-out error within 2 resp. 5 points
-    of the default node's)."""
+    sim's energies about as well as on the default node (in-sample and leave-one-out error at most 1.5× the
+    default node's: the sim is not the model — power-down, its own bank hash, I/O energy — and how much of
+    that the fit cannot absorb differs with the node's share of idle DIMMs)."""
     node = ICE_LAKE if name.startswith("ice") else ONE_SOCKET
     topology = topology_from_node(node)
     fit, runs, _truth = calibrate(tmp_path, node, topology)
@@ -182,5 +183,5 @@ def test_runs_on_one_socket_are_modelled_there_and_calibrate_as_well_as_on_the_d
             groups = one.groups_for(run["kernel"], run["elements"], run["threads"], run["repeat"])
             assert run["model"]["counts"]["rd"] == pytest.approx(8 * groups[0][0].total("rd"))
     default_fit, _runs, _default_truth = default_node
-    assert fit["error"]["after"] <= default_fit["error"]["after"] + 0.02, (fit["error"], default_fit["error"])
-    assert fit["error"]["loo"] <= default_fit["error"]["loo"] + 0.05, (fit["error"], default_fit["error"])
+    assert fit["error"]["after"] <= 1.5 * default_fit["error"]["after"], (fit["error"], default_fit["error"])
+    assert fit["error"]["loo"] <= 1.5 * default_fit["error"]["loo"], (fit["error"], default_fit["error"])
