@@ -174,3 +174,15 @@ async def test_stream_reader_reads_a_curve_daemon_with_its_key(tmp_path: Path, d
         keyed.close()
         plain.close()
         assert await asyncio.to_thread(d.terminate) == 0, d.stderr()
+
+
+def test_each_pairs_own_fit_is_published_beside_the_nodes() -> None:
+    """The calib body's per-group fits (one per DIMM pair) become that pair's current metrics, with
+    the pair in the metadata; a group without a fit yet publishes nothing."""
+    tr = StreamTranslator(MetricNames("s"))
+    groups = {"DDR_CD": {"fit": {"currents": {"idd3n": {"calibrated": 0.093}}}}, "DDR_AB": {"fit": None}}
+    out = tr.translate(body("n1", "calib", {"fit": None, "memspec": "ddr4", "groups": groups}, t_ns=9_000))
+    values = {p.metric: (p.t_ns.tolist(), p.values.tolist()) for p in out.points}
+    assert values == {"s.n1.dram.cd.calibrated.idd3n.current": ([9_000], [0.093])}
+    meta = out.declarations["s.n1.dram.cd.calibrated.idd3n.current"]
+    assert meta["channel"] == "DDR_CD" and meta["unit"] == "A" and "DIMM pair CD" in meta["description"]

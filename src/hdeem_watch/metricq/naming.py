@@ -86,6 +86,10 @@ class MetricNames:
         """One calibrated current (A per device) of the node's DRAM model."""
         return f"{self._node(node)}.dram.calibrated.{segment(current)}.current"
 
+    def group_current(self, node: str, channel: str, current: str) -> str:
+        """One calibrated current of a sensor group's own fit (a DIMM pair, or a RAPL socket)."""
+        return f"{self._node(node)}.{channel_path(channel)}.calibrated.{segment(current)}.current"
+
     @staticmethod
     def power_metadata(node: str, channel: str, rate_hz: float) -> dict[str, Any]:
         """Metadata of :meth:`power`: W at the sensor's rate, each value the mean since the last."""
@@ -126,4 +130,20 @@ class MetricNames:
             "scope": "next",
             "quantity": "current",
             "node": node,
+        }
+
+    @staticmethod
+    def group_current_metadata(node: str, channel: str, current: str, memspec: str | None,
+                               rate_hz: float) -> dict[str, Any]:
+        """Metadata of :meth:`group_current`: the fit of that sensor's own energy (aging shows here)."""
+        what = f"DIMM pair {channel[len(_DRAM_PREFIX):]}" if is_dram(channel) else f"sensor {channel}"
+        return {
+            "description": (f"calibrated DRAM current {current} of {what} of node {node} (hdeem-watch; fitted "
+                            f"to that sensor's own energy; memspec {memspec or 'unknown'}; A per device)"),
+            "unit": "A",
+            "rate": float(rate_hz),
+            "scope": "next",
+            "quantity": "current",
+            "node": node,
+            "channel": channel,
         }

@@ -7,7 +7,8 @@ metadata, so that the source declares them before their first value:
 * ``samples/<channel>`` → the sensor's power at its native rate, and for a DIMM pair its power
   above the latest ``baseline`` (NaN while no baseline is known);
 * ``baseline`` → remembered per node and channel;
-* ``calib`` → the calibrated currents of the fit (one slow value each, at the message's time);
+* ``calib`` → the calibrated currents of the node's fit and of each sensor group's own fit (a
+  DIMM pair's: where its aging shows), one slow value each, at the message's time;
 * ``status``, ``run`` → nothing.
 
 MetricQ needs strictly increasing times per metric; a value at or before the last one sent for its
@@ -147,16 +148,30 @@ class StreamTranslator:
                 self.baseline_w.pop(key, None)
 
     def _calib(self, message: Message, out: Translation) -> None:
-        fit = message.header.get("fit")
-        currents = fit.get("currents") if isinstance(fit, Mapping) else None
-        if not isinstance(currents, Mapping):
-            return
         memspec = message.header.get("memspec")
-        t = np.array([message.t_ns], dtype=np.int64)
-        for name, entry in sorted(currents.items()):
-            value = entry.get("calibrated") if isinstance(entry, Mapping) else None
-            amps = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
-            metric = self.names.current(message.node, str(name))
-            self._declare(out, metric, self.names.current_metadata(
-                message.node, str(name), memspec if isinstance(memspec, str) else None, CALIB_RATE_HZ))
-            self._add(out, metric, t, np.array([amps]))
+        spec_name = memspec if isinstance(memspec, str) else None
+        node = message.node
+        for name, amps in _calibrated(message.header.get("fit")):
+            metric = self.names.current(node, name)
+            self._declare(out, metric, self.names.current_metadata(node, name, spec_name, CALIB_RATE_HZ))
+            self._add(out, metric, np.array([message.t_ns], dtype=np.int64), np.array([amps]))
+        groups = message.header.get("groups")
+        for channel, entry in sorted(groups.items()) if isinstance(groups, Mapping) else ():
+            for name, amps in _calibrated(entry.get("fit") if isinstance(entry, Mapping) else None):
+                metric = self.names.group_current(node, str(channel), name)
+                self._declare(out, metric, self.names.group_current_metadata(node, str(channel), name, spec_name,
+                                                                             CALIB_RATE_HZ))
+                self._add(out, metric, np.array([message.t_ns], dtype=np.int64), np.array([amps]))
+
+
+def _calibrated(fit: Any) -> list[tuple[str, float]]:
+    """``(current, A)`` of a fit's calibrated currents, NaN where unknown (never 0); none without a fit."""
+    currents = fit.get("currents") if isinstance(fit, Mapping) else None
+    if not isinstance(currents, Mapping):
+        return []
+    found = []
+    for name, entry in sorted(currents.items()):
+        value = entry.get("calibrated") if isinstance(entry, Mapping) else None
+        amps = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
+        found.append((str(name), amps))
+    return found
