@@ -114,7 +114,7 @@ class _RunRow:
 class _CalibOp:
     t_ns: int
     state: str | None  # None: calib.reset (the calibrator is forgotten)
-    fit: str | None
+    fit: str | None  # None with a state: the state alone (a group's reset), no history entry
     run_id: str | None
 
 
@@ -334,6 +334,10 @@ class Store:
         """
         self._save_calib(_CalibOp(int(t_ns), _dumps(state), None if fit is None else _dumps(fit), run_id))
 
+    def save_calibrator_state(self, t_ns: int, state: Mapping[str, Any] | str) -> None:
+        """Store the calibrator's state without a fit-history entry (e.g. after one group's reset)."""
+        self._save_calib(_CalibOp(int(t_ns), _dumps(state), None, None))
+
     def clear_calibrator(self, t_ns: int) -> None:
         """Forget the calibrator state (``calib.reset``); the fit history keeps a null entry."""
         self._save_calib(_CalibOp(int(t_ns), None, None, None))
@@ -359,7 +363,8 @@ class Store:
         with self._lock:
             rows = self._query("SELECT t_ns, run_id, fit FROM fits WHERE fit IS NULL OR json_valid(fit) "
                                "ORDER BY id DESC LIMIT ?", (int(limit),))
-            pending = [(op.t_ns, op.run_id, op.fit) for _k, op in sorted(self._calib.items())]
+            pending = [(op.t_ns, op.run_id, op.fit) for _k, op in sorted(self._calib.items())
+                       if op.state is None or op.fit is not None]
         entries = [(int(t), r, f) for t, r, f in reversed(rows)] + pending
         return [(t, r, _loads(f)) for t, r, f in entries[-max(0, int(limit)):]] if limit > 0 else []
 
@@ -401,7 +406,9 @@ class Store:
         else:
             db.execute("INSERT OR REPLACE INTO calibrator (id, t_ns, state) VALUES (1, ?, ?)",
                        (pending.t_ns, pending.state))
-            db.execute("INSERT INTO fits (t_ns, run_id, fit) VALUES (?, ?, ?)", (pending.t_ns, pending.run_id, pending.fit))
+            if pending.fit is not None:
+                db.execute("INSERT INTO fits (t_ns, run_id, fit) VALUES (?, ?, ?)",
+                           (pending.t_ns, pending.run_id, pending.fit))
         # Commit and drop the overlay entry atomically for the readers (they hold the same lock).
         with self._lock:
             db.execute("COMMIT")
