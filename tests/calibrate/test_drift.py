@@ -52,6 +52,11 @@ def test_siblings() -> None:
     the tolerance or overlapping them is not."""
     assert sibling_residuals({"a": 0.1, "b": 0.0})["a"] == 0.1
     assert sibling_residuals({"a": 0.1, "b": 0.0, "c": 0.02, "d": float("nan")})["a"] == pytest.approx(0.09)
+    # a drifting group is no sibling: "a" against the median of b and c (0.01), not of b, c, d (0.02)
+    drifting = {"a": 0.0, "b": 0.0, "c": 0.02, "d": 0.3}
+    assert sibling_residuals(drifting)["a"] == pytest.approx(-0.02)
+    assert sibling_residuals(drifting, exclude={"d"})["a"] == pytest.approx(-0.01)
+    assert sibling_residuals(drifting, exclude={"d"})["d"] == pytest.approx(0.3)
     fits = {"AB": {"idd3n": (0.050, 0.048, 0.052)}, "CD": {"idd3n": (0.052, 0.050, 0.054)},
             "EF": {"idd3n": (0.049, 0.047, 0.051)}, "GH": {"idd3n": (0.071, 0.069, 0.073)}}
     alarms = sibling_outliers(fits, time_ns=5)

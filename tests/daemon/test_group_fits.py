@@ -90,7 +90,7 @@ def test_each_pair_gets_its_own_fit_beside_the_node_fit() -> None:
         assert error is None and fit is not None
         assert set(model["group_observations"]) == set(RATES)
     body = m.body()
-    assert body["fit"]["n_runs"] == len(SCHEDULE) and body["node"]["runs"] == len(SCHEDULE)
+    assert body["fit"]["n_runs"] == len(SCHEDULE) and body["total"]["runs"] == len(SCHEDULE)
     assert {name: g["runs"] for name, g in body["groups"].items()} == dict.fromkeys(RATES, len(SCHEDULE))
     # each pair's fit follows its part: on the same row, DDR_CD's fit predicts 12 % more than DDR_AB's
     from hdeem_watch.calibrate.observation import Observation
@@ -119,7 +119,7 @@ def test_state_round_trip_and_resetting_one_group() -> None:
         again.reset("DDR_XY")
     again.reset()
     body = again.body()
-    assert body["runs"] == 0 and body["node"]["runs"] == 0 and body["groups"]["DDR_AB"]["runs"] == 0
+    assert body["runs"] == 0 and body["total"]["runs"] == 0 and body["groups"]["DDR_AB"]["runs"] == 0
     # a state of other groups is not forced onto this node: the groups start afresh, the node fit stays
     other = RunModeller(MEMSPEC, max_requests=100_000, groups=[SensorGroup("DDR_AB", (4, 4))], dram_rates_hz=RATES,
                         state=state)

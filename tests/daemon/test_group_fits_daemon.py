@@ -64,7 +64,7 @@ def test_calib_get_and_calib_show_have_a_fit_per_pair(daemon: str, capsys: pytes
             assert done["model_error"] is None, done["model_error"]
             assert set(done["model"]["group_observations"]) == PAIRS
         body = client.call("calib.get")
-        assert set(body["groups"]) == PAIRS and body["node"]["runs"] == 8 and body["runs"] == 8
+        assert set(body["groups"]) == PAIRS and body["total"]["runs"] == 8 and body["runs"] == 8
         assert all(g["runs"] == 8 and g["fit"]["n_runs"] == 8 for g in body["groups"].values())
         assert body["groups"]["DDR_EF"]["dimms_per_socket"] == [0, 2]
 
@@ -85,7 +85,7 @@ def test_calib_get_and_calib_show_have_a_fit_per_pair(daemon: str, capsys: pytes
     assert set(shown["groups"]["DDR_GH"]["fit"]["currents"]) >= {"idd0", "idd3n", "idd4r", "idd4w"}
 
 
-def test_a_10ms_run_is_recorded_not_fitted_and_says_why(tmp_path: Path) -> None:
+def test_a_10ms_run_is_recorded_not_fitted_and_says_why(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     proc, control = start_daemon(tmp_path, 1)
     try:
         with ControlClient(control, timeout_s=30.0) as client:
@@ -100,6 +100,11 @@ def test_a_10ms_run_is_recorded_not_fitted_and_says_why(tmp_path: Path) -> None:
             assert stored["run_id"] == run["run_id"] and stored["model_error"] == done["model_error"]
             body = client.call("calib.get")
             assert body["runs"] == 0 and all(g["runs"] == 0 for g in body["groups"].values())
+        # bench warns about a run the daemon did not calibrate with
+        assert main(["bench", "--kernels", "read", "--threads", "1", "--elements", "4096", "--repeat", "1",
+                     "--daemon", control]) == 0
+        err = capsys.readouterr().err
+        assert "hdeem-watch bench: warning: run r2 (read x1): not calibrated: " in err and "samples of DDR_" in err
     finally:
         proc.terminate()
         proc.wait(timeout=15)

@@ -365,6 +365,7 @@ class Operations:
             log.warning("calibration alarm: %s %s (%s, %s) after run %s", alarm.get("group"), alarm.get("current"),
                         alarm.get("kind"), alarm.get("direction"), record.run_id)
             self.publisher.publish("alarm", {"event": "alarm", "run_id": record.run_id, "alarm": alarm})
+            self.store.write(f"alarm {alarm.get('group')}", _save_alarm(int(alarm.get("time_ns") or 0), record.run_id, alarm))
         calibration = (int(done.t_stop_ns or 0), state, fit) if fit is not None and state is not None else None
         self._save_run(done, lambda _written: self._finished(done, calib=True), calibration)
 
@@ -389,6 +390,10 @@ class Operations:
             self.model(record)
             count += 1
         return count
+
+
+def _save_alarm(t_ns: int, run_id: str, alarm: dict[str, Any]) -> Callable[[StorePort], None]:
+    return lambda store: store.save_alarm(t_ns, run_id, alarm)
 
 
 def unfinished_runs(store: StorePort) -> list[dict[str, Any]]:

@@ -169,6 +169,7 @@ class Store:
         self._baselines: dict[str, tuple[int, str]] = {}
         self._calib: dict[int, _CalibOp] = {}
         self._calib_ids = itertools.count()
+        self._alarms: dict[int, tuple[int, str | None, str, str]] = {}
         self._read_health = "ok"
         self._count = int((self._query("SELECT COUNT(*) FROM runs WHERE json_valid(record)") or [(0,)])[0][0])
         self._sync_wait_s = sync_wait_s
@@ -185,7 +186,7 @@ class Store:
 
     def _has_tables(self) -> bool:
         names = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
-        return {"meta", "runs", "fits", "calibrator", "baselines", "quarantine"} <= names
+        return {"meta", "runs", "fits", "calibrator", "baselines", "quarantine", "alarms"} <= names
 
     def _schema_version(self) -> int | None:
         exists = self._db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name='meta'").fetchone()
@@ -368,6 +369,25 @@ class Store:
         entries = [(int(t), r, f) for t, r, f in reversed(rows)] + pending
         return [(t, r, _loads(f)) for t, r, f in entries[-max(0, int(limit)):]] if limit > 0 else []
 
+    # -- calibration alarms ---------------------------------------------------------------------------
+
+    def save_alarm(self, t_ns: int, run_id: str | None, alarm: Mapping[str, Any]) -> None:
+        """Append a drift alarm of a sensor group (``DriftAlarm.to_dict()``); returns at once."""
+        with self._lock:
+            key = next(self._calib_ids)
+            self._alarms[key] = (int(t_ns), run_id, str(alarm.get("group")), _dumps(alarm))
+        self._submit(("alarm", key))
+
+    def list_alarms(self, limit: int = 100) -> list[dict[str, Any]]:
+        """The last ``limit`` alarms, oldest first, each ``{"t_ns", "run_id", "alarm"}``."""
+        with self._lock:
+            rows = self._query("SELECT t_ns, run_id, alarm FROM alarms WHERE json_valid(alarm) ORDER BY id DESC LIMIT ?",
+                               (int(limit),))
+            pending = [(t, r, a) for _k, (t, r, _g, a) in sorted(self._alarms.items())]
+        entries = [(int(t), r, a) for t, r, a in reversed(rows)] + pending
+        return [{"t_ns": t, "run_id": r, "alarm": _loads(a)} for t, r, a in entries[-max(0, int(limit)):]] \
+            if limit > 0 else []
+
     # -- baselines -----------------------------------------------------------------------------------
 
     def save_baseline(self, channel: str, record: Mapping[str, Any]) -> None:
@@ -389,7 +409,8 @@ class Store:
         """Write one operation (on the writer thread); the overlay entry goes once it is committed."""
         assert isinstance(op, tuple)
         kind, key = op
-        tables: dict[str, dict[Any, Any]] = {"run": self._runs, "baseline": self._baselines, "calib": self._calib}
+        tables: dict[str, dict[Any, Any]] = {"run": self._runs, "baseline": self._baselines, "calib": self._calib,
+                                             "alarm": self._alarms}
         with self._lock:
             pending: Any = tables[kind].get(key)
         if pending is None:
@@ -400,6 +421,8 @@ class Store:
                        (key, pending.seq, pending.kernel, pending.state, pending.t_start_ns, pending.record))
         elif kind == "baseline":
             db.execute("INSERT OR REPLACE INTO baselines (channel, t_ns, record) VALUES (?, ?, ?)", (key, *pending))
+        elif kind == "alarm":
+            db.execute("INSERT INTO alarms (t_ns, run_id, grp, alarm) VALUES (?, ?, ?, ?)", pending)
         elif pending.state is None:
             db.execute("DELETE FROM calibrator")
             db.execute("INSERT INTO fits (t_ns, run_id, fit) VALUES (?, NULL, NULL)", (pending.t_ns,))
