@@ -13,8 +13,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import zmq
 
 from hdeem_watch.cli import main
+from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
 
 SRC = Path(__file__).resolve().parents[2] / "src"
@@ -54,7 +56,13 @@ def daemon(tmp_path: Path) -> Iterator[str]:
         proc.wait(timeout=15)
 
 
-def test_calib_get_and_calib_show_have_a_fit_per_pair(daemon: str, capsys: pytest.CaptureFixture[str]) -> None:
+def test_calib_get_and_calib_show_have_a_fit_per_pair(daemon: str, tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    context = zmq.Context.instance()
+    sub = context.socket(zmq.SUB)
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.connect(f"ipc://{tmp_path}/p.sock")
+    sub.setsockopt(zmq.SUBSCRIBE, protocol.subscription("grouptest", "calib"))
     with ControlClient(daemon, timeout_s=30.0) as client:
         for kernel, threads in (("idle", 1), ("read", 4), ("triad", 24), ("copy", 12), ("read", 24),
                                 ("assign", 6), ("idle", 1), ("add", 18)):
@@ -67,6 +75,16 @@ def test_calib_get_and_calib_show_have_a_fit_per_pair(daemon: str, capsys: pytes
         assert set(body["groups"]) == PAIRS and body["total"]["runs"] == 8 and body["runs"] == 8
         assert all(g["runs"] == 8 and g["fit"]["n_runs"] == 8 for g in body["groups"].values())
         assert body["groups"]["DDR_EF"]["dimms_per_socket"] == [0, 2]
+        # the stream's calib body: the same groups, and the groups' total fit beside the header's node name
+        deadline = time.monotonic() + 15
+        while True:
+            assert sub.poll(int(max(0.0, deadline - time.monotonic()) * 1000)), "no calib message"
+            message = protocol.decode(sub.recv_multipart())
+            if message.header.get("runs") == 8:
+                break
+        assert message.header["node"] == "grouptest" and message.header["total"]["runs"] == 8
+        assert set(message.header["groups"]) == PAIRS
+        sub.close()
 
         with pytest.raises(ControlError) as bad:
             client.call("calib.reset", {"group": 3})
