@@ -63,3 +63,13 @@ def test_siblings() -> None:
     assert [(a.group, a.current, a.direction) for a in alarms] == [("GH", "idd3n", "up")]
     fits["GH"] = {"idd3n": (0.071, 0.050, 0.09)}  # interval reaches the siblings: no alarm
     assert sibling_outliers(fits, time_ns=5) == []
+
+
+def test_restart_zeroes_the_sums_and_keeps_the_scale() -> None:
+    det = ResidualCusum("DDR_GH", warmup=3, h=10.0)
+    for t, d in enumerate([0.01, -0.01, 0.0, -0.03, -0.03]):
+        det.update(d, t)
+    scale, lower = det.scale, det.lower
+    assert lower > 0 and scale > 0
+    det.restart()
+    assert det.lower == det.upper == 0.0 and det.scale == scale and not det.alarmed

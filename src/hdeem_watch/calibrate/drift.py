@@ -137,6 +137,11 @@ class ResidualCusum:
         return DriftAlarm(self.group, "energy", "residual-cusum", max(self.upper, self.lower), self.h, int(time_ns),
                           "up" if up else "down")
 
+    def restart(self) -> None:
+        """Zero the sums, keep the learnt scale (a sibling's drift was found: what the sums took
+        from it while it was still a reference goes)."""
+        self.upper = self.lower = 0.0
+
     def reset(self) -> None:
         """Start again (after a replaced DIMM or a calibration reset)."""
         self.learning.clear()

@@ -193,6 +193,10 @@ class GroupCalibrators:
         if not self.node_detector:
             against.pop(NODE, None)
         alarms = [a for g, d in against.items() if (a := self.detectors[g].update(d, run.time_ns)) is not None]
+        if alarms:  # a group drifts: it was a reference of the others until now; their sums start again
+            for detector in self.detectors.values():
+                if not detector.alarmed:
+                    detector.restart()
         fits = {name: self.calibrators[name].add_run(obs) for name, obs in rows.items()}
         if fits:
             per_group = {g: identifiable_currents(c.latest) for g, c in self.calibrators.items()
