@@ -52,9 +52,24 @@ def test_siblings() -> None:
     the tolerance or overlapping them is not."""
     assert sibling_residuals({"a": 0.1, "b": 0.0})["a"] == 0.1
     assert sibling_residuals({"a": 0.1, "b": 0.0, "c": 0.02, "d": float("nan")})["a"] == pytest.approx(0.09)
+    # a drifting group is no sibling: "a" against the median of b and c (0.01), not of b, c, d (0.02)
+    drifting = {"a": 0.0, "b": 0.0, "c": 0.02, "d": 0.3}
+    assert sibling_residuals(drifting)["a"] == pytest.approx(-0.02)
+    assert sibling_residuals(drifting, exclude={"d"})["a"] == pytest.approx(-0.01)
+    assert sibling_residuals(drifting, exclude={"d"})["d"] == pytest.approx(0.3)
     fits = {"AB": {"idd3n": (0.050, 0.048, 0.052)}, "CD": {"idd3n": (0.052, 0.050, 0.054)},
             "EF": {"idd3n": (0.049, 0.047, 0.051)}, "GH": {"idd3n": (0.071, 0.069, 0.073)}}
     alarms = sibling_outliers(fits, time_ns=5)
     assert [(a.group, a.current, a.direction) for a in alarms] == [("GH", "idd3n", "up")]
     fits["GH"] = {"idd3n": (0.071, 0.050, 0.09)}  # interval reaches the siblings: no alarm
     assert sibling_outliers(fits, time_ns=5) == []
+
+
+def test_restart_zeroes_the_sums_and_keeps_the_scale() -> None:
+    det = ResidualCusum("DDR_GH", warmup=3, h=10.0)
+    for t, d in enumerate([0.01, -0.01, 0.0, -0.03, -0.03]):
+        det.update(d, t)
+    scale, lower = det.scale, det.lower
+    assert lower > 0 and scale > 0
+    det.restart()
+    assert det.lower == det.upper == 0.0 and det.scale == scale and not det.alarmed

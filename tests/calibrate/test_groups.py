@@ -156,7 +156,7 @@ def test_body_is_json_and_state_round_trips(spec: Any, planned: list[Any]) -> No
     for i in range(8):
         calib.add_run(node.run(config=i % len(planned)))
     body = json.loads(json.dumps(calib.body(), allow_nan=False))
-    assert set(body["groups"]) == {"DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"} and body["node"]["runs"] == 8
+    assert set(body["groups"]) == {"DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"} and body["total"]["runs"] == 8
     assert body["groups"]["DDR_EF"]["dimms_per_socket"] == [0, 2]
     state = json.loads(json.dumps(calib.to_dict(), allow_nan=False))
     again = GroupCalibrators.from_dict(state, spec)

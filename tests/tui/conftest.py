@@ -89,8 +89,20 @@ def build_frozen_snapshot(node: str = "taurusi6001", *, stale: bool = False, plo
                         for n, (d, t) in names.items()},
            "error": {"before": 1.02, "after": 0.031, "loo": 0.048}, "n_runs": 8}
     history = [{"t_ns": i, "currents": {n: d - (d - t) * (1 - 0.7**i) for n, (d, t) in names.items()}} for i in range(12)]
+    part = {"DDR_AB": 1.0, "DDR_CD": 1.25, "DDR_EF": 0.96, "DDR_GH": 1.04}
+    alarm = {"group": "DDR_CD", "current": "energy", "kind": "residual-cusum", "statistic": 12.4, "threshold": 12.0,
+             "time_ns": FROZEN_WALL_NS, "direction": "up"}
+
+    def group(factor: float, dimms: list[int] | None, alarms: list[dict]) -> dict:
+        currents = {n: {"datasheet": d, "calibrated": t * factor, "ci95": [t * factor - 0.002, t * factor + 0.002],
+                        "identifiable": n != "idd3n"} for n, (d, t) in names.items()}
+        return {"fit": {"currents": currents, "status": "ok", "error": {"loo": 0.02 * factor}, "n_runs": 8},
+                "runs": 8, "dimms_per_socket": dimms, "alarms": alarms}
+
+    groups = {g: group(f, [2, 0] if g in ("DDR_AB", "DDR_CD") else [0, 2], [alarm] if g == "DDR_CD" else [])
+              for g, f in part.items()}
     put("calib", {"fit": fit, "history": history, "truth": {"simulated": True, "mean_currents_a": {n: t for n, (_, t) in names.items()}},
-                  "suggest": [["idle-24t", 0.4]]})
+                  "suggest": [["idle-24t", 0.4]], "groups": groups, "total": group(1.06, None, []), "alarms": [alarm]})
     now_mono = FROZEN_MONO_NS + (10 * 10**9 if stale else 0)
     model.last_rx_mono_ns = FROZEN_MONO_NS
     return model.snapshot(now_mono_ns=now_mono, now_wall_ns=FROZEN_WALL_NS, window_s=60.0, width=2 * plot_cells)

@@ -30,3 +30,9 @@ def test_snapshot_stale(snap_compare, frozen_snapshot) -> None:  # type: ignore[
 def test_snapshot_paused_help(snap_compare, frozen_snapshot) -> None:  # type: ignore[no-untyped-def]
     """p says PAUSED in the health bar; ? opens the key help over the dashboard."""
     assert snap_compare(frozen_app(frozen_snapshot), terminal_size=(80, 24), press=["p", "question_mark"])
+
+
+def test_snapshot_per_pair_view_80x24(snap_compare, frozen_snapshot) -> None:  # type: ignore[no-untyped-def]
+    """g opens the per-pair calibration view: each pair's currents ±95 % beside the datasheet and the
+    node fit, runs, LOO error and a drift badge (DDR_CD drifts up)."""
+    assert snap_compare(frozen_app(frozen_snapshot), terminal_size=(80, 24), press=["g"])

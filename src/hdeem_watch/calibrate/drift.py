@@ -36,7 +36,7 @@ Example:
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -137,6 +137,11 @@ class ResidualCusum:
         return DriftAlarm(self.group, "energy", "residual-cusum", max(self.upper, self.lower), self.h, int(time_ns),
                           "up" if up else "down")
 
+    def restart(self) -> None:
+        """Zero the sums, keep the learnt scale (a sibling's drift was found: what the sums took
+        from it while it was still a reference goes)."""
+        self.upper = self.lower = 0.0
+
     def reset(self) -> None:
         """Start again (after a replaced DIMM or a calibration reset)."""
         self.learning.clear()
@@ -161,15 +166,18 @@ class ResidualCusum:
         return det
 
 
-def sibling_residuals(residuals: Mapping[str, float]) -> dict[str, float]:
+def sibling_residuals(residuals: Mapping[str, float], *, exclude: Collection[str] = ()) -> dict[str, float]:
     """Each group's residual against the median of its siblings' (as is, with fewer than two
-    siblings). NaN residuals stay NaN and are not used as siblings.
+    siblings). NaN residuals stay NaN and are not used as siblings; nor are the groups in
+    ``exclude`` (those that drift already: the median of three siblings of which one drifts is
+    biased towards it by about half a standard deviation, enough for the CUSUM to alarm on a
+    healthy group after a few hundred runs).
 
     Example:
         >>> sibling_residuals({"a": 0.05, "b": 0.01, "c": 0.0, "d": 0.02})["a"]
         0.04
     """
-    finite = {g: r for g, r in residuals.items() if math.isfinite(r)}
+    finite = {g: r for g, r in residuals.items() if math.isfinite(r) and g not in exclude}
     out: dict[str, float] = {}
     for group, r in residuals.items():
         others = [v for g, v in finite.items() if g != group]

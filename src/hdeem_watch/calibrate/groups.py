@@ -59,11 +59,14 @@ from hdeem_watch.calibrate.result import FitResult
 from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.errors import InputError
 
-__all__ = ["DEFAULT_MIN_SAMPLES", "NODE", "GroupCalibrators", "GroupUpdate", "MeasuredRun", "SensorGroup",
+__all__ = ["DEFAULT_MIN_SAMPLES", "NODE", "TOTAL", "GroupCalibrators", "GroupUpdate", "MeasuredRun", "SensorGroup",
            "SkippedRun", "group_observation", "measured_run", "sensor_groups", "unmeasured_reason"]
 
-#: The node-level fit's key beside the groups.
+#: The node-level fit's name beside the groups (in alarms, ``reset``, ``calib show --group``).
 NODE = "node"
+#: The key of the node-level fit in :meth:`GroupCalibrators.body` (a stream message's header
+#: already has a ``node``: the node's name).
+TOTAL = "total"
 #: Skipped runs and alarms kept (oldest dropped first).
 MAX_RECORDS = 200
 _STATE_VERSION = 1
@@ -183,12 +186,17 @@ class GroupCalibrators:
             calib = self.calibrators[name]
             if calib.latest is not None and len(calib.observations) >= self.detect_after:
                 residuals[name] = obs.measured_j / self.predicted_j(name, obs) - 1.0
-        against = sibling_residuals({g: r for g, r in residuals.items() if g != NODE})
+        drifting = {g for g, d in self.detectors.items() if d.alarmed}
+        against = sibling_residuals({g: r for g, r in residuals.items() if g != NODE}, exclude=drifting)
         if NODE in residuals:
             against[NODE] = residuals[NODE]
         if not self.node_detector:
             against.pop(NODE, None)
         alarms = [a for g, d in against.items() if (a := self.detectors[g].update(d, run.time_ns)) is not None]
+        if alarms:  # a group drifts: it was a reference of the others until now; their sums start again
+            for detector in self.detectors.values():
+                if not detector.alarmed:
+                    detector.restart()
         fits = {name: self.calibrators[name].add_run(obs) for name, obs in rows.items()}
         if fits:
             per_group = {g: identifiable_currents(c.latest) for g, c in self.calibrators.items()
@@ -235,11 +243,12 @@ class GroupCalibrators:
         }
 
     def body(self) -> dict[str, Any]:
-        """The ``calib.get`` shape: ``{"groups": {name: entry}, "node": entry, "alarms", "skipped",
+        """The ``calib.get`` shape: ``{"groups": {name: entry}, "total": entry (the node-level fit of
+        the groups' sum; not ``"node"``: the stream's header has that key), "alarms", "skipped",
         "min_samples"}`` (docs/calibration.md, "Per-sensor-group fits")."""
         return {
             "groups": {name: self.group_body(name) for name in self.groups},
-            "node": self.group_body(NODE),
+            TOTAL: self.group_body(NODE),
             "alarms": [a.to_dict() for a in self.alarms],
             "skipped": [s.to_dict() for s in self.skipped],
             "min_samples": self.min_samples,

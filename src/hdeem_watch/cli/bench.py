@@ -109,6 +109,14 @@ def _table(results: list[RunResult], out: TextIO) -> None:
           "(copy/scale 2, add/triad 3 words per element)", file=out)
 
 
+def _not_calibrated(result: RunResult) -> str | None:
+    """Why the daemon did not calibrate with the run (e.g. too short to measure), or None."""
+    record = result.announce.get("daemon")
+    if not isinstance(record, dict) or record.get("fit") is not None or not record.get("model_error"):
+        return None
+    return f"run {record.get('run_id')} ({result.spec.kernel} x{result.spec.threads}): {record['model_error']}"
+
+
 def _run(args: argparse.Namespace) -> int:
     elements = _elements(args.elements)
     specs = sweep(args.kernels, args.threads, elements, args.repeat)
@@ -146,6 +154,8 @@ def _run(args: argparse.Namespace) -> int:
                 break
             for message in result.warnings:
                 warn(message)
+            if (reason := _not_calibrated(result)) is not None:
+                warn(reason)
             results.append(result)
             if args.json:
                 print(json.dumps(_jsonable(result.to_dict())), flush=True)

@@ -57,8 +57,8 @@ def _client(args: argparse.Namespace) -> Any:
 def fits_of(body: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """Name → entry (``fit``, ``runs``, ``alarms``, ...) of a ``calib.get`` body: ``node`` first,
     then the groups; a daemon without groups gives its one fit as ``node``."""
-    if isinstance(body.get("node"), dict):
-        node = dict(body["node"])
+    if isinstance(body.get("total"), dict):  # the node-level fit of the groups' sum
+        node = dict(body["total"])
     else:
         node = {"fit": body.get("fit"), "runs": body.get("runs"), "drift": body.get("drift"), "alarms": []}
     return {NODE: node, **{str(k): dict(v) for k, v in (body.get("groups") or {}).items()}}

@@ -18,13 +18,15 @@ from __future__ import annotations
 
 import concurrent.futures
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from hdeem_watch.daemon.group_fits import DEFAULT_MIN_SAMPLES
 from hdeem_watch.daemon.modelling import MAX_HISTORY, RunModeller, compact_fit
 
 if TYPE_CHECKING:
+    from hdeem_watch.calibrate.group_rows import SensorGroup
     from hdeem_watch.dram.node import NodeTopology
 
 log = logging.getLogger("hdeem_watch.daemon")
@@ -116,7 +118,10 @@ class ModelSettings:
 
     ``topology`` is the node's :class:`~hdeem_watch.dram.node.NodeTopology`
     (:func:`hdeem_watch.node.topology.topology_from_node` of the configured/detected node); None =
-    the legacy guess from ``dimms`` (the Taurus Haswell-EP blade for 8 DIMMs).
+    the legacy guess from ``dimms`` (the Taurus Haswell-EP blade for 8 DIMMs). ``groups``: the
+    sensor groups fitted on their own (:func:`~hdeem_watch.daemon.group_fits.source_groups`);
+    ``dram_rates_hz``: each DRAM channel's sample rate, for the guard rail (runs with fewer than
+    ``min_samples`` samples of a channel are recorded, not fitted).
     """
 
     memspec: str
@@ -125,6 +130,9 @@ class ModelSettings:
     currents: Sequence[str] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
     half_life_s: float | None = None
     max_requests: int | None = None
+    groups: Sequence[SensorGroup] = ()
+    dram_rates_hz: Mapping[str, float] | None = None
+    min_samples: int = DEFAULT_MIN_SAMPLES
 
 
 def restore_calibration(calibration: Calibration, *, settings: ModelSettings,
@@ -157,7 +165,9 @@ def restore_calibration(calibration: Calibration, *, settings: ModelSettings,
     def build() -> dict[str, Any]:
         modeller = RunModeller(settings.memspec, dimms=settings.dimms, topology=settings.topology,
                                currents=settings.currents, half_life_s=settings.half_life_s or None,
-                               max_requests=settings.max_requests, state=state, history=history)
+                               max_requests=settings.max_requests, state=state, history=history,
+                               groups=settings.groups, dram_rates_hz=settings.dram_rates_hz,
+                               min_samples=settings.min_samples)
         if modeller.restore_error:
             log.warning("calibrator state not restored: %s", modeller.restore_error)
         if modeller.error:

@@ -39,10 +39,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from hdeem_watch.daemon.group_fits import DEFAULT_MIN_SAMPLES, GroupFits
 from hdeem_watch.daemon.runs import NO_TRAFFIC_KERNELS
 from hdeem_watch.errors import InputError
 
 if TYPE_CHECKING:
+    from hdeem_watch.calibrate.drift import DriftAlarm
+    from hdeem_watch.calibrate.group_rows import SensorGroup
     from hdeem_watch.dram.node import NodeTopology
 
 #: Compact fit-history entries kept for the ``calib`` topic.
@@ -135,11 +138,18 @@ class RunModeller:
         currents: currents to calibrate.
         half_life_s: forgetting half-life (0 or None = never forget).
         max_requests: prefix size of the kernel model (None = its default).
-        state: a saved calibrator state (``OnlineCalibrator.to_dict()``) to continue from.
+        state: a saved :meth:`state` (``OnlineCalibrator.to_dict()``, with the groups' state under
+            ``sensor_groups``) to continue from.
         history: saved compact history entries.
+        groups: the node's sensor groups, each fitted on its own
+            (:func:`hdeem_watch.daemon.group_fits.source_groups`; none: the node fit only).
+        dram_rates_hz: sample rate of each DRAM channel, for the guard rail (None: no guard rail;
+            the daemon always gives them).
+        min_samples: fewest samples per DRAM channel for a run to be fitted.
 
     Attributes:
         error: why runs cannot be modelled (None = they can).
+        group_fits: the per-group fits and the guard rail (None when the model is not available).
     """
 
     def __init__(
@@ -153,6 +163,9 @@ class RunModeller:
         max_requests: int | None = None,
         state: Mapping[str, Any] | None = None,
         history: Sequence[Mapping[str, Any]] = (),
+        groups: Sequence[SensorGroup] = (),
+        dram_rates_hz: Mapping[str, float] | None = None,
+        min_samples: int = DEFAULT_MIN_SAMPLES,
     ) -> None:
         self.memspec = memspec
         self.dimms = int(topology.dimms) if topology is not None else int(dimms)
@@ -163,6 +176,7 @@ class RunModeller:
         self.restore_error: str | None = None
         self.spec: Any = None
         self.calibrator: Any = None
+        self.group_fits: GroupFits | None = None
         self.history: list[dict[str, Any]] = [dict(h) for h in history][-MAX_HISTORY:]
         try:
             self.spec = with_ranks(load_spec(memspec), getattr(topology, "ranks_per_dimm", None))
@@ -184,6 +198,13 @@ class RunModeller:
                 newest = sorted(range(len(observations)), key=lambda i: observations[i].time_ns)
                 keep = set(newest[len(observations) - self.calibrator.max_runs:])
                 self.calibrator.observations = [o for i, o in enumerate(observations) if i in keep]
+            if topology is not None and topology.numa_nodes_per_socket != 1:
+                groups = ()  # the model's rows are per NUMA domain, the groups' per socket
+            self.group_fits = GroupFits(self.spec, groups, dram_rates_hz, min_samples=min_samples,
+                                        calibrator={"currents": self.currents, "half_life_s": self.half_life_s},
+                                        state=(state or {}).get("sensor_groups"))
+            if self.group_fits.restore_error and not self.restore_error:
+                self.restore_error = self.group_fits.restore_error
         except ImportError as error:  # a model module not installed yet
             self.error = f"model not available: {error}"
         except InputError as error:
@@ -318,12 +339,19 @@ class RunModeller:
         if before is not None:
             vec, intercept = self._currents_vector(before)
             model["predicted_j"] = model["calibrated_j"] = obs.predicted_j(vec, intercept)
+        if self.group_fits is not None and (reason := self.group_fits.unmeasured(record)) is not None:
+            return model, None, reason  # the guard rail: recorded, not fitted
         if self.has_run(str(record.get("run_id"))):  # modelled again after a crash: already in the fit
             return model, None, "the calibrator already had this run (modelled again after a restart)"
         try:
             result = self.calibrator.add_run(obs)
         except InputError as error:
             return model, None, str(error)
+        if self.group_fits is not None:
+            try:
+                model["group_observations"] = self.group_fits.add(record, groups)
+            except InputError as error:  # the node fit stands; say why the groups did not take the run
+                model["group_error"] = str(error)
         fit = dict(result.to_dict())
         vec, intercept = self._currents_vector(fit)
         model["fitted_j"] = obs.predicted_j(vec, intercept)
@@ -359,15 +387,38 @@ class RunModeller:
             return None
         return [[name, round(float(score), 4)] for name, score in ranking[:top]]
 
-    def reset(self) -> None:
-        """Forget every run and fit."""
+    def reset(self, group: str | None = None) -> None:
+        """Forget the runs and fits of ``group`` (a sensor group, or ``"node"``: the fit of the
+        groups' sum); None: every run and fit, the node calibrator's too.
+
+        Raises:
+            InputError: an unknown group.
+        """
+        if group is not None:
+            if self.group_fits is None:
+                raise InputError(f"calib.reset: group {group!r}: the model is not available")
+            self.group_fits.reset(group)
+            return
         if self.calibrator is not None:
             self.calibrator.reset()
+        if self.group_fits is not None:
+            self.group_fits.reset()
         self.history.clear()
 
+    def take_alarms(self) -> list[DriftAlarm]:
+        """The drift alarms the groups raised since the last call."""
+        return [] if self.group_fits is None else self.group_fits.take_alarms()
+
     def state(self) -> dict[str, Any] | None:
-        """The calibrator's persistent state (None when there is no calibrator)."""
-        return None if self.calibrator is None else dict(self.calibrator.to_dict())
+        """The persistent state (None when there is no calibrator): the node calibrator's, with the
+        groups' under ``sensor_groups``."""
+        if self.calibrator is None:
+            return None
+        state = dict(self.calibrator.to_dict())
+        groups = None if self.group_fits is None else self.group_fits.state()
+        if groups is not None:
+            state["sensor_groups"] = groups
+        return state
 
     def body(self, truth: Mapping[str, Any] | None = None) -> dict[str, Any]:
         """The ``calib`` topic body (``truth`` only from a simulated source)."""
@@ -386,4 +437,5 @@ class RunModeller:
             "model_error": self.error,
             "truth": dict(truth) if truth is not None else None,
             "suggest": self.suggest(),
+            **(self.group_fits.body() if self.group_fits is not None else {}),
         }

@@ -171,24 +171,38 @@ class Operations:
         return self.reporter.calib_with_truth()
 
     def op_calib_reset(self, args: dict[str, Any]) -> Pending:
-        """Forget every calibration run (on the worker, after any refit in progress)."""
+        """Forget the calibration runs (on the worker, after any refit in progress): of every fit, or
+        with ``args.group`` of one sensor group (or ``"node"``, the fit of the groups' sum)."""
+        group = args.get("group")
+        if group is not None and not isinstance(group, str):
+            raise OpError("bad-args", f"args.group = {group!r}: expected a sensor group name (e.g. \"DDR_CD\")")
         pending = Pending("calib.reset")
         calibration = self.calibration
 
-        def job() -> dict[str, Any]:
+        def job() -> tuple[dict[str, Any], str | None]:
             modeller = calibration.modeller  # read on the worker, after the job that built it
             if modeller is None:
                 raise RuntimeError("the calibrator is not available (it failed to build; see the log)")
-            modeller.reset()
-            return modeller.body()
+            modeller.reset(group)
+            state = None if group is None else protocol.dumps(modeller.state()).decode()
+            return modeller.body(), state
 
-        def done(body: dict[str, Any]) -> None:
+        def done(result: tuple[dict[str, Any], str | None]) -> None:
+            body, state = result
             t_ns = self.book.wall()
             calibration.body = body
-            self.store.write("calib.reset", lambda s: s.clear_calibrator(t_ns),
-                             lambda _written: self._after_reset(pending))
+            if group is None:
+                self.store.write("calib.reset", lambda s: s.clear_calibrator(t_ns),
+                                 lambda _written: self._after_reset(pending))
+            else:  # the node calibrator keeps its runs: store the state without the group's
+                self.store.write(f"calib.reset {group}", lambda s: s.save_calibrator_state(t_ns, state or "{}"),
+                                 lambda _written: self._after_reset(pending))
 
-        self.submit(job, done, lambda error: self.reply(pending, None, ("unavailable", str(error))))
+        def failed(error: BaseException) -> None:
+            code = "bad-args" if isinstance(error, InputError) else "unavailable"
+            self.reply(pending, None, (code, str(error)))
+
+        self.submit(job, done, failed)
         return pending
 
     def _after_reset(self, pending: Pending) -> None:
@@ -335,17 +349,23 @@ class Operations:
                 model, fit, error = None, None, f"model failed: {type(exc).__name__}: {exc}"
             # The calibrator's state grows with the runs: serialise it here, not in the poll loop.
             state = protocol.dumps(modeller.state()).decode() if fit is not None else None
-            return model, fit, error, modeller.body(), state
+            alarms = [alarm.to_dict() for alarm in modeller.take_alarms()]
+            return model, fit, error, modeller.body(), state, alarms
 
         def failed(error: BaseException) -> None:
-            self._modelled(record, (None, None, str(error), calibration.body, None))
+            self._modelled(record, (None, None, str(error), calibration.body, None, []))
 
         self.submit(job, lambda result: self._modelled(record, result), failed)
 
     def _modelled(self, record: RunRecord, result: tuple[Any, ...]) -> None:
-        model, fit, error, calib_body, state = result
+        model, fit, error, calib_body, state, alarms = result
         done = dataclasses.replace(record, state="done", model=model, fit=fit, model_error=error)
         self.calibration.body = calib_body
+        for alarm in alarms:  # drift alarms of the sensor groups: an event on the stream
+            log.warning("calibration alarm: %s %s (%s, %s) after run %s", alarm.get("group"), alarm.get("current"),
+                        alarm.get("kind"), alarm.get("direction"), record.run_id)
+            self.publisher.publish("alarm", {"event": "alarm", "run_id": record.run_id, "alarm": alarm})
+            self.store.write(f"alarm {alarm.get('group')}", _save_alarm(int(alarm.get("time_ns") or 0), record.run_id, alarm))
         calibration = (int(done.t_stop_ns or 0), state, fit) if fit is not None and state is not None else None
         self._save_run(done, lambda _written: self._finished(done, calib=True), calibration)
 
@@ -370,6 +390,10 @@ class Operations:
             self.model(record)
             count += 1
         return count
+
+
+def _save_alarm(t_ns: int, run_id: str, alarm: dict[str, Any]) -> Callable[[StorePort], None]:
+    return lambda store: store.save_alarm(t_ns, run_id, alarm)
 
 
 def unfinished_runs(store: StorePort) -> list[dict[str, Any]]:

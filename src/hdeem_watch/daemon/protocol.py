@@ -3,7 +3,7 @@
 Stream (ZeroMQ PUB/SUB): every message has three frames ``[topic, header, payload]``:
 
 * ``topic``: UTF-8, ``hw1/<node>/<kind>`` or ``hw1/<node>/samples/<channel>``; kinds are
-  ``samples``, ``status``, ``run``, ``calib`` and ``baseline`` (:data:`KINDS`). Subscribing to a
+  ``samples``, ``status``, ``run``, ``calib``, ``baseline`` and ``alarm`` (:data:`KINDS`). Subscribing to a
   prefix (``hw1/node7/``, ``hw1/node7/samples/``) selects nodes and kinds.
 * ``header``: a UTF-8 JSON object with at least ``"v": 1``, ``"seq"`` (per topic, +1 each message,
   so a subscriber sees gaps), ``"node"`` and ``"t_ns"`` (wall clock, integer ns). NaN is sent as
@@ -73,7 +73,7 @@ VERSION = 1
 #: The first element of every topic.
 TOPIC_PREFIX = f"hw{VERSION}"
 #: Message kinds (the third topic element).
-KINDS = ("samples", "status", "run", "calib", "baseline")
+KINDS = ("samples", "status", "run", "calib", "baseline", "alarm")
 #: dtype of the power part of a samples payload (little-endian float64).
 SAMPLE_DTYPE = "<f8"
 #: dtype of the time part of a samples payload (little-endian int64 ns).

@@ -34,6 +34,7 @@ from hdeem_watch.config import DaemonSettings
 from hdeem_watch.daemon import baselines as bl
 from hdeem_watch.daemon.client import default_endpoints
 from hdeem_watch.daemon.control import ControlServer, Pending
+from hdeem_watch.daemon.group_fits import source_groups
 from hdeem_watch.daemon.jobs import Calibration, ModelSettings, Worker, restore_calibration
 from hdeem_watch.daemon.metrics import DaemonMetrics, NodeCollector
 from hdeem_watch.daemon.modelling import MAX_HISTORY
@@ -150,6 +151,7 @@ class Daemon:
         store.close_interrupted_runs(self.wall_clock())
         source = self._open_source()
         infos = source.channels()
+        dram_rates = {info.name: float(info.rate_hz) for info in infos if info.kind == "dram"}
         baselines = {}
         for channel, data in store.load_baselines().items():
             try:
@@ -208,7 +210,10 @@ class Daemon:
         restore_calibration(
             self.calibration,
             settings=ModelSettings(settings.memspec, dimms=settings.dimms, currents=tuple(settings.currents),
-                                   half_life_s=settings.half_life_s or None, max_requests=settings.model_max_requests),
+                                   half_life_s=settings.half_life_s or None, max_requests=settings.model_max_requests,
+                                   groups=source_groups(source, dram_rates, sockets=2,
+                                                        dimms_per_socket=max(1, settings.dimms // 2)),
+                                   dram_rates_hz=dram_rates),
             state=store.load_calibrator(), fits=store.fit_history(MAX_HISTORY), submit=self.model_jobs.submit,
             on_built=reporter.publish_calib)
         self.operations.resume_modelling(unfinished_runs(store))

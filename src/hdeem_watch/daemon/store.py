@@ -114,7 +114,7 @@ class _RunRow:
 class _CalibOp:
     t_ns: int
     state: str | None  # None: calib.reset (the calibrator is forgotten)
-    fit: str | None
+    fit: str | None  # None with a state: the state alone (a group's reset), no history entry
     run_id: str | None
 
 
@@ -169,6 +169,7 @@ class Store:
         self._baselines: dict[str, tuple[int, str]] = {}
         self._calib: dict[int, _CalibOp] = {}
         self._calib_ids = itertools.count()
+        self._alarms: dict[int, tuple[int, str | None, str, str]] = {}
         self._read_health = "ok"
         self._count = int((self._query("SELECT COUNT(*) FROM runs WHERE json_valid(record)") or [(0,)])[0][0])
         self._sync_wait_s = sync_wait_s
@@ -185,7 +186,7 @@ class Store:
 
     def _has_tables(self) -> bool:
         names = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
-        return {"meta", "runs", "fits", "calibrator", "baselines", "quarantine"} <= names
+        return {"meta", "runs", "fits", "calibrator", "baselines", "quarantine", "alarms"} <= names
 
     def _schema_version(self) -> int | None:
         exists = self._db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name='meta'").fetchone()
@@ -334,6 +335,10 @@ class Store:
         """
         self._save_calib(_CalibOp(int(t_ns), _dumps(state), None if fit is None else _dumps(fit), run_id))
 
+    def save_calibrator_state(self, t_ns: int, state: Mapping[str, Any] | str) -> None:
+        """Store the calibrator's state without a fit-history entry (e.g. after one group's reset)."""
+        self._save_calib(_CalibOp(int(t_ns), _dumps(state), None, None))
+
     def clear_calibrator(self, t_ns: int) -> None:
         """Forget the calibrator state (``calib.reset``); the fit history keeps a null entry."""
         self._save_calib(_CalibOp(int(t_ns), None, None, None))
@@ -359,9 +364,29 @@ class Store:
         with self._lock:
             rows = self._query("SELECT t_ns, run_id, fit FROM fits WHERE fit IS NULL OR json_valid(fit) "
                                "ORDER BY id DESC LIMIT ?", (int(limit),))
-            pending = [(op.t_ns, op.run_id, op.fit) for _k, op in sorted(self._calib.items())]
+            pending = [(op.t_ns, op.run_id, op.fit) for _k, op in sorted(self._calib.items())
+                       if op.state is None or op.fit is not None]
         entries = [(int(t), r, f) for t, r, f in reversed(rows)] + pending
         return [(t, r, _loads(f)) for t, r, f in entries[-max(0, int(limit)):]] if limit > 0 else []
+
+    # -- calibration alarms ---------------------------------------------------------------------------
+
+    def save_alarm(self, t_ns: int, run_id: str | None, alarm: Mapping[str, Any]) -> None:
+        """Append a drift alarm of a sensor group (``DriftAlarm.to_dict()``); returns at once."""
+        with self._lock:
+            key = next(self._calib_ids)
+            self._alarms[key] = (int(t_ns), run_id, str(alarm.get("group")), _dumps(alarm))
+        self._submit(("alarm", key))
+
+    def list_alarms(self, limit: int = 100) -> list[dict[str, Any]]:
+        """The last ``limit`` alarms, oldest first, each ``{"t_ns", "run_id", "alarm"}``."""
+        with self._lock:
+            rows = self._query("SELECT t_ns, run_id, alarm FROM alarms WHERE json_valid(alarm) ORDER BY id DESC LIMIT ?",
+                               (int(limit),))
+            pending = [(t, r, a) for _k, (t, r, _g, a) in sorted(self._alarms.items())]
+        entries = [(int(t), r, a) for t, r, a in reversed(rows)] + pending
+        return [{"t_ns": t, "run_id": r, "alarm": _loads(a)} for t, r, a in entries[-max(0, int(limit)):]] \
+            if limit > 0 else []
 
     # -- baselines -----------------------------------------------------------------------------------
 
@@ -384,7 +409,8 @@ class Store:
         """Write one operation (on the writer thread); the overlay entry goes once it is committed."""
         assert isinstance(op, tuple)
         kind, key = op
-        tables: dict[str, dict[Any, Any]] = {"run": self._runs, "baseline": self._baselines, "calib": self._calib}
+        tables: dict[str, dict[Any, Any]] = {"run": self._runs, "baseline": self._baselines, "calib": self._calib,
+                                             "alarm": self._alarms}
         with self._lock:
             pending: Any = tables[kind].get(key)
         if pending is None:
@@ -395,13 +421,17 @@ class Store:
                        (key, pending.seq, pending.kernel, pending.state, pending.t_start_ns, pending.record))
         elif kind == "baseline":
             db.execute("INSERT OR REPLACE INTO baselines (channel, t_ns, record) VALUES (?, ?, ?)", (key, *pending))
+        elif kind == "alarm":
+            db.execute("INSERT INTO alarms (t_ns, run_id, grp, alarm) VALUES (?, ?, ?, ?)", pending)
         elif pending.state is None:
             db.execute("DELETE FROM calibrator")
             db.execute("INSERT INTO fits (t_ns, run_id, fit) VALUES (?, NULL, NULL)", (pending.t_ns,))
         else:
             db.execute("INSERT OR REPLACE INTO calibrator (id, t_ns, state) VALUES (1, ?, ?)",
                        (pending.t_ns, pending.state))
-            db.execute("INSERT INTO fits (t_ns, run_id, fit) VALUES (?, ?, ?)", (pending.t_ns, pending.run_id, pending.fit))
+            if pending.fit is not None:
+                db.execute("INSERT INTO fits (t_ns, run_id, fit) VALUES (?, ?, ?)",
+                           (pending.t_ns, pending.run_id, pending.fit))
         # Commit and drop the overlay entry atomically for the readers (they hold the same lock).
         with self._lock:
             db.execute("COMMIT")

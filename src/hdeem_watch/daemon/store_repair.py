@@ -49,6 +49,13 @@ CREATE TABLE IF NOT EXISTS fits (
 );
 CREATE TABLE IF NOT EXISTS calibrator (id INTEGER PRIMARY KEY CHECK (id = 1), t_ns INTEGER NOT NULL, state TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS baselines (channel TEXT PRIMARY KEY, t_ns INTEGER NOT NULL, record TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS alarms (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    t_ns INTEGER NOT NULL,
+    run_id TEXT,
+    grp TEXT NOT NULL,
+    alarm TEXT NOT NULL
+);
 CREATE TABLE IF NOT EXISTS quarantine (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
     t_ns INTEGER NOT NULL,
@@ -66,6 +73,7 @@ TABLES = {
     "fits": ("id", "fit", ("id", "t_ns", "run_id", "fit")),
     "calibrator": ("id", "state", ("id", "t_ns", "state")),
     "baselines": ("channel", "record", ("channel", "t_ns", "record")),
+    "alarms": ("id", "alarm", ("id", "t_ns", "run_id", "grp", "alarm")),
     "quarantine": ("id", None, ("id", "t_ns", "source", "row_key", "content", "reason")),
 }
 
@@ -144,6 +152,9 @@ def salvage_if_corrupt(path: Path, *, t_ns: int) -> list[str]:
             fresh.execute("BEGIN")
             for table, (_key, _column, columns) in TABLES.items():
                 try:
+                    if not source.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = ?",
+                                          (table,)).fetchone():
+                        continue  # a table newer than the file (e.g. alarms)
                     rows, unreadable = _readable_rows(source, table, columns)
                 except sqlite3.DatabaseError as error:
                     lost.append(f"{table}: unreadable ({error})")

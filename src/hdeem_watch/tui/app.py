@@ -18,11 +18,11 @@ from typing import ClassVar
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical
-from textual.screen import ModalScreen
+from textual.screen import ModalScreen, Screen
 from textual.widgets import Static
 
 from hdeem_watch.tui.provider import Provider
-from hdeem_watch.tui.widgets import CalibPanel, ChannelTable, HealthBar, PowerPlots, RunsPanel
+from hdeem_watch.tui.widgets import CalibPanel, ChannelTable, GroupsPanel, HealthBar, PowerPlots, RunsPanel
 from hdeem_watch.tui.widgets.lines import LinesWidget
 
 #: Plot windows the +/- keys step through, in seconds.
@@ -35,7 +35,7 @@ BASELINE_SECONDS = 10.0
 #: Seconds a control reply stays on the key line.
 NOTICE_S = 8.0
 
-KEYS_LINE = " p pause  n/N/tab node  +/- zoom  b baseline  s stop run  ? help  q quit"
+KEYS_LINE = " p pause  n/N/tab node  +/- zoom  b baseline  s stop  g pairs  ? help  q quit"
 
 HELP_TEXT = f"""[b]hdeem-watch[/b]: live DRAM power and model calibration
 
@@ -44,7 +44,7 @@ HELP_TEXT = f"""[b]hdeem-watch[/b]: live DRAM power and model calibration
 [b]+[/b] [b]-[/b]        zoom the time window ({"/".join(f"{w:g}" for w in WINDOWS_S)} s)
 [b]b[/b]          measure this node's idle baseline ({BASELINE_SECONDS:g} s, between runs)
 [b]s[/b]          stop (abort) the run in progress, e.g. to let [b]b[/b] measure
-[b]?[/b]          this help   [b]q[/b] [b]ctrl+c[/b]  quit
+[b]g[/b]          per-pair fits   [b]?[/b] this help   [b]q[/b] [b]ctrl+c[/b] quit
 
 [b]above[/b]: power over the idle baseline; – where the baseline is not
   idle (CPU/BLADE in an idle run: its kernel keeps the CPUs busy).
@@ -68,6 +68,17 @@ class HelpScreen(ModalScreen[None]):
 
     def on_key(self) -> None:
         self.dismiss()
+
+
+class GroupsScreen(Screen[None]):
+    """The per-pair calibration view of the focused node (repainted with the app's frames)."""
+
+    BINDINGS: ClassVar[list[BindingType]] = [Binding("g,escape", "app.pop_screen", "back")]
+
+    def compose(self) -> ComposeResult:
+        yield HealthBar()
+        yield GroupsPanel()
+        yield Static(" g/esc back  n/N/tab node  p pause  q quit", id="keys")
 
 
 class HdeemWatchApp(App[int]):
@@ -99,6 +110,7 @@ class HdeemWatchApp(App[int]):
         Binding("minus,underscore", "zoom(1)", "zoom out"),
         Binding("b", "baseline", "baseline"),
         Binding("s", "stop_run", "stop run"),
+        Binding("g", "groups", "per-pair calibration"),
         Binding("question_mark", "help", "help"),
     ]
 
@@ -181,6 +193,10 @@ class HdeemWatchApp(App[int]):
                 self.query_one(PowerPlots).show(snap)
                 self.query_one(CalibPanel).show(snap.calib)
                 self.query_one(RunsPanel).show(snap)
+                if isinstance(self.screen, GroupsScreen):
+                    self.screen.query_one(HealthBar).show(snapshots, self.focus_index, paused=self.paused,
+                                                          stalled=stalled, window_s=self.window_s)
+                    self.screen.query_one(GroupsPanel).show(snap.calib)
             self._show_notice(snap.health.notice)
         self.frames += 1
 
@@ -242,6 +258,11 @@ class HdeemWatchApp(App[int]):
         else:
             self.provider.request(self.focus_index, "run.stop", {"run_id": run.run_id, "abort": True})
         self.paint()
+
+    def action_groups(self) -> None:
+        """Show the per-pair calibration view."""
+        self.push_screen(GroupsScreen())
+        self.call_after_refresh(self.paint)
 
     def action_help(self) -> None:
         """Show the key help."""

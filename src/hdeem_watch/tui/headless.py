@@ -26,6 +26,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, TextIO
 
+from hdeem_watch.tui.group_views import alarm_text, is_drift
 from hdeem_watch.tui.snapshot import CalibView, NodeSnapshot, RunView
 from hdeem_watch.tui.widgets.fmt import percent
 
@@ -159,6 +160,7 @@ class ProgressPrinter:
         self._seen_runs: set[str] = set()
         self._history_told = False
         self._calib_key: tuple[object, ...] | None = None
+        self._seen_alarms: set[tuple[str, str, str, int]] = set()
         self._state: tuple[str, str] = ("", "")
         self._last_power_s = -math.inf
 
@@ -188,6 +190,10 @@ class ProgressPrinter:
         if calib.currents and key != self._calib_key:
             self._calib_key = key
             out += fit_width(calib_parts(calib), self.width)
+        for alarm in calib.alarms:
+            if alarm.key not in self._seen_alarms:
+                self._seen_alarms.add(alarm.key)
+                out += fit_width([f"{'drift ' if is_drift(alarm) else 'outlr '} {alarm_text(alarm)}"], self.width)
         if _has_power(snapshot) and now_s - self._last_power_s >= self.power_every_s:
             self._last_power_s = now_s
             out += fit_width(power_parts(snapshot), self.width)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hdeem_watch.channels import DRAM_CHANNELS
+from hdeem_watch.tui.group_views import group_views
 from hdeem_watch.tui.snapshot import CalibView, CurrentView, RunView
 
 
@@ -159,8 +160,10 @@ def calib_view(body: Mapping[str, Any], *, history_len: int = 40) -> CalibView:
         body.get("suggested_next") or body.get("suggest") or body.get("next") or (fit or {}).get("suggested_next")
     )
     model_error = str(body.get("model_error") or "")
+    groups, alarms = group_views(body)
     if fit is None:
-        return CalibView(simulated=simulated, suggested_next=suggestion, model_error=model_error)
+        return CalibView(simulated=simulated, suggested_next=suggestion, model_error=model_error, groups=groups,
+                         alarms=alarms)
     currents_raw = fit.get("currents") if isinstance(fit.get("currents"), Mapping) else {}
     assert isinstance(currents_raw, Mapping)
     currents: list[CurrentView] = []
@@ -194,6 +197,8 @@ def calib_view(body: Mapping[str, Any], *, history_len: int = 40) -> CalibView:
         suggested_next=suggestion,
         simulated=simulated,
         model_error=model_error,
+        groups=groups,
+        alarms=alarms,
     )
 
 

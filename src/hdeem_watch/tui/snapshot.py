@@ -140,6 +140,57 @@ class CurrentView:
 
 
 @dataclass(frozen=True)
+class AlarmView:
+    """A drift alarm of a sensor group (``DriftAlarm.to_dict()`` of the ``calib`` body).
+
+    Attributes:
+        group: the sensor group (``DDR_CD``, ``DRAM1``, ``node``).
+        current: the current concerned (``energy``: the group's energy as a whole).
+        kind: ``residual-cusum`` or ``sibling``.
+        direction: ``up`` or ``down``.
+        statistic: what crossed ``threshold``.
+        threshold: the alarm threshold.
+        time_ns: time of the run that raised it.
+    """
+
+    group: str
+    current: str
+    kind: str
+    direction: str
+    statistic: float
+    threshold: float
+    time_ns: int
+
+    @property
+    def key(self) -> tuple[str, str, str, int]:
+        """Identity of the alarm (to print each once)."""
+        return (self.group, self.current, self.kind, self.time_ns)
+
+
+@dataclass(frozen=True)
+class GroupFitView:
+    """The fit of one sensor group (a DIMM pair, a RAPL socket, or ``node``: the groups' sum).
+
+    Attributes:
+        name: the group.
+        currents: its currents (datasheet, calibrated, interval), in the fit's order.
+        runs: runs in its fit.
+        status: the fit's status (``ok``, ``at-bound``, ``underdetermined``, ...; "" without a fit).
+        error_loo: its leave-one-out error (NaN if unknown).
+        dimms: DIMMs behind the sensor (0 for ``node``).
+        alarms: its drift alarms, oldest first.
+    """
+
+    name: str
+    currents: tuple[CurrentView, ...] = ()
+    runs: int = 0
+    status: str = ""
+    error_loo: float = math.nan
+    dimms: int = 0
+    alarms: tuple[AlarmView, ...] = ()
+
+
+@dataclass(frozen=True)
 class CalibView:
     """The node's calibration state.
 
@@ -154,6 +205,8 @@ class CalibView:
         suggested_next: the run the calibrator suggests next ("" if none).
         simulated: the truth values come from the simulator.
         model_error: why the daemon cannot model runs, if it cannot ("" otherwise).
+        groups: the per-sensor-group fits (the pairs, then ``node``; empty from a daemon without them).
+        alarms: the groups' drift alarms, oldest first.
     """
 
     currents: tuple[CurrentView, ...] = ()
@@ -165,6 +218,8 @@ class CalibView:
     suggested_next: str = ""
     simulated: bool = False
     model_error: str = ""
+    groups: tuple[GroupFitView, ...] = ()
+    alarms: tuple[AlarmView, ...] = ()
 
 
 @dataclass(frozen=True)
