@@ -38,3 +38,17 @@ async def test_g_opens_the_per_pair_view_and_esc_returns(frozen_snapshot) -> Non
 def test_without_groups_the_view_says_so() -> None:
     text = groups_text(CalibView(), 80).plain
     assert "no per-pair fits" in text
+
+
+def test_fit_states_fit_their_column_at_80_columns() -> None:
+    """A fit at a bound reads "at bound" (it was cut to "at-boun"), an underdetermined one "underdet."."""
+    from hdeem_watch.tui.snapshot import CurrentView, GroupFitView
+
+    current = (CurrentView("idd0", 0.1074, 0.028, 0.002, True),)
+    groups = tuple(GroupFitView(name, current, runs=100, status=status) for name, status in
+                   (("DDR_AB", "ok"), ("DDR_CD", "at-bound"), ("DDR_EF", "underdetermined"), ("DDR_GH", "ok"),
+                    ("node", "rank-deficient")))
+    lines = groups_text(CalibView(groups=groups), 80).plain.splitlines()
+    drift = next(line for line in lines if line.startswith("drift"))
+    assert drift.split() == ["drift", "ok", "at", "bound", "underdet.", "ok", "rank-def."]
+    assert all(len(line) <= 80 for line in lines)

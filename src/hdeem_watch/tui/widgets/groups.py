@@ -32,6 +32,10 @@ def _value(value_a: float, ci_a: float, width: int) -> str:
     return main.rjust(width)
 
 
+#: The fit states as they fit a column (the view is 80 columns wide for four pairs and the node).
+STATUS_LABELS = {"at-bound": "at bound", "underdetermined": "underdet.", "rank-deficient": "rank-def."}
+
+
 def _badge(group: GroupFitView) -> tuple[str, str]:
     """The drift badge: ``DRIFT↑``/``DRIFT↓``/``OUTLIER`` for the newest alarm, else the fit's state."""
     if group.alarms:
@@ -40,7 +44,8 @@ def _badge(group: GroupFitView) -> tuple[str, str]:
         return ("DRIFT" + arrow if alarm.kind == "residual-cusum" else "OUTLR" + arrow), "bold white on red"
     if not group.status:
         return "no fit", "dim"
-    return (group.status[:7], "green" if group.status == "ok" else "yellow")
+    label = STATUS_LABELS.get(group.status, group.status)
+    return label, "green" if group.status == "ok" else "yellow"
 
 
 def groups_text(calib: CalibView, width: int) -> Text:
