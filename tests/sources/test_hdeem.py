@@ -6,7 +6,7 @@ src/example/testPhdeem.c), status start/stop times with periods measured as dura
 VR samples shifted by -(35000 - 5600) us (score-p/scorep_plugin_hdeem hdeem_plugin.cpp), totals
 since power-on needing no measurement (tud-zih-energy/hdeem_cxx include/hdeem_cxx.hpp,
 tud-zih-energy/metricq-source-hdeem src/hdeem_connection.cpp), real rates 1003.07 / 98.66 Sa/s
-(Taurus capture ../shared/reference/taurus/6415.txt).
+(Taurus capture tests/data/taurus/6415.txt).
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ the measurement: tud-zih-energy/metricq-source-hdeem src/hdeem_connection.cpp ca
 get_stats_total, and tud-zih-energy/hdeem_cxx include/hdeem_cxx.hpp says get_stats_total needs no
 start or stop. Sample times follow score-p/scorep_plugin_hdeem hdeem_plugin.cpp: periods measured as
 duration / samples from hdeem_status_t's start_time_blade, VR samples shifted by -(35000 - 5600) us.
-The fake samples at the rates measured on Taurus (../shared/reference/taurus/6415.txt: 1003.074324
+The fake samples at the rates measured on Taurus (tests/data/taurus/6415.txt: 1003.074324
 and 98.663048 Sa/s), not the nominal 1000 / 100.
 """
 

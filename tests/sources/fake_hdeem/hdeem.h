@@ -1,6 +1,6 @@
 /*
  * Fake hdeem.h for hdeem-watch's tests, written to the semantics public code shows for the real,
- * non-public Bull/Atos header (see docs/sources.md and ../shared/notes/hdeem-public-api.md):
+ * non-public Bull/Atos header (see docs/sources.md: the public code that uses libhdeem, cited there):
  *
  * - hdeem_close() returns nothing: public callers never use its result (tud-zih-energy/phdeem
  *   src/phdeem.c stores every other call's result but not this one; tud-zih-energy/hdeem_cxx
