@@ -292,6 +292,23 @@ def _apply(values: dict[str, Any], data: Mapping[str, Any], where: str, origins:
         origins[name] = where
 
 
+def read_config_file(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The TOML config file as a dict (every table; the daemon's and the other commands').
+
+    Raises:
+        InputError: one line naming the file: unreadable, not UTF-8 text, or not valid TOML.
+    """
+    path = Path(path)
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as error:
+        raise InputError(f"{path}: cannot read the config file ({error.strerror})") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file (not UTF-8); expected a TOML config file") from None
+    except tomllib.TOMLDecodeError as error:
+        raise InputError(f"{path}: not valid TOML ({error})") from None
+
+
 def load_settings(
     config: str | os.PathLike[str] | None = None,
     *,
@@ -316,14 +333,7 @@ def load_settings(
     origins: dict[str, str] = {}
     if config is not None:
         path = Path(config)
-        try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except OSError as error:
-            raise InputError(f"{path}: cannot read the config file ({error.strerror})") from None
-        except UnicodeDecodeError:
-            raise InputError(f"{path}: not a text file (not UTF-8); expected a TOML config file") from None
-        except tomllib.TOMLDecodeError as error:
-            raise InputError(f"{path}: not valid TOML ({error})") from None
+        data = read_config_file(path)
         # [metricq] belongs to `hdeem-watch metricq-source`, which reads the same file.
         own = {k: v for k, v in data.items() if k not in OTHER_TABLES}
         if "daemon" in own and isinstance(own["daemon"], dict):

@@ -21,12 +21,12 @@ from __future__ import annotations
 import os
 import socket
 import stat
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
+from hdeem_watch.config import read_config_file
 from hdeem_watch.errors import InputError
 from hdeem_watch.metricq.naming import FAMILIES, check_prefix
 
@@ -172,14 +172,7 @@ def _coerce(name: str, value: Any, where: str) -> Any:
 
 def _table(config: str | os.PathLike[str]) -> Mapping[str, Any]:
     path = Path(config)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as error:
-        raise InputError(f"{path}: cannot read the config file ({error.strerror})") from None
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text file (not UTF-8); expected a TOML config file") from None
-    except tomllib.TOMLDecodeError as error:
-        raise InputError(f"{path}: not valid TOML ({error})") from None
+    data = read_config_file(path)
     table = data.get(TABLE, {})
     if not isinstance(table, dict):
         raise InputError(f"{path}: [{TABLE}] is not a table")
