@@ -105,6 +105,8 @@ def test_handshake_events_are_explained() -> None:
     assert "does not use CURVE" in str(explain(zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL, MECHANISM_MISMATCH, curve=True))
     assert "not registered" in str(explain(zmq.EVENT_HANDSHAKE_FAILED_AUTH, 400, curve=True))
     assert "not this daemon's" in str(explain(zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL, 32, curve=True))
+    # a plain client often sees only the closed pipe when the daemon wants CURVE
+    assert "requires CURVE" in str(explain(zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL, 32, curve=False))
     assert explain(zmq.EVENT_HANDSHAKE_SUCCEEDED, 0, curve=True) is None
 
 

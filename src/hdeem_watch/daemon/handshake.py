@@ -50,10 +50,12 @@ def explain(event: int, value: int, *, curve: bool) -> str | None:
     if event == zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL:
         return f"the security handshake failed (ZeroMQ protocol error {value:#x})"
     if event == zmq.EVENT_HANDSHAKE_FAILED_NO_DETAIL:
+        # The daemon closed the connection in the handshake; the client often sees only the closed
+        # pipe (EPIPE), not the daemon's reason. A client without CURVE fails only against CURVE.
         if curve:
             return ("the daemon closed the CURVE handshake: the server key given is not this daemon's "
-                    f"({_SERVER_KEY_HINT})")
-        return "the security handshake failed"
+                    f"({_SERVER_KEY_HINT}), or it does not use CURVE here")
+        return f"the daemon requires CURVE: give its public key ({_SERVER_KEY_HINT})"
     return None
 
 
