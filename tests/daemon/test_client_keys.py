@@ -164,3 +164,16 @@ def test_the_status_advertises_tcp_endpoints_with_the_host_name() -> None:
     assert remote_endpoint("ipc:///run/hdeem-watch/pub.sock", "node7") is None
     assert advertised_endpoints("tcp://0.0.0.0:5590", ["ipc:///run/c.sock", "tcp://0.0.0.0:5591"], "n7") == {
         "pub": "tcp://n7:5590", "control": "tcp://n7:5591"}
+
+
+def test_tui_without_the_key_stops_at_once_with_the_reason(curve_endpoint: Any, capsys: pytest.CaptureFixture[str],
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """``tui`` against a CURVE daemon without its key: exit 2 and one line, not "connecting" forever."""
+    endpoint, _, _ = curve_endpoint
+    monkeypatch.setenv("HDEEM_WATCH_CONFIG", "/nonexistent/hdeem-watchd.toml")
+    monkeypatch.delenv("HDEEM_WATCH_SERVER_KEY", raising=False)
+    start = time.monotonic()
+    assert cli_main(["tui", "--headless", "--connect", endpoint, "--duration", "30"]) == 2
+    assert time.monotonic() - start < 5
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"hdeem-watch: error: {endpoint}: the daemon requires CURVE"), err

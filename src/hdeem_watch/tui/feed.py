@@ -35,7 +35,7 @@ import zmq
 from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
 from hdeem_watch.daemon.security import ClientCurve, secure_client
-from hdeem_watch.tui.endpoints import is_local_host, pub_endpoint_for, unreachable_stream
+from hdeem_watch.tui.endpoints import is_local_host, stream_endpoint, unreachable_stream
 from hdeem_watch.tui.messages import (
     RequestDone,
     RequestFailed,
@@ -255,7 +255,7 @@ class NodeFeed(threading.Thread):
             return
         endpoints = status.get("endpoints") if isinstance(status.get("endpoints"), dict) else {}
         assert isinstance(endpoints, dict)
-        pub = pub_endpoint_for(self.endpoint, str(endpoints.get("pub", "")))
+        pub = stream_endpoint(self.endpoint, endpoints, is_local=self._is_local)
         node = status.get("node")
         why_not = unreachable_stream(self.endpoint, pub, is_local=self._is_local) if pub else "its status names no stream endpoint"
         if why_not is not None:
