@@ -48,6 +48,11 @@ class NodeDaemon:
     process: subprocess.Popen[bytes] | None = None
 
     @property
+    def config(self) -> Path:
+        """The daemon's config file (the one source of truth for the node's hooks too)."""
+        return self.directory / "hdeem-watchd.toml"
+
+    @property
     def local_control(self) -> str:
         """The node-local ipc control endpoint (for the node's own hooks)."""
         return f"ipc://{self.directory / 'run' / 'control.sock'}"
@@ -187,16 +192,19 @@ def _slurm_conf(root: Path, prolog: str, epilog: str) -> str:
 
 
 def _start_daemon(cluster: TwoNodeCluster, node: str, control_port: int, secret: Path, clients: Path) -> NodeDaemon:
+    """Start a node's daemon from its own config file (``<node>/hdeem-watchd.toml``, as on a node)."""
     address = ADDRESSES[node]
     daemon = NodeDaemon(node, address, cluster.root / node)
     (daemon.directory / "run").mkdir(parents=True)
     daemon.directory.chmod(0o755)
-    command = [sys.executable, "-m", "hdeem_watch", "daemon", "--source", "sim", "--node", node,
-               "--speed", "10", "--poll-interval", "0.05", "--state-dir", str(daemon.directory / "state"),
-               "--runtime-dir", str(daemon.directory / "run"), "--control", daemon.local_control,
-               "--pub", f"tcp://{address}:{_free_port(address)}",
-               "--remote-control", f"tcp://{address}:{control_port}",
-               "--curve-secret-key", str(secret), "--curve-clients", str(clients)]
+    settings = {
+        "source": "sim", "node": node, "speed": 10.0, "poll_interval_s": 0.05,
+        "state_dir": str(daemon.directory / "state"), "runtime_dir": str(daemon.directory / "run"),
+        "control": daemon.local_control, "pub": f"tcp://{address}:{_free_port(address)}",
+        "remote_control": f"tcp://{address}:{control_port}",
+        "curve_secret_key_file": str(secret), "curve_clients_dir": str(clients)}
+    daemon.config.write_text("".join(f"{key} = {value!r}\n".replace("'", '"') for key, value in settings.items()))
+    command = [sys.executable, "-m", "hdeem_watch", "daemon", "--config", str(daemon.config)]
     with open(daemon.directory / "daemon.log", "wb") as log:
         daemon.process = subprocess.Popen(command, env=cluster.env, stdout=subprocess.DEVNULL, stderr=log)
     return daemon
