@@ -156,7 +156,7 @@ def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factor
     daemon = daemon_factory("--speed", "10").start()
     process = psutil.Process(daemon.proc.pid)
     legit = daemon.subscriber(protocol.subscription(daemon.node, "samples"))  # connected before the flood
-    assert receive(legit, 1.0)
+    assert receive(legit, 5.0, until=lambda m: len(m) >= 1)
     rss_before = process.memory_info().rss
     flood = subprocess.Popen([sys.executable, "-c", FLOOD, daemon.pub], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                              text=True, env=daemon.env)
@@ -177,7 +177,7 @@ def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factor
     sub = daemon.subscriber(protocol.subscription(daemon.node, "samples"))
     assert receive(sub, 5.0, until=lambda m: len(m) >= 3)
     sub.close()
-    receive(legit, 1.0)  # what was queued before the drop
+    receive(legit, 0.2)  # what was queued before the drop
     assert receive(legit, 5.0, until=lambda m: len(m) >= 3)  # reconnected and subscribed again by itself
     legit.close()
 
@@ -234,10 +234,16 @@ def test_dropping_connections_rebinds_the_same_endpoint(tmp_path: Path, transpor
         for i in range(120):
             flood.setsockopt(zmq.SUBSCRIBE, b"hw1/n/junk-%d" % i)
         deadline = time.monotonic() + 5
+        longest_s = 0.0
         while pub.resets == 0 and time.monotonic() < deadline:
+            t0 = time.monotonic()
             pub.handle_subscriptions()
+            longest_s = max(longest_s, time.monotonic() - t0)
             time.sleep(0.01)
         assert pub.resets >= 1 and len(pub.prefixes) <= 50
+        # The reset runs in the poll loop: it must not stall it (old code waited 2 s for libzmq to
+        # remove the old ipc file, which libzmq 4.3 never does; it replaces the file at the bind).
+        assert longest_s < 1.0, f"a reset stalled the caller {longest_s:.2f} s"
         flood.close(0)
         received = False
         deadline = time.monotonic() + 5
