@@ -29,28 +29,28 @@ def _second_daemon(tmp_path: Path, env: dict[str, str], *, pub: str, control: st
     return subprocess.run(command, env=env, capture_output=True, text=True, timeout=60)
 
 
-@pytest.mark.parametrize("which", ["control", "pub"])
-def test_a_second_daemon_on_a_live_endpoint_exits_2_and_leaves_it_alone(daemon_factory: Any, tmp_path: Path,
-                                                                         which: str) -> None:
-    """Another daemon's live ipc endpoint: exit 2 "in use by another daemon"; the first stays reachable.
+def test_a_second_daemon_on_a_live_endpoint_exits_2_and_leaves_it_alone(daemon_factory: Any, tmp_path: Path) -> None:
+    """Another daemon's live ipc endpoint (control, then stream): exit 2 "in use by another daemon"; the first
+    stays reachable.
 
     (Old code: libzmq unlinked the live socket and bound over it; on exit the second daemon removed
     the file, and the first daemon was unreachable.)
     """
     first = daemon_factory("--speed", "10").start()
     spare = f"ipc://{tmp_path}/spare.sock"
-    pub, control = (spare, first.control) if which == "control" else (first.pub, spare)
-    inode = os.lstat(first.control[6:] if which == "control" else first.pub[6:]).st_ino
-    result = _second_daemon(tmp_path, first.env, pub=pub, control=control)
-    assert result.returncode == 2, result.stderr[-2000:]
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and "endpoint in use by another daemon" in lines[0]
-    assert os.lstat(first.control[6:] if which == "control" else first.pub[6:]).st_ino == inode
-    with first.client() as client:
-        assert client.call("ping")["pong"] is True
-    sub = first.subscriber(protocol.subscription(first.node, "status"))
-    assert sub.poll(5000)
-    sub.close()
+    for which in ("control", "pub"):
+        pub, control = (spare, first.control) if which == "control" else (first.pub, spare)
+        inode = os.lstat(first.control[6:] if which == "control" else first.pub[6:]).st_ino
+        result = _second_daemon(tmp_path, first.env, pub=pub, control=control)
+        assert result.returncode == 2, result.stderr[-2000:]
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and "endpoint in use by another daemon" in lines[0], which
+        assert os.lstat(first.control[6:] if which == "control" else first.pub[6:]).st_ino == inode, which
+        with first.client() as client:
+            assert client.call("ping")["pong"] is True
+        sub = first.subscriber(protocol.subscription(first.node, "status"))
+        assert sub.poll(5000), which
+        sub.close()
 
 
 def test_a_stale_socket_file_is_replaced_but_a_regular_file_is_not(tmp_path: Path) -> None:
