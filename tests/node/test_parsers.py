@@ -149,3 +149,21 @@ def test_letter_only_slot_names_are_flagged(tmp_path: Path) -> None:
     node = describe_node(tmp_path, text, "dmi.txt")
     assert any("board-specific" in n for n in node.notes)
     assert all(d.sources["socket"].startswith("unknown") for d in node.dimms)
+
+
+@pytest.mark.parametrize(("part", "size_gib", "ranks", "speed", "expect"), [
+    ("MTA36ASF4G72PZ-2G3B1", 32, 2, 2400, ("micron-8gb-x4-ddr4-2400-b", "exact")),
+    ("MTA9ASF1G72PZ-2G3B1", 8, 1, 2400, ("micron-8gb-x8-ddr4-2400-b", "exact")),
+    ("HMA84GR7AFR4N-UH", 32, 2, 2400, ("micron-8gb-x4-ddr4-2400-b", "high")),     # SK hynix 2Rx4 8 Gb
+    ("M393A4K40DB2-CVF", 32, 2, 2933, ("micron-8gb-x4-ddr4-2400-b", "medium")),   # Samsung 2Rx4 8 Gb
+    ("M393A2K43BB1-CTD", 16, 2, 2666, ("micron-8gb-x8-ddr4-2400-b", "medium")),   # Samsung 2Rx8 8 Gb
+    ("M393A1G40DB0-CPB", 8, 1, 2133, ("ddr4-2133-x8-4gb", "low")),  # 4 Gb x4: no x4 preset of 4 Gb; same density
+])
+def test_dimms_map_to_the_preset_of_their_die(part: str, size_gib: int, ranks: int, speed: int,
+                                              expect: tuple[str, str]) -> None:
+    """Known modules name their die's preset (exact); else the preset of the same density and width at the
+    nearest speed (high, medium), and a stand-in of another density says low."""
+    dimm = Dimm("X", size_bytes=size_gib << 30, type="DDR4", speed_mts=speed, ranks=ranks, total_width=72,
+                part_number=part)
+    choice = choose_memspec([dimm])
+    assert (choice.name, choice.confidence) == expect, choice.reason

@@ -1,7 +1,7 @@
 """Built-in DDR4 memspecs (DRAMPower JSON files in this directory) and where each number comes from.
 
 Every preset describes one channel of dual-rank x8 modules with 9 devices per rank (2Rx8 ECC RDIMM,
-the common HPC configuration) unless said otherwise; :func:`hdeem_watch.node.memspec_choice.for_dimm`
+the common HPC configuration) unless said otherwise (the x4 preset: 2Rx4, 18 devices per rank); :func:`hdeem_watch.node.memspec_choice.for_dimm`
 re-shapes a preset to the ranks and devices of a detected DIMM. Every preset passes the physical
 check of :mod:`hdeem_watch.dram.memspec_check` (every per-command energy >= 0). Currents are
 amperes per device, as DRAMPower wants them.
@@ -76,8 +76,27 @@ amperes per device, as DRAMPower wants them.
     RFC2/RFC4 = 260/160 ns (416/256 cycles, the JEDEC 8 Gb values; unused with RefMode 1). IPP2N,
     IPP2P, IPP3P, IPP4R, IPP4W = IPP3N (the datasheet's IPP3N note, see above).
 
-Not (yet) in the library, for want of a public per-die table we could read: DDR4-2666 and
-DDR4-2933 bins, x4 dies, 16 Gb dies. Bring your own (``--memspec FILE``; docs/your-node.md).
+``micron-8gb-x4-ddr4-2400-b`` (``micron-8gb-x4-ddr4-2400-b.json``)
+    Micron 8 Gb x4 die (MT40A2G4, the x4 organisation of the MT40A1G8 die above), DDR4-2400 (-083E),
+    one channel of 2Rx4 ECC RDIMMs (2 ranks x 18 devices). Currents: the Micron "8Gb: x4, x8, x16
+    DDR4 SDRAM" datasheet's x4 column for DDR4-2400 as gem5 quotes it (gem5/gem5
+    ``src/python/gem5/components/memory/dram_interfaces/ddr4.py``, class ``DDR4_2400_16x4``, "timings
+    based on a DDR4-2400 8 Gbit datasheet (Micron MT40A2G4)", "Current values from datasheet"):
+    IDD0 43, IPP0 3, IDD2N 34, IDD2P 25, IDD3N 38, IPP3N 3, IDD3P 32, IDD4R 110, IDD4W 103,
+    IDD5 250 (used as IDD5B), IDD6 30 mA; VDD 1.2, VPP 2.5 V. The same file's ``DDR4_2400_8x8``
+    (MT40A1G8) currents are exactly the per-device figures of ``micron-8gb-x8-ddr4-2400-b`` above
+    (IDD0 48, IDD3N 43, IDD4R 135, IDD4W 123, IDD3P 37, the rest shared), which the module datasheet
+    gave independently. The source has no IPP5B for x4: the x8 die's 28 mA is used (IPP0 and IPP3N
+    are equal for x4 and x8 there); IPP2N, IPP2P, IPP3P, IPP4R, IPP4W, IPP6N = IPP3N as above.
+    Geometry: 16 banks in 4 bank groups, 131072 rows x 1024 columns (512 B page). Timings: the
+    DDR4-2400 bin of the x8 preset (the speed bin and the refresh times are the die's), except
+    FAW = 16 cycles (13.3 ns: tFAW of a 512 B page is max(16 nCK, 13 ns); gem5 ``tXAW`` 13.328 ns).
+
+Not (yet) in the library, for want of a complete public per-die IDD table we could read (the
+stored copies of Micron's 16 Gb datasheet and SK hynix's H5ANAG4/8/6NCJR 16 Gb datasheet show only
+the first rows of their IDD tables; DRAMSys and DRAMPower ship DDR4 memspecs of 4 Gb x8 only, gem5 of
+8 Gb DDR4-2400 only, Ramulator 2 timings without currents): DDR4-2666 and DDR4-2933 bins, 16 Gb dies.
+Bring your own (``--memspec FILE``; docs/your-node.md).
 """
 
 from __future__ import annotations
@@ -122,6 +141,9 @@ PRESET_INFO: dict[str, PresetInfo] = {
     "micron-8gb-x8-ddr4-2400-b": PresetInfo("micron-8gb-x8-ddr4-2400-b.json", 2400, 8, 8, "Micron",
                                             "MT40A1G8 (8Gb x8 rev B)",
                                             "Micron MTA18ASF2G72HZ datasheet Rev. F, Table 15"),
+    "micron-8gb-x4-ddr4-2400-b": PresetInfo("micron-8gb-x4-ddr4-2400-b.json", 2400, 8, 4, "Micron",
+                                            "MT40A2G4 (8Gb x4)",
+                                            "Micron 8Gb DDR4 datasheet x4 DDR4-2400 IDDs as gem5's DDR4_2400_16x4 quotes"),
     "micron-8gb-x8-ddr4-3200-g": PresetInfo("micron-8gb-x8-ddr4-3200-g.json", 3200, 8, 8, "Micron",
                                             "MT40A1G8 (8Gb x8 rev G)",
                                             "DRAMPower memspec MICRON_8Gb_DDR4-3200_8bit_G (8gb_ddr4_sdram.pdf)"),
