@@ -167,3 +167,15 @@ def test_dimms_map_to_the_preset_of_their_die(part: str, size_gib: int, ranks: i
                 part_number=part)
     choice = choose_memspec([dimm])
     assert (choice.name, choice.confidence) == expect, choice.reason
+
+
+def test_an_x16_module_gets_the_x16_preset() -> None:
+    """A 4 GB 1Rx16 DDR4-2666 UDIMM (Micron MTA4ATF51264AZ: 4 devices per rank -> x16, 8 Gb): the x16 preset,
+    re-shaped to 1 rank of 4 devices."""
+    dimm = Dimm("DIMM_A1", size_bytes=4 << 30, type="DDR4", speed_mts=2666, ranks=1, total_width=64, data_width=64,
+                part_number="MTA4ATF51264AZ-2G6E1")
+    choice = choose_memspec([dimm])
+    assert (choice.name, choice.confidence, choice.device_width, choice.die_gbit) == \
+        ("micron-8gb-x16-ddr4-2666-b", "high", 16, 8)
+    spec = for_dimm(preset("micron-8gb-x16-ddr4-2666-b"), choice.ranks, choice.devices_per_rank)
+    assert (spec.nbr_of_ranks, spec.nbr_of_devices, spec.nbr_of_banks) == (1, 4, 8)

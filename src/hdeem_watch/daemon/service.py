@@ -177,8 +177,6 @@ class Daemon:
         store.close_interrupted_runs(self.wall_clock())
         source = self._open_source()
         setup = self.node_setup = self._describe_node(source)
-        for line in setup.log_lines():
-            log.info("%s", line)
         infos = source.channels()
         dram_rates = {info.name: float(info.rate_hz) for info in infos if info.kind == "dram"}
         baselines = {}
@@ -249,6 +247,8 @@ class Daemon:
             state=store.load_calibrator(), fits=store.fit_history(MAX_HISTORY), submit=self.model_jobs.submit,
             on_built=reporter.publish_calib)
         self.operations.resume_modelling(unfinished_runs(store))
+        for line in setup.log_lines():  # once started: a start that fails says one line only
+            log.info("%s", line)
         log.info("hdeem-watch daemon %s: node %s, source %s, pub %s, control %s", __version__, self.node,
                  settings.source, self.pub_endpoint, self.control_endpoint)
 

@@ -92,11 +92,33 @@ amperes per device, as DRAMPower wants them.
     DDR4-2400 bin of the x8 preset (the speed bin and the refresh times are the die's), except
     FAW = 16 cycles (13.3 ns: tFAW of a 512 B page is max(16 nCK, 13 ns); gem5 ``tXAW`` 13.328 ns).
 
+``micron-8gb-x16-ddr4-2666-b`` (``micron-8gb-x16-ddr4-2666-b.json``)
+    Micron 8 Gb x16 die revision B (MT40A512M16), DDR4-2666, one channel of single-rank x64 modules
+    (1 rank x 4 devices, no ECC; laptops, desktops and x16-based UDIMM/SODIMM nodes). Currents:
+    Micron's MTA4ATF51264AZ (4 GB 1Rx16 UDIMM, 4 of these dies) datasheet atf4c512x64az.pdf Rev. B
+    8/16, Table 13 ("Die Revision B", "computed from values specified in the 8Gb (512 Meg x 16)
+    component data sheet"), column 2666; with one rank every device is in the measured state, so per
+    device = module / 4: IDD0 340/4 = 85, IPP0 16/4 = 4, IDD2N 140/4 = 35, IDD2P 100/4 = 25,
+    IDD3N 200/4 = 50, IPP3N 12/4 = 3, IDD3P 172/4 = 43, IDD4R 1052/4 = 263, IDD4W 976/4 = 244,
+    IDD5B 1120/4 = 280, IPP5B 112/4 = 28, IDD6N 120/4 = 30 mA. The table's 2400 column divided the
+    same way is exactly gem5's ``DDR4_2400_4x16`` (MT40A512M16: IDD0 80, IDD2N 34, IDD3N 47, IDD4R 243,
+    IDD4W 228, IDD5 280, IDD3P 41, IPP0 4 mA), a check of the conversion. IPP2N, IPP2P, IPP3P,
+    IPP4R, IPP4W, IPP6N = IPP3N: the 8 Gb/16 Gb die datasheets' note "IPP3N test and limit is
+    applicable for all IDD2x, IDD3x, IDD4x, IDD6x and IDD8 conditions". Geometry (x16, 8 Gb): 8 banks
+    in 2 bank groups, 65536 rows x 1024 columns (2 KB page). Timings: the module's -2G6 grade is the
+    component's -075 (Micron's module-to-component speed-grade table, e.g. asf18c1gx72az.pdf Rev. F
+    Table 12), DDR4-2666 CL19: tCK 0.75 ns,
+    RL = RCD = RP = 19 (14.25 ns), RAS 43 (32 ns), RC 62, WL 14 (CWL 14); the JESD79-4 values
+    for a 2 KB page at 2666 in cycles of 0.75 ns, rounded up: RRD_S 8 (5.3 ns), RRD_L 9 (6.4 ns),
+    FAW 40 (30 ns), CCD_L 7 (5 ns), WTR_S/L 4/10 (2.5/7.5 ns), WR 20 (15 ns), RTP 10 (7.5 ns), XP 8
+    (6 ns), XPDLL 32 (24 ns), CKE 7 (5 ns), CKESR 8, XSDLL 854 (tDLLK at 2666); the 8 Gb refresh
+    times RFC1/2/4 467/347/214 (350/260/160 ns), XS 480 (RFC1 + 10 ns), REFI 10400 (7.8 us).
+
 Not (yet) in the library, for want of a complete public per-die IDD table we could read (the
 stored copies of Micron's 16 Gb datasheet and SK hynix's H5ANAG4/8/6NCJR 16 Gb datasheet show only
 the first rows of their IDD tables; DRAMSys and DRAMPower ship DDR4 memspecs of 4 Gb x8 only, gem5 of
-8 Gb DDR4-2400 only, Ramulator 2 timings without currents): DDR4-2666 and DDR4-2933 bins, 16 Gb dies.
-Bring your own (``--memspec FILE``; docs/your-node.md).
+8 Gb DDR4-2400 only, Ramulator 2 timings without currents): DDR4-2666 and DDR4-2933 x4/x8, DDR4-3200
+x4, 16 Gb dies. Bring your own (``--memspec FILE``; docs/your-node.md).
 """
 
 from __future__ import annotations
@@ -144,6 +166,9 @@ PRESET_INFO: dict[str, PresetInfo] = {
     "micron-8gb-x4-ddr4-2400-b": PresetInfo("micron-8gb-x4-ddr4-2400-b.json", 2400, 8, 4, "Micron",
                                             "MT40A2G4 (8Gb x4)",
                                             "Micron 8Gb DDR4 datasheet x4 DDR4-2400 IDDs as gem5's DDR4_2400_16x4 quotes"),
+    "micron-8gb-x16-ddr4-2666-b": PresetInfo("micron-8gb-x16-ddr4-2666-b.json", 2666, 8, 16, "Micron",
+                                             "MT40A512M16 (8Gb x16 rev B)",
+                                             "Micron MTA4ATF51264AZ datasheet Rev. B, Table 13 (2666)"),
     "micron-8gb-x8-ddr4-3200-g": PresetInfo("micron-8gb-x8-ddr4-3200-g.json", 3200, 8, 8, "Micron",
                                             "MT40A1G8 (8Gb x8 rev G)",
                                             "DRAMPower memspec MICRON_8Gb_DDR4-3200_8bit_G (8gb_ddr4_sdram.pdf)"),
