@@ -114,11 +114,38 @@ amperes per device, as DRAMPower wants them.
     (6 ns), XPDLL 32 (24 ns), CKE 7 (5 ns), CKESR 8, XSDLL 854 (tDLLK at 2666); the 8 Gb refresh
     times RFC1/2/4 467/347/214 (350/260/160 ns), XS 480 (RFC1 + 10 ns), REFI 10400 (7.8 us).
 
+``micron-8gb-x8-ddr4-2666``, ``micron-8gb-x8-ddr4-2933``, ``micron-8gb-x4-ddr4-2666``, ``micron-8gb-x4-ddr4-2933``, ``micron-8gb-x4-ddr4-3200``
+    Micron 8 Gb DDR4 dies (MT40A1G8 x8, MT40A2G4 x4) at the DDR4-2666, -2933 and -3200 speed bins,
+    one channel of 2Rx8 (9 devices per rank) or 2Rx4 (18 devices per rank) ECC RDIMMs. Currents:
+    the Micron "8Gb: x4, x8, x16 DDR4 SDRAM" datasheet (8gb_ddr4_sdram.pdf) columns as DRAMsim3
+    quotes them (umd-memsys/DRAMsim3 ``configs/DDR4_8Gb_x{4,8}_{2666,2933,3200}.ini``; the file
+    ``DDR4_8Gb_x8_2400.ini`` of the same set names its part, "Micron MT40A1G8PM-083E"). The set is
+    checked against the sources above: its x8 2400 currents are the per-device figures of Micron's
+    MTA18ASF2G72HZ module table (``micron-8gb-x8-ddr4-2400-b``; IDD6 31 vs 30 mA), its x4 2400
+    currents are gem5's MT40A2G4 ones (``micron-8gb-x4-ddr4-2400-b``), and its x16 2666 currents
+    are exactly Micron's MTA4ATF51264AZ table divided by its 4 devices (``micron-8gb-x16-ddr4-2666-b``).
+    Per device, mA (IDD0, IDD2N, IDD2P, IDD3N, IDD3P, IDD4R, IDD4W, IDD5B, IDD6N; IPP0 3 for all):
+
+    - x8 2666: 51, 35, 25, 46, 39, 146, 132, 250, 30;  x8 2933: 54, 36, 25, 49, 41, 157, 141, 250, 30
+    - x4 2666: 46, 35, 25, 41, 34, 121, 112, 250, 30;  x4 2933: 49, 36, 25, 44, 36, 132, 121, 250, 30
+    - x4 3200: 52, 37, 25, 47, 38, 143, 130, 250, 30
+
+    (DRAMsim3's x8 3200 file, IDD3N 52 and IDD4W 150 mA, differs from the DRAMPower rev-G memspec of
+    ``micron-8gb-x8-ddr4-3200-g``, IDD3N 56 and IDD4W 155: another datasheet revision; that preset is
+    kept.) The files give IDD5 as the refresh current, used as IDD5B. Not in them: IPP3N (3 mA) and
+    IPP5B (28 mA) are the 8 Gb x8 rev-B module table's (above); the other IPPs = IPP3N (the
+    datasheet's IPP3N note). Timings: the files' cycles (JESD79-4 speed bins: 2666 19-19-19 at
+    0.75 ns, 2933 21-21-21 at 0.682 ns, 3200 22-22-22 at 0.625 ns; RAS 43/47/52, RRD_L 7/8/8 (4.9 ns),
+    FAW x8 28/31 (21 ns) and x4 16 (16 nCK), WR 20/22/24, RTP 10/11/12, CCD_L 7/8/8, WTR_S/L 4 and
+    10/11/12, CKE 7/8/8, XP 8/9/10, 8 Gb RFC1/2/4 350/260/160 ns, XS = RFC1 + 10 ns, CWL 14/16/16);
+    RC = RAS + RP; REFI = 7.8 us; XPDLL = 24 ns and XSDLL = tDLLK (854/940/1024 nCK) from JESD79-4.
+    Geometry: 16 banks in 4 bank groups, 65536 (x8) or 131072 (x4) rows of 1024 columns.
+
 Not (yet) in the library, for want of a complete public per-die IDD table we could read (the
 stored copies of Micron's 16 Gb datasheet and SK hynix's H5ANAG4/8/6NCJR 16 Gb datasheet show only
 the first rows of their IDD tables; DRAMSys and DRAMPower ship DDR4 memspecs of 4 Gb x8 only, gem5 of
-8 Gb DDR4-2400 only, Ramulator 2 timings without currents): DDR4-2666 and DDR4-2933 x4/x8, DDR4-3200
-x4, 16 Gb dies. Bring your own (``--memspec FILE``; docs/your-node.md).
+8 Gb DDR4-2400 only, DRAMsim3 of 4 and 8 Gb dies only, Ramulator 2 timings without currents): 16 Gb
+dies. Bring your own (``--memspec FILE``; docs/your-node.md).
 """
 
 from __future__ import annotations
@@ -169,6 +196,16 @@ PRESET_INFO: dict[str, PresetInfo] = {
     "micron-8gb-x16-ddr4-2666-b": PresetInfo("micron-8gb-x16-ddr4-2666-b.json", 2666, 8, 16, "Micron",
                                              "MT40A512M16 (8Gb x16 rev B)",
                                              "Micron MTA4ATF51264AZ datasheet Rev. B, Table 13 (2666)"),
+    "micron-8gb-x8-ddr4-2666": PresetInfo("micron-8gb-x8-ddr4-2666.json", 2666, 8, 8, "Micron", "MT40A1G8 (8Gb x8)",
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x8_2666 quotes it"),
+    "micron-8gb-x8-ddr4-2933": PresetInfo("micron-8gb-x8-ddr4-2933.json", 2933, 8, 8, "Micron", "MT40A1G8 (8Gb x8)",
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x8_2933 quotes it"),
+    "micron-8gb-x4-ddr4-2666": PresetInfo("micron-8gb-x4-ddr4-2666.json", 2666, 8, 4, "Micron", "MT40A2G4 (8Gb x4)",
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x4_2666 quotes it"),
+    "micron-8gb-x4-ddr4-2933": PresetInfo("micron-8gb-x4-ddr4-2933.json", 2933, 8, 4, "Micron", "MT40A2G4 (8Gb x4)",
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x4_2933 quotes it"),
+    "micron-8gb-x4-ddr4-3200": PresetInfo("micron-8gb-x4-ddr4-3200.json", 3200, 8, 4, "Micron", "MT40A2G4 (8Gb x4)",
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x4_3200 quotes it"),
     "micron-8gb-x8-ddr4-3200-g": PresetInfo("micron-8gb-x8-ddr4-3200-g.json", 3200, 8, 8, "Micron",
                                             "MT40A1G8 (8Gb x8 rev G)",
                                             "DRAMPower memspec MICRON_8Gb_DDR4-3200_8bit_G (8gb_ddr4_sdram.pdf)"),
