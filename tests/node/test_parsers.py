@@ -161,7 +161,11 @@ def test_letter_only_slot_names_are_flagged(tmp_path: Path) -> None:
     ("HMA82GR7AFR8N-XN", 16, 2, 3200, ("micron-8gb-x8-ddr4-3200-g", "high")),     # SK hynix 2Rx8 8 Gb at 3200
     ("MTA36ASF4G72PZ-3G2R1", 32, 2, 3200, ("micron-8gb-x4-ddr4-3200", "high")),   # Micron 2Rx4 8 Gb at 3200
     ("M393A4K40DB3-CWE", 32, 2, 2133, ("micron-8gb-x4-ddr4-2400-b", "medium")),   # no 2133 x4 8 Gb preset
-    ("M393A1G40DB0-CPB", 8, 1, 2133, ("ddr4-2133-x8-4gb", "low")),  # 4 Gb x4: no x4 preset of 4 Gb; same density
+    ("M393A1G40DB0-CPB", 8, 1, 2133, ("micron-4gb-x4-ddr4-2133", "high")),       # Samsung 1Rx4 4 Gb
+    ("M393A2G40DB0-CPB", 16, 2, 2133, ("micron-4gb-x4-ddr4-2133", "high")),       # Samsung 2Rx4 4 Gb
+    ("HMA42GR7AFR4N-UH", 16, 2, 2400, ("micron-4gb-x4-ddr4-2400", "high")),       # SK hynix 2Rx4 4 Gb
+    ("M393A2K40BB1-CRC", 16, 1, 2400, ("micron-8gb-x4-ddr4-2400-b", "high")),     # Samsung 1Rx4 8 Gb
+    ("M393A8G40MB2-CVF", 64, 2, 2933, ("micron-8gb-x4-ddr4-2933", "low")),        # 16 Gb x4: no 16 Gb preset
 ])
 def test_dimms_map_to_the_preset_of_their_die(part: str, size_gib: int, ranks: int, speed: int,
                                               expect: tuple[str, str]) -> None:

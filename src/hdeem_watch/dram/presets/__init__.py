@@ -141,6 +141,22 @@ amperes per device, as DRAMPower wants them.
     RC = RAS + RP; REFI = 7.8 us; XPDLL = 24 ns and XSDLL = tDLLK (854/940/1024 nCK) from JESD79-4.
     Geometry: 16 banks in 4 bank groups, 65536 (x8) or 131072 (x4) rows of 1024 columns.
 
+``micron-4gb-x4-ddr4-2133``, ``micron-4gb-x4-ddr4-2400``
+    Micron 4 Gb x4 dies (MT40A1G4) at DDR4-2133 and -2400, one channel of 2Rx4 ECC RDIMMs (2 ranks
+    x 18 devices; the 8 GB 1Rx4 / 16 GB 2Rx4 modules of Haswell- and Broadwell-era nodes). Currents:
+    the Micron 4 Gb DDR4 datasheet columns as DRAMsim3 quotes them (``configs/DDR4_4Gb_x4_2133.ini``,
+    ``DDR4_4Gb_x4_2400.ini``), per device, mA: 2133: IDD0 55, IDD2N 42, IDD2P 27, IDD3N 55, IDD3P 40,
+    IDD4R 135, IDD4W 155, IDD5B 170, IDD6N 20, IPP0 3; 2400: 60, 45, 29, 60, 40, 145, 175, 175, 20,
+    IPP0 3. The files give x4 the same figures as their x8 files, and the x8 ones are checked by
+    Micron's MTA18ASF1G72AZ module datasheet (asf18c1gx72az.pdf Rev. F, Table 13, die revision B,
+    2Rx8 of MT40A512M8) converted by its notes: IDD2N 756/18 = 42 and 810/18 = 45, IDD0 738/9 - 27
+    = 55 and 801/9 - 29 = 60 mA at 2133 and 2400. The other IPPs are not in the files: 0, as in
+    DRAMPower's 4 Gb memspecs. Timings: the files' cycles (2133 16-16-16 at 0.9375 ns, 2400 17-17-17
+    at 0.833 ns; RAS 36/39, RFC1/2/4 278/171/118 and 312/192/132 (4 Gb: 260/160/110 ns), RRD_L 6,
+    FAW 16, WR 16/18, RTP 8/9, CCD_L 6, WTR_S/L 3 and 8/9, CKE 6, XP 7/8, XS 289/324, CWL 11/12);
+    RC = RAS + RP; REFI = 7.8 us; XPDLL = 24 ns and XSDLL = tDLLK (597/768 nCK) from JESD79-4.
+    Geometry: 16 banks in 4 bank groups, 65536 rows x 1024 columns.
+
 Not (yet) in the library, for want of a complete public per-die IDD table we could read (the
 stored copies of Micron's 16 Gb datasheet and SK hynix's H5ANAG4/8/6NCJR 16 Gb datasheet show only
 the first rows of their IDD tables; DRAMSys and DRAMPower ship DDR4 memspecs of 4 Gb x8 only, gem5 of
@@ -196,6 +212,10 @@ PRESET_INFO: dict[str, PresetInfo] = {
     "micron-8gb-x16-ddr4-2666-b": PresetInfo("micron-8gb-x16-ddr4-2666-b.json", 2666, 8, 16, "Micron",
                                              "MT40A512M16 (8Gb x16 rev B)",
                                              "Micron MTA4ATF51264AZ datasheet Rev. B, Table 13 (2666)"),
+    "micron-4gb-x4-ddr4-2133": PresetInfo("micron-4gb-x4-ddr4-2133.json", 2133, 4, 4, "Micron", "MT40A1G4 (4Gb x4)",
+                                          "Micron 4Gb DDR4 datasheet as DRAMsim3 DDR4_4Gb_x4_2133 quotes it"),
+    "micron-4gb-x4-ddr4-2400": PresetInfo("micron-4gb-x4-ddr4-2400.json", 2400, 4, 4, "Micron", "MT40A1G4 (4Gb x4)",
+                                          "Micron 4Gb DDR4 datasheet as DRAMsim3 DDR4_4Gb_x4_2400 quotes it"),
     "micron-8gb-x8-ddr4-2666": PresetInfo("micron-8gb-x8-ddr4-2666.json", 2666, 8, 8, "Micron", "MT40A1G8 (8Gb x8)",
                                           "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x8_2666 quotes it"),
     "micron-8gb-x8-ddr4-2933": PresetInfo("micron-8gb-x8-ddr4-2933.json", 2933, 8, 8, "Micron", "MT40A1G8 (8Gb x8)",
