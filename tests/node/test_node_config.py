@@ -97,3 +97,50 @@ def test_the_daemon_models_the_configured_sim_node(tmp_path: Path, caplog: pytes
         assert modeller is not None and modeller.topology.dimms == 16 and modeller.topology.cores_per_socket == 28
     finally:
         daemon.close()
+
+
+FIXTURES = Path(__file__).resolve().parent / "fixtures"
+
+
+def test_a_saved_dmidecode_print_out_stands_in_for_root(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """[node] dmidecode = FILE: a daemon that is not root (and `hdeem-watch node --config`) reads the DIMMs
+    from a saved `dmidecode -t 17`; an unreadable file is one line naming the key, exit 2."""
+    import json
+
+    from hdeem_watch.cli import main
+
+    fixture = FIXTURES / "epyc-rome-8ch"
+    config = _config(tmp_path, f'[node]\ndmidecode = "{fixture / "dmidecode.txt"}"\n')
+    assert main(["node", "--sysfs-root", str(fixture / "sys"), "--config", str(config), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(out["dimms"]) == 16 and out["memspec"]["name"] == "micron-8gb-x4-ddr4-2933"
+    missing = _config(tmp_path, f'[node]\ndmidecode = "{tmp_path / "nope.txt"}"\n')
+    assert main(["node", "--sysfs-root", str(fixture / "sys"), "--config", str(missing)]) == 2
+    err = capsys.readouterr().err
+    assert "[node].dmidecode" in err and "nope.txt" in err and err.count("\n") == 1
+
+
+def test_the_daemon_detects_a_real_source_s_node_with_the_saved_print_out(tmp_path: Path) -> None:
+    """A non-sim source: the daemon describes this machine (sysfs) with the DIMMs of [node] dmidecode, and the
+    [node] counts over it; the memspec is the DIMMs' (a replayed recording is described by the table alone)."""
+    from hdeem_watch.daemon.service import Daemon
+
+    fixture = FIXTURES / "skylake-sp"
+    text = (f'source = "sim"\n[node]\ndmidecode = "{fixture / "dmidecode.txt"}"\nsockets = 2\n'
+            'cores_per_socket = 20\n')
+    settings = load_settings(_config(tmp_path, text), env={}, overrides={"state_dir": str(tmp_path / "s")})
+
+    class Rapl:
+        kind = "rapl"
+
+    daemon = Daemon(settings)
+    setup = daemon._describe_node(Rapl())  # type: ignore[arg-type]
+    assert len(setup.description.dimms) == 12 and setup.memspec == "micron-8gb-x8-ddr4-2666"
+    assert setup.topology is not None and (setup.topology.sockets, setup.topology.channels_per_socket) == (2, 6)
+    assert setup.description.sockets.source == "config [node]"
+
+    class Replay:
+        kind = "replay"
+
+    replayed = daemon._describe_node(Replay())  # type: ignore[arg-type]
+    assert replayed.description.dimms == () and replayed.choice.confidence == "default"

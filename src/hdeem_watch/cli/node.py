@@ -99,8 +99,11 @@ def run(args: argparse.Namespace) -> int:
     root = args.sysfs_root if args.sysfs_root is not None else Path("/sys")
     if args.sysfs_root is not None and not args.sysfs_root.is_dir():
         raise InputError(f"--sysfs-root {args.sysfs_root}: not a directory")
-    text, note = _dmidecode_text(args)
     overrides = _overrides(args.config)
+    from hdeem_watch.node.setup import saved_dmidecode
+
+    saved = saved_dmidecode(overrides) if args.dmidecode is None else None
+    text, note = saved if saved is not None else _dmidecode_text(args)
     cpuinfo = None
     if args.sysfs_root is None:
         try:

@@ -147,7 +147,13 @@ class Daemon:
         alone for a replayed recording; the ``[node]`` table over it."""
         from dataclasses import replace
 
-        from hdeem_watch.node.setup import configured_only, counted_node, detect_live_node, node_setup
+        from hdeem_watch.node.setup import (
+            configured_only,
+            counted_node,
+            detect_live_node,
+            node_setup,
+            saved_dmidecode,
+        )
 
         overrides = self.settings.node_overrides()
         default = None
@@ -163,7 +169,7 @@ class Daemon:
         elif source.kind == "replay":
             description = configured_only("a replayed recording: describe its node in the [node] table")
         else:
-            description = detect_live_node()
+            description = detect_live_node(dmidecode=saved_dmidecode(overrides))
         return node_setup(description, overrides, memspec_setting=self.settings.memspec, default_memspec=default)
 
     def _start(self) -> None:

@@ -11,6 +11,7 @@ Keys (all optional)::
     channels_per_socket = 4
     dimms_per_channel = 1
     memspec = "samsung-m393a1g43db0-cpb"      # a preset name or a DRAMPower JSON file
+    dmidecode = "/etc/hdeem-watch/dmi.txt"     # a saved `dmidecode -t 17` (a daemon that is not root)
     [node.dimm]                                # every DIMM (homogeneous nodes)
     part_number = "M393A1G43DB0-CPB"
     size_gb = 8
@@ -32,7 +33,7 @@ Example:
     {'sockets': 2}
     >>> parse_node_table({"socket": 2})
     Traceback (most recent call last):
-    hdeem_watch.errors.InputError: [node]: unknown key 'socket'; expected one of channels_per_socket, cores_per_socket, dies_per_socket, dimm, dimms_per_channel, memspec, name, numa_nodes_per_socket, sensors, sockets, threads_per_core
+    hdeem_watch.errors.InputError: [node]: unknown key 'socket'; expected one of channels_per_socket, cores_per_socket, dies_per_socket, dimm, dimms_per_channel, dmidecode, memspec, name, numa_nodes_per_socket, sensors, sockets, threads_per_core
 """
 
 from __future__ import annotations
@@ -68,11 +69,12 @@ class NodeOverrides:
     dimm: dict[str, Any] = field(default_factory=dict)
     sensors: dict[str, list[str]] = field(default_factory=dict)
     name: str | None = None
+    dmidecode: str | None = None
 
     @property
     def empty(self) -> bool:
         """Whether the table sets nothing about the hardware (at most the name)."""
-        return not (self.counts or self.memspec or self.dimm or self.sensors)
+        return not (self.counts or self.memspec or self.dimm or self.sensors or self.dmidecode)
 
 
 def split_node_entry(entry: Any) -> tuple[Mapping[str, Any] | None, str | None]:
@@ -109,7 +111,7 @@ def parse_node_table(table: Mapping[str, Any], where: str = "[node]") -> NodeOve
     """
     if not isinstance(table, Mapping):
         raise InputError(f"{where}: expected a table, got {type(table).__name__}")
-    known = (*COUNT_KEYS, "memspec", "dimm", "sensors", "name")
+    known = (*COUNT_KEYS, "memspec", "dimm", "sensors", "name", "dmidecode")
     for key in table:
         if key not in known:
             raise InputError(f"{where}: unknown key {key!r}; expected one of {', '.join(sorted(known))}")
@@ -120,6 +122,9 @@ def parse_node_table(table: Mapping[str, Any], where: str = "[node]") -> NodeOve
     memspec = table.get("memspec")
     if memspec is not None and (not isinstance(memspec, str) or not memspec):
         raise InputError(f"{where}.memspec = {memspec!r}: expected a preset name or a memspec file")
+    dmidecode = table.get("dmidecode")
+    if dmidecode is not None and (not isinstance(dmidecode, str) or not dmidecode):
+        raise InputError(f"{where}.dmidecode = {dmidecode!r}: expected the path of a saved 'dmidecode -t 17' print-out")
     dimm_table = table.get("dimm", {})
     if not isinstance(dimm_table, Mapping):
         raise InputError(f"{where}.dimm: expected a table")
@@ -139,7 +144,7 @@ def parse_node_table(table: Mapping[str, Any], where: str = "[node]") -> NodeOve
         if not isinstance(locators, list) or not all(isinstance(x, str) for x in locators):
             raise InputError(f"{where}.sensors.{name} = {locators!r}: expected a list of DIMM locators")
         sensors[name] = list(locators)
-    return NodeOverrides(counts=counts, memspec=memspec, dimm=dimm, sensors=sensors, name=name)
+    return NodeOverrides(counts=counts, memspec=memspec, dimm=dimm, sensors=sensors, name=name, dmidecode=dmidecode)
 
 
 def _dimm_values(dimm: Mapping[str, Any]) -> dict[str, Any]:

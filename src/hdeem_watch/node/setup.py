@@ -150,6 +150,22 @@ def dmidecode_text(*, run: Any = subprocess.run, which: Any = shutil.which,
     return done.stdout, "dmidecode -t 17 (run now)"
 
 
+def saved_dmidecode(overrides: NodeOverrides | None) -> tuple[str | None, str] | None:
+    """The ``[node] dmidecode`` print-out as ``(text, note)``, or ``None`` when the table names none.
+
+    Raises:
+        InputError: the file cannot be read (named with the key).
+    """
+    if overrides is None or not overrides.dmidecode:
+        return None
+    path = Path(overrides.dmidecode)
+    try:
+        return path.read_text(encoding="utf-8", errors="replace"), f"{path} ([node] dmidecode)"
+    except OSError as error:
+        raise InputError(f"[node].dmidecode = {str(path)!r}: cannot read ({error.strerror or error}); "
+                         "expected a saved 'dmidecode -t 17' print-out") from None
+
+
 def detect_live_node(sysfs_root: Path = Path("/sys"), *, cpuinfo: Path = Path("/proc/cpuinfo"),
                      dmidecode: tuple[str | None, str] | None = None) -> NodeDescription:
     """This node as sysfs, EDAC and (as root) ``dmidecode -t 17`` show it.
