@@ -92,6 +92,7 @@ class Daemon:
         self.metrics: DaemonMetrics | None = None
         self.metrics_port: int | None = None
         self.recorder: Any = None
+        self.node_setup: Any = None
         self.curve: Any = None
         self.poll_interval_ns = round(settings.poll_interval_s * 1e9)
         self._stop = False
@@ -140,6 +141,37 @@ class Daemon:
         self._source_open = True
         return self.source
 
+    def _describe_node(self, source: Source) -> Any:
+        """The node the run model works on (:func:`hdeem_watch.node.setup.node_setup`): the simulated
+        node's layout for the sim, this machine detected for hdeem and rapl, the ``[node]`` table
+        alone for a replayed recording; the ``[node]`` table over it."""
+        from dataclasses import replace
+
+        from hdeem_watch.node.setup import (
+            configured_only,
+            counted_node,
+            detect_live_node,
+            node_setup,
+            saved_dmidecode,
+        )
+
+        overrides = self.settings.node_overrides()
+        default = None
+        topology = getattr(getattr(source, "layout", None), "topology", None)  # the simulated node
+        if topology is not None:
+            from hdeem_watch.sources.sim_model import MEMSPEC_PRESET
+
+            default = (MEMSPEC_PRESET, "the simulated node's DIMMs (its hidden truth is built on this preset)")
+            description = counted_node(topology.sockets, topology.cores_per_socket, topology.channels_per_socket,
+                                       source="sim: the simulated node")
+            if overrides is not None:  # its counts went to the sim itself; memspec and name stay
+                overrides = replace(overrides, counts={}, dimm={}, sensors={})
+        elif source.kind == "replay":
+            description = configured_only("a replayed recording: describe its node in the [node] table")
+        else:
+            description = detect_live_node(dmidecode=saved_dmidecode(overrides))
+        return node_setup(description, overrides, memspec_setting=self.settings.memspec, default_memspec=default)
+
     def _start(self) -> None:
         settings = self.settings
         state_dir = Path(settings.state_dir)
@@ -150,6 +182,7 @@ class Daemon:
             raise InputError(str(error)) from None
         store.close_interrupted_runs(self.wall_clock())
         source = self._open_source()
+        setup = self.node_setup = self._describe_node(source)
         infos = source.channels()
         dram_rates = {info.name: float(info.rate_hz) for info in infos if info.kind == "dram"}
         baselines = {}
@@ -206,17 +239,22 @@ class Daemon:
         self.operations = Operations(book, calibration=self.calibration, reporter=reporter, store=self.store_worker,
                                      publisher=self.publisher, source=source, submit=self.model_jobs.submit,
                                      reply=self.complete, poll=self.poll_once)
-        self.control.handlers = self.operations.handlers()
+        topo = setup.topology
+        self.control.handlers = {**self.operations.handlers(), "node.get": lambda _args: setup.to_json()}
         restore_calibration(
             self.calibration,
-            settings=ModelSettings(settings.memspec, dimms=settings.dimms, currents=tuple(settings.currents),
+            settings=ModelSettings(setup.memspec, dimms=settings.dimms, topology=setup.topology,
+                                   currents=tuple(settings.currents),
                                    half_life_s=settings.half_life_s or None, max_requests=settings.model_max_requests,
-                                   groups=source_groups(source, dram_rates, sockets=2,
-                                                        dimms_per_socket=max(1, settings.dimms // 2)),
+                                   groups=source_groups(source, dram_rates, sockets=topo.sockets if topo else 2,
+                                                        dimms_per_socket=(topo.dimms // topo.sockets if topo
+                                                                          else max(1, settings.dimms // 2))),
                                    dram_rates_hz=dram_rates),
             state=store.load_calibrator(), fits=store.fit_history(MAX_HISTORY), submit=self.model_jobs.submit,
             on_built=reporter.publish_calib)
         self.operations.resume_modelling(unfinished_runs(store))
+        for line in setup.log_lines():  # once started: a start that fails says one line only
+            log.info("%s", line)
         log.info("hdeem-watch daemon %s: node %s, source %s, pub %s, control %s", __version__, self.node,
                  settings.source, self.pub_endpoint, self.control_endpoint)
 
