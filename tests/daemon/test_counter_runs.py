@@ -1,7 +1,7 @@
 """Runs modelled from memory-controller counters (issue 17): opaque jobs, kernel runs with a cross-check.
 
 The daemon's real core (run book, operations, store and model workers) over the simulated node with
-its own IMC counters (``counters = "sim"``), on a fake clock (:mod:`sim_counter_node`).
+its own IMC counters (``counters = "sim"``), on a fake clock (:mod:`hdeem_watch.daemon.counter_rig`).
 """
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ import math
 from pathlib import Path
 
 import pytest
-from sim_counter_node import CounterSimNode  # tests/daemon/ is on sys.path under pytest (rootdir-relative)
 
 from hdeem_watch.counters.source import CounterSnapshot
+from hdeem_watch.daemon.counter_rig import CounterSimNode
 from hdeem_watch.daemon.counter_windows import CounterWindows
 from hdeem_watch.daemon.runs import OPAQUE_KERNEL, parse_run_args
 from hdeem_watch.sources.sim_jobs import JOB_KERNEL

@@ -1,10 +1,15 @@
-"""A simulated node with memory counters under the daemon's real core, on a fake clock (test harness).
+"""A simulated node with memory counters under the daemon's real core, on a fake clock (a test rig).
 
 The run book, operations, store worker and model worker of the daemon, the sim as the power source
 and :class:`~hdeem_watch.daemon.counter_source.SimCounters` as the counter source, wired as
 ``Daemon.poll_once`` wires them (counters read at the heartbeat, at window edges and until a closing
-window's end; their deltas attached to the closed run). No sockets. Used by the counter tests and by
-``benchmarks/bench_counters.py``.
+window's end; their deltas attached to the closed run). No sockets, no threads of its own beyond
+the daemon's two workers. Used by the counter tests and by ``benchmarks/bench_counters.py``.
+
+Example:
+    >>> rig = CounterSimNode(Path("/tmp/rig-doctest"))          # doctest: +SKIP
+    >>> rig.run(None, threads=12, seconds=5.0)["model"]["source"]  # doctest: +SKIP
+    'counters'
 """
 
 from __future__ import annotations
@@ -30,8 +35,28 @@ POLL_NS = 50_000_000
 WALL0 = 1_700_000_000 * 10**9
 
 
+class _ListPublisher:
+    """A publisher that keeps what it is given."""
+
+    def __init__(self, published: list[tuple[str, Any]]) -> None:
+        self.published = published
+
+    def publish(self, kind: str, body: Any, *, t_ns: int | None = None) -> bool:
+        self.published.append((kind, body))
+        return True
+
+
 class CounterSimNode:
-    """The daemon's core over a simulated node with sim counters (``counters = False``: without)."""
+    """The daemon's core over a simulated node with sim counters.
+
+    Args:
+        state_dir: where its SQLite store lives.
+        seed: the sim's seed.
+        counters: with the sim's counters (False: the kernel model only).
+        realistic: the sim's sensor effects (noise, 0.125 W steps, offsets, gains, temperature);
+            False: an exact signal.
+        currents: the currents the calibrator fits.
+    """
 
     def __init__(self, state_dir: Path, *, seed: int = 3, counters: bool = True, realistic: bool = False,
                  currents: tuple[str, ...] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")) -> None:
@@ -48,7 +73,7 @@ class CounterSimNode:
         self.calibration = Calibration()
         self.replies: dict[int, tuple[Any, Any]] = {}
         self.published: list[tuple[str, Any]] = []
-        publisher = type("P", (), {"publish": lambda _s, kind, body, /: self.published.append((kind, body)) or True})()
+        publisher = _ListPublisher(self.published)
         self.reporter = Reporter(self.book, self.calibration, self.sim, publisher, self.writer,
                                  Identity(kind="sim", endpoints={}), poll_interval_ns=lambda: POLL_NS,
                                  clock=lambda: self.now)
