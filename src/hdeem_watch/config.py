@@ -204,6 +204,9 @@ class DaemonSettings:
 
         if self.counters not in COUNTER_KINDS:
             raise SettingError("counters", f"counters = {self.counters!r}; expected one of {', '.join(COUNTER_KINDS)}")
+        if self.counters == "replay" and self.source != "replay":
+            raise SettingError("counters", f"counters = 'replay' needs source = 'replay' (not {self.source!r}): the "
+                               "counters are played back with the recording they were recorded beside")
         if self.counters == "sim" and self.source != "sim":
             raise SettingError("counters", f"counters = 'sim' needs source = 'sim' (not {self.source!r}): only the "
                                "simulated node has simulated memory controllers")

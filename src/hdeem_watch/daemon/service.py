@@ -101,6 +101,7 @@ class Daemon:
         #: The memory-controller counters (``counters`` setting) and their windows; None = off.
         self.counter_source: Any = None
         self.counter_windows: Any = None
+        self.counter_recorder: Any = None
 
     # -- lifecycle -------------------------------------------------------------------------------------
 
@@ -249,6 +250,9 @@ class Daemon:
             with contextlib.suppress(Exception):
                 self.counter_source.close()
             self.counter_source = None
+        if self.counter_recorder is not None:
+            self.counter_recorder.close()
+            self.counter_recorder = None
         if self.source is not None and self._source_open:
             self._source_open = False
             try:
@@ -327,6 +331,8 @@ class Daemon:
                 store.retry()
                 if self.recorder is not None:
                     self.recorder.flush()
+                if self.counter_recorder is not None:
+                    self.counter_recorder.flush()
             if now >= republish.next_ns:
                 republish.advance(now)
                 reporter.look_for_quiet_periods(window_s=settings.quiet_window_s,
@@ -421,6 +427,15 @@ class Daemon:
             refresh_complete=counters.table.refresh_complete,
             sensors={c.name: c.sensor for c in counters.channels()},
             heartbeat_ns=round(self.settings.heartbeat_s * 1e9))
+        if self.settings.record_file:
+            from hdeem_watch.daemon.counter_record import CounterRecorder, counters_path
+
+            path = counters_path(self.settings.record_file)
+            try:
+                self.counter_recorder = CounterRecorder(path, kind=counters.kind, table=counters.table,
+                                                        ranks=counters.ranks, channels=counters.channels())
+            except OSError as error:
+                raise InputError(f"record file {path}: {error.strerror}") from None
         self._read_counters(force=True)
 
     def _currents(self) -> tuple[str, ...]:
@@ -437,7 +452,10 @@ class Daemon:
         assert windows is not None and book is not None
         if force or windows.due(now, book.windows):
             try:
-                windows.observe(self.counter_source.read(), now_mono_ns=now)
+                snapshot = self.counter_source.read()
+                windows.observe(snapshot, now_mono_ns=now)
+                if self.counter_recorder is not None:
+                    self.counter_recorder.write(snapshot)
             except Exception as error:  # a counter failure must not end the daemon
                 if windows.error is None:
                     log.warning("counter read failed: %s", error)
