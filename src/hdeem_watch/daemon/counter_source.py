@@ -124,7 +124,7 @@ class PerfCounters:
     kind = "perf"
 
     def __init__(self, plan: Any, reader: Any, *, sample_time: Callable[[int], int], clock: Callable[[], int],
-                 ranks: int, sensors: dict[str, str] | None = None) -> None:
+                 ranks: int, sensors: dict[str, str | None] | None = None) -> None:
         from hdeem_watch.counters.session import CounterSession
 
         self.table = plan.table
@@ -157,6 +157,34 @@ class PerfCounters:
     def close(self) -> None:
         """Close every event."""
         self._session.close()
+
+
+def imc_sensors(channels: Any, power_channels: set[str]) -> dict[str, str | None]:
+    """IMC channel → the DRAM power channel measuring it: the HDEEM pair (per socket, boxes in
+    ascending order are channels A, B, C, … node-wide; ``DDR_AB`` = a socket's first two) when the power
+    source has it, else RAPL's ``DRAM<socket>``, else None.
+
+    >>> from hdeem_watch.counters.host_plan import PlannedChannel
+    >>> chans = [PlannedChannel(f"S{s}.imc{b}", s, b, f"uncore_imc_{b}", 13, 12 * s) for s in (0, 1) for b in (0, 1, 4, 5)]
+    >>> sensors = imc_sensors(chans, {"DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"})
+    >>> sensors["S0.imc4"], sensors["S1.imc1"]
+    ('DDR_CD', 'DDR_EF')
+    >>> imc_sensors(chans, {"DRAM0", "DRAM1"})["S1.imc5"]
+    'DRAM1'
+    """
+    boxes: dict[int, list[Any]] = {}
+    for channel in channels:
+        boxes.setdefault(channel.socket, []).append(channel)
+    out: dict[str, str | None] = {}
+    for socket, members in boxes.items():
+        ordered = sorted(members, key=lambda c: c.box)
+        for index, channel in enumerate(ordered):
+            first = socket * len(ordered) + (index // 2) * 2
+            second = min(first + 1, socket * len(ordered) + len(ordered) - 1)
+            pair = "DDR_" + "".join(chr(ord("A") + i) for i in sorted({first, second}))
+            out[channel.name] = pair if pair in power_channels else (
+                f"DRAM{socket}" if f"DRAM{socket}" in power_channels else None)
+    return out
 
 
 def open_error(error: OSError, plan: Any) -> str:
@@ -192,7 +220,9 @@ def make_counter_source(kind: str, source: object, *, sample_time: Callable[[int
         plan = plan_host(sysfs_root or DEFAULT_SYSFS_ROOT, ranks=ranks)
         if not plan.usable:
             raise InputError("counters perf: " + "; ".join(plan.reasons))
-        return PerfCounters(plan, PerfCounterReader(), sample_time=sample_time, clock=clock, ranks=ranks)
+        names = {info.name for info in source.channels()} if hasattr(source, "channels") else set()
+        return PerfCounters(plan, PerfCounterReader(), sample_time=sample_time, clock=clock, ranks=ranks,
+                            sensors=imc_sensors(plan.channels, names))
     if kind == "replay":
         from hdeem_watch.daemon.counter_record import CounterReplay
 

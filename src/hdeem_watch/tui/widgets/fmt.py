@@ -41,7 +41,7 @@ def per_second(value: float, width: int = 6) -> str:
     """A rate with an SI prefix (``950``, ``12.3k``, ``1.05G``), "–" when unknown.
 
     >>> per_second(1.234e9), per_second(float("nan"))
-    ' 1.23G', '     –'
+    (' 1.23G', '     –')
     """
     if not math.isfinite(value):
         return UNKNOWN.rjust(width)
