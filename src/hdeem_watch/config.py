@@ -136,6 +136,10 @@ class DaemonSettings:
         log_level: ``debug``, ``info``, ``warning`` or ``error``.
         node_table: the config file's ``[node]`` table as parsed TOML (sockets, channels, DIMMs,
             memspec, sensors: docs/your-node.md); file only (no environment variable or flag).
+        counters: where each window's DRAM commands come from: ``none`` (the kernel model only),
+            ``sim`` (the simulated node's memory-controller counters; needs ``source = "sim"``),
+            ``perf`` (the host's ``uncore_imc`` PMUs through ``perf_event_open``; needs
+            ``CAP_PERFMON`` or ``perf_event_paranoid <= 0``) or ``replay`` (docs/counters.md).
     """
 
     source: str = "sim"
@@ -183,6 +187,7 @@ class DaemonSettings:
     quiet_history_s: float = 60.0
     log_level: str = "info"
     node_table: Mapping[str, Any] | None = None
+    counters: str = "none"
 
     def __post_init__(self) -> None:
         if self.source not in SOURCE_KINDS:
@@ -204,6 +209,16 @@ class DaemonSettings:
             raise SettingError("log_level", f"log_level = {self.log_level!r}; expected debug, info, warning or error")
         if not self.node or "/" in self.node:
             raise SettingError("node", f"node = {self.node!r}; expected a non-empty name without '/'")
+        from hdeem_watch.counters.source import COUNTER_KINDS
+
+        if self.counters not in COUNTER_KINDS:
+            raise SettingError("counters", f"counters = {self.counters!r}; expected one of {', '.join(COUNTER_KINDS)}")
+        if self.counters == "replay" and self.source != "replay":
+            raise SettingError("counters", f"counters = 'replay' needs source = 'replay' (not {self.source!r}): the "
+                               "counters are played back with the recording they were recorded beside")
+        if self.counters == "sim" and self.source != "sim":
+            raise SettingError("counters", f"counters = 'sim' needs source = 'sim' (not {self.source!r}): only the "
+                               "simulated node has simulated memory controllers")
         if self.source == "replay" and not self.replay_file:
             raise SettingError("replay_file", "source = 'replay' needs replay_file (--replay-file FILE)")
         if self.seed is not None and not 0 <= self.seed < 2**63:

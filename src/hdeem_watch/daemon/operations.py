@@ -32,7 +32,7 @@ from hdeem_watch.daemon.node_state import ClosedWindow, Conflict, NodeState
 from hdeem_watch.daemon.persistence import StoreWorker
 from hdeem_watch.daemon.ports import PublisherPort, Reply, StorePort, Submit
 from hdeem_watch.daemon.reporting import Reporter
-from hdeem_watch.daemon.runs import FINISHED_STATES, RunRecord, parse_run_args
+from hdeem_watch.daemon.runs import FINISHED_STATES, OPAQUE_KERNEL, RunRecord, parse_run_args
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import RunAware, RunEvent, Source
 
@@ -82,6 +82,8 @@ class Operations:
         self.poll = poll
         #: Deferred replies by run id (or :data:`BASELINE`), answered when that work is done.
         self.waiters: dict[str, list[Pending]] = {}
+        #: Called first with every closed window (the counter windows attach their counts to the run).
+        self.on_window_closed: Callable[[ClosedWindow], None] | None = None
         #: ``runs.list`` pages already read, valid until a run is written (``_runs_generation``).
         self._pages: dict[tuple[Any, ...], dict[str, Any]] = {}
         self._runs_generation = 0
@@ -224,7 +226,7 @@ class Operations:
         """Open a run window; the reply comes once its record is stored."""
         self._conflict(self.book.ensure_free)  # before the arguments: a busy node says so whatever was asked
         run_args = parse_run_args(args, self.book.limits)
-        if not run_args.moves_no_traffic:
+        if not run_args.moves_no_traffic and run_args.kernel != OPAQUE_KERNEL:
             try:
                 from hdeem_watch.dram.kernels import canonical_kernel
 
@@ -311,6 +313,8 @@ class Operations:
 
     def window_closed(self, closed: ClosedWindow) -> None:
         """Answer, store and model what a closed window measured (called after every batch)."""
+        if self.on_window_closed is not None:
+            self.on_window_closed(closed)
         self.reporter.baselines_kept(closed.kept)
         if closed.run is None:
             waiters = self.waiters.pop(BASELINE, [])

@@ -99,6 +99,10 @@ class Daemon:
         self._lock_file: IO[str] | None = None
         self._wake_r, self._wake_w = -1, -1
         self._source_open = False
+        #: The memory-controller counters (``counters`` setting) and their windows; None = off.
+        self.counter_source: Any = None
+        self.counter_windows: Any = None
+        self.counter_recorder: Any = None
 
     # -- lifecycle -------------------------------------------------------------------------------------
 
@@ -195,6 +199,7 @@ class Daemon:
             infos, node=self.node, monotonic=self.clock, wall=self.wall_clock, speed=source_speed(source),
             poll_interval_s=settings.poll_interval_s, history_s=settings.quiet_history_s,
             next_seq=int(store.next_run_id()[1:]), baselines=baselines, limits=RunLimits.of_this_node())
+        self._open_counters(source, book)
         if settings.record_file:
             from hdeem_watch.sources.replay import RecordingWriter
 
@@ -238,13 +243,14 @@ class Daemon:
                                             identity, poll_interval_ns=lambda: self.poll_interval_ns, clock=self.clock)
         self.operations = Operations(book, calibration=self.calibration, reporter=reporter, store=self.store_worker,
                                      publisher=self.publisher, source=source, submit=self.model_jobs.submit,
-                                     reply=self.complete, poll=self.poll_once)
+                                     reply=self.complete, poll=self._edge_poll)
+        self.operations.on_window_closed = self._window_counters
         topo = setup.topology
         self.control.handlers = {**self.operations.handlers(), "node.get": lambda _args: setup.to_json()}
         restore_calibration(
             self.calibration,
             settings=ModelSettings(setup.memspec, dimms=settings.dimms, topology=setup.topology,
-                                   currents=tuple(settings.currents),
+                                   currents=self._currents(),
                                    half_life_s=settings.half_life_s or None, max_requests=settings.model_max_requests,
                                    groups=source_groups(source, dram_rates, sockets=topo.sockets if topo else 2,
                                                         dimms_per_socket=(topo.dimms // topo.sockets if topo
@@ -278,6 +284,13 @@ class Daemon:
         if self.curve is not None:
             self.curve.close()
             self.curve = None
+        if self.counter_source is not None:
+            with contextlib.suppress(Exception):
+                self.counter_source.close()
+            self.counter_source = None
+        if self.counter_recorder is not None:
+            self.counter_recorder.close()
+            self.counter_recorder = None
         if self.source is not None and self._source_open:
             self._source_open = False
             try:
@@ -352,9 +365,12 @@ class Daemon:
             if now >= heartbeat.next_ns:
                 heartbeat.advance(now)
                 reporter.publish_status()
+                self._publish_counters()
                 store.retry()
                 if self.recorder is not None:
                     self.recorder.flush()
+                if self.counter_recorder is not None:
+                    self.counter_recorder.flush()
             if now >= republish.next_ns:
                 republish.advance(now)
                 reporter.look_for_quiet_periods(window_s=settings.quiet_window_s,
@@ -423,10 +439,94 @@ class Daemon:
                 self.publisher.send_all(outgoing)
             if self.recorder is not None:
                 self.recorder.write_batch(batch)
+        if self.counter_windows is not None:
+            self._read_counters(force=bool(closed))
         if closed and operations is not None:
             for window in closed:
                 operations.window_closed(window)
         return batch
+
+    # -- memory-controller counters (hdeem_watch.daemon.counter_windows) -----------------------------
+
+    def _open_counters(self, source: Source, book: NodeState) -> None:
+        kind = self.settings.counters
+        if kind == "none":
+            return
+        from hdeem_watch.daemon.counter_source import make_counter_source
+        from hdeem_watch.daemon.counter_windows import CounterWindows
+
+        counters = make_counter_source(kind, source, sample_time=book.sample_time_of, clock=self.clock,
+                                       replay_file=self.settings.replay_file, speed=source_speed(source))
+        if counters is None:
+            return
+        self.counter_source = counters
+        self.counter_windows = CounterWindows(
+            counters.kind, table_key=counters.table.generation, ranks=counters.ranks,
+            refresh_complete=counters.table.refresh_complete,
+            sensors={c.name: c.sensor for c in counters.channels()},
+            heartbeat_ns=round(self.settings.heartbeat_s * 1e9))
+        if self.settings.record_file:
+            from hdeem_watch.daemon.counter_record import CounterRecorder, counters_path
+
+            path = counters_path(self.settings.record_file)
+            try:
+                self.counter_recorder = CounterRecorder(path, kind=counters.kind, table=counters.table,
+                                                        ranks=counters.ranks, channels=counters.channels())
+            except OSError as error:
+                raise InputError(f"record file {path}: {error.strerror}") from None
+        self._read_counters(force=True)
+
+    def _currents(self) -> tuple[str, ...]:
+        """The currents to calibrate: with counters, the power-down currents too (they measure residency)."""
+        if self.counter_windows is None:
+            return tuple(self.settings.currents)
+        from hdeem_watch.daemon.counter_model import currents_with_counters
+
+        return currents_with_counters(self.settings.currents)
+
+    def _read_counters(self, *, force: bool = False) -> None:
+        """Read the counters when due (heartbeat, window edges); give new run windows their start."""
+        windows, book, now = self.counter_windows, self.book, self.clock()
+        assert windows is not None and book is not None
+        if force or windows.due(now, book.windows):
+            try:
+                snapshot = self.counter_source.read()
+                windows.observe(snapshot, now_mono_ns=now)
+                if self.counter_recorder is not None:
+                    self.counter_recorder.write(snapshot)
+            except Exception as error:  # a counter failure must not end the daemon
+                if windows.error is None:
+                    log.warning("counter read failed: %s", error)
+                windows.failed(error, now_mono_ns=now)
+        if book.windows:
+            windows.track(book.windows, book.sample_time_of)
+
+    def _edge_poll(self) -> SourceBatch | None:
+        """A poll at a window edge (run.start, run.stop, baseline.measure): the counters are read too."""
+        batch = self.poll_once()
+        if self.counter_windows is not None:
+            self._read_counters(force=True)
+        return batch
+
+    def _window_counters(self, closed: Any) -> None:
+        """Attach the counters of a closed run window to its record (before it is stored and modelled)."""
+        windows, run = self.counter_windows, closed.run
+        if windows is None or run is None or self.book is None:
+            return
+        if run.state == "aborted":
+            windows.forget(run.run_id)
+            return
+        run.counters = windows.finish(run, self.book.dram_channels)
+
+    def _publish_counters(self) -> None:
+        """The ``counters`` topic: per channel ACT/s, RD/s, WR/s and power-down share (each heartbeat)."""
+        windows = self.counter_windows
+        if windows is None or self.publisher is None:
+            return
+        rates = windows.rates()
+        self.publisher.publish("counters", {
+            "source": windows.kind, "generation": windows.table_key, "status": windows.error or "ok",
+            "channels": {name: {**values, "sensor": windows.sensors.get(name)} for name, values in rates.items()}})
 
     def complete(self, pending: Pending, result: Any = None, error: tuple[str, str] | None = None) -> None:
         """Send a deferred control reply."""
