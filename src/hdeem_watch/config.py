@@ -128,6 +128,8 @@ class DaemonSettings:
         quiet_max_spread_w: largest standard deviation of a quiet window (absolute, W).
         quiet_history_s: seconds of samples kept per DRAM channel to look for quiet periods.
         log_level: ``debug``, ``info``, ``warning`` or ``error``.
+        job_checkpoint_s: period at which the open SLURM jobs' energy so far is stored (what a
+            ``kill -9`` of the daemon may lose of a job; docs/slurm.md).
     """
 
     source: str = "sim"
@@ -174,11 +176,13 @@ class DaemonSettings:
     quiet_max_spread_w: float = 0.5
     quiet_history_s: float = 60.0
     log_level: str = "info"
+    job_checkpoint_s: float = 5.0
 
     def __post_init__(self) -> None:
         if self.source not in SOURCE_KINDS:
             raise SettingError("source", f"source = {self.source!r}; expected one of {', '.join(SOURCE_KINDS)}")
-        for name in ("poll_interval_s", "heartbeat_s", "republish_s", "speed", "quiet_window_s", "quiet_history_s"):
+        for name in ("poll_interval_s", "heartbeat_s", "republish_s", "speed", "quiet_window_s", "quiet_history_s",
+                     "job_checkpoint_s"):
             if not getattr(self, name) > 0:
                 raise SettingError(name, f"{name} = {getattr(self, name)!r}; expected a number > 0")
         if self.idle_poll_interval_s < 0:
