@@ -3,6 +3,9 @@ energy equal to the streamed samples' integral, and a job that survives ``kill -
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 import time
 from typing import Any
 
@@ -18,7 +21,8 @@ def _integral(stream: list[protocol.Message], channel: str, first: int, last: in
     period_s = 1.0 / messages[0].header["rate_hz"]
     t = np.concatenate([m.samples()[0] for m in messages])
     p = np.concatenate([m.samples()[1] for m in messages])
-    assert t.min() <= first and t.max() >= last, channel  # the stream covers the segment
+    # The stream covers the segment: from the first sample after ``first`` to ``last``.
+    assert t.min() <= first + 1.5e9 * period_s and t.max() >= last, channel
     return float(p[(t > first) & (t <= last)].sum()) * period_s
 
 
@@ -64,3 +68,8 @@ def test_a_job_over_sockets_survives_kill_9(daemon_factory: Any, receive: Any) -
                 assert segment["energy_j"][channel] == pytest.approx(expected, rel=1e-9, abs=1e-9), channel
     assert record["dram_energy_j"] == pytest.approx(
         sum(s["energy_j"][c] for s in record["segments"] for c in s["energy_j"] if c.startswith("DDR")), rel=1e-12)
+    cli = subprocess.run([sys.executable, "-m", "hdeem_watch", "jobs", "--connect", d.control, "--job", "31", "--json"],
+                         capture_output=True, text=True, timeout=60, env=d.env)
+    assert cli.returncode == 0, cli.stderr
+    shown = json.loads(cli.stdout)["nodes"][0]
+    assert shown["ok"] and shown["node"] == "testnode" and shown["jobs"][0]["dram_energy_j"] == record["dram_energy_j"]

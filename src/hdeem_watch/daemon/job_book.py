@@ -134,7 +134,7 @@ class JobBook:
             raise Conflict(f"{len(self._open)} jobs are open on this node (the most is {self.max_open}); "
                            "stop finished ones with job.stop")
         record = JobRecord.start(args, node=self.book.node, t_wall_ns=self.book.wall())
-        self._admit(record)
+        self._admit(record, fresh=True)
         return self.snapshot(args.job_id) or record, True
 
     def resume(self, stored: JobRecord) -> None:
@@ -143,15 +143,16 @@ class JobBook:
         if stored.job_id in self._open:
             return
         closed = tuple(dataclasses.replace(s, open=False) for s in stored.segments)
-        self._admit(dataclasses.replace(stored, segments=closed))
+        self._admit(dataclasses.replace(stored, segments=closed), fresh=False)
 
-    def _admit(self, record: JobRecord) -> None:
+    def _admit(self, record: JobRecord, *, fresh: bool) -> None:
         others = list(self._open)
         for other in others:
             job = self._open[other]
             job.record = job.record.sharing([record.job_id])
         window = self.book.open_job_window(record.job_id)
-        self._open[record.job_id] = _OpenJob(record.sharing(others), window, t_segment_ns=self.book.wall())
+        begin = record.t_start_ns if fresh else self.book.wall()  # a resumed job: a gap since its last segment
+        self._open[record.job_id] = _OpenJob(record.sharing(others), window, t_segment_ns=begin)
 
     def stop(self, job_id: str, exit_code: int | str | None = None, *, ended_ns: int | None = None) -> JobRecord | None:
         """Ask an open job's window to close now; None while it closes (:meth:`finished` gives the
@@ -184,10 +185,11 @@ class JobBook:
         job = self._open.pop(window.job_id)
         stops = {c: span[1] for c, span in window.sample_spans_ns.items()}
         spans, samples = _spans(window, stops)
-        segment = Segment(t_start_ns=job.t_segment_ns, t_stop_ns=self.book.wall(), energy_j=dict(closed.energy_j),
+        now = self.book.wall()
+        segment = Segment(t_start_ns=job.t_segment_ns, t_stop_ns=now, energy_j=dict(closed.energy_j),
                           spans_s=spans, samples_ns=samples, peak_w=dict(window.peak_w))
         record = dataclasses.replace(job.record, segments=(*job.record.segments, segment))
-        return record.finish(state="done", t_wall_ns=self.book.wall(), dram_channels=self.book.dram_channels,
+        return record.finish(state="done", t_wall_ns=now, dram_channels=self.book.dram_channels,
                              baselines_w=self._baselines_w(), exit_code=job.exit_code)
 
     def checkpoint(self) -> list[JobRecord]:
