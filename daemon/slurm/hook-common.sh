@@ -1,4 +1,4 @@
-# Shared part of the hdeem-watch SLURM hooks (sourced by prolog.sh, epilog.sh, task-epilog.sh).
+# Shared part of the hdeem-watch SLURM hooks (sourced by prolog.sh, epilog.sh and dram-energy.sh).
 # POSIX sh. Reads the hooks' settings file, checks the interpreter, runs one action of
 # `python -m hdeem_watch.slurm` under a hard timeout and logs any failure to syslog (logger).
 # Never exits non-zero: SLURM drains a node whose Prolog fails.
@@ -37,8 +37,6 @@ hook_run() {   # hook_run ACTION: the Python side of the hook, bounded in time
         [ "$status" -eq 124 ] && output="timed out after $limit s (HDEEM_WATCH_HOOK_TIMEOUT_S)"
         hook_log "$action job ${SLURM_JOB_ID:-?}: $python -m hdeem_watch.slurm $action failed (exit $status):" \
             "$(printf '%s' "$output" | tail -n 3 | tr '\n' ' ')"
-    elif [ -n "$output" ] && [ "$action" = task-epilog ]; then
-        printf '%s\n' "$output"
     fi
     return 0
 }

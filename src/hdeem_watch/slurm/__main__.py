@@ -1,4 +1,4 @@
-"""``python3 -m hdeem_watch.slurm prolog|epilog|task-epilog|nodes`` (the SLURM hooks; docs/slurm.md)."""
+"""``python3 -m hdeem_watch.slurm prolog|epilog|nodes`` (the SLURM hooks; docs/slurm.md)."""
 
 import sys
 

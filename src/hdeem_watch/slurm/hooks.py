@@ -274,7 +274,11 @@ def epilog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
     _flush_pending_stops(s, env)
     exit_code = ctx.get("exit_code")
     args: dict[str, Any] = {"job_id": job_id, "exit_code": exit_code}
-    result, why = _call(s.control, "job.stop", args, s.timeout_s)
+    try:
+        started = json.loads((s.hook_dir / f"job-{job_id}.json").read_text()).get("job_start") == "ok"
+    except (OSError, ValueError, AttributeError):
+        started = True  # no Prolog record (the Prolog failed, or the hooks were installed mid-job): try
+    result, why = _call(s.control, "job.stop", args, s.timeout_s) if started else (None, "skipped: not started")
     record: dict[str, Any] = {"event": "epilog", "job_id": job_id, "user": ctx.get("user"), "node": ctx.get("node"),
                               "t_ns": time.time_ns(), "exit_code": exit_code, "job_stop": "ok" if why is None else why}
     if why is not None and why.startswith("unreachable"):
@@ -324,45 +328,16 @@ def _stop_pid(pid: int, timeout_s: float = 10.0) -> None:
         os.kill(pid, signal.SIGKILL)
 
 
-def energy_line(record: Mapping[str, Any]) -> str:
-    """One line of a job's DRAM energy on its node (the TaskEpilog's, and ``jobs``' summary)."""
-    def number(key: str, unit: str) -> str:
-        value = record.get(key)
-        return "unknown" if not isinstance(value, int | float) or value != value else f"{value:.1f} {unit}"
-
-    line = (f"hdeem-watch: job {record.get('job_id')} on {record.get('node')}: DRAM {number('dram_energy_j', 'J')} "
-            f"(above idle {number('dram_above_baseline_j', 'J')}) over {number('measured_s', 's')}")
-    status = record.get("status")
-    return line if status in (None, "ok") else f"{line}; {status}"
-
-
-def task_epilog(env: Mapping[str, str] | None = None) -> str:
-    """The job's DRAM energy so far on this node, as one line (the TaskEpilog prints it)."""
-    env = os.environ if env is None else env
-    job_id = env.get("SLURM_JOB_ID") or env.get("SLURM_JOBID") or ""
-    record, why = _call(local_control_endpoint(env), "job.get", {"job_id": job_id},
-                        _number(env, "hook_call_timeout_s", "10"))
-    if why is not None or not isinstance(record, dict):
-        return f"hdeem-watch: job {job_id}: no DRAM energy ({why})"
-    return energy_line(record)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python3 -m hdeem_watch.slurm prolog|epilog|task-epilog|nodes``: the hooks exit 0 whatever happens
+    """``python3 -m hdeem_watch.slurm prolog|epilog|nodes``: the hooks exit 0 whatever happens
     (failures are logged to syslog); 2 for a wrong action."""
     args = list(sys.argv[1:] if argv is None else argv)
     action = args[0] if args else ""
     if action == "nodes":
         print("\n".join(allocation_nodes()))
         return 0
-    if action == "task-epilog":
-        try:
-            print(task_epilog())
-        except Exception as error:  # a user's job output is no place for a traceback
-            print(f"hdeem-watch: no DRAM energy ({type(error).__name__}: {error})")
-        return 0
     if action not in ("prolog", "epilog"):
-        print("usage: python3 -m hdeem_watch.slurm prolog|epilog|task-epilog|nodes", file=sys.stderr)
+        print("usage: python3 -m hdeem_watch.slurm prolog|epilog|nodes", file=sys.stderr)
         return 2
     try:
         record = prolog() if action == "prolog" else epilog()
