@@ -213,6 +213,8 @@ def _daemon_env() -> dict[str, str]:
 def _flush_pending_stops(s: HookSettings, env: Mapping[str, str]) -> None:
     """Send the stops a daemon missed (with the time each job ended)."""
     pending = sorted(s.hook_dir.glob("stop-*.json"), key=lambda p: p.stat().st_mtime)
+    if not pending or _call(s.control, "ping", None, min(2.0, s.timeout_s))[1] is not None:
+        return  # nothing to send, or the daemon is still down: keep them
     for stale in pending[:-MAX_PENDING_STOPS]:
         stale.unlink(missing_ok=True)
     for path in pending[-MAX_PENDING_STOPS:]:
