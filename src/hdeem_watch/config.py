@@ -140,6 +140,8 @@ class DaemonSettings:
             ``sim`` (the simulated node's memory-controller counters; needs ``source = "sim"``),
             ``perf`` (the host's ``uncore_imc`` PMUs through ``perf_event_open``; needs
             ``CAP_PERFMON`` or ``perf_event_paranoid <= 0``) or ``replay`` (docs/counters.md).
+        job_checkpoint_s: period at which the open SLURM jobs' energy so far is stored (what a
+            ``kill -9`` of the daemon may lose of a job; docs/slurm.md).
     """
 
     source: str = "sim"
@@ -188,11 +190,13 @@ class DaemonSettings:
     log_level: str = "info"
     node_table: Mapping[str, Any] | None = None
     counters: str = "none"
+    job_checkpoint_s: float = 5.0
 
     def __post_init__(self) -> None:
         if self.source not in SOURCE_KINDS:
             raise SettingError("source", f"source = {self.source!r}; expected one of {', '.join(SOURCE_KINDS)}")
-        for name in ("poll_interval_s", "heartbeat_s", "republish_s", "speed", "quiet_window_s", "quiet_history_s"):
+        for name in ("poll_interval_s", "heartbeat_s", "republish_s", "speed", "quiet_window_s", "quiet_history_s",
+                     "job_checkpoint_s"):
             if not getattr(self, name) > 0:
                 raise SettingError(name, f"{name} = {getattr(self, name)!r}; expected a number > 0")
         if self.idle_poll_interval_s < 0:

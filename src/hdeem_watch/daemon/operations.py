@@ -1,7 +1,8 @@
 """The control operations of the daemon, over the run book and narrow ports.
 
 Ops (see ``docs/protocol.md``): ``ping``, ``status``, ``run.start``, ``run.stop``, ``runs.list``,
-``baseline.get``, ``baseline.measure``, ``baseline.cancel``, ``calib.get``, ``calib.reset``.
+``baseline.get``, ``baseline.measure``, ``baseline.cancel``, ``calib.get``, ``calib.reset`` (the
+``job.*`` ops are :mod:`hdeem_watch.daemon.job_ops`'s; closed job windows go there).
 
 ``run.start`` polls the source, opens the run in the :class:`~hdeem_watch.daemon.node_state.NodeState`
 and tells the source (a :class:`~hdeem_watch.sources.base.RunAware` sim reacts to it); it replies once
@@ -87,6 +88,9 @@ class Operations:
         #: ``runs.list`` pages already read, valid until a run is written (``_runs_generation``).
         self._pages: dict[tuple[Any, ...], dict[str, Any]] = {}
         self._runs_generation = 0
+        #: Where closed job windows go (:meth:`JobOperations.window_closed`); the status's open jobs.
+        self.on_job_closed: Callable[[ClosedWindow], None] | None = None
+        self.open_jobs: Callable[[], list[dict[str, Any]]] = list
 
     def handlers(self) -> dict[str, Handler]:
         """op name → handler."""
@@ -102,7 +106,7 @@ class Operations:
         """The heartbeat body plus node, version and counts."""
         body = self.reporter.status_body()
         body.update({"node": self.book.node, "version": __version__, "runs": self.book.next_seq - 1,
-                     "model_error": self.calibration.body.get("model_error")})
+                     "model_error": self.calibration.body.get("model_error"), "jobs": self.open_jobs()})
         return body
 
     def op_runs_list(self, args: dict[str, Any]) -> Pending | dict[str, Any]:
@@ -315,6 +319,10 @@ class Operations:
         """Answer, store and model what a closed window measured (called after every batch)."""
         if self.on_window_closed is not None:
             self.on_window_closed(closed)
+        if closed.kind == "job":
+            if self.on_job_closed is not None:
+                self.on_job_closed(closed)
+            return
         self.reporter.baselines_kept(closed.kept)
         if closed.run is None:
             waiters = self.waiters.pop(BASELINE, [])

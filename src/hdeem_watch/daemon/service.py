@@ -35,6 +35,9 @@ from hdeem_watch.daemon import baselines as bl
 from hdeem_watch.daemon.client import default_endpoints
 from hdeem_watch.daemon.control import ControlServer, Pending
 from hdeem_watch.daemon.group_fits import source_groups
+from hdeem_watch.daemon.job_book import JobBook
+from hdeem_watch.daemon.job_ops import JobOperations, unfinished_jobs
+from hdeem_watch.daemon.job_records import job_summary
 from hdeem_watch.daemon.jobs import Calibration, ModelSettings, Worker, restore_calibration
 from hdeem_watch.daemon.metrics import DaemonMetrics, NodeCollector
 from hdeem_watch.daemon.modelling import MAX_HISTORY
@@ -88,6 +91,7 @@ class Daemon:
         self.store_worker: StoreWorker | None = None
         self.model_jobs: Worker | None = None
         self.operations: Operations | None = None
+        self.job_ops: JobOperations | None = None
         self.reporter: Reporter | None = None
         self.metrics: DaemonMetrics | None = None
         self.metrics_port: int | None = None
@@ -246,7 +250,14 @@ class Daemon:
                                      reply=self.complete, poll=self._edge_poll)
         self.operations.on_window_closed = self._window_counters
         topo = setup.topology
-        self.control.handlers = {**self.operations.handlers(), "node.get": lambda _args: setup.to_json()}
+        job_ops = self.job_ops = JobOperations(JobBook(book), store=self.store_worker, publisher=self.publisher,
+                                               reply=self.complete, poll=self._edge_poll,
+                                               checkpoint_s=settings.job_checkpoint_s)
+        self.operations.on_job_closed = job_ops.window_closed
+        self.operations.open_jobs = lambda: [job_summary(r.to_dict()) for r in job_ops.jobs.snapshots()]
+        self.control.handlers = (self.operations.handlers() | job_ops.handlers()
+                                 | {"node.get": lambda _args: setup.to_json()})
+        job_ops.resume(unfinished_jobs(store))
         restore_calibration(
             self.calibration,
             settings=ModelSettings(setup.memspec, dimms=settings.dimms, topology=setup.topology,
@@ -271,6 +282,8 @@ class Daemon:
     def close(self) -> None:
         """Finish the model jobs (queued ones are modelled again at the next start), write what is
         queued for the database, close the sockets, the source and the database."""
+        if self.job_ops is not None and self.store_worker is not None:
+            self.job_ops.checkpoint(force=True)  # the open jobs' energy up to the exit
         if self.model_jobs is not None:
             self.model_jobs.shutdown(cancel_queued=True)
         if self.store_worker is not None:
@@ -366,6 +379,8 @@ class Daemon:
                 heartbeat.advance(now)
                 reporter.publish_status()
                 self._publish_counters()
+                if self.job_ops is not None:
+                    self.job_ops.checkpoint()
                 store.retry()
                 if self.recorder is not None:
                     self.recorder.flush()
