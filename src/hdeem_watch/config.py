@@ -78,6 +78,9 @@ class DaemonSettings:
         pub: stream (PUB) endpoint; default ``ipc://<runtime_dir>/pub.sock``. ``tcp://host:port`` for
             remote subscribers.
         control: control (ROUTER) endpoint; default ``ipc://<runtime_dir>/control.sock``.
+        remote_control: a second control endpoint for other nodes, served beside ``control``
+            (e.g. ``tcp://*:5591`` with CURVE, while local users and the SLURM hooks keep the ipc
+            socket, where the kernel tells who they are); None = only ``control``.
         runtime_dir: directory of the default ipc sockets (created mode 0750, sockets 0660); default
             ``$RUNTIME_DIRECTORY``, ``$XDG_RUNTIME_DIR/hdeem-watch`` or ``/tmp/hdeem-watch-<uid>``.
         state_dir: directory of ``state.db`` (runs, fits, baselines); default ``$STATE_DIRECTORY``,
@@ -122,7 +125,12 @@ class DaemonSettings:
         curve_secret_key_file: the daemon's CURVE certificate (``.key_secret``, see ``--gen-keys``): both
             sockets then encrypt and authenticate (for remote TCP); None = off.
         curve_clients_dir: directory of the public ``.key`` files of the clients allowed to connect
-            under CURVE (None = any client that knows the daemon's public key).
+            under CURVE (None = any client that knows the daemon's public key). A file named
+            ``<user>.key`` or ``<user>@<label>.key`` registers that key for the local user ``<user>``
+            (who may then change state over TCP as on ipc; docs/daemon.md, "Authorization").
+        curve_public_key_file: the daemon's public key (``.key``) as clients on this node read it
+            (``tui``, ``bench``, ``jobs`` take it from this file); default the ``.key`` beside
+            ``curve_secret_key_file``.
         allow_insecure_tcp: accept ``pub``/``control`` on TCP at a non-loopback address without
             CURVE (anyone who reaches the port reads the stream, or starts runs and resets the
             calibration); refused unless true, and warned about loudly when true.
@@ -148,6 +156,7 @@ class DaemonSettings:
     node: str = field(default_factory=default_node)
     pub: str | None = None
     control: str | None = None
+    remote_control: str | None = None
     runtime_dir: str | None = None
     state_dir: str = field(default_factory=default_state_dir)
     poll_interval_s: float = 0.04
@@ -180,6 +189,7 @@ class DaemonSettings:
     model_max_requests: int | None = None
     curve_secret_key_file: str | None = None
     curve_clients_dir: str | None = None
+    curve_public_key_file: str | None = None
     allow_insecure_tcp: bool = False
     prometheus_port: int | None = None
     prometheus_addr: str = "127.0.0.1"
@@ -229,7 +239,7 @@ class DaemonSettings:
             raise SettingError("seed", f"seed = {self.seed!r}; expected an integer >= 0")
         if not self.currents:
             raise SettingError("currents", "currents = []; expected at least one current to calibrate")
-        for name in ("pub", "control"):
+        for name in ("pub", "control", "remote_control"):
             endpoint = getattr(self, name)
             if (endpoint and not is_loopback(endpoint) and not self.curve_secret_key_file
                     and not self.allow_insecure_tcp):

@@ -75,15 +75,15 @@ def test_a_value_out_of_range_names_its_file(tmp_path: Path) -> None:
 
 def test_insecure_tcp_needs_an_explicit_yes(tmp_path: Path) -> None:
     """Non-loopback TCP without CURVE is refused unless allow_insecure_tcp; loopback and CURVE need nothing."""
-    with pytest.raises(InputError, match=r"--pub: pub = 'tcp://0.0.0.0:7410'.*allow_insecure_tcp"):
-        load_settings(env={}, overrides={"pub": "tcp://0.0.0.0:7410"})
+    with pytest.raises(InputError, match=r"--pub: pub = 'tcp://0.0.0.0:5590'.*allow_insecure_tcp"):
+        load_settings(env={}, overrides={"pub": "tcp://0.0.0.0:5590"})
     config = tmp_path / "cfg.toml"
-    config.write_text('control = "tcp://*:7411"\n')
-    with pytest.raises(InputError, match=rf"^{config}: control = 'tcp://\*:7411'"):
+    config.write_text('control = "tcp://*:5591"\n')
+    with pytest.raises(InputError, match=rf"^{config}: control = 'tcp://\*:5591'"):
         load_settings(config, env={})
     assert load_settings(config, env={"HDEEM_WATCH_ALLOW_INSECURE_TCP": "true"}).allow_insecure_tcp
-    assert load_settings(env={}, overrides={"pub": "tcp://127.0.0.1:7410", "control": "tcp://[::1]:7411"})
-    assert load_settings(env={}, overrides={"pub": "tcp://*:7410", "curve_secret_key_file": "/k.key_secret"})
+    assert load_settings(env={}, overrides={"pub": "tcp://127.0.0.1:5590", "control": "tcp://[::1]:5591"})
+    assert load_settings(env={}, overrides={"pub": "tcp://*:5590", "curve_secret_key_file": "/k.key_secret"})
 
 
 def test_insecure_tcp_is_warned_about_loudly(caplog: Any) -> None:

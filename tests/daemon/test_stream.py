@@ -103,7 +103,8 @@ def test_status_op_names_node_endpoints_source_and_channels(shared_daemon: Any, 
     with shared_daemon.client() as client:
         status = client.call("status")
     assert status["node"] == shared_daemon.node
-    assert status["endpoints"] == {"pub": shared_daemon.pub, "control": shared_daemon.control}
+    assert status["endpoints"] == {"pub": shared_daemon.pub, "control": shared_daemon.control,
+                                   "remote": {"pub": None, "control": None}}  # ipc: nothing for other nodes
     assert status["source"]["kind"] == "sim"
     assert set(status["channels"]) == set(NOMINAL)
 

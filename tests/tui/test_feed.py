@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from hdeem_watch.demo.fakenode import FakeNode
-from hdeem_watch.tui.endpoints import pub_endpoint_for, unreachable_stream
+from hdeem_watch.tui.endpoints import pub_endpoint_for, stream_endpoint, unreachable_stream
 from hdeem_watch.tui.feed import FeedHub, NodeFeed
 from hdeem_watch.tui.messages import ViewSettings
 from hdeem_watch.tui.model import NodeModel
@@ -105,9 +105,19 @@ def test_control_request_reaches_daemon_and_notice_shows_reply(fake_node: FakeNo
 
 def test_wildcard_pub_endpoint_uses_control_host() -> None:
     """A daemon bound to tcp://*:port is reached at the host of its control endpoint."""
-    assert pub_endpoint_for("tcp://node7:5591", "tcp://*:5592") == "tcp://node7:5592"
-    assert pub_endpoint_for("tcp://node7:5591", "tcp://10.0.0.7:5592") == "tcp://10.0.0.7:5592"
+    assert pub_endpoint_for("tcp://node7:5591", "tcp://*:5590") == "tcp://node7:5590"
+    assert pub_endpoint_for("tcp://node7:5591", "tcp://10.0.0.7:5590") == "tcp://10.0.0.7:5590"
     assert pub_endpoint_for("ipc:///a", "ipc:///b") == "ipc:///b"
+
+
+def test_a_remote_client_takes_the_advertised_tcp_stream() -> None:
+    """From another host the advertised ``endpoints.remote.pub`` replaces an ipc stream; on the
+    daemon's own host the local one is used."""
+    endpoints = {"pub": "ipc:///run/hdeem-watch/pub.sock", "remote": {"pub": "tcp://node7:5590", "control": None}}
+    assert stream_endpoint("tcp://node7:5591", endpoints, is_local=lambda host: False) == "tcp://node7:5590"
+    assert stream_endpoint("tcp://node7:5591", endpoints, is_local=lambda host: True) == "ipc:///run/hdeem-watch/pub.sock"
+    assert stream_endpoint("tcp://node7:5591", {"pub": "tcp://*:5590"}, is_local=lambda host: False) == "tcp://node7:5590"
+    assert stream_endpoint("tcp://node7:5591", {}, is_local=lambda host: False) == ""
 
 
 def test_a_malformed_message_does_not_end_the_feed(fake_node: FakeNode) -> None:
@@ -149,7 +159,7 @@ def test_unreachable_stream_rules() -> None:
     """Only an ipc stream behind a TCP control endpoint of another host is unreachable."""
     remote = {"is_local": lambda host: False}
     assert unreachable_stream("tcp://node7:5591", "ipc:///x/pub.sock", **remote) is not None
-    assert unreachable_stream("tcp://node7:5591", "tcp://node7:5592", **remote) is None
+    assert unreachable_stream("tcp://node7:5591", "tcp://node7:5590", **remote) is None
     assert unreachable_stream("ipc:///x/control.sock", "ipc:///x/pub.sock", **remote) is None
     assert unreachable_stream("tcp://127.0.0.1:5591", "ipc:///x/pub.sock") is None
     assert unreachable_stream("tcp://localhost:5591", "ipc:///x/pub.sock") is None

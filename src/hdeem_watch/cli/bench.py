@@ -24,6 +24,7 @@ from hdeem_watch import slurm
 from hdeem_watch.bench.announce import WAIT_S, RunRefused
 from hdeem_watch.bench.runner import BACKENDS, RunResult, run_one, validate
 from hdeem_watch.bench.schedule import sweep
+from hdeem_watch.cli.curve_options import add_server_key_argument, client_kwargs, curve_keys
 from hdeem_watch.errors import InputError
 
 DEFAULT_ELEMENTS = 1 << 25
@@ -61,6 +62,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--repeat", type=int, default=10, help="passes over the arrays per run (default 10)")
     parser.add_argument("--daemon", metavar="ENDPOINT",
                         help="announce each run (run.start/run.stop) to the daemon's control endpoint")
+    add_server_key_argument(parser)
     parser.add_argument("--json", action="store_true", help="one JSON object per run and line on stdout")
     parser.add_argument("--backend", choices=BACKENDS, default="thread",
                         help="workers as threads (default) or forked processes")
@@ -134,11 +136,13 @@ def _run(args: argparse.Namespace) -> int:
     progress = _Progress(len(specs), sys.stderr)
     if args.daemon:
         from hdeem_watch.bench.announce import Announcer
+        from hdeem_watch.daemon.client import ControlClient
 
         if not (math.isfinite(args.wait) and args.wait >= 0):
             raise InputError(f"--wait {args.wait:g}: expected a number of seconds >= 0")
+        client = ControlClient(args.daemon, timeout_s=args.timeout, **client_kwargs(curve_keys(args)))
         announcer = Announcer(args.daemon, timeout_s=args.timeout, metadata=slurm.job_metadata(), warn=warn,
-                              wait_s=args.wait)
+                              wait_s=args.wait, client=client)
         announcer.check()
     results: list[RunResult] = []
     refused: RunRefused | None = None

@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import argparse
 import logging
+import re
 import signal
 import sys
 from typing import Any
 
 from hdeem_watch.config import SOURCE_KINDS, load_settings
+from hdeem_watch.errors import InputError
 from hdeem_watch.sources.options import add_source_flags, source_flag_overrides
 
 
@@ -31,6 +33,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--source", choices=SOURCE_KINDS, help="power source (default sim)")
     parser.add_argument("--pub", metavar="ENDPOINT", help="stream endpoint (default ipc://RUNTIME/pub.sock)")
     parser.add_argument("--control", metavar="ENDPOINT", help="control endpoint (default ipc://RUNTIME/control.sock)")
+    parser.add_argument("--remote-control", metavar="ENDPOINT",
+                        help="a second control endpoint for other nodes, beside --control (e.g. tcp://*:5591)")
     parser.add_argument("--state-dir", metavar="DIR", help="directory of state.db")
     parser.add_argument("--runtime-dir", metavar="DIR", help="directory of the default ipc sockets")
     parser.add_argument("--node", metavar="NAME", help="node name (default: short host name)")
@@ -44,7 +48,11 @@ def register(subparsers: Any) -> None:
                         help="accept TCP endpoints on a non-loopback address without CURVE (unencrypted, "
                         "unauthenticated: anyone who reaches the port may read the stream and control runs)")
     parser.add_argument("--gen-keys", metavar="DIR", help="write a new CURVE key pair (server.key, "
-                        "server.key_secret) to DIR and exit")
+                        "server.key_secret) to DIR and exit; an existing pair is kept unless --force")
+    parser.add_argument("--key-name", metavar="NAME", default="server",
+                        help="--gen-keys: file name of the pair (default server; <user> for a client key to "
+                        "register in curve_clients_dir as <user>.key)")
+    parser.add_argument("--force", action="store_true", help="--gen-keys: replace an existing key pair")
     parser.add_argument("--prometheus", type=int, metavar="PORT", help="serve Prometheus metrics on PORT")
     parser.add_argument("--poll-interval", type=float, metavar="S", help="source poll period in s (default 0.04)")
     parser.add_argument("--memspec", metavar="PRESET|FILE", help="memspec of one DIMM for the run model")
@@ -63,15 +71,22 @@ def _run(args: argparse.Namespace) -> int:
     if args.gen_keys:
         from hdeem_watch.daemon.security import generate_keys
 
-        public, secret = generate_keys(args.gen_keys, "server")
-        print(f"public key (give to clients): {public}\nsecret key (--curve-secret-key): {secret}")
+        if not re.fullmatch(r"[A-Za-z0-9_.@-]+", args.key_name) or args.key_name.startswith("."):
+            raise InputError(f"--key-name {args.key_name!r}: expected a file name (letters, digits, _ . @ -)")
+        public, secret = generate_keys(args.gen_keys, args.key_name, force=args.force)
+        if args.key_name == "server":
+            print(f"public key (give to clients): {public}\nsecret key (--curve-secret-key): {secret}")
+        else:
+            print(f"public key (register it in the daemon's curve_clients_dir): {public}\n"
+                  f"secret key (--client-key): {secret}")
         return 0
     from hdeem_watch.daemon.service import Daemon
 
     settings = load_settings(
         args.config,
         overrides={
-            "source": args.source, "pub": args.pub, "control": args.control, "state_dir": args.state_dir,
+            "source": args.source, "pub": args.pub, "control": args.control,
+            "remote_control": args.remote_control, "state_dir": args.state_dir,
             "runtime_dir": args.runtime_dir, "node": args.node, "speed": args.speed, "seed": args.seed,
             "replay_file": args.replay_file, "record_file": args.record,
             "curve_secret_key_file": args.curve_secret_key, "curve_clients_dir": args.curve_clients, "prometheus_port": args.prometheus,

@@ -4,7 +4,13 @@
 stream endpoint. Without it the UI connects to the local daemon's default endpoint. ``--slurm``
 connects to every node of the current SLURM allocation at ``tcp://<node>:<port>`` (port
 :data:`SLURM_CONTROL_PORT` unless ``--port`` or ``$HDEEM_WATCH_CONTROL_PORT`` says otherwise; the
-daemons must listen there, e.g. ``--control tcp://*:5591``).
+daemons must listen there, e.g. ``remote_control = "tcp://*:5591"``).
+
+TCP endpoints of a daemon with CURVE need its public key (``--server-key``, the environment or the
+node's daemon config: :mod:`hdeem_watch.cli.curve_options`). Before the UI starts, every daemon is
+asked for its status once, in parallel: a refused handshake (no key, a wrong key, a key the daemon
+does not accept) ends the command at once with the reason (exit 2), instead of a UI that says
+"connecting" forever; a daemon that is merely not running yet is left to the UI.
 """
 
 from __future__ import annotations
@@ -14,10 +20,14 @@ import os
 import sys
 from typing import Any, TextIO
 
+from hdeem_watch.addresses import CONTROL_PORT
+from hdeem_watch.cli.curve_options import add_server_key_argument, client_kwargs, curve_keys
 from hdeem_watch.errors import InputError
 
 #: Documented TCP port of a daemon's control endpoint on cluster nodes (``--slurm``).
-SLURM_CONTROL_PORT = 5591
+SLURM_CONTROL_PORT = CONTROL_PORT
+#: How long the start-up check waits for each daemon's status.
+PREFLIGHT_TIMEOUT_S = 3.0
 PORT_ENV = "HDEEM_WATCH_CONTROL_PORT"
 ENDPOINT_SCHEMES = ("ipc://", "tcp://", "inproc://")
 
@@ -35,7 +45,7 @@ def register(subparsers: Any) -> None:
         "  hdeem-watch tui --slurm                              # every node of the allocation\n"
         "  hdeem-watch tui --headless --duration 60             # text lines for 60 s\n"
         "exit codes: 0 done, 1 a daemon never sent its stream (--headless; the reason on stderr),\n"
-        "  2 bad input, 130 interrupted (--headless)",
+        "  2 bad input (also: a daemon refused the CURVE handshake), 130 interrupted (--headless)",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
@@ -52,6 +62,7 @@ def register(subparsers: Any) -> None:
         default=None,
         help=f"control port of the daemons for --slurm (default ${PORT_ENV} or {SLURM_CONTROL_PORT})",
     )
+    add_server_key_argument(parser)
     parser.add_argument("--fps", type=float, default=10.0, help="frames per second (default 10; lower it over slow ssh)")
     parser.add_argument("--window", type=float, default=60.0, metavar="S",
                         help="initial plot window in seconds (default 60; +/- zoom 5..600)")
@@ -119,16 +130,20 @@ def _run(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration {args.duration}: expected a positive number of seconds")
     endpoints = resolve_endpoints(args)
+    curve = curve_keys(args)
+    refused = preflight(endpoints, curve)
+    if refused:
+        raise InputError(refused[0] if len(refused) == 1 else f"{refused[0]} (and {len(refused) - 1} more)")
     stats_file = _open_stats(args.stats) if args.stats else None
     from hdeem_watch.tui.feed import FeedHub
 
     if args.headless or not (sys.stdout.isatty() and os.environ.get("TERM", "") != "dumb"):
         if stats_file is not None:
             stats_file.close()
-        return _headless(FeedHub(endpoints, snapshot_hz=4.0), args)
+        return _headless(FeedHub(endpoints, snapshot_hz=4.0, curve=curve), args)
     from hdeem_watch.tui.app import HdeemWatchApp
 
-    hub = FeedHub(endpoints, snapshot_hz=min(10.0, max(1.0, args.fps)))
+    hub = FeedHub(endpoints, snapshot_hz=min(10.0, max(1.0, args.fps)), curve=curve)
     app = HdeemWatchApp(hub, fps=args.fps, window_s=args.window, exit_after_s=args.duration)
     stats = None
     if stats_file is not None:
@@ -142,6 +157,35 @@ def _run(args: argparse.Namespace) -> int:
         if stats is not None:
             stats.stop()
     return 0
+
+
+def preflight(endpoints: list[str], curve: Any, timeout_s: float = PREFLIGHT_TIMEOUT_S) -> list[str]:
+    """Ask every TCP daemon for its status at once; return one line per refused handshake.
+
+    A daemon that does not answer (not running yet, a firewall) is not an error here: the UI shows
+    it as connecting and keeps trying. ipc endpoints have no handshake to fail.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable, HandshakeFailed
+
+    def check(endpoint: str) -> str | None:
+        with ControlClient(endpoint, timeout_s=timeout_s, **client_kwargs(curve)) as client:
+            try:
+                client.call("status")
+            except HandshakeFailed as error:
+                return str(error)
+            except DaemonUnreachable:
+                return None
+            except Exception:  # an error reply: the daemon answers, the UI shows the rest
+                return None
+        return None
+
+    remote = [e for e in endpoints if e.startswith("tcp://")]
+    if not remote:
+        return []
+    with ThreadPoolExecutor(max_workers=min(32, len(remote))) as pool:
+        return [reason for reason in pool.map(check, remote) if reason is not None]
 
 
 def _open_stats(path: str) -> TextIO:

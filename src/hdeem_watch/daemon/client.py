@@ -6,6 +6,12 @@ A request that gets no reply within ``timeout_s`` raises :class:`DaemonUnreachab
 then recreated so a REQ client never stays stuck in its send/receive state machine, and a DEALER
 client drops late replies to earlier requests by their ``id``.
 
+On TCP a socket monitor (:class:`~hdeem_watch.daemon.handshake.HandshakeWatch`) watches the
+security handshake: a CURVE key the daemon refuses, a wrong server key or CURVE on one side only
+raise :class:`HandshakeFailed` with the reason at once, instead of a silent wait for the timeout.
+CURVE applies to TCP endpoints only (an ipc socket is protected by its file mode, and the daemon
+knows its peers from the kernel).
+
 Example:
     >>> client = ControlClient("ipc:///tmp/none/control.sock", timeout_s=0.1)
     >>> try:
@@ -28,6 +34,7 @@ from typing import Any
 import zmq
 
 from hdeem_watch.daemon import protocol
+from hdeem_watch.daemon.handshake import HandshakeWatch
 
 #: Environment variable that overrides the runtime directory of the default endpoints.
 RUNTIME_DIR_ENV = "HDEEM_WATCH_RUNTIME_DIR"
@@ -51,6 +58,11 @@ class ControlError(RuntimeError):
 
 class DaemonUnreachable(ConnectionError):
     """No reply from the daemon within the timeout (not running, wrong endpoint, or hung)."""
+
+
+class HandshakeFailed(DaemonUnreachable):
+    """The daemon refused this client's security handshake (wrong or unregistered key, CURVE on one
+    side only); the message says which. Retrying does not help: the keys must change."""
 
 
 def runtime_dir(explicit: str | os.PathLike[str] | None = None) -> Path:
@@ -152,6 +164,7 @@ class ControlClient:
         self._context = context or zmq.Context.instance()
         self._ids = itertools.count(1)
         self._socket: zmq.Socket[Any] | None = None
+        self._watch: HandshakeWatch | None = None
         self._curve = (curve_server_key, curve_client_keys)
 
     def _connect(self) -> zmq.Socket[Any]:
@@ -159,15 +172,21 @@ class ControlClient:
             sock = self._context.socket(self._type)
             sock.setsockopt(zmq.LINGER, 0)
             server_key, client_keys = self._curve
-            if server_key is not None:
+            tcp = self.endpoint.startswith("tcp://")
+            if server_key is not None and tcp:
                 from hdeem_watch.daemon.security import secure_client
 
                 secure_client(sock, server_key, client_keys)
+            if tcp:
+                self._watch = HandshakeWatch(sock, curve=server_key is not None)
             sock.connect(self.endpoint)
             self._socket = sock
         return self._socket
 
     def _drop_socket(self) -> None:
+        if self._watch is not None:
+            self._watch.close()
+            self._watch = None
         if self._socket is not None:
             self._socket.close(linger=0)
             self._socket = None
@@ -204,11 +223,21 @@ class ControlClient:
         deadline_ms = max(1, int(timeout_s * 1000))
         poller = zmq.Poller()
         poller.register(sock, zmq.POLLIN)
+        watch = self._watch
+        if watch is not None:
+            poller.register(watch.socket, zmq.POLLIN)
         remaining = deadline_ms
         end = time.monotonic() + timeout_s
         while remaining > 0:
-            if not poller.poll(remaining):
+            ready = dict(poller.poll(remaining))
+            if not ready:
                 break
+            if watch is not None and watch.socket in ready and (failure := watch.read()) is not None:
+                self._drop_socket()
+                raise HandshakeFailed(f"{self.endpoint}: {failure}")
+            if sock not in ready:
+                remaining = int((end - time.monotonic()) * 1000)
+                continue
             frames = sock.recv_multipart()
             try:
                 reply = protocol.decode_reply(frames[-1])
@@ -218,7 +247,10 @@ class ControlClient:
             if reply.id == request_id:
                 return reply
             remaining = int((end - time.monotonic()) * 1000)  # a late reply to an earlier request
+        failure = watch.failure if watch is not None else None
         self._drop_socket()
+        if failure is not None:
+            raise HandshakeFailed(f"{self.endpoint}: {failure}")
         raise DaemonUnreachable(f"{self.endpoint}: no reply within {timeout_s:g} s")
 
     def close(self) -> None:

@@ -6,6 +6,13 @@ envelope. Requests are parsed by :func:`hdeem_watch.daemon.protocol.decode_reque
 malformed or unknown request gets an error reply, and an exception inside a handler becomes an
 ``internal`` error reply (logged), never a dead daemon.
 
+State-changing operations are authorized per request
+(:mod:`hdeem_watch.daemon.authorization`): the peer is read from the frame's libzmq properties
+(``Peer-Address`` with the ``SO_PEERCRED`` credentials on ipc, ``User-Id`` from the ZAP handler on
+CURVE TCP) only when the op needs it; a refusal is a ``forbidden`` error reply, logged. The server
+may listen on several endpoints (one socket each, so each request's transport is known): the local
+ipc one and a TCP one for other nodes.
+
 A handler is ``handler(args) -> result``; a handler that cannot answer at once (``run.stop`` waits
 for the end of the window and the refit, ``baseline.measure`` for its idle window) returns a
 :class:`Pending`, which the daemon completes later with :meth:`ControlServer.complete`.
@@ -22,6 +29,7 @@ Example:
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -29,12 +37,23 @@ from typing import Any
 import zmq
 
 from hdeem_watch.daemon import protocol
+from hdeem_watch.daemon.authorization import (
+    FORBIDDEN,
+    STATE_CHANGING_OPS,
+    Authorizer,
+    Peer,
+    ipc_peer,
+    tcp_peer,
+)
 from hdeem_watch.daemon.endpoints import bind, is_loopback
 from hdeem_watch.errors import InputError
 
 log = logging.getLogger(__name__)
 
 Handler = Callable[[dict[str, Any]], Any]
+_STATE_CHANGING = STATE_CHANGING_OPS
+#: ``op -> refusal or None`` for one request (its peer bound in).
+Authorize = Callable[[str], str | None]
 
 
 @dataclass
@@ -50,6 +69,7 @@ class Pending:
     context: dict[str, Any] = field(default_factory=dict)
     envelope: list[bytes] = field(default_factory=list)
     request_id: Any = None
+    socket: Any = None
 
 
 class OpError(Exception):
@@ -74,19 +94,22 @@ def encode_result(request_id: Any, result: Any, op: str) -> bytes:
                                            f"the reply of {op} cannot be encoded ({type(error).__name__})")
 
 
-def dispatch(data: bytes, handlers: Mapping[str, Handler], max_bytes: int = protocol.MAX_REQUEST_BYTES) -> bytes | Pending:
+def dispatch(data: bytes, handlers: Mapping[str, Handler], max_bytes: int = protocol.MAX_REQUEST_BYTES,
+             *, authorize: Authorize | None = None) -> bytes | Pending:
     """Answer one request frame: the reply frame, or a :class:`Pending` from the handler.
 
-    Never raises: whatever goes wrong becomes an error reply.
+    ``authorize(op)`` says why the request's peer may not run ``op`` (a ``forbidden`` reply), or
+    None. Never raises: whatever goes wrong becomes an error reply.
     """
     try:
-        return _dispatch(data, handlers, max_bytes)
+        return _dispatch(data, handlers, max_bytes, authorize)
     except Exception as error:  # a bug in the error path itself: still an answer
         log.exception("control request failed")
         return protocol.encode_reply_error(None, "internal", f"{type(error).__name__}")
 
 
-def _dispatch(data: bytes, handlers: Mapping[str, Handler], max_bytes: int) -> bytes | Pending:
+def _dispatch(data: bytes, handlers: Mapping[str, Handler], max_bytes: int,
+              authorize: Authorize | None) -> bytes | Pending:
     try:
         request = protocol.decode_request(data, max_bytes=max_bytes)
     except protocol.ProtocolError as error:
@@ -95,6 +118,9 @@ def _dispatch(data: bytes, handlers: Mapping[str, Handler], max_bytes: int) -> b
     if handler is None:
         known = ", ".join(sorted(handlers))
         return protocol.encode_reply_error(request.id, "unknown-op", f"unknown op {request.op[:80]!r}; expected one of {known}")
+    refusal = authorize(request.op) if authorize is not None else None
+    if refusal is not None:
+        return protocol.encode_reply_error(request.id, FORBIDDEN, refusal)
     try:
         result = handler(request.args)
         if isinstance(result, Pending):
@@ -113,77 +139,157 @@ def _dispatch(data: bytes, handlers: Mapping[str, Handler], max_bytes: int) -> b
 
 
 class ControlServer:
-    """The ROUTER socket and its request loop step.
+    """The ROUTER sockets (one per endpoint) and their request loop step.
 
     Args:
         context: ZeroMQ context.
-        endpoint: where to bind.
+        endpoint: where to bind (the local endpoint; :attr:`socket`).
         handlers: op name → handler.
         max_bytes: the request size limit.
-        secure: applied to the socket before it binds (CURVE).
+        secure: applied to every TCP socket before it binds (CURVE); ipc sockets are protected by
+            their file mode and the peer's kernel credentials instead.
+        extra_endpoints: further endpoints served alike (e.g. ``tcp://*:5591`` for other nodes
+            beside the local ipc socket).
+        authorizer: who may run the state-changing ops (None: everybody who reaches a socket).
 
     Attributes:
-        requests: requests received; errors: error replies sent.
+        requests: requests received; errors: error replies sent; refused: requests refused.
     """
 
     def __init__(self, context: zmq.Context[Any], endpoint: str, handlers: Mapping[str, Handler],
                  max_bytes: int = protocol.MAX_REQUEST_BYTES,
-                 secure: Callable[[zmq.Socket[Any]], None] | None = None) -> None:
-        self.socket = context.socket(zmq.ROUTER)
-        if secure is not None:
-            secure(self.socket)
-        elif not is_loopback(endpoint):
-            log.warning("control %s: TCP without CURVE on a non-loopback address: anyone who can reach it may "
-                        "start and stop runs and reset the calibration (allowed by allow_insecure_tcp)", endpoint)
-        self.socket.setsockopt(zmq.LINGER, 0)
-        # Frames far beyond the limit are not even read into memory: the peer is disconnected.
-        self.socket.setsockopt(zmq.MAXMSGSIZE, 64 * max_bytes)
-        self.socket.setsockopt(zmq.SNDHWM, 10_000)
-        binding = bind(self.socket, endpoint)
-        self.endpoint, self._ipc = binding.endpoint, binding.ipc
+                 secure: Callable[[zmq.Socket[Any]], None] | None = None, *,
+                 extra_endpoints: tuple[str, ...] = (), authorizer: Authorizer | None = None) -> None:
+        self._bound: list[tuple[zmq.Socket[Any], str, Any]] = []
+        try:
+            for each in (endpoint, *extra_endpoints):
+                self._bind(context, each, max_bytes, secure)
+        except BaseException:
+            self.close()
+            raise
+        self.socket = self._bound[0][0]
+        self.sockets = [sock for sock, _transport, _ipc in self._bound]
+        self.endpoint = self.endpoints[0]
         self.handlers = dict(handlers)
         self.max_bytes = max_bytes
+        self.authorizer = authorizer
         self.requests = 0
         self.errors = 0
+        self.refused = 0
+
+    def _bind(self, context: zmq.Context[Any], endpoint: str, max_bytes: int,
+              secure: Callable[[zmq.Socket[Any]], None] | None) -> None:
+        sock = context.socket(zmq.ROUTER)
+        transport = endpoint.split("://", 1)[0]
+        try:
+            if secure is not None and transport == "tcp":
+                secure(sock)
+            elif not is_loopback(endpoint):
+                log.warning("control %s: TCP without CURVE on a non-loopback address: anyone who can reach it may "
+                            "read the node; nobody there can be identified to change its state (allowed by "
+                            "allow_insecure_tcp)", endpoint)
+            sock.setsockopt(zmq.LINGER, 0)
+            # Frames far beyond the limit are not even read into memory: the peer is disconnected.
+            sock.setsockopt(zmq.MAXMSGSIZE, 64 * max_bytes)
+            sock.setsockopt(zmq.SNDHWM, 10_000)
+            binding = bind(sock, endpoint)
+        except BaseException:
+            sock.close(linger=0)
+            raise
+        self._bound.append((sock, transport, binding))
+
+    @property
+    def endpoints(self) -> list[str]:
+        """The bound endpoints (the local one first)."""
+        return [binding.endpoint for _sock, _transport, binding in self._bound]
+
+    def waiting(self) -> bool:
+        """Whether a request waits on any socket."""
+        return any(int(sock.getsockopt(zmq.EVENTS)) & zmq.POLLIN for sock in self.sockets)
 
     def handle(self, max_messages: int = 200) -> list[Pending]:
-        """Answer up to ``max_messages`` waiting requests; return the ones answered later."""
+        """Answer up to ``max_messages`` waiting requests per socket; return the ones answered later."""
         pending: list[Pending] = []
-        for _ in range(max_messages):
-            try:
-                frames = self.socket.recv_multipart(flags=zmq.NOBLOCK)
-            except zmq.Again:
-                break
-            if len(frames) < 2:
-                continue  # no routing identity: nothing to reply to
-            self.requests += 1
-            envelope, body = frames[:-1], frames[-1]
-            answer = dispatch(body, self.handlers, self.max_bytes)
-            if isinstance(answer, Pending):
-                answer.envelope = envelope
-                pending.append(answer)
-            else:
-                if b'"ok":false' in answer[:64]:
-                    self.errors += 1
-                self._send(envelope, answer)
+        for sock, transport, _binding in self._bound:
+            for _ in range(max_messages):
+                try:
+                    frames = sock.recv_multipart(flags=zmq.NOBLOCK, copy=False)
+                except zmq.Again:
+                    break
+                if len(frames) < 2:
+                    continue  # no routing identity: nothing to reply to
+                self.requests += 1
+                envelope, body = [f.bytes for f in frames[:-1]], frames[-1]
+                answer = dispatch(body.bytes, self.handlers, self.max_bytes,
+                                  authorize=self._authorize(body, transport))
+                if isinstance(answer, Pending):
+                    answer.envelope = envelope
+                    answer.socket = sock
+                    pending.append(answer)
+                else:
+                    if b'"ok":false' in answer[:64]:
+                        self.errors += 1
+                    self._send(sock, envelope, answer)
         return pending
+
+    def _authorize(self, frame: zmq.Frame, transport: str) -> Authorize | None:
+        authorizer = self.authorizer
+        if authorizer is None:
+            return None
+
+        def authorize(op: str) -> str | None:
+            if op not in _STATE_CHANGING:
+                return None
+            peer = peer_of(frame, transport)
+            refusal = authorizer.refusal(op, peer)
+            if refusal is not None:
+                self.refused += 1
+                log.warning("control: refused %s from %s", op, peer.describe())
+            return refusal
+
+        return authorize
 
     def complete(self, pending: Pending, result: Any = None, *, error: tuple[str, str] | None = None) -> None:
         """Send the reply of a :class:`Pending` (``error = (code, message)`` for an error reply)."""
+        sock = pending.socket if pending.socket is not None else self.socket
         if error is not None:
             self.errors += 1
-            self._send(pending.envelope, protocol.encode_reply_error(pending.request_id, error[0], error[1]))
+            self._send(sock, pending.envelope, protocol.encode_reply_error(pending.request_id, error[0], error[1]))
         else:
-            self._send(pending.envelope, encode_result(pending.request_id, result, pending.op))
+            self._send(sock, pending.envelope, encode_result(pending.request_id, result, pending.op))
 
-    def _send(self, envelope: list[bytes], body: bytes) -> None:
+    @staticmethod
+    def _send(sock: zmq.Socket[Any], envelope: list[bytes], body: bytes) -> None:
         try:
-            self.socket.send_multipart([*envelope, body], flags=zmq.NOBLOCK)
+            sock.send_multipart([*envelope, body], flags=zmq.NOBLOCK)
         except zmq.ZMQError as error:  # peer gone or queue full: the client times out and retries
             log.debug("control reply dropped: %s", error)
 
     def close(self) -> None:
-        """Close the socket and remove its ipc file if it is still the one this server created."""
-        self.socket.close(linger=0)
-        if self._ipc is not None:
-            self._ipc.unlink_if_ours()
+        """Close the sockets and remove each ipc file if it is still the one this server created."""
+        for sock, _transport, binding in self._bound:
+            sock.close(linger=0)
+            if binding.ipc is not None:
+                binding.ipc.unlink_if_ours()
+        self._bound = []
+
+
+def peer_of(frame: zmq.Frame, transport: str) -> Peer:
+    """Who sent ``frame``: libzmq's ``Peer-Address`` (ipc: with ``SO_PEERCRED``'s ``:uid:gid:pid``) and,
+    on TCP, the ``User-Id`` the ZAP handler gave the client's CURVE key."""
+    address = _property(frame, "Peer-Address") or ""
+    if transport == "ipc":
+        return ipc_peer(address)
+    if transport == "tcp":
+        return tcp_peer(address, _property(frame, "User-Id"))
+    if transport == "inproc":  # a socket inside the daemon's own process
+        return Peer("inproc", uid=os.geteuid())
+    return Peer(transport, address=address)
+
+
+def _property(frame: zmq.Frame, name: str) -> str | None:
+    try:
+        value = frame.get(name)
+    except zmq.ZMQError:  # the connection has no such property (no ZAP handler, not a socket file)
+        return None
+    return value if isinstance(value, str) else None

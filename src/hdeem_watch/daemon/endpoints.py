@@ -42,11 +42,12 @@ from typing import Any
 
 import zmq
 
-from hdeem_watch.addresses import is_loopback
+from hdeem_watch.addresses import is_loopback, remote_endpoint
 from hdeem_watch.daemon.client import PRIVATE_DIR_MODE, directory_problem, fallback_runtime_dir, ipc_path
 from hdeem_watch.errors import InputError
 
-__all__ = ["Binding", "IpcFile", "bind", "bind_endpoint", "chmod_socket", "is_loopback", "private_directory"]
+__all__ = ["Binding", "IpcFile", "advertised_endpoints", "bind", "bind_endpoint", "chmod_socket", "is_loopback",
+           "private_directory"]
 
 log = logging.getLogger("hdeem_watch.daemon")
 
@@ -197,3 +198,11 @@ def _refuse_live_socket(endpoint: str, path: Path) -> None:
 def _last_endpoint(sock: zmq.Socket[Any]) -> str:
     bound = sock.getsockopt(zmq.LAST_ENDPOINT)
     return bound.decode() if isinstance(bound, bytes) else str(bound)
+
+
+def advertised_endpoints(pub: str, controls: list[str], host: str | None = None) -> dict[str, str | None]:
+    """What the status advertises to other nodes: ``{"pub": ..., "control": ...}``, each the TCP
+    endpoint with this host's name (None where only a local endpoint is bound)."""
+    name = host or socket.gethostname()
+    remote_controls = [ep for ep in (remote_endpoint(c, name) for c in controls) if ep is not None]
+    return {"pub": remote_endpoint(pub, name), "control": remote_controls[0] if remote_controls else None}

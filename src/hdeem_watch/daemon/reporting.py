@@ -30,7 +30,7 @@ class Identity:
     """What does not change while the daemon runs (in every status body)."""
 
     kind: str
-    endpoints: Mapping[str, str]
+    endpoints: Mapping[str, Any]
     curve_public_key: str | None = None
     prometheus_port: int | None = None
 

@@ -32,8 +32,10 @@ import zmq
 from hdeem_watch import __version__
 from hdeem_watch.config import DaemonSettings
 from hdeem_watch.daemon import baselines as bl
+from hdeem_watch.daemon.authorization import Authorizer
 from hdeem_watch.daemon.client import default_endpoints
 from hdeem_watch.daemon.control import ControlServer, Pending
+from hdeem_watch.daemon.endpoints import advertised_endpoints
 from hdeem_watch.daemon.group_fits import source_groups
 from hdeem_watch.daemon.job_book import JobBook
 from hdeem_watch.daemon.job_ops import JobOperations, unfinished_jobs
@@ -70,10 +72,13 @@ class Daemon:
         clock: monotonic clock in ns (shared with the source's run events).
         wall_clock: wall clock in ns (labels: record and header times).
         context: ZeroMQ context.
+        job_owner_uids: the uids owning a job running on the node (they may change state; the
+            job book's ``running_job_uids``).
     """
 
     def __init__(self, settings: DaemonSettings, *, source: Source | None = None, clock: Clock = time.monotonic_ns,
-                 wall_clock: Clock = time.time_ns, context: zmq.Context[Any] | None = None) -> None:
+                 wall_clock: Clock = time.time_ns, context: zmq.Context[Any] | None = None,
+                 job_owner_uids: Callable[[], frozenset[int]] = frozenset) -> None:
         self.settings = settings
         self.node = settings.node
         self.clock = clock
@@ -83,6 +88,7 @@ class Daemon:
         default_pub, default_control = default_endpoints(settings.runtime_dir)
         self.pub_endpoint = settings.pub or default_pub
         self.control_endpoint = settings.control or default_control
+        self.authorizer = Authorizer(job_owner_uids=job_owner_uids)
         self.book: NodeState | None = None
         self.calibration = Calibration()
         self.publisher: Publisher | None = None
@@ -223,8 +229,10 @@ class Daemon:
             secure = self.curve.apply
         try:
             self.publisher = Publisher(self.context, self.pub_endpoint, node=self.node, sndhwm=settings.sndhwm,
-                                       secure=secure)
-            self.control = ControlServer(self.context, self.control_endpoint, {}, secure=secure)
+                                       secure=None if self.pub_endpoint.startswith("ipc://") else secure)
+            self.control = ControlServer(
+                self.context, self.control_endpoint, {}, secure=secure, authorizer=self.authorizer,
+                extra_endpoints=(settings.remote_control,) if settings.remote_control else ())
         except (zmq.ZMQError, OSError) as error:
             self._close_sockets()
             raise InputError(f"cannot bind {self.pub_endpoint} / {self.control_endpoint}: {error}") from None
@@ -240,7 +248,8 @@ class Daemon:
                 self._close_sockets()
                 raise InputError(f"prometheus port {settings.prometheus_port}: {error.strerror}") from None
         identity = Identity(kind=source.kind,
-                            endpoints={"pub": self.pub_endpoint, "control": self.control_endpoint},
+                            endpoints={"pub": self.pub_endpoint, "control": self.control_endpoint,
+                                       "remote": advertised_endpoints(self.publisher.endpoint, self.control.endpoints)},
                             curve_public_key=None if self.curve is None else self.curve.public.decode(),
                             prometheus_port=self.metrics_port)
         reporter = self.reporter = Reporter(book, self.calibration, source, self.publisher, self.store_worker,
@@ -348,10 +357,11 @@ class Daemon:
         republish = IntervalTimer(round(settings.republish_s * 1e9), clock=clock, start_ns=clock())
         control, publisher, reporter, store = self.control, self.publisher, self.reporter, self.store_worker
         poller = zmq.Poller()
-        poller.register(control.socket, zmq.POLLIN)
+        for sock in control.sockets:
+            poller.register(sock, zmq.POLLIN)
         poller.register(publisher.socket, zmq.POLLIN)
         poller.register(self._wake_r, zmq.POLLIN)
-        control_socket, pub_socket, wake_fd = control.socket, publisher.socket, self._wake_r
+        control_sockets, pub_socket, wake_fd = control.sockets, publisher.socket, self._wake_r
         self.poll_once()
         open_windows = len(book.windows)
         # The heartbeat and the re-publication are served at the first poll after their deadline
@@ -392,7 +402,8 @@ class Daemon:
                                                 max_spread_w=settings.quiet_max_spread_w)
                 reporter.publish_calib()
                 reporter.publish_baselines()
-            backlog = self._work_slice(clock() + WORK_SLICE_NS, control_waiting=control_socket in ready)
+            backlog = self._work_slice(clock() + WORK_SLICE_NS,
+                                       control_waiting=any(sock in ready for sock in control_sockets))
             if changed or len(book.windows) != open_windows:
                 open_windows = len(book.windows)
                 interval_ns = self._poll_interval_ns()
@@ -406,7 +417,6 @@ class Daemon:
         whether work is left (the loop then comes back at once, after a poll if one is due)."""
         assert self.control is not None and self.model_jobs is not None and self.store_worker is not None
         control, models, store, clock = self.control, self.model_jobs, self.store_worker, self.clock
-        sock = control.socket
         while True:
             if control_waiting:
                 control.handle(max_messages=1)
@@ -414,7 +424,7 @@ class Daemon:
                 models.collect(1)
             if store.pending and store.ready:
                 store.collect(1)
-            control_waiting = bool(sock.getsockopt(zmq.EVENTS) & zmq.POLLIN)
+            control_waiting = control.waiting()
             left = control_waiting or (models.pending and models.ready) or (store.pending and store.ready)
             if not left or clock() >= end_ns:
                 return bool(left)

@@ -1,13 +1,13 @@
 """Which stream endpoint a UI can reach, given a daemon's control endpoint: pure functions.
 
 The UI is given a daemon's *control* endpoint; the daemon's ``status`` names its stream (PUB)
-endpoint. A wildcard bind host (``tcp://*:5592``) means "the daemon's host"; an ``ipc://`` stream
+endpoint. A wildcard bind host (``tcp://*:5590``) means "the daemon's host"; an ``ipc://`` stream
 exists only on the daemon's own machine, so a UI that reached the control socket over TCP from
 elsewhere can never subscribe to it, and must say so instead of waiting.
 
 Example:
-    >>> pub_endpoint_for("tcp://node7:5591", "tcp://*:5592")
-    'tcp://node7:5592'
+    >>> pub_endpoint_for("tcp://node7:5591", "tcp://*:5590")
+    'tcp://node7:5590'
     >>> unreachable_stream("tcp://node7:5591", "ipc:///run/hdeem-watch/pub.sock", is_local=lambda host: False)
     'the stream is ipc:///run/hdeem-watch/pub.sock, reachable only on node7: start the daemon with --pub tcp://*:PORT'
 """
@@ -15,7 +15,8 @@ Example:
 from __future__ import annotations
 
 import socket
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from typing import Any
 
 _WILDCARD_HOSTS = ("*", "0.0.0.0", "[::]", "::", "")
 _LOOPBACK_HOSTS = ("localhost", "::1")
@@ -54,6 +55,23 @@ def is_local_host(host: str) -> bool:
     except OSError:
         return False
     return True
+
+
+def stream_endpoint(control_endpoint: str, endpoints: Mapping[str, Any], *,
+                    is_local: Callable[[str], bool] = is_local_host) -> str:
+    """The stream endpoint to subscribe to, from a daemon's ``status`` ``endpoints``.
+
+    A client on another host takes the daemon's advertised remote stream (``endpoints.remote.pub``)
+    when the bound one is ipc; otherwise the bound one, with a wildcard host replaced by the
+    control endpoint's. "" when the status names none.
+    """
+    pub = str(endpoints.get("pub") or "")
+    remote = endpoints.get("remote")
+    host = tcp_host(control_endpoint)
+    if (not pub.startswith("tcp://") and host and isinstance(remote, Mapping)
+            and isinstance(remote.get("pub"), str) and not is_local(host)):
+        pub = str(remote["pub"])
+    return pub_endpoint_for(control_endpoint, pub) if pub else ""
 
 
 def unreachable_stream(control_endpoint: str, pub: str, *, is_local: Callable[[str], bool] = is_local_host) -> str | None:

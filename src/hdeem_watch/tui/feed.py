@@ -34,7 +34,8 @@ import zmq
 
 from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
-from hdeem_watch.tui.endpoints import is_local_host, pub_endpoint_for, unreachable_stream
+from hdeem_watch.daemon.security import ClientCurve, secure_client
+from hdeem_watch.tui.endpoints import is_local_host, stream_endpoint, unreachable_stream
 from hdeem_watch.tui.messages import (
     RequestDone,
     RequestFailed,
@@ -68,6 +69,7 @@ class NodeFeed(threading.Thread):
         clock: monotonic clock in ns (injectable).
         wall_clock: wall clock in ns (injectable).
         is_local: whether a host is this machine (an ``ipc://`` stream of another host is unreachable).
+        curve: the CURVE keys for TCP endpoints (None: no CURVE).
     """
 
     def __init__(
@@ -83,6 +85,7 @@ class NodeFeed(threading.Thread):
         clock: Callable[[], int] = time.monotonic_ns,
         wall_clock: Callable[[], int] = time.time_ns,
         is_local: Callable[[str], bool] = is_local_host,
+        curve: ClientCurve | None = None,
     ) -> None:
         super().__init__(name=f"hdeem-watch-feed-{index}", daemon=True)
         self.endpoint = endpoint
@@ -95,7 +98,8 @@ class NodeFeed(threading.Thread):
         self._wall = wall_clock
         self._is_local = is_local
         self.model = NodeModel(endpoint, stale_after_s=stale_after_s)
-        self._control = ControlClient(endpoint, timeout_s=control_timeout_s, context=self._context)
+        self.curve = curve
+        self._control = self._client(control_timeout_s)
         self._sub: zmq.Socket[Any] | None = None
         self._pub_endpoint = ""
         self._halt = threading.Event()
@@ -128,8 +132,15 @@ class NodeFeed(threading.Thread):
         self._workers.append(worker)
         worker.start()
 
+    def _client(self, timeout_s: float) -> ControlClient:
+        curve = self.curve
+        if curve is None:
+            return ControlClient(self.endpoint, timeout_s=timeout_s, context=self._context)
+        return ControlClient(self.endpoint, timeout_s=timeout_s, context=self._context,
+                             curve_server_key=curve.server_key, curve_client_keys=curve.client_keys)
+
     def _request(self, op: str, args: dict[str, Any], timeout_s: float) -> None:
-        client = ControlClient(self.endpoint, timeout_s=timeout_s, context=self._context)
+        client = self._client(timeout_s)
         outcome: RequestOutcome
         try:
             result = client.call(op, args)
@@ -244,7 +255,7 @@ class NodeFeed(threading.Thread):
             return
         endpoints = status.get("endpoints") if isinstance(status.get("endpoints"), dict) else {}
         assert isinstance(endpoints, dict)
-        pub = pub_endpoint_for(self.endpoint, str(endpoints.get("pub", "")))
+        pub = stream_endpoint(self.endpoint, endpoints, is_local=self._is_local)
         node = status.get("node")
         why_not = unreachable_stream(self.endpoint, pub, is_local=self._is_local) if pub else "its status names no stream endpoint"
         if why_not is not None:
@@ -272,6 +283,8 @@ class NodeFeed(threading.Thread):
         sub.setsockopt(zmq.RECONNECT_IVL, 100)
         sub.setsockopt(zmq.RECONNECT_IVL_MAX, 1000)
         sub.setsockopt(zmq.SUBSCRIBE, protocol.subscription(node))
+        if self.curve is not None and pub.startswith("tcp://"):
+            secure_client(sub, self.curve.server_key, self.curve.client_keys)
         sub.connect(pub)
         self._sub = sub
         self._pub_endpoint = pub

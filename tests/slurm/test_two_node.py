@@ -1,0 +1,75 @@
+"""A job spanning two nodes of a real SLURM, watched allocation-wide over CURVE TCP.
+
+The cluster (two slurmd on this machine, one sim daemon per node on the one documented control
+port) is :mod:`two_node_cluster`'s. The job runs a task on each node and, from inside the
+allocation, the TUI with ``--slurm`` (headless), which finds both daemons by node name, asks each
+for its status over CURVE-encrypted TCP, subscribes to the TCP stream each advertises and prints
+both nodes' power; without the server's key the same command stops at once with the reason.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+import time
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+pytestmark = pytest.mark.slurm
+
+
+def _load(name: str, path: Path) -> ModuleType:
+    """The fixture module beside this file (tests run with --import-mode=importlib: no sys.path)."""
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+_cluster = _load("hdeem_watch_tests_two_node_cluster", Path(__file__).with_name("two_node_cluster.py"))
+NODES = _cluster.NODES
+TwoNodeCluster = _cluster.TwoNodeCluster
+two_node_cluster = _cluster.two_node_cluster  # the fixture, for pytest
+
+
+def _job(cluster: _cluster.TwoNodeCluster, script: str, timeout: float = 60) -> str:
+    """Submit ``script`` on both nodes, wait for it, return its output."""
+    output = cluster.root / f"job-{time.monotonic_ns()}.out"
+    path = output.with_suffix(".sh")
+    path.write_text("#!/bin/sh\n" + script)
+    path.chmod(0o755)
+    submitted = cluster.run(["sbatch", "--parsable", "-N2", "-n2", f"--output={output}", str(path)])
+    assert submitted.returncode == 0, submitted.stderr
+    job_id = submitted.stdout.strip().split(";")[0]
+    cluster.wait_for_job(job_id, timeout)
+    return output.read_text()
+
+
+def test_the_tui_watches_both_nodes_of_a_job_over_curve_tcp(two_node_cluster: _cluster.TwoNodeCluster) -> None:
+    cluster = two_node_cluster
+    tui = (f"HDEEM_WATCH_CONFIG=/nonexistent {sys.executable} -m hdeem_watch tui --slurm --port {cluster.control_port} "
+           "--headless --duration 4")
+    keys = f"--server-key {cluster.server_key} --client-key {cluster.client_key}"
+    started = time.monotonic()
+    out = _job(cluster, "\n".join([
+        "srun -N2 -n2 sh -c 'echo task on $SLURMD_NODENAME'",
+        cluster.login_command(f"{tui} {keys} 2>&1; echo tui exit $?"),
+        cluster.login_command(f"{tui} 2>&1; echo tui exit $?"),
+        ""]))
+    lines = out.splitlines()
+    assert sorted(line for line in lines if line.startswith("task on")) == [f"task on {n}" for n in NODES], out
+    with_keys, without = out.split("tui exit", 1)
+    exits = [line for line in lines if line.startswith("tui exit")]
+    assert exits == ["tui exit 0", "tui exit 2"], out
+    for node in NODES:
+        assert f"state  {node} live" in with_keys, out
+        assert any(line.startswith(f"[{node}] power  DDR_AB") for line in with_keys.splitlines()), out
+    refusal = [line for line in without.splitlines() if line.startswith("hdeem-watch: error:")]
+    assert len(refusal) == 1 and "the daemon requires CURVE: give its public key" in refusal[0], out
+    assert time.monotonic() - started < 45
