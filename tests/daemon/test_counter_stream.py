@@ -31,4 +31,4 @@ def test_an_opaque_job_on_the_sim_daemon_is_modelled_from_counters(daemon_factor
     assert stopped["model_error"] is None, stopped["model_error"]
     assert stopped["model"]["source"] == "counters" and stopped["model"]["datasheet_j"] > 0
     assert stopped["counters"]["status"] == "ok" and len(stopped["counters"]["channels"]) == 8
-    assert protocol.KINDS[-1] == "counters"
+    assert "counters" in protocol.KINDS
