@@ -1,16 +1,10 @@
 #!/bin/sh
-# hdeem-watch SLURM Epilog (slurm.conf: Epilog=/path/to/daemon/slurm/epilog.sh).
+# hdeem-watch SLURM Epilog (slurm.conf: Epilog=/opt/hdeem-watch/slurm/epilog.sh; docs/slurm.md).
 #
-# Runs as root on each node of a job after it ends. It appends the finished job record (start and
-# end wall-clock ns, user, nodes, exit code) to $HDEEM_WATCH_HOOK_DIR/jobs.jsonl, so energy can be
-# attributed to jobs afterwards, and stops the daemon the Prolog started for this job (SIGTERM,
-# SIGKILL after 10 s); a daemon that was already running is left alone.
-# Settings as for prolog.sh. The hook always exits 0.
-CONF=${HDEEM_WATCH_HOOK_CONF:-/etc/hdeem-watch/slurm-hooks.env}
-if [ -r "$CONF" ]; then
-    set -a
-    . "$CONF"
-    set +a
-fi
-"${HDEEM_WATCH_PYTHON:-python3}" -m hdeem_watch.slurm epilog || true
+# Runs as root on each node of a job after it ends and closes the job's window in the node's
+# hdeem-watch daemon (job.stop with SLURM_JOB_EXIT_CODE): the daemon stores the job's energy per
+# sensor. A daemon that does not answer gets the stop from the next hook. Settings as for
+# prolog.sh; bounded in time and always exit 0; failures are logged to syslog.
+. "$(dirname "$0")/hook-common.sh"
+hook_run epilog
 exit 0

@@ -5,7 +5,10 @@ top level or in a ``[daemon]`` table), ``HDEEM_WATCH_<FIELD>`` environment varia
 ``HDEEM_WATCH_SOURCE=rapl``, ``HDEEM_WATCH_POLL_INTERVAL_S=0.05``), then command-line flags.
 Unknown keys and values of the wrong type are :class:`~hdeem_watch.errors.InputError` naming the
 file, key and value. Every field is documented in :class:`DaemonSettings` (and in
-``daemon/hdeem-watchd.toml``).
+``daemon/hdeem-watchd.toml``). The ``[node]`` table describes the hardware where it cannot be
+detected (:mod:`hdeem_watch.node.overrides`; docs/your-node.md); the node's name is then its
+``name`` key (or ``node`` in ``[daemon]``), since TOML cannot hold a top-level ``node = "NAME"``
+beside the table — the older top-level ``node = "NAME"`` still names the node.
 
 Example:
     >>> s = load_settings(env={"HDEEM_WATCH_SPEED": "4"}, overrides={"node": "n7"})
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import socket
 import tomllib
 import types
@@ -111,7 +115,9 @@ class DaemonSettings:
         hdeem_bmc_password_file: file holding the BMC password (mode 0600/0400; never logged).
         hdeem_cflags: extra compiler flags for the shim (shell words), e.g. ``-DHWS_NO_GPIO_FIELDS``.
         hdeem_poll_interval_s: read the BMC at most this often (None = the idle poll period, ≥ 0.1 s).
-        memspec: preset name or DRAMPower JSON file of one DIMM, used for the run model.
+        memspec: preset name or DRAMPower JSON file of one DIMM, used for the run model (None:
+            ``[node] memspec``, else the preset chosen from the node's DIMMs, else
+            ``samsung-m393a1g43db0-cpb``; the daemon logs which and why).
         dimms: DIMMs on the node (the measured DRAM energy is the sum of all DRAM channels).
         currents: the currents the embedded calibrator fits.
         half_life_s: forgetting half-life of the online calibrator (0 = no forgetting).
@@ -136,6 +142,14 @@ class DaemonSettings:
         quiet_max_spread_w: largest standard deviation of a quiet window (absolute, W).
         quiet_history_s: seconds of samples kept per DRAM channel to look for quiet periods.
         log_level: ``debug``, ``info``, ``warning`` or ``error``.
+        node_table: the config file's ``[node]`` table as parsed TOML (sockets, channels, DIMMs,
+            memspec, sensors: docs/your-node.md); file only (no environment variable or flag).
+        counters: where each window's DRAM commands come from: ``none`` (the kernel model only),
+            ``sim`` (the simulated node's memory-controller counters; needs ``source = "sim"``),
+            ``perf`` (the host's ``uncore_imc`` PMUs through ``perf_event_open``; needs
+            ``CAP_PERFMON`` or ``perf_event_paranoid <= 0``) or ``replay`` (docs/counters.md).
+        job_checkpoint_s: period at which the open SLURM jobs' energy so far is stored (what a
+            ``kill -9`` of the daemon may lose of a job; docs/slurm.md).
     """
 
     source: str = "sim"
@@ -168,7 +182,7 @@ class DaemonSettings:
     hdeem_bmc_password_file: str | None = None
     hdeem_cflags: str = ""
     hdeem_poll_interval_s: float | None = None
-    memspec: str = "samsung-m393a1g43db0-cpb"
+    memspec: str | None = None
     dimms: int = 8
     currents: tuple[str, ...] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
     half_life_s: float = 0.0
@@ -184,11 +198,15 @@ class DaemonSettings:
     quiet_max_spread_w: float = 0.5
     quiet_history_s: float = 60.0
     log_level: str = "info"
+    node_table: Mapping[str, Any] | None = None
+    counters: str = "none"
+    job_checkpoint_s: float = 5.0
 
     def __post_init__(self) -> None:
         if self.source not in SOURCE_KINDS:
             raise SettingError("source", f"source = {self.source!r}; expected one of {', '.join(SOURCE_KINDS)}")
-        for name in ("poll_interval_s", "heartbeat_s", "republish_s", "speed", "quiet_window_s", "quiet_history_s"):
+        for name in ("poll_interval_s", "heartbeat_s", "republish_s", "speed", "quiet_window_s", "quiet_history_s",
+                     "job_checkpoint_s"):
             if not getattr(self, name) > 0:
                 raise SettingError(name, f"{name} = {getattr(self, name)!r}; expected a number > 0")
         if self.idle_poll_interval_s < 0:
@@ -205,6 +223,16 @@ class DaemonSettings:
             raise SettingError("log_level", f"log_level = {self.log_level!r}; expected debug, info, warning or error")
         if not self.node or "/" in self.node:
             raise SettingError("node", f"node = {self.node!r}; expected a non-empty name without '/'")
+        from hdeem_watch.counters.source import COUNTER_KINDS
+
+        if self.counters not in COUNTER_KINDS:
+            raise SettingError("counters", f"counters = {self.counters!r}; expected one of {', '.join(COUNTER_KINDS)}")
+        if self.counters == "replay" and self.source != "replay":
+            raise SettingError("counters", f"counters = 'replay' needs source = 'replay' (not {self.source!r}): the "
+                               "counters are played back with the recording they were recorded beside")
+        if self.counters == "sim" and self.source != "sim":
+            raise SettingError("counters", f"counters = 'sim' needs source = 'sim' (not {self.source!r}): only the "
+                               "simulated node has simulated memory controllers")
         if self.source == "replay" and not self.replay_file:
             raise SettingError("replay_file", "source = 'replay' needs replay_file (--replay-file FILE)")
         if self.seed is not None and not 0 <= self.seed < 2**63:
@@ -228,6 +256,19 @@ class DaemonSettings:
         from hdeem_watch.sources import options as source_settings
 
         source_settings.validate(self)
+        if self.node_table is not None:
+            try:
+                self.node_overrides()
+            except InputError as error:
+                raise SettingError("node_table", str(error)) from None
+
+    def node_overrides(self) -> Any:
+        """The parsed ``[node]`` table (a :class:`~hdeem_watch.node.overrides.NodeOverrides`), or None."""
+        if self.node_table is None:
+            return None
+        from hdeem_watch.node.overrides import parse_node_table
+
+        return parse_node_table(self.node_table)
 
     def source_options(self) -> dict[str, Any]:
         """Keyword options for ``make_source(self.source, ...)``."""
@@ -239,6 +280,12 @@ class DaemonSettings:
                 from hdeem_watch.sources.sim_age import sim_age_options
 
                 options.update(sim_age_options(self.sim_age))
+            overrides = self.node_overrides()
+            if overrides is not None and overrides.counts:  # the sim models the [node] table's node
+                from hdeem_watch.node.overrides import apply_overrides
+                from hdeem_watch.node.setup import configured_only
+
+                options["node"] = apply_overrides(configured_only("the simulated node"), overrides)
             return options
         if self.source == "replay":
             return {"path": self.replay_file, "speed": self.speed, "loop": self.replay_loop}
@@ -250,6 +297,8 @@ class DaemonSettings:
 
 
 _FIELDS = {f.name: f for f in dataclasses.fields(DaemonSettings)}
+#: Fields only a config file's table sets (``[node]``): not keys, variables or flags of their own.
+_TABLE_FIELDS = ("node_table",)
 
 
 def _coerce(name: str, value: Any, where: str) -> Any:
@@ -296,8 +345,9 @@ def _coerce(name: str, value: Any, where: str) -> Any:
 def _apply(values: dict[str, Any], data: Mapping[str, Any], where: str, origins: dict[str, str]) -> None:
     for key, value in data.items():
         name = key.replace("-", "_")
-        if name not in _FIELDS:
-            raise InputError(f"{where}: unknown setting {key!r}; expected one of {', '.join(sorted(_FIELDS))}")
+        if name not in _FIELDS or name in _TABLE_FIELDS:
+            known = sorted(set(_FIELDS) - set(_TABLE_FIELDS))
+            raise InputError(f"{where}: unknown setting {key!r}; expected one of {', '.join(known)}")
         values[name] = _coerce(name, value, where)
         origins[name] = where
 
@@ -309,14 +359,20 @@ def read_config_file(path: str | os.PathLike[str]) -> dict[str, Any]:
         InputError: one line naming the file: unreadable, not UTF-8 text, or not valid TOML.
     """
     path = Path(path)
+    text = ""
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        return tomllib.loads(text)
     except OSError as error:
         raise InputError(f"{path}: cannot read the config file ({error.strerror})") from None
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text file (not UTF-8); expected a TOML config file") from None
     except tomllib.TOMLDecodeError as error:
-        raise InputError(f"{path}: not valid TOML ({error})") from None
+        hint = ""
+        if re.search(r"(?m)^\s*node\s*=", text) and re.search(r"(?m)^\s*\[\s*node\s*[\].]", text):
+            hint = ("; a top-level node = \"NAME\" and a [node] table cannot both be in one file: "
+                    "write the name as name = \"NAME\" inside [node]")
+        raise InputError(f"{path}: not valid TOML ({error}){hint}") from None
 
 
 def load_settings(
@@ -346,6 +402,15 @@ def load_settings(
         data = read_config_file(path)
         # [metricq] belongs to `hdeem-watch metricq-source`, which reads the same file.
         own = {k: v for k, v in data.items() if k not in OTHER_TABLES}
+        from hdeem_watch.node.overrides import split_node_entry
+
+        entry = own.pop("node", None)
+        table, name = split_node_entry(entry)
+        if name is not None or (entry is not None and table is None):  # node = "NAME" (or a wrong value)
+            _apply(values, {"node": entry if table is None else name}, f"{path} [node]" if table else str(path), origins)
+        if table is not None:
+            values["node_table"] = dict(table)
+            origins["node_table"] = str(path)
         if "daemon" in own and isinstance(own["daemon"], dict):
             rest = {k: v for k, v in own.items() if k != "daemon"}
             _apply(values, rest, str(path), origins)
@@ -354,6 +419,8 @@ def load_settings(
             _apply(values, own, str(path), origins)
     environment = os.environ if env is None else env
     for name in _FIELDS:
+        if name in _TABLE_FIELDS:
+            continue
         key = ENV_PREFIX + name.upper()
         if key in environment:
             values[name] = _coerce(name, environment[key], f"environment {key}")
@@ -361,7 +428,7 @@ def load_settings(
     if overrides:
         for name, value in overrides.items():
             if value is not None:
-                if name not in _FIELDS:
+                if name not in _FIELDS or name in _TABLE_FIELDS:
                     raise InputError(f"unknown setting {name!r}")
                 values[name] = _coerce(name, value, f"--{name.replace('_', '-')}")
                 origins[name] = f"--{name.replace('_', '-')}"
@@ -386,11 +453,17 @@ def check_model_settings(settings: DaemonSettings) -> None:
     """
     from hdeem_watch.dram.energy import CURRENT_NAMES
     from hdeem_watch.dram.memspec import memspec_from
+    from hdeem_watch.node.setup import DEFAULT_MEMSPEC
 
+    overrides = settings.node_overrides()
+    setting, name = "memspec", settings.memspec or DEFAULT_MEMSPEC  # None: chosen from the DIMMs at start
+    if overrides is not None and overrides.memspec:
+        setting, name = "node_table", overrides.memspec
     try:
-        spec = memspec_from(settings.memspec)
+        spec = memspec_from(name)
     except InputError as error:
-        raise SettingError("memspec", f"memspec = {settings.memspec!r}: {error}") from None
+        key = "[node].memspec" if setting == "node_table" else "memspec"
+        raise SettingError(setting, f"{key} = {name!r}: {error}") from None
     known = [name for name in CURRENT_NAMES if name in spec.currents]
     unknown = [name for name in settings.currents if name not in known]
     if unknown:

@@ -168,7 +168,7 @@ def receive(sock: zmq.Socket, seconds: float, *, until: object = None) -> list[p
     return messages
 
 
-@pytest.fixture(name="receive")
+@pytest.fixture(name="receive", scope="session")
 def receive_fixture() -> object:
     """The :func:`receive` helper (test modules cannot import conftest in importlib mode)."""
     return receive

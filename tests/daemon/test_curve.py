@@ -36,7 +36,7 @@ def test_curve_daemon_serves_key_holders_only(daemon_factory: Any, receive: Any,
     secure_client(sub, server_key, allowed)
     sub.connect(d.pub)
     sub.setsockopt(zmq.SUBSCRIBE, protocol.subscription(d.node, "samples"))
-    assert len(receive(sub, 1.0)) > 5
+    assert len(receive(sub, 5.0, until=lambda m: len(m) > 5)) > 5
     sub.close(0)
     with ControlClient(d.control, timeout_s=0.5) as plain, pytest.raises(DaemonUnreachable):
         plain.call("ping")

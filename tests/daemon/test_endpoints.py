@@ -29,28 +29,28 @@ def _second_daemon(tmp_path: Path, env: dict[str, str], *, pub: str, control: st
     return subprocess.run(command, env=env, capture_output=True, text=True, timeout=60)
 
 
-@pytest.mark.parametrize("which", ["control", "pub"])
-def test_a_second_daemon_on_a_live_endpoint_exits_2_and_leaves_it_alone(daemon_factory: Any, tmp_path: Path,
-                                                                         which: str) -> None:
-    """Another daemon's live ipc endpoint: exit 2 "in use by another daemon"; the first stays reachable.
+def test_a_second_daemon_on_a_live_endpoint_exits_2_and_leaves_it_alone(daemon_factory: Any, tmp_path: Path) -> None:
+    """Another daemon's live ipc endpoint (control, then stream): exit 2 "in use by another daemon"; the first
+    stays reachable.
 
     (Old code: libzmq unlinked the live socket and bound over it; on exit the second daemon removed
     the file, and the first daemon was unreachable.)
     """
     first = daemon_factory("--speed", "10").start()
     spare = f"ipc://{tmp_path}/spare.sock"
-    pub, control = (spare, first.control) if which == "control" else (first.pub, spare)
-    inode = os.lstat(first.control[6:] if which == "control" else first.pub[6:]).st_ino
-    result = _second_daemon(tmp_path, first.env, pub=pub, control=control)
-    assert result.returncode == 2, result.stderr[-2000:]
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and "endpoint in use by another daemon" in lines[0]
-    assert os.lstat(first.control[6:] if which == "control" else first.pub[6:]).st_ino == inode
-    with first.client() as client:
-        assert client.call("ping")["pong"] is True
-    sub = first.subscriber(protocol.subscription(first.node, "status"))
-    assert sub.poll(5000)
-    sub.close()
+    for which in ("control", "pub"):
+        pub, control = (spare, first.control) if which == "control" else (first.pub, spare)
+        inode = os.lstat(first.control[6:] if which == "control" else first.pub[6:]).st_ino
+        result = _second_daemon(tmp_path, first.env, pub=pub, control=control)
+        assert result.returncode == 2, result.stderr[-2000:]
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and "endpoint in use by another daemon" in lines[0], which
+        assert os.lstat(first.control[6:] if which == "control" else first.pub[6:]).st_ino == inode, which
+        with first.client() as client:
+            assert client.call("ping")["pong"] is True
+        sub = first.subscriber(protocol.subscription(first.node, "status"))
+        assert sub.poll(5000), which
+        sub.close()
 
 
 def test_a_stale_socket_file_is_replaced_but_a_regular_file_is_not(tmp_path: Path) -> None:
@@ -156,13 +156,16 @@ def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factor
     daemon = daemon_factory("--speed", "10").start()
     process = psutil.Process(daemon.proc.pid)
     legit = daemon.subscriber(protocol.subscription(daemon.node, "samples"))  # connected before the flood
-    assert receive(legit, 1.0)
+    assert receive(legit, 5.0, until=lambda m: len(m) >= 1)
     rss_before = process.memory_info().rss
     flood = subprocess.Popen([sys.executable, "-c", FLOOD, daemon.pub], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                              text=True, env=daemon.env)
     try:
         assert flood.stdout is not None and flood.stdout.readline().strip() == "sent"
-        time.sleep(8.0)  # the daemon reads the flood
+        deadline = time.monotonic() + 30.0  # the daemon reads the flood until it drops the connections
+        while "distinct subscriptions" not in daemon.stderr() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.0)  # the flood's socket reconnects and floods again: the bound must hold through that too
         growth_mib = (process.memory_info().rss - rss_before) / 2**20
     finally:
         assert flood.stdin is not None
@@ -174,7 +177,7 @@ def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factor
     sub = daemon.subscriber(protocol.subscription(daemon.node, "samples"))
     assert receive(sub, 5.0, until=lambda m: len(m) >= 3)
     sub.close()
-    receive(legit, 1.0)  # what was queued before the drop
+    receive(legit, 0.2)  # what was queued before the drop
     assert receive(legit, 5.0, until=lambda m: len(m) >= 3)  # reconnected and subscribed again by itself
     legit.close()
 
@@ -231,10 +234,16 @@ def test_dropping_connections_rebinds_the_same_endpoint(tmp_path: Path, transpor
         for i in range(120):
             flood.setsockopt(zmq.SUBSCRIBE, b"hw1/n/junk-%d" % i)
         deadline = time.monotonic() + 5
+        longest_s = 0.0
         while pub.resets == 0 and time.monotonic() < deadline:
+            t0 = time.monotonic()
             pub.handle_subscriptions()
+            longest_s = max(longest_s, time.monotonic() - t0)
             time.sleep(0.01)
         assert pub.resets >= 1 and len(pub.prefixes) <= 50
+        # The reset runs in the poll loop: it must not stall it (old code waited 2 s for libzmq to
+        # remove the old ipc file, which libzmq 4.3 never does; it replaces the file at the bind).
+        assert longest_s < 1.0, f"a reset stalled the caller {longest_s:.2f} s"
         flood.close(0)
         received = False
         deadline = time.monotonic() + 5

@@ -47,7 +47,7 @@ def start_daemon(tmp_path: Path, speed: float) -> tuple[subprocess.Popen[bytes],
 
 @pytest.fixture
 def daemon(tmp_path: Path) -> Iterator[str]:
-    """A sim daemon at speed 20 (a 0.25 s wait is a 5 s run)."""
+    """A sim daemon at speed 20 (a 0.1 s wait is a 2 s run: 200 samples per DDR channel, twice the guard rail)."""
     proc, control = start_daemon(tmp_path, 20)
     try:
         yield control
@@ -67,7 +67,7 @@ def test_calib_get_and_calib_show_have_a_fit_per_pair(daemon: str, tmp_path: Pat
         for kernel, threads in (("idle", 1), ("read", 4), ("triad", 24), ("copy", 12), ("read", 24),
                                 ("assign", 6), ("idle", 1), ("add", 18)):
             run = client.call("run.start", {"kernel": kernel, "threads": threads, "elements": 1 << 22, "repeat": 2})
-            time.sleep(0.25)
+            time.sleep(0.1)
             done = client.call("run.stop", {"run_id": run["run_id"]})
             assert done["model_error"] is None, done["model_error"]
             assert set(done["model"]["group_observations"]) == PAIRS

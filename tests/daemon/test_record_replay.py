@@ -24,7 +24,7 @@ def test_record_then_replay(daemon_factory: Any, receive: Any) -> None:
     recorder.args += ["--record", str(path)]
     recorder.start()
     sub = recorder.subscriber(protocol.subscription(recorder.node, "samples") + b"DDR_AB")
-    streamed = receive(sub, 1.0)
+    streamed = receive(sub, 5.0, until=lambda m: len(m) >= 10)
     sub.close()
     time.sleep(0.2)
     assert recorder.terminate() == 0, recorder.stderr()  # SIGTERM: a clean stop, files flushed and closed
@@ -43,7 +43,7 @@ def test_record_then_replay(daemon_factory: Any, receive: Any) -> None:
                             tcp=True).start()
     assert player.pub.startswith("tcp://")
     sub = player.subscriber(protocol.subscription(player.node, "samples") + b"DDR_AB")
-    replayed = receive(sub, 1.0)
+    replayed = receive(sub, 5.0, until=lambda m: sum(b.samples()[1].size for b in m) > 60)
     sub.close()
     values = np.concatenate([m.samples()[1] for m in replayed])
     times = np.concatenate([m.samples()[0] for m in replayed])

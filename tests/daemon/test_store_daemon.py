@@ -46,7 +46,9 @@ def test_a_foreign_write_lock_neither_stalls_nor_kills_the_daemon(daemon_factory
                 started = client.call("run.start", {"kernel": kernel, "elements": 0 if kernel == "idle" else 2**20})
                 time.sleep(0.5)
                 stopped.append(client.call("run.stop", {"run_id": started["run_id"]}))
-            time.sleep(3.0)  # quiet periods are looked for and saved meanwhile
+            deadline = time.monotonic() + 15.0  # quiet periods are looked for and saved meanwhile
+            while "database is locked" not in d.stderr() and time.monotonic() < deadline:
+                time.sleep(0.05)
             assert [r["run_id"] for r in client.call("runs.list", {"limit": 2})["runs"]] == \
                 [stopped[1]["run_id"], stopped[0]["run_id"]]
         batches = receive(sub, 0.5)

@@ -98,7 +98,9 @@ def test_another_process_holding_the_write_lock_never_blocks_the_caller(tmp_path
         # One sync wait (0.25 s) for the first save, none after it: old code waited 5 s per save,
         # then raised "database is locked" into the poll loop.
         assert time.monotonic() - t0 < 1.0
-        time.sleep(2.5)  # the writer's own busy timeout (2 s) has run out at least once
+        deadline = time.monotonic() + 10.0  # until the writer's own busy timeout (2 s) has run out once
+        while not store.health().startswith("degraded") and time.monotonic() < deadline:
+            time.sleep(0.05)
         assert store.health().startswith("degraded: state database not writable (database is locked)")
         assert [r["run_id"] for r in store.list_runs(limit=3)] == ["r11", "r10", "r9"]
         assert store.load_baselines()["DDR_AB"]["power_w"] == 11.0

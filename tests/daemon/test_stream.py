@@ -24,13 +24,19 @@ def _by_channel(messages: list[protocol.Message]) -> dict[str, list[protocol.Mes
     return out
 
 
-@pytest.mark.slow
-def test_every_channel_at_its_native_rate_without_gaps(shared_daemon: Any, receive: Any) -> None:
-    """Each HDEEM channel arrives at its native rate (sample time), consecutive seq, no missing sample."""
+@pytest.fixture(scope="module")
+def sample_stream(shared_daemon: Any, receive: Any) -> list[protocol.Message]:
+    """2.5 s of the shared daemon's sample stream, every channel (read once, checked by several tests)."""
     sub = shared_daemon.subscriber(protocol.subscription(shared_daemon.node, "samples"))
-    messages = receive(sub, 2.5)
+    messages: list[protocol.Message] = receive(sub, 2.5)
     sub.close()
-    channels = _by_channel(messages)
+    return messages
+
+
+@pytest.mark.slow
+def test_every_channel_at_its_native_rate_without_gaps(sample_stream: list[protocol.Message]) -> None:
+    """Each HDEEM channel arrives at its native rate (sample time), consecutive seq, no missing sample."""
+    channels = _by_channel(sample_stream)
     assert set(channels) == set(NOMINAL)
     for name, batches in channels.items():
         seqs = [m.seq for m in batches]
@@ -46,13 +52,9 @@ def test_every_channel_at_its_native_rate_without_gaps(shared_daemon: Any, recei
         assert len(t) > 0.5 * 10 * NOMINAL[name] * 2.0
 
 
-@pytest.mark.slow
-def test_stream_energy_is_the_sum_of_the_samples(shared_daemon: Any, receive: Any) -> None:
+def test_stream_energy_is_the_sum_of_the_samples(sample_stream: list[protocol.Message]) -> None:
     """The cumulative energy_j in the headers (the source's own totals) grows by exactly Σ power × period."""
-    sub = shared_daemon.subscriber(protocol.subscription(shared_daemon.node, "samples"))
-    messages = receive(sub, 1.5)
-    sub.close()
-    for name, batches in _by_channel(messages).items():
+    for name, batches in _by_channel(sample_stream).items():
         period_s = 1.0 / NOMINAL[name]
         integrated = sum(float(m.samples()[1].sum()) * period_s for m in batches[1:])
         booked = batches[-1].header["energy_j"] - batches[0].header["energy_j"]

@@ -25,10 +25,10 @@ FIXTURES = Path(__file__).resolve().parent / "fixtures"
 #:          size GiB, ranks, MT/s rated, part number, memspec, confidence)
 EXPECTED: dict[str, tuple[Any, ...]] = {
     "haswell-ep-taurus": (2, 12, 2, 1, 4, 1, 8, 8, 2, 2133, "M393A1G43DB0-CPB", "samsung-m393a1g43db0-cpb", "exact"),
-    "skylake-sp": (2, 20, 2, 1, 6, 1, 12, 16, 2, 2666, "M393A2K43BB1-CTD", "micron-8gb-x8-ddr4-2400-b", "medium"),
-    "skylake-sp-snc2": (2, 20, 2, 2, 6, 1, 12, 16, 2, 2666, "M393A2K43BB1-CTD", "micron-8gb-x8-ddr4-2400-b", "medium"),
-    "icelake-sp-2dpc": (2, 28, 2, 1, 8, 2, 32, 32, 2, 3200, "MTA36ASF4G72PZ-3G2R1", "micron-8gb-x8-ddr4-3200-g", "low"),
-    "epyc-rome-8ch": (2, 16, 2, 1, 8, 1, 16, 32, 2, 2933, "M393A4K40DB2-CVF", "micron-8gb-x8-ddr4-3200-g", "low"),
+    "skylake-sp": (2, 20, 2, 1, 6, 1, 12, 16, 2, 2666, "M393A2K43BB1-CTD", "micron-8gb-x8-ddr4-2666", "high"),
+    "skylake-sp-snc2": (2, 20, 2, 2, 6, 1, 12, 16, 2, 2666, "M393A2K43BB1-CTD", "micron-8gb-x8-ddr4-2666", "high"),
+    "icelake-sp-2dpc": (2, 28, 2, 1, 8, 2, 32, 32, 2, 3200, "MTA36ASF4G72PZ-3G2R1", "micron-8gb-x4-ddr4-2933", "high"),
+    "epyc-rome-8ch": (2, 16, 2, 1, 8, 1, 16, 32, 2, 2933, "M393A4K40DB2-CVF", "micron-8gb-x4-ddr4-2933", "high"),
     "one-socket-skylake": (1, 12, 2, 1, 6, 1, 6, 16, 2, 2666, "HMA82GR7AFR8N-VK", "micron-8gb-x8-ddr4-2400-b", "high"),
 }
 
@@ -111,7 +111,7 @@ def test_text_output_and_notes(capsys: pytest.CaptureFixture[str]) -> None:
     """The table names the memspec, its confidence and reason, the sensors and what was not detected."""
     assert main(["node", *_fixture_args("epyc-rome-8ch")]) == 0
     text = capsys.readouterr().out
-    assert "memspec: micron-8gb-x8-ddr4-3200-g  [low]" in text
+    assert "memspec: micron-8gb-x4-ddr4-2933  [high]" in text
     assert "P1 CHANNEL H DIMM 0" in text and "DRAM1" in text
     assert "no EDAC driver loaded" in text
 

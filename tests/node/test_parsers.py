@@ -149,3 +149,41 @@ def test_letter_only_slot_names_are_flagged(tmp_path: Path) -> None:
     node = describe_node(tmp_path, text, "dmi.txt")
     assert any("board-specific" in n for n in node.notes)
     assert all(d.sources["socket"].startswith("unknown") for d in node.dimms)
+
+
+@pytest.mark.parametrize(("part", "size_gib", "ranks", "speed", "expect"), [
+    ("MTA36ASF4G72PZ-2G3B1", 32, 2, 2400, ("micron-8gb-x4-ddr4-2400-b", "exact")),
+    ("MTA9ASF1G72PZ-2G3B1", 8, 1, 2400, ("micron-8gb-x8-ddr4-2400-b", "exact")),
+    ("HMA84GR7AFR4N-UH", 32, 2, 2400, ("micron-8gb-x4-ddr4-2400-b", "high")),     # SK hynix 2Rx4 8 Gb
+    ("M393A4K40DB2-CVF", 32, 2, 2933, ("micron-8gb-x4-ddr4-2933", "high")),       # Samsung 2Rx4 8 Gb
+    ("M393A2K43BB1-CTD", 16, 2, 2666, ("micron-8gb-x8-ddr4-2666", "high")),       # Samsung 2Rx8 8 Gb
+    ("M393A2K43BB1-CTD", 16, 2, 2400, ("micron-8gb-x8-ddr4-2400-b", "high")),     # the same, run at 2400
+    ("HMA82GR7AFR8N-XN", 16, 2, 3200, ("micron-8gb-x8-ddr4-3200-g", "high")),     # SK hynix 2Rx8 8 Gb at 3200
+    ("MTA36ASF4G72PZ-3G2R1", 32, 2, 3200, ("micron-8gb-x4-ddr4-3200", "high")),   # Micron 2Rx4 8 Gb at 3200
+    ("M393A4K40DB3-CWE", 32, 2, 2133, ("micron-8gb-x4-ddr4-2400-b", "medium")),   # no 2133 x4 8 Gb preset
+    ("M393A1G40DB0-CPB", 8, 1, 2133, ("micron-4gb-x4-ddr4-2133", "high")),       # Samsung 1Rx4 4 Gb
+    ("M393A2G40DB0-CPB", 16, 2, 2133, ("micron-4gb-x4-ddr4-2133", "high")),       # Samsung 2Rx4 4 Gb
+    ("HMA42GR7AFR4N-UH", 16, 2, 2400, ("micron-4gb-x4-ddr4-2400", "high")),       # SK hynix 2Rx4 4 Gb
+    ("M393A2K40BB1-CRC", 16, 1, 2400, ("micron-8gb-x4-ddr4-2400-b", "high")),     # Samsung 1Rx4 8 Gb
+    ("M393A8G40MB2-CVF", 64, 2, 2933, ("micron-8gb-x4-ddr4-2933", "low")),        # 16 Gb x4: no 16 Gb preset
+])
+def test_dimms_map_to_the_preset_of_their_die(part: str, size_gib: int, ranks: int, speed: int,
+                                              expect: tuple[str, str]) -> None:
+    """Known modules name their die's preset (exact); else the preset of the same density and width at the
+    nearest speed (high, medium), and a stand-in of another density says low."""
+    dimm = Dimm("X", size_bytes=size_gib << 30, type="DDR4", speed_mts=speed, ranks=ranks, total_width=72,
+                part_number=part)
+    choice = choose_memspec([dimm])
+    assert (choice.name, choice.confidence) == expect, choice.reason
+
+
+def test_an_x16_module_gets_the_x16_preset() -> None:
+    """A 4 GB 1Rx16 DDR4-2666 UDIMM (Micron MTA4ATF51264AZ: 4 devices per rank -> x16, 8 Gb): the x16 preset,
+    re-shaped to 1 rank of 4 devices."""
+    dimm = Dimm("DIMM_A1", size_bytes=4 << 30, type="DDR4", speed_mts=2666, ranks=1, total_width=64, data_width=64,
+                part_number="MTA4ATF51264AZ-2G6E1")
+    choice = choose_memspec([dimm])
+    assert (choice.name, choice.confidence, choice.device_width, choice.die_gbit) == \
+        ("micron-8gb-x16-ddr4-2666-b", "high", 16, 8)
+    spec = for_dimm(preset("micron-8gb-x16-ddr4-2666-b"), choice.ranks, choice.devices_per_rank)
+    assert (spec.nbr_of_ranks, spec.nbr_of_devices, spec.nbr_of_banks) == (1, 4, 8)

@@ -4,14 +4,18 @@ Follows the usual single-node recipe (munged, then slurmctld and slurmd from a s
 directory on Debian's SLURM 22.05 packages), with ``TaskPlugin=task/affinity`` instead of
 task/none so srun really binds tasks to CPUs (``--cpu-bind=none`` gives the unbound case). Needs root and the Debian packages slurmctld, slurmd,
 slurm-client and munge (``.ci/run`` installs them). The cluster runs from a scratch directory with
-its own free ports, with the hdeem-watch Prolog/Epilog hooks of ``daemon/slurm/`` wired in through
-small wrappers that set the hooks' settings. Tests get a :class:`Slurm` with ``run(args)`` that
-sets ``SLURM_CONF``.
+its own free ports, with the hdeem-watch Prolog and Epilog of ``daemon/slurm/`` wired
+in through small wrappers that set the hooks' settings (as ``/etc/hdeem-watch/slurm-hooks.env``
+would). The node daemon's config file (``daemon.toml``: ipc endpoints and state in the scratch
+directory, checkpoints every second) is the one the hooks read; no daemon runs unless a test starts
+one (:meth:`Slurm.start_daemon`, as systemd would). Tests get a :class:`Slurm` with ``run(args)``
+that sets ``SLURM_CONF``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import signal
@@ -35,7 +39,8 @@ class Slurm:
     """A running single-node cluster.
 
     ``hook_conf`` is the hooks' settings file (``HDEEM_WATCH_HOOK_CONF``): tests may write it and
-    must remove it afterwards.
+    must remove it afterwards. ``daemon_config`` is the node daemon's config file; its control
+    endpoint is ``control``.
     """
 
     root: Path
@@ -44,11 +49,50 @@ class Slurm:
     cpus: int
     hook_dir: Path
     env: dict[str, str]
+    daemon_config: Path
+    control: str
+    pub: str
 
     @property
     def hook_conf(self) -> Path:
         """The hooks' settings file."""
         return self.root / "hooks.env"
+
+    def start_daemon(self, timeout_s: float = 30.0) -> subprocess.Popen[bytes]:
+        """Start the node daemon with its config file (as systemd would) and wait until it answers."""
+        from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+
+        env = {k: v for k, v in self.env.items() if not k.startswith("HDEEM_WATCH_")}
+        with open(self.root / "daemon.err", "ab") as err:
+            proc = subprocess.Popen([sys.executable, "-m", "hdeem_watch", "daemon", "--config", str(self.daemon_config)],
+                                    env=env, stdout=subprocess.DEVNULL, stderr=err)
+        deadline = time.monotonic() + timeout_s
+        with ControlClient(self.control, timeout_s=1.0) as client:
+            while True:
+                if proc.poll() is not None:
+                    raise RuntimeError(f"daemon exited with {proc.returncode}: {(self.root / 'daemon.err').read_text()}")
+                try:
+                    client.call("ping")
+                    return proc
+                except DaemonUnreachable:
+                    if time.monotonic() > deadline:
+                        raise
+                    time.sleep(0.05)
+
+    def hook_records(self, job_id: str, event: str, timeout: float = 30) -> dict[str, object]:
+        """Wait for the hooks' ``event`` line (``prolog``/``epilog``) of ``job_id`` in their
+        jobs.jsonl (an Epilog finishes after srun returns)."""
+        jobs = self.hook_dir / "jobs.jsonl"
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if jobs.exists():
+                for line in jobs.read_text().splitlines():
+                    record = json.loads(line)
+                    if record.get("job_id") == job_id and record.get("event") == event:
+                        return record  # type: ignore[no-any-return]
+            time.sleep(0.1)
+        log = (self.root / "slurmd.log").read_text()[-2000:]
+        raise AssertionError(f"no {event} record of job {job_id}; slurmd log tail: {log}")
 
     def run(self, args: list[str], timeout: float = 60, **kwargs: object) -> subprocess.CompletedProcess[str]:
         """Run a SLURM client command against this cluster."""
@@ -144,10 +188,13 @@ def slurm(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Slurm]:
     os.chmod(root, 0o755)
     node = socket.gethostname().split(".")[0]
     cpus, memory = _detected()
-    hook_dir = root / "hooks"
-    hook_env = {"HDEEM_WATCH_HOOK_DIR": str(hook_dir), "HDEEM_WATCH_PYTHON": sys.executable,
-                "HDEEM_WATCH_HOOK_CONF": str(root / "hooks.env"),
-                "PYTHONPATH": str(REPO / "src"), "HDEEM_WATCH_RUNTIME_DIR": str(root / "run")}
+    control, pub = f"ipc://{root}/run/control.sock", f"ipc://{root}/run/pub.sock"
+    daemon_config = root / "daemon.toml"
+    daemon_config.write_text(f'source = "sim"\nnode = "{node}"\ncontrol = "{control}"\npub = "{pub}"\n'
+                             f'state_dir = "{root}/daemon-state"\njob_checkpoint_s = 1.0\n')
+    hook_dir = root / "daemon-state" / "slurm-hooks"
+    hook_env = {"HDEEM_WATCH_PYTHON": sys.executable, "HDEEM_WATCH_HOOK_CONF": str(root / "hooks.env"),
+                "HDEEM_WATCH_CONFIG": str(daemon_config), "PYTHONPATH": str(REPO / "src")}
     prolog = _hook_wrapper(root / "prolog.sh", HOOKS / "prolog.sh", hook_env)
     epilog = _hook_wrapper(root / "epilog.sh", HOOKS / "epilog.sh", hook_env)
     conf = root / "slurm.conf"
@@ -168,7 +215,8 @@ def slurm(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Slurm]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("SLURM_")}
     env["SLURM_CONF"] = str(conf)
     env["PYTHONPATH"] = f"{REPO / 'src'}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"
-    cluster = Slurm(root=root, conf=conf, node=node, cpus=cpus, hook_dir=hook_dir, env=env)
+    cluster = Slurm(root=root, conf=conf, node=node, cpus=cpus, hook_dir=hook_dir, env=env,
+                    daemon_config=daemon_config, control=control, pub=pub)
     munge_pid = _start_munge()
     try:
         subprocess.run(["slurmctld", "-f", str(conf), "-c"], check=True, env=env)

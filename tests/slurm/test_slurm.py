@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import sys
-import time
-from pathlib import Path
 
 import pytest
 from hypothesis import given
@@ -69,21 +67,6 @@ def test_allowed_cpus_follows_the_task_share() -> None:
 
 
 # ------------------------------------------------------------------------------------ real SLURM
-def _finished_job(slurm, job_id: str, timeout: float = 30) -> dict[str, object]:  # type: ignore[no-untyped-def]
-    """Wait for the Epilog's record of ``job_id`` in jobs.jsonl (Epilogs finish after srun returns)."""
-    jobs = slurm.hook_dir / "jobs.jsonl"
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if jobs.exists():
-            for line in jobs.read_text().splitlines():
-                record = json.loads(line)
-                if record.get("job_id") == job_id:
-                    return record  # type: ignore[no-any-return]
-        time.sleep(0.1)
-    log = (slurm.root / "slurmd.log").read_text()[-2000:]
-    raise AssertionError(f"no Epilog record of job {job_id}; slurmd log tail: {log}")
-
-
 @pytest.mark.slurm
 def test_hostlist_matches_scontrol(slurm) -> None:  # type: ignore[no-untyped-def]
     """Our expander gives what SLURM's own `scontrol show hostnames` gives."""
@@ -154,42 +137,44 @@ def test_bench_under_unbound_srun_uses_its_cpu_share(slurm) -> None:  # type: ig
 
 
 @pytest.mark.slurm
-def test_prolog_and_epilog_record_the_job(slurm) -> None:  # type: ignore[no-untyped-def]
-    """The hooks of daemon/slurm/ run for a job: the Epilog appends the job (start < end, user,
-    node, exit code) to jobs.jsonl and removes the Prolog's per-job record."""
+def test_hooks_without_a_daemon_record_the_job_and_leave_nothing_behind(slurm) -> None:  # type: ignore[no-untyped-def]
+    """No daemon runs: the Prolog says so (and does not start one: not asked to), the Epilog sends no
+    stop for a job that was not started, both exit 0 (the job runs), and the per-job file is gone."""
     proc = slurm.run(["srun", "-n1", "-c1", "sh", "-c", "echo $SLURM_JOB_ID"])
     assert proc.returncode == 0, proc.stderr
     job_id = proc.stdout.strip()
-    record = _finished_job(slurm, job_id)
-    assert job_id.isdigit()
-    assert record["node"] == slurm.node and record["user"] == "root"
-    assert int(record["t_start_ns"]) <= int(record["t_end_ns"])  # type: ignore[call-overload]
-    assert record["daemon"] == "none" and record["exit_code"] is not None
-    assert not (slurm.hook_dir / f"job-{job_id}.json").exists()
+    prolog = slurm.hook_records(job_id, "prolog")
+    epilog = slurm.hook_records(job_id, "epilog")
+    assert job_id.isdigit() and prolog["node"] == slurm.node and prolog["user"] == "root"
+    assert prolog["daemon"] == "none" and epilog["job_stop"] == "skipped: not started"
+    assert int(prolog["t_ns"]) <= int(epilog["t_ns"])  # type: ignore[call-overload]
+    assert epilog["exit_code"] is not None and not (slurm.hook_dir / f"job-{job_id}.json").exists()
+    assert not list(slurm.hook_dir.glob("stop-*.json")) and oct(slurm.hook_dir.stat().st_mode & 0o777) == "0o700"
 
 
 @pytest.mark.slurm
-def test_prolog_starts_a_daemon_the_job_announces_to(slurm) -> None:  # type: ignore[no-untyped-def]
-    """With HDEEM_WATCH_START_DAEMON=1 the Prolog starts a sim daemon for the job, the bench in the
-    job announces its run to it, and the Epilog stops that daemon and records it."""
-    control = f"ipc://{slurm.root}/job-run/control.sock"
-    slurm.hook_conf.write_text(f"HDEEM_WATCH_START_DAEMON=1\nHDEEM_WATCH_SOURCE=sim\n"
-                               f"HDEEM_WATCH_CONTROL={control}\nHDEEM_WATCH_PUB=ipc://{slurm.root}/job-run/pub.sock\n")
-    (slurm.root / "job-run").mkdir(exist_ok=True)
+def test_prolog_starts_a_daemon_only_when_asked_and_the_last_epilog_stops_it(slurm) -> None:  # type: ignore[no-untyped-def]
+    """With HDEEM_WATCH_START_DAEMON=1 the Prolog starts a daemon from the daemon's own config file,
+    opens the job there, the bench in the job announces its run to it, and the Epilog closes the job
+    and stops the daemon (no job left on it)."""
+    slurm.hook_conf.write_text("HDEEM_WATCH_START_DAEMON=1\n")
     try:
         proc = slurm.run(["srun", "-n1", "-c1", sys.executable, "-m", "hdeem_watch", "bench", "--kernels", "copy",
-                          "--threads", "1", "--elements", "65536", "--repeat", "2", "--daemon", control, "--json"],
+                          "--threads", "1", "--elements", "65536", "--repeat", "2", "--daemon", slurm.control, "--json"],
                          timeout=120)
         assert proc.returncode == 0, proc.stderr
         record = json.loads(proc.stdout)
         assert record["run_id"] and record["daemon"]["kernel"] == "copy"
-        assert record["daemon"]["metadata"]["slurm_job_id"].isdigit()
-        job = _finished_job(slurm, record["daemon"]["metadata"]["slurm_job_id"])
-        assert job["daemon"] == "stopped" and isinstance(job["pid"], int)
-        deadline = time.monotonic() + 15
-        while time.monotonic() < deadline and Path(f"/proc/{job['pid']}").exists():
-            time.sleep(0.1)
-        assert not Path(f"/proc/{job['pid']}").exists(), "the job's daemon still runs after the Epilog"
+        job_id = record["daemon"]["metadata"]["slurm_job_id"]
+        prolog = slurm.hook_records(job_id, "prolog")
+        epilog = slurm.hook_records(job_id, "epilog")
+        assert prolog["daemon"] == "started" and prolog["job_start"] == "ok"
+        assert epilog["job_stop"] == "ok" and epilog["state"] == "done" and epilog["daemon"] == "stopped"
+        assert not (slurm.hook_dir / "daemon.json").exists()
+        from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+
+        with ControlClient(slurm.control, timeout_s=0.5) as client, pytest.raises(DaemonUnreachable):
+            client.call("ping")
     finally:
         slurm.hook_conf.unlink(missing_ok=True)
 

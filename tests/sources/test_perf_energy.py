@@ -12,15 +12,15 @@ from pathlib import Path
 
 import pytest
 
-from hdeem_watch.sources.base import SourceUnavailable
-from hdeem_watch.sources.perf_energy import event_config, perf_counters
-from hdeem_watch.sources.perf_event import (
+from hdeem_watch.perf_event import (
     PERF_COUNT_SW_TASK_CLOCK,
     PERF_TYPE_SOFTWARE,
     PerfEvent,
     PerfEventError,
     paranoid_level,
 )
+from hdeem_watch.sources.base import SourceUnavailable
+from hdeem_watch.sources.perf_energy import event_config, perf_counters
 from hdeem_watch.sources.rapl import RaplSource
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures"

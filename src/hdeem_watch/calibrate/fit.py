@@ -32,7 +32,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats as sps
 
 from hdeem_watch.calibrate import solve
 from hdeem_watch.calibrate.observation import (
@@ -331,7 +330,9 @@ def _intervals(sol: solve.BoundedSolution, lower: np.ndarray, upper: np.ndarray,
     p = sol.x.size
     if math.isnan(s2) or dof <= 0:
         return np.full((p, 2), np.nan)
-    q = float(sps.t.ppf(0.975, dof))
+    from scipy.special import stdtrit  # on first use, like scipy.optimize in solve.py (start-up time)
+
+    q = float(stdtrit(dof, 0.975))  # the Student t quantile
     se_free = np.sqrt(np.maximum(np.diag(cov_active), 0.0))
     se_full = np.sqrt(np.maximum(np.diag(cov_full), 0.0))
     lo = np.where(sol.active == 0, sol.x - q * se_free, np.where(sol.active == 1, sol.x - q * se_full, sol.x))

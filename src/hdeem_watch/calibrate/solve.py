@@ -28,7 +28,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import lsq_linear
 
 #: Relative size of the always-present ridge (times the largest squared singular value of ``D``).
 RIDGE_RELATIVE = 1e-12
@@ -87,6 +86,10 @@ def solve_bounded(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upp
     reduced_rhs = q.T @ rhs
     # Start inside the box, at the prior target clipped to it (trf needs a strictly feasible start
     # only internally; it handles this itself).
+    # scipy.optimize is imported here, on first use: importing it costs every process that merely
+    # imports the calibrator (the daemon, each CLI command) ~0.3 s of start-up.
+    from scipy.optimize import lsq_linear
+
     result = lsq_linear(r, reduced_rhs, bounds=(lower, upper), method="trf", lsq_solver="exact",
                         tol=1e-12, max_iter=200)
     x, active = _polish(r, reduced_rhs, lower, upper, np.clip(result.x, lower, upper),

@@ -19,7 +19,7 @@ from hdeem_watch.errors import InputError
 
 #: Subcommand modules, in the order ``--help`` lists them.
 SUBCOMMAND_MODULES = ("demo", "daemon", "tui", "bench", "model", "calibrate", "calib", "report", "node", "counters",
-                      "metricq_source")
+                      "metricq_source", "jobs")
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -39,6 +39,7 @@ EPILOG = """examples (COMMAND --help for each command's options and examples):
   hdeem-watch node --json                            # this node's sockets, channels, DIMMs, memspec, sensors
   hdeem-watch counters                               # the memory-controller counters this host offers
   hdeem-watch metricq-source --server amqp://HOST/   # the daemon's stream to a centre's MetricQ
+  hdeem-watch jobs --job $SLURM_JOB_ID               # a SLURM job's DRAM energy on every node
 
 exit codes: 0 success, 1 failure (one line on stderr), 2 bad input (one line on stderr),
   130 interrupted (Ctrl-C)"""

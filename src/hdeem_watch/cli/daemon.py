@@ -59,6 +59,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--sim-age", metavar="PAIR=±X%/h",
                         help="sim: a DIMM pair's currents drift in sim time, e.g. DDR_CD=+30%%/h "
                         "(comma-separated; @600s delays the start)")
+    parser.add_argument("--counters", choices=("none", "sim", "perf", "replay"),
+                        help="memory-controller counters for each window's DRAM commands (default none)")
     parser.add_argument("--log-level", choices=("debug", "info", "warning", "error"),
                         help="log verbosity on stderr (default: log_level from the config file, else info)")
     add_source_flags(parser)
@@ -90,6 +92,7 @@ def _run(args: argparse.Namespace) -> int:
             "curve_secret_key_file": args.curve_secret_key, "curve_clients_dir": args.curve_clients, "prometheus_port": args.prometheus,
             "poll_interval_s": args.poll_interval, "memspec": args.memspec, "log_level": args.log_level,
             "allow_insecure_tcp": args.allow_insecure_tcp, "sim_age": args.sim_age,
+            "counters": args.counters,
             **source_flag_overrides(args),
         },
         check_model=True,

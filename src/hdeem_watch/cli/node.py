@@ -12,16 +12,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import shutil
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any
 
 from hdeem_watch.errors import InputError
-
-DMIDECODE_TIMEOUT_S = 10.0
 
 
 def register(subparsers: Any) -> None:
@@ -45,36 +40,19 @@ def _dmidecode_text(args: argparse.Namespace) -> tuple[str | None, str]:
             raise InputError(f"--dmidecode {args.dmidecode}: cannot read: {error.strerror or error}") from None
     if args.sysfs_root is not None:
         return None, "not given (--dmidecode FILE; a --sysfs-root capture is not the live node)"
-    tool = shutil.which("dmidecode")
-    if tool is None:
-        return None, "dmidecode is not installed (apt/dnf install dmidecode), or pass --dmidecode FILE"
-    if os.geteuid() != 0:
-        return None, "not root: dmidecode reads the SMBIOS table, readable by root only; pass --dmidecode FILE"
-    try:
-        done = subprocess.run([tool, "-t", "17"], capture_output=True, text=True, timeout=DMIDECODE_TIMEOUT_S,
-                              check=False)
-    except (OSError, subprocess.TimeoutExpired) as error:
-        return None, f"running dmidecode failed: {error}"
-    if done.returncode != 0 or "Memory Device" not in done.stdout:
-        first = (done.stderr.strip().splitlines() or ["no Memory Device record (a VM without SMBIOS memory?)"])[0]
-        return None, f"dmidecode -t 17: {first}"
-    return done.stdout, "dmidecode -t 17 (run now)"
+    from hdeem_watch.node.setup import dmidecode_text
+
+    return dmidecode_text()
 
 
 def _overrides(path: Path | None) -> Any:
     if path is None:
         return None
-    import tomllib
+    from hdeem_watch.config import read_config_file
+    from hdeem_watch.node.overrides import parse_node_table, split_node_entry
 
-    from hdeem_watch.node.overrides import parse_node_table
-
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as error:
-        raise InputError(f"--config {path}: cannot read: {error.strerror or error}") from None
-    except tomllib.TOMLDecodeError as error:
-        raise InputError(f"--config {path}: invalid TOML: {error}") from None
-    return parse_node_table(data.get("node", {}), where=f"{path}: [node]")
+    table, _name = split_node_entry(read_config_file(path).get("node"))
+    return parse_node_table(table or {}, where=f"{path}: [node]")
 
 
 def _size(size: int | None) -> str:
@@ -121,8 +99,11 @@ def run(args: argparse.Namespace) -> int:
     root = args.sysfs_root if args.sysfs_root is not None else Path("/sys")
     if args.sysfs_root is not None and not args.sysfs_root.is_dir():
         raise InputError(f"--sysfs-root {args.sysfs_root}: not a directory")
-    text, note = _dmidecode_text(args)
     overrides = _overrides(args.config)
+    from hdeem_watch.node.setup import saved_dmidecode
+
+    saved = saved_dmidecode(overrides) if args.dmidecode is None else None
+    text, note = saved if saved is not None else _dmidecode_text(args)
     cpuinfo = None
     if args.sysfs_root is None:
         try:

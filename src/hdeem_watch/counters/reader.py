@@ -2,7 +2,7 @@
 
 :class:`CounterReader` is the narrow interface the counter code needs from the operating system. Its
 real implementation is a thin adapter over the project's ctypes ``perf_event_open`` wrapper
-(``hdeem_watch.sources.perf_event``): ``open`` fills ``perf_event_attr`` with ``type = pmu_type``,
+(``hdeem_watch.perf_event``; :class:`~hdeem_watch.counters.perf_reader.PerfCounterReader`): ``open`` fills ``perf_event_attr`` with ``type = pmu_type``,
 ``config/config1/config2``, ``read_format = PERF_FORMAT_TOTAL_TIME_ENABLED |
 PERF_FORMAT_TOTAL_TIME_RUNNING`` and calls ``perf_event_open(attr, pid=-1, cpu, group_fd=-1,
 flags=PERF_FLAG_FD_CLOEXEC)``; ``read`` reads the three u64 words; ``close`` closes the fd. Errors

@@ -39,8 +39,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from hdeem_watch.daemon.counter_model import counter_groups, cross_check, node_totals
 from hdeem_watch.daemon.group_fits import DEFAULT_MIN_SAMPLES, GroupFits
-from hdeem_watch.daemon.runs import NO_TRAFFIC_KERNELS
+from hdeem_watch.daemon.runs import NO_TRAFFIC_KERNELS, OPAQUE_KERNEL
 from hdeem_watch.errors import InputError
 
 if TYPE_CHECKING:
@@ -308,23 +309,32 @@ class RunModeller:
         from hdeem_watch.dram.node import node_counts
 
         cpus, cpus_source = announced_cpus(record)
+        run_name, stop_ns = f"{record.get('run_id')}:{name}", int(record.get("t_stop_ns") or 0)
+        opaque = str(record.get("kernel")) == OPAQUE_KERNEL
+        counted, counter_error, counter_notes = self._counted(record)
+        if opaque and counted is None:
+            return None, None, f"run {name!r}: a job without a kernel is modelled from counters only: {counter_error}"
+        kernel_groups = None
         try:
-            try:
-                groups = self.groups_for(str(record["kernel"]), int(record["elements"]), int(record["threads"]),
-                                         int(record["repeat"]), cpus)
-            except InputError as error:  # an announced CPU this node does not have: say so, model the default
-                if cpus is None:
-                    raise
-                cpus, cpus_source = None, f"default: {error}; threads fill socket 0 first"
-                groups = self.groups_for(str(record["kernel"]), int(record["elements"]), int(record["threads"]),
-                                         int(record["repeat"]))
-            obs = node_observation(self.spec, groups, float(window_s), float(measured),
-                                   name=f"{record.get('run_id')}:{name}", time_ns=int(record.get("t_stop_ns") or 0))
+            if not opaque:
+                try:
+                    kernel_groups = self.groups_for(str(record["kernel"]), int(record["elements"]),
+                                                    int(record["threads"]), int(record["repeat"]), cpus)
+                except InputError as error:  # an announced CPU this node does not have: say so, model the default
+                    if cpus is None:
+                        raise
+                    cpus, cpus_source = None, f"default: {error}; threads fill socket 0 first"
+                    kernel_groups = self.groups_for(str(record["kernel"]), int(record["elements"]),
+                                                    int(record["threads"]), int(record["repeat"]))
+            groups = counted if counted is not None else kernel_groups
+            assert groups is not None
+            obs = node_observation(self.spec, groups, float(window_s), float(measured), name=run_name, time_ns=stop_ns)
         except InputError as error:
             return None, None, str(error)
         before = self.latest_fit()
         datasheet_vec, _ = self._currents_vector(None)
         model: dict[str, Any] = {
+            "source": "counters" if counted is not None else "kernel",
             "memspec": getattr(self.spec, "memory_id", self.memspec),
             "dimms": self.dimms,
             "groups": [n for _stats, n in groups],
@@ -333,12 +343,24 @@ class RunModeller:
             "predicted_j": None,
             "calibrated_j": None,
             "fitted_j": None,
-            "counts": node_counts(groups),
+            "counts": node_totals(groups) if counted is not None else node_counts(groups),
             "observation": obs.to_dict(),
         }
+        if counted is not None:
+            model["counter_estimates"] = counter_notes
+        elif counter_error is not None:
+            model["counter_error"] = counter_error
+        kernel_obs = None
+        if counted is not None and kernel_groups is not None:
+            kernel_obs = node_observation(self.spec, kernel_groups, float(window_s), float(measured), name=run_name,
+                                          time_ns=stop_ns)
+            model["kernel_model"] = {**cross_check(model["counts"], node_counts(kernel_groups)),
+                                     "datasheet_j": kernel_obs.predicted_j(datasheet_vec), "predicted_j": None}
         if before is not None:
             vec, intercept = self._currents_vector(before)
             model["predicted_j"] = model["calibrated_j"] = obs.predicted_j(vec, intercept)
+            if kernel_obs is not None:
+                model["kernel_model"]["predicted_j"] = kernel_obs.predicted_j(vec, intercept)
         if self.group_fits is not None and (reason := self.group_fits.unmeasured(record)) is not None:
             return model, None, reason  # the guard rail: recorded, not fitted
         if self.has_run(str(record.get("run_id"))):  # modelled again after a crash: already in the fit
@@ -347,9 +369,11 @@ class RunModeller:
             result = self.calibrator.add_run(obs)
         except InputError as error:
             return model, None, str(error)
-        if self.group_fits is not None:
+        if self.group_fits is not None and kernel_groups is None:
+            model["group_error"] = "a job without a kernel: the sensor groups are fitted on kernel runs only"
+        elif self.group_fits is not None:
             try:
-                model["group_observations"] = self.group_fits.add(record, groups)
+                model["group_observations"] = self.group_fits.add(record, kernel_groups or groups)
             except InputError as error:  # the node fit stands; say why the groups did not take the run
                 model["group_error"] = str(error)
         fit = dict(result.to_dict())
@@ -359,6 +383,17 @@ class RunModeller:
         self.history.append(compact_fit(int(result.time_ns or obs.time_ns), fit))
         del self.history[:-MAX_HISTORY]
         return model, fit, None
+
+    def _counted(self, record: Mapping[str, Any]) -> tuple[list[tuple[Any, int]] | None, str | None, list[str]]:
+        """The window's per-channel statistics from its counters (None and why when it has none)."""
+        counters = record.get("counters")
+        if not isinstance(counters, Mapping):
+            return None, "no counters recorded (counters = 'none', or the window has no counter start)", []
+        try:
+            groups, notes = counter_groups(self.spec, counters)
+        except InputError as error:
+            return None, str(error), []
+        return groups, None, notes
 
     def has_run(self, run_id: str) -> bool:
         """Whether the calibrator holds a row of run ``run_id``."""

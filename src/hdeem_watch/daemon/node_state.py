@@ -65,9 +65,11 @@ class ClosedWindow:
     """A window that closed.
 
     Attributes:
-        kind: ``"run"`` or ``"baseline"``.
+        kind: ``"run"``, ``"baseline"`` or ``"job"``.
         window_s: its duration on the source's clock.
         run: the finished run (state ``modelling``, or ``aborted``) for a run window.
+        window: the closed window itself (a job window: its id, peaks and sample spans).
+        energy_j, spans_s: what the window measured per channel (J; seconds of sample time).
         baselines: the idle baselines it measured, by channel (channels without samples have none).
         kept: the channels whose stored baseline it replaced.
         cancelled: a ``baseline.cancel`` ended it (nothing measured).
@@ -79,6 +81,9 @@ class ClosedWindow:
     baselines: dict[str, bl.Baseline] = field(default_factory=dict)
     kept: dict[str, bl.Baseline] = field(default_factory=dict)
     cancelled: bool = False
+    window: Window | None = None
+    energy_j: dict[str, float] = field(default_factory=dict)
+    spans_s: dict[str, float] = field(default_factory=dict)
 
 
 class BatchOutcome(NamedTuple):
@@ -199,19 +204,23 @@ class NodeState:
     def poll_interval_ns(self, *, watched: bool, idle_s: float) -> int:
         """The fast poll period while someone receives samples or a window is open, else the idle one."""
         fast = self.poll_interval_s
-        if watched or idle_s <= 0 or self.windows:
+        if watched or idle_s <= 0 or self.exclusive_windows():
             return round(fast * 1e9)
         return round(max(fast, min(idle_s, IDLE_MAX_SOURCE_S / self.speed)) * 1e9)
 
     # -- runs -------------------------------------------------------------------------------------
+
+    def exclusive_windows(self) -> list[Window]:
+        """The open run and idle windows (a job window runs beside them and blocks nothing)."""
+        return [w for w in self.windows if w.kind != "job"]
 
     def running(self) -> RunRecord | None:
         """The run in progress (its window still open or closing), if any."""
         return next((w.run for w in self.windows if w.run is not None), None)
 
     def ensure_free(self) -> None:
-        """Raise :class:`Conflict` when a window is open."""
-        for window in self.windows:
+        """Raise :class:`Conflict` when a run or idle window is open."""
+        for window in self.exclusive_windows():
             if window.run is not None:
                 raise Conflict(f"run {window.run.run_id} is in progress; stop it first")
             raise Conflict("an idle baseline measurement is in progress (baseline.cancel ends it)")
@@ -276,9 +285,26 @@ class NodeState:
         return ClosedWindow(kind="baseline", window_s=(self.monotonic() - window.t_start_mono_ns) / 1e9 * self.speed,
                             cancelled=True)
 
-    def _open(self, kind: WindowKind, now: int, run: RunRecord | None = None) -> Window:
+    def _open(self, kind: WindowKind, now: int, run: RunRecord | None = None, job_id: str | None = None) -> Window:
         return Window(kind=kind, start_energy_j=self.energies(), start_t_ns=self.last_sample_times(),
-                      dram_channels=self.dram_channels, t_start_mono_ns=now, run=run)
+                      dram_channels=self.dram_channels, t_start_mono_ns=now, run=run, job_id=job_id,
+                      keep_samples=kind != "job")
+
+    # -- jobs (the bookkeeping of jobs is daemon/job_book.py's) -----------------------------------
+
+    def open_job_window(self, job_id: str) -> Window:
+        """Open a job's window now (poll the source just before); it blocks no run or baseline."""
+        window = self._open("job", self.monotonic(), job_id=job_id)
+        self.windows.append(window)
+        return window
+
+    def close_job_window(self, window: Window) -> None:
+        """Ask a job's window to close now (poll just before), cut to the sample like a run's."""
+        if window.closing:
+            return
+        now = self.monotonic()
+        window.request_close(target_t_ns=self.sample_time_of(now), deadline_mono_ns=self._close_deadline(now),
+                             rates_hz=self.rates(), last_t_ns=self.last_sample_times(), energy_j=self.energies())
 
     def _close_deadline(self, now: int, extra_s: float = 0.0) -> int:
         # Long enough for a lagging source to catch up (the sim holds its sensors back while it
@@ -304,6 +330,8 @@ class NodeState:
         energy, window_s, spans = window.result(self.energies(), self.last_sample_times(), now_mono_ns=now,
                                                 speed=self.speed)
         run = window.run
+        if window.kind == "job":
+            return ClosedWindow(kind="job", window_s=window_s, window=window, energy_j=energy, spans_s=spans)
         if run is None:
             found = self._window_baselines(window, energy, spans, origin="measured")
             return ClosedWindow(kind="baseline", window_s=window_s, baselines=found, kept=self._keep(found))
@@ -345,7 +373,7 @@ class NodeState:
     def quiet_baselines(self, *, window_s: float, max_spread_w: float) -> dict[str, bl.Baseline]:
         """Baselines from quiet periods of the recent samples (only while no window is open);
         returns those kept."""
-        if self.windows:
+        if self.exclusive_windows():
             return {}
         found = {}
         for name in self.dram_channels:

@@ -1,7 +1,8 @@
 """The control operations of the daemon, over the run book and narrow ports.
 
 Ops (see ``docs/protocol.md``): ``ping``, ``status``, ``run.start``, ``run.stop``, ``runs.list``,
-``baseline.get``, ``baseline.measure``, ``baseline.cancel``, ``calib.get``, ``calib.reset``.
+``baseline.get``, ``baseline.measure``, ``baseline.cancel``, ``calib.get``, ``calib.reset`` (the
+``job.*`` ops are :mod:`hdeem_watch.daemon.job_ops`'s; closed job windows go there).
 
 ``run.start`` polls the source, opens the run in the :class:`~hdeem_watch.daemon.node_state.NodeState`
 and tells the source (a :class:`~hdeem_watch.sources.base.RunAware` sim reacts to it); it replies once
@@ -32,7 +33,7 @@ from hdeem_watch.daemon.node_state import ClosedWindow, Conflict, NodeState
 from hdeem_watch.daemon.persistence import StoreWorker
 from hdeem_watch.daemon.ports import PublisherPort, Reply, StorePort, Submit
 from hdeem_watch.daemon.reporting import Reporter
-from hdeem_watch.daemon.runs import FINISHED_STATES, RunRecord, parse_run_args
+from hdeem_watch.daemon.runs import FINISHED_STATES, OPAQUE_KERNEL, RunRecord, parse_run_args
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import RunAware, RunEvent, Source
 
@@ -82,9 +83,14 @@ class Operations:
         self.poll = poll
         #: Deferred replies by run id (or :data:`BASELINE`), answered when that work is done.
         self.waiters: dict[str, list[Pending]] = {}
+        #: Called first with every closed window (the counter windows attach their counts to the run).
+        self.on_window_closed: Callable[[ClosedWindow], None] | None = None
         #: ``runs.list`` pages already read, valid until a run is written (``_runs_generation``).
         self._pages: dict[tuple[Any, ...], dict[str, Any]] = {}
         self._runs_generation = 0
+        #: Where closed job windows go (:meth:`JobOperations.window_closed`); the status's open jobs.
+        self.on_job_closed: Callable[[ClosedWindow], None] | None = None
+        self.open_jobs: Callable[[], list[dict[str, Any]]] = list
 
     def handlers(self) -> dict[str, Handler]:
         """op name → handler."""
@@ -100,7 +106,7 @@ class Operations:
         """The heartbeat body plus node, version and counts."""
         body = self.reporter.status_body()
         body.update({"node": self.book.node, "version": __version__, "runs": self.book.next_seq - 1,
-                     "model_error": self.calibration.body.get("model_error")})
+                     "model_error": self.calibration.body.get("model_error"), "jobs": self.open_jobs()})
         return body
 
     def op_runs_list(self, args: dict[str, Any]) -> Pending | dict[str, Any]:
@@ -224,7 +230,7 @@ class Operations:
         """Open a run window; the reply comes once its record is stored."""
         self._conflict(self.book.ensure_free)  # before the arguments: a busy node says so whatever was asked
         run_args = parse_run_args(args, self.book.limits)
-        if not run_args.moves_no_traffic:
+        if not run_args.moves_no_traffic and run_args.kernel != OPAQUE_KERNEL:
             try:
                 from hdeem_watch.dram.kernels import canonical_kernel
 
@@ -311,6 +317,12 @@ class Operations:
 
     def window_closed(self, closed: ClosedWindow) -> None:
         """Answer, store and model what a closed window measured (called after every batch)."""
+        if self.on_window_closed is not None:
+            self.on_window_closed(closed)
+        if closed.kind == "job":
+            if self.on_job_closed is not None:
+                self.on_job_closed(closed)
+            return
         self.reporter.baselines_kept(closed.kept)
         if closed.run is None:
             waiters = self.waiters.pop(BASELINE, [])

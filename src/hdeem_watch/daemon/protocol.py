@@ -73,7 +73,7 @@ VERSION = 1
 #: The first element of every topic.
 TOPIC_PREFIX = f"hw{VERSION}"
 #: Message kinds (the third topic element).
-KINDS = ("samples", "status", "run", "calib", "baseline", "alarm")
+KINDS = ("samples", "status", "run", "calib", "baseline", "alarm", "counters", "job")
 #: dtype of the power part of a samples payload (little-endian float64).
 SAMPLE_DTYPE = "<f8"
 #: dtype of the time part of a samples payload (little-endian int64 ns).

@@ -18,7 +18,6 @@ Example:
 from __future__ import annotations
 
 import logging
-import os
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -28,6 +27,7 @@ import zmq
 
 from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.endpoints import bind, bind_endpoint, is_loopback
+from hdeem_watch.errors import InputError
 
 __all__ = ["CACHED_KINDS", "MAX_SUBSCRIPTIONS", "Publisher", "bind_endpoint"]
 
@@ -213,13 +213,12 @@ class Publisher:
     def _rebind(self, timeout_s: float = 2.0) -> None:
         """Bind the endpoint again once libzmq's I/O thread has let go of it.
 
-        The old listener closes asynchronously: its ipc file is removed (bind only after that, or
-        the removal would take the new file with it) and its TCP port freed a moment later.
+        The old listener closes asynchronously: until it has, its TCP port is in use and a probe of
+        its ipc file still finds it listening. libzmq (4.3) leaves the old ipc file in place and
+        replaces it at the new bind, so nothing waits for the file to go (waiting for that stalled
+        the poll loop 2 s at every reset).
         """
         deadline = time.monotonic() + timeout_s
-        if self._ipc is not None:
-            while os.path.lexists(self._ipc.path) and time.monotonic() < deadline:
-                time.sleep(0.005)
         while True:
             try:
                 self._ipc = bind(self.socket, self.endpoint).ipc
@@ -227,7 +226,10 @@ class Publisher:
             except zmq.ZMQError as error:
                 if error.errno != zmq.EADDRINUSE or time.monotonic() >= deadline:
                     raise
-                time.sleep(0.01)
+            except InputError:  # the old listener still answers the live-socket probe
+                if time.monotonic() >= deadline:
+                    raise
+            time.sleep(0.01)
 
     def watched(self, kind: str) -> bool:
         """Whether some subscriber receives messages of ``kind`` (e.g. ``"samples"``)."""

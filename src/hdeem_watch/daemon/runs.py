@@ -33,6 +33,8 @@ from hdeem_watch.daemon.protocol import ProtocolError
 
 #: Kernels that move no memory traffic: their run pins the standby currents and is an idle baseline.
 NO_TRAFFIC_KERNELS = ("idle", "sleep")
+#: The kernel of a run started without one (an opaque job): modelled from memory counters alone.
+OPAQUE_KERNEL = "job"
 #: Largest number of samples kept per channel for one run (≈ 3 h at 100 Sa/s).
 MAX_RUN_SAMPLES = 1_000_000
 #: Largest ``repeat`` of a run.
@@ -118,7 +120,8 @@ def parse_run_args(args: Mapping[str, Any], limits: RunLimits | None = None) -> 
         ProtocolError: code ``bad-args`` naming the argument.
     """
     limits = limits or RunLimits(max_threads=1 << 20, max_elements=1 << 50)
-    kernel = args.get("kernel")
+    kernel = args.get("kernel", OPAQUE_KERNEL)
+    kernel = OPAQUE_KERNEL if kernel is None else kernel
     if not isinstance(kernel, str) or not kernel.strip():
         raise ProtocolError(f"args.kernel = {kernel!r}: expected a kernel name (e.g. 'triad', 'idle')", code="bad-args")
     kernel = _text_arg(kernel, "kernel").strip().lower()
@@ -164,6 +167,8 @@ class RunRecord:
     fit: dict[str, Any] | None = None
     #: Per channel ``[last sample time before the window, last sample time in it]``.
     samples_ns: dict[str, list[int | None]] | None = field(default=None)
+    #: The memory counters over the window (``hdeem_watch.daemon.counter_windows``), None without.
+    counters: dict[str, Any] | None = field(default=None)
 
     @classmethod
     def start(cls, run_id: str, args: RunArgs, *, t_wall_ns: int, node: str) -> RunRecord:

@@ -37,6 +37,9 @@ from hdeem_watch.daemon.client import default_endpoints
 from hdeem_watch.daemon.control import ControlServer, Pending
 from hdeem_watch.daemon.endpoints import advertised_endpoints
 from hdeem_watch.daemon.group_fits import source_groups
+from hdeem_watch.daemon.job_book import JobBook
+from hdeem_watch.daemon.job_ops import JobOperations, unfinished_jobs
+from hdeem_watch.daemon.job_records import job_summary
 from hdeem_watch.daemon.jobs import Calibration, ModelSettings, Worker, restore_calibration
 from hdeem_watch.daemon.metrics import DaemonMetrics, NodeCollector
 from hdeem_watch.daemon.modelling import MAX_HISTORY
@@ -69,13 +72,13 @@ class Daemon:
         clock: monotonic clock in ns (shared with the source's run events).
         wall_clock: wall clock in ns (labels: record and header times).
         context: ZeroMQ context.
-        job_owner_uids: the uids owning a job running on the node (they may change state; the
-            job book's ``running_job_uids``).
+        job_owner_uids: the uids owning a job running on the node (they may change state); default
+            the daemon's job book's ``running_job_uids``.
     """
 
     def __init__(self, settings: DaemonSettings, *, source: Source | None = None, clock: Clock = time.monotonic_ns,
                  wall_clock: Clock = time.time_ns, context: zmq.Context[Any] | None = None,
-                 job_owner_uids: Callable[[], frozenset[int]] = frozenset) -> None:
+                 job_owner_uids: Callable[[], frozenset[int]] | None = None) -> None:
         self.settings = settings
         self.node = settings.node
         self.clock = clock
@@ -85,7 +88,8 @@ class Daemon:
         default_pub, default_control = default_endpoints(settings.runtime_dir)
         self.pub_endpoint = settings.pub or default_pub
         self.control_endpoint = settings.control or default_control
-        self.authorizer = Authorizer(job_owner_uids=job_owner_uids)
+        self.authorizer = Authorizer(job_owner_uids=job_owner_uids or frozenset)
+        self._job_owner_uids_given = job_owner_uids is not None
         self.book: NodeState | None = None
         self.calibration = Calibration()
         self.publisher: Publisher | None = None
@@ -94,16 +98,22 @@ class Daemon:
         self.store_worker: StoreWorker | None = None
         self.model_jobs: Worker | None = None
         self.operations: Operations | None = None
+        self.job_ops: JobOperations | None = None
         self.reporter: Reporter | None = None
         self.metrics: DaemonMetrics | None = None
         self.metrics_port: int | None = None
         self.recorder: Any = None
+        self.node_setup: Any = None
         self.curve: Any = None
         self.poll_interval_ns = round(settings.poll_interval_s * 1e9)
         self._stop = False
         self._lock_file: IO[str] | None = None
         self._wake_r, self._wake_w = -1, -1
         self._source_open = False
+        #: The memory-controller counters (``counters`` setting) and their windows; None = off.
+        self.counter_source: Any = None
+        self.counter_windows: Any = None
+        self.counter_recorder: Any = None
 
     # -- lifecycle -------------------------------------------------------------------------------------
 
@@ -146,6 +156,37 @@ class Daemon:
         self._source_open = True
         return self.source
 
+    def _describe_node(self, source: Source) -> Any:
+        """The node the run model works on (:func:`hdeem_watch.node.setup.node_setup`): the simulated
+        node's layout for the sim, this machine detected for hdeem and rapl, the ``[node]`` table
+        alone for a replayed recording; the ``[node]`` table over it."""
+        from dataclasses import replace
+
+        from hdeem_watch.node.setup import (
+            configured_only,
+            counted_node,
+            detect_live_node,
+            node_setup,
+            saved_dmidecode,
+        )
+
+        overrides = self.settings.node_overrides()
+        default = None
+        topology = getattr(getattr(source, "layout", None), "topology", None)  # the simulated node
+        if topology is not None:
+            from hdeem_watch.sources.sim_model import MEMSPEC_PRESET
+
+            default = (MEMSPEC_PRESET, "the simulated node's DIMMs (its hidden truth is built on this preset)")
+            description = counted_node(topology.sockets, topology.cores_per_socket, topology.channels_per_socket,
+                                       source="sim: the simulated node")
+            if overrides is not None:  # its counts went to the sim itself; memspec and name stay
+                overrides = replace(overrides, counts={}, dimm={}, sensors={})
+        elif source.kind == "replay":
+            description = configured_only("a replayed recording: describe its node in the [node] table")
+        else:
+            description = detect_live_node(dmidecode=saved_dmidecode(overrides))
+        return node_setup(description, overrides, memspec_setting=self.settings.memspec, default_memspec=default)
+
     def _start(self) -> None:
         settings = self.settings
         state_dir = Path(settings.state_dir)
@@ -156,6 +197,7 @@ class Daemon:
             raise InputError(str(error)) from None
         store.close_interrupted_runs(self.wall_clock())
         source = self._open_source()
+        setup = self.node_setup = self._describe_node(source)
         infos = source.channels()
         dram_rates = {info.name: float(info.rate_hz) for info in infos if info.kind == "dram"}
         baselines = {}
@@ -168,6 +210,7 @@ class Daemon:
             infos, node=self.node, monotonic=self.clock, wall=self.wall_clock, speed=source_speed(source),
             poll_interval_s=settings.poll_interval_s, history_s=settings.quiet_history_s,
             next_seq=int(store.next_run_id()[1:]), baselines=baselines, limits=RunLimits.of_this_node())
+        self._open_counters(source, book)
         if settings.record_file:
             from hdeem_watch.sources.replay import RecordingWriter
 
@@ -214,18 +257,33 @@ class Daemon:
                                             identity, poll_interval_ns=lambda: self.poll_interval_ns, clock=self.clock)
         self.operations = Operations(book, calibration=self.calibration, reporter=reporter, store=self.store_worker,
                                      publisher=self.publisher, source=source, submit=self.model_jobs.submit,
-                                     reply=self.complete, poll=self.poll_once)
-        self.control.handlers = self.operations.handlers()
+                                     reply=self.complete, poll=self._edge_poll)
+        self.operations.on_window_closed = self._window_counters
+        topo = setup.topology
+        job_ops = self.job_ops = JobOperations(JobBook(book), store=self.store_worker, publisher=self.publisher,
+                                               reply=self.complete, poll=self._edge_poll,
+                                               checkpoint_s=settings.job_checkpoint_s)
+        if not self._job_owner_uids_given:
+            self.authorizer.job_owner_uids = job_ops.jobs.running_job_uids
+        self.operations.on_job_closed = job_ops.window_closed
+        self.operations.open_jobs = lambda: [job_summary(r.to_dict()) for r in job_ops.jobs.snapshots()]
+        self.control.handlers = (self.operations.handlers() | job_ops.handlers()
+                                 | {"node.get": lambda _args: setup.to_json()})
+        job_ops.resume(unfinished_jobs(store))
         restore_calibration(
             self.calibration,
-            settings=ModelSettings(settings.memspec, dimms=settings.dimms, currents=tuple(settings.currents),
+            settings=ModelSettings(setup.memspec, dimms=settings.dimms, topology=setup.topology,
+                                   currents=self._currents(),
                                    half_life_s=settings.half_life_s or None, max_requests=settings.model_max_requests,
-                                   groups=source_groups(source, dram_rates, sockets=2,
-                                                        dimms_per_socket=max(1, settings.dimms // 2)),
+                                   groups=source_groups(source, dram_rates, sockets=topo.sockets if topo else 2,
+                                                        dimms_per_socket=(topo.dimms // topo.sockets if topo
+                                                                          else max(1, settings.dimms // 2))),
                                    dram_rates_hz=dram_rates),
             state=store.load_calibrator(), fits=store.fit_history(MAX_HISTORY), submit=self.model_jobs.submit,
             on_built=reporter.publish_calib)
         self.operations.resume_modelling(unfinished_runs(store))
+        for line in setup.log_lines():  # once started: a start that fails says one line only
+            log.info("%s", line)
         log.info("hdeem-watch daemon %s: node %s, source %s, pub %s, control %s", __version__, self.node,
                  settings.source, self.pub_endpoint, self.control_endpoint)
 
@@ -236,6 +294,8 @@ class Daemon:
     def close(self) -> None:
         """Finish the model jobs (queued ones are modelled again at the next start), write what is
         queued for the database, close the sockets, the source and the database."""
+        if self.job_ops is not None and self.store_worker is not None:
+            self.job_ops.checkpoint(force=True)  # the open jobs' energy up to the exit
         if self.model_jobs is not None:
             self.model_jobs.shutdown(cancel_queued=True)
         if self.store_worker is not None:
@@ -249,6 +309,13 @@ class Daemon:
         if self.curve is not None:
             self.curve.close()
             self.curve = None
+        if self.counter_source is not None:
+            with contextlib.suppress(Exception):
+                self.counter_source.close()
+            self.counter_source = None
+        if self.counter_recorder is not None:
+            self.counter_recorder.close()
+            self.counter_recorder = None
         if self.source is not None and self._source_open:
             self._source_open = False
             try:
@@ -324,9 +391,14 @@ class Daemon:
             if now >= heartbeat.next_ns:
                 heartbeat.advance(now)
                 reporter.publish_status()
+                self._publish_counters()
+                if self.job_ops is not None:
+                    self.job_ops.checkpoint()
                 store.retry()
                 if self.recorder is not None:
                     self.recorder.flush()
+                if self.counter_recorder is not None:
+                    self.counter_recorder.flush()
             if now >= republish.next_ns:
                 republish.advance(now)
                 reporter.look_for_quiet_periods(window_s=settings.quiet_window_s,
@@ -395,10 +467,94 @@ class Daemon:
                 self.publisher.send_all(outgoing)
             if self.recorder is not None:
                 self.recorder.write_batch(batch)
+        if self.counter_windows is not None:
+            self._read_counters(force=bool(closed))
         if closed and operations is not None:
             for window in closed:
                 operations.window_closed(window)
         return batch
+
+    # -- memory-controller counters (hdeem_watch.daemon.counter_windows) -----------------------------
+
+    def _open_counters(self, source: Source, book: NodeState) -> None:
+        kind = self.settings.counters
+        if kind == "none":
+            return
+        from hdeem_watch.daemon.counter_source import make_counter_source
+        from hdeem_watch.daemon.counter_windows import CounterWindows
+
+        counters = make_counter_source(kind, source, sample_time=book.sample_time_of, clock=self.clock,
+                                       replay_file=self.settings.replay_file, speed=source_speed(source))
+        if counters is None:
+            return
+        self.counter_source = counters
+        self.counter_windows = CounterWindows(
+            counters.kind, table_key=counters.table.generation, ranks=counters.ranks,
+            refresh_complete=counters.table.refresh_complete,
+            sensors={c.name: c.sensor for c in counters.channels()},
+            heartbeat_ns=round(self.settings.heartbeat_s * 1e9))
+        if self.settings.record_file:
+            from hdeem_watch.daemon.counter_record import CounterRecorder, counters_path
+
+            path = counters_path(self.settings.record_file)
+            try:
+                self.counter_recorder = CounterRecorder(path, kind=counters.kind, table=counters.table,
+                                                        ranks=counters.ranks, channels=counters.channels())
+            except OSError as error:
+                raise InputError(f"record file {path}: {error.strerror}") from None
+        self._read_counters(force=True)
+
+    def _currents(self) -> tuple[str, ...]:
+        """The currents to calibrate: with counters, the power-down currents too (they measure residency)."""
+        if self.counter_windows is None:
+            return tuple(self.settings.currents)
+        from hdeem_watch.daemon.counter_model import currents_with_counters
+
+        return currents_with_counters(self.settings.currents)
+
+    def _read_counters(self, *, force: bool = False) -> None:
+        """Read the counters when due (heartbeat, window edges); give new run windows their start."""
+        windows, book, now = self.counter_windows, self.book, self.clock()
+        assert windows is not None and book is not None
+        if force or windows.due(now, book.windows):
+            try:
+                snapshot = self.counter_source.read()
+                windows.observe(snapshot, now_mono_ns=now)
+                if self.counter_recorder is not None:
+                    self.counter_recorder.write(snapshot)
+            except Exception as error:  # a counter failure must not end the daemon
+                if windows.error is None:
+                    log.warning("counter read failed: %s", error)
+                windows.failed(error, now_mono_ns=now)
+        if book.windows:
+            windows.track(book.windows, book.sample_time_of)
+
+    def _edge_poll(self) -> SourceBatch | None:
+        """A poll at a window edge (run.start, run.stop, baseline.measure): the counters are read too."""
+        batch = self.poll_once()
+        if self.counter_windows is not None:
+            self._read_counters(force=True)
+        return batch
+
+    def _window_counters(self, closed: Any) -> None:
+        """Attach the counters of a closed run window to its record (before it is stored and modelled)."""
+        windows, run = self.counter_windows, closed.run
+        if windows is None or run is None or self.book is None:
+            return
+        if run.state == "aborted":
+            windows.forget(run.run_id)
+            return
+        run.counters = windows.finish(run, self.book.dram_channels)
+
+    def _publish_counters(self) -> None:
+        """The ``counters`` topic: per channel ACT/s, RD/s, WR/s and power-down share (each heartbeat)."""
+        windows = self.counter_windows
+        if windows is None or self.publisher is None:
+            return
+        rates = windows.rates()
+        self.publisher.publish("counters", {
+            "source": windows.kind, "generation": windows.table_key, "status": windows.error or "ok",
+            "channels": {name: {**values, "sensor": windows.sensors.get(name)} for name, values in rates.items()}})
 
     def complete(self, pending: Pending, result: Any = None, error: tuple[str, str] | None = None) -> None:
         """Send a deferred control reply."""

@@ -1,4 +1,4 @@
-"""The daemon's persistent state: runs, calibration fits and calibrator state, baselines.
+"""The daemon's persistent state: runs, calibration fits and calibrator state, baselines, jobs.
 
 One SQLite file (``state.db``) in the state directory, in WAL mode with ``synchronous=FULL``. The
 schema is versioned (table ``meta``, key ``schema_version``); a newer schema than this code knows
@@ -111,6 +111,27 @@ class _RunRow:
 
 
 @dataclass(frozen=True)
+class _JobRow:
+    job_id: str
+    user: str
+    state: str
+    t_start_ns: int
+    record: str
+
+
+def _job_matches(record: Mapping[str, Any], job_id: str | None, user: str | None, since_ns: int | None,
+                 state: str | None) -> bool:
+    """The filters of :meth:`Store.list_jobs` on a record (for those still waiting in memory)."""
+    if (job_id is not None and record.get("job_id") != job_id) or (user is not None and record.get("user") != user):
+        return False
+    if state is not None and record.get("state") != state:
+        return False
+    if since_ns is None or record.get("state") == "running":
+        return True
+    return max(int(record.get("t_start_ns") or 0), int(record.get("t_stop_ns") or 0)) >= since_ns
+
+
+@dataclass(frozen=True)
 class _CalibOp:
     t_ns: int
     state: str | None  # None: calib.reset (the calibrator is forgotten)
@@ -170,6 +191,7 @@ class Store:
         self._calib: dict[int, _CalibOp] = {}
         self._calib_ids = itertools.count()
         self._alarms: dict[int, tuple[int, str | None, str, str]] = {}
+        self._jobs: dict[str, _JobRow] = {}
         self._read_health = "ok"
         self._count = int((self._query("SELECT COUNT(*) FROM runs WHERE json_valid(record)") or [(0,)])[0][0])
         self._sync_wait_s = sync_wait_s
@@ -186,7 +208,7 @@ class Store:
 
     def _has_tables(self) -> bool:
         names = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
-        return {"meta", "runs", "fits", "calibrator", "baselines", "quarantine", "alarms"} <= names
+        return {"meta", "runs", "fits", "calibrator", "baselines", "quarantine", "alarms", "jobs"} <= names
 
     def _schema_version(self) -> int | None:
         exists = self._db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name='meta'").fetchone()
@@ -403,6 +425,41 @@ class Store:
             texts = {c: r for c, r in rows} | {c: text for c, (_t, text) in self._baselines.items()}
         return {c: r for c, r in ((c, _loads(t)) for c, t in texts.items()) if isinstance(r, dict)}
 
+    # -- SLURM jobs ----------------------------------------------------------------------------------
+
+    def save_job(self, record: Mapping[str, Any]) -> None:
+        """Insert or replace a job record (keyed by job id and start time); returns at once."""
+        row = _JobRow(job_id=str(record["job_id"]), user=str(record.get("user") or ""),
+                      state=str(record.get("state", "")), t_start_ns=int(record.get("t_start_ns") or 0),
+                      record=_dumps(record))
+        key = f"{row.job_id}@{row.t_start_ns}"
+        with self._lock:
+            self._jobs[key] = row
+        self._submit(("job", key))
+
+    def list_jobs(self, *, job_id: str | None = None, user: str | None = None, since_ns: int | None = None,
+                  state: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
+        """Job records, newest start first: only ``job_id``'s, ``user``'s, those running at or
+        after ``since_ns`` (started then, or not yet stopped), or in ``state``; at most ``limit``."""
+        where: list[str] = ["json_valid(record)"]
+        params: list[Any] = []
+        for column, value in (("job_id", job_id), ("user", user), ("state", state)):
+            if value is not None:
+                where.append(f"{column} = ?")
+                params.append(value)
+        if since_ns is not None:
+            where.append("(t_start_ns >= ? OR state = 'running' "
+                         "OR COALESCE(json_extract(record, '$.t_stop_ns'), 0) >= ?)")
+            params += [since_ns, since_ns]
+        sql = f"SELECT job_key, record FROM jobs WHERE {' AND '.join(where)} ORDER BY t_start_ns DESC LIMIT ?"
+        with self._lock:
+            found = {key: text for key, text in self._query(sql, (*params, int(limit)))}
+            found |= {key: row.record for key, row in self._jobs.items()}
+        records = [r for r in (_loads(t) for t in found.values()) if isinstance(r, dict)]
+        chosen = [r for r in records if _job_matches(r, job_id, user, since_ns, state)]
+        chosen.sort(key=lambda r: int(r.get("t_start_ns") or 0), reverse=True)
+        return chosen[: max(0, int(limit))]
+
     # -- the writer's side ---------------------------------------------------------------------------
 
     def _apply(self, db: sqlite3.Connection, op: Hashable) -> None:
@@ -410,7 +467,7 @@ class Store:
         assert isinstance(op, tuple)
         kind, key = op
         tables: dict[str, dict[Any, Any]] = {"run": self._runs, "baseline": self._baselines, "calib": self._calib,
-                                             "alarm": self._alarms}
+                                             "alarm": self._alarms, "job": self._jobs}
         with self._lock:
             pending: Any = tables[kind].get(key)
         if pending is None:
@@ -421,6 +478,10 @@ class Store:
                        (key, pending.seq, pending.kernel, pending.state, pending.t_start_ns, pending.record))
         elif kind == "baseline":
             db.execute("INSERT OR REPLACE INTO baselines (channel, t_ns, record) VALUES (?, ?, ?)", (key, *pending))
+        elif kind == "job":
+            db.execute("INSERT OR REPLACE INTO jobs (job_key, job_id, user, state, t_start_ns, record) "
+                       "VALUES (?,?,?,?,?,?)", (key, pending.job_id, pending.user, pending.state, pending.t_start_ns,
+                                                pending.record))
         elif kind == "alarm":
             db.execute("INSERT INTO alarms (t_ns, run_id, grp, alarm) VALUES (?, ?, ?, ?)", pending)
         elif pending.state is None:

@@ -56,6 +56,15 @@ CREATE TABLE IF NOT EXISTS alarms (
     grp TEXT NOT NULL,
     alarm TEXT NOT NULL
 );
+CREATE TABLE IF NOT EXISTS jobs (
+    job_key TEXT PRIMARY KEY,
+    job_id TEXT NOT NULL,
+    user TEXT NOT NULL,
+    state TEXT NOT NULL,
+    t_start_ns INTEGER NOT NULL,
+    record TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS jobs_by_start ON jobs (t_start_ns);
 CREATE TABLE IF NOT EXISTS quarantine (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
     t_ns INTEGER NOT NULL,
@@ -74,6 +83,7 @@ TABLES = {
     "calibrator": ("id", "state", ("id", "t_ns", "state")),
     "baselines": ("channel", "record", ("channel", "t_ns", "record")),
     "alarms": ("id", "alarm", ("id", "t_ns", "run_id", "grp", "alarm")),
+    "jobs": ("job_key", "record", ("job_key", "job_id", "user", "state", "t_start_ns", "record")),
     "quarantine": ("id", None, ("id", "t_ns", "source", "row_key", "content", "reason")),
 }
 

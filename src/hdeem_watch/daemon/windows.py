@@ -1,6 +1,6 @@
 """Measurement windows on the stream of polls: open, closing, closed.
 
-A window (a run, or a ``baseline.measure`` idle window) starts at a poll: the cumulative energy and
+A window (a run, a ``baseline.measure`` idle window, or a SLURM job's window) starts at a poll: the cumulative energy and
 the last sample time of every channel are taken there. It is asked to close at a *target* on the
 source's sample-time axis (the stop of a run; start + duration for an idle window). From then on
 each channel is cut at the target as its samples arrive: the last sample kept is the one whose
@@ -41,7 +41,7 @@ import numpy as np
 
 from hdeem_watch.daemon.runs import MAX_RUN_SAMPLES, RunRecord, window_energy
 
-WindowKind = Literal["run", "baseline"]
+WindowKind = Literal["run", "baseline", "job"]
 
 
 @dataclass
@@ -49,7 +49,7 @@ class Window:
     """One measurement window.
 
     Attributes:
-        kind: ``"run"`` or ``"baseline"``.
+        kind: ``"run"``, ``"baseline"`` or ``"job"``.
         start_energy_j: cumulative energy per channel at the start poll.
         start_t_ns: last sample time per channel at the start poll (None = no sample yet).
         dram_channels: the channels whose cut decides when the window closes.
@@ -60,6 +60,11 @@ class Window:
         abort: the run was stopped with ``abort`` (its window is not modelled).
         cut: per channel, ``(cumulative energy at the end, time of the last sample kept)`` once the
             channel's samples have reached the target.
+        job_id: the job's id (``kind == "job"``).
+        keep_samples: keep the samples (for the spread of a baseline); a job window, which may last
+            days, keeps only each channel's peak (``peak_w``) and count.
+        peak_w: per channel, the highest finite sample inside the window (only without
+            ``keep_samples``).
     """
 
     kind: WindowKind
@@ -71,6 +76,9 @@ class Window:
     deadline_mono_ns: int | None = None
     run: RunRecord | None = None
     abort: bool = False
+    job_id: str | None = None
+    keep_samples: bool = True
+    peak_w: dict[str, float] = field(default_factory=dict)
     samples: dict[str, list[np.ndarray]] = field(default_factory=dict)
     cut: dict[str, tuple[float, int]] = field(default_factory=dict)
     _counts: dict[str, int] = field(default_factory=dict)
@@ -101,6 +109,12 @@ class Window:
 
     def observe(self, channel: str, t_ns: np.ndarray, power_w: np.ndarray, *, energy_j: float) -> None:
         """Take one batch of a channel (after the source's cumulative ``energy_j`` includes it)."""
+        if self.kind == "job" and self.start_t_ns.get(channel) is None and t_ns.size and self.target_t_ns is None:
+            # A job window opened before the channel's first sample (a job resumed at the daemon's
+            # start) begins after the channel's first batch: exact from there on, never NaN for good.
+            self.start_t_ns[channel] = int(t_ns[-1])
+            self.start_energy_j[channel] = float(energy_j)
+            return
         if self.target_t_ns is None or channel in self.cut:
             self.add_samples(channel, power_w)
             if t_ns.size:
@@ -136,8 +150,16 @@ class Window:
         return all(c in self.cut for c in self.dram_channels)
 
     def add_samples(self, channel: str, power_w: np.ndarray) -> None:
-        """Keep a channel's samples (up to :data:`MAX_RUN_SAMPLES`), for the window's spread."""
+        """Keep a channel's samples (up to :data:`MAX_RUN_SAMPLES`), for the window's spread; without
+        ``keep_samples`` only its peak and count."""
         count = self._counts.get(channel, 0)
+        if not self.keep_samples:
+            if power_w.size:
+                self._counts[channel] = count + power_w.size
+                peak = _finite_max(power_w)
+                if peak > self.peak_w.get(channel, -math.inf):
+                    self.peak_w[channel] = peak
+            return
         if count >= MAX_RUN_SAMPLES or power_w.size == 0:
             return
         kept = np.array(power_w[: MAX_RUN_SAMPLES - count], dtype=float)
@@ -175,6 +197,15 @@ class Window:
         window_s = max(dram) if dram else mono_s
         self.sample_spans_ns = {c: (self.start_t_ns.get(c), stop_t.get(c)) for c in energy}
         return energy, float(window_s), spans
+
+
+def _finite_max(values: np.ndarray) -> float:
+    """The largest finite value (-inf when there is none)."""
+    peak = float(np.max(values))
+    if math.isfinite(peak):
+        return peak
+    finite = values[np.isfinite(values)]
+    return float(np.max(finite)) if finite.size else -math.inf
 
 
 def mean_power(energy_j: Mapping[str, float], spans_s: Mapping[str, float]) -> dict[str, float]:

@@ -1,7 +1,9 @@
 """The demo's benchmark schedule: announces runs to the sim node and holds each for its modelled time.
 
 The simulated node does the memory traffic itself; the schedule only tells the daemon what runs
-(``run.start`` with kernel, threads, elements, repeat and ``metadata.simulated = true``), waits the
+(``run.start`` with kernel, threads, elements, repeat, ``metadata.simulated = true`` and, as
+``hdeem-watch bench`` does, ``metadata.cpus``: the CPUs the simulated threads run on, socket 0's
+cores first (:func:`sim_cpus`, on the node ``node.get`` describes)), waits the
 time the modelled node needs for it, and says ``run.stop``. ``repeat`` is chosen so a run lasts
 about its target length with :func:`hdeem_watch.sources.sim.modelled_line_rate`.
 
@@ -26,6 +28,7 @@ from typing import Any
 from hdeem_watch.bench.schedule import IDLE_KERNEL, KERNELS, RunSpec, sweep
 from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
 from hdeem_watch.dram.kernels import kernel_traffic
+from hdeem_watch.dram.node import HASWELL_EP, NodeTopology
 from hdeem_watch.sources.sim import modelled_line_rate
 
 #: Mean duration of one run, seconds.
@@ -64,6 +67,33 @@ def run_seconds(spec: RunSpec) -> float:
         return TARGET_RUN_S
     traffic = kernel_traffic(spec.kernel, spec.elements)
     return (traffic.lines_read + traffic.lines_written) * spec.repeat / rate
+
+
+def sim_cpus(threads: int, topology: NodeTopology = HASWELL_EP) -> list[int] | None:
+    """The CPUs ``threads`` simulated threads run on: socket 0's cores first, then socket 1's, in
+    Linux's default numbering (CPU ``i`` on socket ``(i // cores_per_socket) % sockets``), the way the
+    simulated node places them; ``None`` beyond one thread per core (the sim wraps them).
+
+    Example:
+        >>> sim_cpus(14)[-3:], sim_cpus(25)
+        ([11, 12, 13], None)
+    """
+    if not 1 <= int(threads) <= topology.sockets * topology.cores_per_socket:
+        return None
+    return list(range(int(threads)))
+
+
+def node_topology(client: ControlClient) -> NodeTopology:
+    """The daemon's node (``node.get``), or the Taurus Haswell-EP blade when it cannot say."""
+    try:
+        body = client.call("node.get")
+        topo = body.get("topology") if isinstance(body, dict) else None
+        if isinstance(topo, dict):
+            return NodeTopology(sockets=int(topo["sockets"]), cores_per_socket=int(topo["cores_per_socket"]),
+                                channels_per_socket=int(topo["channels_per_socket"]))
+    except (ControlError, DaemonUnreachable, KeyError, TypeError, ValueError):
+        pass
+    return HASWELL_EP
 
 
 @dataclass(frozen=True)
@@ -148,6 +178,7 @@ class DemoSchedule(threading.Thread):
         self.max_runs = max_runs
         self._halt = threading.Event()
         self.completed = 0
+        self.topology = HASWELL_EP
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Stop after the current run (which is stopped at once)."""
@@ -160,6 +191,7 @@ class DemoSchedule(threading.Thread):
         index = 0
         round_no = 0
         try:
+            self.topology = node_topology(client)
             while not self._halt.is_set():
                 for run in demo_round(THREAD_ROUNDS[round_no % len(THREAD_ROUNDS)], round_no):
                     if self._halt.is_set() or (self.max_runs is not None and index >= self.max_runs):
@@ -175,13 +207,17 @@ class DemoSchedule(threading.Thread):
     def _one(self, client: ControlClient, index: int, run: DemoRun) -> bool:
         """Hold one run; False when the daemon was busy and the run should be tried again."""
         spec = run.spec
+        metadata: dict[str, Any] = {"simulated": True, "source": "demo", "modelled_s": round(run.seconds, 4)}
+        cpus = sim_cpus(spec.threads, self.topology)
+        if cpus is not None:
+            metadata["cpus"] = cpus
         args = {
             "name": f"{spec.kernel}-{spec.threads}t",
             "kernel": spec.kernel,
             "threads": spec.threads,
             "elements": spec.elements,
             "repeat": spec.repeat,
-            "metadata": {"simulated": True, "source": "demo", "modelled_s": round(run.seconds, 4)},
+            "metadata": metadata,
         }
         try:
             started = client.call("run.start", args)

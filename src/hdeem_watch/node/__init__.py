@@ -5,4 +5,5 @@
 - :mod:`.memspec_choice`: DIMM → memspec (:func:`choose_memspec`).
 - :mod:`.sensors`: sensor → DIMMs (:func:`sensor_map`).
 - :mod:`.report`: the whole picture as one JSON object (``hdeem-watch node --json``).
+- :mod:`.setup`: what the daemon models (description, memspec with reason, topology, sensors).
 """

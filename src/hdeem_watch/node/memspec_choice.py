@@ -34,6 +34,8 @@ KNOWN_MODULES: dict[str, str] = {
     "M393A1G43DB0-CPB": "samsung-m393a1g43db0-cpb",
     "MTA18ASF2G72HZ-2G3B1": "micron-8gb-x8-ddr4-2400-b",
     "MTA18ASF2G72PDZ-2G3B1": "micron-8gb-x8-ddr4-2400-b",
+    "MTA9ASF1G72PZ-2G3B1": "micron-8gb-x8-ddr4-2400-b",    # 8 GB 1Rx8, the same B die
+    "MTA36ASF4G72PZ-2G3B1": "micron-8gb-x4-ddr4-2400-b",   # 32 GB 2Rx4, the x4 organisation of that die
 }
 
 

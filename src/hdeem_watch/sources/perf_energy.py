@@ -24,9 +24,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
 
+from hdeem_watch.perf_event import PerfEvent, PerfEventError, paranoid_level
 from hdeem_watch.sources.base import SourceUnavailable
 from hdeem_watch.sources.cpu_vendor import no_dram_reason, read_cpuinfo
-from hdeem_watch.sources.perf_event import PerfEvent, PerfEventError, paranoid_level
 from hdeem_watch.sources.rapl import EnergyCounter
 from hdeem_watch.sources.rapl_zones import channel_name
 

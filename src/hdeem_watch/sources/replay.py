@@ -298,6 +298,14 @@ class ReplaySource:
         """``"ok"``, ``"ended"`` (played once, no loop) or ``"closed"``."""
         return self._state
 
+    def position_ns(self) -> int:
+        """Where playback is, as a recorded timestamp (the end of what :meth:`poll` delivered)."""
+        return self._t0 + self._cursor
+
+    def played_ns(self, recorded_t_ns: int) -> int:
+        """A recorded timestamp on the played-back axis (the published samples' times, first pass)."""
+        return int(recorded_t_ns) - self._t0 + (self._open_wall if self.restamp else self._t0)
+
     def poll(self) -> SourceBatch:
         """The recorded samples whose (played-back) time has come since the last poll."""
         now = int(self._clock())

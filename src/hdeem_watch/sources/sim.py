@@ -45,15 +45,25 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.sources.base import STATUS_GAP, STATUS_OK, ChannelInfo, RunEvent, SourceBatch
 from hdeem_watch.sources.sim_age import check_pairs
+from hdeem_watch.sources.sim_commands import HiddenCommands
 from hdeem_watch.sources.sim_currents import PartCurrents
 from hdeem_watch.sources.sim_fast import IdleBlocks, NoiseBank
+from hdeem_watch.sources.sim_jobs import JOB_KERNEL, JobPlan, job_plan
 from hdeem_watch.sources.sim_layout import TAURUS, SimLayout, layout_for_node
-from hdeem_watch.sources.sim_model import RunPlan, modelled_line_rate, socket_shares, threads_per_socket
+from hdeem_watch.sources.sim_model import modelled_line_rate, socket_shares, threads_per_socket
 from hdeem_watch.sources.sim_plan import TruthNode
 from hdeem_watch.sources.sim_power import PowerPhysics
-from hdeem_watch.sources.sim_signal import NOISE_W, channel_power_w, deposit_owed, flat_power_w, mean_power_w
+from hdeem_watch.sources.sim_signal import (
+    NOISE_W,
+    Plan,
+    channel_power_w,
+    deposit_owed,
+    flat_power_w,
+    mean_power_w,
+)
 from hdeem_watch.sources.sim_truth import truth_report
 
 if TYPE_CHECKING:
@@ -71,7 +81,7 @@ CHECK_EVERY_S = 60.0
 class _Pending:
     """A run whose plan a worker thread is computing."""
 
-    future: Future[RunPlan]
+    future: Future[Plan]
     t0_ns: int
     event: RunEvent
     stop_ns: int | None = None
@@ -184,7 +194,10 @@ class SimSource:
         self._t0_wall = 0
         self._next_k: dict[str, int] = {}
         self._energy_j: dict[str, float] = {}
-        self._plans: dict[str, RunPlan] = {}
+        self._plans: dict[str, Plan] = {}
+        #: The DIMMs' hidden commands since open (the ground truth of the sim's IMC counters).
+        self._hidden = HiddenCommands(self.truth_node.spec, len(self.layout.dimm_names),
+                                      self.truth_model.temperature_c(0.0))
         self.background_plans = background_plans
         self._executor: ThreadPoolExecutor | None = None
         self._pending: dict[str, _Pending] = {}
@@ -209,6 +222,7 @@ class SimSource:
         self._energy_j = {info.name: 0.0 for info in self._infos}
         self._sim_ns = 0
         self._generated_ns = 0
+        self._hidden.settled[:] = 0.0
         self._idle.blocks = [None] * len(self._groups)
         self._flat_at = -1
         self._open = True
@@ -327,11 +341,11 @@ class SimSource:
             args = (self.truth_model.currents(t * 1e-9), self.truth_model.temperature_c(t * 1e-9), event.run_id, t,
                     event.kernel, int(event.elements), int(event.threads), int(event.repeat))
             if not self.background_plans:
-                self._activate(self.truth_node.plan(*args), published)
+                self._activate(self._make_plan(*args), published)
                 return
             if self._executor is None:
                 self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-plan")
-            self._pending[event.run_id] = _Pending(self._executor.submit(self.truth_node.plan, *args), published,
+            self._pending[event.run_id] = _Pending(self._executor.submit(self._make_plan, *args), published,
                                                    event)
         elif event.kind == "stop":
             t = max(t, self._generated_ns)   # the run's power is in what was published up to here
@@ -341,14 +355,23 @@ class SimSource:
                 return
             self._stop(event.run_id, t)
 
-    def _activate(self, plan: RunPlan, published_ns: int) -> None:
+    def _make_plan(self, currents: np.ndarray, temps_c: np.ndarray, run_id: str, t0_ns: int, kernel: str,
+                   elements: int, threads: int, repeat: int) -> Plan:
+        """A kernel run's plan, or an opaque job's hidden mix (kernel :data:`JOB_KERNEL`)."""
+        if kernel == JOB_KERNEL:
+            return job_plan(self.truth_node, currents, temps_c, run_id, t0_ns, threads=threads)
+        return self.truth_node.plan(currents, temps_c, run_id, t0_ns, kernel, elements, threads, repeat)
+
+    def _activate(self, plan: Plan, published_ns: int) -> None:
         """Make ``plan`` active; the DRAM energy its traffic drew before ``published_ns`` (in samples already
         published as idle) goes into the first sample after them."""
         self._plans[plan.run_id] = plan
         if plan.duration_ns <= 0 or published_ns <= plan.t0_ns:
             return
-        missed_s = (min(published_ns, plan.traffic_end_ns) - plan.t0_ns) * 1e-9
-        missed = plan.excess_w * missed_s
+        if isinstance(plan, JobPlan):
+            missed = plan.excess_energy_j(min(published_ns, plan.traffic_end_ns))
+        else:
+            missed = plan.excess_w * (min(published_ns, plan.traffic_end_ns) - plan.t0_ns) * 1e-9
         for d, pair in enumerate(self.layout.dimm_sensor):
             self._add_owed(pair, published_ns, float(missed[d]) * self._gain[pair])
         self._add_owed("BLADE", published_ns, float(missed.sum()) * self._gain["BLADE"])
@@ -382,7 +405,7 @@ class SimSource:
             if pending.stop_ns is not None:
                 self._stop(run_id, pending.stop_ns)
 
-    def run_plan(self, run_id: str, timeout_s: float | None = None) -> RunPlan:
+    def run_plan(self, run_id: str, timeout_s: float | None = None) -> Plan:
         """The energy plan of a run (waiting up to ``timeout_s`` for a background plan)."""
         if run_id in self._pending:
             self._resolve_plans(timeout_s)
@@ -398,6 +421,22 @@ class SimSource:
         return truth_report(self.truth_node, self.truth_model, t_s, t_ns=self._t0_wall + self._sim_ns,
                             offset_w=self._offset_w, gain=self._gain, violations=self._checked[1])
 
+    # -- hidden commands (the ground truth of the memory-controller counters) ----------------------------
+    def hidden_commands(self) -> tuple[int, list[CommandStats]]:
+        """``(t_ns, per-DIMM statistics)``: every DIMM's cumulative hidden commands since open, at the
+        latest sim time whose commands are known (like the sensors, they lag while a run's plan is
+        being computed), ``t_ns`` on the samples' time axis (wall clock at open + sim time).
+
+        DIMMs are in :attr:`layout` order (``layout.dimm_names``, socket-major).
+        """
+        if not self._open:
+            raise RuntimeError("SimSource.hidden_commands() before open()")
+        sim_ns = max(self._sim_ns, self.sim_time_ns(self._clock()))
+        if self._pending:
+            self._resolve_plans()
+            sim_ns = min([sim_ns, *(p.t0_ns for p in self._pending.values())])
+        return self._t0_wall + sim_ns, self._hidden.at(sim_ns, self._plans.values())
+
     # -- energy owed by stopped runs -------------------------------------------------------------------
     def _add_owed(self, name: str, t_ns: int, joules: float) -> None:
         self._owed.setdefault(name, []).append((t_ns, joules))
@@ -405,4 +444,5 @@ class SimSource:
     def _retire(self, sim_now: int) -> None:
         for run_id, plan in list(self._plans.items()):
             if plan.cpu_end_ns is not None and plan.cpu_end_ns <= sim_now and plan.traffic_end_ns <= sim_now:
+                self._hidden.settle(plan)
                 del self._plans[run_id]

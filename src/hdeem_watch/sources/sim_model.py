@@ -290,6 +290,8 @@ class RunPlan:
         threads: busy threads per socket.
         traffic_end_ns: end of traffic (t0 + D, or the stop if earlier).
         cpu_end_ns: end of CPU load (the stop; ``None`` while running).
+        stats: per DIMM, the hidden statistics of the whole traffic (``None``: no traffic on it;
+            empty: not kept), from which the sim's memory-controller counters are made.
     """
 
     run_id: str
@@ -302,6 +304,7 @@ class RunPlan:
     threads: tuple[int, ...]
     traffic_end_ns: int
     cpu_end_ns: int | None = None
+    stats: tuple[CommandStats | None, ...] = ()
 
     @property
     def excess_w(self) -> np.ndarray:

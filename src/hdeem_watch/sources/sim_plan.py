@@ -111,7 +111,8 @@ class TruthNode:
             return RunPlan(run_id, t0_ns, 0, zeros, zeros, zeros, idle, tps, t0_ns)
         duration_s = float(sum(traffic) * repeat) / rate
         bg, dyn, io = idle.copy(), zeros.copy(), zeros.copy()
-        for d, stats in enumerate(self.dimm_stats(kernel, elements, threads, repeat, duration_s, temps_c)):
+        hidden = self.dimm_stats(kernel, elements, threads, repeat, duration_s, temps_c)
+        for d, stats in enumerate(hidden):
             if stats is None:
                 continue
             bg_cols, cmd_cols, const = split_columns(self.spec, stats)
@@ -119,4 +120,4 @@ class TruthNode:
             dyn[d] = float(currents[d] @ cmd_cols)
             io[d] = (self.physics.io_read_j * stats.total("rd") + self.physics.io_write_j * stats.total("wr"))
         d_ns = max(1, round(duration_s * 1e9))
-        return RunPlan(run_id, t0_ns, d_ns, bg, dyn, io, idle, tps, t0_ns + d_ns)
+        return RunPlan(run_id, t0_ns, d_ns, bg, dyn, io, idle, tps, t0_ns + d_ns, stats=tuple(hidden))

@@ -22,8 +22,12 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
+from hdeem_watch.sources.sim_jobs import JobPlan
 from hdeem_watch.sources.sim_layout import TAURUS, SimLayout
 from hdeem_watch.sources.sim_model import RunPlan
+
+#: A run's plan or an opaque job's.
+Plan = RunPlan | JobPlan
 
 #: Idle CPU package power (W) per socket and the extra power per busy core / hyper-thread.
 CPU_IDLE_W = (12.0, 8.0)
@@ -44,10 +48,13 @@ def overlap(t_end: np.ndarray, period: int, a: int, b: float) -> np.ndarray:
     return np.clip(hi - lo, 0.0, None) / period
 
 
-def dram_w(dimms: list[int], t_end: np.ndarray, period: int, idle_w: np.ndarray, plans: Iterable[RunPlan]) -> np.ndarray:
+def dram_w(dimms: list[int], t_end: np.ndarray, period: int, idle_w: np.ndarray, plans: Iterable[Plan]) -> np.ndarray:
     """Mean power of ``dimms`` over each interval: idle plus every run's excess while its traffic flows."""
     power = np.full(len(t_end), float(idle_w[dimms].sum()))
     for plan in plans:
+        if isinstance(plan, JobPlan):
+            power += plan.dram_w(dimms, t_end, period)
+            continue
         if plan.duration_ns <= 0:
             continue
         excess = float(plan.excess_w[dimms].sum())
@@ -60,7 +67,7 @@ def cpu_idle_w(socket: int) -> float:
     return CPU_IDLE_W[min(socket, len(CPU_IDLE_W) - 1)]
 
 
-def cpu_w(socket: int, t_end: np.ndarray, period: int, plans: Iterable[RunPlan], cores: int = 12) -> np.ndarray:
+def cpu_w(socket: int, t_end: np.ndarray, period: int, plans: Iterable[Plan], cores: int = 12) -> np.ndarray:
     """Mean package power of ``socket`` over each interval: idle plus the busy cores of every run."""
     power = np.full(len(t_end), cpu_idle_w(socket))
     for plan in plans:
@@ -73,7 +80,7 @@ def cpu_w(socket: int, t_end: np.ndarray, period: int, plans: Iterable[RunPlan],
     return power
 
 
-def channel_power_w(name: str, t_end: np.ndarray, period: int, idle_w: np.ndarray, plans: Iterable[RunPlan],
+def channel_power_w(name: str, t_end: np.ndarray, period: int, idle_w: np.ndarray, plans: Iterable[Plan],
                     *, offset_w: float, layout: SimLayout = TAURUS, gain: float = 1.0) -> np.ndarray:
     """Noise-free reading of channel ``name`` over each interval ``(t − period, t]``: ``gain`` × its
     mean power + ``offset_w`` (W)."""
@@ -91,7 +98,7 @@ def channel_power_w(name: str, t_end: np.ndarray, period: int, idle_w: np.ndarra
     return power * gain + offset_w if gain != 1.0 else power + offset_w
 
 
-def mean_power_w(name: str, a: int, b: int, idle_w: np.ndarray, plans: Iterable[RunPlan], *, offset_w: float,
+def mean_power_w(name: str, a: int, b: int, idle_w: np.ndarray, plans: Iterable[Plan], *, offset_w: float,
                  layout: SimLayout = TAURUS, gain: float = 1.0) -> float:
     """Noise-free mean power of ``name`` over ``(a, b]`` (for samples lost to the sensor buffer)."""
     if b <= a:

@@ -30,8 +30,8 @@ import numpy as np
 from hdeem_watch.daemon.protocol import Message
 from hdeem_watch.tui.downsample import ColumnCache
 from hdeem_watch.tui.recent_samples import RecentSamples
-from hdeem_watch.tui.records import calib_view, first_num, num, run_view
-from hdeem_watch.tui.snapshot import CalibView, ChannelView, HealthView, NodeSnapshot, RunView
+from hdeem_watch.tui.records import calib_view, first_num, num, run_view, sensor_command_rates
+from hdeem_watch.tui.snapshot import CalibView, ChannelView, CommandRates, HealthView, NodeSnapshot, RunView
 
 #: Display order of the HDEEM channels; others follow alphabetically.
 CHANNEL_ORDER = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH", "CPU0", "CPU1", "BLADE")
@@ -108,6 +108,9 @@ class NodeModel:
         self._calib_cache: tuple[int, CalibView] | None = None
         self._calib_version = 0
         self._boot_s = math.nan
+        #: Command rates per DRAM channel from the ``counters`` topic, and when they came (monotonic ns).
+        self._commands: dict[str, CommandRates] = {}
+        self._commands_mono_ns = 0
 
     # ------------------------------------------------------------------ feeding
 
@@ -142,6 +145,9 @@ class NodeModel:
             self.apply_calib(header)
         elif msg.kind == "baseline":
             self.apply_baselines(header)
+        elif msg.kind == "counters":
+            self._commands = sensor_command_rates(header)
+            self._commands_mono_ns = recv_mono_ns
 
     def _observe_seq(self, topic: str, seq: int) -> None:
         """Count missed messages per topic; a sequence going backwards is a daemon restart."""
@@ -308,6 +314,9 @@ class NodeModel:
             status=channel.status,
             source_gaps=channel.source_gaps,
             columns=columns,
+            commands=self._commands.get(channel.name)
+            if self.last_rx_mono_ns is not None
+            and self.last_rx_mono_ns - self._commands_mono_ns <= self.stale_after_s * 1e9 else None,
         )
 
     def window_end_ns(self, now_wall_ns: int) -> int:

@@ -15,7 +15,7 @@ from typing import Any
 
 from hdeem_watch.channels import DRAM_CHANNELS
 from hdeem_watch.tui.group_views import group_views
-from hdeem_watch.tui.snapshot import CalibView, CurrentView, RunView
+from hdeem_watch.tui.snapshot import CalibView, CommandRates, CurrentView, RunView
 
 
 @dataclass(frozen=True)
@@ -218,3 +218,29 @@ def _ci_half_width(ci: Any, value: float) -> float:
         low, high = num(ci[0]), num(ci[1])
         return (high - low) / 2.0
     return num(ci)
+
+
+def sensor_command_rates(body: Mapping[str, Any]) -> dict[str, CommandRates]:
+    """Per DRAM power channel, the command rates of the IMC channels it measures (a ``counters``
+    message body: rates summed, the power-down share averaged; unknown stays NaN).
+
+    >>> body = {"channels": {"S0.imc0": {"act_per_s": 1.0, "rd_per_s": 4.0, "wr_per_s": 2.0,
+    ...                                  "powerdown_share": 0.5, "sensor": "DDR_AB"},
+    ...                      "S0.imc1": {"act_per_s": 3.0, "rd_per_s": None, "wr_per_s": 2.0,
+    ...                                  "powerdown_share": 0.1, "sensor": "DDR_AB"}}}
+    >>> rates = sensor_command_rates(body)["DDR_AB"]
+    >>> rates.act_per_s, math.isnan(rates.rd_per_s), round(rates.powerdown_share, 2)
+    (4.0, True, 0.3)
+    """
+    channels = body.get("channels")
+    by_sensor: dict[str, list[Mapping[str, Any]]] = {}
+    if isinstance(channels, Mapping):
+        for values in channels.values():
+            if isinstance(values, Mapping) and isinstance(values.get("sensor"), str):
+                by_sensor.setdefault(values["sensor"], []).append(values)
+    out = {}
+    for sensor, rows in by_sensor.items():
+        shares = [num(r.get("powerdown_share")) for r in rows]
+        act, rd, wr = (float(sum(num(r.get(key)) for r in rows)) for key in ("act_per_s", "rd_per_s", "wr_per_s"))
+        out[sensor] = CommandRates(act, rd, wr, powerdown_share=float(sum(shares) / len(shares)))
+    return out

@@ -20,6 +20,24 @@ IDLE_ORIGINS = ("quiet", "measured")
 CONNECTION_STATES = ("connecting", "live", "stale", "reconnecting", "paused")
 
 
+@dataclass(frozen=True)
+class CommandRates:
+    """The DRAM commands behind one power channel, from the memory-controller counters (the
+    ``counters`` topic, summed over the IMC channels the sensor measures).
+
+    Attributes:
+        act_per_s: activates per second.
+        rd_per_s: read CASes per second.
+        wr_per_s: write CASes per second.
+        powerdown_share: share of the time the ranks spent in power-down (0..1; NaN unknown).
+    """
+
+    act_per_s: float
+    rd_per_s: float
+    wr_per_s: float
+    powerdown_share: float
+
+
 @dataclass(frozen=True, eq=False)
 class ChannelView:
     """One channel of one node.
@@ -36,6 +54,7 @@ class ChannelView:
         status: the daemon's channel status (``ok``, ``stale``, ...).
         source_gaps: gaps the daemon counted at the sensor.
         columns: the plot envelope of the time window (None when not computed).
+        commands: its DRAM command rates from the counters (None without counters).
     """
 
     name: str
@@ -49,6 +68,7 @@ class ChannelView:
     status: str
     source_gaps: int
     columns: Columns | None = None
+    commands: CommandRates | None = None
 
     @property
     def baseline_is_idle(self) -> bool:

@@ -1,7 +1,7 @@
 """Built-in DDR4 memspecs (DRAMPower JSON files in this directory) and where each number comes from.
 
 Every preset describes one channel of dual-rank x8 modules with 9 devices per rank (2Rx8 ECC RDIMM,
-the common HPC configuration) unless said otherwise; :func:`hdeem_watch.node.memspec_choice.for_dimm`
+the common HPC configuration) unless said otherwise (the x4 preset: 2Rx4, 18 devices per rank); :func:`hdeem_watch.node.memspec_choice.for_dimm`
 re-shapes a preset to the ranks and devices of a detected DIMM. Every preset passes the physical
 check of :mod:`hdeem_watch.dram.memspec_check` (every per-command energy >= 0). Currents are
 amperes per device, as DRAMPower wants them.
@@ -76,8 +76,92 @@ amperes per device, as DRAMPower wants them.
     RFC2/RFC4 = 260/160 ns (416/256 cycles, the JEDEC 8 Gb values; unused with RefMode 1). IPP2N,
     IPP2P, IPP3P, IPP4R, IPP4W = IPP3N (the datasheet's IPP3N note, see above).
 
-Not (yet) in the library, for want of a public per-die table we could read: DDR4-2666 and
-DDR4-2933 bins, x4 dies, 16 Gb dies. Bring your own (``--memspec FILE``; docs/your-node.md).
+``micron-8gb-x4-ddr4-2400-b`` (``micron-8gb-x4-ddr4-2400-b.json``)
+    Micron 8 Gb x4 die (MT40A2G4, the x4 organisation of the MT40A1G8 die above), DDR4-2400 (-083E),
+    one channel of 2Rx4 ECC RDIMMs (2 ranks x 18 devices). Currents: the Micron "8Gb: x4, x8, x16
+    DDR4 SDRAM" datasheet's x4 column for DDR4-2400 as gem5 quotes it (gem5/gem5
+    ``src/python/gem5/components/memory/dram_interfaces/ddr4.py``, class ``DDR4_2400_16x4``, "timings
+    based on a DDR4-2400 8 Gbit datasheet (Micron MT40A2G4)", "Current values from datasheet"):
+    IDD0 43, IPP0 3, IDD2N 34, IDD2P 25, IDD3N 38, IPP3N 3, IDD3P 32, IDD4R 110, IDD4W 103,
+    IDD5 250 (used as IDD5B), IDD6 30 mA; VDD 1.2, VPP 2.5 V. The same file's ``DDR4_2400_8x8``
+    (MT40A1G8) currents are exactly the per-device figures of ``micron-8gb-x8-ddr4-2400-b`` above
+    (IDD0 48, IDD3N 43, IDD4R 135, IDD4W 123, IDD3P 37, the rest shared), which the module datasheet
+    gave independently. The source has no IPP5B for x4: the x8 die's 28 mA is used (IPP0 and IPP3N
+    are equal for x4 and x8 there); IPP2N, IPP2P, IPP3P, IPP4R, IPP4W, IPP6N = IPP3N as above.
+    Geometry: 16 banks in 4 bank groups, 131072 rows x 1024 columns (512 B page). Timings: the
+    DDR4-2400 bin of the x8 preset (the speed bin and the refresh times are the die's), except
+    FAW = 16 cycles (13.3 ns: tFAW of a 512 B page is max(16 nCK, 13 ns); gem5 ``tXAW`` 13.328 ns).
+
+``micron-8gb-x16-ddr4-2666-b`` (``micron-8gb-x16-ddr4-2666-b.json``)
+    Micron 8 Gb x16 die revision B (MT40A512M16), DDR4-2666, one channel of single-rank x64 modules
+    (1 rank x 4 devices, no ECC; laptops, desktops and x16-based UDIMM/SODIMM nodes). Currents:
+    Micron's MTA4ATF51264AZ (4 GB 1Rx16 UDIMM, 4 of these dies) datasheet atf4c512x64az.pdf Rev. B
+    8/16, Table 13 ("Die Revision B", "computed from values specified in the 8Gb (512 Meg x 16)
+    component data sheet"), column 2666; with one rank every device is in the measured state, so per
+    device = module / 4: IDD0 340/4 = 85, IPP0 16/4 = 4, IDD2N 140/4 = 35, IDD2P 100/4 = 25,
+    IDD3N 200/4 = 50, IPP3N 12/4 = 3, IDD3P 172/4 = 43, IDD4R 1052/4 = 263, IDD4W 976/4 = 244,
+    IDD5B 1120/4 = 280, IPP5B 112/4 = 28, IDD6N 120/4 = 30 mA. The table's 2400 column divided the
+    same way is exactly gem5's ``DDR4_2400_4x16`` (MT40A512M16: IDD0 80, IDD2N 34, IDD3N 47, IDD4R 243,
+    IDD4W 228, IDD5 280, IDD3P 41, IPP0 4 mA), a check of the conversion. IPP2N, IPP2P, IPP3P,
+    IPP4R, IPP4W, IPP6N = IPP3N: the 8 Gb/16 Gb die datasheets' note "IPP3N test and limit is
+    applicable for all IDD2x, IDD3x, IDD4x, IDD6x and IDD8 conditions". Geometry (x16, 8 Gb): 8 banks
+    in 2 bank groups, 65536 rows x 1024 columns (2 KB page). Timings: the module's -2G6 grade is the
+    component's -075 (Micron's module-to-component speed-grade table, e.g. asf18c1gx72az.pdf Rev. F
+    Table 12), DDR4-2666 CL19: tCK 0.75 ns,
+    RL = RCD = RP = 19 (14.25 ns), RAS 43 (32 ns), RC 62, WL 14 (CWL 14); the JESD79-4 values
+    for a 2 KB page at 2666 in cycles of 0.75 ns, rounded up: RRD_S 8 (5.3 ns), RRD_L 9 (6.4 ns),
+    FAW 40 (30 ns), CCD_L 7 (5 ns), WTR_S/L 4/10 (2.5/7.5 ns), WR 20 (15 ns), RTP 10 (7.5 ns), XP 8
+    (6 ns), XPDLL 32 (24 ns), CKE 7 (5 ns), CKESR 8, XSDLL 854 (tDLLK at 2666); the 8 Gb refresh
+    times RFC1/2/4 467/347/214 (350/260/160 ns), XS 480 (RFC1 + 10 ns), REFI 10400 (7.8 us).
+
+``micron-8gb-x8-ddr4-2666``, ``micron-8gb-x8-ddr4-2933``, ``micron-8gb-x4-ddr4-2666``, ``micron-8gb-x4-ddr4-2933``, ``micron-8gb-x4-ddr4-3200``
+    Micron 8 Gb DDR4 dies (MT40A1G8 x8, MT40A2G4 x4) at the DDR4-2666, -2933 and -3200 speed bins,
+    one channel of 2Rx8 (9 devices per rank) or 2Rx4 (18 devices per rank) ECC RDIMMs. Currents:
+    the Micron "8Gb: x4, x8, x16 DDR4 SDRAM" datasheet (8gb_ddr4_sdram.pdf) columns as DRAMsim3
+    quotes them (umd-memsys/DRAMsim3 ``configs/DDR4_8Gb_x{4,8}_{2666,2933,3200}.ini``; the file
+    ``DDR4_8Gb_x8_2400.ini`` of the same set names its part, "Micron MT40A1G8PM-083E"). The set is
+    checked against the sources above: its x8 2400 currents are the per-device figures of Micron's
+    MTA18ASF2G72HZ module table (``micron-8gb-x8-ddr4-2400-b``; IDD6 31 vs 30 mA), its x4 2400
+    currents are gem5's MT40A2G4 ones (``micron-8gb-x4-ddr4-2400-b``), and its x16 2666 currents
+    are exactly Micron's MTA4ATF51264AZ table divided by its 4 devices (``micron-8gb-x16-ddr4-2666-b``).
+    Per device, mA (IDD0, IDD2N, IDD2P, IDD3N, IDD3P, IDD4R, IDD4W, IDD5B, IDD6N; IPP0 3 for all):
+
+    - x8 2666: 51, 35, 25, 46, 39, 146, 132, 250, 30;  x8 2933: 54, 36, 25, 49, 41, 157, 141, 250, 30
+    - x4 2666: 46, 35, 25, 41, 34, 121, 112, 250, 30;  x4 2933: 49, 36, 25, 44, 36, 132, 121, 250, 30
+    - x4 3200: 52, 37, 25, 47, 38, 143, 130, 250, 30
+
+    (DRAMsim3's x8 3200 file, IDD3N 52 and IDD4W 150 mA, differs from the DRAMPower rev-G memspec of
+    ``micron-8gb-x8-ddr4-3200-g``, IDD3N 56 and IDD4W 155: another datasheet revision; that preset is
+    kept.) The files give IDD5 as the refresh current, used as IDD5B. Not in them: IPP3N (3 mA) and
+    IPP5B (28 mA) are the 8 Gb x8 rev-B module table's (above); the other IPPs = IPP3N (the
+    datasheet's IPP3N note). Timings: the files' cycles (JESD79-4 speed bins: 2666 19-19-19 at
+    0.75 ns, 2933 21-21-21 at 0.682 ns, 3200 22-22-22 at 0.625 ns; RAS 43/47/52, RRD_L 7/8/8 (4.9 ns),
+    FAW x8 28/31 (21 ns) and x4 16 (16 nCK), WR 20/22/24, RTP 10/11/12, CCD_L 7/8/8, WTR_S/L 4 and
+    10/11/12, CKE 7/8/8, XP 8/9/10, 8 Gb RFC1/2/4 350/260/160 ns, XS = RFC1 + 10 ns, CWL 14/16/16);
+    RC = RAS + RP; REFI = 7.8 us; XPDLL = 24 ns and XSDLL = tDLLK (854/940/1024 nCK) from JESD79-4.
+    Geometry: 16 banks in 4 bank groups, 65536 (x8) or 131072 (x4) rows of 1024 columns.
+
+``micron-4gb-x4-ddr4-2133``, ``micron-4gb-x4-ddr4-2400``
+    Micron 4 Gb x4 dies (MT40A1G4) at DDR4-2133 and -2400, one channel of 2Rx4 ECC RDIMMs (2 ranks
+    x 18 devices; the 8 GB 1Rx4 / 16 GB 2Rx4 modules of Haswell- and Broadwell-era nodes). Currents:
+    the Micron 4 Gb DDR4 datasheet columns as DRAMsim3 quotes them (``configs/DDR4_4Gb_x4_2133.ini``,
+    ``DDR4_4Gb_x4_2400.ini``), per device, mA: 2133: IDD0 55, IDD2N 42, IDD2P 27, IDD3N 55, IDD3P 40,
+    IDD4R 135, IDD4W 155, IDD5B 170, IDD6N 20, IPP0 3; 2400: 60, 45, 29, 60, 40, 145, 175, 175, 20,
+    IPP0 3. The files give x4 the same figures as their x8 files, and the x8 ones are checked by
+    Micron's MTA18ASF1G72AZ module datasheet (asf18c1gx72az.pdf Rev. F, Table 13, die revision B,
+    2Rx8 of MT40A512M8) converted by its notes: IDD2N 756/18 = 42 and 810/18 = 45, IDD0 738/9 - 27
+    = 55 and 801/9 - 29 = 60 mA at 2133 and 2400. The other IPPs are not in the files: 0, as in
+    DRAMPower's 4 Gb memspecs. Timings: the files' cycles (2133 16-16-16 at 0.9375 ns, 2400 17-17-17
+    at 0.833 ns; RAS 36/39, RFC1/2/4 278/171/118 and 312/192/132 (4 Gb: 260/160/110 ns), RRD_L 6,
+    FAW 16, WR 16/18, RTP 8/9, CCD_L 6, WTR_S/L 3 and 8/9, CKE 6, XP 7/8, XS 289/324, CWL 11/12);
+    RC = RAS + RP; REFI = 7.8 us; XPDLL = 24 ns and XSDLL = tDLLK (597/768 nCK) from JESD79-4.
+    Geometry: 16 banks in 4 bank groups, 65536 rows x 1024 columns.
+
+Not (yet) in the library, for want of a complete public per-die IDD table we could read (the
+stored copies of Micron's 16 Gb datasheet and SK hynix's H5ANAG4/8/6NCJR 16 Gb datasheet show only
+the first rows of their IDD tables; DRAMSys and DRAMPower ship DDR4 memspecs of 4 Gb x8 only, gem5 of
+8 Gb DDR4-2400 only, DRAMsim3 of 4 and 8 Gb dies only, Ramulator 2 timings without currents): 16 Gb
+dies. Bring your own (``--memspec FILE``; docs/your-node.md).
 """
 
 from __future__ import annotations
@@ -122,6 +206,26 @@ PRESET_INFO: dict[str, PresetInfo] = {
     "micron-8gb-x8-ddr4-2400-b": PresetInfo("micron-8gb-x8-ddr4-2400-b.json", 2400, 8, 8, "Micron",
                                             "MT40A1G8 (8Gb x8 rev B)",
                                             "Micron MTA18ASF2G72HZ datasheet Rev. F, Table 15"),
+    "micron-8gb-x4-ddr4-2400-b": PresetInfo("micron-8gb-x4-ddr4-2400-b.json", 2400, 8, 4, "Micron",
+                                            "MT40A2G4 (8Gb x4)",
+                                            "Micron 8Gb DDR4 datasheet x4 DDR4-2400 IDDs as gem5's DDR4_2400_16x4 quotes"),
+    "micron-8gb-x16-ddr4-2666-b": PresetInfo("micron-8gb-x16-ddr4-2666-b.json", 2666, 8, 16, "Micron",
+                                             "MT40A512M16 (8Gb x16 rev B)",
+                                             "Micron MTA4ATF51264AZ datasheet Rev. B, Table 13 (2666)"),
+    "micron-4gb-x4-ddr4-2133": PresetInfo("micron-4gb-x4-ddr4-2133.json", 2133, 4, 4, "Micron", "MT40A1G4 (4Gb x4)",
+                                          "Micron 4Gb DDR4 datasheet as DRAMsim3 DDR4_4Gb_x4_2133 quotes it"),
+    "micron-4gb-x4-ddr4-2400": PresetInfo("micron-4gb-x4-ddr4-2400.json", 2400, 4, 4, "Micron", "MT40A1G4 (4Gb x4)",
+                                          "Micron 4Gb DDR4 datasheet as DRAMsim3 DDR4_4Gb_x4_2400 quotes it"),
+    "micron-8gb-x8-ddr4-2666": PresetInfo("micron-8gb-x8-ddr4-2666.json", 2666, 8, 8, "Micron", "MT40A1G8 (8Gb x8)",
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x8_2666 quotes it"),
+    "micron-8gb-x8-ddr4-2933": PresetInfo("micron-8gb-x8-ddr4-2933.json", 2933, 8, 8, "Micron", "MT40A1G8 (8Gb x8)",
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x8_2933 quotes it"),
+    "micron-8gb-x4-ddr4-2666": PresetInfo("micron-8gb-x4-ddr4-2666.json", 2666, 8, 4, "Micron", "MT40A2G4 (8Gb x4)",
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x4_2666 quotes it"),
+    "micron-8gb-x4-ddr4-2933": PresetInfo("micron-8gb-x4-ddr4-2933.json", 2933, 8, 4, "Micron", "MT40A2G4 (8Gb x4)",
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x4_2933 quotes it"),
+    "micron-8gb-x4-ddr4-3200": PresetInfo("micron-8gb-x4-ddr4-3200.json", 3200, 8, 4, "Micron", "MT40A2G4 (8Gb x4)",
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x4_3200 quotes it"),
     "micron-8gb-x8-ddr4-3200-g": PresetInfo("micron-8gb-x8-ddr4-3200-g.json", 3200, 8, 8, "Micron",
                                             "MT40A1G8 (8Gb x8 rev G)",
                                             "DRAMPower memspec MICRON_8Gb_DDR4-3200_8bit_G (8gb_ddr4_sdram.pdf)"),

@@ -1,4 +1,5 @@
-"""The channel table: current value, idle baseline ± spread, power above baseline, status.
+"""The channel table: current value, idle baseline ± spread, power above baseline, status; with
+memory counters (and room), each DRAM channel's command rates: ACT/s, RD/s, WR/s and the power-down share.
 
 ``above`` is "–" for a channel whose baseline is not its true idle (a CPU or blade channel
 measured during an idle run, whose kernel keeps the CPUs busy); that baseline is dimmed.
@@ -11,7 +12,7 @@ import math
 from rich.text import Text
 
 from hdeem_watch.tui.snapshot import NodeSnapshot
-from hdeem_watch.tui.widgets.fmt import fixed
+from hdeem_watch.tui.widgets.fmt import fixed, per_second
 from hdeem_watch.tui.widgets.lines import LinesWidget
 
 KIND_STYLE = {"dram": "bold cyan", "cpu": "bold magenta", "blade": "bold yellow", "other": "bold"}
@@ -21,7 +22,9 @@ def channel_table_text(snapshot: NodeSnapshot, width: int) -> Text:
     """Header plus one line per channel."""
     text = Text(no_wrap=True, overflow="ellipsis")
     wide = width >= 48
-    text.append("channel    now W  baseline±spr  above" + ("  status" if wide else ""), style="bold underline")
+    commands = width >= 76 and any(ch.commands is not None for ch in snapshot.channels)
+    text.append("channel    now W  baseline±spr  above" + ("  status      " if wide and commands else "  status" if wide else "")
+                + ("  ACT/s   RD/s   WR/s  pd" if commands else ""), style="bold underline")
     if not snapshot.channels:
         text.append("\n(waiting for samples)", style="dim italic")
     for ch in snapshot.channels:
@@ -39,7 +42,11 @@ def channel_table_text(snapshot: NodeSnapshot, width: int) -> Text:
         text.append(fixed(above, 7, 1, sign=True), style=style)
         if wide:
             status_style = "green" if ch.status == "ok" else "bold red"
-            text.append(f"  {ch.status[:12]}", style=status_style)
+            text.append(f"  {ch.status[:12]:<12}" if commands else f"  {ch.status[:12]}", style=status_style)
+        if commands and ch.commands is not None:
+            c = ch.commands
+            text.append(per_second(c.act_per_s, 7) + per_second(c.rd_per_s, 7) + per_second(c.wr_per_s, 7), style="cyan")
+            text.append(fixed(100 * c.powerdown_share, 4, 0, suffix="%"))
     return text
 
 

@@ -37,6 +37,21 @@ def energy(value_j: float, width: int = 7) -> str:
     return f"{value_j:.2f}".rjust(width)
 
 
+def per_second(value: float, width: int = 6) -> str:
+    """A rate with an SI prefix (``950``, ``12.3k``, ``1.05G``), "–" when unknown.
+
+    >>> per_second(1.234e9), per_second(float("nan"))
+    (' 1.23G', '     –')
+    """
+    if not math.isfinite(value):
+        return UNKNOWN.rjust(width)
+    for scale, prefix in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
+        if abs(value) >= scale:
+            digits = 2 if abs(value) < 10 * scale else 1 if abs(value) < 100 * scale else 0
+            return f"{value / scale:.{digits}f}{prefix}".rjust(width)
+    return f"{value:.0f}".rjust(width)
+
+
 def megabytes(n_bytes: int) -> str:
     """Resident memory in MB ("–" when unknown)."""
     return f"{n_bytes / 1e6:.0f}MB" if n_bytes > 0 else UNKNOWN

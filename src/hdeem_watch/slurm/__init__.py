@@ -4,8 +4,7 @@ Everything else asks this adapter: which nodes the job has (:func:`allocation_no
 expander of SLURM hostlists such as ``node[01-03,07],other``), which CPUs this task may use
 (:func:`allowed_cpus`), whether we run inside an allocation (:func:`in_allocation`) and what to
 record about the job (:func:`job_metadata`). The SLURM Prolog/Epilog hooks in ``daemon/slurm/``
-call :func:`main` (``python3 -m hdeem_watch.slurm prolog|epilog``): see :func:`prolog` and
-:func:`epilog` and docs/bench.md.
+run ``python3 -m hdeem_watch.slurm prolog|epilog`` (:mod:`hdeem_watch.slurm.hooks`; docs/slurm.md).
 
 Example:
     >>> expand_hostlist("node[01-03,07],login")
@@ -16,18 +15,10 @@ Example:
 
 from __future__ import annotations
 
-import contextlib
 import itertools
-import json
 import os
 import re
-import signal
-import subprocess
-import sys
-import time
-from collections.abc import Mapping, Sequence
-from pathlib import Path
-from typing import Any
+from collections.abc import Mapping
 
 from hdeem_watch.errors import InputError
 
@@ -190,164 +181,3 @@ def hook_setting(name: str, default: str, env: Mapping[str, str] | None = None) 
     """Return a hook setting ``HDEEM_WATCH_<NAME>`` from the environment (or ``default``)."""
     env = os.environ if env is None else env
     return env.get(f"HDEEM_WATCH_{name.upper()}", default)
-
-
-
-# --------------------------------------------------------------------------- Prolog / Epilog hooks
-#: Default directory of the hooks' per-job records and their job log.
-DEFAULT_HOOK_DIR = "/run/hdeem-watch/slurm"
-
-
-def _hook_dir(env: Mapping[str, str]) -> Path:
-    return Path(hook_setting("hook_dir", DEFAULT_HOOK_DIR, env))
-
-
-def _control_endpoint(env: Mapping[str, str]) -> tuple[str, str]:
-    from hdeem_watch.daemon.client import default_endpoints
-
-    pub, control = default_endpoints(env.get("HDEEM_WATCH_RUNTIME_DIR") or None)
-    return hook_setting("pub", pub, env), hook_setting("control", control, env)
-
-
-def _daemon_status(control: str, timeout_s: float) -> dict[str, Any] | None:
-    from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
-
-    with ControlClient(control, timeout_s=timeout_s) as client:
-        try:
-            result = client.call("status")
-        except (DaemonUnreachable, ControlError):
-            return None
-    return result if isinstance(result, dict) else {}
-
-
-def _log(message: str) -> None:
-    print(f"hdeem-watch slurm hook: {message}", file=sys.stderr)
-
-
-def prolog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
-    """Prolog: make sure a daemon watches this node for the job and record the job's start.
-
-    If a daemon answers on the control endpoint it is used (``daemon: "running"``); optionally a
-    quiet baseline is measured first (``HDEEM_WATCH_PROLOG_BASELINE_S`` > 0, ``baseline.measure``).
-    Otherwise, if ``HDEEM_WATCH_START_DAEMON=1``, a daemon is started for the job
-    (``hdeem-watch daemon --source $HDEEM_WATCH_SOURCE --pub ... --control ... --state-dir ...``,
-    detached, waited for until it answers) and the Epilog stops it (``daemon: "started"``). The
-    record ``job-<id>.json`` goes to ``$HDEEM_WATCH_HOOK_DIR`` (default /run/hdeem-watch/slurm).
-
-    Returns:
-        The job record written.
-    """
-    env = os.environ if env is None else env
-    ctx = hook_context(env)
-    job_id = ctx.get("job_id", "unknown")
-    pub, control = _control_endpoint(env)
-    hook_dir = _hook_dir(env)
-    hook_dir.mkdir(parents=True, exist_ok=True)
-    record: dict[str, Any] = {**ctx, "nodes": allocation_nodes({"SLURM_NODELIST": ctx.get("nodelist", "")}),
-                              "t_start_ns": time.time_ns(), "control": control, "pub": pub,
-                              "daemon": "none", "pid": None}
-    if _daemon_status(control, 1.0) is not None:
-        record["daemon"] = "running"
-        baseline_s = float(hook_setting("prolog_baseline_s", "0", env) or 0)
-        if baseline_s > 0:
-            from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
-
-            with ControlClient(control, timeout_s=baseline_s + 5.0) as client:
-                try:
-                    client.call("baseline.measure", {"seconds": baseline_s})
-                    record["baseline_s"] = baseline_s
-                except (DaemonUnreachable, ControlError) as error:
-                    _log(f"job {job_id}: baseline.measure failed: {error}")
-    elif hook_setting("start_daemon", "0", env) == "1":
-        state_dir = Path(hook_setting("state_dir", str(hook_dir / f"state-{job_id}"), env))
-        state_dir.mkdir(parents=True, exist_ok=True)
-        command = [sys.executable, "-m", "hdeem_watch", "daemon", "--source",
-                   hook_setting("source", "sim", env), "--pub", pub, "--control", control,
-                   "--state-dir", str(state_dir), *hook_setting("daemon_args", "", env).split()]
-        with open(hook_dir / f"daemon-{job_id}.log", "ab") as log:
-            proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
-                                    start_new_session=True, close_fds=True)
-        record.update(daemon="started", pid=proc.pid, command=command)
-        deadline = time.monotonic() + float(hook_setting("start_timeout_s", "20", env))
-        while time.monotonic() < deadline and proc.poll() is None:
-            if _daemon_status(control, 0.5) is not None:
-                break
-            time.sleep(0.1)
-        else:
-            _log(f"job {job_id}: the daemon started for the job did not answer on {control}")
-    (hook_dir / f"job-{job_id}.json").write_text(json.dumps(record))
-    return record
-
-
-def _stop_pid(pid: int, timeout_s: float = 10.0) -> None:
-    try:
-        os.kill(pid, signal.SIGTERM)
-    except ProcessLookupError:
-        return
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        try:
-            finished, _ = os.waitpid(pid, os.WNOHANG)
-            if finished == pid:
-                return
-        except ChildProcessError:  # not our child (started by another hook process)
-            try:
-                os.kill(pid, 0)
-            except ProcessLookupError:
-                return
-        time.sleep(0.05)
-    with contextlib.suppress(ProcessLookupError):
-        os.kill(pid, signal.SIGKILL)
-
-
-def epilog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
-    """Epilog: record the job's end in ``jobs.jsonl`` and stop the daemon the Prolog started.
-
-    Returns:
-        The finished job record (``t_end_ns`` and ``exit_code`` added).
-    """
-    env = os.environ if env is None else env
-    ctx = hook_context(env)
-    job_id = ctx.get("job_id", "unknown")
-    hook_dir = _hook_dir(env)
-    path = hook_dir / f"job-{job_id}.json"
-    try:
-        record: dict[str, Any] = json.loads(path.read_text())
-    except (OSError, ValueError):
-        record = {**ctx, "daemon": "none", "pid": None}
-    record["t_end_ns"] = time.time_ns()
-    record["exit_code"] = ctx.get("exit_code")
-    if record.get("daemon") == "started" and record.get("pid"):
-        _stop_pid(int(record["pid"]))
-        record["daemon"] = "stopped"
-    hook_dir.mkdir(parents=True, exist_ok=True)
-    with open(hook_dir / "jobs.jsonl", "a") as log:
-        log.write(json.dumps(record) + "\n")
-    path.unlink(missing_ok=True)
-    return record
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry of the hooks: ``python3 -m hdeem_watch.slurm prolog|epilog|nodes``.
-
-    The hooks always exit 0 (a failing Prolog drains the node); failures go to stderr, which
-    slurmd logs.
-    """
-    args = list(sys.argv[1:] if argv is None else argv)
-    action = args[0] if args else ""
-    if action == "nodes":
-        print("\n".join(allocation_nodes()))
-        return 0
-    if action not in ("prolog", "epilog"):
-        print("usage: python3 -m hdeem_watch.slurm prolog|epilog|nodes", file=sys.stderr)
-        return 2
-    try:
-        record = prolog() if action == "prolog" else epilog()
-        _log(f"{action} job {record.get('job_id')}: daemon {record.get('daemon')}")
-    except Exception as error:  # never fail the hook
-        _log(f"{action} failed: {type(error).__name__}: {error}")
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

@@ -1,0 +1,222 @@
+"""``hdeem-watch jobs``: SLURM jobs' DRAM energy from the node daemons.
+
+On a node it asks the local daemon (``job.list``, or ``job.get`` with ``--job``); inside an
+allocation, or with ``--slurm``, it asks the daemon of every node of the allocation at
+``tcp://<node>:<port>`` (this node through its local endpoint), all at once, each with a bounded
+timeout: a node that does not answer is a line saying so, not a hang. ``--connect EP`` names daemons
+explicitly. From inside a job, ``hdeem-watch jobs --job $SLURM_JOB_ID`` prints the job's DRAM energy
+so far on every node.
+
+Exit codes: 0 every node answered, 1 some node did not answer (or refused), 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import math
+import os
+import re
+import socket
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
+from hdeem_watch.errors import InputError
+
+#: Documented TCP port of a daemon's control endpoint on cluster nodes (as ``tui --slurm``).
+CONTROL_PORT = 5591
+PORT_ENV = "HDEEM_WATCH_CONTROL_PORT"
+_AGO = re.compile(r"^(\d+(?:\.\d+)?)\s*(s|min|h|d)$")
+_UNITS = {"s": 1, "min": 60, "h": 3600, "d": 86400}
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``jobs`` subcommand."""
+    parser = subparsers.add_parser(
+        "jobs", help="SLURM jobs' DRAM energy, per node (from the node daemons)",
+        description="SLURM jobs' DRAM energy per node, as the node daemons measured it (running jobs: so far).",
+        epilog="examples:\n"
+        "  hdeem-watch jobs                          # this node's recent jobs\n"
+        "  hdeem-watch jobs --job $SLURM_JOB_ID      # inside a job: its DRAM energy so far on every node\n"
+        "  hdeem-watch jobs --user alice --since 2h --json\n"
+        "  hdeem-watch jobs --slurm --job 4242       # from the login node, inside an salloc\n"
+        "exit codes: 0 every node answered, 1 a node did not answer, 2 bad input",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--job", metavar="ID", help="one job (its newest record on each node)")
+    parser.add_argument("--user", metavar="U", help="only this user's jobs")
+    parser.add_argument("--since", metavar="T", help="jobs running at or after T: 2h, 30min, 1d ago, or an ISO time")
+    parser.add_argument("--limit", type=int, default=20, help="jobs per node (default 20)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--slurm", action="store_true",
+                        help="ask every node of the allocation (default inside an allocation)")
+    parser.add_argument("--connect", metavar="EP", action="append", default=[],
+                        help="a daemon's control endpoint (repeatable); default: this node's daemon")
+    parser.add_argument("--port", type=int, default=None,
+                        help=f"control port of the daemons for --slurm (default ${PORT_ENV} or {CONTROL_PORT})")
+    parser.add_argument("--timeout", type=float, default=3.0, metavar="S", help="per-node reply timeout (default 3)")
+    parser.set_defaults(func=_run)
+
+
+def parse_since(text: str, now_ns: int | None = None) -> int:
+    """``--since``: ``<n>s|min|h|d`` ago, or an ISO 8601 time (local time when naive) → wall ns.
+
+    >>> parse_since("2h", now_ns=10 * 3600 * 10**9) // 10**9
+    28800
+
+    Raises:
+        InputError: neither form.
+    """
+    now_ns = time.time_ns() if now_ns is None else now_ns
+    match = _AGO.match(text.strip())
+    if match:
+        return now_ns - round(float(match.group(1)) * _UNITS[match.group(2)] * 1e9)
+    try:
+        moment = datetime.fromisoformat(text.strip())
+    except ValueError:
+        raise InputError(f"--since {text!r}: expected a time ago (30min, 2h, 1d) or an ISO time "
+                         "(2026-11-25T14:00)") from None
+    return round(moment.timestamp() * 1e9)
+
+
+@dataclass(frozen=True)
+class Target:
+    """One daemon to ask: its node name (as far as known) and control endpoint."""
+
+    node: str
+    endpoint: str
+
+
+def targets(args: argparse.Namespace, env: Mapping[str, str] | None = None) -> list[Target]:
+    """The daemons to ask (see the module docstring).
+
+    Raises:
+        InputError: ``--slurm`` outside an allocation, a bad port, a bad endpoint.
+    """
+    from hdeem_watch import slurm
+    from hdeem_watch.slurm.hooks import local_control_endpoint
+
+    env = os.environ if env is None else env
+    found = []
+    for endpoint in args.connect:
+        if not endpoint.startswith(("ipc://", "tcp://", "inproc://")):
+            raise InputError(f"--connect {endpoint!r}: expected a ZeroMQ endpoint such as tcp://node7:{CONTROL_PORT}")
+        found.append(Target(endpoint.rpartition("/")[2], endpoint))
+    nodes = slurm.allocation_nodes(env) if (args.slurm or not args.connect) else []
+    if args.slurm and not nodes:
+        raise InputError("--slurm: no SLURM allocation here (SLURM_JOB_NODELIST is not set); use --connect")
+    if nodes:
+        port = _port(args.port, env)
+        here = {env.get("SLURMD_NODENAME", ""), socket.gethostname().split(".")[0], socket.gethostname()}
+        for node in nodes:
+            endpoint = local_control_endpoint(env) if node in here else f"tcp://{node}:{port}"
+            found.append(Target(node, endpoint))
+    elif not found:
+        found.append(Target(socket.gethostname().split(".")[0], local_control_endpoint(env)))
+    return found
+
+
+def _port(port: int | None, env: Mapping[str, str]) -> int:
+    if port is None:
+        raw = env.get(PORT_ENV, str(CONTROL_PORT))
+        try:
+            port = int(raw)
+        except ValueError:
+            raise InputError(f"${PORT_ENV} = {raw!r}: expected a TCP port number") from None
+    if not 0 < port < 65536:
+        raise InputError(f"--port {port}: expected 1..65535")
+    return port
+
+
+def ask(target: Target, op: str, request: dict[str, Any], *, timeout_s: float,
+        server_key: bytes | None = None) -> dict[str, Any]:
+    """One daemon's answer: ``{"node", "endpoint", "ok": True, "jobs": [...]}`` or ``"ok": False``
+    with ``"error"``; never raises for a daemon that is down or refuses. ``server_key`` is the
+    daemon's CURVE public key (for a CURVE daemon over TCP)."""
+    from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
+
+    entry: dict[str, Any] = {"node": target.node, "endpoint": target.endpoint}
+    try:
+        with ControlClient(target.endpoint, timeout_s=timeout_s, curve_server_key=server_key) as client:
+            result = client.call(op, request)
+    except DaemonUnreachable as error:
+        return {**entry, "ok": False, "error": f"unreachable: {error}"}
+    except ControlError as error:
+        if error.code == "not-found":
+            return {**entry, "ok": True, "jobs": []}
+        return {**entry, "ok": False, "error": str(error)}
+    jobs = result.get("jobs", []) if op == "job.list" else [result]
+    return {**entry, "node": (jobs[0].get("node") if jobs else None) or target.node, "ok": True, "jobs": jobs}
+
+
+def query(found: Sequence[Target], op: str, request: dict[str, Any], *, timeout_s: float,
+          server_key: bytes | None = None) -> list[dict[str, Any]]:
+    """Every daemon's answer, asked in parallel (the whole query takes about one timeout at most)."""
+    with concurrent.futures.ThreadPoolExecutor(max_workers=min(32, max(1, len(found)))) as pool:
+        futures = [pool.submit(ask, t, op, request, timeout_s=timeout_s, server_key=server_key) for t in found]
+        return [f.result() for f in futures]
+
+
+def _fmt(value: Any, digits: int = 1) -> str:
+    return "–" if not isinstance(value, int | float) or not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def _duration(seconds: Any) -> str:
+    if not isinstance(seconds, int | float) or not math.isfinite(seconds):
+        return "–"
+    whole = int(seconds)
+    return f"{whole // 3600}:{whole // 60 % 60:02d}:{whole % 60:02d}"
+
+
+def table(answers: Sequence[dict[str, Any]]) -> list[str]:
+    """The human table: one line per job and node; a line per node that did not answer."""
+    lines = [f"{'node':<14} {'job':<12} {'user':<10} {'state':<11} {'started':<19} {'duration':>9} "
+             f"{'DRAM J':>12} {'above idle J':>13} {'mean W':>8}  status"]
+    for answer in answers:
+        if not answer["ok"]:
+            lines.append(f"{answer['node']:<14} {answer['error']}")
+            continue
+        if not answer["jobs"]:
+            lines.append(f"{answer['node']:<14} (no such job on this node)")
+        for job in answer["jobs"]:
+            started = datetime.fromtimestamp(int(job.get("t_start_ns") or 0) / 1e9).strftime("%Y-%m-%d %H:%M:%S")
+            measured = job.get("measured_s")
+            mean = job["dram_energy_j"] / measured if isinstance(job.get("dram_energy_j"), int | float) \
+                and isinstance(measured, int | float) and measured > 0 else math.nan
+            lines.append(f"{answer['node']:<14} {job.get('job_id', ''):<12} {(job.get('user') or '–'):<10} "
+                         f"{job.get('state', ''):<11} {started:<19} {_duration(job.get('duration_s')):>9} "
+                         f"{_fmt(job.get('dram_energy_j')):>12} {_fmt(job.get('dram_above_baseline_j')):>13} "
+                         f"{_fmt(mean):>8}  {job.get('status', '')}")
+    return lines
+
+
+def _run(args: argparse.Namespace) -> int:
+    if not (args.timeout > 0 and math.isfinite(args.timeout)):
+        raise InputError(f"--timeout {args.timeout!r}: expected seconds > 0")
+    if not 1 <= args.limit <= 1000:
+        raise InputError(f"--limit {args.limit}: expected 1..1000")
+    from hdeem_watch.daemon.job_records import job_id_arg
+    from hdeem_watch.daemon.protocol import ProtocolError, dumps
+
+    request: dict[str, Any] = {}
+    if args.job is not None:
+        try:
+            request["job_id"] = job_id_arg(args.job)
+        except ProtocolError:
+            raise InputError(f"--job {args.job!r}: expected a SLURM job id such as 4242") from None
+    op = "job.get" if args.job is not None and not (args.user or args.since) else "job.list"
+    if op == "job.list":
+        request["limit"] = args.limit
+        if args.user:
+            request["user"] = args.user
+        if args.since:
+            request["since_ns"] = parse_since(args.since)
+    answers = query(targets(args), op, request, timeout_s=args.timeout)
+    if args.json:
+        sys.stdout.write(dumps({"nodes": answers}).decode() + "\n")
+    else:
+        print("\n".join(table(answers)))
+    return 0 if all(a["ok"] for a in answers) else 1

@@ -1,0 +1,157 @@
+"""Counter deltas per channel over each run window, next to the window's energy (pure, no I/O).
+
+The poll loop hands every counter snapshot to :meth:`CounterWindows.observe` and asks
+:meth:`CounterWindows.due` whether to read the counters now: at the heartbeat (for the stream's
+command rates), while a run window has no start yet, and while a closing window's end lies past
+the newest snapshot. Control operations read them at the window edges too (the poll just before a
+run starts or stops), so a window's ends are counted where its energy is cut.
+
+:meth:`CounterWindows.track` gives each new run window its start (the snapshot at the window's start,
+interpolated between reads); :meth:`CounterWindows.finish` takes the closed run's end on the power
+samples' axis (the last sample of its DRAM channels) and attaches the per-channel role deltas to
+the run record (``record.counters``), from which the model makes the window's ``CommandStats``
+(:func:`hdeem_watch.daemon.modelling.counter_groups`).
+
+Example:
+    >>> from hdeem_watch.counters.source import CounterSnapshot
+    >>> windows = CounterWindows("sim", table_key="haswell-ep", ranks=2, refresh_complete=False,
+    ...                          sensors={"S0.imc0": "DDR_AB"}, heartbeat_ns=10)
+    >>> windows.observe(CounterSnapshot(0, {"S0.imc0": {"act": 0.0, "cas_rd": 0.0}}), now_mono_ns=0)
+    >>> windows.observe(CounterSnapshot(10**9, {"S0.imc0": {"act": 5e6, "cas_rd": 2e7}}), now_mono_ns=10**9)
+    >>> windows.rates()["S0.imc0"]["act_per_s"]
+    5000000.0
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
+
+from hdeem_watch.counters.source import CounterSnapshot, interpolate, window_counts
+
+#: Snapshots kept to interpolate window ends (a few heartbeats and edge reads).
+HISTORY = 16
+
+
+class CounterWindows:
+    """Counter snapshots, run-window starts and the command rates of one node.
+
+    Args:
+        kind: the counter source's kind (``sim``, ``perf``, ``replay``).
+        table_key: the event table's generation key.
+        ranks: ranks per channel.
+        refresh_complete: whether the refresh events count every refresh.
+        sensors: channel → the DRAM power channel that measures it.
+        heartbeat_ns: read at least this often (monotonic ns).
+    """
+
+    def __init__(self, kind: str, *, table_key: str, ranks: int, refresh_complete: bool,
+                 sensors: Mapping[str, str | None], heartbeat_ns: int = 1_000_000_000) -> None:
+        self.kind = kind
+        self.table_key = table_key
+        self.ranks = int(ranks)
+        self.refresh_complete = bool(refresh_complete)
+        self.sensors = dict(sensors)
+        self.heartbeat_ns = int(heartbeat_ns)
+        self.history: collections.deque[CounterSnapshot] = collections.deque(maxlen=HISTORY)
+        self.error: str | None = None
+        self._last_read_mono: int | None = None
+        self._rate_base: CounterSnapshot | None = None
+        self._rate_top: CounterSnapshot | None = None
+        #: run id → the counters at its window's start.
+        self._starts: dict[str, CounterSnapshot] = {}
+
+    # -- reading ---------------------------------------------------------------------------------
+
+    def due(self, now_mono_ns: int, windows: Iterable[Any] = ()) -> bool:
+        """Whether to read the counters now (heartbeat, an untracked run window, a closing window's end)."""
+        if self._last_read_mono is None or now_mono_ns - self._last_read_mono >= self.heartbeat_ns:
+            return True
+        newest = self.history[-1].t_ns if self.history else None
+        for window in windows:
+            run = getattr(window, "run", None)
+            if run is None:
+                continue
+            if run.run_id not in self._starts:
+                return True
+            target = getattr(window, "target_t_ns", None)
+            if target is not None and (newest is None or newest < target):
+                return True
+        return False
+
+    def observe(self, snapshot: CounterSnapshot, *, now_mono_ns: int) -> None:
+        """Take a snapshot (time-ordered: an older one than the newest is ignored)."""
+        self._last_read_mono = int(now_mono_ns)
+        self.error = None
+        if self.history and snapshot.t_ns < self.history[-1].t_ns:
+            return
+        self.history.append(snapshot)
+        if self._rate_top is None or snapshot.t_ns - self._rate_top.t_ns >= 0.5e9:
+            self._rate_base, self._rate_top = self._rate_top, snapshot
+
+    def failed(self, error: BaseException, *, now_mono_ns: int) -> None:
+        """A read failed: keep the reason (in the status), try again at the next heartbeat."""
+        self._last_read_mono = int(now_mono_ns)
+        self.error = f"{type(error).__name__}: {error}"
+
+    # -- windows ---------------------------------------------------------------------------------
+
+    def track(self, windows: Iterable[Any], sample_time: Callable[[int], int]) -> None:
+        """Give every new run window its start: the counters at its start poll (interpolated)."""
+        if not self.history:
+            return
+        for window in windows:
+            run = getattr(window, "run", None)
+            if run is not None and run.run_id not in self._starts:
+                self._starts[run.run_id] = interpolate(list(self.history), sample_time(window.t_start_mono_ns))
+
+    def finish(self, record: Any, dram_channels: Iterable[str]) -> dict[str, Any] | None:
+        """The counters of a closed run (``record.counters``), or None without a start or snapshot."""
+        start = self._starts.pop(record.run_id, None)
+        if start is None or not self.history:
+            return None
+        ends = [span[1] for c, span in (record.samples_ns or {}).items()
+                if c in set(dram_channels) and span and span[1] is not None]
+        end_t = max(ends) if ends else self.history[-1].t_ns
+        status = "ok"
+        if end_t > self.history[-1].t_ns:
+            status = f"short: the counters reach {(end_t - self.history[-1].t_ns) / 1e9:.3f} s less far than the samples"
+            end_t = self.history[-1].t_ns
+        end = interpolate(list(self.history), end_t)
+        window_s = (end.t_ns - start.t_ns) / 1e9
+        if not window_s > 0:
+            return {"source": self.kind, "status": "unknown: empty counter window", "window_s": window_s}
+        return {"source": self.kind, "generation": self.table_key, "status": status, "ranks": self.ranks,
+                "refresh_complete": self.refresh_complete, "t_start_ns": start.t_ns, "t_end_ns": end.t_ns,
+                "window_s": window_s, "sensors": dict(self.sensors), "channels": window_counts(start, end)}
+
+    def forget(self, run_id: str) -> None:
+        """Drop a window's start (an aborted run)."""
+        self._starts.pop(run_id, None)
+
+    # -- rates -----------------------------------------------------------------------------------
+
+    def rates(self) -> dict[str, dict[str, float]]:
+        """Per channel over the latest ≥ 0.5 s between reads: ACT/s, RD/s, WR/s, power-down share
+        (NaN where unknown); empty before two reads."""
+        base, top = self._rate_base, self._rate_top
+        if base is None or top is None or top.t_ns <= base.t_ns:
+            return {}
+        seconds = (top.t_ns - base.t_ns) / 1e9
+        out = {}
+        for channel, counts in window_counts(base, top).items():
+            dclk = counts.get("dclk", math.nan)
+            cke = [counts.get(f"cke_on_rank{r}", math.nan) for r in range(self.ranks)]
+            if all(math.isfinite(c) for c in cke) and dclk > 0:
+                powerdown = 1.0 - sum(cke) / (len(cke) * dclk)
+            elif math.isfinite(counts.get("ppd_cycles", math.nan)) and dclk > 0:
+                powerdown = counts["ppd_cycles"] / dclk
+            else:
+                powerdown = math.nan
+            out[channel] = {"act_per_s": counts.get("act", math.nan) / seconds,
+                            "rd_per_s": counts.get("cas_rd", math.nan) / seconds,
+                            "wr_per_s": counts.get("cas_wr", math.nan) / seconds,
+                            "powerdown_share": min(1.0, max(0.0, powerdown)) if math.isfinite(powerdown) else math.nan}
+        return out

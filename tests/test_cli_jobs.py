@@ -1,0 +1,67 @@
+"""``hdeem-watch jobs``: which daemons it asks, ``--since``, and a node that does not answer."""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from hdeem_watch.cli.jobs import Target, parse_since, query, table, targets
+from hdeem_watch.errors import InputError
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def _args(**given: object) -> argparse.Namespace:
+    values: dict[str, object] = {"connect": [], "slurm": False, "port": None}
+    values.update(given)
+    return argparse.Namespace(**values)
+
+
+def test_since_takes_a_time_ago_or_an_iso_time() -> None:
+    """--since 30min/2h/1d counts back from now; an ISO time is taken as it is; anything else is a
+    one-line error naming the option."""
+    now = 1_800_000_000 * 10**9
+    assert parse_since("30min", now) == now - 1800 * 10**9
+    assert parse_since("1d", now) == now - 86400 * 10**9
+    assert parse_since("2026-11-25T14:00:00+00:00") == 1_795_615_200 * 10**9
+    with pytest.raises(InputError, match="--since 'yesterday'"):
+        parse_since("yesterday")
+
+
+def test_targets_inside_an_allocation_ask_every_node() -> None:
+    """Inside an allocation every node is asked on the control port, this node through its local
+    endpoint; --connect names daemons explicitly; --slurm outside an allocation is bad input."""
+    env = {"SLURM_JOB_NODELIST": "c[1-3]", "SLURMD_NODENAME": "c2", "HDEEM_WATCH_CONTROL": "ipc:///x/c.sock",
+           "HDEEM_WATCH_CONTROL_PORT": "7411"}
+    assert targets(_args(), env) == [Target("c1", "tcp://c1:7411"), Target("c2", "ipc:///x/c.sock"),
+                                     Target("c3", "tcp://c3:7411")]
+    assert targets(_args(connect=["tcp://n9:5591"]), env) == [Target("n9:5591", "tcp://n9:5591")]
+    assert [t.endpoint for t in targets(_args(port=9), {"SLURM_JOB_NODELIST": "z1"})] == ["tcp://z1:9"]
+    with pytest.raises(InputError, match="--slurm: no SLURM allocation"):
+        targets(_args(slurm=True), {"HDEEM_WATCH_CONTROL": "ipc:///x/c.sock"})
+    with pytest.raises(InputError, match="--connect"):
+        targets(_args(connect=["node7:5591"]), {})
+
+
+def test_a_node_that_does_not_answer_is_a_line_not_a_hang(tmp_path: Path) -> None:
+    """Nodes are asked in parallel with a bounded timeout: two dead ones cost one timeout, and each
+    is a line saying so; the command exits 1."""
+    dead = [Target("a", f"ipc://{tmp_path}/a.sock"), Target("b", "tcp://127.0.0.1:9")]
+    began = time.monotonic()
+    answers = query(dead, "job.list", {}, timeout_s=0.5)
+    assert time.monotonic() - began < 1.5
+    assert [a["ok"] for a in answers] == [False, False]
+    lines = table(answers)
+    assert lines[1].startswith("a ") and "unreachable" in lines[1] and "unreachable" in lines[2]
+    proc = subprocess.run([sys.executable, "-m", "hdeem_watch", "jobs", "--connect", "tcp://127.0.0.1:9",
+                           "--timeout", "0.3"], capture_output=True, text=True, timeout=30,
+                          env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"})
+    assert proc.returncode == 1 and "unreachable" in proc.stdout, proc.stderr
+    bad = subprocess.run([sys.executable, "-m", "hdeem_watch", "jobs", "--job", "1 2"], capture_output=True,
+                         text=True, timeout=30, env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"})
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "--job" in bad.stderr
