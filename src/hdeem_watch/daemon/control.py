@@ -39,6 +39,7 @@ import zmq
 from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.authorization import (
     FORBIDDEN,
+    RULE,
     STATE_CHANGING_OPS,
     Authorizer,
     Peer,
@@ -51,7 +52,6 @@ from hdeem_watch.errors import InputError
 log = logging.getLogger(__name__)
 
 Handler = Callable[[dict[str, Any]], Any]
-_STATE_CHANGING = STATE_CHANGING_OPS
 #: The op that tells a client who the daemon takes it for and whether it may change state.
 WHOAMI = "whoami"
 
@@ -121,7 +121,7 @@ class RequestPeer:
 
     def refusal(self, op: str) -> str | None:
         """Why the peer may not run ``op``, or None."""
-        if op not in _STATE_CHANGING:
+        if op not in STATE_CHANGING_OPS:
             return None
         refusal = self._authorizer.refusal(op, self.peer)
         if refusal is not None and self._on_refusal is not None:
@@ -131,11 +131,11 @@ class RequestPeer:
     def whoami(self) -> dict[str, Any]:
         """The ``whoami`` result: the peer as the daemon sees it and whether it may change state."""
         peer = self.peer
-        refusal = self._authorizer.refusal("run.start", peer)
+        may = self._authorizer.may_change_state(peer)
         return {"transport": peer.transport, "uid": peer.uid, "user": peer.user, "pid": peer.pid,
-                "peer": peer.describe(), "may_change_state": refusal is None,
-                "reason": None if refusal is None else refusal.split("; ", 1)[0].replace("run.start", "changing state"),
-                "state_changing_ops": sorted(_STATE_CHANGING)}
+                "peer": peer.describe(), "may_change_state": may,
+                "reason": None if may else f"changing state needs {RULE}",
+                "state_changing_ops": sorted(STATE_CHANGING_OPS)}
 
 
 def dispatch(data: bytes, handlers: Mapping[str, Handler], max_bytes: int = protocol.MAX_REQUEST_BYTES,
