@@ -162,7 +162,7 @@ def _dispatch(data: bytes, handlers: Mapping[str, Handler], max_bytes: int,
         return encode_result(request.id, peer.whoami(), request.op)
     handler = handlers.get(request.op)
     if handler is None:
-        known = ", ".join(sorted(handlers))
+        known = ", ".join(sorted([*handlers, WHOAMI] if peer is not None else handlers))
         return protocol.encode_reply_error(request.id, "unknown-op", f"unknown op {request.op[:80]!r}; expected one of {known}")
     refusal = peer.refusal(request.op) if peer is not None else None
     if refusal is not None:
