@@ -296,3 +296,15 @@ def test_overlapping_jobs_name_each_other_and_bad_requests_are_refused(node: Job
         with pytest.raises(Failed) as info:
             node.call(op, {"job_id": "404"})
         assert info.value.code == "not-found"
+
+
+def test_a_late_stop_inside_the_session_says_how_late(node: JobNode) -> None:
+    """A stop that comes after the job's end while the same daemon measured (it did not answer the
+    Epilog in time): the window closes now and the record says how long past the end it measured."""
+    node.call("job.start", {"job_id": "3"})
+    node.advance(2.0)
+    ended = node.wall() - 1_500_000_000
+    record = node.call("job.stop", {"job_id": "3", "ended_ns": ended})
+    assert record["state"] == "done" and record["late_stop_s"] == pytest.approx(1.5, abs=0.05)
+    assert record["status"].startswith("late stop: measured 1.5 s past the job's end")
+    assert_exact(node, record)
