@@ -164,3 +164,16 @@ def test_a_hung_daemon_gets_no_twin_and_its_missed_stop_comes_later(tmp_path: Pa
         daemon.send_signal(signal.SIGCONT)
         daemon.terminate()
         daemon.wait(timeout=20)
+
+
+def test_the_hooks_log_is_bounded(tmp_path: Path) -> None:
+    """jobs.jsonl is rotated to jobs.jsonl.1 beyond MAX_LOG_BYTES: at most twice that on disk."""
+    from hdeem_watch.slurm import hooks
+
+    log = tmp_path / "jobs.jsonl"
+    line = {"event": "prolog", "job_id": "1", "pad": "x" * 1000}
+    for _ in range(3 * hooks.MAX_LOG_BYTES // 1000):
+        hooks._append_bounded(log, line)
+    sizes = [p.stat().st_size for p in sorted(tmp_path.glob("jobs.jsonl*"))]
+    assert len(sizes) == 2 and all(size <= hooks.MAX_LOG_BYTES + 1100 for size in sizes)
+    assert json.loads(log.read_text().splitlines()[-1]) == line
