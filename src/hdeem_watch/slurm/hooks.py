@@ -252,7 +252,7 @@ def prolog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
         record["baseline"] = "measured" if why is None else why
     uid = ctx.get("uid", "")
     args = {"job_id": job_id, "user": ctx.get("user", ""), "uid": int(uid) if uid.isdigit() else None,
-            "nodes": allocation_nodes({"SLURM_NODELIST": ctx.get("nodelist", "")}), "cpus": _cpus(env)}
+            "nodes": ctx.get("nodelist", ""), "cpus": _cpus(env)}  # the hostlist as SLURM gives it (compact)
     _result, why = _call(s.control, "job.start", args, s.timeout_s)
     record["job_start"] = "ok" if why is None else why
     if why is not None:
