@@ -217,8 +217,10 @@ class HdeemWatchApp(App[int]):
         if text != self._job_text:
             self._job_text = text
             line = self.query_one("#job", Static)
-            line.update(text)
-            line.display = bool(text)
+            if text:
+                line.update(text)
+            if line.display != bool(text):
+                line.display = bool(text)
 
     def _show_notice(self, feed_notice: str) -> None:
         """The newest notice — a control reply from the feed, or the app's own — replaces the key
