@@ -42,6 +42,7 @@ def test_targets_inside_an_allocation_ask_every_node() -> None:
                                      Target("c3", "tcp://c3:7411")]
     assert targets(_args(connect=["tcp://n9:5591"]), env) == [Target("n9:5591", "tcp://n9:5591")]
     assert [t.endpoint for t in targets(_args(port=9), {"SLURM_JOB_NODELIST": "z1"})] == ["tcp://z1:9"]
+    assert [t.endpoint for t in targets(_args(nodes="q[1-2]"), {})] == ["tcp://q1:5591", "tcp://q2:5591"]
     with pytest.raises(InputError, match="--slurm: no SLURM allocation"):
         targets(_args(slurm=True), {"HDEEM_WATCH_CONTROL": "ipc:///x/c.sock"})
     with pytest.raises(InputError, match="--connect"):
