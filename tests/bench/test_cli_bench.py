@@ -192,7 +192,8 @@ def test_announcements_bracket_each_run(router: FakeRouter) -> None:
     assert proc.returncode == 0, proc.stderr
     records = [json.loads(line) for line in proc.stdout.splitlines()]
     ops = [r["op"] for _, r in router.requests]
-    assert ops == ["status", "run.start", "run.stop", "run.start", "run.stop"]
+    # whoami: may this user's runs be recorded? (this fake answers unknown-op, as an older daemon)
+    assert ops == ["status", "whoami", "run.start", "run.stop", "run.start", "run.stop"]
     starts = [(t, r) for t, r in router.requests if r["op"] == "run.start"]
     stops = [(t, r) for t, r in router.requests if r["op"] == "run.stop"]
     for (t_start, start), (t_stop, stop), record in zip(starts, stops, records, strict=True):
@@ -260,7 +261,7 @@ def test_daemon_failing_mid_sweep_warns_once_and_finishes(tmp_path: Path) -> Non
     records = [json.loads(line) for line in proc.stdout.splitlines()]
     assert [r["kernel"] for r in records] == ["read", "copy", "scale"]
     assert records[0]["run_id"] == "r1" and "run_id" not in records[1] and "run_id" not in records[2]
-    assert [r["op"] for _, r in server.requests] == ["status", "run.start", "run.stop", "run.start"]
+    assert [r["op"] for _, r in server.requests] == ["status", "whoami", "run.start", "run.stop", "run.start"]
     warnings = [line for line in proc.stderr.splitlines() if "run.start failed" in line]
     assert len(warnings) == 1 and "busy" in warnings[0] and "not announced" in warnings[0]
 
@@ -310,4 +311,4 @@ def test_a_run_still_refused_after_the_wait_exits_1(tmp_path: Path) -> None:
     assert error.startswith("hdeem-watch bench: error: ") and "still refused run.start for read-1t" in error
     assert "after waiting 1.5 s" in error and "run 7 is in progress" in error and "0 of 2 runs done" in error
     ops = [r["op"] for _, r in server.requests]
-    assert ops[0] == "status" and set(ops[1:]) == {"run.start"} and 2 <= len(ops) - 1 <= 4
+    assert ops[:2] == ["status", "whoami"] and set(ops[2:]) == {"run.start"} and 2 <= len(ops) - 2 <= 4

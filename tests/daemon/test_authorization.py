@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 import tempfile
 import threading
+import traceback
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -110,23 +112,52 @@ def shared_dir() -> Iterator[Path]:
         shutil.rmtree(directory, ignore_errors=True)
 
 
-@pytest.fixture
-def in_process_daemon(shared_dir: Path) -> Iterator[tuple[Daemon, set[int]]]:
-    owners: set[int] = set()
-    settings = DaemonSettings(pub=f"ipc://{shared_dir}/p.sock", control=f"ipc://{shared_dir}/c.sock",
-                              state_dir=str(shared_dir / "s"), node="n", speed=20.0, heartbeat_s=0.2,
+def _daemon_in(directory: Path, owners: set[int] | None) -> Iterator[Daemon]:
+    settings = DaemonSettings(pub=f"ipc://{directory}/p.sock", control=f"ipc://{directory}/c.sock",
+                              state_dir=str(directory / "s"), node="n", speed=20.0, heartbeat_s=0.2,
                               model_max_requests=100_000)
-    daemon = Daemon(settings, source=SimSource(seed=3, speed=20.0), job_owner_uids=lambda: frozenset(owners))
+    uids = None if owners is None else (lambda: frozenset(owners))
+    daemon = Daemon(settings, source=SimSource(seed=3, speed=20.0), job_owner_uids=uids)
     daemon.start()
-    os.chmod(shared_dir / "c.sock", 0o666)  # as if nobody were in the daemon's group
+    os.chmod(directory / "c.sock", 0o666)  # as if nobody were in the daemon's group
     loop = threading.Thread(target=daemon.run)
     loop.start()
     try:
-        yield daemon, owners
+        yield daemon
     finally:
         daemon.request_stop()
         loop.join()
         daemon.close()
+
+
+@pytest.fixture
+def in_process_daemon(shared_dir: Path) -> Iterator[tuple[Daemon, set[int]]]:
+    """A daemon whose job owners the test sets."""
+    owners: set[int] = set()
+    for daemon in _daemon_in(shared_dir, owners):
+        yield daemon, owners
+
+
+@pytest.fixture
+def job_daemon(shared_dir: Path) -> Iterator[Daemon]:
+    """A daemon whose job owners are its own job book's (as in production)."""
+    yield from _daemon_in(shared_dir, None)
+
+
+def test_the_owner_of_a_job_opened_by_the_prolog_may_announce_runs_until_it_ends(job_daemon: Daemon) -> None:
+    """The job book decides: root's job.start for nobody's job lets nobody start a run on the node;
+    after job.stop nobody is refused again."""
+    endpoint = job_daemon.control_endpoint
+    assert _call_as(NOBODY, endpoint, "run.start", {"kernel": "idle"})["code"] == "forbidden"
+    assert _call_as(NOBODY, endpoint, "job.start", {"job_id": "77", "user": "nobody", "uid": NOBODY})["code"] == \
+        "forbidden"  # a user cannot open a job window for themselves
+    with ControlClient(endpoint, timeout_s=20) as root:
+        root.call("job.start", {"job_id": "77", "user": "nobody", "uid": NOBODY, "nodes": ["n"], "cpus": 1})
+        started = _call_as(NOBODY, endpoint, "run.start", {"kernel": "idle"})
+        assert started["ok"], started
+        assert _call_as(NOBODY, endpoint, "run.stop", {"run_id": started["result"]["run_id"], "abort": True})["ok"]
+        root.call("job.stop", {"job_id": "77", "exit_code": 0})
+    assert _call_as(NOBODY, endpoint, "run.start", {"kernel": "idle"})["code"] == "forbidden"
 
 
 def test_ipc_run_start_refused_for_another_user_allowed_for_root_and_the_job_owner(
@@ -150,6 +181,55 @@ def test_ipc_run_start_refused_for_another_user_allowed_for_root_and_the_job_own
     assert started["ok"], started
     stopped = _call_as(NOBODY, endpoint, "run.stop", {"run_id": started["result"]["run_id"], "abort": True})
     assert stopped["ok"], stopped
+
+
+def _as_user(uid: int, action: Callable[[], int]) -> tuple[int, str]:
+    """Run ``action`` in a forked child as ``uid``; its exit code and what it wrote to stderr."""
+    read_end, write_end = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # pragma: no cover - the child
+        code = 70
+        try:
+            os.close(read_end)
+            os.dup2(write_end, 2)
+            sys.stderr = os.fdopen(2, "w")  # not pytest's capture
+            os.setgroups([])
+            os.setgid(uid)
+            os.setuid(uid)
+            code = action()
+        except BaseException:
+            traceback.print_exc()
+        finally:
+            sys.stderr.flush()
+            os._exit(code)
+    os.close(write_end)
+    with os.fdopen(read_end, "rb") as pipe:
+        err = pipe.read().decode()
+    _, status = os.waitpid(pid, 0)
+    return os.waitstatus_to_exitcode(status), err
+
+
+def test_whoami_and_bench_say_before_any_run_that_the_user_may_not(
+        in_process_daemon: tuple[Daemon, set[int]]) -> None:
+    """``whoami`` tells a client how the daemon sees it; ``bench --daemon`` stops with exit 1 and
+    the reason before running a kernel, instead of a sweep without energies."""
+    daemon, owners = in_process_daemon
+    endpoint = daemon.control_endpoint
+    me = _call_as(NOBODY, endpoint, "whoami")["result"]
+    assert me["uid"] == NOBODY and me["transport"] == "ipc" and me["may_change_state"] is False
+    assert me["reason"].startswith("changing state needs root")
+    with ControlClient(endpoint) as root:
+        assert root.call("whoami")["may_change_state"] is True
+
+    from hdeem_watch.bench import announce  # noqa: F401  (the child cannot read root's Python library)
+    from hdeem_watch.cli import bench, main  # noqa: F401
+
+    code, err = _as_user(NOBODY, lambda: main(["bench", "--daemon", endpoint, "--kernels", "triad",
+                                               "--elements", "1000", "--repeat", "1", "--json"]))
+    assert code == 1, err
+    assert "would not record runs from uid 65534 (ipc" in err and "run inside your SLURM job" in err
+    owners.add(NOBODY)
+    assert _call_as(NOBODY, endpoint, "whoami")["result"]["may_change_state"] is True
 
 
 @pytest.fixture

@@ -177,3 +177,22 @@ def test_tui_without_the_key_stops_at_once_with_the_reason(curve_endpoint: Any, 
     assert time.monotonic() - start < 5
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"hdeem-watch: error: {endpoint}: the daemon requires CURVE"), err
+
+
+def test_a_plain_control_client_takes_the_keys_the_environment_names(curve_endpoint: Any, tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """``ControlClient(tcp_endpoint)`` with no keys given uses $HDEEM_WATCH_SERVER_KEY and
+    $HDEEM_WATCH_CLIENT_KEY, so every client (``jobs``, scripts) just works on a configured node."""
+    endpoint, server_key, allowed = curve_endpoint
+    monkeypatch.setenv("HDEEM_WATCH_CONFIG", str(tmp_path / "absent.toml"))
+    monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.delenv("XDG_CONFIG_HOME", raising=False)
+    monkeypatch.setenv("HDEEM_WATCH_SERVER_KEY", server_key.decode())
+    key_file = tmp_path / "clients" / "root.key_secret"  # the fixture's registered pair
+    assert load_secret_key(key_file) == allowed
+    monkeypatch.setenv("HDEEM_WATCH_CLIENT_KEY", str(key_file))
+    with ControlClient(endpoint, timeout_s=5) as client:
+        assert client.call("status") == {"up": True}
+    with ControlClient(endpoint, timeout_s=5, curve_from_environment=False) as plain, \
+            pytest.raises(HandshakeFailed, match="requires CURVE"):
+        plain.call("status")

@@ -11,7 +11,10 @@ do, and clients reach them by node name. The names resolve only where the "login
 them: clients run under ``unshare --mount`` with a private ``/etc/hosts`` bound over the real one
 (:meth:`TwoNodeCluster.login_command`), so the machine's own resolver is never touched. Both
 daemons use one CURVE key pair (a cluster's) and admit the clients in ``clients/``, where
-``root.key`` is registered for root.
+``root.key`` is registered for root. The Prolog and Epilog are the project's hooks
+(``daemon/slurm/``): each node's hook reads that node's daemon config (chosen by
+``$SLURMD_NODENAME``, as each real node has its own ``/etc/hdeem-watch``) and talks to the daemon
+over its local ipc socket, as root.
 
 Needs root and the packages slurmctld, slurmd, slurm-client and munge (``.ci/run`` installs them).
 """
@@ -33,6 +36,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
+HOOKS = REPO / "daemon" / "slurm"
 NODES = ("hwn1", "hwn2")
 ADDRESSES = {"hwn1": "127.0.0.11", "hwn2": "127.0.0.12"}
 BINARIES = ("munged", "slurmctld", "slurmd", "srun", "sbatch", "scontrol", "sinfo", "squeue", "unshare")
@@ -46,6 +50,11 @@ class NodeDaemon:
     address: str
     directory: Path
     process: subprocess.Popen[bytes] | None = None
+
+    @property
+    def config(self) -> Path:
+        """The daemon's config file (the one source of truth for the node's hooks too)."""
+        return self.directory / "hdeem-watchd.toml"
 
     @property
     def local_control(self) -> str:
@@ -168,6 +177,15 @@ def _stop_pid(pid: int) -> None:
         os.kill(pid, signal.SIGKILL)
 
 
+def _hook_wrapper(path: Path, hook: Path, env: dict[str, str], root: Path) -> Path:
+    """A Prolog/Epilog wrapper: the hooks' settings, this node's daemon config, then the real hook."""
+    exports = "".join(f"export {k}='{v}'\n" for k, v in env.items())
+    config = f'export HDEEM_WATCH_CONFIG="{root}/$SLURMD_NODENAME/hdeem-watchd.toml"\n'
+    path.write_text(f"#!/bin/sh\n{exports}{config}exec {hook}\n")
+    path.chmod(0o755)
+    return path
+
+
 def _slurm_conf(root: Path, prolog: str, epilog: str) -> str:
     ports = {node: _free_port() for node in NODES}
     nodes = [f"NodeName={node} NodeHostname=localhost NodeAddr=127.0.0.1 Port={ports[node]} CPUs=1 "
@@ -187,16 +205,19 @@ def _slurm_conf(root: Path, prolog: str, epilog: str) -> str:
 
 
 def _start_daemon(cluster: TwoNodeCluster, node: str, control_port: int, secret: Path, clients: Path) -> NodeDaemon:
+    """Start a node's daemon from its own config file (``<node>/hdeem-watchd.toml``, as on a node)."""
     address = ADDRESSES[node]
     daemon = NodeDaemon(node, address, cluster.root / node)
     (daemon.directory / "run").mkdir(parents=True)
     daemon.directory.chmod(0o755)
-    command = [sys.executable, "-m", "hdeem_watch", "daemon", "--source", "sim", "--node", node,
-               "--speed", "10", "--poll-interval", "0.05", "--state-dir", str(daemon.directory / "state"),
-               "--runtime-dir", str(daemon.directory / "run"), "--control", daemon.local_control,
-               "--pub", f"tcp://{address}:{_free_port(address)}",
-               "--remote-control", f"tcp://{address}:{control_port}",
-               "--curve-secret-key", str(secret), "--curve-clients", str(clients)]
+    settings = {
+        "source": "sim", "node": node, "speed": 10.0, "poll_interval_s": 0.05, "job_checkpoint_s": 1.0,
+        "state_dir": str(daemon.directory / "state"), "runtime_dir": str(daemon.directory / "run"),
+        "control": daemon.local_control, "pub": f"tcp://{address}:{_free_port(address)}",
+        "remote_control": f"tcp://{address}:{control_port}",
+        "curve_secret_key_file": str(secret), "curve_clients_dir": str(clients)}
+    daemon.config.write_text("".join(f"{key} = {value!r}\n".replace("'", '"') for key, value in settings.items()))
+    command = [sys.executable, "-m", "hdeem_watch", "daemon", "--config", str(daemon.config)]
     with open(daemon.directory / "daemon.log", "wb") as log:
         daemon.process = subprocess.Popen(command, env=cluster.env, stdout=subprocess.DEVNULL, stderr=log)
     return daemon
@@ -237,7 +258,11 @@ def two_node_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TwoNo
     shutil.copy(root / "client" / "root.key", clients / "root.key")
     (root / "hosts").write_text("127.0.0.1 localhost\n" + "".join(f"{a} {n}\n" for n, a in ADDRESSES.items()))
     conf = root / "slurm.conf"
-    conf.write_text(_slurm_conf(root, "", ""))
+    hook_env = {"HDEEM_WATCH_PYTHON": sys.executable, "HDEEM_WATCH_HOOK_CONF": str(root / "hooks.env"),
+                "PYTHONPATH": str(REPO / "src")}
+    prolog = _hook_wrapper(root / "prolog.sh", HOOKS / "prolog.sh", hook_env, root)
+    epilog = _hook_wrapper(root / "epilog.sh", HOOKS / "epilog.sh", hook_env, root)
+    conf.write_text(_slurm_conf(root, str(prolog), str(epilog)))
     (root / "state").mkdir()
     env = {k: v for k, v in os.environ.items() if not k.startswith("SLURM_")}
     env["SLURM_CONF"] = str(conf)

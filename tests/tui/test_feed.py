@@ -202,3 +202,40 @@ def test_view_settings_are_immutable_and_swapped_whole(fake_node: FakeNode) -> N
     assert all(feed.view is hub.view for feed in hub.feeds)
     with pytest.raises(dataclasses.FrozenInstanceError):
         hub.view.focus = 0  # type: ignore[misc]
+
+
+def test_a_curve_stream_without_the_key_is_named_refused(sock_dir: Path) -> None:
+    """A daemon whose control is local ipc and whose stream is CURVE TCP: a feed without the key
+    reaches the control socket, and says the stream refused it (not "nothing arrives ... firewall?");
+    with the key the same feed goes live."""
+    import threading as _threading
+
+    from hdeem_watch.config import DaemonSettings
+    from hdeem_watch.daemon.security import client_curve, generate_keys
+    from hdeem_watch.daemon.service import Daemon
+    from hdeem_watch.sources.sim import SimSource
+
+    public, secret = generate_keys(sock_dir / "keys", "server")
+    settings = DaemonSettings(pub="tcp://127.0.0.1:*", control=f"ipc://{sock_dir}/c.sock", node="curve1",
+                              state_dir=str(sock_dir / "state"), speed=10.0, curve_secret_key_file=str(secret))
+    daemon = Daemon(settings, source=SimSource(seed=1, speed=10.0))
+    daemon.start()
+    loop = _threading.Thread(target=daemon.run)
+    loop.start()
+    feeds: list[NodeFeed] = []
+    try:
+        plain = NodeFeed(daemon.control_endpoint, stale_after_s=1.0)
+        feeds.append(plain)
+        plain.start()
+        snap = wait_for(plain, lambda s: "refused" in s.health.detail)
+        assert "requires CURVE" in snap.health.detail and snap.health.state == "connecting"
+        keyed = NodeFeed(daemon.control_endpoint, curve=client_curve(str(public), env={"HDEEM_WATCH_CONFIG": "/x"}))
+        feeds.append(keyed)
+        keyed.start()
+        wait_for(keyed, lambda s: s.health.state == "live")
+    finally:
+        for feed in feeds:
+            feed.stop()
+        daemon.request_stop()
+        loop.join()
+        daemon.close()

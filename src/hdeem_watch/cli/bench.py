@@ -9,7 +9,9 @@ Example::
 Output: a table (default), or with ``--json`` one JSON object per run and line on stdout with at
 least ``kernel, threads, elements, seconds, lines_per_s, dram_bytes_per_s, stream_bytes_per_s``. A
 progress bar goes to stderr when stderr is a terminal. Exit codes: 0 success, 2 bad input (one line
-on stderr), 1 the daemon still refused a run after ``--wait`` seconds (another run was open).
+on stderr), 1 the daemon still refused a run after ``--wait`` seconds (another run was open), or
+would not take runs from this user at all (authorization: root, the daemon's user or the owner of
+a job running on the node; said before any kernel runs).
 """
 
 from __future__ import annotations
@@ -144,6 +146,10 @@ def _run(args: argparse.Namespace) -> int:
         announcer = Announcer(args.daemon, timeout_s=args.timeout, metadata=slurm.job_metadata(), warn=warn,
                               wait_s=args.wait, client=client)
         announcer.check()
+        if (refusal := _refusal(client)) is not None:
+            announcer.close()
+            print(f"hdeem-watch bench: error: --daemon {args.daemon}: {refusal}", file=sys.stderr)
+            return 1
     results: list[RunResult] = []
     refused: RunRefused | None = None
     try:
@@ -174,6 +180,21 @@ def _run(args: argparse.Namespace) -> int:
         print(f"hdeem-watch bench: error: {refused}; {len(results)} of {len(specs)} runs done", file=sys.stderr)
         return 1
     return 0
+
+
+def _refusal(client: Any) -> str | None:
+    """Why the daemon would refuse this user's runs (``whoami``), before any kernel runs; None when
+    it would take them, or when it is too old to tell."""
+    from hdeem_watch.daemon.client import ControlError, DaemonUnreachable
+
+    try:
+        me = client.call("whoami")
+    except (ControlError, DaemonUnreachable):
+        return None
+    if not isinstance(me, dict) or me.get("may_change_state") is not False:
+        return None
+    return (f"the daemon would not record runs from {me.get('peer')}: {me.get('reason')} "
+            "(run inside your SLURM job on that node, or as root)")
 
 
 def _jsonable(value: Any) -> Any:

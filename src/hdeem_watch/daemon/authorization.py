@@ -18,8 +18,8 @@ Example:
     ...                     uid_of_user=lambda name: {"alice": 1000}.get(name))
     >>> policy.refusal("status", Peer("tcp"))      # reading is open
     >>> policy.refusal("run.start", ipc_peer("localhost:1000:1000:42"))   # the job owner
-    >>> policy.refusal("run.start", ipc_peer("localhost:1001:1001:43"))
-    'run.start needs root, the daemon's user or the owner of a job running on this node; the peer is uid 1001 (ipc, pid 43)'
+    >>> print(policy.refusal("run.start", ipc_peer("localhost:1001:1001:43")))
+    run.start needs root, the daemon's user or the owner of a job running on this node; the peer is uid 1001 (ipc, pid 43)
 """
 
 from __future__ import annotations
@@ -42,6 +42,8 @@ STATE_CHANGING_OPS: frozenset[str] = frozenset({
 
 #: The error code of a refused request.
 FORBIDDEN = "forbidden"
+#: Who may change state, for messages.
+RULE = "root, the daemon's user or the owner of a job running on this node"
 
 _IPC_CREDENTIALS = re.compile(r":(\d+):(\d+):(\d+)$")
 
@@ -139,11 +141,12 @@ class Authorizer:
         """Whether ``uid`` may change the daemon's state now."""
         return uid == 0 or uid == self.daemon_uid or uid in self.job_owner_uids()
 
+    def may_change_state(self, peer: Peer) -> bool:
+        """Whether ``peer`` may run the state-changing ops now."""
+        return peer.uid is not None and self.allowed_uid(peer.uid)
+
     def refusal(self, op: str, peer: Peer) -> str | None:
         """Why ``peer`` may not run ``op`` (one line), or None when it may."""
-        if op not in STATE_CHANGING_OPS:
+        if op not in STATE_CHANGING_OPS or self.may_change_state(peer):
             return None
-        if peer.uid is not None and self.allowed_uid(peer.uid):
-            return None
-        return (f"{op} needs root, the daemon's user or the owner of a job running on this node; "
-                f"the peer is {peer.describe()}")
+        return f"{op} needs {RULE}; the peer is {peer.describe()}"

@@ -137,8 +137,14 @@ class ControlClient:
         timeout_s: how long :meth:`call` waits for a reply.
         socket_type: ``"dealer"`` (default) or ``"req"``.
         context: a ZeroMQ context (default: the process's shared instance).
-        curve_server_key: the daemon's CURVE public key (Z85, 40 bytes) when it runs with CURVE.
-        curve_client_keys: ``(public, secret)`` of this client (default: an ephemeral pair).
+        curve_server_key: the daemon's CURVE public key (Z85, 40 bytes) when it runs with CURVE;
+            default for a TCP endpoint: the one the environment names (``$HDEEM_WATCH_SERVER_KEY``,
+            else the node's daemon config; :func:`hdeem_watch.daemon.security.client_curve`).
+        curve_client_keys: ``(public, secret)`` of this client (default: ``$HDEEM_WATCH_CLIENT_KEY``
+            or ``~/.config/hdeem-watch/client.key_secret`` with an environment key, else an
+            ephemeral pair).
+        curve_from_environment: look for the keys in the environment when none are given (False:
+            no CURVE unless ``curve_server_key``).
 
     Example:
         >>> with ControlClient("ipc:///tmp/x/control.sock", timeout_s=0.05) as c:  # doctest: +SKIP
@@ -155,6 +161,7 @@ class ControlClient:
         context: zmq.Context[Any] | None = None,
         curve_server_key: bytes | None = None,
         curve_client_keys: tuple[bytes, bytes] | None = None,
+        curve_from_environment: bool = True,
     ) -> None:
         if socket_type not in ("dealer", "req"):
             raise ValueError(f"socket_type {socket_type!r}: expected 'dealer' or 'req'")
@@ -166,13 +173,14 @@ class ControlClient:
         self._socket: zmq.Socket[Any] | None = None
         self._watch: HandshakeWatch | None = None
         self._curve = (curve_server_key, curve_client_keys)
+        self._curve_from_environment = curve_from_environment and curve_server_key is None
 
     def _connect(self) -> zmq.Socket[Any]:
         if self._socket is None:
             sock = self._context.socket(self._type)
             sock.setsockopt(zmq.LINGER, 0)
-            server_key, client_keys = self._curve
             tcp = self.endpoint.startswith("tcp://")
+            server_key, client_keys = self._curve_keys() if tcp else self._curve
             if server_key is not None and tcp:
                 from hdeem_watch.daemon.security import secure_client
 
@@ -182,6 +190,21 @@ class ControlClient:
             sock.connect(self.endpoint)
             self._socket = sock
         return self._socket
+
+    def _curve_keys(self) -> tuple[bytes | None, tuple[bytes, bytes] | None]:
+        """The keys given, else (once) the environment's.
+
+        Raises:
+            InputError: a key the environment names cannot be read.
+        """
+        if self._curve_from_environment:
+            from hdeem_watch.daemon.security import client_curve
+
+            self._curve_from_environment = False
+            found = client_curve()
+            if found is not None:
+                self._curve = (found.server_key, self._curve[1] or found.client_keys)
+        return self._curve
 
     def _drop_socket(self) -> None:
         if self._watch is not None:

@@ -39,6 +39,7 @@ import zmq
 from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.authorization import (
     FORBIDDEN,
+    RULE,
     STATE_CHANGING_OPS,
     Authorizer,
     Peer,
@@ -51,9 +52,8 @@ from hdeem_watch.errors import InputError
 log = logging.getLogger(__name__)
 
 Handler = Callable[[dict[str, Any]], Any]
-_STATE_CHANGING = STATE_CHANGING_OPS
-#: ``op -> refusal or None`` for one request (its peer bound in).
-Authorize = Callable[[str], str | None]
+#: The op that tells a client who the daemon takes it for and whether it may change state.
+WHOAMI = "whoami"
 
 
 @dataclass
@@ -94,31 +94,77 @@ def encode_result(request_id: Any, result: Any, op: str) -> bytes:
                                            f"the reply of {op} cannot be encoded ({type(error).__name__})")
 
 
+class RequestPeer:
+    """The sender of one request, read from its frame only when an op needs it.
+
+    Args:
+        frame: the request's body frame (its libzmq properties name the peer).
+        transport: ``ipc``, ``tcp`` or ``inproc``.
+        authorizer: the policy.
+        on_refusal: called with the op and the peer when a request is refused (count and log).
+    """
+
+    def __init__(self, frame: zmq.Frame, transport: str, authorizer: Authorizer,
+                 on_refusal: Callable[[str, Peer], None] | None = None) -> None:
+        self._frame = frame
+        self._transport = transport
+        self._authorizer = authorizer
+        self._on_refusal = on_refusal
+        self._peer: Peer | None = None
+
+    @property
+    def peer(self) -> Peer:
+        """Who sent the request."""
+        if self._peer is None:
+            self._peer = peer_of(self._frame, self._transport)
+        return self._peer
+
+    def refusal(self, op: str) -> str | None:
+        """Why the peer may not run ``op``, or None."""
+        if op not in STATE_CHANGING_OPS:
+            return None
+        refusal = self._authorizer.refusal(op, self.peer)
+        if refusal is not None and self._on_refusal is not None:
+            self._on_refusal(op, self.peer)
+        return refusal
+
+    def whoami(self) -> dict[str, Any]:
+        """The ``whoami`` result: the peer as the daemon sees it and whether it may change state."""
+        peer = self.peer
+        may = self._authorizer.may_change_state(peer)
+        return {"transport": peer.transport, "uid": peer.uid, "user": peer.user, "pid": peer.pid,
+                "peer": peer.describe(), "may_change_state": may,
+                "reason": None if may else f"changing state needs {RULE}",
+                "state_changing_ops": sorted(STATE_CHANGING_OPS)}
+
+
 def dispatch(data: bytes, handlers: Mapping[str, Handler], max_bytes: int = protocol.MAX_REQUEST_BYTES,
-             *, authorize: Authorize | None = None) -> bytes | Pending:
+             *, peer: RequestPeer | None = None) -> bytes | Pending:
     """Answer one request frame: the reply frame, or a :class:`Pending` from the handler.
 
-    ``authorize(op)`` says why the request's peer may not run ``op`` (a ``forbidden`` reply), or
-    None. Never raises: whatever goes wrong becomes an error reply.
+    With ``peer``, a state-changing op the peer may not run gets a ``forbidden`` reply, and
+    ``whoami`` is answered. Never raises: whatever goes wrong becomes an error reply.
     """
     try:
-        return _dispatch(data, handlers, max_bytes, authorize)
+        return _dispatch(data, handlers, max_bytes, peer)
     except Exception as error:  # a bug in the error path itself: still an answer
         log.exception("control request failed")
         return protocol.encode_reply_error(None, "internal", f"{type(error).__name__}")
 
 
 def _dispatch(data: bytes, handlers: Mapping[str, Handler], max_bytes: int,
-              authorize: Authorize | None) -> bytes | Pending:
+              peer: RequestPeer | None) -> bytes | Pending:
     try:
         request = protocol.decode_request(data, max_bytes=max_bytes)
     except protocol.ProtocolError as error:
         return protocol.encode_reply_error(protocol.request_id_of(data), error.code, str(error))
+    if request.op == WHOAMI and peer is not None and WHOAMI not in handlers:
+        return encode_result(request.id, peer.whoami(), request.op)
     handler = handlers.get(request.op)
     if handler is None:
         known = ", ".join(sorted(handlers))
         return protocol.encode_reply_error(request.id, "unknown-op", f"unknown op {request.op[:80]!r}; expected one of {known}")
-    refusal = authorize(request.op) if authorize is not None else None
+    refusal = peer.refusal(request.op) if peer is not None else None
     if refusal is not None:
         return protocol.encode_reply_error(request.id, FORBIDDEN, refusal)
     try:
@@ -220,8 +266,9 @@ class ControlServer:
                     continue  # no routing identity: nothing to reply to
                 self.requests += 1
                 envelope, body = [f.bytes for f in frames[:-1]], frames[-1]
-                answer = dispatch(body.bytes, self.handlers, self.max_bytes,
-                                  authorize=self._authorize(body, transport))
+                peer = None if self.authorizer is None else RequestPeer(body, transport, self.authorizer,
+                                                                         self._refused)
+                answer = dispatch(body.bytes, self.handlers, self.max_bytes, peer=peer)
                 if isinstance(answer, Pending):
                     answer.envelope = envelope
                     answer.socket = sock
@@ -232,22 +279,9 @@ class ControlServer:
                     self._send(sock, envelope, answer)
         return pending
 
-    def _authorize(self, frame: zmq.Frame, transport: str) -> Authorize | None:
-        authorizer = self.authorizer
-        if authorizer is None:
-            return None
-
-        def authorize(op: str) -> str | None:
-            if op not in _STATE_CHANGING:
-                return None
-            peer = peer_of(frame, transport)
-            refusal = authorizer.refusal(op, peer)
-            if refusal is not None:
-                self.refused += 1
-                log.warning("control: refused %s from %s", op, peer.describe())
-            return refusal
-
-        return authorize
+    def _refused(self, op: str, peer: Peer) -> None:
+        self.refused += 1
+        log.warning("control: refused %s from %s", op, peer.describe())
 
     def complete(self, pending: Pending, result: Any = None, *, error: tuple[str, str] | None = None) -> None:
         """Send the reply of a :class:`Pending` (``error = (code, message)`` for an error reply)."""

@@ -7,8 +7,8 @@ monitor sees the events; :func:`explain` turns the decisive ones into one line, 
 with the reason instead of waiting for its timeout.
 
 Example:
-    >>> explain(zmq.EVENT_HANDSHAKE_FAILED_AUTH, 400, curve=True)
-    'the daemon refused this client's CURVE key (not registered in its curve_clients_dir)'
+    >>> print(explain(zmq.EVENT_HANDSHAKE_FAILED_AUTH, 400, curve=True))
+    the daemon refused this client's CURVE key (not registered in its curve_clients_dir)
     >>> explain(zmq.EVENT_CONNECTED, 0, curve=True) is None
     True
 """

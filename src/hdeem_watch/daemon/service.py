@@ -72,13 +72,13 @@ class Daemon:
         clock: monotonic clock in ns (shared with the source's run events).
         wall_clock: wall clock in ns (labels: record and header times).
         context: ZeroMQ context.
-        job_owner_uids: the uids owning a job running on the node (they may change state; the
-            job book's ``running_job_uids``).
+        job_owner_uids: the uids owning a job running on the node (they may change state); default
+            the daemon's job book's ``running_job_uids``.
     """
 
     def __init__(self, settings: DaemonSettings, *, source: Source | None = None, clock: Clock = time.monotonic_ns,
                  wall_clock: Clock = time.time_ns, context: zmq.Context[Any] | None = None,
-                 job_owner_uids: Callable[[], frozenset[int]] = frozenset) -> None:
+                 job_owner_uids: Callable[[], frozenset[int]] | None = None) -> None:
         self.settings = settings
         self.node = settings.node
         self.clock = clock
@@ -88,7 +88,8 @@ class Daemon:
         default_pub, default_control = default_endpoints(settings.runtime_dir)
         self.pub_endpoint = settings.pub or default_pub
         self.control_endpoint = settings.control or default_control
-        self.authorizer = Authorizer(job_owner_uids=job_owner_uids)
+        self.authorizer = Authorizer(job_owner_uids=job_owner_uids or frozenset)
+        self._job_owner_uids_given = job_owner_uids is not None
         self.book: NodeState | None = None
         self.calibration = Calibration()
         self.publisher: Publisher | None = None
@@ -262,6 +263,8 @@ class Daemon:
         job_ops = self.job_ops = JobOperations(JobBook(book), store=self.store_worker, publisher=self.publisher,
                                                reply=self.complete, poll=self._edge_poll,
                                                checkpoint_s=settings.job_checkpoint_s)
+        if not self._job_owner_uids_given:
+            self.authorizer.job_owner_uids = job_ops.jobs.running_job_uids
         self.operations.on_job_closed = job_ops.window_closed
         self.operations.open_jobs = lambda: [job_summary(r.to_dict()) for r in job_ops.jobs.snapshots()]
         self.control.handlers = (self.operations.handlers() | job_ops.handlers()

@@ -34,6 +34,7 @@ import zmq
 
 from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
+from hdeem_watch.daemon.handshake import HandshakeWatch
 from hdeem_watch.daemon.security import ClientCurve, secure_client
 from hdeem_watch.tui.endpoints import is_local_host, stream_endpoint, unreachable_stream
 from hdeem_watch.tui.messages import (
@@ -101,6 +102,7 @@ class NodeFeed(threading.Thread):
         self.curve = curve
         self._control = self._client(control_timeout_s)
         self._sub: zmq.Socket[Any] | None = None
+        self._sub_watch: HandshakeWatch | None = None
         self._pub_endpoint = ""
         self._halt = threading.Event()
         self._wake = threading.Event()
@@ -270,6 +272,8 @@ class NodeFeed(threading.Thread):
             self.model.set_connection("connecting", "daemon back; waiting for its stream")
         if why_not is not None:
             self.model.set_connection("connecting", f"control answers, but {why_not}")
+        elif (refused := self._stream_refused()) is not None:
+            self.model.set_connection("connecting", f"control answers, but its stream {pub} refused: {refused}")
         elif self.model.last_rx_mono_ns is None and now - self._subscribed_ns > self._stale_ns:
             self.model.set_connection(
                 "connecting", f"control answers, but nothing arrives from its stream {pub} (firewall? another host?)"
@@ -285,12 +289,24 @@ class NodeFeed(threading.Thread):
         sub.setsockopt(zmq.SUBSCRIBE, protocol.subscription(node))
         if self.curve is not None and pub.startswith("tcp://"):
             secure_client(sub, self.curve.server_key, self.curve.client_keys)
+        if pub.startswith("tcp://"):  # a refused handshake is otherwise retried silently forever
+            self._sub_watch = HandshakeWatch(sub, curve=self.curve is not None)
         sub.connect(pub)
         self._sub = sub
         self._pub_endpoint = pub
         self._subscribed_ns = self._clock()
 
+    def _stream_refused(self) -> str | None:
+        """Why the stream's security handshake failed, while nothing arrived (None: it did not)."""
+        if self._sub_watch is None or self.model.last_rx_mono_ns is not None:
+            return None
+        self._sub_watch.read()
+        return self._sub_watch.failure
+
     def _close_sub(self) -> None:
+        if self._sub_watch is not None:
+            self._sub_watch.close()
+            self._sub_watch = None
         if self._sub is not None:
             self._sub.close(linger=0)
             self._sub = None

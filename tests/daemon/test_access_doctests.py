@@ -1,0 +1,19 @@
+"""The examples in the docstrings of the access modules run and hold (authorization, handshake
+explanations, keys, endpoints a remote client uses, the control server and client)."""
+
+from __future__ import annotations
+
+import doctest
+import importlib
+
+import pytest
+
+MODULES = ("hdeem_watch.daemon.authorization", "hdeem_watch.daemon.handshake", "hdeem_watch.daemon.security",
+           "hdeem_watch.addresses", "hdeem_watch.tui.endpoints", "hdeem_watch.daemon.control",
+           "hdeem_watch.daemon.client")
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_docstring_examples(name: str) -> None:
+    result = doctest.testmod(importlib.import_module(name))
+    assert result.failed == 0 and result.attempted > 0
