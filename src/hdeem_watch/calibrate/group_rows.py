@@ -138,7 +138,27 @@ def measured_run(record: Mapping[str, Any], socket_stats: Sequence[tuple[Command
     return MeasuredRun(name=f"{record.get('run_id')}:{record.get('name') or record.get('kernel')}",
                        time_ns=int(record.get("t_stop_ns") or 0), window_s=window, socket_stats=tuple(socket_stats),
                        energy_j=energies,
-                       samples={c: math.floor(window * float(r) + 1e-9) for c, r in rates_hz.items()})
+                       samples={c: math.floor(window * float(r) + 1e-9) for c, r in rates_hz.items()},
+                       kind=run_kind(record))
+
+
+def run_kind(record: Mapping[str, Any]) -> str:
+    """What makes two runs "the same kind" for the drift detector: kernel, threads and announced
+    CPUs (any run without traffic is ``idle``).
+
+    Example:
+        >>> run_kind({"kernel": "triad", "threads": 24, "elements": 1 << 24})
+        'triad/24'
+        >>> run_kind({"kernel": "sleep", "threads": 24, "elements": 0})
+        'idle'
+    """
+    kernel = str(record.get("kernel") or "")
+    if kernel in ("idle", "sleep") or not record.get("elements"):
+        return "idle"
+    metadata = record.get("metadata")
+    cpus = metadata.get("cpus") if isinstance(metadata, Mapping) else None
+    where = f"@{','.join(str(c) for c in cpus)}" if isinstance(cpus, list | tuple) and cpus else ""
+    return f"{kernel}/{record.get('threads')}{where}"
 
 
 @dataclass(frozen=True)
@@ -153,6 +173,8 @@ class MeasuredRun:
             (:func:`hdeem_watch.dram.node.node_run_stats`).
         energy_j: measured energy per sensor (J; NaN = unknown).
         samples: sensor samples inside the window per sensor (None: ``window_s × nominal rate``).
+        kind: runs of one kind (:func:`run_kind`) are compared by the drift detector (None: the
+            part of ``name`` after its first ``:``).
     """
 
     name: str
@@ -161,3 +183,9 @@ class MeasuredRun:
     socket_stats: tuple[tuple[CommandStats, int], ...]
     energy_j: Mapping[str, float]
     samples: Mapping[str, int] | None = None
+    kind: str | None = None
+
+    @property
+    def kind_key(self) -> str:
+        """:attr:`kind`, else the name without its run id (``"r7:triad-24t"`` → ``"triad-24t"``)."""
+        return self.kind if self.kind is not None else self.name.split(":", 1)[-1]
