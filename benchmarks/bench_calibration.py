@@ -6,7 +6,9 @@ hash, power-down, hot refresh, I/O energy per burst, ±10 % parts per pair, sens
 0.125 W steps, aging) on a fake clock through the demo's schedule, measures each run's window as the
 daemon does and feeds the daemon's own run modeller (node fit, per-pair fits, guard rail, detectors).
 Sim time is what counts (``--speed 60`` turns a sim hour into a wall minute); runs follow each other
-every ``--gap`` sim seconds (default: the demo's pace at ``--speed 60``, one run per ~7 sim-s).
+every ``--gap`` sim seconds (default: the demo's pace at ``--speed 60``, one run per ~7 sim-s), and
+their windows end 0.1–0.6 sim-s (one in ten 1–3 s) after the traffic, as the demo's do at that speed
+(``--exact-windows``: not).
 
 1. Accuracy, per seed after ``--runs`` runs (default 40 ≈ 5 sim-min; at least 20 fitted per pair):
    - node-level leave-one-out error of the pairs' sum fit (target ≤ 5 %);
@@ -35,7 +37,7 @@ from hdeem_watch.calibrate import FitOptions, fit
 from hdeem_watch.calibrate.drift import arl0_two_sided
 from hdeem_watch.calibrate.groups import NODE
 from hdeem_watch.calibrate.observation import Observation
-from hdeem_watch.demo.sim_runs import DEMO_GAP_S, SimRuns
+from hdeem_watch.demo.sim_runs import DEMO_GAP_S, DEMO_TAIL_S, SimRuns
 
 PAIRS = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
 AGING = "DDR_CD"
@@ -51,16 +53,20 @@ def _rows(runs: SimRuns, count: int) -> dict[str, list[Observation]]:
     return rows
 
 
+TAIL: Any = DEMO_TAIL_S
+
+
 def effective_truth(seed: int, gap_s: float) -> dict[str, dict[str, float]]:
     """Per pair, what the model's currents converge to on this node (noise-free, 256 runs)."""
-    quiet = SimRuns(seed, gap_s=gap_s, sim_options={"noise": False, "quantum_w": 0.0, "temp_amp_c": 0.0})
+    quiet = SimRuns(seed, gap_s=gap_s, sim_options={"noise": False, "quantum_w": 0.0, "temp_amp_c": 0.0},
+                    tail_s=TAIL)
     spec = quiet.modeller.spec
     return {pair: fit(rows, spec, FitOptions(loo="none")).calibrated for pair, rows in _rows(quiet, 256).items()}
 
 
 def accuracy(seed: int, runs_count: int, gap_s: float) -> dict[str, Any]:
     """One seed: node LOO and per-pair coverage after ``runs_count`` runs."""
-    runs = SimRuns(seed, gap_s=gap_s)
+    runs = SimRuns(seed, gap_s=gap_s, tail_s=TAIL)
     for _ in range(runs_count):
         runs.step()
     calib = runs.modeller.group_fits.calibrators
@@ -86,7 +92,7 @@ def accuracy(seed: int, runs_count: int, gap_s: float) -> dict[str, Any]:
 
 def watch(seed: int, aging: dict[str, float], until_s: float, gap_s: float) -> list[tuple[float, Any]]:
     """(sim s, alarm) of every alarm of one seed until ``until_s`` (stops at the aging pair's first)."""
-    runs = SimRuns(1000 + seed, age=aging, gap_s=gap_s)
+    runs = SimRuns(1000 + seed, age=aging, gap_s=gap_s, tail_s=TAIL)
     out = []
     for done in runs.until(until_s):
         out += [(done.t_s, a) for a in done.alarms]
@@ -102,7 +108,10 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=40, help="runs before the accuracy figures (default 40)")
     parser.add_argument("--gap", type=float, default=DEMO_GAP_S, help=f"sim s between runs (default {DEMO_GAP_S})")
     parser.add_argument("--only", choices=("accuracy", "drift", "false"), default=None)
+    parser.add_argument("--exact-windows", action="store_true", help="windows end with the traffic")
     args = parser.parse_args()
+    global TAIL
+    TAIL = None if args.exact_windows else DEMO_TAIL_S
     seeds = 3 if args.quick else args.seeds
 
     if args.only in (None, "accuracy"):

@@ -188,7 +188,8 @@ class GroupCalibrators:
                 skipped.append(SkippedRun(run.name, run.time_ns, name, reason))
                 continue
             rows[name] = group_observation(self.spec, run.socket_stats, group, run.window_s,
-                                           float(run.energy_j[name]), name=run.name, time_ns=run.time_ns)
+                                           float(run.energy_j[name]), name=run.name, time_ns=run.time_ns,
+                                           traffic_s=run.traffic_s)
         if len(rows) == len(self.groups):
             rows[NODE] = summed(list(rows.values()), sum(r.measured_j for r in rows.values()))
         else:

@@ -164,7 +164,8 @@ class GroupFits:
         for name, group in self.calibrators.groups.items():
             if name in run.energy_j and math.isfinite(run.energy_j[name]):
                 rows[name] = group_observation(self.calibrators.spec, run.socket_stats, group, run.window_s,
-                                               float(run.energy_j[name]), name=run.name, time_ns=run.time_ns)
+                                               float(run.energy_j[name]), name=run.name, time_ns=run.time_ns,
+                                               traffic_s=run.traffic_s)
         update = self.calibrators.add_run(run)
         self._pending.extend(update.alarms)
         return {name: obs.to_dict() for name, obs in rows.items()}

@@ -26,6 +26,8 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from hdeem_watch.calibrate.drift import DriftAlarm
 from hdeem_watch.daemon.group_fits import source_groups
 from hdeem_watch.daemon.modelling import RunModeller
@@ -35,6 +37,9 @@ from hdeem_watch.sources.sim import SimSource
 
 #: Sim seconds between the demo's runs at ``--speed 60`` (994 runs in 2 sim-hours, measured).
 DEMO_GAP_S = 5.5
+#: The demo's window tails at ``--speed 60`` (see :class:`SimRuns`): mostly 0.1–0.6 sim-s, one run in
+#: ten 1–3 s.
+DEMO_TAIL_S = (0.1, 0.6, 0.1, 1.0, 3.0)
 #: The daemon's default memspec (the sim's DIMMs' datasheet).
 MEMSPEC = "samsung-m393a1g43db0-cpb"
 _T0_WALL_NS = 1_700_000_000 * 10**9
@@ -72,12 +77,22 @@ class SimRuns:
         memspec: the model's memspec.
         half_life_s: the calibrators' forgetting half-life (None: the daemon's default, never).
         sim_options: further :class:`SimSource` keyword arguments.
+        tail_s: how much longer than its traffic a run's window is, drawn per run: ``(low, high,
+            share, long_low, long_high)`` = U(low, high), and with probability ``share``
+            U(long_low, long_high) instead. The demo's windows end at the daemon's first poll after
+            ``run.stop`` and the control round trips cost wall time, both × the speed: at
+            ``--speed 60`` (polls every 2.4 sim-s) the windows of 1.25–1.75 s runs came out
+            1.4–5 s (:data:`DEMO_TAIL_S`). None: exact windows.
+        seed_tail: seeds the tails.
     """
 
     def __init__(self, seed: int, *, age: Mapping[str, float] | None = None,
                  age_start_s: Mapping[str, float] | None = None, gap_s: float = DEMO_GAP_S, memspec: str = MEMSPEC,
-                 half_life_s: float | None = None, sim_options: Mapping[str, Any] | None = None) -> None:
+                 half_life_s: float | None = None, sim_options: Mapping[str, Any] | None = None,
+                 tail_s: tuple[float, float, float, float, float] | None = None, seed_tail: int = 0) -> None:
         self._mono_ns = 0
+        self.tail_s = tail_s
+        self._tail_rng = np.random.default_rng([int(seed), int(seed_tail), 9973])
         self.sim = SimSource(seed=seed, clock=lambda: self._mono_ns, wall_clock=lambda: _T0_WALL_NS,
                              background_plans=False, age=dict(age or {}), age_start_s=dict(age_start_s or {}),
                              **dict(sim_options or {}))
@@ -110,6 +125,14 @@ class SimRuns:
         self._mono_ns += max(0, round(seconds * 1e9))
         return dict(self.sim.poll().energy_j)
 
+    def _tail(self) -> float:
+        if self.tail_s is None:
+            return 0.0
+        low, high, share, long_low, long_high = self.tail_s
+        if self._tail_rng.random() < share:
+            return float(self._tail_rng.uniform(long_low, long_high))
+        return float(self._tail_rng.uniform(low, high))
+
     def step(self) -> FinishedRun:
         """Wait the gap, hold the next run of the schedule, model it; the finished run."""
         run = next(self._schedule)
@@ -120,14 +143,15 @@ class SimRuns:
         elements = 0 if spec.kernel == "idle" else (spec.elements or ELEMENTS)
         t_start = self._mono_ns
         self.sim.on_run(RunEvent("start", run_id, spec.kernel, spec.threads, elements, spec.repeat, t_start))
-        stop = self._advance(run.seconds)
+        stop = self._advance(run.seconds + self._tail())
         self.sim.on_run(RunEvent("stop", run_id, spec.kernel, spec.threads, elements, spec.repeat, self._mono_ns))
         energy = {c: stop[c] - start[c] for c in stop}
         window_s = (self._mono_ns - t_start) * 1e-9
         record = {"run_id": run_id, "name": f"{spec.kernel}-{spec.threads}t", "kernel": spec.kernel,
                   "threads": spec.threads, "elements": elements, "repeat": spec.repeat, "window_s": window_s,
                   "t_start_ns": _T0_WALL_NS + t_start, "t_stop_ns": _T0_WALL_NS + self._mono_ns,
-                  "energy_j": energy, "dram_energy_j": sum(energy[c] for c in self.dram), "metadata": {}}
+                  "energy_j": energy, "dram_energy_j": sum(energy[c] for c in self.dram),
+                  "metadata": {"simulated": True, "source": "demo", "modelled_s": round(run.seconds, 4)}}
         model, _fit, error = self.modeller.evaluate(record)
         return FinishedRun(self.index, self.t_s, record, model, error, tuple(self.modeller.take_alarms()))
 
