@@ -84,10 +84,11 @@ def stats_window_s(spec: MemSpec, stats: CommandStats) -> float:
 
 def node_observation(spec: MemSpec, groups: Sequence[tuple[CommandStats, int]], window_s: float,
                      measured_j: float, *, name: str = "run", time_ns: int = 0,
-                     weight: float = 1.0) -> Observation:
+                     weight: float = 1.0, traffic_s: float | None = None) -> Observation:
     """ONE calibration row for a node: its channel groups' rows over the same window, summed.
 
-    Each group's row is ``observation_from_run(spec, stats, window_s, measured_j, scale=channels)``
+    Each group's row is ``observation_from_run(spec, stats, window_s, measured_j, scale=channels,
+    traffic_s=traffic_s)``
     (``groups`` as :func:`hdeem_watch.dram.node.node_run_stats` returns them); the node row's columns
     and constant are their sums, against the node's measured energy.
 
@@ -97,7 +98,7 @@ def node_observation(spec: MemSpec, groups: Sequence[tuple[CommandStats, int]], 
     if not groups:
         raise InputError(f"run {name!r}: no channel groups")
     rows = [observation_from_run(spec, stats, window_s, measured_j, scale=float(n), name=name, time_ns=time_ns,
-                                 weight=weight) for stats, n in groups]
+                                 weight=weight, traffic_s=traffic_s) for stats, n in groups]
     columns = np.sum([row.columns for row in rows], axis=0)
     constant = float(sum(row.constant_j for row in rows))
     return Observation(name=rows[0].name, columns=columns, constant_j=constant, measured_j=rows[0].measured_j,
