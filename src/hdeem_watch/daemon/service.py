@@ -484,10 +484,10 @@ class Daemon:
         from hdeem_watch.daemon.counter_windows import CounterWindows
 
         ranks = 2
-        if kind == "perf":  # ranks per channel: one DIMM of the configured memspec per channel
+        if kind == "perf":  # ranks per channel: one DIMM of the node's memspec per channel
             from hdeem_watch.daemon.modelling import load_spec
 
-            ranks = int(load_spec(self.settings.memspec).nbr_of_ranks)
+            ranks = int(load_spec(self.node_setup.memspec).nbr_of_ranks)
         counters = make_counter_source(kind, source, sample_time=book.sample_time_of, clock=self.clock, ranks=ranks,
                                        replay_file=self.settings.replay_file)
         if counters is None:
