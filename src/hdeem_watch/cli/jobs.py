@@ -200,6 +200,18 @@ def table(answers: Sequence[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def total_line(answers: Sequence[dict[str, Any]]) -> str | None:
+    """One job over several nodes: the sum of its DRAM energy (unknown when a node did not answer or
+    does not know it); None for fewer than two nodes."""
+    if len(answers) < 2:
+        return None
+    values = [a["jobs"][0].get("dram_energy_j") if a["ok"] and a["jobs"] else None for a in answers]
+    known = [v for v in values if isinstance(v, int | float) and math.isfinite(v)]
+    total = sum(known) if len(known) == len(values) else math.nan
+    note = "" if math.isfinite(total) else f"  (unknown: {len(values) - len(known)} of {len(values)} nodes missing)"
+    return f"{'total':<14} {'':<12} {'':<10} {'':<11} {'':<19} {'':>9} {_fmt(total):>12}{note}"
+
+
 def _run(args: argparse.Namespace) -> int:
     if not (args.timeout > 0 and math.isfinite(args.timeout)):
         raise InputError(f"--timeout {args.timeout!r}: expected seconds > 0")
@@ -225,5 +237,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.json:
         sys.stdout.write(dumps({"nodes": answers}).decode() + "\n")
     else:
-        print("\n".join(table(answers)))
+        lines = table(answers)
+        total = total_line(answers) if op == "job.get" else None
+        print("\n".join(lines if total is None else [*lines, total]))
     return 0 if all(a["ok"] for a in answers) else 1
