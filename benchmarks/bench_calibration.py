@@ -1,172 +1,172 @@
-"""Per-group calibration on a node that is not the model (issue #16 targets).
+"""Per-pair calibration and aging on the simulated node that is not the model (issue #16 targets).
 
-The node is tests/calibrate/calib_node.py: the Taurus Haswell-EP with four HDEEM pairs, its
-measurements the energy model with each pair's own currents (±10 % part variation) plus I/O energy
-per burst, power-down of idle sockets, doubled refresh on hot runs, per-sensor gain/offset, 0.5 %
-noise and 0.125 W quantisation. The fits are :class:`hdeem_watch.calibrate.groups.GroupCalibrators`.
+The node is the demo's: :class:`hdeem_watch.demo.sim_runs.SimRuns` drives the real
+:class:`~hdeem_watch.sources.sim.SimSource` (its own truth generator: other page placement and bank
+hash, power-down, hot refresh, I/O energy per burst, ±10 % parts per pair, sensor gain/offset, noise,
+0.125 W steps, aging) on a fake clock through the demo's schedule, measures each run's window as the
+daemon does and feeds the daemon's own run modeller (node fit, per-pair fits, guard rail, detectors).
+Sim time is what counts (``--speed 60`` turns a sim hour into a wall minute); runs follow each other
+every ``--gap`` sim seconds (default: the demo's pace at ``--speed 60``, one run per ~7 sim-s), and
+their windows end 0.1–0.6 sim-s (one in ten 1–3 s) after the traffic, as the demo's do at that speed
+(``--exact-windows``: not).
 
-1. Accuracy, over ``--seeds`` seeds, 20 runs per group (no forgetting, exact LOO):
-   - node-level leave-one-out error (target ≤ 5 %);
-   - coverage: a group's fit "covers" when every identifiable current is inside its 95 % interval
-     (target: ≥ 90 % of seeds). Judged against the *effective* truth — the currents the model
-     converges to on these measurements (a fit of 120 noise-free runs; I/O energy per burst is
-     indistinguishable from a higher IDD4R/IDD4W) — and, for the record, against the DRAMPower
-     currents the generator used.
-2. Drift: +30 %/h on DDR_CD's currents from sim minute 40 (runs of 5–30 s back to back, 5 s apart;
-   the sim time is what counts: at ``--speed 60`` a sim hour is a wall minute). Delay to the first
-   DDR_CD alarm (target ≤ 10 sim-minutes) and alarms naming another pair.
-3. False alarms: 2 sim-hours without aging; seeds with any alarm (target ≤ 5 %).
+1. Accuracy, per seed after ``--runs`` runs (default 40 ≈ 5 sim-min; at least 20 fitted per pair):
+   - node-level leave-one-out error of the pairs' sum fit (target ≤ 5 %);
+   - coverage: each pair's identifiable currents inside their 95 % intervals, judged against the
+     *effective* truth (the currents the model converges to on this node: a fit of 256 runs of the
+     same seed without noise, quantisation and temperature swing) — per current and all at once.
+2. Drift: ``DDR_CD=+30%/h`` from sim time 0 (the done-when of the demo); delay to the first DDR_CD
+   alarm (target ≤ 10 sim-min) and alarms naming another pair, watched for 30 sim-min.
+3. False alarms: 2 sim-hours without aging; seeds with any alarm on any pair (target ≤ 5 %),
+   per detector.
 
-Usage: ``python3 benchmarks/bench_calibration.py [--seeds 20] [--quick]``
+Usage: ``python3 benchmarks/bench_calibration.py [--seeds 20] [--quick]`` (20 seeds ≈ 6 min on
+one core).
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import statistics
-import sys
 import time
-from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import numpy as np
 
 from hdeem_watch.calibrate import FitOptions, fit
 from hdeem_watch.calibrate.drift import arl0_two_sided
-from hdeem_watch.calibrate.groups import NODE, GroupCalibrators
-from hdeem_watch.dram.memspec import preset
+from hdeem_watch.calibrate.groups import NODE
+from hdeem_watch.calibrate.observation import Observation
+from hdeem_watch.demo.sim_runs import DEMO_GAP_S, DEMO_TAIL_S, SimRuns
+
+PAIRS = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
+AGING = "DDR_CD"
 
 
-def _node_module() -> ModuleType:
-    path = Path(__file__).resolve().parents[1] / "tests" / "calibrate" / "calib_node.py"
-    spec = importlib.util.spec_from_file_location("calib_node", path)
-    assert spec and spec.loader
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["calib_node"] = module
-    spec.loader.exec_module(module)
-    return module
+def _rows(runs: SimRuns, count: int) -> dict[str, list[Observation]]:
+    rows: dict[str, list[Observation]] = {p: [] for p in PAIRS}
+    while min(len(v) for v in rows.values()) < count:
+        done = runs.step()
+        for pair, row in ((done.model or {}).get("group_observations") or {}).items():
+            if done.error is None:
+                rows[pair].append(Observation.from_dict(row))
+    return rows
 
 
-def effective_truth(cn: ModuleType, spec: Any, seed: int, planned: list[Any]) -> dict[str, dict[str, float]]:
-    """Per group, the currents a fit converges to on noise-free measurements of this node."""
-    node = cn.SyntheticNode(spec, seed, planned=planned, noise=False)
-    calib = GroupCalibrators(spec, cn.sensor_groups(), calibrator={"half_life_s": None, "loo": "none"})
-    runs = [node.run(config=i % len(planned)) for i in range(120)]
-    out = {}
-    for name, _ in cn.GROUPS:
-        rows = []
-        for run in runs:
-            group = calib.groups[name]
-            from hdeem_watch.calibrate.groups import group_observation
-
-            rows.append(group_observation(spec, run.socket_stats, group, run.window_s, run.energy_j[name], name=run.name))
-        out[name] = fit(rows, spec, FitOptions(loo="none")).calibrated
-    return out
+TAIL: Any = DEMO_TAIL_S
 
 
-def accuracy(cn: ModuleType, spec: Any, planned: list[Any], seeds: int) -> dict[str, Any]:
-    from scipy import stats as sps
-
-    loo_node, loo_groups, covered_eff, covered_raw, covered_joint, groups_total = [], [], 0, 0, 0, 0
-    per_current: dict[str, list[bool]] = {}
-    for seed in range(seeds):
-        node = cn.SyntheticNode(spec, seed, planned=planned)
-        calib = GroupCalibrators(spec, cn.sensor_groups(), calibrator={"half_life_s": None, "loo": "exact"})
-        for i in range(20):
-            calib.add_run(node.run(config=i % len(planned)))
-        eff = effective_truth(cn, spec, seed, planned)
-        node_fit = calib.calibrators[NODE].latest
-        loo_node.append(node_fit.error_loo)
-        for name, _ in cn.GROUPS:
-            result = calib.calibrators[name].latest
-            loo_groups.append(result.error_loo)
-            ok_eff = ok_raw = ok_joint = True
-            m = int(np.count_nonzero(result.identifiable))
-            widen = float(sps.t.ppf(1 - 0.025 / max(m, 1), result.dof) / sps.t.ppf(0.975, result.dof))
-            for j, current in enumerate(result.currents):
-                if not result.identifiable[j]:
-                    continue
-                lo, hi = result.ci95_a[j]
-                mid, half = result.calibrated_a[j], widen * max(hi - result.calibrated_a[j], result.calibrated_a[j] - lo)
-                ok_joint &= bool(mid - half <= eff[name][current] <= mid + half)
-                inside = bool(lo <= eff[name][current] <= hi)
-                per_current.setdefault(current, []).append(inside)
-                ok_eff &= inside
-                ok_raw &= bool(lo <= node.truth[name][current] <= hi)
-            covered_eff += ok_eff
-            covered_raw += ok_raw
-            covered_joint += ok_joint
-            groups_total += 1
-    return {"loo_node_median": statistics.median(loo_node), "loo_node_max": max(loo_node),
-            "loo_group_median": statistics.median(loo_groups), "loo_group_max": max(loo_groups),
-            "coverage_effective": covered_eff / groups_total, "coverage_raw": covered_raw / groups_total,
-            "coverage_joint": covered_joint / groups_total,
-            "per_current": {c: float(np.mean(v)) for c, v in per_current.items()}}
+def effective_truth(seed: int, gap_s: float) -> dict[str, dict[str, float]]:
+    """Per pair, what the model's currents converge to on this node (noise-free, 256 runs)."""
+    quiet = SimRuns(seed, gap_s=gap_s, sim_options={"noise": False, "quantum_w": 0.0, "temp_amp_c": 0.0},
+                    tail_s=TAIL)
+    spec = quiet.modeller.spec
+    return {pair: fit(rows, spec, FitOptions(loo="none")).calibrated for pair, rows in _rows(quiet, 256).items()}
 
 
-def stream(cn: ModuleType, spec: Any, planned: list[Any], seed: int, aging: dict[str, float], until_s: float,
-           age_start_s: float) -> list[Any]:
-    node = cn.SyntheticNode(spec, 1000 + seed, planned=planned, aging=aging, age_start_s=age_start_s)
-    calib = GroupCalibrators(spec, cn.sensor_groups(), calibrator={"half_life_s": 3600.0, "loo": "none"})
-    alarms = []
-    while node.clock_s < until_s:
-        alarms += calib.add_run(node.run()).alarms
-        if aging and any(a.group == "DDR_CD" for a in alarms):
+def accuracy(seed: int, runs_count: int, gap_s: float) -> dict[str, Any]:
+    """One seed: node LOO and per-pair coverage after ``runs_count`` runs."""
+    runs = SimRuns(seed, gap_s=gap_s, tail_s=TAIL)
+    for _ in range(runs_count):
+        runs.step()
+    calib = runs.modeller.group_fits.calibrators
+    node = calib.calibrators[NODE].latest
+    eff = effective_truth(seed, gap_s)
+    inside: dict[str, list[bool]] = {}
+    joint = []
+    for pair in PAIRS:
+        result = calib.calibrators[pair].latest
+        result = fit(calib.calibrators[pair].observations, runs.modeller.spec, FitOptions(loo="exact"))
+        every = True
+        for j, current in enumerate(result.currents):
+            if not result.identifiable[j]:
+                continue
+            lo, hi = result.ci95_a[j]
+            ok = bool(lo <= eff[pair][current] <= hi)
+            inside.setdefault(current, []).append(ok)
+            every &= ok
+        joint.append(every)
+    return {"loo_node": node.error_loo, "inside": inside, "joint": joint,
+            "loo_pairs": [calib.calibrators[p].latest.error_loo for p in PAIRS]}
+
+
+def watch(seed: int, aging: dict[str, float], until_s: float, gap_s: float) -> list[tuple[float, Any]]:
+    """(sim s, alarm) of every alarm of one seed until ``until_s`` (stops at the aging pair's first)."""
+    runs = SimRuns(1000 + seed, age=aging, gap_s=gap_s, tail_s=TAIL)
+    out = []
+    for done in runs.until(until_s):
+        out += [(done.t_s, a) for a in done.alarms]
+        if aging and any(a.group in aging for _t, a in out):
             break
-    return alarms
+    return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
-    parser.add_argument("--quick", action="store_true", help="5 seeds")
+    parser.add_argument("--quick", action="store_true", help="3 seeds")
+    parser.add_argument("--runs", type=int, default=40, help="runs before the accuracy figures (default 40)")
+    parser.add_argument("--gap", type=float, default=DEMO_GAP_S, help=f"sim s between runs (default {DEMO_GAP_S})")
+    parser.add_argument("--only", choices=("accuracy", "drift", "false"), default=None)
+    parser.add_argument("--exact-windows", action="store_true", help="windows end with the traffic")
     args = parser.parse_args()
-    seeds = 5 if args.quick else args.seeds
-    cn = _node_module()
-    spec = preset("samsung-m393a1g43db0-cpb")
-    planned = cn.plan(spec)
+    global TAIL
+    TAIL = None if args.exact_windows else DEMO_TAIL_S
+    seeds = 3 if args.quick else args.seeds
 
-    t0 = time.perf_counter()
-    acc = accuracy(cn, spec, planned, seeds)
-    print(f"accuracy over {seeds} seeds, 20 runs per group ({time.perf_counter() - t0:.0f} s):")
-    print(f"  node LOO median {acc['loo_node_median']:.2%}, max {acc['loo_node_max']:.2%}   (target <= 5 %)")
-    print(f"  group LOO median {acc['loo_group_median']:.2%}, max {acc['loo_group_max']:.2%}")
-    print(f"  groups whose every identifiable current is inside its 95 % interval: "
-          f"{acc['coverage_effective']:.0%} of (seed, group) vs the effective truth (target >= 90 %), "
-          f"{acc['coverage_raw']:.0%} vs the generator's DRAMPower currents")
-    print(f"  the same with Bonferroni-widened intervals (95 % jointly over a group's identifiable currents): "
-          f"{acc['coverage_joint']:.0%}")
-    print("  per current (effective truth): " + ", ".join(f"{c} {v:.0%}" for c, v in acc["per_current"].items()))
+    if args.only in (None, "accuracy"):
+        t0 = time.perf_counter()
+        results = [accuracy(s, args.runs, args.gap) for s in range(seeds)]
+        loo = [r["loo_node"] for r in results]
+        loo_pairs = [x for r in results for x in r["loo_pairs"]]
+        per_current: dict[str, list[bool]] = {}
+        for r in results:
+            for current, oks in r["inside"].items():
+                per_current.setdefault(current, []).extend(oks)
+        joint = [ok for r in results for ok in r["joint"]]
+        print(f"accuracy, {seeds} seeds, {args.runs} runs each ({time.perf_counter() - t0:.0f} s):")
+        print(f"  node LOO median {statistics.median(loo):.2%}, max {max(loo):.2%} (target <= 5 %); "
+              f"pair LOO median {statistics.median(loo_pairs):.2%}, max {max(loo_pairs):.2%}")
+        print("  inside the 95 % interval, per identifiable current (seed x pair): "
+              + ", ".join(f"{c} {np.mean(v):.0%} of {len(v)}" for c, v in per_current.items()) + " (target >= 90 %)")
+        print(f"  (seed, pair) with every identifiable current inside: {np.mean(joint):.0%} of {len(joint)}")
 
-    t0 = time.perf_counter()
-    start = 2400.0
-    delays, wrong, missed = [], 0, 0
-    for seed in range(seeds):
-        alarms = stream(cn, spec, planned, seed, {"DDR_CD": 0.3}, start + 1800.0, start)
-        cd = [a.time_ns / 1e9 - start for a in alarms if a.group == "DDR_CD"]
-        wrong += any(a.group not in ("DDR_CD", NODE) for a in alarms)
-        if cd:
-            delays.append(min(cd))
+    if args.only in (None, "drift"):
+        t0 = time.perf_counter()
+        delays, wrong, missed = [], 0, 0
+        for seed in range(seeds):
+            alarms = watch(seed, {AGING: 0.30}, 1800.0, args.gap)
+            hits = [t for t, a in alarms if a.group == AGING]
+            wrong += any(a.group != AGING for _t, a in alarms)
+            if hits:
+                delays.append(min(hits))
+            else:
+                missed += 1
+        print(f"drift {AGING} +30 %/h from sim time 0, {seeds} seeds ({time.perf_counter() - t0:.0f} s):")
+        if delays:
+            print(f"  detection delay median {statistics.median(delays) / 60:.1f} sim-min, max "
+                  f"{max(delays) / 60:.1f} (target <= 10); missed in 30 sim-min {missed}; seeds with an alarm "
+                  f"on another pair first {wrong}")
         else:
-            missed += 1
-    print(f"drift +30 %/h on DDR_CD from sim minute 40, {seeds} seeds ({time.perf_counter() - t0:.0f} s):")
-    if delays:
-        print(f"  detection delay median {statistics.median(delays) / 60:.1f} sim-min, max {max(delays) / 60:.1f} "
-              f"(target <= 10), missed {missed}, seeds with an alarm on another pair {wrong}")
-    else:
-        print(f"  never detected in 30 sim-minutes ({missed} seeds)")
+            print(f"  never detected in 30 sim-minutes ({missed} seeds)")
 
-    t0 = time.perf_counter()
-    false_seeds, total_alarms = 0, 0
-    for seed in range(seeds):
-        alarms = stream(cn, spec, planned, seed, {}, 7200.0, 0.0)
-        false_seeds += bool(alarms)
-        total_alarms += len(alarms)
-    print(f"no aging, 2 sim-hours, {seeds} seeds ({time.perf_counter() - t0:.0f} s): seeds with any alarm "
-          f"{false_seeds}/{seeds} = {false_seeds / seeds:.0%} (target <= 5 %), alarms {total_alarms}; "
-          f"CUSUM k=0.5 h=12 Gaussian ARL0 {arl0_two_sided(0.5, 12.0):.3g} runs per group")
+    if args.only in (None, "false"):
+        t0 = time.perf_counter()
+        by_kind: dict[str, int] = {}
+        any_alarm, runs_total = 0, 0
+        for seed in range(seeds):
+            alarms = watch(seed, {}, 7200.0, args.gap)
+            any_alarm += bool(alarms)
+            for kind in {a.kind for _t, a in alarms}:
+                by_kind[kind] = by_kind.get(kind, 0) + 1
+            for t, a in alarms:
+                print(f"    seed {seed}: {t / 60:.1f} sim-min {a.group} {a.current} {a.kind} {a.direction} "
+                      f"{a.statistic:.3g}")
+        runs_total = round(7200.0 / (args.gap + 1.6))
+        print(f"no aging, 2 sim-hours (~{runs_total} runs), {seeds} seeds ({time.perf_counter() - t0:.0f} s): "
+              f"seeds with any alarm {any_alarm}/{seeds} = {any_alarm / seeds:.0%} (target <= 5 %); by detector "
+              + (", ".join(f"{k} {v}/{seeds}" for k, v in sorted(by_kind.items())) or "none")
+              + f"; residual CUSUM k=1 h=8: Gaussian ARL0 {arl0_two_sided(1.0, 8.0):.3g} runs per pair")
 
 
 if __name__ == "__main__":

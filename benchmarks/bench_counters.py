@@ -12,9 +12,15 @@
    with the fit from before the job (target: median ≤ 5 %). And the kernel runs' counted ACT/RD/WR
    against the kernel model's (target: within 10 %).
 
+3. **The daemon itself**: ``hdeem-watch daemon --source sim`` at speed 1 with one subscriber taking
+   every sample (so it polls every 40 ms), with and without ``--counters sim``, alternating, for
+   ``--daemon-seconds`` each after a 3 s warm-up: the process's CPU share of one core (psutil). The
+   difference includes the noise of a shared machine; the in-process figures of 1. are the precise ones.
+
 Each figure is the median over ``--repeats`` timing runs (overhead) or ``--seeds`` sim seeds (accuracy).
 
-Usage: ``PYTHONPATH=src python3 benchmarks/bench_counters.py [--seeds 3] [--jobs 20] [--repeats 5]``
+Usage: ``PYTHONPATH=src python3 benchmarks/bench_counters.py [--seeds 3] [--jobs 20] [--repeats 5]
+[--daemon-seconds 20] [--daemon-repeats 3]`` (``--daemon-seconds 0`` skips 3.)
 """
 
 from __future__ import annotations
@@ -104,6 +110,61 @@ def perf_overhead() -> float:
     return overhead_percent(read_s, due_s)
 
 
+def daemon_cpu_percent(counters: bool, seconds: float) -> float:
+    """CPU % of one core of a real sim daemon (speed 1) with one draining subscriber."""
+    import os
+    import subprocess
+    import sys
+    import threading
+
+    import psutil
+    import zmq
+
+    from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+
+    with tempfile.TemporaryDirectory() as directory:
+        pub, control = f"ipc://{directory}/p.sock", f"ipc://{directory}/c.sock"
+        command = [sys.executable, "-m", "hdeem_watch", "daemon", "--source", "sim", "--pub", pub, "--control",
+                   control, "--state-dir", f"{directory}/state", "--node", "bench"]
+        if counters:
+            command += ["--counters", "sim"]
+        env = {k: v for k, v in os.environ.items() if not k.startswith("HDEEM_WATCH_")}
+        proc = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        stop = threading.Event()
+        try:
+            with ControlClient(control, timeout_s=1.0) as client:
+                for _ in range(300):
+                    try:
+                        client.call("ping")
+                        break
+                    except DaemonUnreachable:
+                        time.sleep(0.1)
+            sub = zmq.Context.instance().socket(zmq.SUB)
+            sub.connect(pub)
+            sub.setsockopt(zmq.SUBSCRIBE, b"hw1/")
+
+            def drain() -> None:
+                while not stop.is_set():
+                    if sub.poll(100):
+                        sub.recv_multipart()
+
+            thread = threading.Thread(target=drain, daemon=True)
+            thread.start()
+            time.sleep(3.0)
+            process = psutil.Process(proc.pid)
+            before, t0 = process.cpu_times(), time.monotonic()
+            time.sleep(seconds)
+            after, t1 = process.cpu_times(), time.monotonic()
+            stop.set()
+            thread.join()
+            sub.close(linger=0)
+        finally:
+            proc.terminate()
+            proc.wait(timeout=30)
+    used = (after.user - before.user) + (after.system - before.system)
+    return 100.0 * used / (t1 - t0)
+
+
 def accuracy(seed: int, jobs: int) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as directory:
         node = CounterSimNode(Path(directory), seed=seed, realistic=True, currents=CURRENTS)
@@ -131,6 +192,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--jobs", type=int, default=20)
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--daemon-seconds", type=float, default=20.0)
+    parser.add_argument("--daemon-repeats", type=int, default=3)
     args = parser.parse_args()
     print("counter polling overhead, % of one core (40 ms polls, 1 s reads; median of "
           f"{args.repeats}; target <= 0.5 %)")
@@ -139,6 +202,16 @@ def main() -> None:
                           ("perf, Haswell-EP plan (112 events)", perf_overhead)):
         values = [measure() for _ in range(args.repeats)]
         print(f"  {name:40s} {statistics.median(values):7.3f} %  (runs: {', '.join(f'{v:.3f}' for v in values)})")
+    if args.daemon_seconds > 0:
+        off, on = [], []
+        for _ in range(args.daemon_repeats):
+            off.append(daemon_cpu_percent(False, args.daemon_seconds))
+            on.append(daemon_cpu_percent(True, args.daemon_seconds))
+        print(f"  {'daemon process, counters off':40s} {statistics.median(off):7.3f} %  (runs: "
+              f"{', '.join(f'{v:.3f}' for v in off)})")
+        print(f"  {'daemon process, --counters sim':40s} {statistics.median(on):7.3f} %  (runs: "
+              f"{', '.join(f'{v:.3f}' for v in on)})")
+        print(f"  {'difference of the medians':40s} {statistics.median(on) - statistics.median(off):7.3f} %")
     print(f"\naccuracy on the simulated node ({len(SCHEDULE) * 2} kernel runs to calibrate, {args.jobs} opaque jobs; "
           f"median over {args.seeds} seeds)")
     results = [accuracy(seed, args.jobs) for seed in range(1, args.seeds + 1)]

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from hdeem_watch.cli.jobs import Target, parse_since, query, table, targets
+from hdeem_watch.cli.jobs import Target, parse_since, query, table, targets, total_line
 from hdeem_watch.errors import InputError
 
 SRC = Path(__file__).resolve().parents[1] / "src"
@@ -42,6 +42,7 @@ def test_targets_inside_an_allocation_ask_every_node() -> None:
                                      Target("c3", "tcp://c3:7411")]
     assert targets(_args(connect=["tcp://n9:5591"]), env) == [Target("n9:5591", "tcp://n9:5591")]
     assert [t.endpoint for t in targets(_args(port=9), {"SLURM_JOB_NODELIST": "z1"})] == ["tcp://z1:9"]
+    assert [t.endpoint for t in targets(_args(nodes="q[1-2]"), {})] == ["tcp://q1:5591", "tcp://q2:5591"]
     with pytest.raises(InputError, match="--slurm: no SLURM allocation"):
         targets(_args(slurm=True), {"HDEEM_WATCH_CONTROL": "ipc:///x/c.sock"})
     with pytest.raises(InputError, match="--connect"):
@@ -65,3 +66,17 @@ def test_a_node_that_does_not_answer_is_a_line_not_a_hang(tmp_path: Path) -> Non
     bad = subprocess.run([sys.executable, "-m", "hdeem_watch", "jobs", "--job", "1 2"], capture_output=True,
                          text=True, timeout=30, env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"})
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "--job" in bad.stderr
+
+
+def test_one_job_over_several_nodes_has_a_total_only_when_every_node_answered() -> None:
+    """--job over an allocation: the DRAM energies of the nodes add up; a node missing makes the
+    total unknown (–), never a partial sum passed off as the job's."""
+    def node(name: str, energy: float | None) -> dict[str, object]:
+        if energy is None:
+            return {"node": name, "ok": False, "error": "unreachable: no reply within 3 s"}
+        return {"node": name, "ok": True, "jobs": [{"job_id": "9", "dram_energy_j": energy}]}
+
+    assert total_line([node("a", 1.5)]) is None
+    assert total_line([node("a", 1.5), node("b", 2.25)]).split()[:2] == ["total", "3.8"]  # type: ignore[union-attr]
+    partial = total_line([node("a", 1.5), node("b", None)])
+    assert partial is not None and "–" in partial and "1 of 2 nodes missing" in partial

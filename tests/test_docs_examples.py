@@ -143,7 +143,14 @@ def test_documented_command_runs_as_written(where: str, command: str, shell_env:
     runnable = command
     for path in PRIVATE_PATHS:
         runnable = runnable.replace(path, f"{tmp_path}{path}")
-    proc = subprocess.Popen(["bash", "-c", runnable], cwd=REPO, env=shell_env, stdout=subprocess.PIPE,
+    # A working directory that sees the repository's files (examples/, tests/data/, …) through symlinks:
+    # what a command writes by relative path (``--record rec.csv``) lands here, not in the clone.
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    for entry in REPO.iterdir():
+        if not entry.name.startswith("."):
+            (cwd / entry.name).symlink_to(entry)
+    proc = subprocess.Popen(["bash", "-c", runnable], cwd=cwd, env=shell_env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         expected: tuple[int, ...] = (0,)

@@ -163,4 +163,4 @@ class SyntheticNode:
             energies[name] = e
         stats = tuple((s.scaled(repeat), n) for s, n in p.socket_stats)
         return MeasuredRun(f"{p.kernel}-{p.threads}t@{t_s:.0f}", int(t_s * 1e9), window, stats, energies,
-                           {name: int(window * 100) for name, _ in GROUPS})
+                           {name: int(window * 100) for name, _ in GROUPS}, kind=f"{p.kernel}/{p.threads}")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -69,26 +68,3 @@ def test_bad_counter_recordings_are_one_line_errors(tmp_path: Path) -> None:
         read_counter_recording(counters_path(path))
     with pytest.raises(InputError, match="looping"):
         CounterReplay(path, ReplaySource(path, loop=True))
-
-
-def test_a_recorded_sim_run_replays_with_its_counters(daemon_factory, tmp_path: Path) -> None:
-    """Record a sim daemon with counters; replay the recording with them: a job window over the replay
-    is modelled from the replayed counters."""
-    record = tmp_path / "rec.csv"
-    first = daemon_factory("--counters", "sim", "--speed", "4", "--record", str(record), name="rec").start()
-    with first.client(timeout_s=60) as client:
-        run = client.call("run.start", {"threads": 12})
-        time.sleep(1.5)
-        client.call("run.stop", {"run_id": run["run_id"]})
-    assert first.terminate() == 0
-    header, snapshots = read_counter_recording(counters_path(record))
-    assert header["kind"] == "sim" and len(snapshots) >= 3
-    second = daemon_factory("--source", "replay", "--replay-file", str(record), "--counters", "replay",
-                            "--speed", "1", name="play").start()
-    with second.client(timeout_s=60) as client:
-        run = client.call("run.start", {"threads": 12})
-        time.sleep(2.5)
-        stopped = client.call("run.stop", {"run_id": run["run_id"]})
-    assert second.terminate() == 0
-    assert stopped["counters"]["source"] == "replay"
-    assert stopped["model"] is not None and stopped["model"]["source"] == "counters", stopped["model_error"]

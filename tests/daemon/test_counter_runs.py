@@ -140,3 +140,23 @@ def test_rates_are_per_second_with_the_power_down_share() -> None:
     rates = cw.rates()["c"]
     assert (rates["act_per_s"], rates["rd_per_s"]) == (5.0, 20.0) and math.isnan(rates["wr_per_s"])
     assert rates["powerdown_share"] == pytest.approx(0.6)
+
+
+def test_a_failed_read_is_kept_for_the_status_until_a_read_succeeds() -> None:
+    cw = CounterWindows("perf", table_key="haswell-ep", ranks=2, refresh_complete=False, sensors={},
+                        heartbeat_ns=100)
+    cw.failed(OSError(19, "No such device"), now_mono_ns=0)
+    assert cw.error == "OSError: [Errno 19] No such device"
+    assert not cw.due(50) and cw.due(100)  # retried at the next heartbeat, not at every poll
+    cw.observe(CounterSnapshot(0, {}), now_mono_ns=100)
+    assert cw.error is None
+
+
+def test_an_aborted_run_leaves_no_counter_start_behind() -> None:
+    cw = CounterWindows("sim", table_key="haswell-ep", ranks=2, refresh_complete=False, sensors={})
+    cw.observe(CounterSnapshot(0, {"c": {"act": 0.0}}), now_mono_ns=0)
+    w = window("r9", 0)
+    cw.track([w], sample_time=lambda t: t)
+    assert cw.due(1, [window("r10", 1)]) and not cw.due(1, [w])
+    cw.forget("r9")
+    assert cw.finish(w.run, []) is None

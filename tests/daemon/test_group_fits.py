@@ -127,10 +127,10 @@ def test_state_round_trip_and_resetting_one_group() -> None:
     assert other.body()["runs"] == 8 and other.body()["groups"]["DDR_AB"]["runs"] == 0
 
 
-def test_the_group_state_is_bounded_and_the_detectors_wait_for_two_design_rounds() -> None:
+def test_the_group_state_is_bounded_and_the_detectors_wait_for_four_runs_per_unknown() -> None:
     from hdeem_watch.daemon.group_fits import DETECT_AFTER_RUNS, MAX_GROUP_RUNS
 
     m = _modeller()
     assert m.group_fits is not None and m.group_fits.calibrators is not None
     assert all(c.max_runs == MAX_GROUP_RUNS for c in m.group_fits.calibrators.calibrators.values())
-    assert m.group_fits.calibrators.detect_after == DETECT_AFTER_RUNS == 64
+    assert m.group_fits.calibrators.detect_after == DETECT_AFTER_RUNS == 24

@@ -296,3 +296,33 @@ def test_overlapping_jobs_name_each_other_and_bad_requests_are_refused(node: Job
         with pytest.raises(Failed) as info:
             node.call(op, {"job_id": "404"})
         assert info.value.code == "not-found"
+
+
+def test_a_late_stop_inside_the_session_says_how_late(node: JobNode) -> None:
+    """A stop that comes after the job's end while the same daemon measured (it did not answer the
+    Epilog in time): the window closes now and the record says how long past the end it measured."""
+    node.call("job.start", {"job_id": "3"})
+    node.advance(2.0)
+    ended = node.wall() - 1_500_000_000
+    record = node.call("job.stop", {"job_id": "3", "ended_ns": ended})
+    assert record["state"] == "done" and record["late_stop_s"] == pytest.approx(1.5, abs=0.05)
+    assert record["status"].startswith("late stop: measured 1.5 s past the job's end")
+    assert_exact(node, record)
+
+
+def test_a_clean_exit_stores_the_open_jobs_up_to_the_exit(tmp_path: Path) -> None:
+    """The daemon's close forces a checkpoint: the stored record of an open job ends at the exit,
+    whenever the last periodic checkpoint was."""
+    node = JobNode(tmp_path, checkpoint_s=3600.0)
+    try:
+        node.call("job.start", {"job_id": "12"})
+        node.advance(1.0)
+        assert node.ops.checkpoint() == 0  # not due
+        assert node.ops.checkpoint(force=True) == 1
+        node.settle()
+        stored = node.store.list_jobs(job_id="12", limit=1)[0]
+        assert stored["state"] == "running" and stored["segments"][0]["open"]
+        assert 0.9 <= stored["segments"][0]["spans_s"]["DDR_AB"] <= 1.0
+        assert_exact(node, stored)
+    finally:
+        node.close()

@@ -37,7 +37,7 @@ def _wait_for(predicate: Any, timeout_s: float) -> None:
 def test_a_job_over_sockets_survives_kill_9(daemon_factory: Any, receive: Any) -> None:
     """A job's record equals the integral of the streamed samples over each of its segments, before
     and after the daemon was kill -9ed mid-job and restarted; job.list and the status show it."""
-    d = daemon_factory(HDEEM_WATCH_JOB_CHECKPOINT_S="0.2").start()
+    d = daemon_factory(HDEEM_WATCH_JOB_CHECKPOINT_S="0.2", HDEEM_WATCH_HEARTBEAT_S="0.2").start()
     sub = d.subscriber(protocol.subscription(d.node))
     time.sleep(0.3)
     with d.client(timeout_s=10.0) as client:
@@ -45,18 +45,18 @@ def test_a_job_over_sockets_survives_kill_9(daemon_factory: Any, receive: Any) -
                                             "cpus": 2})
         assert started["state"] == "running"
         assert [j["job_id"] for j in client.call("status")["jobs"]] == ["31"]
-        time.sleep(0.8)
+        time.sleep(0.5)
         live = client.call("job.get", {"job_id": "31"})
         assert live["dram_energy_j"] > 0 and live["segments"][0]["open"]
-        first_stream = receive(sub, 0.6)
+        first_stream = receive(sub, 0.4)
     d.kill9()
     first_stream += receive(sub, 0.3)  # what was on its way when the daemon died
     d.start()
     with d.client(timeout_s=10.0) as client:
         _wait_for(lambda: bool(client.call("status")["jobs"]), 5.0)
-        time.sleep(0.8)
+        time.sleep(0.5)
         record = client.call("job.stop", {"job_id": "31", "exit_code": 0})
-        second_stream = receive(sub, 0.5)
+        second_stream = receive(sub, 0.3)
         listed = client.call("job.list", {"user": "alice"})["jobs"]
     sub.close()
     assert record["state"] == "done" and len(record["segments"]) == 2 and record["status"].startswith("gap:")

@@ -115,3 +115,97 @@ def test_an_hdeem_daemon_is_not_started_unless_asked(tmp_path: Path, syslog: Sys
     record = json.loads((tmp_path / "state" / "slurm-hooks" / "job-5.json").read_text())
     assert record["daemon"].startswith("not started: its source is hdeem")
     assert not (tmp_path / "state" / "slurm-hooks" / "daemon.json").exists()
+
+
+def test_a_hung_daemon_gets_no_twin_and_its_missed_stop_comes_later(tmp_path: Path, syslog: Syslog) -> None:
+    """A real daemon stops answering (SIGSTOP) during a job: the Epilog keeps the stop; a Prolog with
+    HDEEM_WATCH_START_DAEMON=1 tries to start one with the same config, which refuses to run beside
+    the hung one (its state directory is locked), so there is never a second daemon; once the daemon
+    answers again the next hook delivers the stop, and the record says it came late."""
+    import signal
+
+    from hdeem_watch.daemon.client import ControlClient
+
+    control, daemon = _start_daemon(tmp_path)
+    python = {"HDEEM_WATCH_PYTHON": sys.executable, "HDEEM_WATCH_HOOK_CALL_TIMEOUT_S": "1"}
+    try:
+        prolog, _s = _hook("prolog", tmp_path, syslog, **python)
+        hooks = tmp_path / "state" / "slurm-hooks"
+        assert json.loads((hooks / "job-5.json").read_text())["job_start"] == "ok", prolog.stderr
+        daemon.send_signal(signal.SIGSTOP)
+        epilog, epilog_s = _hook("epilog", tmp_path, syslog, **python)
+        assert epilog.returncode == 0 and epilog_s < 8 and (hooks / "stop-5.json").exists()
+        twin, _s = _hook("prolog", tmp_path, syslog, SLURM_JOB_ID="6", HDEEM_WATCH_START_DAEMON="1", **python)
+        assert twin.returncode == 0
+        assert json.loads((hooks / "job-6.json").read_text())["daemon"].startswith("not started: it exited with 2")
+        assert not (hooks / "daemon.json").exists()
+        daemon.send_signal(signal.SIGCONT)
+        time.sleep(1.5)
+        later, _s = _hook("prolog", tmp_path, syslog, SLURM_JOB_ID="7", **python)
+        assert later.returncode == 0 and not (hooks / "stop-5.json").exists()
+        with ControlClient(control, timeout_s=5.0) as client:
+            record = client.call("job.get", {"job_id": "5"})
+        assert record["state"] == "done" and record["late_stop_s"] >= 1.0 and "late stop" in record["status"]
+    finally:
+        daemon.send_signal(signal.SIGCONT)
+        daemon.terminate()
+        daemon.wait(timeout=20)
+
+
+def _start_daemon(tmp_path: Path) -> tuple[str, subprocess.Popen[bytes]]:
+    """A sim daemon with the config file the hooks read (``tmp_path/daemon.toml``), answering."""
+    from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+
+    control = f"ipc://{tmp_path}/run/c.sock"
+    (tmp_path / "daemon.toml").write_text(f'source = "sim"\ncontrol = "{control}"\npub = "ipc://{tmp_path}/run/p.sock"\n'
+                                          f'state_dir = "{tmp_path}/state"\n')
+    env = {"PYTHONPATH": str(REPO / "src"), "PATH": "/usr/bin:/bin"}
+    daemon = subprocess.Popen([sys.executable, "-m", "hdeem_watch", "daemon", "--config", str(tmp_path / "daemon.toml")],
+                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    with ControlClient(control, timeout_s=1.0) as client:
+        deadline = time.monotonic() + 30
+        while True:
+            try:
+                client.call("ping")
+                return control, daemon
+            except DaemonUnreachable:
+                assert time.monotonic() < deadline and daemon.poll() is None, "the daemon did not start"
+                time.sleep(0.1)
+
+
+def test_the_prolog_measures_a_baseline_only_when_asked(tmp_path: Path, syslog: Syslog) -> None:
+    """HDEEM_WATCH_PROLOG_BASELINE_S=1: the Prolog measures an idle baseline (the job starts that
+    much later), then opens the job; the job's above-baseline energy then has a baseline."""
+    from hdeem_watch.daemon.client import ControlClient
+
+    control, daemon = _start_daemon(tmp_path)
+    python = {"HDEEM_WATCH_PYTHON": sys.executable}
+    try:
+        prolog, prolog_s = _hook("prolog", tmp_path, syslog, HDEEM_WATCH_PROLOG_BASELINE_S="1", **python)
+        record = json.loads((tmp_path / "state" / "slurm-hooks" / "job-5.json").read_text())
+        assert record["baseline"] == "measured" and record["job_start"] == "ok", prolog.stderr
+        assert prolog_s >= 1.0
+        with ControlClient(control, timeout_s=5.0) as client:
+            baselines = client.call("baseline.get")["channels"]
+            assert baselines["DDR_AB"]["origin"] == "measured"
+            epilog, _s = _hook("epilog", tmp_path, syslog, **python)
+            assert epilog.returncode == 0
+            job = client.call("job.get", {"job_id": "5"})
+        assert job["state"] == "done" and job["baseline_status"] == "ok"
+        assert job["dram_above_baseline_j"] == job["dram_above_baseline_j"]  # a number, not NaN
+    finally:
+        daemon.terminate()
+        daemon.wait(timeout=20)
+
+
+def test_the_hooks_log_is_bounded(tmp_path: Path) -> None:
+    """jobs.jsonl is rotated to jobs.jsonl.1 beyond MAX_LOG_BYTES: at most twice that on disk."""
+    from hdeem_watch.slurm import hooks
+
+    log = tmp_path / "jobs.jsonl"
+    line = {"event": "prolog", "job_id": "1", "pad": "x" * 1000}
+    for _ in range(3 * hooks.MAX_LOG_BYTES // 1000):
+        hooks._append_bounded(log, line)
+    sizes = [p.stat().st_size for p in sorted(tmp_path.glob("jobs.jsonl*"))]
+    assert len(sizes) == 2 and all(size <= hooks.MAX_LOG_BYTES + 1100 for size in sizes)
+    assert json.loads(log.read_text().splitlines()[-1]) == line

@@ -139,7 +139,8 @@ def test_demo_design_varies_threads_and_lengths() -> None:
     idle = [r.seconds for r in plan if r.spec.kernel == "idle"]
     assert idle == list(IDLE_SECONDS) and len(set(idle)) == len(idle)
     kernel_lengths = [round(r.seconds, 1) for r in plan if r.spec.kernel != "idle"]
-    assert max(kernel_lengths) / min(kernel_lengths) > 1.6
+    # 1.25–1.75 s: none shorter, or the guard rail (100 samples) drops runs that come out at 0.99 s
+    assert max(kernel_lengths) / min(kernel_lengths) > 1.3 and min(kernel_lengths) >= 1.2
     windows = np.array([r.seconds for r in plan])
     assert windows.std() / windows.mean() > 0.2
 

@@ -1,31 +1,51 @@
-"""Aging and outliers of a sensor group's fit: a CUSUM on its standardised residuals and a sibling
-comparison of its currents. Pure: values and times in, alarms out.
+"""Aging and outliers of a sensor group's fit: a CUSUM on same-kind residual changes against the
+siblings, and a comparison of each group's current changes with its siblings'. Pure: values and
+times in, alarms out.
 
-**Residual CUSUM** (:class:`ResidualCusum`): each finished run gives the group's relative
-out-of-sample residual ``r = measured / predicted − 1`` (predicted with the group's fit from
-*before* the run). What the model leaves out is mostly common to the groups of a node (they run the
-same kernels), so with at least two siblings the residual is taken against the median of the
-siblings' residuals of the same run (``d = r − median(r_siblings)``). ``d`` is standardised by a
-robust scale learnt over the first ``warmup`` runs (median |d| × 1.4826, at least ``scale_floor``)
-and then followed slowly with clipped values; ``z`` is clipped to ±``clip`` so one odd run cannot
-raise an alarm alone. Two one-sided CUSUMs ``S⁺ = max(0, S⁺ + z − k)``, ``S⁻ = max(0, S⁻ − z − k)``
-alarm when one exceeds ``h``.
+**Residual CUSUM** (:class:`ResidualCusum`, fed by
+:class:`~hdeem_watch.calibrate.groups.GroupCalibrators`). What the model leaves out is a large,
+*systematic* error per kind of run (on the simulated node −7 … +18 % per kernel and thread count,
+different for the two sockets: threads fill socket 0 first), so the plain out-of-sample residual
+of a run says little about aging. Against the group's own earlier run *of the same kind*, evaluated
+with the *same* (current) fit, it does: the input of a run is
 
-False-alarm rate: for i.i.d. N(0, 1) ``z``, Siegmund's approximation gives the one-sided in-control
-average run length ``ARL₀ ≈ (e^{2kh'} − 2kh' − 1)/(2k²)`` with ``h' = h + 1.166``; at the defaults
-``k = 0.5, h = 12`` that is ≈ 1.0·10⁶ runs one-sided, ≈ 5·10⁵ runs for the two-sided pair, i.e. a
-false-alarm probability of ≈ 0.07 % per group over 360 runs (2 hours of 20-s runs), ≈ 0.3 % for
-four groups. Residuals of a misspecified model are neither Gaussian nor independent, so the
-benchmark (``benchmarks/bench_calibration.py``) measures the rate on misspecified data
-(docs/calibration.md gives the figures). Delay: a step of ``δ`` scale units is detected after
-≈ ``(h + 1.166)/(δ − k)`` runs.
+    x_g = log(m_g / p_g) − log(m'_g / p'_g)
 
-**Sibling comparison** (:func:`sibling_outliers`): a group's calibrated current that lies more than
-``tolerance`` (relative) from the median of its siblings' AND whose 95 % interval does not reach the
-siblings' range. Parts of one type differ by ~±10 %, so the default tolerance is 25 %.
+(``m`` measured, ``p`` predicted by group ``g``'s fit before the run; primed: the previous run of the
+same kind — kernel, threads, CPUs — kept per group), i.e. how much the group's energy changed
+between two runs of the same kind beyond what the model expects from their lengths. The kind's
+systematic misfit cancels, and so does most of any change of the fit. What is common to the groups
+(temperature, the node's own load) is taken out by the median of the siblings' changes in the same
+run, ``d_g = x_g − median(x_h)`` (at least two siblings; a group that alarmed already is no
+sibling). ``d`` is standardised by a robust scale learnt over the first ``warmup`` values (median
+|d − median| × 1.4826, at least ``scale_floor``), then followed slowly; ``z`` is clipped to
+±``clip`` so one odd run cannot alarm alone. Two one-sided CUSUMs ``S⁺ = max(0, S⁺ + z − k)``,
+``S⁻ = max(0, S⁻ − z − k)`` alarm when one exceeds ``h``.
+
+Statistics. For i.i.d. N(0, 1) ``z`` Siegmund's approximation gives the one-sided in-control average
+run length ``ARL₀ ≈ (e^{2kh'} − 2kh' − 1)/(2k²)``, ``h' = h + 1.166`` (:func:`arl0_two_sided`: half
+that for the two-sided pair). At the defaults ``k = 1, h = 6`` that is ≈ 4·10⁵ runs per group, a
+false-alarm probability of ≈ 0.2 % per group in 800 runs (2 sim-hours of the demo), ≈ 1 % for four
+groups. The ``x`` of successive runs of one kind share a run with opposite signs (lag −½
+correlation over a kind's recurrences), which makes partial sums *smaller* than for i.i.d. input, so
+the figure errs on the safe side as far as that goes; the residuals of a misspecified model are not
+Gaussian (kurtosis 4–10 on the sim), which the clip bounds. The rate on the misspecified sim is
+measured by ``benchmarks/bench_calibration.py`` (docs/calibration.md). Detection: a pair whose
+currents grow at a rate ``ρ`` shifts ``d`` by ``ρ·Δt`` per comparison (``Δt``: the time between two
+runs of one kind) — ``δ = ρΔt/scale`` scale units — and is found after ≈ ``(h + 1.166)/(δ − k)``
+comparisons; a change slower than ``k·scale`` per ``Δt`` is not (the fits' ``drift()`` follows such).
+
+**Sibling change** (:func:`sibling_changes`): each group's identifiable currents are compared with
+its *own* reference fit (taken when the group's detectors start) relative to its siblings' changes
+since theirs: ``Δ_g = log(I_g/I_g,ref) − median_h log(I_h/I_h,ref)``. Levels are not compared: parts
+of one type differ by ±10 % and what the model leaves out (sensor offsets, power-down) shifts each
+pair's effective background currents by more (up to 40 % on the sim), while a healthy pair's
+currents keep their ratio to its siblings'. An alarm needs ``|Δ_g|`` beyond ``tolerance`` (default
+15 %) *and* beyond ``z`` (default 4) standard errors, ``se² = se_now² + se_ref²`` from the two fits'
+95 % intervals (log scale). Each (group, current) alarms once.
 
 Example:
-    >>> det = ResidualCusum("DDR_AB", warmup=3, h=10.0)
+    >>> det = ResidualCusum("DDR_AB", warmup=3, h=6.0)
     >>> [det.update(d, t) for t, d in enumerate([0.01, -0.01, 0.0])]
     [None, None, None]
     >>> alarms = [det.update(0.2, 10 + t) for t in range(3)]
@@ -76,6 +96,22 @@ class DriftAlarm:
                 "time_ns": int(self.time_ns), "direction": self.direction}
 
 
+def robust_sd(values: Collection[float]) -> float:
+    """The standard deviation of ``values`` with outliers limited: the RMS of the deviations from
+    the median, each clipped to 3 MADs (× 1.4826). Unlike the MAD alone it sees the heavier tails
+    of a mixture (on the sim, runs at 24 threads vary half as much as the others; the MAD of the
+    mix was 10–30 % below the standard deviation, and the CUSUM alarmed on that).
+
+    Example:
+        >>> round(robust_sd([0.0, 1.0, -1.0, 2.0, -2.0, 50.0]), 2)   # the standard deviation: 18.7
+        3.05
+    """
+    array = np.asarray(list(values), dtype=float)
+    deviation = array - float(np.median(array))
+    limit = 3 * MAD_TO_SD * float(np.median(np.abs(deviation)))
+    return float(np.sqrt(np.mean(np.clip(deviation, -limit, limit) ** 2)))
+
+
 def arl0_two_sided(k: float, h: float) -> float:
     """Siegmund's in-control average run length of the two-sided CUSUM for N(0, 1) input (runs).
 
@@ -95,19 +131,23 @@ class ResidualCusum:
         group: the group's name (put in the alarms).
         k: reference value (scale units; detects steps of ~2k best).
         h: decision threshold (scale units).
-        warmup: runs used to learn the scale before any alarm.
+        warmup: runs used to learn the scale (:func:`robust_sd`); when it is learnt they go through
+            the sums too, so a change that began during the warm-up counts.
         clip: standardised residuals are clipped to ±clip.
         scale_floor: smallest scale (relative residual), e.g. the sensor's accuracy.
-        follow: weight of a new run in the scale after the warm-up (clipped at 3 scales).
+        follow: weight of a new run in the scale after the warm-up (clipped values excluded).
+        scale: a known scale instead of a warm-up (None: learn it).
     """
 
-    def __init__(self, group: str, *, k: float = 0.5, h: float = 12.0, warmup: int = 20, clip: float = 4.0,
-                 scale_floor: float = 0.002, follow: float = 0.02) -> None:
+    def __init__(self, group: str, *, k: float = 1.0, h: float = 8.0, warmup: int = 24, clip: float = 3.0,
+                 scale_floor: float = 0.002, follow: float = 0.02, scale: float | None = None) -> None:
         self.group = group
         self.k, self.h, self.warmup, self.clip = float(k), float(h), int(warmup), float(clip)
         self.scale_floor, self.follow = float(scale_floor), float(follow)
         self.learning: list[float] = []
         self.scale = math.nan
+        if scale is not None:
+            self.warmup, self.scale = 0, max(float(scale), self.scale_floor)
         self.upper = 0.0
         self.lower = 0.0
         self.alarmed = False
@@ -119,17 +159,19 @@ class ResidualCusum:
             return None
         if len(self.learning) < self.warmup:
             self.learning.append(float(residual))
-            if len(self.learning) == self.warmup:
-                centre = float(np.median(self.learning))
-                mad = float(np.median(np.abs(np.array(self.learning) - centre)))
-                self.scale = max(MAD_TO_SD * mad, self.scale_floor)
-            return None
-        z = max(-self.clip, min(self.clip, residual / self.scale))
-        self.upper = max(0.0, self.upper + z - self.k)
-        self.lower = max(0.0, self.lower - z - self.k)
-        if abs(z) < 3.0:  # follow slow changes of the scale, not the drift itself
-            self.scale = max(self.scale_floor, math.sqrt((1 - self.follow) * self.scale ** 2
-                                                         + self.follow * (z * self.scale) ** 2))
+            if len(self.learning) < self.warmup:
+                return None
+            # the scale is learnt: the warm-up's own values go through the sums too, so a change
+            # that began before the detector could judge it is not given away
+            self.scale = max(robust_sd(self.learning), self.scale_floor)
+            for value in self.learning:
+                self._accumulate(max(-self.clip, min(self.clip, value / self.scale)))
+        else:
+            z = max(-self.clip, min(self.clip, residual / self.scale))
+            self._accumulate(z)
+            if abs(z) < self.clip:  # follow slow changes of the scale, not the drift itself
+                self.scale = max(self.scale_floor, math.sqrt((1 - self.follow) * self.scale ** 2
+                                                             + self.follow * (z * self.scale) ** 2))
         if self.alarmed or max(self.upper, self.lower) <= self.h:
             return None
         self.alarmed = True
@@ -137,15 +179,20 @@ class ResidualCusum:
         return DriftAlarm(self.group, "energy", "residual-cusum", max(self.upper, self.lower), self.h, int(time_ns),
                           "up" if up else "down")
 
+    def _accumulate(self, z: float) -> None:
+        self.upper = max(0.0, self.upper + z - self.k)
+        self.lower = max(0.0, self.lower - z - self.k)
+
     def restart(self) -> None:
         """Zero the sums, keep the learnt scale (a sibling's drift was found: what the sums took
         from it while it was still a reference goes)."""
         self.upper = self.lower = 0.0
 
     def reset(self) -> None:
-        """Start again (after a replaced DIMM or a calibration reset)."""
+        """Start again (after a replaced DIMM or a calibration reset; a known scale stays)."""
         self.learning.clear()
-        self.scale = math.nan
+        if self.warmup > 0:
+            self.scale = math.nan
         self.upper = self.lower = 0.0
         self.alarmed = False
 
@@ -185,45 +232,67 @@ def sibling_residuals(residuals: Mapping[str, float], *, exclude: Collection[str
     return out
 
 
-def sibling_outliers(currents: Mapping[str, Mapping[str, tuple[float, float, float]]], *, time_ns: int,
-                     tolerance: float = 0.25) -> list[DriftAlarm]:
-    """Groups whose current left the spread of their siblings.
+#: One of a group's currents with its 95 % interval: ``(value, ci_low, ci_high)`` (A).
+Current = tuple[float, float, float]
+
+
+def _log_se(value: float, lo: float, hi: float) -> float:
+    """Standard error of ``log(value)`` from a 95 % interval (the wider side; NaN without one)."""
+    if not (value > 0 and math.isfinite(lo) and math.isfinite(hi)):
+        return math.nan
+    return max(hi - value, value - lo) / (1.96 * value)
+
+
+def sibling_changes(now: Mapping[str, Mapping[str, Current]], reference: Mapping[str, Mapping[str, Current]], *,
+                    time_ns: int, tolerance: float = 0.15, z: float = 4.0) -> list[DriftAlarm]:
+    """Groups whose currents changed since their reference fit relative to their siblings' changes.
 
     Args:
-        currents: group → current → ``(value, ci_low, ci_high)`` (A), identifiable ones only.
+        now: group → current → ``(value, ci_low, ci_high)`` of the latest fits (identifiable currents
+            not at a bound).
+        reference: the same of each group's reference fit.
         time_ns: time put in the alarms.
-        tolerance: relative distance from the siblings' median needed on top of the interval test.
+        tolerance: smallest relative change (vs the siblings' median change) that alarms.
+        z: standard errors (of the two fits, log scale) the change must exceed too.
 
     Returns:
-        One alarm per (group, current) that is further than ``tolerance`` from the median of at
-        least two siblings and whose interval lies outside the siblings' [min, max].
+        One alarm per (group, current) whose ``Δ = log(I/I_ref) − median(siblings' log(I/I_ref))``
+        (at least two siblings) is beyond both limits; ``statistic`` is ``e^Δ − 1``.
+
+    Example:
+        >>> ref = {g: {"idd3n": (0.05, 0.049, 0.051)} for g in ("a", "b", "c")}
+        >>> now = {"a": {"idd3n": (0.05, 0.049, 0.051)}, "b": {"idd3n": (0.051, 0.05, 0.052)},
+        ...        "c": {"idd3n": (0.062, 0.061, 0.063)}}
+        >>> [(a.group, a.direction, round(a.statistic, 2)) for a in sibling_changes(now, ref, time_ns=0)]
+        [('c', 'up', 0.22)]
     """
     alarms: list[DriftAlarm] = []
-    names = sorted({name for per in currents.values() for name in per})
+    names = sorted({name for per in now.values() for name in per})
     for name in names:
-        have = {g: per[name] for g, per in currents.items() if name in per and math.isfinite(per[name][0])}
-        for group, (value, lo, hi) in have.items():
-            others = [v[0] for g, v in have.items() if g != group]
+        change: dict[str, tuple[float, float]] = {}
+        for group, per in now.items():
+            ref = reference.get(group, {}).get(name)
+            if name not in per or ref is None or not (per[name][0] > 0 and ref[0] > 0):
+                continue
+            se = math.hypot(_log_se(*per[name]), _log_se(*ref))
+            change[group] = (math.log(per[name][0] / ref[0]), se)
+        for group, (delta_own, se) in change.items():
+            others = [v for g, (v, _s) in change.items() if g != group]
             if len(others) < 2:
                 continue
-            median = float(np.median(others))
-            if median <= 0:
-                continue
-            deviation = value / median - 1
-            lo = value if not math.isfinite(lo) else lo
-            hi = value if not math.isfinite(hi) else hi
-            outside = lo > max(others) or hi < min(others)
-            if abs(deviation) > tolerance and outside:
-                alarms.append(DriftAlarm(group, name, "sibling", deviation, tolerance, int(time_ns),
-                                         "up" if deviation > 0 else "down"))
+            delta = delta_own - float(np.median(others))
+            relative = math.expm1(delta)
+            if abs(relative) > tolerance and (not math.isfinite(se) or abs(delta) > z * se):
+                alarms.append(DriftAlarm(group, name, "sibling", relative, tolerance, int(time_ns),
+                                         "up" if delta > 0 else "down"))
     return alarms
 
 
-def identifiable_currents(fit: Any) -> dict[str, tuple[float, float, float]]:
+def identifiable_currents(fit: Any) -> dict[str, Current]:
     """``{current: (value, ci_low, ci_high)}`` of a :class:`~hdeem_watch.calibrate.result.FitResult`'s
-    identifiable currents (input of :func:`sibling_outliers`)."""
-    out: dict[str, tuple[float, float, float]] = {}
+    identifiable currents that are not at a bound (input of :func:`sibling_changes`)."""
+    out: dict[str, Current] = {}
     for j, name in enumerate(fit.currents):
-        if bool(fit.identifiable[j]):
+        if bool(fit.identifiable[j]) and fit.at_bound[j] is None:
             out[name] = (float(fit.calibrated_a[j]), float(fit.ci95_a[j, 0]), float(fit.ci95_a[j, 1]))
     return out

@@ -80,10 +80,13 @@ def sensor_groups(sensors: Mapping[str, Sequence[str]], dimm_socket: Mapping[str
 
 
 def group_observation(spec: MemSpec, socket_stats: Sequence[tuple[CommandStats, int]], group: SensorGroup,
-                      window_s: float, measured_j: float, *, name: str = "run", time_ns: int = 0) -> Observation:
+                      window_s: float, measured_j: float, *, name: str = "run", time_ns: int = 0,
+                      traffic_s: float | None = None) -> Observation:
     """ONE calibration row of ``group``: each socket's one-channel row times the group's DIMMs on
     that socket, summed, against the group's measured energy. A model of one entry (the daemon's
-    shortcut for idle runs: one channel's statistics for every DIMM) stands for every socket.
+    shortcut for idle runs: one channel's statistics for every DIMM) stands for every socket. A
+    window longer than a known ``traffic_s`` is the run, then precharged standby
+    (:func:`~hdeem_watch.calibrate.rows.observation_from_run`).
 
     Raises:
         InputError: the group names more sockets than the model has, or a bad window/energy.
@@ -92,7 +95,8 @@ def group_observation(spec: MemSpec, socket_stats: Sequence[tuple[CommandStats, 
         socket_stats = [socket_stats[0]] * len(group.dimms_per_socket)
     if len(group.dimms_per_socket) > len(socket_stats):
         raise InputError(f"group {group.name}: {len(group.dimms_per_socket)} sockets; the model has {len(socket_stats)}")
-    rows = [observation_from_run(spec, stats, window_s, measured_j, scale=float(k), name=name, time_ns=time_ns)
+    rows = [observation_from_run(spec, stats, window_s, measured_j, scale=float(k), name=name, time_ns=time_ns,
+                                 traffic_s=traffic_s)
             for (stats, _n), k in zip(socket_stats, group.dimms_per_socket) if k > 0]
     if not rows:
         raise InputError(f"group {group.name}: measures no DIMM")
@@ -138,7 +142,45 @@ def measured_run(record: Mapping[str, Any], socket_stats: Sequence[tuple[Command
     return MeasuredRun(name=f"{record.get('run_id')}:{record.get('name') or record.get('kernel')}",
                        time_ns=int(record.get("t_stop_ns") or 0), window_s=window, socket_stats=tuple(socket_stats),
                        energy_j=energies,
-                       samples={c: math.floor(window * float(r) + 1e-9) for c, r in rates_hz.items()})
+                       samples={c: math.floor(window * float(r) + 1e-9) for c, r in rates_hz.items()},
+                       kind=run_kind(record), traffic_s=announced_traffic_s(record))
+
+
+def announced_traffic_s(record: Mapping[str, Any]) -> float | None:
+    """How long the run's traffic lasted, as announced in ``metadata.modelled_s`` (the demo's
+    schedule) or ``metadata.traffic_s``; None when not announced or not a positive number.
+
+    Example:
+        >>> announced_traffic_s({"metadata": {"modelled_s": 1.5}}), announced_traffic_s({})
+        (1.5, None)
+    """
+    metadata = record.get("metadata")
+    if not isinstance(metadata, Mapping):
+        return None
+    for key in ("traffic_s", "modelled_s"):
+        value = metadata.get(key)
+        if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and value > 0:
+            return float(value)
+    return None
+
+
+def run_kind(record: Mapping[str, Any]) -> str:
+    """What makes two runs "the same kind" for the drift detector: kernel, threads and announced
+    CPUs (any run without traffic is ``idle``).
+
+    Example:
+        >>> run_kind({"kernel": "triad", "threads": 24, "elements": 1 << 24})
+        'triad/24'
+        >>> run_kind({"kernel": "sleep", "threads": 24, "elements": 0})
+        'idle'
+    """
+    kernel = str(record.get("kernel") or "")
+    if kernel in ("idle", "sleep") or not record.get("elements"):
+        return "idle"
+    metadata = record.get("metadata")
+    cpus = metadata.get("cpus") if isinstance(metadata, Mapping) else None
+    where = f"@{','.join(str(c) for c in cpus)}" if isinstance(cpus, list | tuple) and cpus else ""
+    return f"{kernel}/{record.get('threads')}{where}"
 
 
 @dataclass(frozen=True)
@@ -153,6 +195,10 @@ class MeasuredRun:
             (:func:`hdeem_watch.dram.node.node_run_stats`).
         energy_j: measured energy per sensor (J; NaN = unknown).
         samples: sensor samples inside the window per sensor (None: ``window_s × nominal rate``).
+        kind: runs of one kind (:func:`run_kind`) are compared by the drift detector (None: the
+            part of ``name`` after its first ``:``).
+        traffic_s: how long the run's traffic lasted, when announced (:func:`announced_traffic_s`):
+            the rest of the window is modelled as standby.
     """
 
     name: str
@@ -161,3 +207,10 @@ class MeasuredRun:
     socket_stats: tuple[tuple[CommandStats, int], ...]
     energy_j: Mapping[str, float]
     samples: Mapping[str, int] | None = None
+    kind: str | None = None
+    traffic_s: float | None = None
+
+    @property
+    def kind_key(self) -> str:
+        """:attr:`kind`, else the name without its run id (``"r7:triad-24t"`` → ``"triad-24t"``)."""
+        return self.kind if self.kind is not None else self.name.split(":", 1)[-1]

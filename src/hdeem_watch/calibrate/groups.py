@@ -11,9 +11,10 @@ Guard rails: a run with fewer than ``min_samples`` sensor samples in a group's w
 with the reason and not fitted (a 10 ms run is one sample: it measures nothing). A group
 fit whose currents hit a bound has status ``at-bound`` (:func:`~hdeem_watch.calibrate.fit.fit`).
 
-Aging: per group a :class:`~hdeem_watch.calibrate.drift.ResidualCusum` on the out-of-sample
-residuals (against the siblings' median), and after each refit
-:func:`~hdeem_watch.calibrate.drift.sibling_outliers` over the groups' identifiable currents.
+Aging: per group a :class:`~hdeem_watch.calibrate.drift.ResidualCusum` on the change of its
+residual since its previous run of the same kind (against the siblings' median change), and after
+each refit :func:`~hdeem_watch.calibrate.drift.sibling_changes`: each group's identifiable currents
+against its own reference fit, relative to its siblings' (drift.py states the statistics).
 
 Pure: no clock, no I/O; the daemon persists :meth:`GroupCalibrators.to_dict` and serves
 :meth:`GroupCalibrators.body` as ``calib.get``'s ``groups``/``node`` (docs/calibration.md).
@@ -40,7 +41,7 @@ from hdeem_watch.calibrate.drift import (
     DriftAlarm,
     ResidualCusum,
     identifiable_currents,
-    sibling_outliers,
+    sibling_changes,
     sibling_residuals,
 )
 from hdeem_watch.calibrate.group_rows import (
@@ -69,7 +70,13 @@ NODE = "node"
 TOTAL = "total"
 #: Skipped runs and alarms kept (oldest dropped first).
 MAX_RECORDS = 200
-_STATE_VERSION = 1
+#: Kinds of run whose latest rows each group keeps for the drift detector (oldest dropped first).
+MAX_KINDS = 64
+#: Runs of one kind a new run is compared with (their mean log residual): with ``L`` of them the
+#: change's variance is ``σ²(1 + 1/L)`` instead of ``2σ²``, and a steady drift shows ``(L + 1)/2``
+#: recurrences' worth of it instead of one.
+KIND_REFERENCES = 3
+_STATE_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -105,9 +112,11 @@ class GroupCalibrators:
         nominal_rate_hz: samples per second assumed when a run does not say how many it had.
         calibrator: keyword arguments of every :class:`OnlineCalibrator` (currents, half_life_s, ...).
         cusum: keyword arguments of every :class:`~hdeem_watch.calibrate.drift.ResidualCusum`.
-        detect_after: a group's residuals feed its detector, and its currents the sibling
-            comparison, once its fit has this many runs (default: twice the unknowns).
-        sibling_tolerance: see :func:`~hdeem_watch.calibrate.drift.sibling_outliers`.
+        detect_after: a group's same-kind changes feed its detector, and its currents the sibling
+            comparison, once its fit has this many runs (default: four times the unknowns — an
+            earlier fit splits a run's energy between its length and its traffic too loosely for
+            two runs of one kind but other lengths to compare).
+        sibling_tolerance: see :func:`~hdeem_watch.calibrate.drift.sibling_changes`.
         node_detector: run a residual CUSUM on the node fit too. Off by default: the node has no
             siblings to difference against, so what the model leaves out stays in its residuals
             (it raised most false alarms in the benchmark); the groups' detectors name the pair.
@@ -116,7 +125,7 @@ class GroupCalibrators:
     def __init__(self, spec: MemSpec, groups: Sequence[SensorGroup], *, min_samples: int = DEFAULT_MIN_SAMPLES,
                  nominal_rate_hz: float = 100.0, calibrator: Mapping[str, Any] | None = None,
                  cusum: Mapping[str, Any] | None = None, detect_after: int | None = None,
-                 sibling_tolerance: float = 0.25, node_detector: bool = False) -> None:
+                 sibling_tolerance: float = 0.15, node_detector: bool = False) -> None:
         if not groups:
             raise InputError("groups: no sensor groups to calibrate")
         names = [g.name for g in groups]
@@ -134,11 +143,15 @@ class GroupCalibrators:
         self.node_detector = bool(node_detector)
         self.calibrators = {name: OnlineCalibrator(spec, **self.calibrator_options) for name in [*names, NODE]}
         unknowns = len(self.calibrators[NODE].currents) + int(self.calibrators[NODE].intercept)
-        self.detect_after = 2 * unknowns if detect_after is None else int(detect_after)
+        self.detect_after = 4 * unknowns if detect_after is None else int(detect_after)
         self.detectors = {name: ResidualCusum(name, **self.cusum_options) for name in [*names, NODE]}
         self.skipped: list[SkippedRun] = []
         self.alarms: list[DriftAlarm] = []
         self._raised: set[tuple[str, str, str]] = set()
+        #: group → kind → the latest rows of that kind (the drift detector's reference runs).
+        self.last_of_kind: dict[str, dict[str, list[Observation]]] = {name: {} for name in self.calibrators}
+        #: group → its reference currents for the sibling comparison.
+        self.reference: dict[str, dict[str, tuple[float, float, float]]] = {}
 
     def _samples(self, run: MeasuredRun, sensor: str) -> int:
         if run.samples is not None and sensor in run.samples:
@@ -175,40 +188,82 @@ class GroupCalibrators:
                 skipped.append(SkippedRun(run.name, run.time_ns, name, reason))
                 continue
             rows[name] = group_observation(self.spec, run.socket_stats, group, run.window_s,
-                                           float(run.energy_j[name]), name=run.name, time_ns=run.time_ns)
+                                           float(run.energy_j[name]), name=run.name, time_ns=run.time_ns,
+                                           traffic_s=run.traffic_s)
         if len(rows) == len(self.groups):
             rows[NODE] = summed(list(rows.values()), sum(r.measured_j for r in rows.values()))
         else:
             skipped.append(SkippedRun(run.name, run.time_ns, NODE, "not every group was measured: "
                                       + "; ".join(s.reason for s in skipped)))
-        residuals = {}
-        for name, obs in rows.items():
-            calib = self.calibrators[name]
-            if calib.latest is not None and len(calib.observations) >= self.detect_after:
-                residuals[name] = obs.measured_j / self.predicted_j(name, obs) - 1.0
+        changes = self._same_kind_changes(run.kind_key, rows)
         drifting = {g for g, d in self.detectors.items() if d.alarmed}
-        against = sibling_residuals({g: r for g, r in residuals.items() if g != NODE}, exclude=drifting)
-        if NODE in residuals:
-            against[NODE] = residuals[NODE]
-        if not self.node_detector:
-            against.pop(NODE, None)
-        alarms = [a for g, d in against.items() if (a := self.detectors[g].update(d, run.time_ns)) is not None]
-        if alarms:  # a group drifts: it was a reference of the others until now; their sums start again
-            for detector in self.detectors.values():
+        against = sibling_residuals({g: r for g, r in changes.items() if g != NODE}, exclude=drifting)
+        if self.node_detector and NODE in changes:
+            against[NODE] = changes[NODE]
+        raised = [a for g, d in against.items()
+                  if (a := self.detectors[g].update(d * _noise_weight(rows[g]), run.time_ns)) is not None]
+        alarms: list[DriftAlarm] = []
+        if raised:
+            # A drifting group pulls its siblings' median, so in the run it crosses the threshold a
+            # sibling can cross too, the other way: the alarm goes to the largest CUSUM; every other
+            # group's sums start again (what they took from the drifting reference goes), and a
+            # second group that really drifts crosses again with the first one out of its median.
+            winner = max(raised, key=lambda a: a.statistic)
+            alarms.append(winner)
+            crossed = {a.group for a in raised}
+            for name, detector in self.detectors.items():
+                if name == winner.group:
+                    continue
+                if name in crossed:
+                    detector.alarmed = False
                 if not detector.alarmed:
                     detector.restart()
         fits = {name: self.calibrators[name].add_run(obs) for name, obs in rows.items()}
         if fits:
-            per_group = {g: identifiable_currents(c.latest) for g, c in self.calibrators.items()
-                         if g != NODE and c.latest is not None and len(c.observations) >= self.detect_after}
-            for alarm in sibling_outliers(per_group, time_ns=run.time_ns, tolerance=self.sibling_tolerance):
-                key = (alarm.group, alarm.current, alarm.kind)
-                if key not in self._raised:
-                    self._raised.add(key)
-                    alarms.append(alarm)
+            alarms += self._sibling_alarms(run.time_ns)
         self.skipped = (self.skipped + skipped)[-MAX_RECORDS:]
         self.alarms = (self.alarms + alarms)[-MAX_RECORDS:]
         return GroupUpdate(fits=fits, skipped=tuple(skipped), alarms=tuple(alarms))
+
+    def _log_residual(self, name: str, obs: Observation) -> float:
+        predicted = self.predicted_j(name, obs)
+        return math.log(obs.measured_j / predicted) if predicted > 0 else math.nan
+
+    def _same_kind_changes(self, kind: str, rows: Mapping[str, Observation]) -> dict[str, float]:
+        """Each group's ``x = log(m/p) − mean log(m'/p')`` over its last :data:`KIND_REFERENCES` runs
+        of ``kind`` (all with its current fit; drift.py), for groups whose fit has
+        :attr:`detect_after` runs; remembers the rows as the kind's latest."""
+        out = {}
+        for name, obs in rows.items():
+            calib = self.calibrators[name]
+            kinds = self.last_of_kind[name]
+            previous = kinds.pop(kind, [])
+            if previous and calib.latest is not None and len(calib.observations) >= self.detect_after:
+                x = self._log_residual(name, obs) - float(np.mean([self._log_residual(name, p) for p in previous]))
+                if math.isfinite(x):
+                    out[name] = x
+            kinds[kind] = [*previous, obs][-KIND_REFERENCES:]
+            while len(kinds) > MAX_KINDS:
+                kinds.pop(next(iter(kinds)))
+        return out
+
+    def _sibling_alarms(self, time_ns: int) -> list[DriftAlarm]:
+        """:func:`~hdeem_watch.calibrate.drift.sibling_changes` of the groups' latest fits against
+        their references (a group's reference is its fit when it first had :attr:`detect_after` runs);
+        each (group, current) alarms once."""
+        now = {}
+        for name, calib in self.calibrators.items():
+            if name == NODE or calib.latest is None or len(calib.observations) < self.detect_after:
+                continue
+            now[name] = identifiable_currents(calib.latest)
+            self.reference.setdefault(name, now[name])
+        out = []
+        for alarm in sibling_changes(now, self.reference, time_ns=time_ns, tolerance=self.sibling_tolerance):
+            key = (alarm.group, alarm.current, alarm.kind)
+            if key not in self._raised:
+                self._raised.add(key)
+                out.append(alarm)
+        return out
 
     def reset(self, group: str | None = None) -> None:
         """Forget the runs, fits, detector state and alarms of ``group`` (None: every group and the node).
@@ -222,6 +277,8 @@ class GroupCalibrators:
                 raise InputError(f"calib reset: unknown group {name!r}; expected one of {', '.join(self.calibrators)}")
             self.calibrators[name].reset()
             self.detectors[name].reset()
+            self.last_of_kind[name].clear()
+            self.reference.pop(name, None)
         self.alarms = [a for a in self.alarms if a.group not in names]
         self.skipped = [s for s in self.skipped if s.group not in names]
         self._raised = {k for k in self._raised if k[0] not in names}
@@ -267,6 +324,9 @@ class GroupCalibrators:
             "detectors": {name: d.to_dict() for name, d in self.detectors.items()},
             "alarms": [a.to_dict() for a in self.alarms],
             "skipped": [s.to_dict() for s in self.skipped],
+            "last_of_kind": {name: {k: [o.to_dict() for o in rows] for k, rows in kinds.items()}
+                             for name, kinds in self.last_of_kind.items()},
+            "reference": {name: {c: list(v) for c, v in per.items()} for name, per in self.reference.items()},
         }
 
     @classmethod
@@ -276,7 +336,7 @@ class GroupCalibrators:
         Raises:
             InputError: an unknown version or a malformed state.
         """
-        if not isinstance(data, Mapping) or data.get("version") != _STATE_VERSION:
+        if not isinstance(data, Mapping) or data.get("version") not in (1, _STATE_VERSION):
             raise InputError("group calibrators state: unknown version; expected "
                              f"{_STATE_VERSION}")
         try:
@@ -289,10 +349,27 @@ class GroupCalibrators:
             out.detectors = {n: ResidualCusum.from_dict(n, s) for n, s in data["detectors"].items()}
             out.alarms = [DriftAlarm(**a) for a in data.get("alarms", [])]
             out.skipped = [SkippedRun(**s) for s in data.get("skipped", [])]
+            for name, kinds in (data.get("last_of_kind") or {}).items():
+                if name in out.last_of_kind:
+                    out.last_of_kind[name] = {str(k): [Observation.from_dict(o) for o in rows]
+                                              for k, rows in kinds.items()}
+            out.reference = {str(n): {str(c): (float(v[0]), float(v[1]), float(v[2])) for c, v in per.items()}
+                             for n, per in (data.get("reference") or {}).items()}
         except (KeyError, TypeError, ValueError) as error:
             raise InputError(f"group calibrators state: malformed ({error!r})") from None
         out._raised = {(a.group, a.current, a.kind) for a in out.alarms if a.kind == "sibling"}
         return out
+
+
+def _noise_weight(obs: Observation) -> float:
+    """``√(P / 1 W)`` of the run's mean power ``P``: the same-kind change's noise falls about as
+    ``1/√P`` (on the sim: ~0.3–0.7 % for a loaded pair at 2–3.5 W, 1.1–2.3 % idle at 0.3–0.7 W; × √P
+    it varies by a factor of two across kinds instead of eight), so the detector standardises
+    ``d·√P`` by one scale (1 without a window)."""
+    window = obs.window_s
+    if not (math.isfinite(window) and window > 0):
+        return 1.0
+    return math.sqrt(obs.measured_j / window)
 
 
 def _num(value: float) -> float | None:

@@ -27,7 +27,7 @@ import numpy as np
 from hdeem_watch.calibrate.observation import Observation, check_measured
 from hdeem_watch.dram.energy import energy_columns
 from hdeem_watch.dram.memspec import MemSpec
-from hdeem_watch.dram.stats import CommandStats, stretch_stats
+from hdeem_watch.dram.stats import CommandStats, RankStats, stretch_stats
 from hdeem_watch.errors import InputError
 
 
@@ -39,7 +39,7 @@ def model_columns(spec: MemSpec, stats: CommandStats) -> tuple[np.ndarray, float
 
 def observation_from_run(spec: MemSpec, model_stats: CommandStats, window_s: float, measured_j: float, *,
                          scale: float = 1.0, name: str = "run", time_ns: int = 0,
-                         weight: float = 1.0) -> Observation:
+                         weight: float = 1.0, traffic_s: float | None = None) -> Observation:
     """A calibration row for one measured run.
 
     Args:
@@ -51,6 +51,12 @@ def observation_from_run(spec: MemSpec, model_stats: CommandStats, window_s: flo
         name: the run's name.
         time_ns: wall-clock time of the run's end (ns).
         weight: relative weight of the row.
+        traffic_s: how long the run's traffic lasted, when known (a run's announced
+            ``metadata.modelled_s``): a longer window is the run's statistics stretched to
+            ``traffic_s``, then precharged standby (with refresh) for the rest — not the run's
+            state mix stretched over all of it. For windows that end well after the traffic (the
+            demo's at high speed end at the daemon's first poll after the stop, up to seconds of
+            sim time later). None or a longer traffic: stretched to the window as always.
 
     Raises:
         InputError: a bad energy, window or scale, naming the run.
@@ -58,8 +64,14 @@ def observation_from_run(spec: MemSpec, model_stats: CommandStats, window_s: flo
     measured = check_measured(name, measured_j)
     if isinstance(scale, bool) or not isinstance(scale, int | float) or not math.isfinite(scale) or scale <= 0:
         raise InputError(f"run {name!r}: scale = {scale!r}; expected a number > 0")
-    stretched = stretch_stats(spec, model_stats, window_s, name=name)
-    columns, constant = model_columns(spec, stretched)
+    own_s = traffic_s if traffic_s is not None and math.isfinite(traffic_s) and traffic_s > 0 else math.nan
+    if math.isfinite(own_s) and isinstance(window_s, int | float) and window_s > own_s:
+        columns, constant = model_columns(spec, stretch_stats(spec, model_stats, own_s, name=name))
+        idle = CommandStats(ranks=tuple(RankStats() for _ in model_stats.ranks))
+        idle_columns, idle_constant = model_columns(spec, stretch_stats(spec, idle, float(window_s) - own_s, name=name))
+        columns, constant = columns + idle_columns, constant + idle_constant
+    else:
+        columns, constant = model_columns(spec, stretch_stats(spec, model_stats, window_s, name=name))
     return Observation(name=name, columns=columns * scale, constant_j=constant * scale, measured_j=measured,
                        time_ns=int(time_ns), weight=weight, window_s=float(window_s))
 
@@ -72,10 +84,11 @@ def stats_window_s(spec: MemSpec, stats: CommandStats) -> float:
 
 def node_observation(spec: MemSpec, groups: Sequence[tuple[CommandStats, int]], window_s: float,
                      measured_j: float, *, name: str = "run", time_ns: int = 0,
-                     weight: float = 1.0) -> Observation:
+                     weight: float = 1.0, traffic_s: float | None = None) -> Observation:
     """ONE calibration row for a node: its channel groups' rows over the same window, summed.
 
-    Each group's row is ``observation_from_run(spec, stats, window_s, measured_j, scale=channels)``
+    Each group's row is ``observation_from_run(spec, stats, window_s, measured_j, scale=channels,
+    traffic_s=traffic_s)``
     (``groups`` as :func:`hdeem_watch.dram.node.node_run_stats` returns them); the node row's columns
     and constant are their sums, against the node's measured energy.
 
@@ -85,7 +98,7 @@ def node_observation(spec: MemSpec, groups: Sequence[tuple[CommandStats, int]], 
     if not groups:
         raise InputError(f"run {name!r}: no channel groups")
     rows = [observation_from_run(spec, stats, window_s, measured_j, scale=float(n), name=name, time_ns=time_ns,
-                                 weight=weight) for stats, n in groups]
+                                 weight=weight, traffic_s=traffic_s) for stats, n in groups]
     columns = np.sum([row.columns for row in rows], axis=0)
     constant = float(sum(row.constant_j for row in rows))
     return Observation(name=rows[0].name, columns=columns, constant_j=constant, measured_j=rows[0].measured_j,

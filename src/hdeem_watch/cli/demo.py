@@ -170,4 +170,22 @@ def _headless(control: str, args: argparse.Namespace) -> int:
     calib = hub.snapshots()[0].calib
     print(f"demo: done after {time.monotonic() - start:.0f} s, {schedule.completed} runs "
           f"(the calibration holds {calib.n_runs})", flush=True)
+    print(alarm_summary(calib.alarms), flush=True)
     return 0
+
+
+def alarm_summary(alarms: Any) -> str:
+    """The demo's last line about aging: every alarm of the run, or that there was none.
+
+    Example:
+        >>> from hdeem_watch.tui.snapshot import AlarmView
+        >>> alarm_summary(())
+        'demo: no drift alarm on any DIMM pair'
+        >>> alarm_summary((AlarmView("DDR_CD", "energy", "residual-cusum", "up", 9.1, 8.0, 0),))
+        'demo: 1 drift alarm: DDR_CD energy drifts up (residual-cusum 9.1 > 8)'
+    """
+    from hdeem_watch.tui.group_views import alarm_text
+
+    if not alarms:
+        return "demo: no drift alarm on any DIMM pair"
+    return f"demo: {len(alarms)} drift alarm{'s' if len(alarms) > 1 else ''}: " + "; ".join(alarm_text(a) for a in alarms)

@@ -44,6 +44,7 @@ def register(subparsers: Any) -> None:
         "  hdeem-watch jobs --job $SLURM_JOB_ID      # inside a job: its DRAM energy so far on every node\n"
         "  hdeem-watch jobs --user alice --since 2h --json\n"
         "  hdeem-watch jobs --slurm --job 4242       # from the login node, inside an salloc\n"
+        "  hdeem-watch jobs --nodes 'n[01-04]' --job 4242   # a finished job's nodes, from anywhere\n"
         "exit codes: 0 every node answered, 1 a node did not answer, 2 bad input",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--job", metavar="ID", help="one job (its newest record on each node)")
@@ -53,6 +54,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--slurm", action="store_true",
                         help="ask every node of the allocation (default inside an allocation)")
+    parser.add_argument("--nodes", metavar="HOSTLIST", help="ask these nodes (a SLURM hostlist, e.g. n[01-04]), "
+                        "e.g. a finished job's")
     parser.add_argument("--connect", metavar="EP", action="append", default=[],
                         help="a daemon's control endpoint (repeatable); default: this node's daemon")
     parser.add_argument("--port", type=int, default=None,
@@ -105,7 +108,11 @@ def targets(args: argparse.Namespace, env: Mapping[str, str] | None = None) -> l
         if not endpoint.startswith(("ipc://", "tcp://", "inproc://")):
             raise InputError(f"--connect {endpoint!r}: expected a ZeroMQ endpoint such as tcp://node7:{CONTROL_PORT}")
         found.append(Target(endpoint.rpartition("/")[2], endpoint))
-    nodes = slurm.allocation_nodes(env) if (args.slurm or not args.connect) else []
+    given = getattr(args, "nodes", None)
+    if given:
+        nodes = slurm.expand_hostlist(given)
+    else:
+        nodes = slurm.allocation_nodes(env) if (args.slurm or not args.connect) else []
     if args.slurm and not nodes:
         raise InputError("--slurm: no SLURM allocation here (SLURM_JOB_NODELIST is not set); use --connect")
     if nodes:
@@ -193,6 +200,18 @@ def table(answers: Sequence[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def total_line(answers: Sequence[dict[str, Any]]) -> str | None:
+    """One job over several nodes: the sum of its DRAM energy (unknown when a node did not answer or
+    does not know it); None for fewer than two nodes."""
+    if len(answers) < 2:
+        return None
+    values = [a["jobs"][0].get("dram_energy_j") if a["ok"] and a["jobs"] else None for a in answers]
+    known = [v for v in values if isinstance(v, int | float) and math.isfinite(v)]
+    total = sum(known) if len(known) == len(values) else math.nan
+    note = "" if math.isfinite(total) else f"  (unknown: {len(values) - len(known)} of {len(values)} nodes missing)"
+    return f"{'total':<14} {'':<12} {'':<10} {'':<11} {'':<19} {'':>9} {_fmt(total):>12}{note}"
+
+
 def _run(args: argparse.Namespace) -> int:
     if not (args.timeout > 0 and math.isfinite(args.timeout)):
         raise InputError(f"--timeout {args.timeout!r}: expected seconds > 0")
@@ -218,5 +237,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.json:
         sys.stdout.write(dumps({"nodes": answers}).decode() + "\n")
     else:
-        print("\n".join(table(answers)))
+        lines = table(answers)
+        total = total_line(answers) if op == "job.get" else None
+        print("\n".join(lines if total is None else [*lines, total]))
     return 0 if all(a["ok"] for a in answers) else 1

@@ -12,11 +12,14 @@ Modules, one concept each:
 - :mod:`~hdeem_watch.counters.host_plan`: the PMUs, channels and encoded events a host would use, or
   why it cannot count.
 - :mod:`~hdeem_watch.counters.reader`: the :class:`~hdeem_watch.counters.reader.CounterReader`
-  protocol (behind which the ``perf_event_open`` wrapper is wired) and a fake for tests.
+  protocol and a fake for tests.
 - :mod:`~hdeem_watch.counters.arithmetic`: multiplexing scaling, counter-width wrap, window deltas.
 - :mod:`~hdeem_watch.counters.command_mapping`: per-channel counter deltas → ``CommandStats``.
 - :mod:`~hdeem_watch.counters.sim_counters`: the counters a real IMC would show for given hidden
   command statistics (for the simulated node).
+- :mod:`~hdeem_watch.counters.perf_reader`: the real ``perf_event_open`` reader (ctypes).
+- :mod:`~hdeem_watch.counters.source`: the counter-source port the daemon reads (cumulative role
+  counts on the power samples' axis), window differences and interpolation.
 
 See docs/counters.md.
 """

@@ -198,8 +198,8 @@ def open_error(error: OSError, plan: Any) -> str:
 
 
 def make_counter_source(kind: str, source: object, *, sample_time: Callable[[int], int], clock: Callable[[], int],
-                        ranks: int = 2, sysfs_root: str | None = None, replay_file: str | None = None,
-                        speed: float = 1.0) -> CounterSource | None:
+                        ranks: int = 2, sysfs_root: str | None = None,
+                        replay_file: str | None = None) -> CounterSource | None:
     """The configured counter source (None for ``"none"``).
 
     Raises:

@@ -41,12 +41,12 @@ __all__ = ["DEFAULT_MIN_SAMPLES", "MAX_GROUP_RUNS", "GroupFits", "default_groups
 MAX_GROUP_RUNS = 128
 #: Fits each group's calibrator keeps in its own history.
 MAX_GROUP_HISTORY = 16
-#: Runs in a group's fit before its residuals feed the drift detector (then 20 more learn their
-#: scale). A residual is out of sample: a kind of run the fit has not seen yet (the demo's first
-#: 1-thread runs come after ~60 runs of 24, 4 and 12 threads) misses by what the model leaves out for
-#: it, not by aging; in a 2-hour demo without aging, two pairs alarmed at runs 61 and 64 with the
-#: default (12 runs). Two rounds of the demo's design (32 kinds) have been seen by run 64.
-DETECT_AFTER_RUNS = 64
+#: Runs in a group's fit before its same-kind residual changes feed the drift detector (then 16 more
+#: learn their scale) and its currents become the sibling comparison's reference: four times the six
+#: unknowns (an earlier fit splits a run's energy between its length and its traffic too loosely for
+#: two runs of one kind but other lengths to compare; on the demo's sim, changes in the first two
+#: minutes reached 48 %).
+DETECT_AFTER_RUNS = 24
 _RAPL_PREFIX = "DRAM"
 
 
@@ -164,7 +164,8 @@ class GroupFits:
         for name, group in self.calibrators.groups.items():
             if name in run.energy_j and math.isfinite(run.energy_j[name]):
                 rows[name] = group_observation(self.calibrators.spec, run.socket_stats, group, run.window_s,
-                                               float(run.energy_j[name]), name=run.name, time_ns=run.time_ns)
+                                               float(run.energy_j[name]), name=run.name, time_ns=run.time_ns,
+                                               traffic_s=run.traffic_s)
         update = self.calibrators.add_run(run)
         self._pending.extend(update.alarms)
         return {name: obs.to_dict() for name, obs in rows.items()}

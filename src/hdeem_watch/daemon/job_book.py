@@ -162,13 +162,17 @@ class JobBook:
         Epilog that could not reach the daemon retries later): when it lies before the current
         segment began, the job ended while no daemon measured it, and the job is closed at once as
         ``interrupted`` with what the earlier segments measured (the current segment measured time
-        after the job and is dropped).
+        after the job and is dropped). When it lies inside the current segment the window closes now
+        (its samples are not kept, so it cannot be cut back) and ``late_stop_s`` says by how much.
 
         Raises:
             KeyError: the job is not open.
         """
         job = self._open[job_id]
         job.exit_code = exit_code if exit_code is not None else job.exit_code
+        if ended_ns is not None and ended_ns >= job.t_segment_ns:  # late: the samples since cannot be taken back
+            late_s = max(0.0, (self.book.wall() - ended_ns) / 1e9)
+            job.record = dataclasses.replace(job.record, late_stop_s=late_s if late_s >= 1.0 else 0.0)
         if ended_ns is not None and ended_ns < job.t_segment_ns:
             self._open.pop(job_id)
             if job.window in self.book.windows:

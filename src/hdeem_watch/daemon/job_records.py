@@ -190,6 +190,7 @@ class JobRecord:
     duration_s: float | None = None
     status: str = "ok"
     shared_with: tuple[str, ...] = ()
+    late_stop_s: float = 0.0
 
     @classmethod
     def start(cls, args: JobArgs, *, node: str, t_wall_ns: int) -> JobRecord:
@@ -279,6 +280,9 @@ def _totals(job: JobRecord, dram_channels: Sequence[str], baselines_w: Mapping[s
         status = "not measured: no daemon session saw this job"
     elif gap_ns > 0:
         status = f"gap: {gap_ns / 1e9:.1f} s not measured (the daemon was down or restarted)"
+    if job.late_stop_s > 0:
+        late = f"late stop: measured {job.late_stop_s:.1f} s past the job's end (the Epilog's stop came late)"
+        status = late if status == "ok" else f"{status}; {late}"
     end = job.t_stop_ns if job.t_stop_ns is not None else t_wall_ns
     return dataclasses.replace(
         job, energy_j=energy, dram_energy_j=total_energy(energy, dram) if dram else math.nan,

@@ -483,8 +483,13 @@ class Daemon:
         from hdeem_watch.daemon.counter_source import make_counter_source
         from hdeem_watch.daemon.counter_windows import CounterWindows
 
-        counters = make_counter_source(kind, source, sample_time=book.sample_time_of, clock=self.clock,
-                                       replay_file=self.settings.replay_file, speed=source_speed(source))
+        ranks = 2
+        if kind == "perf":  # ranks per channel: one DIMM of the node's memspec per channel
+            from hdeem_watch.daemon.modelling import load_spec
+
+            ranks = int(load_spec(self.node_setup.memspec).nbr_of_ranks)
+        counters = make_counter_source(kind, source, sample_time=book.sample_time_of, clock=self.clock, ranks=ranks,
+                                       replay_file=self.settings.replay_file)
         if counters is None:
             return
         self.counter_source = counters

@@ -43,6 +43,7 @@ from typing import Any
 
 from hdeem_watch.daemon.protocol import jsonable
 from hdeem_watch.daemon.runs import run_summary
+from hdeem_watch.daemon.store_jobs import INSERT_JOB, JobRow, job_matches, job_query, job_row
 from hdeem_watch.daemon.store_repair import SCHEMA, quarantine_bad_rows, salvage_if_corrupt
 from hdeem_watch.daemon.store_writer import BackgroundWriter
 
@@ -111,27 +112,6 @@ class _RunRow:
 
 
 @dataclass(frozen=True)
-class _JobRow:
-    job_id: str
-    user: str
-    state: str
-    t_start_ns: int
-    record: str
-
-
-def _job_matches(record: Mapping[str, Any], job_id: str | None, user: str | None, since_ns: int | None,
-                 state: str | None) -> bool:
-    """The filters of :meth:`Store.list_jobs` on a record (for those still waiting in memory)."""
-    if (job_id is not None and record.get("job_id") != job_id) or (user is not None and record.get("user") != user):
-        return False
-    if state is not None and record.get("state") != state:
-        return False
-    if since_ns is None or record.get("state") == "running":
-        return True
-    return max(int(record.get("t_start_ns") or 0), int(record.get("t_stop_ns") or 0)) >= since_ns
-
-
-@dataclass(frozen=True)
 class _CalibOp:
     t_ns: int
     state: str | None  # None: calib.reset (the calibrator is forgotten)
@@ -191,7 +171,7 @@ class Store:
         self._calib: dict[int, _CalibOp] = {}
         self._calib_ids = itertools.count()
         self._alarms: dict[int, tuple[int, str | None, str, str]] = {}
-        self._jobs: dict[str, _JobRow] = {}
+        self._jobs: dict[str, JobRow] = {}
         self._read_health = "ok"
         self._count = int((self._query("SELECT COUNT(*) FROM runs WHERE json_valid(record)") or [(0,)])[0][0])
         self._sync_wait_s = sync_wait_s
@@ -429,10 +409,7 @@ class Store:
 
     def save_job(self, record: Mapping[str, Any]) -> None:
         """Insert or replace a job record (keyed by job id and start time); returns at once."""
-        row = _JobRow(job_id=str(record["job_id"]), user=str(record.get("user") or ""),
-                      state=str(record.get("state", "")), t_start_ns=int(record.get("t_start_ns") or 0),
-                      record=_dumps(record))
-        key = f"{row.job_id}@{row.t_start_ns}"
+        key, row = job_row(record)
         with self._lock:
             self._jobs[key] = row
         self._submit(("job", key))
@@ -441,22 +418,12 @@ class Store:
                   state: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
         """Job records, newest start first: only ``job_id``'s, ``user``'s, those running at or
         after ``since_ns`` (started then, or not yet stopped), or in ``state``; at most ``limit``."""
-        where: list[str] = ["json_valid(record)"]
-        params: list[Any] = []
-        for column, value in (("job_id", job_id), ("user", user), ("state", state)):
-            if value is not None:
-                where.append(f"{column} = ?")
-                params.append(value)
-        if since_ns is not None:
-            where.append("(t_start_ns >= ? OR state = 'running' "
-                         "OR COALESCE(json_extract(record, '$.t_stop_ns'), 0) >= ?)")
-            params += [since_ns, since_ns]
-        sql = f"SELECT job_key, record FROM jobs WHERE {' AND '.join(where)} ORDER BY t_start_ns DESC LIMIT ?"
+        sql, params = job_query(job_id=job_id, user=user, since_ns=since_ns, state=state, limit=limit)
         with self._lock:
-            found = {key: text for key, text in self._query(sql, (*params, int(limit)))}
+            found = {key: text for key, text in self._query(sql, tuple(params))}
             found |= {key: row.record for key, row in self._jobs.items()}
         records = [r for r in (_loads(t) for t in found.values()) if isinstance(r, dict)]
-        chosen = [r for r in records if _job_matches(r, job_id, user, since_ns, state)]
+        chosen = [r for r in records if job_matches(r, job_id=job_id, user=user, since_ns=since_ns, state=state)]
         chosen.sort(key=lambda r: int(r.get("t_start_ns") or 0), reverse=True)
         return chosen[: max(0, int(limit))]
 
@@ -479,9 +446,7 @@ class Store:
         elif kind == "baseline":
             db.execute("INSERT OR REPLACE INTO baselines (channel, t_ns, record) VALUES (?, ?, ?)", (key, *pending))
         elif kind == "job":
-            db.execute("INSERT OR REPLACE INTO jobs (job_key, job_id, user, state, t_start_ns, record) "
-                       "VALUES (?,?,?,?,?,?)", (key, pending.job_id, pending.user, pending.state, pending.t_start_ns,
-                                                pending.record))
+            db.execute(INSERT_JOB, pending.values(key))
         elif kind == "alarm":
             db.execute("INSERT INTO alarms (t_ns, run_id, grp, alarm) VALUES (?, ?, ?, ?)", pending)
         elif pending.state is None:

@@ -65,6 +65,7 @@ CREATE TABLE IF NOT EXISTS jobs (
     record TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS jobs_by_start ON jobs (t_start_ns);
+CREATE INDEX IF NOT EXISTS jobs_by_id ON jobs (job_id);
 CREATE TABLE IF NOT EXISTS quarantine (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
     t_ns INTEGER NOT NULL,

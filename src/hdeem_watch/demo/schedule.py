@@ -11,7 +11,7 @@ The design is what makes the five currents identifiable within a minute (about 3
 
 - thread counts 24, 4, 12, 1 (:data:`THREAD_ROUNDS`): the share of row misses per line (IDD0)
   and the split between the sockets change with the threads;
-- run lengths that vary (:data:`RUN_LENGTHS_S`, 1.0–2.0 s, the mean :data:`TARGET_RUN_S`): with
+- run lengths that vary (:data:`RUN_LENGTHS_S`, 1.25–1.75 s, the mean :data:`TARGET_RUN_S`): with
   every run equally long the standby power × window and the fit's intercept (a fixed energy per
   run) are the same column;
 - an idle run (kernel ``idle``) per round, of a different length each round
@@ -33,10 +33,12 @@ from hdeem_watch.sources.sim import modelled_line_rate
 
 #: Mean duration of one run, seconds.
 TARGET_RUN_S = 1.5
-#: Lengths of the kernel runs, cycled over the runs (mean TARGET_RUN_S).
-RUN_LENGTHS_S = (1.0, 2.0, 1.5)
-#: Length of the idle run of each round, cycled over the rounds.
-IDLE_SECONDS = (0.75, 3.0, 1.5, 2.25)
+#: Lengths of the kernel runs, cycled over the runs (mean TARGET_RUN_S). None shorter than 1.25 s:
+#: the daemon fits a run only with 100 samples (1 s at 100 Sa/s) of every pair, and a 1.0 s target
+#: came out at 0.96–1.0 s (99 samples) a third of the time.
+RUN_LENGTHS_S = (1.25, 1.75, 1.5)
+#: Length of the idle run of each round, cycled over the rounds (≥ 1.25 s, as above).
+IDLE_SECONDS = (1.25, 3.0, 1.5, 2.25)
 #: Doubles per array (128 MiB arrays: far larger than any last-level cache).
 ELEMENTS = 1 << 24
 #: Thread counts of the rounds, cycled.

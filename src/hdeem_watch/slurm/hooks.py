@@ -252,7 +252,7 @@ def prolog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
         record["baseline"] = "measured" if why is None else why
     uid = ctx.get("uid", "")
     args = {"job_id": job_id, "user": ctx.get("user", ""), "uid": int(uid) if uid.isdigit() else None,
-            "nodes": allocation_nodes({"SLURM_NODELIST": ctx.get("nodelist", "")}), "cpus": _cpus(env)}
+            "nodes": ctx.get("nodelist", ""), "cpus": _cpus(env)}  # the hostlist as SLURM gives it (compact)
     _result, why = _call(s.control, "job.start", args, s.timeout_s)
     record["job_start"] = "ok" if why is None else why
     if why is not None:
@@ -275,7 +275,9 @@ def epilog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
     _private_dir(s.hook_dir)
     _flush_pending_stops(s, env)
     exit_code = ctx.get("exit_code")
-    args: dict[str, Any] = {"job_id": job_id, "exit_code": exit_code}
+    # The job's end goes along: a stop the daemon reads late (it hung; the request waited in its
+    # socket) is then marked late instead of silently measuring past the end.
+    args: dict[str, Any] = {"job_id": job_id, "exit_code": exit_code, "ended_ns": time.time_ns()}
     try:
         started = json.loads((s.hook_dir / f"job-{job_id}.json").read_text()).get("job_start") == "ok"
     except (OSError, ValueError, AttributeError):
@@ -284,7 +286,7 @@ def epilog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
     record: dict[str, Any] = {"event": "epilog", "job_id": job_id, "user": ctx.get("user"), "node": ctx.get("node"),
                               "t_ns": time.time_ns(), "exit_code": exit_code, "job_stop": "ok" if why is None else why}
     if why is not None and why.startswith("unreachable"):
-        (s.hook_dir / f"stop-{job_id}.json").write_text(json.dumps({**args, "ended_ns": record["t_ns"]}))
+        (s.hook_dir / f"stop-{job_id}.json").write_text(json.dumps(args))
         _log(f"epilog job {job_id}: {why}; the stop is kept and sent by the next hook", env)
     elif isinstance(result, dict):
         record["dram_energy_j"] = result.get("dram_energy_j")

@@ -22,6 +22,7 @@ from textual.screen import ModalScreen, Screen
 from textual.widgets import Static
 
 from hdeem_watch.tui.provider import Provider
+from hdeem_watch.tui.snapshot import NodeSnapshot, jobs_line
 from hdeem_watch.tui.widgets import CalibPanel, ChannelTable, GroupsPanel, HealthBar, PowerPlots, RunsPanel
 from hdeem_watch.tui.widgets.lines import LinesWidget
 
@@ -140,6 +141,7 @@ class HdeemWatchApp(App[int]):
         self._notice = ""  # what the key line shows until _notice_until
         self._notice_until = 0
         self._keys_text = KEYS_LINE
+        self._job_text: str | None = None  # the current-job line shown (None: not painted yet)
 
     def compose(self) -> ComposeResult:
         yield HealthBar()
@@ -150,6 +152,9 @@ class HdeemWatchApp(App[int]):
             with Vertical(id="right"):
                 yield CalibPanel()
                 yield RunsPanel()
+        job_line = Static("", id="job")  # the SLURM jobs open on the focused node (hidden when none)
+        job_line.display = False
+        yield job_line
         yield Static(KEYS_LINE, id="keys")
 
     def on_mount(self) -> None:
@@ -197,6 +202,7 @@ class HdeemWatchApp(App[int]):
                     self.screen.query_one(HealthBar).show(snapshots, self.focus_index, paused=self.paused,
                                                           stalled=stalled, window_s=self.window_s)
                     self.screen.query_one(GroupsPanel).show(snap.calib)
+            self._show_jobs(snap)
             self._show_notice(snap.health.notice)
         self.frames += 1
 
@@ -204,6 +210,17 @@ class HdeemWatchApp(App[int]):
     def key_line(self) -> str:
         """What the bottom line shows now: the key hints, or a fresh control reply."""
         return self._keys_text
+
+    def _show_jobs(self, snap: NodeSnapshot) -> None:
+        """The current-job line: the SLURM jobs open on the focused node; no line without one."""
+        text = jobs_line(snap.jobs)
+        if text != self._job_text:
+            self._job_text = text
+            line = self.query_one("#job", Static)
+            if text:
+                line.update(text)
+            if line.display != bool(text):
+                line.display = bool(text)
 
     def _show_notice(self, feed_notice: str) -> None:
         """The newest notice — a control reply from the feed, or the app's own — replaces the key

@@ -42,16 +42,23 @@ def alarm_views(raw: Any) -> tuple[AlarmView, ...]:
 
 
 def is_drift(alarm: AlarmView) -> bool:
-    """A drift over time (the residual CUSUM); else an outlier among the siblings (a part, or a
-    sensor offset, that differs from the other pairs' — not necessarily aging)."""
-    return alarm.kind == "residual-cusum"
+    """A change over time: the residual CUSUM (the pair's energy against its own earlier runs of
+    the same kind) and the sibling comparison (a current's change since the pair's reference fit
+    against its siblings' changes) both are; other kinds are not."""
+    return alarm.kind in ("residual-cusum", "sibling")
 
 
 def alarm_text(alarm: AlarmView) -> str:
-    """One line: the group, what drifts (or stands out from its siblings) which way, and the
-    statistic against its threshold."""
-    what = "drifts" if is_drift(alarm) else "outlier vs siblings,"
-    return (f"{alarm.group} {alarm.current} {what} {alarm.direction} "
+    """One line: the group, what drifts which way, and the statistic against its threshold.
+
+    Example:
+        >>> alarm_text(AlarmView("DDR_GH", "idd3n", "sibling", "up", 0.21, 0.15, 0))
+        'DDR_GH idd3n drifts up vs its siblings: +21 % since its reference fit (sibling > 15 %)'
+    """
+    if alarm.kind == "sibling":
+        return (f"{alarm.group} {alarm.current} drifts {alarm.direction} vs its siblings: "
+                f"{alarm.statistic:+.0%} since its reference fit (sibling > {alarm.threshold:.0%})").replace("%", " %")
+    return (f"{alarm.group} {alarm.current} drifts {alarm.direction} "
             f"({alarm.kind} {abs(alarm.statistic):.3g} > {alarm.threshold:.3g})")
 
 

@@ -31,7 +31,15 @@ from hdeem_watch.daemon.protocol import Message
 from hdeem_watch.tui.downsample import ColumnCache
 from hdeem_watch.tui.recent_samples import RecentSamples
 from hdeem_watch.tui.records import calib_view, first_num, num, run_view, sensor_command_rates
-from hdeem_watch.tui.snapshot import CalibView, ChannelView, CommandRates, HealthView, NodeSnapshot, RunView
+from hdeem_watch.tui.snapshot import (
+    CalibView,
+    ChannelView,
+    CommandRates,
+    HealthView,
+    JobView,
+    NodeSnapshot,
+    RunView,
+)
 
 #: Display order of the HDEEM channels; others follow alphabetically.
 CHANNEL_ORDER = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH", "CPU0", "CPU1", "BLADE")
@@ -104,6 +112,7 @@ class NodeModel:
         self._stored_runs: int | None = None  # the daemon's count at the last status reply
         self._runs_since_status = 0
         self._current_run: Mapping[str, Any] | None = None
+        self._jobs: dict[str, Mapping[str, Any]] = {}  # open SLURM jobs by id
         self._calib_body: Mapping[str, Any] = {}
         self._calib_cache: tuple[int, CalibView] | None = None
         self._calib_version = 0
@@ -148,6 +157,8 @@ class NodeModel:
         elif msg.kind == "counters":
             self._commands = sensor_command_rates(header)
             self._commands_mono_ns = recv_mono_ns
+        elif msg.kind == "job":
+            self.apply_job_event(header)
 
     def _observe_seq(self, topic: str, seq: int) -> None:
         """Count missed messages per topic; a sequence going backwards is a daemon restart."""
@@ -197,10 +208,23 @@ class NodeModel:
         run = body.get("run")
         if "run" in body:
             self._current_run = run if isinstance(run, Mapping) else None
+        jobs = body.get("jobs")  # the status reply lists the open jobs (the heartbeat does not)
+        if isinstance(jobs, list):
+            self._jobs = {str(j.get("job_id")): j for j in jobs if isinstance(j, Mapping)}
         stored = body.get("runs")  # the status reply counts the stored runs (the heartbeat does not)
         if isinstance(stored, int) and not isinstance(stored, bool):
             self._stored_runs = stored
             self._runs_since_status = 0
+
+    def apply_job_event(self, body: Mapping[str, Any]) -> None:
+        """Take a ``job`` message: ``{"event": "start"|"stop", "job": {...}}``."""
+        job = body.get("job")
+        if not isinstance(job, Mapping):
+            return
+        if body.get("event") == "start":
+            self._jobs[str(job.get("job_id"))] = job
+        else:
+            self._jobs.pop(str(job.get("job_id")), None)
 
     def apply_run_event(self, body: Mapping[str, Any]) -> None:
         """Take a ``run`` message: ``{"event": "start"|"stop", "run": {...}}``."""
@@ -351,6 +375,9 @@ class NodeModel:
             started = first_num(self._current_run, "t_start_ns", "start_ns", "t_ns", "started_ns")
             elapsed = (now_wall_ns - started) / 1e9 if math.isfinite(started) else math.nan
             current = run_view(self._current_run, running=True, elapsed_s=elapsed)
+        jobs = tuple(JobView(job_id=key, user=str(job.get("user") or ""),
+                             elapsed_s=(now_wall_ns - num(job.get("t_start_ns"))) / 1e9)
+                     for key, job in self._jobs.items())
         return NodeSnapshot(
             node=self.node,
             built_mono_ns=now_mono_ns,
@@ -359,6 +386,7 @@ class NodeModel:
             runs=runs,
             runs_total=max(self.runs_total(), len(runs)),
             current_run=current,
+            jobs=jobs,
             calib=self._calib(),
             health=self.health(now_mono_ns),
         )

@@ -276,6 +276,38 @@ class HealthView:
 
 
 @dataclass(frozen=True)
+class JobView:
+    """A SLURM job open on the node (the daemon measures its window).
+
+    Attributes:
+        job_id: SLURM's job id.
+        user: its user ("" if unknown).
+        elapsed_s: seconds since it started (NaN if unknown).
+    """
+
+    job_id: str
+    user: str = ""
+    elapsed_s: float = math.nan
+
+
+def jobs_line(jobs: tuple[JobView, ...]) -> str:
+    """The UI's current-job line ("" when no job is open).
+
+    >>> jobs_line((JobView("4242", "alice", 3723.0),))
+    ' job 4242 (alice) 1:02:03'
+    """
+    if not jobs:
+        return ""
+    parts = []
+    for job in jobs:
+        elapsed = job.elapsed_s
+        clock = "–" if not math.isfinite(elapsed) else \
+            f"{int(elapsed) // 3600}:{int(elapsed) // 60 % 60:02d}:{int(elapsed) % 60:02d}"
+        parts.append(f"{job.job_id} ({job.user or '?'}) {clock}")
+    return f" {'job' if len(jobs) == 1 else 'jobs'} " + " · ".join(parts)
+
+
+@dataclass(frozen=True)
 class NodeSnapshot:
     """Everything the UI shows about one node at one instant.
 
@@ -287,6 +319,7 @@ class NodeSnapshot:
         runs: finished runs, newest last (only the newest few: see ``runs_total``).
         runs_total: how many runs the daemon has finished in all (0 if unknown).
         current_run: the run in progress, if any.
+        jobs: the SLURM jobs open on the node.
         calib: calibration state.
         health: connection and daemon health.
     """
@@ -298,5 +331,6 @@ class NodeSnapshot:
     runs: tuple[RunView, ...] = ()
     runs_total: int = 0
     current_run: RunView | None = None
+    jobs: tuple[JobView, ...] = ()
     calib: CalibView = field(default_factory=CalibView)
     health: HealthView = field(default_factory=lambda: HealthView(state="connecting", endpoint=""))
