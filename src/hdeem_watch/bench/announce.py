@@ -29,7 +29,7 @@ from typing import Any
 import zmq
 
 from hdeem_watch.bench.schedule import RunSpec
-from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
+from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable, HandshakeFailed
 from hdeem_watch.errors import InputError
 
 
@@ -89,6 +89,8 @@ class Announcer:
         except zmq.ZMQError as error:
             raise InputError(f"--daemon {self.endpoint!r}: not a usable ZeroMQ endpoint ({error}); expected "
                              "e.g. ipc:///run/hdeem-watch/control.sock or tcp://node7:5591") from None
+        except HandshakeFailed as error:  # a daemon answers, but refuses this client's keys: say only why
+            raise InputError(f"--daemon {self.endpoint}: {error}") from None
         except (DaemonUnreachable, ControlError) as error:
             raise InputError(f"--daemon {self.endpoint}: no daemon answers there ({error}); "
                              "expected the control endpoint of a running 'hdeem-watch daemon'") from None
