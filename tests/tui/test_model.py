@@ -193,3 +193,16 @@ def test_column_cache_matches_a_fresh_computation_as_data_arrives() -> None:
     np.testing.assert_array_equal(got.min_w, want.min_w)
     np.testing.assert_array_equal(got.max_w, want.max_w)
     np.testing.assert_allclose(got.mean_w, want.mean_w)
+
+
+def test_samples_ahead_of_the_clock_are_plotted() -> None:
+    """A daemon whose sample times run ahead of this clock (the sim at --speed 10, a host clock ahead):
+    the plot ends at its newest sample (it was drawn empty: every sample lay right of 'now')."""
+    model = NodeModel("ipc:///x", stale_after_s=3.0)
+    t = 100 * S + np.arange(50, dtype=np.int64) * 10_000_000
+    model.apply(_samples(0, t, np.full(50, 2.0)), 0)
+    behind = int(t[-1]) - 60 * S  # this host's clock, a minute behind the samples
+    columns = model.snapshot(now_mono_ns=0, now_wall_ns=behind, window_s=0.4, width=10).channels[0].columns
+    assert columns is not None and np.isfinite(columns.mean_w).sum() >= 9
+    silent = model.snapshot(now_mono_ns=0, now_wall_ns=int(t[-1]) + 60 * S, window_s=0.4, width=10)
+    assert silent.channels[0].columns is not None and not np.isfinite(silent.channels[0].columns.mean_w).any()

@@ -344,9 +344,10 @@ class NodeModel:
         )
 
     def window_end_ns(self, now_wall_ns: int) -> int:
-        """The right edge of the plot: the newest sample if recent, else now (so a silent node scrolls away)."""
+        """The right edge of the plot: the newest sample if recent or ahead of this clock (a sped-up
+        simulated node, a daemon host whose clock runs ahead), else now (so a silent node scrolls away)."""
         newest = max((c.ring.newest_t_ns() or 0 for c in self._channels.values()), default=0)
-        if newest and abs(now_wall_ns - newest) < self.stale_after_s * 1e9:
+        if newest and now_wall_ns - newest < self.stale_after_s * 1e9:
             return newest + 1
         return now_wall_ns
 
