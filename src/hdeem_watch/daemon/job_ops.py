@@ -7,7 +7,8 @@ stop cut to the sample, as for a run) and the finished record is stored. ``job.g
 ``job.list`` read the store on the store worker and show open jobs with their energy so far. Every
 :data:`CHECKPOINT_S` the open jobs' energy so far is stored, so a ``kill -9`` loses at most that
 much; the restarted daemon resumes them (:meth:`JobOperations.resume`). Each start and stop is
-published on the ``job`` topic.
+published on the ``job`` topic. With counters, a finished job's energy by component is modelled
+from its counted commands on the model worker before it is stored and the stop answered.
 
 Example:
     >>> JobOperations.OPS
@@ -16,6 +17,7 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol, cast
@@ -60,13 +62,20 @@ class JobOperations:
         reply: sends a deferred control reply.
         poll: polls the source once now (a tight window edge).
         checkpoint_s: seconds between two stores of the open jobs.
+        submit: the model worker's ``submit`` (None: finished jobs are not modelled).
+        calibration: holds the run modeller (``.modeller``, set on the model worker), which models a
+            finished job's counters by component
+            (:meth:`~hdeem_watch.daemon.modelling.RunModeller.model_counters`).
     """
 
     OPS = ("job.start", "job.stop", "job.get", "job.list")
 
     def __init__(self, jobs: JobBook, *, store: StoreWorker, publisher: PublisherPort, reply: Reply,
-                 poll: Callable[[], object], checkpoint_s: float = CHECKPOINT_S) -> None:
+                 poll: Callable[[], object], checkpoint_s: float = CHECKPOINT_S,
+                 submit: Callable[..., None] | None = None, calibration: Any = None) -> None:
         self.jobs = jobs
+        self.submit = submit
+        self.calibration = calibration
         self.store = store
         self.publisher = publisher
         self.reply = reply
@@ -221,6 +230,31 @@ class JobOperations:
     # -- helpers ----------------------------------------------------------------------------------
 
     def _finish(self, record: JobRecord) -> None:
+        """A finished job: model its counters on the model worker (when it has any), then store,
+        publish and answer the stop."""
+        if record.counters is None or self.submit is None or self.calibration is None:
+            self._finished(record)
+            return
+        calibration, counters, measured = self.calibration, record.counters, dict(record.energy_j)
+
+        def job() -> tuple[dict[str, Any] | None, str]:
+            modeller = calibration.modeller  # read on the worker, after the job that built it
+            if modeller is None:
+                return None, "the model is not available (it failed to build; see the log)"
+            try:
+                model, error = modeller.model_counters(counters, measured)
+            except Exception as exc:  # a model bug must not lose the job or its reply
+                log.exception("modelling job %s failed", record.job_id)
+                return None, f"model failed: {type(exc).__name__}: {exc}"
+            return cast("dict[str, Any] | None", model), str(error)
+
+        def done(result: tuple[dict[str, Any] | None, str]) -> None:
+            model, error = result
+            self._finished(dataclasses.replace(record, model=model, model_error=None if model is not None else error))
+
+        self.submit(job, done, lambda error: done((None, f"model failed: {type(error).__name__}: {error}")))
+
+    def _finished(self, record: JobRecord) -> None:
         body = record.to_dict()
         log.info("job %s %s: DRAM %.1f J over %.1f s (%s)", record.job_id, record.state, record.dram_energy_j,
                  record.measured_s, record.status)

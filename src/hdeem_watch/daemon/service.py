@@ -260,9 +260,10 @@ class Daemon:
                                      reply=self.complete, poll=self._edge_poll)
         self.operations.on_window_closed = self._window_counters
         topo = setup.topology
-        job_ops = self.job_ops = JobOperations(JobBook(book), store=self.store_worker, publisher=self.publisher,
-                                               reply=self.complete, poll=self._edge_poll,
-                                               checkpoint_s=settings.job_checkpoint_s)
+        job_ops = self.job_ops = JobOperations(JobBook(book, counters=self.counter_windows), store=self.store_worker,
+                                               publisher=self.publisher, reply=self.complete, poll=self._edge_poll,
+                                               checkpoint_s=settings.job_checkpoint_s, submit=self.model_jobs.submit,
+                                               calibration=self.calibration)
         if not self._job_owner_uids_given:
             self.authorizer.job_owner_uids = job_ops.jobs.running_job_uids
         self.operations.on_job_closed = job_ops.window_closed
