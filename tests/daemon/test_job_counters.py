@@ -10,6 +10,8 @@ segments (a new book resumes the checkpointed record), and the run modeller's
 from __future__ import annotations
 
 import math
+from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -19,9 +21,12 @@ from hdeem_watch.counters.source import CounterSnapshot
 from hdeem_watch.daemon.counter_model import COMPONENT_KINDS
 from hdeem_watch.daemon.counter_windows import CounterWindows
 from hdeem_watch.daemon.job_book import JobBook
+from hdeem_watch.daemon.job_ops import MODELLING, JobOperations
 from hdeem_watch.daemon.job_records import JobRecord, parse_job_args
 from hdeem_watch.daemon.modelling import RunModeller
 from hdeem_watch.daemon.node_state import NodeState
+from hdeem_watch.daemon.persistence import StoreWorker
+from hdeem_watch.daemon.store import Store
 from hdeem_watch.dram.energy import COMPONENTS
 from hdeem_watch.sources.base import ChannelInfo, SourceBatch
 
@@ -46,6 +51,7 @@ class FakeNode:
                                       sensors=SENSORS, heartbeat_ns=PERIOD_NS) if counters else None
         self.jobs = JobBook(self.book, counters=self.windows)
         self.finished: list[JobRecord] = []
+        self.on_closed: Any = None  # a closed job window's handler (default: keep the record)
 
     def step(self) -> None:
         """10 ms later: a batch, a counter read, job windows tracked and closed."""
@@ -60,7 +66,13 @@ class FakeNode:
             counts = {ch: {role: rate * share * t / 1e9 for role, rate in RATES.items()} for ch, share in SHARE.items()}
             self.windows.observe(CounterSnapshot(t, counts), now_mono_ns=t)
             self.windows.track(self.book.windows, self.book.sample_time_of)
-        self.finished += [self.jobs.finished(c) for c in closed if c.window is not None and c.window.job_id]
+        for window in closed:
+            if window.window is None or not window.window.job_id:
+                continue
+            if self.on_closed is not None:
+                self.on_closed(window)
+            else:
+                self.finished.append(self.jobs.finished(window))
 
     def steps(self, n: int) -> None:
         for _ in range(n):
@@ -161,3 +173,57 @@ def test_without_counters_a_job_has_no_model_and_says_why() -> None:
     assert record.model_error.startswith("no counters")
     body = record.to_dict()
     assert body["model"] is None and not math.isnan(record.dram_energy_j)
+
+
+class _Publisher:
+    def __init__(self) -> None:
+        self.published: list[tuple[str, Any]] = []
+
+    def publish(self, kind: str, body: Any, *, t_ns: int | None = None) -> bool:
+        self.published.append((kind, body))
+        return True
+
+
+def test_a_stopped_job_is_stored_closed_before_its_model_and_with_it_after(tmp_path: Path) -> None:
+    """job.stop with counters: the finished record is stored at once (a daemon that stops before the
+    model worker ran keeps the job closed, not running), the model is computed on the model worker,
+    and the stop is answered with the record that has it, stored again."""
+    clock = [1_000_000_000]
+    node = FakeNode(clock)
+    store = Store(tmp_path / "state.db")
+    writer = StoreWorker(store)
+    queued: list[tuple[Any, Any, Any]] = []  # the model worker, run by hand
+    replies: list[Any] = []
+    calibration = SimpleNamespace(modeller=RunModeller(MEMSPEC, dimms=2))
+    ops = JobOperations(node.jobs, store=writer, publisher=_Publisher(), reply=lambda _p, body, error: replies.append(
+        (body, error)), poll=node.step, submit=lambda job, done, failed: queued.append((job, done, failed)),
+        calibration=calibration)
+    node.on_closed = ops.window_closed
+
+    def drain() -> None:
+        while writer.pending:
+            for future, _done, _failed in list(writer.jobs.pending):
+                future.exception(timeout=30)
+            writer.collect()
+
+    try:
+        ops.op_job_start({"job_id": "9", "user": "bob"})
+        drain()
+        assert replies.pop()[0]["state"] == "running"
+        node.steps(100)
+        ops.op_job_stop({"job_id": "9"})
+        node.steps(2)
+        drain()
+        assert len(queued) == 1 and not replies
+        (stored,) = store.list_jobs(job_id="9")
+        assert stored["state"] == "done" and stored["model"] is None and stored["model_error"] == MODELLING
+        job, done, _failed = queued.pop()
+        done(job())
+        drain()
+        ((body, error),) = replies
+        assert error is None and body["model"]["source"] == "counters" and body["model_error"] is None
+        (stored,) = store.list_jobs(job_id="9")
+        assert stored["model"]["datasheet_j"] == pytest.approx(body["model"]["datasheet_j"])
+    finally:
+        writer.shutdown()
+        store.close()

@@ -37,6 +37,8 @@ CHECKPOINT_S = 5.0
 DEFAULT_JOBS, MAX_JOBS = 100, 1000
 #: Jobs looked at on start for those a previous daemon left running.
 RESUME_SCAN = 1000
+#: ``model_error`` of a finished job while its counters are modelled (it stays if the daemon stops first).
+MODELLING = "modelling: the energy by component is computed from the counters (the daemon stopped before if this stays)"
 
 
 class JobStore(Protocol):
@@ -236,6 +238,8 @@ class JobOperations:
             self._finished(record)
             return
         calibration, counters, measured = self.calibration, record.counters, dict(record.energy_j)
+        # Stored finished at once: a daemon that stops before the model is done keeps the job closed.
+        self._save(dataclasses.replace(record, model_error=MODELLING).to_dict())
 
         def job() -> tuple[dict[str, Any] | None, str]:
             modeller = calibration.modeller  # read on the worker, after the job that built it
