@@ -21,7 +21,7 @@ from hdeem_watch.counters.source import CounterSnapshot
 from hdeem_watch.daemon.counter_model import COMPONENT_KINDS
 from hdeem_watch.daemon.counter_windows import CounterWindows
 from hdeem_watch.daemon.job_book import JobBook
-from hdeem_watch.daemon.job_ops import MODELLING, JobOperations
+from hdeem_watch.daemon.job_ops import MODELLING, JobOperations, unmodelled_jobs
 from hdeem_watch.daemon.job_records import JobRecord, parse_job_args
 from hdeem_watch.daemon.modelling import RunModeller
 from hdeem_watch.daemon.node_state import NodeState
@@ -186,8 +186,9 @@ class _Publisher:
 
 def test_a_stopped_job_is_stored_closed_before_its_model_and_with_it_after(tmp_path: Path) -> None:
     """job.stop with counters: the finished record is stored at once (a daemon that stops before the
-    model worker ran keeps the job closed, not running), the model is computed on the model worker,
-    and the stop is answered with the record that has it, stored again."""
+    model worker ran keeps the job closed, not running, and the restarted daemon models it), the
+    model is computed on the model worker, and the stop is answered with the record that has it,
+    stored again."""
     clock = [1_000_000_000]
     node = FakeNode(clock)
     store = Store(tmp_path / "state.db")
@@ -217,7 +218,18 @@ def test_a_stopped_job_is_stored_closed_before_its_model_and_with_it_after(tmp_p
         assert len(queued) == 1 and not replies
         (stored,) = store.list_jobs(job_id="9")
         assert stored["state"] == "done" and stored["model"] is None and stored["model_error"] == MODELLING
+        # a daemon restarted here (the queued model job lost) models it again from the store
+        again = JobOperations(FakeNode([clock[0]]).jobs, store=writer, publisher=_Publisher(), reply=lambda *_: None,
+                              poll=lambda: None, submit=lambda job, done, failed: queued.append((job, done, failed)),
+                              calibration=calibration)
+        assert again.remodel(unmodelled_jobs(store)) == 1
         job, done, _failed = queued.pop()
+        done(job())
+        drain()
+        (remodelled,) = store.list_jobs(job_id="9")
+        assert remodelled["model"]["source"] == "counters" and remodelled["model_error"] is None
+        assert unmodelled_jobs(store) == []
+        job, done, _failed = queued.pop()  # the first daemon's model job: it answers the stop
         done(job())
         drain()
         ((body, error),) = replies

@@ -37,6 +37,8 @@ CHECKPOINT_S = 5.0
 DEFAULT_JOBS, MAX_JOBS = 100, 1000
 #: Jobs looked at on start for those a previous daemon left running.
 RESUME_SCAN = 1000
+#: Newest finished jobs (per state) looked at on start for one whose model a stop interrupted.
+REMODEL_SCAN = 100
 #: ``model_error`` of a finished job while its counters are modelled (it stays if the daemon stops first).
 MODELLING = "modelling: the energy by component is computed from the counters (the daemon stopped before if this stays)"
 
@@ -237,9 +239,30 @@ class JobOperations:
         if record.counters is None or self.submit is None or self.calibration is None:
             self._finished(record)
             return
-        calibration, counters, measured = self.calibration, record.counters, dict(record.energy_j)
         # Stored finished at once: a daemon that stops before the model is done keeps the job closed.
         self._save(dataclasses.replace(record, model_error=MODELLING).to_dict())
+        self._model(record, self._finished)
+
+    def remodel(self, stored: list[dict[str, Any]]) -> int:
+        """Model the finished jobs a previous daemon stopped before modelling (``stored``: their
+        records, :func:`unmodelled_jobs`); store them with their model; return how many."""
+        count = 0
+        for data in stored:
+            try:
+                record = JobRecord.from_dict(data)
+            except (KeyError, TypeError, ValueError) as error:
+                log.warning("stored job %s cannot be modelled: %s", data.get("job_id"), error)
+                continue
+            if record.counters is None or self.submit is None or self.calibration is None:
+                continue
+            self._model(record, lambda done: self._save(done.to_dict()))
+            count += 1
+        return count
+
+    def _model(self, record: JobRecord, then: Callable[[JobRecord], None]) -> None:
+        """Model ``record``'s counters on the model worker; ``then(record with model)`` in the loop."""
+        assert self.submit is not None
+        calibration, counters, measured = self.calibration, record.counters, dict(record.energy_j)
 
         def job() -> tuple[dict[str, Any] | None, str]:
             modeller = calibration.modeller  # read on the worker, after the job that built it
@@ -254,7 +277,7 @@ class JobOperations:
 
         def done(result: tuple[dict[str, Any] | None, str]) -> None:
             model, error = result
-            self._finished(dataclasses.replace(record, model=model, model_error=None if model is not None else error))
+            then(dataclasses.replace(record, model=model, model_error=None if model is not None else error))
 
         self.submit(job, done, lambda error: done((None, f"model failed: {type(error).__name__}: {error}")))
 
@@ -282,6 +305,15 @@ class JobOperations:
 
     def _failed(self, pending: Pending) -> Callable[[BaseException], None]:
         return lambda error: self.reply(pending, None, ("internal", f"{type(error).__name__}: {error}"))
+
+
+def unmodelled_jobs(store: StorePort) -> list[dict[str, Any]]:
+    """The newest finished jobs a previous daemon stopped before their model was done (on the store)."""
+    found = []
+    for state in ("done", "interrupted"):
+        found += [r for r in _jobs(store).list_jobs(state=state, limit=REMODEL_SCAN)
+                  if r.get("model") is None and r.get("model_error") == MODELLING]
+    return found
 
 
 def unfinished_jobs(store: StorePort) -> list[dict[str, Any]]:
