@@ -239,3 +239,16 @@ def test_a_stopped_job_is_stored_closed_before_its_model_and_with_it_after(tmp_p
     finally:
         writer.shutdown()
         store.close()
+
+
+def test_jobs_job_prints_the_split_or_why_there_is_none(record: JobRecord) -> None:
+    """``hdeem-watch jobs --job ID``'s model lines: the split by kind (calibrated when fitted), or the reason."""
+    from hdeem_watch.cli.jobs import model_lines
+
+    model, _ = RunModeller(MEMSPEC, dimms=2).model_counters(record.counters, record.energy_j)
+    with_model = model_lines([{"node": "n1", "ok": True, "jobs": [{**record.to_dict(), "model": model}]}])
+    assert len(with_model) == 2 and "datasheet" in with_model[1]
+    assert all(kind.replace("_", "-") in with_model[1] for kind in COMPONENT_KINDS)
+    bare = _job_through_a_kill(counters=False).to_dict()
+    (line,) = model_lines([{"node": "n1", "ok": True, "jobs": [bare]}, {"node": "n2", "ok": False, "error": "x"}])
+    assert "model: – (no counters" in line
