@@ -5,7 +5,8 @@ allocation, or with ``--slurm``, it asks the daemon of every node of the allocat
 ``tcp://<node>:<port>`` (this node through its local endpoint), all at once, each with a bounded
 timeout: a node that does not answer is a line saying so, not a hang. ``--connect EP`` names daemons
 explicitly. From inside a job, ``hdeem-watch jobs --job $SLURM_JOB_ID`` prints the job's DRAM energy
-so far on every node.
+so far on every node, and (with a counter source on the daemons) its modelled DRAM energy by
+component.
 
 Exit codes: 0 every node answered, 1 some node did not answer (or refused), 2 bad input.
 """
@@ -171,6 +172,10 @@ def _fmt(value: Any, digits: int = 1) -> str:
     return "–" if not isinstance(value, int | float) or not math.isfinite(value) else f"{value:.{digits}f}"
 
 
+def _count(value: Any) -> str:
+    return "–" if not isinstance(value, int | float) or not math.isfinite(value) else f"{value:.3g}"
+
+
 def _duration(seconds: Any) -> str:
     if not isinstance(seconds, int | float) or not math.isfinite(seconds):
         return "–"
@@ -212,6 +217,31 @@ def total_line(answers: Sequence[dict[str, Any]]) -> str | None:
     return f"{'total':<14} {'':<12} {'':<10} {'':<11} {'':<19} {'':>9} {_fmt(total):>12}{note}"
 
 
+def model_lines(answers: Sequence[dict[str, Any]]) -> list[str]:
+    """Under ``--job``: each node's modelled DRAM energy by component (from the memory-controller
+    counters), the calibrated split when the daemon has a fit, else the datasheet's; or why there is
+    none."""
+    lines = []
+    for answer in answers:
+        jobs = (answer.get("jobs") or []) if answer["ok"] else []
+        for job in jobs:
+            model = job.get("model")
+            if not isinstance(model, Mapping):
+                lines.append(f"{answer['node']:<14} model: – ({job.get('model_error') or 'none'})")
+                continue
+            calibrated = (model.get("split_j") or {}).get("calibrated")
+            which, split = ("calibrated", calibrated) if calibrated else ("datasheet", (model.get("split_j") or {})
+                                                                         .get("datasheet") or {})
+            parts = ", ".join(f"{kind.replace('_', '-')} {_fmt(value)}" for kind, value in split.items())
+            counts = model.get("counts") or {}
+            lines.append(f"{answer['node']:<14} model from counters: datasheet {_fmt(model.get('datasheet_j'))} J, "
+                         f"calibrated {_fmt(model.get('calibrated_j'))} J over {_fmt(model.get('window_s'))} s "
+                         f"({_count(counts.get('act'))} ACT, {_count(counts.get('rd'))} RD, "
+                         f"{_count(counts.get('wr'))} WR)")
+            lines.append(f"{'':<14} by component ({which}, J): {parts}")
+    return lines
+
+
 def _run(args: argparse.Namespace) -> int:
     if not (args.timeout > 0 and math.isfinite(args.timeout)):
         raise InputError(f"--timeout {args.timeout!r}: expected seconds > 0")
@@ -239,5 +269,9 @@ def _run(args: argparse.Namespace) -> int:
     else:
         lines = table(answers)
         total = total_line(answers) if op == "job.get" else None
-        print("\n".join(lines if total is None else [*lines, total]))
+        if total is not None:
+            lines.append(total)
+        if op == "job.get":
+            lines += model_lines(answers)
+        print("\n".join(lines))
     return 0 if all(a["ok"] for a in answers) else 1

@@ -7,7 +7,9 @@ counters' own span, tREFI and tRC from the memspec) into one group ``(stats, 1)`
 form :func:`hdeem_watch.calibrate.rows.node_observation` sums into the node's calibration row. A
 channel of ``k`` DIMMs (its ranks a multiple of the memspec's) is ``k`` groups of one DIMM each
 (the split over ranks is energy-neutral). :func:`cross_check` puts the kernel model's node counts
-beside the counted ones.
+beside the counted ones. For a SLURM job (:mod:`hdeem_watch.daemon.job_records`),
+:func:`sum_counters` adds its segments' counts and :func:`counters_model` models the energy by
+component from them alone, with the datasheet and the calibrated currents.
 
 Example:
     >>> from hdeem_watch.dram.memspec import preset
@@ -27,8 +29,11 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import numpy as np
+
 from hdeem_watch.counters.command_mapping import channel_stats
-from hdeem_watch.dram.stats import CommandStats
+from hdeem_watch.dram.energy import COMPONENTS, energy_columns
+from hdeem_watch.dram.stats import CommandStats, stretch_stats
 from hdeem_watch.errors import InputError
 
 #: The counts compared between the counters and the kernel model.
@@ -103,3 +108,129 @@ def cross_check(counted: Mapping[str, float], kernel: Mapping[str, float]) -> di
     ratio = {f: (counted[f] / kernel[f] if kernel.get(f) else None) for f in CHECKED if f in counted}
     return {"kernel_counts": dict(kernel), "counter_counts": dict(counted),
             "ratio": {f: (round(r, 6) if r is not None else None) for f, r in ratio.items()}}
+
+
+#: The model's components (:data:`hdeem_watch.dram.energy.COMPONENTS`) grouped by what spends the
+#: energy: the split a job record shows.
+COMPONENT_KINDS: dict[str, tuple[str, ...]] = {
+    "background": ("bg_act_j", "bg_pre_j"),
+    "activation": ("act_j", "pre_j"),
+    "read": ("rd_j", "rda_j"),
+    "write": ("wr_j", "wra_j"),
+    "refresh": ("ref_j",),
+    "power_down": ("pdna_j", "pdnp_j", "sref_j"),
+}
+
+
+def sum_counters(windows: Sequence[Mapping[str, Any] | None]) -> dict[str, Any] | None:
+    """The counters of several windows of one job (its segments) as one: per channel and role the
+    counts summed, ``window_s`` summed; a role missing in a counted window is unknown (NaN).
+
+    Windows without counters (None, or no channels) are left out and the ``status`` says how many;
+    None when no window has counters.
+
+    >>> a = {"source": "sim", "window_s": 1.0, "ranks": 2, "channels": {"c0": {"act": 1.0, "cas_rd": 2.0}}}
+    >>> b = {"source": "sim", "window_s": 2.0, "ranks": 2, "channels": {"c0": {"act": 3.0}}}
+    >>> total = sum_counters([a, None, b])
+    >>> total["window_s"], total["channels"]["c0"]["act"], total["status"]
+    (3.0, 4.0, 'partial: 2 of 3 segments counted')
+    >>> math.isnan(total["channels"]["c0"]["cas_rd"])
+    True
+    """
+    counted = [w for w in windows if isinstance(w, Mapping) and isinstance(w.get("channels"), Mapping)
+               and w.get("channels")]
+    if not counted:
+        return None
+    channels: dict[str, dict[str, float]] = {}
+    names = list(dict.fromkeys(c for w in counted for c in w["channels"]))
+    for channel in names:
+        roles = list(dict.fromkeys(r for w in counted for r in (w["channels"].get(channel) or {})))
+        channels[channel] = {}
+        for role in roles:
+            values = [(w["channels"].get(channel) or {}).get(role) for w in counted]
+            known = [float(v) for v in values if v is not None]
+            channels[channel][role] = float(sum(known)) if len(known) == len(values) else math.nan
+    statuses = sorted({str(w.get("status", "ok")) for w in counted} - {"ok"})
+    status = "ok" if len(counted) == len(windows) else f"partial: {len(counted)} of {len(windows)} segments counted"
+    if statuses:
+        status = "; ".join([status, *statuses]) if status != "ok" else "; ".join(statuses)
+    first = counted[0]
+    return {"source": first.get("source"), "generation": first.get("generation"), "status": status,
+            "ranks": first.get("ranks"), "refresh_complete": first.get("refresh_complete"),
+            "window_s": float(sum(float(w.get("window_s") or 0.0) for w in counted)),
+            "segments_counted": len(counted), "sensors": dict(first.get("sensors") or {}), "channels": channels}
+
+
+def component_energy(spec: Any, groups: Sequence[tuple[CommandStats, int]], window_s: float,
+                     currents_a: np.ndarray) -> dict[str, float]:
+    """Joules per model component (:data:`~hdeem_watch.dram.energy.COMPONENTS`) of ``groups`` over
+    ``window_s`` with these currents (in :data:`~hdeem_watch.dram.energy.CURRENT_NAMES` order): the
+    same stretched statistics as the calibration row
+    (:func:`hdeem_watch.calibrate.rows.node_observation`), so the components sum to its prediction."""
+    totals = dict.fromkeys(COMPONENTS, 0.0)
+    for stats, n in groups:
+        linear = energy_columns(spec, stretch_stats(spec, stats, window_s))
+        for name in COMPONENTS:
+            totals[name] += n * (float(linear.component_columns[name] @ currents_a)
+                                 + float(linear.component_constants_j[name]))
+    return totals
+
+
+def _split(components: Mapping[str, float]) -> dict[str, float]:
+    return {kind: float(sum(components[c] for c in parts)) for kind, parts in COMPONENT_KINDS.items()}
+
+
+def counters_model(spec: Any, counters: Mapping[str, Any], *, datasheet_a: np.ndarray,
+                   calibrated_a: np.ndarray | None, intercept_j: float = 0.0,
+                   measured_j: Mapping[str, float] | None = None) -> dict[str, Any]:
+    """A window's modelled DRAM energy by component from its counters alone (``model.source = "counters"``).
+
+    Args:
+        spec: one DIMM's memspec.
+        counters: the window's counters (:func:`sum_counters` of a job's segments).
+        datasheet_a: the memspec's currents.
+        calibrated_a: the current calibration's currents (None: no fit yet).
+        intercept_j: the fit's intercept (node-wide, not split by component or sensor).
+        measured_j: measured energy per sensor over the window, for the per-sensor split.
+
+    Returns:
+        ``{"source", "memspec", "window_s", "counts", "counter_estimates", "components_j":
+        {"datasheet", "calibrated"}, "split_j": {"datasheet", "calibrated"} (:data:`COMPONENT_KINDS`),
+        "datasheet_j", "calibrated_j", "intercept_j", "sensors"}``; the calibrated entries are None
+        without a fit. ``sensors`` (sensor → datasheet/calibrated/measured J) when the counter
+        channels name their sensors.
+
+    Raises:
+        InputError: unusable counters (see :func:`counter_groups`).
+    """
+    groups, notes = counter_groups(spec, counters)
+    window_s = float(counters["window_s"])
+    datasheet = component_energy(spec, groups, window_s, datasheet_a)
+    calibrated = None if calibrated_a is None else component_energy(spec, groups, window_s, calibrated_a)
+    model: dict[str, Any] = {
+        "source": "counters", "memspec": getattr(spec, "memory_id", None), "window_s": window_s,
+        "counts": node_totals(groups), "counter_estimates": notes,
+        "components_j": {"datasheet": datasheet, "calibrated": calibrated},
+        "split_j": {"datasheet": _split(datasheet), "calibrated": None if calibrated is None else _split(calibrated)},
+        "datasheet_j": float(sum(datasheet.values())),
+        "calibrated_j": None if calibrated is None else float(sum(calibrated.values())) + float(intercept_j),
+        "intercept_j": None if calibrated is None else float(intercept_j),
+    }
+    sensors = counters.get("sensors") or {}
+    per_sensor: dict[str, dict[str, Any]] = {}
+    for channel, counts in sorted((counters.get("channels") or {}).items()):
+        sensor = sensors.get(channel)
+        if not sensor:
+            continue
+        own, _ = counter_groups(spec, {**counters, "channels": {channel: counts}})
+        entry = per_sensor.setdefault(str(sensor), {"channels": [], "datasheet_j": 0.0,
+                                                    "calibrated_j": None if calibrated_a is None else 0.0})
+        entry["channels"].append(channel)
+        entry["datasheet_j"] += float(sum(component_energy(spec, own, window_s, datasheet_a).values()))
+        if calibrated_a is not None:
+            entry["calibrated_j"] += float(sum(component_energy(spec, own, window_s, calibrated_a).values()))
+    for sensor, entry in per_sensor.items():
+        value = (measured_j or {}).get(sensor)
+        entry["measured_j"] = float(value) if isinstance(value, int | float) and math.isfinite(value) else None
+    model["sensors"] = per_sensor
+    return model

@@ -1,4 +1,4 @@
-"""Counter deltas per channel over each run window, next to the window's energy (pure, no I/O).
+"""Counter deltas per channel over each run and job window, next to the window's energy (pure, no I/O).
 
 The poll loop hands every counter snapshot to :meth:`CounterWindows.observe` and asks
 :meth:`CounterWindows.due` whether to read the counters now: at the heartbeat (for the stream's
@@ -9,7 +9,9 @@ run starts or stops), so a window's ends are counted where its energy is cut.
 :meth:`CounterWindows.track` gives each new run window its start (the snapshot at the window's start,
 interpolated between reads); :meth:`CounterWindows.finish` takes the closed run's end on the power
 samples' axis (the last sample of its DRAM channels) and attaches the per-channel role deltas to
-the run record (``record.counters``), from which the model makes the window's ``CommandStats``
+the run record (``record.counters``); :meth:`CounterWindows.finish_window` does the same for a job
+segment's window (keyed by :func:`window_key`), and :meth:`CounterWindows.so_far` counts an open
+one up to the newest read. From these counts the model makes the window's ``CommandStats``
 (:func:`hdeem_watch.daemon.modelling.counter_groups`).
 
 Example:
@@ -33,6 +35,24 @@ from hdeem_watch.counters.source import CounterSnapshot, interpolate, window_cou
 
 #: Snapshots kept to interpolate window ends (a few heartbeats and edge reads).
 HISTORY = 16
+
+
+def window_key(window: Any) -> str | None:
+    """The key of a window's counter start: a run's id, ``job:<id>:<start poll>`` for a job segment
+    (one per daemon session: the start poll's monotonic ns tells a requeued job's windows apart);
+    None for other windows (baselines).
+
+    >>> from types import SimpleNamespace as W
+    >>> window_key(W(run=None, job_id="42", t_start_mono_ns=7)), window_key(W(run=None, job_id=None))
+    ('job:42:7', None)
+    """
+    run = getattr(window, "run", None)
+    if run is not None:
+        return str(run.run_id)
+    job_id = getattr(window, "job_id", None)
+    if job_id is not None:
+        return f"job:{job_id}:{int(window.t_start_mono_ns)}"
+    return None
 
 
 class CounterWindows:
@@ -60,7 +80,7 @@ class CounterWindows:
         self._last_read_mono: int | None = None
         self._rate_base: CounterSnapshot | None = None
         self._rate_top: CounterSnapshot | None = None
-        #: run id → the counters at its window's start.
+        #: window key (:func:`window_key`) → the counters at its window's start.
         self._starts: dict[str, CounterSnapshot] = {}
 
     # -- reading ---------------------------------------------------------------------------------
@@ -71,10 +91,10 @@ class CounterWindows:
             return True
         newest = self.history[-1].t_ns if self.history else None
         for window in windows:
-            run = getattr(window, "run", None)
-            if run is None:
+            key = window_key(window)
+            if key is None:
                 continue
-            if run.run_id not in self._starts:
+            if key not in self._starts:
                 return True
             target = getattr(window, "target_t_ns", None)
             if target is not None and (newest is None or newest < target):
@@ -99,21 +119,27 @@ class CounterWindows:
     # -- windows ---------------------------------------------------------------------------------
 
     def track(self, windows: Iterable[Any], sample_time: Callable[[int], int]) -> None:
-        """Give every new run window its start: the counters at its start poll (interpolated)."""
+        """Give every new run or job window its start: the counters at its start poll (interpolated)."""
         if not self.history:
             return
         for window in windows:
-            run = getattr(window, "run", None)
-            if run is not None and run.run_id not in self._starts:
-                self._starts[run.run_id] = interpolate(list(self.history), sample_time(window.t_start_mono_ns))
+            key = window_key(window)
+            if key is not None and key not in self._starts:
+                self._starts[key] = interpolate(list(self.history), sample_time(window.t_start_mono_ns))
 
     def finish(self, record: Any, dram_channels: Iterable[str]) -> dict[str, Any] | None:
         """The counters of a closed run (``record.counters``), or None without a start or snapshot."""
-        start = self._starts.pop(record.run_id, None)
+        return self.finish_window(str(record.run_id), record.samples_ns, dram_channels)
+
+    def finish_window(self, key: str, samples_ns: Mapping[str, Any] | None,
+                      dram_channels: Iterable[str]) -> dict[str, Any] | None:
+        """The counters of a closed window (run or job segment), cut where its DRAM samples end
+        (``samples_ns``: channel → ``[first, last]`` sample time); None without a start or snapshot."""
+        start = self._starts.pop(key, None)
         if start is None or not self.history:
             return None
-        ends = [span[1] for c, span in (record.samples_ns or {}).items()
-                if c in set(dram_channels) and span and span[1] is not None]
+        wanted = set(dram_channels)
+        ends = [span[1] for c, span in (samples_ns or {}).items() if c in wanted and span and span[1] is not None]
         end_t = max(ends) if ends else self.history[-1].t_ns
         status = "ok"
         if end_t > self.history[-1].t_ns:
@@ -127,9 +153,21 @@ class CounterWindows:
                 "refresh_complete": self.refresh_complete, "t_start_ns": start.t_ns, "t_end_ns": end.t_ns,
                 "window_s": window_s, "sensors": dict(self.sensors), "channels": window_counts(start, end)}
 
-    def forget(self, run_id: str) -> None:
-        """Drop a window's start (an aborted run)."""
-        self._starts.pop(run_id, None)
+    def so_far(self, key: str) -> dict[str, Any] | None:
+        """The counters of an open window up to the newest snapshot (``open: true``; None without a
+        start); the window's start is kept."""
+        start = self._starts.get(key)
+        if start is None or not self.history or self.history[-1].t_ns <= start.t_ns:
+            return None
+        end = self.history[-1]
+        return {"source": self.kind, "generation": self.table_key, "status": "ok", "open": True,
+                "ranks": self.ranks, "refresh_complete": self.refresh_complete, "t_start_ns": start.t_ns,
+                "t_end_ns": end.t_ns, "window_s": (end.t_ns - start.t_ns) / 1e9, "sensors": dict(self.sensors),
+                "channels": window_counts(start, end)}
+
+    def forget(self, key: str) -> None:
+        """Drop a window's start (an aborted run, a job closed without its window)."""
+        self._starts.pop(key, None)
 
     # -- rates -----------------------------------------------------------------------------------
 

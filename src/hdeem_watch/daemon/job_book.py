@@ -6,7 +6,9 @@ in the run book, fed by every batch like a run window (so whatever a window inte
 and counters once they are windowed — a job gets too), but it blocks neither runs nor baselines and
 keeps no samples (only each channel's peak). Several jobs may be open at once (a shared node); each
 names the others it overlapped (``shared_with``): the node's DRAM energy cannot be split between
-them.
+them. With counter windows (:class:`~hdeem_watch.daemon.counter_windows.CounterWindows`), each
+segment also carries the memory controller's counts over its window (an open one up to the newest
+counter read).
 
 No I/O and no clock of its own: the shell (:mod:`hdeem_watch.daemon.job_ops`) stores the records
 it returns. A job's life: :meth:`JobBook.start` → (batches) → :meth:`JobBook.checkpoint` every few
@@ -46,6 +48,7 @@ import dataclasses
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from hdeem_watch.daemon.counter_windows import CounterWindows, window_key
 from hdeem_watch.daemon.job_records import JobArgs, JobRecord, Segment
 from hdeem_watch.daemon.node_state import ClosedWindow, Conflict, NodeState
 from hdeem_watch.daemon.runs import window_energy
@@ -81,11 +84,15 @@ class JobBook:
     Args:
         book: the node's run book (its windows, clocks, channels and baselines).
         max_open: most jobs open at once.
+        counters: the node's counter windows (None: counters off); each segment then carries the
+            counts over its window.
     """
 
-    def __init__(self, book: NodeState, *, max_open: int = MAX_OPEN_JOBS) -> None:
+    def __init__(self, book: NodeState, *, max_open: int = MAX_OPEN_JOBS,
+                 counters: CounterWindows | None = None) -> None:
         self.book = book
         self.max_open = max_open
+        self.counters = counters
         self._open: dict[str, _OpenJob] = {}
 
     # -- queries ----------------------------------------------------------------------------------
@@ -175,6 +182,7 @@ class JobBook:
             job.record = dataclasses.replace(job.record, late_stop_s=late_s if late_s >= 1.0 else 0.0)
         if ended_ns is not None and ended_ns < job.t_segment_ns:
             self._open.pop(job_id)
+            self._forget_counters(job.window)
             if job.window in self.book.windows:
                 self.book.windows.remove(job.window)
             return job.record.finish(state="interrupted", t_wall_ns=ended_ns, dram_channels=self.book.dram_channels,
@@ -190,8 +198,12 @@ class JobBook:
         stops = {c: span[1] for c, span in window.sample_spans_ns.items()}
         spans, samples = _spans(window, stops)
         now = self.book.wall()
+        counters = None
+        key = window_key(window)
+        if self.counters is not None and key is not None:
+            counters = self.counters.finish_window(key, samples, self.book.dram_channels)
         segment = Segment(t_start_ns=job.t_segment_ns, t_stop_ns=now, energy_j=dict(closed.energy_j),
-                          spans_s=spans, samples_ns=samples, peak_w=dict(window.peak_w))
+                          spans_s=spans, samples_ns=samples, peak_w=dict(window.peak_w), counters=counters)
         record = dataclasses.replace(job.record, segments=(*job.record.segments, segment))
         return record.finish(state="done", t_wall_ns=now, dram_channels=self.book.dram_channels,
                              baselines_w=self._baselines_w(), exit_code=job.exit_code)
@@ -207,9 +219,16 @@ class JobBook:
         """The open segment up to the last batch: exact like a closed one (cumulative energies now)."""
         book, window = self.book, job.window
         spans, samples = _spans(window, book.last_sample_times())
+        key = window_key(window)
+        counters = self.counters.so_far(key) if self.counters is not None and key is not None else None
         return Segment(t_start_ns=job.t_segment_ns, t_stop_ns=book.wall(),
                        energy_j=window_energy(window.start_energy_j, book.energies()), spans_s=spans,
-                       samples_ns=samples, peak_w=dict(window.peak_w), open=True)
+                       samples_ns=samples, peak_w=dict(window.peak_w), open=True, counters=counters)
+
+    def _forget_counters(self, window: Window) -> None:
+        key = window_key(window)
+        if self.counters is not None and key is not None:
+            self.counters.forget(key)
 
     def _baselines_w(self) -> dict[str, float]:
         return {c: b.power_w for c, b in self.book.baselines.items()}

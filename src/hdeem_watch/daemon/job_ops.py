@@ -7,7 +7,8 @@ stop cut to the sample, as for a run) and the finished record is stored. ``job.g
 ``job.list`` read the store on the store worker and show open jobs with their energy so far. Every
 :data:`CHECKPOINT_S` the open jobs' energy so far is stored, so a ``kill -9`` loses at most that
 much; the restarted daemon resumes them (:meth:`JobOperations.resume`). Each start and stop is
-published on the ``job`` topic.
+published on the ``job`` topic. With counters, a finished job's energy by component is modelled
+from its counted commands on the model worker before it is stored and the stop answered.
 
 Example:
     >>> JobOperations.OPS
@@ -16,6 +17,7 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol, cast
@@ -35,6 +37,10 @@ CHECKPOINT_S = 5.0
 DEFAULT_JOBS, MAX_JOBS = 100, 1000
 #: Jobs looked at on start for those a previous daemon left running.
 RESUME_SCAN = 1000
+#: Newest finished jobs (per state) looked at on start for one whose model a stop interrupted.
+REMODEL_SCAN = 100
+#: ``model_error`` of a finished job while its counters are modelled (it stays if the daemon stops first).
+MODELLING = "modelling: the energy by component is computed from the counters (the daemon stopped before if this stays)"
 
 
 class JobStore(Protocol):
@@ -60,13 +66,20 @@ class JobOperations:
         reply: sends a deferred control reply.
         poll: polls the source once now (a tight window edge).
         checkpoint_s: seconds between two stores of the open jobs.
+        submit: the model worker's ``submit`` (None: finished jobs are not modelled).
+        calibration: holds the run modeller (``.modeller``, set on the model worker), which models a
+            finished job's counters by component
+            (:meth:`~hdeem_watch.daemon.modelling.RunModeller.model_counters`).
     """
 
     OPS = ("job.start", "job.stop", "job.get", "job.list")
 
     def __init__(self, jobs: JobBook, *, store: StoreWorker, publisher: PublisherPort, reply: Reply,
-                 poll: Callable[[], object], checkpoint_s: float = CHECKPOINT_S) -> None:
+                 poll: Callable[[], object], checkpoint_s: float = CHECKPOINT_S,
+                 submit: Callable[..., None] | None = None, calibration: Any = None) -> None:
         self.jobs = jobs
+        self.submit = submit
+        self.calibration = calibration
         self.store = store
         self.publisher = publisher
         self.reply = reply
@@ -221,6 +234,54 @@ class JobOperations:
     # -- helpers ----------------------------------------------------------------------------------
 
     def _finish(self, record: JobRecord) -> None:
+        """A finished job: model its counters on the model worker (when it has any), then store,
+        publish and answer the stop."""
+        if record.counters is None or self.submit is None or self.calibration is None:
+            self._finished(record)
+            return
+        # Stored finished at once: a daemon that stops before the model is done keeps the job closed.
+        self._save(dataclasses.replace(record, model_error=MODELLING).to_dict())
+        self._model(record, self._finished)
+
+    def remodel(self, stored: list[dict[str, Any]]) -> int:
+        """Model the finished jobs a previous daemon stopped before modelling (``stored``: their
+        records, :func:`unmodelled_jobs`); store them with their model; return how many."""
+        count = 0
+        for data in stored:
+            try:
+                record = JobRecord.from_dict(data)
+            except (KeyError, TypeError, ValueError) as error:
+                log.warning("stored job %s cannot be modelled: %s", data.get("job_id"), error)
+                continue
+            if record.counters is None or self.submit is None or self.calibration is None:
+                continue
+            self._model(record, lambda done: self._save(done.to_dict()))
+            count += 1
+        return count
+
+    def _model(self, record: JobRecord, then: Callable[[JobRecord], None]) -> None:
+        """Model ``record``'s counters on the model worker; ``then(record with model)`` in the loop."""
+        assert self.submit is not None
+        calibration, counters, measured = self.calibration, record.counters, dict(record.energy_j)
+
+        def job() -> tuple[dict[str, Any] | None, str]:
+            modeller = calibration.modeller  # read on the worker, after the job that built it
+            if modeller is None:
+                return None, "the model is not available (it failed to build; see the log)"
+            try:
+                model, error = modeller.model_counters(counters, measured)
+            except Exception as exc:  # a model bug must not lose the job or its reply
+                log.exception("modelling job %s failed", record.job_id)
+                return None, f"model failed: {type(exc).__name__}: {exc}"
+            return cast("dict[str, Any] | None", model), str(error)
+
+        def done(result: tuple[dict[str, Any] | None, str]) -> None:
+            model, error = result
+            then(dataclasses.replace(record, model=model, model_error=None if model is not None else error))
+
+        self.submit(job, done, lambda error: done((None, f"model failed: {type(error).__name__}: {error}")))
+
+    def _finished(self, record: JobRecord) -> None:
         body = record.to_dict()
         log.info("job %s %s: DRAM %.1f J over %.1f s (%s)", record.job_id, record.state, record.dram_energy_j,
                  record.measured_s, record.status)
@@ -244,6 +305,15 @@ class JobOperations:
 
     def _failed(self, pending: Pending) -> Callable[[BaseException], None]:
         return lambda error: self.reply(pending, None, ("internal", f"{type(error).__name__}: {error}"))
+
+
+def unmodelled_jobs(store: StorePort) -> list[dict[str, Any]]:
+    """The newest finished jobs a previous daemon stopped before their model was done (on the store)."""
+    found = []
+    for state in ("done", "interrupted"):
+        found += [r for r in _jobs(store).list_jobs(state=state, limit=REMODEL_SCAN)
+                  if r.get("model") is None and r.get("model_error") == MODELLING]
+    return found
 
 
 def unfinished_jobs(store: StorePort) -> list[dict[str, Any]]:

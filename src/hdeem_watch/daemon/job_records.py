@@ -12,6 +12,12 @@ channel unknown in any segment is unknown (NaN) in the sum, never 0.
 Above-baseline energy per channel is ``energy − baseline power × measured seconds`` with the node's
 kept idle baseline; without a baseline it is NaN and ``baseline_status`` names the channels.
 
+With a counter source on, each segment carries the memory controller's counts over it
+(``counters``), the record their sum over segments
+(:func:`~hdeem_watch.daemon.counter_model.sum_counters`), and a finished job the modelled energy by
+component (``model``, ``source = "counters"``; computed on the model worker). Without counters
+``model`` is None and ``model_error`` says why, never zeros.
+
 Example:
     >>> args = parse_job_args({"job_id": "42", "user": "alice", "uid": 1000, "nodes": ["n1"], "cpus": 4})
     >>> job = JobRecord.start(args, node="n1", t_wall_ns=0)
@@ -33,6 +39,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from hdeem_watch.daemon.counter_model import sum_counters
 from hdeem_watch.daemon.protocol import ProtocolError
 from hdeem_watch.daemon.runs import total_energy
 
@@ -127,6 +134,9 @@ class Segment:
             the samples with ``first < t <= last`` make up the energy.
         peak_w: per channel, the highest sample in the segment.
         open: the segment was still being measured when it was saved (a checkpoint).
+        counters: the memory controller's counts over the segment
+            (:meth:`~hdeem_watch.daemon.counter_windows.CounterWindows.finish_window`; None with
+            counters off or without a counter read at its start).
     """
 
     t_start_ns: int
@@ -136,6 +146,7 @@ class Segment:
     samples_ns: dict[str, list[int | None]]
     peak_w: dict[str, float] = field(default_factory=dict)
     open: bool = False
+    counters: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
@@ -150,7 +161,8 @@ class Segment:
 
         return cls(t_start_ns=int(data["t_start_ns"]), t_stop_ns=int(data["t_stop_ns"]), energy_j=floats("energy_j"),
                    spans_s=floats("spans_s"), samples_ns={str(c): list(v) for c, v in (data.get("samples_ns") or {}).items()},
-                   peak_w=floats("peak_w"), open=bool(data.get("open", False)))
+                   peak_w=floats("peak_w"), open=bool(data.get("open", False)),
+                   counters=dict(data["counters"]) if isinstance(data.get("counters"), Mapping) else None)
 
 
 def _sum(values: Iterable[float]) -> float:
@@ -191,6 +203,9 @@ class JobRecord:
     status: str = "ok"
     shared_with: tuple[str, ...] = ()
     late_stop_s: float = 0.0
+    counters: dict[str, Any] | None = None
+    model: dict[str, Any] | None = None
+    model_error: str | None = None
 
     @classmethod
     def start(cls, args: JobArgs, *, node: str, t_wall_ns: int) -> JobRecord:
@@ -284,12 +299,27 @@ def _totals(job: JobRecord, dram_channels: Sequence[str], baselines_w: Mapping[s
         late = f"late stop: measured {job.late_stop_s:.1f} s past the job's end (the Epilog's stop came late)"
         status = late if status == "ok" else f"{status}; {late}"
     end = job.t_stop_ns if job.t_stop_ns is not None else t_wall_ns
+    counters = sum_counters([s.counters for s in segments]) if segments else None
+    model_error = job.model_error
+    if job.model is None:
+        model_error = model_reason(job.state, counters)
     return dataclasses.replace(
         job, energy_j=energy, dram_energy_j=total_energy(energy, dram) if dram else math.nan,
         above_baseline_j=above, dram_above_baseline_j=total_energy(above, dram) if dram else math.nan,
         baseline_w=baseline, baseline_status="ok" if not missing else "no baseline: " + ", ".join(missing),
         mean_power_w=mean, peak_power_w=peaks, measured_s=float(measured), unmeasured_s=gap_ns / 1e9,
-        duration_s=None if end is None else (end - job.t_start_ns) / 1e9, status=status)
+        duration_s=None if end is None else (end - job.t_start_ns) / 1e9, status=status, counters=counters,
+        model_error=model_error)
+
+
+def model_reason(state: str, counters: Mapping[str, Any] | None) -> str:
+    """Why a job record has no ``model`` (yet)."""
+    if counters is None:
+        return ("no counters: the daemon counts no memory-controller commands (counters = 'none'), "
+                "or no counter read covered this job's window")
+    if state == "running":
+        return "running: the model by component is computed from the counters when the job ends"
+    return "not modelled yet"
 
 
 def job_summary(record: Mapping[str, Any]) -> dict[str, Any]:

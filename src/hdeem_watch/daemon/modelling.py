@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from hdeem_watch.daemon.counter_model import counter_groups, cross_check, node_totals
+from hdeem_watch.daemon.counter_model import counter_groups, counters_model, cross_check, node_totals
 from hdeem_watch.daemon.group_fits import DEFAULT_MIN_SAMPLES, GroupFits
 from hdeem_watch.daemon.runs import NO_TRAFFIC_KERNELS, OPAQUE_KERNEL
 from hdeem_watch.errors import InputError
@@ -383,6 +383,32 @@ class RunModeller:
         self.history.append(compact_fit(int(result.time_ns or obs.time_ns), fit))
         del self.history[:-MAX_HISTORY]
         return model, fit, None
+
+    def model_counters(self, counters: Mapping[str, Any] | None,
+                       measured_j: Mapping[str, float] | None = None) -> tuple[dict[str, Any] | None, str]:
+        """A SLURM job's modelled DRAM energy by component from its counters (not a calibration row:
+        a job's window mixes whatever ran), with the datasheet and the latest fit's currents.
+
+        Returns:
+            ``(model, "")`` (:func:`~hdeem_watch.daemon.counter_model.counters_model`, plus
+            ``dimms``), or ``(None, why not)``.
+        """
+        if self.error is not None:
+            return None, self.error
+        if not isinstance(counters, Mapping):
+            return None, "no counters recorded for this job"
+        fit = self.latest_fit()
+        datasheet, _ = self._currents_vector(None)
+        calibrated, intercept = self._currents_vector(fit) if fit is not None else (None, 0.0)
+        try:
+            model = counters_model(self.spec, counters, datasheet_a=datasheet, calibrated_a=calibrated,
+                                   intercept_j=intercept, measured_j=measured_j)
+        except InputError as error:
+            return None, str(error)
+        model["memspec"] = getattr(self.spec, "memory_id", self.memspec)
+        model["dimms"] = self.dimms
+        model["fit_runs"] = None if fit is None else fit.get("n_runs")
+        return model, ""
 
     def _counted(self, record: Mapping[str, Any]) -> tuple[list[tuple[Any, int]] | None, str | None, list[str]]:
         """The window's per-channel statistics from its counters (None and why when it has none)."""

@@ -38,7 +38,7 @@ from hdeem_watch.daemon.control import ControlServer, Pending
 from hdeem_watch.daemon.endpoints import advertised_endpoints
 from hdeem_watch.daemon.group_fits import source_groups
 from hdeem_watch.daemon.job_book import JobBook
-from hdeem_watch.daemon.job_ops import JobOperations, unfinished_jobs
+from hdeem_watch.daemon.job_ops import JobOperations, unfinished_jobs, unmodelled_jobs
 from hdeem_watch.daemon.job_records import job_summary
 from hdeem_watch.daemon.jobs import Calibration, ModelSettings, Worker, restore_calibration
 from hdeem_watch.daemon.metrics import DaemonMetrics, NodeCollector
@@ -260,9 +260,10 @@ class Daemon:
                                      reply=self.complete, poll=self._edge_poll)
         self.operations.on_window_closed = self._window_counters
         topo = setup.topology
-        job_ops = self.job_ops = JobOperations(JobBook(book), store=self.store_worker, publisher=self.publisher,
-                                               reply=self.complete, poll=self._edge_poll,
-                                               checkpoint_s=settings.job_checkpoint_s)
+        job_ops = self.job_ops = JobOperations(JobBook(book, counters=self.counter_windows), store=self.store_worker,
+                                               publisher=self.publisher, reply=self.complete, poll=self._edge_poll,
+                                               checkpoint_s=settings.job_checkpoint_s, submit=self.model_jobs.submit,
+                                               calibration=self.calibration)
         if not self._job_owner_uids_given:
             self.authorizer.job_owner_uids = job_ops.jobs.running_job_uids
         self.operations.on_job_closed = job_ops.window_closed
@@ -282,6 +283,7 @@ class Daemon:
             state=store.load_calibrator(), fits=store.fit_history(MAX_HISTORY), submit=self.model_jobs.submit,
             on_built=reporter.publish_calib)
         self.operations.resume_modelling(unfinished_runs(store))
+        job_ops.remodel(unmodelled_jobs(store))
         for line in setup.log_lines():  # once started: a start that fails says one line only
             log.info("%s", line)
         log.info("hdeem-watch daemon %s: node %s, source %s, pub %s, control %s", __version__, self.node,
