@@ -235,7 +235,7 @@ def test_whoami_and_bench_say_before_any_run_that_the_user_may_not(
 @pytest.fixture
 def curve_server(tmp_path: Path) -> Iterator[Callable[..., Any]]:
     """A CURVE control server on loopback TCP whose clients dir registers ``root.key``."""
-    context = zmq.Context.instance()
+    context = zmq.Context()  # its own: the ZAP handler binds inproc://zeromq.zap.01 once per context
     server_public, server_secret = generate_keys(tmp_path / "server", "server")
     clients = tmp_path / "clients"
     _, root_secret = generate_keys(clients, "root")
@@ -267,6 +267,7 @@ def curve_server(tmp_path: Path) -> Iterator[Callable[..., Any]]:
         thread.join()
         server.close()
         curve.close()
+        context.term()
 
 
 def test_tcp_curve_a_registered_user_key_may_change_state_others_only_read(curve_server: Any) -> None:

@@ -113,7 +113,7 @@ def test_handshake_events_are_explained() -> None:
 @pytest.fixture
 def curve_endpoint(tmp_path: Path) -> Iterator[tuple[str, bytes, tuple[bytes, bytes]]]:
     """A CURVE control socket on loopback TCP that admits the clients in its directory only."""
-    context = zmq.Context.instance()
+    context = zmq.Context()  # its own: the ZAP handler binds inproc://zeromq.zap.01 once per context
     _, secret = generate_keys(tmp_path, "server")
     _, allowed = generate_keys(tmp_path / "clients", "root")
     curve = CurveServer(context, str(secret), str(tmp_path / "clients"))
@@ -134,6 +134,7 @@ def curve_endpoint(tmp_path: Path) -> Iterator[tuple[str, bytes, tuple[bytes, by
         thread.join()
         server.close()
         curve.close()
+        context.term()
 
 
 @pytest.mark.parametrize("case", ["no key", "wrong server key", "unregistered client"])
