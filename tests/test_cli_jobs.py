@@ -80,3 +80,49 @@ def test_one_job_over_several_nodes_has_a_total_only_when_every_node_answered() 
     assert total_line([node("a", 1.5), node("b", 2.25)]).split()[:2] == ["total", "3.8"]  # type: ignore[union-attr]
     partial = total_line([node("a", 1.5), node("b", None)])
     assert partial is not None and "–" in partial and "1 of 2 nodes missing" in partial
+
+
+def test_a_curve_daemon_answers_jobs_given_its_key(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """``jobs --connect tcp://… --server-key FILE`` reads a CURVE daemon's jobs; without the key the
+    node's line says the daemon requires CURVE (exit 1), at once rather than after the timeout."""
+    import threading
+
+    import zmq
+
+    from hdeem_watch.cli import main
+    from hdeem_watch.daemon.control import ControlServer
+    from hdeem_watch.daemon.security import CurveServer, generate_keys
+
+    for name in ("HDEEM_WATCH_SERVER_KEY", "HDEEM_WATCH_CLIENT_KEY", "XDG_CONFIG_HOME"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("HDEEM_WATCH_CONFIG", str(tmp_path / "absent.toml"))
+    monkeypatch.setenv("HOME", str(tmp_path))
+    context = zmq.Context()  # its own: the ZAP handler binds inproc://zeromq.zap.01 once per context
+    public, secret = generate_keys(tmp_path / "server", "server")
+    curve = CurveServer(context, str(secret), None)
+    job = {"job_id": "77", "node": "c1", "user": "alice", "state": "running", "duration_s": 12.0,
+           "energy_j": {"DDR_AB": 30.0}, "dram_energy_j": 30.0}
+    server = ControlServer(context, "tcp://127.0.0.1:0", {"job.get": lambda args: job}, secure=curve.apply)
+    halt = threading.Event()
+
+    def serve() -> None:
+        while not halt.is_set():
+            if server.socket.poll(10):
+                server.handle()
+
+    thread = threading.Thread(target=serve)
+    thread.start()
+    try:
+        assert main(["jobs", "--connect", server.endpoint, "--job", "77", "--server-key", str(public), "--json"]) == 0
+        assert '"job_id":"77"' in capsys.readouterr().out.replace(" ", "")
+        started = time.monotonic()
+        assert main(["jobs", "--connect", server.endpoint, "--job", "77", "--timeout", "10"]) == 1
+        assert "requires CURVE" in capsys.readouterr().out
+        assert time.monotonic() - started < 5
+    finally:
+        halt.set()
+        thread.join()
+        server.close()
+        curve.close()
+        context.term()

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
+from hdeem_watch.cli.curve_options import add_server_key_argument, client_kwargs, curve_keys
 from hdeem_watch.errors import InputError
 
 #: Documented TCP port of a daemon's control endpoint on cluster nodes (as ``tui --slurm``).
@@ -62,6 +63,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--port", type=int, default=None,
                         help=f"control port of the daemons for --slurm (default ${PORT_ENV} or {CONTROL_PORT})")
     parser.add_argument("--timeout", type=float, default=3.0, metavar="S", help="per-node reply timeout (default 3)")
+    add_server_key_argument(parser)
     parser.set_defaults(func=_run)
 
 
@@ -140,15 +142,16 @@ def _port(port: int | None, env: Mapping[str, str]) -> int:
 
 
 def ask(target: Target, op: str, request: dict[str, Any], *, timeout_s: float,
-        server_key: bytes | None = None) -> dict[str, Any]:
+        keys: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """One daemon's answer: ``{"node", "endpoint", "ok": True, "jobs": [...]}`` or ``"ok": False``
-    with ``"error"``; never raises for a daemon that is down or refuses. ``server_key`` is the
-    daemon's CURVE public key (for a CURVE daemon over TCP)."""
+    with ``"error"``; never raises for a daemon that is down or refuses. ``keys`` are the CURVE
+    keyword arguments of the control client (:func:`hdeem_watch.cli.curve_options.client_kwargs`;
+    without them the client takes the keys the environment names)."""
     from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
 
     entry: dict[str, Any] = {"node": target.node, "endpoint": target.endpoint}
     try:
-        with ControlClient(target.endpoint, timeout_s=timeout_s, curve_server_key=server_key) as client:
+        with ControlClient(target.endpoint, timeout_s=timeout_s, **(keys or {})) as client:
             result = client.call(op, request)
     except DaemonUnreachable as error:
         return {**entry, "ok": False, "error": f"unreachable: {error}"}
@@ -161,10 +164,10 @@ def ask(target: Target, op: str, request: dict[str, Any], *, timeout_s: float,
 
 
 def query(found: Sequence[Target], op: str, request: dict[str, Any], *, timeout_s: float,
-          server_key: bytes | None = None) -> list[dict[str, Any]]:
+          keys: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
     """Every daemon's answer, asked in parallel (the whole query takes about one timeout at most)."""
     with concurrent.futures.ThreadPoolExecutor(max_workers=min(32, max(1, len(found)))) as pool:
-        futures = [pool.submit(ask, t, op, request, timeout_s=timeout_s, server_key=server_key) for t in found]
+        futures = [pool.submit(ask, t, op, request, timeout_s=timeout_s, keys=keys) for t in found]
         return [f.result() for f in futures]
 
 
@@ -263,7 +266,7 @@ def _run(args: argparse.Namespace) -> int:
             request["user"] = args.user
         if args.since:
             request["since_ns"] = parse_since(args.since)
-    answers = query(targets(args), op, request, timeout_s=args.timeout)
+    answers = query(targets(args), op, request, timeout_s=args.timeout, keys=client_kwargs(curve_keys(args)))
     if args.json:
         sys.stdout.write(dumps({"nodes": answers}).decode() + "\n")
     else:
