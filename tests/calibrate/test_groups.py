@@ -242,7 +242,7 @@ def test_a_version_1_state_keeps_its_fits_and_starts_the_detectors_afresh(spec: 
     again = GroupCalibrators.from_dict(old, spec)
     assert again.calibrators["DDR_AB"].latest is not None and again.reference == {}
     detector = again.detectors["DDR_AB"]
-    assert (detector.k, detector.h, detector.upper, detector.learning) == (1.0, 8.0, 0.0, [])
+    assert (detector.k, detector.h, detector.upper, detector.learning) == (1.0, 10.0, 0.0, [])
     restored = GroupCalibrators.from_dict(state, spec)
     assert restored.reference == calib.reference
     assert list(restored.last_of_kind["DDR_AB"]) == list(calib.last_of_kind["DDR_AB"])

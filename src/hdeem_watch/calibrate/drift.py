@@ -26,12 +26,11 @@ one-sided CUSUMs ``S⁺ = max(0, S⁺ + z − k)``, ``S⁻ = max(0, S⁻ − z �
 
 Statistics. For i.i.d. N(0, 1) ``z`` Siegmund's approximation gives the one-sided in-control average
 run length ``ARL₀ ≈ (e^{2kh'} − 2kh' − 1)/(2k²)``, ``h' = h + 1.166`` (:func:`arl0_two_sided`: half
-that for the two-sided pair). At the defaults ``k = 1, h = 8`` that is ≈ 2.3·10⁷ runs per group, a
-false-alarm probability of ≈ 0.004 % per group in 1000 runs (2 sim-hours of the demo), ≈ 0.02 % for
-four groups. The ``x`` of successive runs of one kind share runs (correlation −1/9 with three
+that for the two-sided pair). At the defaults ``k = 1, h = 10`` that is ≈ 1.2·10⁹ runs per group,
+a false-alarm probability of ≈ 10⁻⁴ % per group in 1000 runs (2 sim-hours of the demo). The ``x`` of successive runs of one kind share runs (correlation −1/9 with three
 references), which makes partial sums smaller than for i.i.d. input; the residuals of a misspecified
 model are not Gaussian (kurtosis 4–10 on the sim), which the clip bounds; the scale is estimated
-from 24 values (a 20 % underestimate turns the nominal 2.3·10⁷ into ≈ 7·10⁴). The rate on the
+from 24 values (a 20 % underestimate turns the nominal 1.2·10⁹ into ≈ 9·10⁵). The rate on the
 misspecified sim is measured by ``benchmarks/bench_calibration.py`` (docs/calibration.md).
 Detection: a pair whose currents grow at a rate ``ρ`` shifts ``d`` by about ``ρ·Δt·(L + 1)/2``
 (``Δt``: the time between two runs of one kind, ``L`` ≤ 3 references) and is found after ≈
@@ -142,7 +141,7 @@ class ResidualCusum:
         scale: a known scale instead of a warm-up (None: learn it).
     """
 
-    def __init__(self, group: str, *, k: float = 1.0, h: float = 8.0, warmup: int = 24, clip: float = 3.0,
+    def __init__(self, group: str, *, k: float = 1.0, h: float = 10.0, warmup: int = 24, clip: float = 3.0,
                  scale_floor: float = 0.002, follow: float = 0.02, scale: float | None = None) -> None:
         self.group = group
         self.k, self.h, self.warmup, self.clip = float(k), float(h), int(warmup), float(clip)
