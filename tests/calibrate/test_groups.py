@@ -224,3 +224,25 @@ def test_calib_show_reads_the_group_shape(spec: Any, planned: list[Any]) -> None
     assert text.startswith("DDR_GH: 70 runs") and "ALARM DDR_GH" in text and "sibling" in text
     with pytest.raises(InputError, match="--group DDR_XY: unknown group; this daemon has node, DDR_AB"):
         _select(fits, "DDR_XY")
+
+
+def test_a_version_1_state_keeps_its_fits_and_starts_the_detectors_afresh(spec: Any, planned: list[Any]) -> None:
+    """A state saved before the same-kind detectors (version 1: detectors on plain residuals, no
+    kinds, no references) restores the fits; its detectors judged other inputs and start again."""
+    node = NODE_SIM.SyntheticNode(spec, 3, planned=planned)
+    calib = GroupCalibrators(spec, NODE_SIM.sensor_groups())
+    for i in range(30):
+        calib.add_run(node.run(config=i % len(planned)))
+    state = json.loads(json.dumps(calib.to_dict(), allow_nan=False))
+    assert state["version"] == 2 and state["reference"] and state["last_of_kind"]["DDR_AB"]
+    old = {k: v for k, v in state.items() if k not in ("reference", "last_of_kind")}
+    old["version"] = 1
+    old["detectors"]["DDR_AB"] = {"k": 0.5, "h": 12.0, "warmup": 20, "learning": [], "scale": 0.05,
+                                  "upper": 3.0, "lower": 0.0, "alarmed": False}
+    again = GroupCalibrators.from_dict(old, spec)
+    assert again.calibrators["DDR_AB"].latest is not None and again.reference == {}
+    detector = again.detectors["DDR_AB"]
+    assert (detector.k, detector.h, detector.upper, detector.learning) == (1.0, 10.0, 0.0, [])
+    restored = GroupCalibrators.from_dict(state, spec)
+    assert restored.reference == calib.reference
+    assert list(restored.last_of_kind["DDR_AB"]) == list(calib.last_of_kind["DDR_AB"])

@@ -9,31 +9,33 @@ different for the two sockets: threads fill socket 0 first), so the plain out-of
 of a run says little about aging. Against the group's own earlier run *of the same kind*, evaluated
 with the *same* (current) fit, it does: the input of a run is
 
-    x_g = log(m_g / p_g) − log(m'_g / p'_g)
+    x_g = log(m_g / p_g) − mean log(m'_g / p'_g)
 
-(``m`` measured, ``p`` predicted by group ``g``'s fit before the run; primed: the previous run of the
-same kind — kernel, threads, CPUs — kept per group), i.e. how much the group's energy changed
-between two runs of the same kind beyond what the model expects from their lengths. The kind's
+(``m`` measured, ``p`` predicted by group ``g``'s fit before the run; primed: the group's last up to
+three runs of the same kind — kernel, threads, CPUs), i.e. how much the group's energy changed
+since its earlier runs of that kind beyond what the model expects from their lengths. The kind's
 systematic misfit cancels, and so does most of any change of the fit. What is common to the groups
 (temperature, the node's own load) is taken out by the median of the siblings' changes in the same
 run, ``d_g = x_g − median(x_h)`` (at least two siblings; a group that alarmed already is no
-sibling). ``d`` is standardised by a robust scale learnt over the first ``warmup`` values (median
-|d − median| × 1.4826, at least ``scale_floor``), then followed slowly; ``z`` is clipped to
-±``clip`` so one odd run cannot alarm alone. Two one-sided CUSUMs ``S⁺ = max(0, S⁺ + z − k)``,
-``S⁻ = max(0, S⁻ − z − k)`` alarm when one exceeds ``h``.
+sibling), weighted by ``√P`` (the run's mean power in W: the change's noise falls about as
+``1/√P``), standardised by a scale learnt over the first ``warmup`` values (:func:`robust_sd`, at
+least ``scale_floor``) and then followed slowly; ``z`` is clipped to ±``clip`` so one odd run
+cannot alarm alone; when the scale is learnt the warm-up's values go through the sums too. Two
+one-sided CUSUMs ``S⁺ = max(0, S⁺ + z − k)``, ``S⁻ = max(0, S⁻ − z − k)`` alarm when one exceeds
+``h``.
 
 Statistics. For i.i.d. N(0, 1) ``z`` Siegmund's approximation gives the one-sided in-control average
 run length ``ARL₀ ≈ (e^{2kh'} − 2kh' − 1)/(2k²)``, ``h' = h + 1.166`` (:func:`arl0_two_sided`: half
-that for the two-sided pair). At the defaults ``k = 1, h = 6`` that is ≈ 4·10⁵ runs per group, a
-false-alarm probability of ≈ 0.2 % per group in 800 runs (2 sim-hours of the demo), ≈ 1 % for four
-groups. The ``x`` of successive runs of one kind share a run with opposite signs (lag −½
-correlation over a kind's recurrences), which makes partial sums *smaller* than for i.i.d. input, so
-the figure errs on the safe side as far as that goes; the residuals of a misspecified model are not
-Gaussian (kurtosis 4–10 on the sim), which the clip bounds. The rate on the misspecified sim is
-measured by ``benchmarks/bench_calibration.py`` (docs/calibration.md). Detection: a pair whose
-currents grow at a rate ``ρ`` shifts ``d`` by ``ρ·Δt`` per comparison (``Δt``: the time between two
-runs of one kind) — ``δ = ρΔt/scale`` scale units — and is found after ≈ ``(h + 1.166)/(δ − k)``
-comparisons; a change slower than ``k·scale`` per ``Δt`` is not (the fits' ``drift()`` follows such).
+that for the two-sided pair). At the defaults ``k = 1, h = 10`` that is ≈ 1.2·10⁹ runs per group,
+a false-alarm probability of ≈ 10⁻⁴ % per group in 1000 runs (2 sim-hours of the demo). The ``x`` of successive runs of one kind share runs (correlation −1/9 with three
+references), which makes partial sums smaller than for i.i.d. input; the residuals of a misspecified
+model are not Gaussian (kurtosis 4–10 on the sim), which the clip bounds; the scale is estimated
+from 24 values (a 20 % underestimate turns the nominal 1.2·10⁹ into ≈ 9·10⁵). The rate on the
+misspecified sim is measured by ``benchmarks/bench_calibration.py`` (docs/calibration.md).
+Detection: a pair whose currents grow at a rate ``ρ`` shifts ``d`` by about ``ρ·Δt·(L + 1)/2``
+(``Δt``: the time between two runs of one kind, ``L`` ≤ 3 references) and is found after ≈
+``(h + 1.166)/(δ − k)`` comparisons (``δ`` in scale units); a change slower than ``k`` scales per
+``Δt`` is not (the fits' ``drift()`` follows such).
 
 **Sibling change** (:func:`sibling_changes`): each group's identifiable currents are compared with
 its *own* reference fit (taken when the group's detectors start) relative to its siblings' changes
@@ -139,7 +141,7 @@ class ResidualCusum:
         scale: a known scale instead of a warm-up (None: learn it).
     """
 
-    def __init__(self, group: str, *, k: float = 1.0, h: float = 8.0, warmup: int = 24, clip: float = 3.0,
+    def __init__(self, group: str, *, k: float = 1.0, h: float = 10.0, warmup: int = 24, clip: float = 3.0,
                  scale_floor: float = 0.002, follow: float = 0.02, scale: float | None = None) -> None:
         self.group = group
         self.k, self.h, self.warmup, self.clip = float(k), float(h), int(warmup), float(clip)

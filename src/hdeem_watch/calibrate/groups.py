@@ -346,7 +346,8 @@ class GroupCalibrators:
                       detect_after=int(data["detect_after"]), sibling_tolerance=float(data["sibling_tolerance"]),
                       node_detector=bool(data.get("node_detector", False)))
             out.calibrators = {n: OnlineCalibrator.from_dict(s, spec) for n, s in data["calibrators"].items()}
-            out.detectors = {n: ResidualCusum.from_dict(n, s) for n, s in data["detectors"].items()}
+            if data.get("version") == _STATE_VERSION:  # version 1 detectors judged other inputs: start afresh
+                out.detectors = {n: ResidualCusum.from_dict(n, s) for n, s in data["detectors"].items()}
             out.alarms = [DriftAlarm(**a) for a in data.get("alarms", [])]
             out.skipped = [SkippedRun(**s) for s in data.get("skipped", [])]
             for name, kinds in (data.get("last_of_kind") or {}).items():

@@ -181,8 +181,8 @@ def alarm_summary(alarms: Any) -> str:
         >>> from hdeem_watch.tui.snapshot import AlarmView
         >>> alarm_summary(())
         'demo: no drift alarm on any DIMM pair'
-        >>> alarm_summary((AlarmView("DDR_CD", "energy", "residual-cusum", "up", 9.1, 8.0, 0),))
-        'demo: 1 drift alarm: DDR_CD energy drifts up (residual-cusum 9.1 > 8)'
+        >>> alarm_summary((AlarmView("DDR_CD", "energy", "residual-cusum", "up", 12.4, 10.0, 0),))
+        'demo: 1 drift alarm: DDR_CD energy drifts up (residual-cusum 12.4 > 10)'
     """
     from hdeem_watch.tui.group_views import alarm_text
 

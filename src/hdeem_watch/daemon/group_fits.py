@@ -41,7 +41,7 @@ __all__ = ["DEFAULT_MIN_SAMPLES", "MAX_GROUP_RUNS", "GroupFits", "default_groups
 MAX_GROUP_RUNS = 128
 #: Fits each group's calibrator keeps in its own history.
 MAX_GROUP_HISTORY = 16
-#: Runs in a group's fit before its same-kind residual changes feed the drift detector (then 16 more
+#: Runs in a group's fit before its same-kind residual changes feed the drift detector (then 24 more
 #: learn their scale) and its currents become the sibling comparison's reference: four times the six
 #: unknowns (an earlier fit splits a run's energy between its length and its traffic too loosely for
 #: two runs of one kind but other lengths to compare; on the demo's sim, changes in the first two
