@@ -305,6 +305,7 @@ class RunModeller:
         if measured / window_s > MAX_PLAUSIBLE_DIMM_W * self.dimms:
             return None, None, (f"run {name!r}: implausible measured DRAM power {measured / window_s:.4g} W "
                                 f"(more than {MAX_PLAUSIBLE_DIMM_W:g} W per DIMM); not calibrated")
+        from hdeem_watch.calibrate.group_rows import announced_traffic_s
         from hdeem_watch.calibrate.rows import node_observation
         from hdeem_watch.dram.node import node_counts
 
@@ -328,7 +329,11 @@ class RunModeller:
                                                     int(record["threads"]), int(record["repeat"]))
             groups = counted if counted is not None else kernel_groups
             assert groups is not None
-            obs = node_observation(self.spec, groups, float(window_s), float(measured), name=run_name, time_ns=stop_ns)
+            # A kernel's traffic lasts what the run announced; the window may run on past it (the stop is
+            # seen at the next poll): the rest of the window is standby. Counters measure the window itself.
+            traffic_s = announced_traffic_s(record)
+            obs = node_observation(self.spec, groups, float(window_s), float(measured), name=run_name, time_ns=stop_ns,
+                                   traffic_s=traffic_s if counted is None else None)
         except InputError as error:
             return None, None, str(error)
         before = self.latest_fit()
@@ -353,7 +358,7 @@ class RunModeller:
         kernel_obs = None
         if counted is not None and kernel_groups is not None:
             kernel_obs = node_observation(self.spec, kernel_groups, float(window_s), float(measured), name=run_name,
-                                          time_ns=stop_ns)
+                                          time_ns=stop_ns, traffic_s=traffic_s)
             model["kernel_model"] = {**cross_check(model["counts"], node_counts(kernel_groups)),
                                      "datasheet_j": kernel_obs.predicted_j(datasheet_vec), "predicted_j": None}
         if before is not None:
