@@ -37,11 +37,13 @@ STATUS_LABELS = {"at-bound": "at bound", "underdetermined": "underdet.", "rank-d
 
 
 def _badge(group: GroupFitView) -> tuple[str, str]:
-    """The drift badge: ``DRIFT↑``/``DRIFT↓``/``OUTLIER`` for the newest alarm, else the fit's state."""
+    """The drift badge: ``DRIFT↑``/``DRIFT↓`` for the newest alarm (its energy drifts against its fit, or
+    a current changed since its own reference fit more than its siblings': both are changes over
+    time; the alarm lines below say which), else the fit's state."""
     if group.alarms:
         alarm = group.alarms[-1]
         arrow = "↑" if alarm.direction == "up" else "↓"
-        return ("DRIFT" + arrow if alarm.kind == "residual-cusum" else "OUTLR" + arrow), "bold white on red"
+        return "DRIFT" + arrow, "bold white on red"
     if not group.status:
         return "no fit", "dim"
     label = STATUS_LABELS.get(group.status, group.status)
