@@ -35,6 +35,7 @@ from hdeem_watch.daemon import baselines as bl
 from hdeem_watch.daemon.authorization import Authorizer
 from hdeem_watch.daemon.client import default_endpoints
 from hdeem_watch.daemon.control import ControlServer, Pending
+from hdeem_watch.daemon.counter_feed import CounterFeed
 from hdeem_watch.daemon.endpoints import advertised_endpoints
 from hdeem_watch.daemon.group_fits import source_groups
 from hdeem_watch.daemon.job_book import JobBook
@@ -110,10 +111,8 @@ class Daemon:
         self._lock_file: IO[str] | None = None
         self._wake_r, self._wake_w = -1, -1
         self._source_open = False
-        #: The memory-controller counters (``counters`` setting) and their windows; None = off.
-        self.counter_source: Any = None
-        self.counter_windows: Any = None
-        self.counter_recorder: Any = None
+        #: The memory-controller counters (``counters`` setting); None = off.
+        self.counters: CounterFeed | None = None
 
     # -- lifecycle -------------------------------------------------------------------------------------
 
@@ -210,7 +209,9 @@ class Daemon:
             infos, node=self.node, monotonic=self.clock, wall=self.wall_clock, speed=source_speed(source),
             poll_interval_s=settings.poll_interval_s, history_s=settings.quiet_history_s,
             next_seq=int(store.next_run_id()[1:]), baselines=baselines, limits=RunLimits.of_this_node())
-        self._open_counters(source, book)
+        self.counters = CounterFeed.open(settings.counters, source, book, memspec=setup.memspec, clock=self.clock,
+                                         heartbeat_s=settings.heartbeat_s, record_file=settings.record_file,
+                                         replay_file=settings.replay_file)
         if settings.record_file:
             from hdeem_watch.sources.replay import RecordingWriter
 
@@ -258,9 +259,10 @@ class Daemon:
         self.operations = Operations(book, calibration=self.calibration, reporter=reporter, store=self.store_worker,
                                      publisher=self.publisher, source=source, submit=self.model_jobs.submit,
                                      reply=self.complete, poll=self._edge_poll)
-        self.operations.on_window_closed = self._window_counters
+        if self.counters is not None:
+            self.operations.on_window_closed = self.counters.window_closed
         topo = setup.topology
-        job_ops = self.job_ops = JobOperations(JobBook(book, counters=self.counter_windows), store=self.store_worker,
+        job_ops = self.job_ops = JobOperations(JobBook(book, counters=self.counters.windows if self.counters is not None else None), store=self.store_worker,
                                                publisher=self.publisher, reply=self.complete, poll=self._edge_poll,
                                                checkpoint_s=settings.job_checkpoint_s, submit=self.model_jobs.submit,
                                                calibration=self.calibration)
@@ -311,13 +313,9 @@ class Daemon:
         if self.curve is not None:
             self.curve.close()
             self.curve = None
-        if self.counter_source is not None:
-            with contextlib.suppress(Exception):
-                self.counter_source.close()
-            self.counter_source = None
-        if self.counter_recorder is not None:
-            self.counter_recorder.close()
-            self.counter_recorder = None
+        if self.counters is not None:
+            self.counters.close()
+            self.counters = None
         if self.source is not None and self._source_open:
             self._source_open = False
             try:
@@ -393,14 +391,15 @@ class Daemon:
             if now >= heartbeat.next_ns:
                 heartbeat.advance(now)
                 reporter.publish_status()
-                self._publish_counters()
+                if self.counters is not None:
+                    self.publisher.publish("counters", self.counters.rates_body())
                 if self.job_ops is not None:
                     self.job_ops.checkpoint()
                 store.retry()
                 if self.recorder is not None:
                     self.recorder.flush()
-                if self.counter_recorder is not None:
-                    self.counter_recorder.flush()
+                if self.counters is not None:
+                    self.counters.flush()
             if now >= republish.next_ns:
                 republish.advance(now)
                 reporter.look_for_quiet_periods(window_s=settings.quiet_window_s,
@@ -469,99 +468,27 @@ class Daemon:
                 self.publisher.send_all(outgoing)
             if self.recorder is not None:
                 self.recorder.write_batch(batch)
-        if self.counter_windows is not None:
-            self._read_counters(force=bool(closed))
+        if self.counters is not None:
+            self.counters.read(force=bool(closed))
         if closed and operations is not None:
             for window in closed:
                 operations.window_closed(window)
         return batch
 
-    # -- memory-controller counters (hdeem_watch.daemon.counter_windows) -----------------------------
-
-    def _open_counters(self, source: Source, book: NodeState) -> None:
-        kind = self.settings.counters
-        if kind == "none":
-            return
-        from hdeem_watch.daemon.counter_source import make_counter_source
-        from hdeem_watch.daemon.counter_windows import CounterWindows
-
-        ranks = 2
-        if kind == "perf":  # ranks per channel: one DIMM of the node's memspec per channel
-            from hdeem_watch.daemon.modelling import load_spec
-
-            ranks = int(load_spec(self.node_setup.memspec).nbr_of_ranks)
-        counters = make_counter_source(kind, source, sample_time=book.sample_time_of, clock=self.clock, ranks=ranks,
-                                       replay_file=self.settings.replay_file)
-        if counters is None:
-            return
-        self.counter_source = counters
-        self.counter_windows = CounterWindows(
-            counters.kind, table_key=counters.table.generation, ranks=counters.ranks,
-            refresh_complete=counters.table.refresh_complete,
-            sensors={c.name: c.sensor for c in counters.channels()},
-            heartbeat_ns=round(self.settings.heartbeat_s * 1e9))
-        if self.settings.record_file:
-            from hdeem_watch.daemon.counter_record import CounterRecorder, counters_path
-
-            path = counters_path(self.settings.record_file)
-            try:
-                self.counter_recorder = CounterRecorder(path, kind=counters.kind, table=counters.table,
-                                                        ranks=counters.ranks, channels=counters.channels())
-            except OSError as error:
-                raise InputError(f"record file {path}: {error.strerror}") from None
-        self._read_counters(force=True)
-
     def _currents(self) -> tuple[str, ...]:
         """The currents to calibrate: with counters, the power-down currents too (they measure residency)."""
-        if self.counter_windows is None:
+        if self.counters is None:
             return tuple(self.settings.currents)
         from hdeem_watch.daemon.counter_model import currents_with_counters
 
         return currents_with_counters(self.settings.currents)
 
-    def _read_counters(self, *, force: bool = False) -> None:
-        """Read the counters when due (heartbeat, window edges); give new run windows their start."""
-        windows, book, now = self.counter_windows, self.book, self.clock()
-        assert windows is not None and book is not None
-        if force or windows.due(now, book.windows):
-            try:
-                snapshot = self.counter_source.read()
-                windows.observe(snapshot, now_mono_ns=now)
-                if self.counter_recorder is not None:
-                    self.counter_recorder.write(snapshot)
-            except Exception as error:  # a counter failure must not end the daemon
-                if windows.error is None:
-                    log.warning("counter read failed: %s", error)
-                windows.failed(error, now_mono_ns=now)
-        if book.windows:
-            windows.track(book.windows, book.sample_time_of)
-
     def _edge_poll(self) -> SourceBatch | None:
         """A poll at a window edge (run.start, run.stop, baseline.measure): the counters are read too."""
         batch = self.poll_once()
-        if self.counter_windows is not None:
-            self._read_counters(force=True)
+        if self.counters is not None:
+            self.counters.read(force=True)
         return batch
-
-    def _window_counters(self, closed: Any) -> None:
-        """Attach the counters of a closed run window to its record (before it is stored and modelled)."""
-        windows, run = self.counter_windows, closed.run
-        if windows is None or run is None or self.book is None:
-            return
-        if run.state == "aborted":
-            windows.forget(run.run_id)
-            return
-        run.counters = windows.finish(run, self.book.dram_channels)
-
-    def _publish_counters(self) -> None:
-        """The ``counters`` topic: per channel ACT/s, RD/s, WR/s and power-down share (each heartbeat)."""
-        windows = self.counter_windows
-        if windows is None or self.publisher is None:
-            return
-        rates = windows.rates()
-        self.publisher.publish("counters", {
-            "source": windows.kind, "generation": windows.table_key, "status": windows.error or "ok",
-            "channels": {name: {**values, "sensor": windows.sensors.get(name)} for name, values in rates.items()}})
 
     def complete(self, pending: Pending, result: Any = None, error: tuple[str, str] | None = None) -> None:
         """Send a deferred control reply."""
