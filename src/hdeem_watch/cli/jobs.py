@@ -222,15 +222,16 @@ def total_line(answers: Sequence[dict[str, Any]]) -> str | None:
 
 def model_lines(answers: Sequence[dict[str, Any]]) -> list[str]:
     """Under ``--job``: each node's modelled DRAM energy by component (from the memory-controller
-    counters), the calibrated split when the daemon has a fit, else the datasheet's; or why there is
-    none."""
+    counters), the calibrated split when the daemon has a fit, else the datasheet's; or, for a job
+    that has ended, why there is none."""
     lines = []
     for answer in answers:
         jobs = (answer.get("jobs") or []) if answer["ok"] else []
         for job in jobs:
             model = job.get("model")
             if not isinstance(model, Mapping):
-                lines.append(f"{answer['node']:<14} model: – ({job.get('model_error') or 'none'})")
+                if job.get("state") != "running":  # a running job is modelled when it stops: nothing to say yet
+                    lines.append(f"{answer['node']:<14} model: – ({job.get('model_error') or 'none'})")
                 continue
             calibrated = (model.get("split_j") or {}).get("calibrated")
             which, split = ("calibrated", calibrated) if calibrated else ("datasheet", (model.get("split_j") or {})
