@@ -323,7 +323,20 @@ def model_reason(state: str, counters: Mapping[str, Any] | None) -> str:
 
 
 def job_summary(record: Mapping[str, Any]) -> dict[str, Any]:
-    """A ``job.list`` entry: the record without its per-segment detail (a count instead)."""
+    """A ``job.list`` entry: the record without its per-segment detail (a count instead) and without
+    the counters' per-channel counts (8 channels × ~17 events per job in every ``status`` reply;
+    ``job.get`` has them): the counters' status and window stay, and the model by component.
+
+    Example:
+        >>> s = job_summary({"job_id": "7", "segments": [{}, {}], "counters": {"status": "ok", "channels": {"S0.imc0": {}}}})
+        >>> s["n_segments"], s["counters"]
+        (2, {'status': 'ok', 'n_channels': 1})
+    """
     summary = {k: v for k, v in record.items() if k != "segments"}
     summary["n_segments"] = len(record.get("segments") or [])
+    counters = record.get("counters")
+    if isinstance(counters, Mapping) and "channels" in counters:
+        channels = counters["channels"]
+        summary["counters"] = {**{k: v for k, v in counters.items() if k != "channels"},
+                               "n_channels": len(channels) if isinstance(channels, Mapping) else 0}
     return summary
