@@ -26,12 +26,11 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
+from hdeem_watch.cli.control_port import CONTROL_PORT, CONTROL_PORT_ENV, control_port
 from hdeem_watch.cli.curve_options import add_server_key_argument, client_kwargs, curve_keys
 from hdeem_watch.errors import InputError
 
 #: Documented TCP port of a daemon's control endpoint on cluster nodes (as ``tui --slurm``).
-CONTROL_PORT = 5591
-PORT_ENV = "HDEEM_WATCH_CONTROL_PORT"
 _AGO = re.compile(r"^(\d+(?:\.\d+)?)\s*(s|min|h|d)$")
 _UNITS = {"s": 1, "min": 60, "h": 3600, "d": 86400}
 
@@ -61,7 +60,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--connect", metavar="EP", action="append", default=[],
                         help="a daemon's control endpoint (repeatable); default: this node's daemon")
     parser.add_argument("--port", type=int, default=None,
-                        help=f"control port of the daemons for --slurm (default ${PORT_ENV} or {CONTROL_PORT})")
+                        help=f"control port of the daemons for --slurm (default ${CONTROL_PORT_ENV} or {CONTROL_PORT})")
     parser.add_argument("--timeout", type=float, default=3.0, metavar="S", help="per-node reply timeout (default 3)")
     add_server_key_argument(parser)
     parser.set_defaults(func=_run)
@@ -119,7 +118,7 @@ def targets(args: argparse.Namespace, env: Mapping[str, str] | None = None) -> l
     if args.slurm and not nodes:
         raise InputError("--slurm: no SLURM allocation here (SLURM_JOB_NODELIST is not set); use --connect")
     if nodes:
-        port = _port(args.port, env)
+        port = control_port(args.port, env)
         here = {env.get("SLURMD_NODENAME", ""), socket.gethostname().split(".")[0], socket.gethostname()}
         for node in nodes:
             endpoint = local_control_endpoint(env) if node in here else f"tcp://{node}:{port}"
@@ -127,18 +126,6 @@ def targets(args: argparse.Namespace, env: Mapping[str, str] | None = None) -> l
     elif not found:
         found.append(Target(socket.gethostname().split(".")[0], local_control_endpoint(env)))
     return found
-
-
-def _port(port: int | None, env: Mapping[str, str]) -> int:
-    if port is None:
-        raw = env.get(PORT_ENV, str(CONTROL_PORT))
-        try:
-            port = int(raw)
-        except ValueError:
-            raise InputError(f"${PORT_ENV} = {raw!r}: expected a TCP port number") from None
-    if not 0 < port < 65536:
-        raise InputError(f"--port {port}: expected 1..65535")
-    return port
 
 
 def ask(target: Target, op: str, request: dict[str, Any], *, timeout_s: float,

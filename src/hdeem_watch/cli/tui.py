@@ -3,7 +3,7 @@
 ``--connect ENDPOINT`` (repeatable) names a daemon's *control* endpoint; the UI asks it for the
 stream endpoint. Without it the UI connects to the local daemon's default endpoint. ``--slurm``
 connects to every node of the current SLURM allocation at ``tcp://<node>:<port>`` (port
-:data:`SLURM_CONTROL_PORT` unless ``--port`` or ``$HDEEM_WATCH_CONTROL_PORT`` says otherwise; the
+:data:`hdeem_watch.addresses.CONTROL_PORT` unless ``--port`` or ``$HDEEM_WATCH_CONTROL_PORT`` says otherwise; the
 daemons must listen there, e.g. ``remote_control = "tcp://*:5591"``).
 
 TCP endpoints of a daemon with CURVE need its public key (``--server-key``, the environment or the
@@ -20,15 +20,12 @@ import os
 import sys
 from typing import Any, TextIO
 
-from hdeem_watch.addresses import CONTROL_PORT
+from hdeem_watch.cli.control_port import CONTROL_PORT, CONTROL_PORT_ENV, control_port
 from hdeem_watch.cli.curve_options import add_server_key_argument, client_kwargs, curve_keys
 from hdeem_watch.errors import InputError
 
-#: Documented TCP port of a daemon's control endpoint on cluster nodes (``--slurm``).
-SLURM_CONTROL_PORT = CONTROL_PORT
 #: How long the start-up check waits for each daemon's status.
 PREFLIGHT_TIMEOUT_S = 3.0
-PORT_ENV = "HDEEM_WATCH_CONTROL_PORT"
 ENDPOINT_SCHEMES = ("ipc://", "tcp://", "inproc://")
 
 
@@ -41,7 +38,7 @@ def register(subparsers: Any) -> None:
         "+/- zoom, b baseline, s stop run, ? help, q quit).",
         epilog="examples:\n"
         "  hdeem-watch tui                                      # the local daemon\n"
-        f"  hdeem-watch tui --connect tcp://node7:{SLURM_CONTROL_PORT} --fps 2   # a remote node over slow ssh\n"
+        f"  hdeem-watch tui --connect tcp://node7:{CONTROL_PORT} --fps 2   # a remote node over slow ssh\n"
         "  hdeem-watch tui --slurm                              # every node of the allocation\n"
         "  hdeem-watch tui --headless --duration 60             # text lines for 60 s\n"
         "exit codes: 0 done, 1 a daemon never sent its stream (--headless; the reason on stderr),\n"
@@ -60,7 +57,7 @@ def register(subparsers: Any) -> None:
         "--port",
         type=int,
         default=None,
-        help=f"control port of the daemons for --slurm (default ${PORT_ENV} or {SLURM_CONTROL_PORT})",
+        help=f"control port of the daemons for --slurm (default ${CONTROL_PORT_ENV} or {CONTROL_PORT})",
     )
     add_server_key_argument(parser)
     parser.add_argument("--fps", type=float, default=10.0, help="frames per second (default 10; lower it over slow ssh)")
@@ -83,7 +80,7 @@ def check_endpoint(endpoint: str) -> str:
         InputError: when it has no ZeroMQ transport prefix.
     """
     if not endpoint.startswith(ENDPOINT_SCHEMES):
-        raise InputError(f"--connect {endpoint!r}: expected a ZeroMQ endpoint such as tcp://node7:{SLURM_CONTROL_PORT} or ipc:///path")
+        raise InputError(f"--connect {endpoint!r}: expected a ZeroMQ endpoint such as tcp://node7:{CONTROL_PORT} or ipc:///path")
     return endpoint
 
 
@@ -96,14 +93,7 @@ def slurm_endpoints(port: int | None = None, env: dict[str, str] | None = None) 
     from hdeem_watch import slurm
 
     environ = dict(os.environ if env is None else env)
-    if port is None:
-        raw = environ.get(PORT_ENV, str(SLURM_CONTROL_PORT))
-        try:
-            port = int(raw)
-        except ValueError:
-            raise InputError(f"${PORT_ENV} = {raw!r}: expected a TCP port number") from None
-    if not 0 < port < 65536:
-        raise InputError(f"--port {port}: expected 1..65535")
+    port = control_port(port, environ)
     nodes = slurm.allocation_nodes(environ)
     if not nodes:
         raise InputError("--slurm: no SLURM allocation here (SLURM_JOB_NODELIST is not set); use --connect")
