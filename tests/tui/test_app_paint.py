@@ -53,3 +53,15 @@ async def test_every_new_snapshot_is_painted_even_when_its_id_is_reused() -> Non
             values = [line.split()[1] for line in app.query_one(ChannelTable).plain.splitlines()[1:]]
             skipped += values != [f"{i:.2f}"]
         assert skipped == 0
+
+
+async def test_a_paint_during_shutdown_does_nothing() -> None:
+    """The paint interval can fire once more while the app shuts down, after its widgets are gone
+    (CI saw ``NoMatches: PowerPlots`` from the timer at exit). Such a paint returns quietly."""
+    provider = ReplacingProvider()
+    app = HdeemWatchApp(provider, fps=0.2, clock=lambda: 1)
+    async with app.run_test(size=(80, 24)):
+        app.paint()
+        painted = app.frames
+    app.paint()  # the app has shut down: no widgets to query
+    assert app.frames == painted

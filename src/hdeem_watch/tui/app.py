@@ -174,6 +174,8 @@ class HdeemWatchApp(App[int]):
 
     def paint(self) -> None:
         """Repaint from the newest snapshots (one frame)."""
+        if not self.is_running:  # shutting down: the interval may fire once more after the widgets went
+            return
         snapshots = self.provider.snapshots()
         if not snapshots:
             return
