@@ -41,7 +41,7 @@ from hdeem_watch.calibrate.observation import (
     current_names,
     stack,
 )
-from hdeem_watch.calibrate.physical import physical_bounds
+from hdeem_watch.calibrate.physical import PhysicalLimits, physical_limits
 from hdeem_watch.calibrate.result import FitModel, FitResult, FitSettings
 from hdeem_watch.dram.memspec import MAX_DEVICE_CURRENT_A
 from hdeem_watch.errors import InputError
@@ -65,8 +65,14 @@ class FitOptions:
             taken as a one-element tuple).
         bounds: ``{name: (lower_a, upper_a)}`` overriding the default ``(0, datasheet)``.
         physical: narrow the default bounds to the physically consistent limits against the
-            currents not calibrated (:func:`~hdeem_watch.calibrate.physical.physical_bounds`;
+            currents not calibrated (:func:`~hdeem_watch.calibrate.physical.physical_limits`;
             e.g. IDD3N ≥ IDD3P); explicit ``bounds`` are taken as given.
+        rules: also keep the ordering rules *between* calibrated currents (IDD3N ≥ IDD2N, IDD0
+            above the tRAS/tRC mix of IDD3N and IDD2N, ...), so the calibrated memspec is
+            physical. Off by default: fitted currents are *effective* ones that absorb what the
+            model gets wrong (the seed paper's own calibration has IDD3N < IDD2N), and holding
+            them to the rules costs accuracy (docs/calibration.md). Rules that contradict the
+            bounds are dropped.
         intercept: fit a per-run energy ``≥ 0`` the model does not cover (else it is 0).
         prior_weight: λ of a Gaussian prior toward the datasheet on the relative currents; 1 means
             a 100 % deviation costs as much as a 100 % error on one run. 0 = off.
@@ -91,6 +97,7 @@ class FitOptions:
     currents: Sequence[str] = DEFAULT_CURRENTS
     bounds: Mapping[str, tuple[float, float]] | None = None
     physical: bool = True
+    rules: bool = False
     intercept: bool = True
     prior_weight: float = 0.0
     uncertainty: str = "analytic"
@@ -153,8 +160,8 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
     all_a = np.array([float(spec.currents.get(nm, 0.0)) for nm in names])
     datasheet = all_a[index]
     used = {name for name, column in zip(names, cols.T) if np.any(column != 0)}
-    lower_a, upper_a = _bounds(chosen, datasheet, options.bounds,
-                               physical_bounds(spec, chosen, used) if options.physical else None)
+    limits = physical_limits(spec, chosen, used) if options.physical or options.rules else None
+    lower_a, upper_a = _bounds(chosen, datasheet, options.bounds, limits.bounds if limits and options.physical else None)
     scales = np.where(datasheet > 0, datasheet, np.where(np.isfinite(upper_a) & (upper_a > 0), upper_a, 1.0))
     fixed = np.ones(len(names), dtype=bool)
     fixed[index] = False
@@ -175,18 +182,22 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
 
     sv = np.linalg.svd(design, compute_uv=False) if n else np.zeros(0)
     ridge = solve.RIDGE_RELATIVE * max(float(sv.max()) ** 2 if sv.size else 0.0, 1e-300)
-    sol = solve.solve_bounded(design, target, lower, upper, prior_weight=lam, prior_target=x0, ridge=ridge)
+    rules = _rules(limits, scales, int(intercept)) if options.rules else None
+    sol = solve.solve_bounded(design, target, lower, upper, prior_weight=lam, prior_target=x0, ridge=ridge,
+                              rules=rules)
     penalty = lam + ridge
     free = sol.active == 0
     n_eff = int(np.count_nonzero(weight > 0))
-    dof = n_eff - int(free.sum())
+    dof = n_eff - sol.free_dimension
     s2 = sol.rss / dof if dof > 0 else math.nan
-    cov_active, cov_full = solve.active_set_covariance(design, free, 1.0 if math.isnan(s2) else s2, penalty)
+    cov_active, cov_full = solve.active_set_covariance(design, free, 1.0 if math.isnan(s2) else s2, penalty,
+                                                       sol.held_rows)
     ci = _intervals(sol, lower, upper, cov_active, cov_full, s2, dof)
     method = "analytic-active-set"
     if options.uncertainty == "bootstrap" and dof > 0:
         ci = solve.bootstrap(design, target, lower, upper, sol, samples=options.bootstrap_samples,
-                             seed=options.seed, dof=dof, prior_weight=lam, prior_target=x0, ridge=ridge)
+                             seed=options.seed, dof=dof, prior_weight=lam, prior_target=x0, ridge=ridge,
+                             rules=rules)
         method = f"residual-bootstrap-{options.bootstrap_samples}"
     param_scale = np.concatenate([scales, [b_scale] if intercept else []])
     params = sol.x * param_scale
@@ -218,7 +229,7 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
         exact = options.loo == "exact" or (options.loo == "auto" and n <= LOO_EXACT_MAX_RUNS)
         with np.errstate(divide="ignore", invalid="ignore"):
             loo_prep = solve.loo_residuals(design, target, lower, upper, sol, exact=exact,
-                                           prior_weight=lam, prior_target=x0, ridge=ridge)
+                                           prior_weight=lam, prior_target=x0, ridge=ridge, rules=rules)
             loo_j = np.where(row > 0, measured + loo_prep / np.where(row > 0, row, 1.0), np.nan)
     status = "ok"
     if n < p:
@@ -226,7 +237,8 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
     elif rank < p:
         status = "rank-deficient"
     at_bound = tuple({-1: "lower", 1: "upper"}.get(int(a)) for a in sol.active[:k])
-    if status == "ok" and any(at_bound):
+    rules_held = tuple(c.rule for c, held in zip(limits.couplings if limits and rules else (), sol.held) if held)
+    if status == "ok" and (any(at_bound) or rules_held):
         status = "at-bound"
     loo_list = [v if v == v and abs(v) != math.inf else None for v in loo_j.tolist()]
     runs = tuple(
@@ -240,6 +252,7 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
         ci95_a=ci_units[:k],
         identifiable=identifiable,
         at_bound=at_bound,
+        rules_held=rules_held,
         sensitivity=sensitivity,
         intercept_fitted=intercept,
         intercept_j=float(params[k]) if intercept else 0.0,
@@ -261,6 +274,14 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
         model=FitModel(spec=spec, names=names, index=index, scales_a=scales, intercept_scale_j=b_scale,
                        info=solve.information(design, penalty), params=params),
     )
+
+
+def _rules(limits: PhysicalLimits | None, scales: np.ndarray, n_extra: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """The couplings as solver rules ``G·x ≥ h`` on the prepared (scaled) parameters."""
+    if limits is None or not limits.couplings:
+        return None
+    g = np.array([[*(np.asarray(c.coefficients) * scales), *([0.0] * n_extra)] for c in limits.couplings])
+    return g, np.array([c.floor_a for c in limits.couplings])
 
 
 def _check_currents(currents: Sequence[str], names: tuple[str, ...], spec: SpecLike) -> tuple[str, ...]:

@@ -75,6 +75,9 @@ class FitResult:
     uncertainty: str
     runs: tuple[dict[str, Any], ...] = ()
     time_ns: int = 0
+    #: The physical rules between calibrated currents that hold with equality (e.g. ``"ACT+PRE"``:
+    #: IDD0 sits at the tRAS/tRC mix of IDD3N and IDD2N); see :mod:`hdeem_watch.calibrate.physical`.
+    rules_held: tuple[str, ...] = ()
     #: Everything :func:`~hdeem_watch.calibrate.observe.suggest_next` needs (absent after from_dict).
     model: FitModel | None = field(default=None, compare=False, repr=False)
 
@@ -118,6 +121,7 @@ class FitResult:
             "dof": self.dof,
             "noise_rel": _num(self.noise_rel),
             "status": self.status,
+            "rules_held": list(self.rules_held),
             "uncertainty": self.uncertainty,
             "time_ns": self.time_ns,
             "runs": [dict(run) for run in self.runs],
@@ -158,6 +162,7 @@ class FitResult:
                 status=str(data.get("status", "ok")),
                 uncertainty=str(data.get("uncertainty", "analytic")),
                 runs=tuple(dict(r) for r in data.get("runs", [])),
+                rules_held=tuple(str(r) for r in data.get("rules_held", [])),
                 time_ns=int(data.get("time_ns", 0)),
             )
         except (KeyError, TypeError, ValueError) as error:

@@ -2,16 +2,23 @@
 
 Everything here works on a *prepared* design matrix ``D`` (rows already weighted, columns already
 scaled so that each unknown is of order one) and a target ``t``: minimise ``½‖D·x − t‖²`` subject to
-``lower ≤ x ≤ upper``, optionally plus a Gaussian prior ``½λ‖x − x0‖²``. A tiny ridge (``1e-12`` of
-the largest squared singular value, toward ``x0``) is always added, so a rank-deficient system still
-has one answer: directions the data do not determine stay at the prior target.
+``lower ≤ x ≤ upper`` and optionally linear rules ``G·x ≥ h`` between the unknowns, optionally plus
+a Gaussian prior ``½λ‖x − x0‖²``. A tiny ridge (``1e-12`` of the largest squared singular value,
+toward ``x0``) is always added, so a rank-deficient system still has one answer: directions the
+data do not determine stay at the prior target.
 
-The solver is :func:`scipy.optimize.lsq_linear` (``trf``) on the ``p × p`` triangular factor of the
-QR decomposition of ``D`` (same minimiser, so the cost of a solve does not grow with the rows).
+The solver works on the ``p × p`` triangular factor ``R`` of the QR decomposition of ``D`` (same
+minimiser, so the cost of a solve does not grow with the rows): :func:`scipy.optimize.lsq_linear`
+(``trf``) for bounds alone; when that answer breaks a rule, Lawson and Hanson's reduction of least
+squares under linear inequalities (LSI) to a least-distance problem (LDP), solved by
+:func:`scipy.optimize.nnls` (Lawson & Hanson, *Solving Least Squares Problems*, 1974, ch. 23), and
+finished by a primal active-set method (exact where ``R`` is ill conditioned).
 
 Uncertainty (:func:`active_set_covariance`): the analytic covariance of the free parameters
 ``s²·(D_Fᵀ D_F + λI)⁻¹`` of the active set ``F`` (the bounds that hold are treated as known), with
-``s² = RSS/(n − |F|)``; :func:`bootstrap` gives residual-bootstrap percentile intervals instead.
+``s² = RSS/(n − |F|)``; when rules hold, the covariance on the null space ``N`` of the constraints
+that hold, ``s²·N(Nᵀ(DᵀD + λI)N)⁻¹Nᵀ``, and ``|F|`` its dimension. :func:`bootstrap` gives
+residual-bootstrap percentile intervals instead.
 Leave-one-out (:func:`loo_residuals`): exact refits, or the hat-matrix identity
 ``e_i/(1 − h_ii)`` on the active set (exact as long as leaving one row out does not change which
 bounds hold).
@@ -25,9 +32,12 @@ Example:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+
+#: Relative slack within which a bound or rule counts as holding with equality.
+_SLACK = 1e-9
 
 #: Relative size of the always-present ridge (times the largest squared singular value of ``D``).
 RIDGE_RELATIVE = 1e-12
@@ -42,12 +52,24 @@ class BoundedSolution:
         active: per parameter 0 = free, -1 = at its lower bound, +1 = at its upper bound.
         rss: residual sum of squares of the data rows (prior rows excluded).
         penalty: the prior + ridge strength that was applied (λ + ridge).
+        held: per rule row of ``G`` (see :func:`solve_bounded`), whether it holds with equality.
+        held_rows: the rows of ``G`` that hold (``k × p``; empty without rules).
     """
 
     x: np.ndarray
     active: np.ndarray
     rss: float
     penalty: float
+    held: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    held_rows: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+
+    @property
+    def free_dimension(self) -> int:
+        """How many directions the constraints that hold leave free (``|F|`` without rules)."""
+        free = int(np.count_nonzero(self.active == 0))
+        if not self.held_rows.size:
+            return free
+        return self.x.size - _constraint_rank(self.active, self.held_rows)
 
 
 def ridge_strength(design: np.ndarray) -> float:
@@ -60,8 +82,8 @@ def ridge_strength(design: np.ndarray) -> float:
 
 def solve_bounded(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upper: np.ndarray, *,
                   prior_weight: np.ndarray | float = 0.0, prior_target: np.ndarray | None = None,
-                  ridge: float | None = None) -> BoundedSolution:
-    """Minimise ``½‖D·x − t‖² + ½Σ λ_j (x_j − x0_j)²`` within ``lower ≤ x ≤ upper``.
+                  ridge: float | None = None, rules: tuple[np.ndarray, np.ndarray] | None = None) -> BoundedSolution:
+    """Minimise ``½‖D·x − t‖² + ½Σ λ_j (x_j − x0_j)²`` within ``lower ≤ x ≤ upper`` and ``G·x ≥ h``.
 
     Args:
         design: ``n × p`` prepared design matrix (may have fewer rows than columns).
@@ -71,6 +93,9 @@ def solve_bounded(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upp
         prior_weight: λ per parameter (or one for all), ≥ 0.
         prior_target: x0 (default: zeros).
         ridge: the always-present ridge; default :func:`ridge_strength` of ``design``.
+        rules: ``(G, h)``, ``k × p`` and ``k``: linear rules ``G·x ≥ h`` the solution keeps as well
+            (None or ``k = 0``: bounds only). Rules the bounds make impossible are dropped: the
+            solution then keeps the bounds alone and ``held`` is all False.
 
     Returns:
         The solution with its active set.
@@ -94,8 +119,158 @@ def solve_bounded(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upp
                         tol=1e-12, max_iter=200)
     x, active = _polish(r, reduced_rhs, lower, upper, np.clip(result.x, lower, upper),
                         np.asarray(result.active_mask, dtype=int))
+    held, held_rows = np.zeros(0, dtype=bool), np.zeros((0, p))
+    if rules is not None and len(rules[1]):
+        g, h = np.asarray(rules[0], dtype=float), np.asarray(rules[1], dtype=float)
+        held = np.zeros(h.size, dtype=bool)
+        if np.any(g @ x < h - _SLACK * np.maximum(1.0, np.abs(h))):  # the bounds alone break a rule
+            constrained = _solve_with_rules(r, reduced_rhs, lower, upper, g, h)
+            if constrained is not None:
+                x, active, held = constrained
+                held_rows = g[held] if held.any() else held_rows
     resid = design @ x - target if n else np.zeros(0)
-    return BoundedSolution(x=x, active=active, rss=float(resid @ resid), penalty=float(penalty.max()))
+    return BoundedSolution(x=x, active=active, rss=float(resid @ resid), penalty=float(penalty.max()),
+                           held=held, held_rows=held_rows)
+
+
+def _solve_with_rules(r: np.ndarray, rhs: np.ndarray, lower: np.ndarray, upper: np.ndarray, rules: np.ndarray,
+                      floors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """``min ‖R·x − c‖`` subject to ``A·x ≥ b`` (the rules and the finite bounds as rows), exactly.
+
+    With ``z = R·x − c`` the problem becomes the least-distance problem ``min ‖z‖`` subject to
+    ``Ĝ·z ≥ ĥ`` (``Ĝ = A·R⁻¹``, ``ĥ = b − Ĝ·c``; :func:`_least_distance`), which
+    :func:`_active_set` then finishes exactly. ``R`` is square and non-singular here (the ridge
+    rows are part of the factorised system).
+
+    Returns:
+        ``(x, active, held)`` (see :class:`BoundedSolution`), or None when the rows admit no ``x``.
+    """
+    p = r.shape[1]
+    eye = np.eye(p)
+    has_lower, has_upper = np.isfinite(lower), np.isfinite(upper)
+    rows = np.vstack([rules, eye[has_lower], -eye[has_upper]])
+    floors_all = np.concatenate([floors, lower[has_lower], -upper[has_upper]])
+    norms = np.linalg.norm(rows, axis=1)
+    norms = np.where(norms > 0, norms, 1.0)
+    rows, floors_all = rows / norms[:, None], floors_all / norms
+    r_inv = np.linalg.solve(r, eye)
+    g_hat = rows @ r_inv
+    z = _least_distance(g_hat, floors_all - g_hat @ rhs)
+    if z is None:  # the rules and bounds admit no x
+        return None
+    x = r_inv @ (z + rhs)
+    x = _active_set(r, rhs, rows, floors_all, x)
+    tight = rows @ x - floors_all <= _SLACK * np.maximum(1.0, np.abs(floors_all))
+    k = rules.shape[0]
+    active = np.zeros(p, dtype=int)
+    low_index, up_index = np.flatnonzero(has_lower), np.flatnonzero(has_upper)
+    active[low_index[tight[k:k + low_index.size]]] = -1
+    active[up_index[tight[k + low_index.size:]]] = 1
+    x = np.where(active == -1, lower, np.where(active == 1, upper, np.clip(x, lower, upper)))
+    return x, active, tight[:k].copy()
+
+
+def _active_set(r: np.ndarray, rhs: np.ndarray, rows: np.ndarray, floors: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Finish the least-distance answer exactly, as :func:`_polish` does for bounds: a primal
+    active-set method (Nocedal & Wright, *Numerical Optimization*, alg. 16.3) for
+    ``min ‖R·x − c‖`` subject to ``rows·x ≥ floors``, started from ``x`` moved onto the feasible set.
+
+    Each step solves the problem with the working set's rows as equalities (on their null space,
+    which stays well conditioned where ``R⁻¹`` is not), walks towards that answer up to the first
+    row it would break (which joins the set), and at a standstill drops the row whose multiplier
+    pulls away from it (KKT: ``Rᵀ(R·x − c) = Aᵀ·μ`` with ``μ ≥ 0`` on the set). Returns ``x`` if
+    no feasible point is found.
+    """
+    tolerance = _SLACK * np.maximum(1.0, np.abs(floors))
+    point = _nearest_feasible(rows, floors, x)
+    if point is None:
+        return x
+    scale = max(float(np.abs(r.T @ rhs).max(initial=0.0)), 1e-300)
+    working: list[int] = []
+    for index in np.flatnonzero(rows @ point - floors <= tolerance).tolist():
+        if np.linalg.matrix_rank(rows[[*working, index]]) == len(working) + 1:
+            working.append(index)
+    for _ in range(20 * (rows.shape[0] + rows.shape[1])):
+        target = _equality_solve(r, rhs, rows[working], floors[working])
+        step = target - point
+        if np.linalg.norm(step) <= 1e-12 * max(1.0, float(np.linalg.norm(point))):
+            if not working:
+                return point
+            gradient = r.T @ (r @ point - rhs)
+            multipliers = np.linalg.lstsq(rows[working].T, gradient, rcond=None)[0]
+            if multipliers.min() >= -1e-9 * scale:
+                return point
+            del working[int(np.argmin(multipliers))]
+            continue
+        change = rows @ step
+        room = rows @ point - floors
+        blocking = [(max(float(room[i]), 0.0) / -float(change[i]), i) for i in range(rows.shape[0])
+                    if i not in working and change[i] < 0 and max(float(room[i]), 0.0) < -change[i]]
+        if blocking:
+            alpha, first = min(blocking)
+            point = point + alpha * step
+            working.append(first)
+        else:
+            point = target
+    return point
+
+
+def _nearest_feasible(rows: np.ndarray, floors: np.ndarray, x: np.ndarray) -> np.ndarray | None:
+    """The point nearest ``x`` with ``rows·y ≥ floors`` (a least-distance problem in the identity
+    metric, well conditioned), or None when there is none."""
+    shortfall = floors - rows @ x
+    if np.all(shortfall <= 0):
+        return x
+    z = _least_distance(rows, shortfall)
+    return None if z is None else x + z
+
+
+def _least_distance(rows: np.ndarray, floors: np.ndarray) -> np.ndarray | None:
+    """``min ‖z‖`` subject to ``rows·z ≥ floors`` (LDP), or None when no ``z`` keeps the rows: the
+    answer is the residual ``ρ`` of the non-negative least squares ``min ‖[rowsᵀ; floorsᵀ]·u −
+    e_{p+1}‖, u ≥ 0``, as ``z = −ρ[:p]/ρ[p]`` (Lawson & Hanson, 1974, ch. 23)."""
+    from scipy.optimize import nnls  # on first use, like lsq_linear in solve_bounded
+
+    p = rows.shape[1]
+    stacked = np.vstack([rows.T, floors[None, :]])
+    unit = np.zeros(p + 1)
+    unit[p] = 1.0
+    u, _ = nnls(stacked, unit, maxiter=50 * (p + 1) + 10 * rows.shape[0])
+    residual = stacked @ u - unit
+    if not residual[p] < -1e-12:  # ‖residual‖ ≈ 0: the rows are inconsistent
+        return None
+    return -residual[:p] / residual[p]
+
+
+def _equality_solve(r: np.ndarray, rhs: np.ndarray, equal: np.ndarray, floors: np.ndarray) -> np.ndarray:
+    """``min ‖R·x − c‖`` subject to ``equal·x = floors`` (least squares on the equalities' null space)."""
+    if not equal.size:
+        return np.linalg.lstsq(r, rhs, rcond=None)[0]
+    base = np.linalg.lstsq(equal, floors, rcond=None)[0]
+    _, sv, vt = np.linalg.svd(equal)
+    rank = int(np.count_nonzero(sv > 1e-10 * max(float(sv.max(initial=0.0)), 1e-300)))
+    basis = vt[rank:].T
+    if not basis.size:
+        return base
+    return base + basis @ np.linalg.lstsq(r @ basis, rhs - r @ base, rcond=None)[0]
+
+
+def _constraint_rank(active: np.ndarray, held_rows: np.ndarray) -> int:
+    """The rank of the constraints that hold: the bounds of ``active`` and the rows ``held_rows``."""
+    p = active.size
+    rows = np.vstack([np.eye(p)[active != 0], held_rows.reshape(-1, p)])
+    return int(np.linalg.matrix_rank(rows)) if rows.size else 0
+
+
+def _free_basis(active: np.ndarray, held_rows: np.ndarray) -> np.ndarray:
+    """An orthonormal basis (``p × f``) of the directions the constraints that hold leave free."""
+    p = active.size
+    rows = np.vstack([np.eye(p)[active != 0], held_rows.reshape(-1, p)])
+    if not rows.size:
+        return np.eye(p)
+    _, sv, vt = np.linalg.svd(rows)
+    rank = int(np.count_nonzero(sv > 1e-10 * max(float(sv.max(initial=0.0)), 1e-300)))
+    return vt[rank:].T
 
 
 def _polish(r: np.ndarray, rhs: np.ndarray, lower: np.ndarray, upper: np.ndarray, x: np.ndarray,
@@ -133,7 +308,7 @@ def information(design: np.ndarray, penalty: np.ndarray | float) -> np.ndarray:
 
 
 def active_set_covariance(design: np.ndarray, free: np.ndarray, s2: float,
-                          penalty: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+                          penalty: np.ndarray | float, held_rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Covariances of the parameters.
 
     Args:
@@ -141,6 +316,8 @@ def active_set_covariance(design: np.ndarray, free: np.ndarray, s2: float,
         free: boolean mask of the parameters not at a bound.
         s2: residual variance (per prepared row).
         penalty: λ + ridge per parameter.
+        held_rows: the rules that hold (:attr:`BoundedSolution.held_rows`): the covariance is then
+            the one on the null space of the constraints that hold.
 
     Returns:
         ``(cov_active, cov_full)``: the active-set covariance (zero rows/columns for parameters at
@@ -151,14 +328,28 @@ def active_set_covariance(design: np.ndarray, free: np.ndarray, s2: float,
     info = information(design, penalty)
     cov_full = s2 * np.linalg.inv(info)
     cov_active = np.zeros((p, p))
+    if held_rows is not None and held_rows.size:
+        basis = _free_basis(np.where(free, 0, 1), held_rows)
+        if basis.size:
+            cov_active = s2 * basis @ np.linalg.inv(basis.T @ info @ basis) @ basis.T
+        return cov_active, cov_full
     idx = np.flatnonzero(free)
     if idx.size:
         cov_active[np.ix_(idx, idx)] = s2 * np.linalg.inv(info[np.ix_(idx, idx)])
     return cov_active, cov_full
 
 
-def hat_diagonal(design: np.ndarray, free: np.ndarray, penalty: np.ndarray | float) -> np.ndarray:
-    """Leverages ``h_ii`` of the rows on the free parameters (0 if none is free)."""
+def hat_diagonal(design: np.ndarray, free: np.ndarray, penalty: np.ndarray | float,
+                 held_rows: np.ndarray | None = None) -> np.ndarray:
+    """Leverages ``h_ii`` of the rows on the free parameters (0 if none is free); with rules that
+    hold (``held_rows``), on the directions the constraints leave free."""
+    if held_rows is not None and held_rows.size:
+        basis = _free_basis(np.where(free, 0, 1), held_rows)
+        if not basis.size:
+            return np.zeros(design.shape[0])
+        d_b = design @ basis
+        inner = basis.T @ information(design, penalty) @ basis
+        return np.einsum("ij,ij->i", d_b @ np.linalg.inv(inner), d_b)
     idx = np.flatnonzero(free)
     if idx.size == 0:
         return np.zeros(design.shape[0])
@@ -169,11 +360,13 @@ def hat_diagonal(design: np.ndarray, free: np.ndarray, penalty: np.ndarray | flo
 
 def loo_residuals(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upper: np.ndarray,
                   solution: BoundedSolution, *, exact: bool, prior_weight: np.ndarray | float = 0.0,
-                  prior_target: np.ndarray | None = None, ridge: float | None = None) -> np.ndarray:
+                  prior_target: np.ndarray | None = None, ridge: float | None = None,
+                  rules: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Leave-one-out residuals in prepared units: row i predicted by the fit without row i.
 
     Args:
-        design, target, lower, upper, prior_weight, prior_target, ridge: as for :func:`solve_bounded`.
+        design, target, lower, upper, prior_weight, prior_target, ridge, rules: as for
+            :func:`solve_bounded`.
         solution: the fit on all rows (used by the hat-matrix form).
         exact: refit without each row (``n`` solves) instead of the hat-matrix identity.
     """
@@ -184,14 +377,14 @@ def loo_residuals(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upp
     if not exact:
         resid = design @ solution.x - target
         lam = np.broadcast_to(np.asarray(prior_weight, dtype=float), (design.shape[1],)) + ridge
-        h = hat_diagonal(design, solution.active == 0, lam)
+        h = hat_diagonal(design, solution.active == 0, lam, solution.held_rows)
         return resid / np.maximum(1.0 - h, 1e-12)
     out = np.empty(n)
     keep = np.ones(n, dtype=bool)
     for i in range(n):
         keep[i] = False
         sol = solve_bounded(design[keep], target[keep], lower, upper, prior_weight=prior_weight,
-                            prior_target=prior_target, ridge=ridge)
+                            prior_target=prior_target, ridge=ridge, rules=rules)
         keep[i] = True
         out[i] = design[i] @ sol.x - target[i]
     return out
@@ -199,12 +392,12 @@ def loo_residuals(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upp
 
 def bootstrap(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upper: np.ndarray,
               solution: BoundedSolution, *, samples: int, seed: int, dof: int,
-              prior_weight: np.ndarray | float = 0.0,
-              prior_target: np.ndarray | None = None, ridge: float | None = None) -> np.ndarray:
+              prior_weight: np.ndarray | float = 0.0, prior_target: np.ndarray | None = None,
+              ridge: float | None = None, rules: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Residual-bootstrap 95 % percentile intervals, ``p × 2`` (prepared units).
 
     The residuals of the fit are centred, inflated by ``sqrt(n/dof)`` and resampled with
-    replacement onto the fitted values; each resample is solved within the bounds.
+    replacement onto the fitted values; each resample is solved within the bounds (and ``rules``).
     """
     n, p = design.shape
     rng = np.random.default_rng(seed)
@@ -216,7 +409,7 @@ def bootstrap(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upper: 
     for k in range(samples):
         sample = fitted + resid[rng.integers(0, n, n)]
         draws[k] = solve_bounded(design, sample, lower, upper, prior_weight=prior_weight,
-                                 prior_target=prior_target, ridge=ridge).x
+                                 prior_target=prior_target, ridge=ridge, rules=rules).x
     return np.percentile(draws, [2.5, 97.5], axis=0).T
 
 

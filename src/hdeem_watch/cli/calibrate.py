@@ -8,8 +8,10 @@ chosen currents and an intercept by bounded least squares, and prints a table (o
 singular_values}``, ...). ``--write-memspec`` writes the memspec with the calibrated currents.
 
 The fit keeps the currents within physically consistent limits where a box bound can say so
-(:mod:`hdeem_watch.calibrate.physical`; ``--no-physical-bounds`` turns that off). A fit that still
-breaks an ordering rule between two calibrated currents (e.g. IDD3N < IDD2N) is reported: a
+(:mod:`hdeem_watch.calibrate.physical`; ``--no-physical-bounds`` turns that off);
+``--physical-rules`` keeps the rules between two calibrated currents too (IDD3N ≥ IDD2N, IDD0
+above the tRAS/tRC mix, ...), for a memspec DRAMPower can use. A fit that still breaks an
+ordering rule between two calibrated currents (e.g. IDD3N < IDD2N) is reported: a
 warning naming the rules, ``"physical": false`` and ``"violations"`` in the JSON, and a memspec
 written with it carries ``"calibration": {"physical": false, "violations": [...]}`` beside its
 ``memspec`` object — loading it needs ``--allow-unphysical`` (here, for ``--memspec`` or the
@@ -52,6 +54,10 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--no-physical-bounds", action="store_true",
                         help="bound currents by 0..datasheet only (default: also by the physically "
                              "consistent limits against the currents not calibrated, e.g. IDD3N >= IDD3P)")
+    parser.add_argument("--physical-rules", action="store_true",
+                        help="keep the order between calibrated currents too (IDD3N >= IDD2N, IDD4R >= "
+                             "IDD3N, IDD0 above the tRAS/tRC mix, ...): a physical memspec, at some "
+                             "accuracy (default: effective currents, warned when unphysical)")
     parser.add_argument("--allow-unphysical", action="store_true",
                         help="load a memspec whose currents break the physical ordering (e.g. one "
                              "written from an unphysical fit)")
@@ -74,7 +80,7 @@ def _run(args: argparse.Namespace) -> int:
     spec, observations = read_runs_file(args.runs, args.memspec, allow_unphysical=args.allow_unphysical)
     options = FitOptions(currents=currents, bounds=bounds, intercept=not args.no_intercept,
                          prior_weight=args.prior_weight, uncertainty=args.uncertainty,
-                         physical=not args.no_physical_bounds)
+                         physical=not args.no_physical_bounds, rules=args.physical_rules)
     result = fit(observations, spec, options)
     violations = fit_violations(spec, result.calibrated)
     warnings = [w for w in (energy_units_warning(result.runs),) if w]
@@ -162,6 +168,8 @@ def format_table(result: FitResult, memory_id: str) -> str:
         bound = f" (at {result.at_bound[j]} bound)" if result.at_bound[j] else ""
         lines.append(f"{name:<8} {_ma(ds):>12} {_ma(cal):>13} {ratio:>6}  {'[' + _ma(lo) + ', ' + _ma(hi) + ']':<20} "
                      f"{result.sensitivity[j]:>11.3f}  {'yes' if result.identifiable[j] else 'NO (weak)'}{bound}")
+    if result.rules_held:
+        lines.append(f"held at a physical rule (the data wants past it): {', '.join(result.rules_held)}")
     if result.intercept_fitted:
         lo, hi = result.intercept_ci95_j
         lines.append(f"intercept {result.intercept_j:.4g} J per run  [{lo:.4g}, {hi:.4g}]")
