@@ -121,6 +121,9 @@ class DaemonSettings:
         dimms: DIMMs on the node (the measured DRAM energy is the sum of all DRAM channels).
         currents: the currents the embedded calibrator fits.
         half_life_s: forgetting half-life of the online calibrator (0 = no forgetting).
+        physical_rules: the calibrator keeps the ordering rules between calibrated currents
+            (IDD3N ≥ IDD2N, IDD0 above the tRAS/tRC mix, ...): no negative energy component, at
+            some accuracy (docs/calibration.md). Default false: effective currents.
         model_max_requests: request-prefix size of the kernel model (None = the model's default).
         curve_secret_key_file: the daemon's CURVE certificate (``.key_secret``, see ``--gen-keys``): both
             sockets then encrypt and authenticate (for remote TCP); None = off.
@@ -186,6 +189,7 @@ class DaemonSettings:
     dimms: int = 8
     currents: tuple[str, ...] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
     half_life_s: float = 0.0
+    physical_rules: bool = False
     model_max_requests: int | None = None
     curve_secret_key_file: str | None = None
     curve_clients_dir: str | None = None

@@ -50,6 +50,8 @@ class OnlineCalibrator:
         max_history: fits kept in :attr:`history` (oldest dropped first).
         drift_lag_s: how far back the reference fit of :meth:`drift` is (default half-life).
         loo: leave-one-out mode of each refit (``"hat"``: cheap).
+        rules: keep the ordering rules between calibrated currents in each refit
+            (:attr:`~hdeem_watch.calibrate.fit.FitOptions.rules`; may be changed between refits).
 
     Example::
 
@@ -65,7 +67,7 @@ class OnlineCalibrator:
                  prior_weight: float = 0.0, settings: FitSettings | None = None,
                  names: Sequence[str] | None = None, min_weight: float = 1e-4, max_history: int = 256,
                  max_runs: int = 2000,
-                 drift_lag_s: float | None = None, loo: str = "hat") -> None:
+                 drift_lag_s: float | None = None, loo: str = "hat", rules: bool = False) -> None:
         if half_life_s is not None and not (half_life_s > 0):
             raise InputError(f"half_life_s: {half_life_s!r}; expected a duration > 0 s (or None)")
         self.spec = spec
@@ -81,6 +83,7 @@ class OnlineCalibrator:
         self.max_history = max_history
         self.drift_lag_s = drift_lag_s
         self.loo = loo
+        self.rules = bool(rules)
         self.observations: list[Observation] = []
         self.history: list[tuple[int, FitResult]] = []
         self.latest: FitResult | None = None
@@ -89,7 +92,7 @@ class OnlineCalibrator:
         """The options of every refit (from this calibrator's settings; fits from the first run)."""
         return FitOptions(currents=self.currents, bounds=self.bounds, intercept=self.intercept,
                           prior_weight=self.prior_weight, loo=self.loo, names=self.names,
-                          require_overdetermined=False, settings=self.settings)
+                          require_overdetermined=False, settings=self.settings, rules=self.rules)
 
     def weights(self) -> np.ndarray:
         """Forgetting factor of each kept run (1 for the newest)."""
@@ -179,7 +182,7 @@ class OnlineCalibrator:
                 "bounds": {k: list(v) for k, v in self.bounds.items()} if self.bounds else None,
                 "intercept": self.intercept, "prior_weight": self.prior_weight, "names": list(self.names),
                 "min_weight": self.min_weight, "max_history": self.max_history, "max_runs": self.max_runs,
-                "drift_lag_s": self.drift_lag_s, "loo": self.loo,
+                "drift_lag_s": self.drift_lag_s, "loo": self.loo, "rules": self.rules,
                 "noise_floor": self.settings.noise_floor, "max_rel_ci": self.settings.max_rel_ci,
                 "min_sensitivity": self.settings.min_sensitivity,
             },
@@ -206,7 +209,7 @@ class OnlineCalibrator:
                                              min_sensitivity=float(s["min_sensitivity"])),
                         names=s["names"], min_weight=float(s["min_weight"]), max_history=int(s["max_history"]),
                         max_runs=int(s.get("max_runs", 2000)),
-                        drift_lag_s=s["drift_lag_s"], loo=str(s["loo"]))
+                        drift_lag_s=s["drift_lag_s"], loo=str(s["loo"]), rules=bool(s.get("rules", False)))
             calib.observations = [Observation.from_dict(o) for o in data["observations"]]
             calib.history = [(int(h["time_ns"]), FitResult.from_dict(h["fit"])) for h in data["history"]]
         except (KeyError, TypeError, ValueError, AttributeError) as error:

@@ -87,7 +87,7 @@ class GroupFits:
         dram_rates_hz: sample rate of each DRAM channel (the guard rail checks every one; None:
             not known, no guard rail — the groups assume 100 Sa/s).
         min_samples: fewest samples per DRAM channel for a run to be fitted.
-        calibrator: keyword arguments of each group's calibrator (currents, half_life_s).
+        calibrator: keyword arguments of each group's calibrator (currents, half_life_s, rules).
         state: a saved :meth:`state` to continue from (ignored when its groups differ).
 
     Attributes:
@@ -122,6 +122,7 @@ class GroupFits:
             self.calibrators = GroupCalibrators(spec, groups, min_samples=self.min_samples, calibrator=options,
                                                 detect_after=DETECT_AFTER_RUNS)
         for calib in self.calibrators.calibrators.values():
+            calib.rules = bool((calibrator or {}).get("rules", False))  # the setting, also over a restored state
             calib.max_runs = min(calib.max_runs, MAX_GROUP_RUNS)
             calib.max_history = min(calib.max_history, MAX_GROUP_HISTORY)
             del calib.observations[:-calib.max_runs]

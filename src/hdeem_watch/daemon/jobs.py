@@ -129,6 +129,7 @@ class ModelSettings:
     topology: NodeTopology | None = None
     currents: Sequence[str] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
     half_life_s: float | None = None
+    physical_rules: bool = False
     max_requests: int | None = None
     groups: Sequence[SensorGroup] = ()
     dram_rates_hz: Mapping[str, float] | None = None
@@ -165,6 +166,7 @@ def restore_calibration(calibration: Calibration, *, settings: ModelSettings,
     def build() -> dict[str, Any]:
         modeller = RunModeller(settings.memspec, dimms=settings.dimms, topology=settings.topology,
                                currents=settings.currents, half_life_s=settings.half_life_s or None,
+                               physical_rules=settings.physical_rules,
                                max_requests=settings.max_requests, state=state, history=history,
                                groups=settings.groups, dram_rates_hz=settings.dram_rates_hz,
                                min_samples=settings.min_samples)

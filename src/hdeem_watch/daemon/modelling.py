@@ -138,6 +138,8 @@ class RunModeller:
             count replaces ``dimms``, its ranks per DIMM (when known) the memspec's.
         currents: currents to calibrate.
         half_life_s: forgetting half-life (0 or None = never forget).
+        physical_rules: keep the ordering rules between calibrated currents (the ``physical_rules``
+            setting; applies from the next refit, also over a restored calibrator).
         max_requests: prefix size of the kernel model (None = its default).
         state: a saved :meth:`state` (``OnlineCalibrator.to_dict()``, with the groups' state under
             ``sensor_groups``) to continue from.
@@ -161,6 +163,7 @@ class RunModeller:
         topology: NodeTopology | None = None,
         currents: Sequence[str] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w"),
         half_life_s: float | None = None,
+        physical_rules: bool = False,
         max_requests: int | None = None,
         state: Mapping[str, Any] | None = None,
         history: Sequence[Mapping[str, Any]] = (),
@@ -192,6 +195,7 @@ class RunModeller:
                 self.calibrator = OnlineCalibrator(self.spec, currents=self.currents, half_life_s=self.half_life_s,
                                                    max_runs=MAX_CALIBRATION_RUNS,
                                                    max_history=MAX_CALIBRATOR_HISTORY)
+            self.calibrator.rules = bool(physical_rules)
             self.calibrator.max_runs = min(self.calibrator.max_runs, MAX_CALIBRATION_RUNS)
             self.calibrator.max_history = min(self.calibrator.max_history, MAX_CALIBRATOR_HISTORY)
             observations = self.calibrator.observations
@@ -202,7 +206,8 @@ class RunModeller:
             if topology is not None and topology.numa_nodes_per_socket != 1:
                 groups = ()  # the model's rows are per NUMA domain, the groups' per socket
             self.group_fits = GroupFits(self.spec, groups, dram_rates_hz, min_samples=min_samples,
-                                        calibrator={"currents": self.currents, "half_life_s": self.half_life_s},
+                                        calibrator={"currents": self.currents, "half_life_s": self.half_life_s,
+                                                    "rules": bool(physical_rules)},
                                         state=(state or {}).get("sensor_groups"))
             if self.group_fits.restore_error and not self.restore_error:
                 self.restore_error = self.group_fits.restore_error

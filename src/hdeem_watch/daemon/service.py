@@ -277,7 +277,8 @@ class Daemon:
             self.calibration,
             settings=ModelSettings(setup.memspec, dimms=settings.dimms, topology=setup.topology,
                                    currents=self._currents(),
-                                   half_life_s=settings.half_life_s or None, max_requests=settings.model_max_requests,
+                                   half_life_s=settings.half_life_s or None, physical_rules=settings.physical_rules,
+                                   max_requests=settings.model_max_requests,
                                    groups=source_groups(source, dram_rates, sockets=topo.sockets if topo else 2,
                                                         dimms_per_socket=(topo.dimms // topo.sockets if topo
                                                                           else max(1, settings.dimms // 2))),
