@@ -4,37 +4,26 @@ by the daemon's real core (run book, operations, store worker, model worker) on 
 
 The simulated node is :class:`~hdeem_watch.sources.sim.SimSource` with a node description
 (``SimSource(node=...)``); the sim models one DIMM per channel, so the Ice Lake is the 2 × 8-channel
-1 DPC population (16 DIMMs; the 2-DPC fixture is 32 DIMMs, which the sim refuses). The daemon is the
-core of ``tests/daemon/test_run_life.py`` (no sockets, a fake clock, a real SQLite store on its
-worker thread, the real model and refit on the model worker). The same schedule runs on the default
-Taurus node; calibration must recover the sim's effective truth on the other nodes as well as there.
+1 DPC population (16 DIMMs; the 2-DPC fixture is 32 DIMMs, which the sim refuses). The daemon is
+:class:`~hdeem_watch.daemon.counter_rig.CounterSimNode` without counters (no sockets, a fake clock, a
+real SQLite store on its worker thread, the real model and refit on the model worker). The same
+schedule runs on the default Taurus node; calibration must recover the sim's effective truth on the
+other nodes as well as there.
 """
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from hdeem_watch.daemon.control import Pending
-from hdeem_watch.daemon.jobs import Calibration, ModelSettings, Worker, restore_calibration
-from hdeem_watch.daemon.node_state import NodeState
-from hdeem_watch.daemon.operations import Operations
-from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.reporting import Identity, Reporter
-from hdeem_watch.daemon.runs import RunLimits
-from hdeem_watch.daemon.store import Store
+from hdeem_watch.daemon.counter_rig import MEMSPEC, CounterSimNode
 from hdeem_watch.dram.node import NodeTopology
 from hdeem_watch.node.description import describe_node
 from hdeem_watch.node.overrides import apply_overrides, parse_node_table
 from hdeem_watch.node.topology import topology_from_node
-from hdeem_watch.sources.sim import SimSource
 
-MEMSPEC = "samsung-m393a1g43db0-cpb"
-POLL_NS = 50_000_000
-WALL0 = 1_700_000_000 * 10**9
 CURRENTS = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
 #: (kernel, threads, elements, repeat): idle runs and kernels at several thread counts, all fitting on
 #: one socket of every node below (at most 12 threads), each kernel run 0.3-1.6 s long.
@@ -54,89 +43,15 @@ ICE_LAKE = node_of({"sockets": 2, "cores_per_socket": 28, "threads_per_core": 2,
 ONE_SOCKET = node_of({"sockets": 1, "cores_per_socket": 12, "channels_per_socket": 6, "dimms_per_channel": 1})
 
 
-class SimNode:
-    """The daemon's core over a simulated node, on a fake clock (the harness of test_run_life)."""
-
-    def __init__(self, state_dir: Path, node: Any, topology: NodeTopology | None) -> None:
-        self.now = 10 * POLL_NS
-        self.sim = SimSource(seed=3, clock=lambda: self.now, wall_clock=self.wall, node=node, noise=False,
-                             quantum_w=0.0, offsets=False, gains=False, temp_amp_c=0.0, background_plans=False)
-        self.sim.open()
-        self.store = Store(state_dir / "state.db")
-        self.book = NodeState(self.sim.channels(), node="n1", monotonic=lambda: self.now, wall=self.wall,
-                              next_seq=1, limits=RunLimits(256, 1 << 34), baselines={})
-        self.writer = StoreWorker(self.store)
-        self.models = Worker("model")
-        self.calibration = Calibration()
-        self.replies: dict[int, tuple[Any, Any]] = {}
-        published: list[tuple[str, Any]] = []
-        publisher = type("P", (), {"publish": lambda _self, kind, body, /: published.append((kind, body)) or True})()
-        self.reporter = Reporter(self.book, self.calibration, self.sim, publisher, self.writer,
-                                 Identity(kind="sim", endpoints={}), poll_interval_ns=lambda: POLL_NS,
-                                 clock=lambda: self.now)
-        self.ops = Operations(self.book, calibration=self.calibration, reporter=self.reporter, store=self.writer,
-                              publisher=publisher, source=self.sim, submit=self.models.submit, reply=self.reply,
-                              poll=self.poll)
-        restore_calibration(self.calibration, settings=ModelSettings(MEMSPEC, topology=topology, max_requests=100_000),
-                            state=None, fits=[], submit=self.models.submit, on_built=self.reporter.publish_calib)
-
-    def wall(self) -> int:
-        return WALL0 + self.now
-
-    def reply(self, pending: Pending, result: Any, error: Any) -> None:
-        self.replies[id(pending)] = (result, error)
-
-    def poll(self) -> None:
-        _fresh, closed = self.book.on_batch(self.sim.poll())
-        for window in closed:
-            self.ops.window_closed(window)
-
-    def advance(self, seconds: float) -> None:
-        for _ in range(max(1, math.ceil(seconds * 1e9 / POLL_NS))):
-            self.now += POLL_NS
-            self.poll()
-
-    def settle(self) -> None:
-        while self.models.pending or self.writer.pending:
-            for worker in (self.models, self.writer.jobs):
-                for future, _done, _failed in list(worker.pending):
-                    future.exception(timeout=120)
-                worker.collect()
-
-    def call(self, op: str, args: dict[str, Any]) -> Any:
-        result = self.ops.handlers()[op](args)
-        if not isinstance(result, Pending):
-            return result
-        for _ in range(1000):
-            self.settle()
-            if id(result) in self.replies:
-                value, error = self.replies.pop(id(result))
-                assert error is None, error
-                return value
-            self.advance(POLL_NS / 1e9)
-        raise AssertionError(f"{op}: no reply")
-
-    def run(self, kernel: str, threads: int, elements: int, repeat: int) -> dict[str, Any]:
-        """One run announced the way ``hdeem-watch bench`` does: CPUs 0..threads-1 (socket 0) in its metadata."""
-        started = self.call("run.start", {"kernel": kernel, "threads": threads, "elements": elements,
-                                          "repeat": repeat, "metadata": {"cpus": list(range(threads))}})
-        plan = self.sim.run_plan(started["run_id"]) if kernel != "idle" else None
-        self.advance((plan.duration_ns * 1e-9 if plan is not None else 1.0) + 0.2)
-        return dict(self.call("run.stop", {"run_id": started["run_id"]}))
-
-    def close(self) -> None:
-        self.models.shutdown(cancel_queued=True)
-        self.writer.shutdown()
-        self.store.close()
-
-
 def calibrate(tmp_path: Path, node: Any, topology: NodeTopology | None) -> tuple[dict[str, Any], list[dict[str, Any]],
                                                                                   dict[str, float]]:
     """The schedule on a simulated node: the last fit, the runs, and the sim's effective truth (node mean)."""
-    sim_node = SimNode(tmp_path, node, topology)
+    sim_node = CounterSimNode(tmp_path, counters=False, node=node, topology=topology)
     try:
         sim_node.advance(1.0)
-        runs = [sim_node.run(*spec) for spec in SCHEDULE]
+        # announced the way ``hdeem-watch bench`` does: CPUs 0..threads-1 (socket 0) in the metadata
+        runs = [sim_node.run(kernel, threads, elements, repeat, cpus=list(range(threads)))
+                for kernel, threads, elements, repeat in SCHEDULE]
         truth = sim_node.sim.truth()["effective_currents_a"]
     finally:
         sim_node.close()

@@ -4,7 +4,8 @@ The run book, operations, store worker and model worker of the daemon, the sim a
 and :class:`~hdeem_watch.daemon.counter_source.SimCounters` as the counter source, wired as
 ``Daemon.poll_once`` wires them (counters read at the heartbeat, at window edges and until a closing
 window's end; their deltas attached to the closed run). No sockets, no threads of its own beyond
-the daemon's two workers. Used by the counter tests and by ``benchmarks/bench_counters.py``.
+the daemon's two workers. Used by the counter tests, the node-topology tests (a sim with a node
+description, without counters) and by ``benchmarks/bench_counters.py``.
 
 Example:
     >>> rig = CounterSimNode(Path("/tmp/rig-doctest"))          # doctest: +SKIP
@@ -28,6 +29,7 @@ from hdeem_watch.daemon.persistence import StoreWorker
 from hdeem_watch.daemon.reporting import Identity, Reporter
 from hdeem_watch.daemon.runs import RunLimits
 from hdeem_watch.daemon.store import Store
+from hdeem_watch.dram.node import NodeTopology
 from hdeem_watch.sources.sim import SimSource
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"
@@ -56,14 +58,18 @@ class CounterSimNode:
         realistic: the sim's sensor effects (noise, 0.125 W steps, offsets, gains, temperature);
             False: an exact signal.
         currents: the currents the calibrator fits.
+        node: the simulated node's description (``SimSource(node=...)``; None: the Taurus blade).
+        topology: the topology the daemon models runs on (None: the legacy guess from 8 DIMMs).
     """
 
     def __init__(self, state_dir: Path, *, seed: int = 3, counters: bool = True, realistic: bool = False,
-                 currents: tuple[str, ...] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")) -> None:
+                 currents: tuple[str, ...] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w"), node: Any = None,
+                 topology: NodeTopology | None = None) -> None:
         self.now = 10 * POLL_NS
         quiet: dict[str, Any] = {} if realistic else {"noise": False, "quantum_w": 0.0, "offsets": False,
                                                       "gains": False, "temp_amp_c": 0.0}
-        self.sim = SimSource(seed=seed, clock=lambda: self.now, wall_clock=self.wall, background_plans=False, **quiet)
+        self.sim = SimSource(seed=seed, clock=lambda: self.now, wall_clock=self.wall, background_plans=False, node=node,
+                             **quiet)
         self.sim.open()
         self.store = Store(state_dir / "state.db")
         self.book = NodeState(self.sim.channels(), node="n1", monotonic=lambda: self.now, wall=self.wall,
@@ -88,8 +94,9 @@ class CounterSimNode:
                                           sensors={c.name: c.sensor for c in self.counters.channels()})
             self.ops.on_window_closed = self.attach
             self.read_counters(force=True)
-        restore_calibration(self.calibration, settings=ModelSettings(MEMSPEC, max_requests=100_000, currents=currents), state=None,
-                            fits=[], submit=self.models.submit, on_built=self.reporter.publish_calib)
+        restore_calibration(self.calibration, settings=ModelSettings(MEMSPEC, topology=topology, max_requests=100_000,
+                                                                     currents=currents),
+                            state=None, fits=[], submit=self.models.submit, on_built=self.reporter.publish_calib)
 
     def wall(self) -> int:
         return WALL0 + self.now
@@ -147,11 +154,14 @@ class CounterSimNode:
         raise AssertionError(f"{op}: no reply")
 
     def run(self, kernel: str | None, threads: int, elements: int = 0, repeat: int = 1,
-            seconds: float | None = None) -> dict[str, Any]:
-        """One run (``kernel=None``: an opaque job of ``seconds``); the ``run.stop`` result."""
+            seconds: float | None = None, cpus: list[int] | None = None) -> dict[str, Any]:
+        """One run (``kernel=None``: an opaque job of ``seconds``); the ``run.stop`` result. ``cpus``:
+        the CPUs it announces in its metadata, as ``hdeem-watch bench`` does (None: none)."""
         args: dict[str, Any] = {"threads": threads, "elements": elements, "repeat": repeat}
         if kernel is not None:
             args["kernel"] = kernel
+        if cpus is not None:
+            args["metadata"] = {"cpus": cpus}
         started = self.call("run.start", args)
         if seconds is None:
             plan = self.sim.run_plan(started["run_id"]) if kernel not in (None, "idle") else None
