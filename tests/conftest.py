@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
+from typing import Any
 
 import pytest
 
@@ -29,3 +32,29 @@ def fake_clock() -> Callable[..., FakeClock]:
     """Make fake clocks: ``clock = fake_clock()`` (starts at 0 ns) or ``fake_clock(start_ns)``;
     pass ``clock`` where a ``clock=`` is injected and set or advance ``clock.t`` (ns)."""
     return FakeClock
+
+
+@contextmanager
+def _serving(server: Any, poll_ms: int = 10) -> Iterator[None]:
+    """Answer ``server``'s requests (a :class:`~hdeem_watch.daemon.control.ControlServer`) on a
+    thread while the block runs, as the daemon's loop would."""
+    halt = threading.Event()
+
+    def serve() -> None:
+        while not halt.is_set():
+            if server.socket.poll(poll_ms):
+                server.handle()
+
+    thread = threading.Thread(target=serve, name="serve-control")
+    thread.start()
+    try:
+        yield
+    finally:
+        halt.set()
+        thread.join()
+
+
+@pytest.fixture
+def serve_control() -> Callable[..., AbstractContextManager[None]]:
+    """``with serve_control(server): ...`` answers a ControlServer's requests on a thread meanwhile."""
+    return _serving

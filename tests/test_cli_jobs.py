@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -83,11 +84,9 @@ def test_one_job_over_several_nodes_has_a_total_only_when_every_node_answered() 
 
 
 def test_a_curve_daemon_answers_jobs_given_its_key(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                                   capsys: pytest.CaptureFixture[str]) -> None:
+                                                   capsys: pytest.CaptureFixture[str], serve_control: Any) -> None:
     """``jobs --connect tcp://… --server-key FILE`` reads a CURVE daemon's jobs; without the key the
     node's line says the daemon requires CURVE (exit 1), at once rather than after the timeout."""
-    import threading
-
     import zmq
 
     from hdeem_watch.cli import main
@@ -104,25 +103,16 @@ def test_a_curve_daemon_answers_jobs_given_its_key(tmp_path: Path, monkeypatch: 
     job = {"job_id": "77", "node": "c1", "user": "alice", "state": "running", "duration_s": 12.0,
            "energy_j": {"DDR_AB": 30.0}, "dram_energy_j": 30.0}
     server = ControlServer(context, "tcp://127.0.0.1:0", {"job.get": lambda args: job}, secure=curve.apply)
-    halt = threading.Event()
-
-    def serve() -> None:
-        while not halt.is_set():
-            if server.socket.poll(10):
-                server.handle()
-
-    thread = threading.Thread(target=serve)
-    thread.start()
     try:
-        assert main(["jobs", "--connect", server.endpoint, "--job", "77", "--server-key", str(public), "--json"]) == 0
-        assert '"job_id":"77"' in capsys.readouterr().out.replace(" ", "")
-        started = time.monotonic()
-        assert main(["jobs", "--connect", server.endpoint, "--job", "77", "--timeout", "10"]) == 1
-        assert "requires CURVE" in capsys.readouterr().out
-        assert time.monotonic() - started < 5
+        with serve_control(server):
+            assert main(["jobs", "--connect", server.endpoint, "--job", "77", "--server-key", str(public),
+                         "--json"]) == 0
+            assert '"job_id":"77"' in capsys.readouterr().out.replace(" ", "")
+            started = time.monotonic()
+            assert main(["jobs", "--connect", server.endpoint, "--job", "77", "--timeout", "10"]) == 1
+            assert "requires CURVE" in capsys.readouterr().out
+            assert time.monotonic() - started < 5
     finally:
-        halt.set()
-        thread.join()
         server.close()
         curve.close()
         context.term()

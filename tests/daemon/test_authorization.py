@@ -233,7 +233,7 @@ def test_whoami_and_bench_say_before_any_run_that_the_user_may_not(
 
 
 @pytest.fixture
-def curve_server(tmp_path: Path) -> Iterator[Callable[..., Any]]:
+def curve_server(tmp_path: Path, serve_control: Any) -> Iterator[Callable[..., Any]]:
     """A CURVE control server on loopback TCP whose clients dir registers ``root.key``."""
     context = zmq.Context()  # its own: the ZAP handler binds inproc://zeromq.zap.01 once per context
     server_public, server_secret = generate_keys(tmp_path / "server", "server")
@@ -244,15 +244,6 @@ def curve_server(tmp_path: Path) -> Iterator[Callable[..., Any]]:
     server = ControlServer(context, "tcp://127.0.0.1:0", {"calib.reset": lambda args: {"reset": True},
                                                           "status": lambda args: {"up": True}},
                            secure=curve.apply, authorizer=Authorizer(daemon_uid=12345))
-    halt = threading.Event()
-
-    def serve() -> None:
-        while not halt.is_set():
-            if server.socket.poll(10):
-                server.handle()
-
-    thread = threading.Thread(target=serve)
-    thread.start()
 
     def client(keys: tuple[bytes, bytes] | None) -> ControlClient:
         return ControlClient(server.endpoint, timeout_s=5, curve_server_key=load_public_key(server_public),
@@ -261,10 +252,9 @@ def curve_server(tmp_path: Path) -> Iterator[Callable[..., Any]]:
     client.root = load_secret_key(root_secret)  # type: ignore[attr-defined]
     client.unnamed = load_secret_key(unnamed_secret)  # type: ignore[attr-defined]
     try:
-        yield client
+        with serve_control(server):
+            yield client
     finally:
-        halt.set()
-        thread.join()
         server.close()
         curve.close()
         context.term()

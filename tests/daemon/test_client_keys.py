@@ -3,7 +3,6 @@ when the CURVE handshake fails (no key, a wrong key, an unregistered key, CURVE 
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -111,27 +110,17 @@ def test_handshake_events_are_explained() -> None:
 
 
 @pytest.fixture
-def curve_endpoint(tmp_path: Path) -> Iterator[tuple[str, bytes, tuple[bytes, bytes]]]:
+def curve_endpoint(tmp_path: Path, serve_control: Any) -> Iterator[tuple[str, bytes, tuple[bytes, bytes]]]:
     """A CURVE control socket on loopback TCP that admits the clients in its directory only."""
     context = zmq.Context()  # its own: the ZAP handler binds inproc://zeromq.zap.01 once per context
     _, secret = generate_keys(tmp_path, "server")
     _, allowed = generate_keys(tmp_path / "clients", "root")
     curve = CurveServer(context, str(secret), str(tmp_path / "clients"))
     server = ControlServer(context, "tcp://127.0.0.1:0", {"status": lambda args: {"up": True}}, secure=curve.apply)
-    halt = threading.Event()
-
-    def serve() -> None:
-        while not halt.is_set():
-            if server.socket.poll(10):
-                server.handle()
-
-    thread = threading.Thread(target=serve)
-    thread.start()
     try:
-        yield server.endpoint, curve.public, load_secret_key(allowed)
+        with serve_control(server):
+            yield server.endpoint, curve.public, load_secret_key(allowed)
     finally:
-        halt.set()
-        thread.join()
         server.close()
         curve.close()
         context.term()

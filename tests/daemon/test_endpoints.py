@@ -8,7 +8,6 @@ import os
 import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -182,7 +181,8 @@ def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factor
     legit.close()
 
 
-def test_a_client_does_not_talk_to_a_squatted_fallback_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_client_does_not_talk_to_a_squatted_fallback_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                           serve_control: Any) -> None:
     """The impostor's side of #22.13: a control socket in someone else's /tmp/hdeem-watch-<uid> is refused."""
     from hdeem_watch.daemon import client as client_module
     from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
@@ -197,21 +197,8 @@ def test_a_client_does_not_talk_to_a_squatted_fallback_dir(tmp_path: Path, monke
                 pytest.raises(DaemonUnreachable, match=r"refusing to talk to it.*mode 0777"):
             client.call("ping")
         os.chmod(fallback, 0o700)  # now it is this user's private directory: served
-        stop = threading.Event()
-
-        def serve() -> None:
-            while not stop.is_set():
-                if impostor.socket.poll(20):
-                    impostor.handle()
-
-        server = threading.Thread(target=serve)
-        server.start()
-        try:
-            with ControlClient(f"ipc://{fallback}/control.sock", timeout_s=5.0) as client:
-                assert client.call("ping") == {"pong": 1}
-        finally:
-            stop.set()
-            server.join()
+        with serve_control(impostor), ControlClient(f"ipc://{fallback}/control.sock", timeout_s=5.0) as client:
+            assert client.call("ping") == {"pong": 1}
     finally:
         impostor.close()
 
