@@ -1,7 +1,7 @@
 """A job spanning two nodes of a real SLURM, watched allocation-wide over CURVE TCP.
 
 The cluster (two slurmd on this machine, one sim daemon per node on the one documented control
-port) is :mod:`two_node_cluster`'s. The job runs a task on each node and, from inside the
+port) is the ``two_node_cluster`` fixture of ``conftest.py``. The job runs a task on each node and, from inside the
 allocation, the TUI with ``--slurm`` (headless), which finds both daemons by node name, asks each
 for its status over CURVE-encrypted TCP, subscribes to the TCP stream each advertises and prints
 both nodes' power; without the server's key the same command stops at once with the reason.
@@ -12,37 +12,17 @@ Epilog closed the windows, from the "login node" over TCP alone.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
 import time
-from pathlib import Path
-from types import ModuleType
+from typing import Any
 
 import pytest
 
 pytestmark = pytest.mark.slurm
 
 
-def _load(name: str, path: Path) -> ModuleType:
-    """The fixture module beside this file (tests run with --import-mode=importlib: no sys.path)."""
-    if name in sys.modules:
-        return sys.modules[name]
-    spec = importlib.util.spec_from_file_location(name, path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-_cluster = _load("hdeem_watch_tests_two_node_cluster", Path(__file__).with_name("two_node_cluster.py"))
-NODES = _cluster.NODES
-TwoNodeCluster = _cluster.TwoNodeCluster
-two_node_cluster = _cluster.two_node_cluster  # the fixture, for pytest
-
-
-def _job(cluster: _cluster.TwoNodeCluster, script: str, timeout: float = 60) -> str:
+def _job(cluster: Any, script: str, timeout: float = 60) -> str:
     """Submit ``script`` on both nodes, wait for it, return its output."""
     output = cluster.root / f"job-{time.monotonic_ns()}.out"
     path = output.with_suffix(".sh")
@@ -55,8 +35,9 @@ def _job(cluster: _cluster.TwoNodeCluster, script: str, timeout: float = 60) -> 
     return output.read_text()
 
 
-def test_the_tui_watches_both_nodes_of_a_job_over_curve_tcp(two_node_cluster: _cluster.TwoNodeCluster) -> None:
+def test_the_tui_watches_both_nodes_of_a_job_over_curve_tcp(two_node_cluster: Any) -> None:
     cluster = two_node_cluster
+    nodes = sorted(cluster.daemons)  # hwn1, hwn2
     tui = (f"HDEEM_WATCH_CONFIG=/nonexistent {sys.executable} -m hdeem_watch tui --slurm --port {cluster.control_port} "
            "--headless --duration 4")
     keys = f"--server-key {cluster.server_key} --client-key {cluster.client_key}"
@@ -68,11 +49,11 @@ def test_the_tui_watches_both_nodes_of_a_job_over_curve_tcp(two_node_cluster: _c
         ""]))
     assert time.monotonic() - started < 45
     lines = out.splitlines()
-    assert sorted(line for line in lines if line.startswith("task on")) == [f"task on {n}" for n in NODES], out
+    assert sorted(line for line in lines if line.startswith("task on")) == [f"task on {n}" for n in nodes], out
     with_keys, without = out.split("tui exit", 1)
     exits = [line for line in lines if line.startswith("tui exit")]
     assert exits == ["tui exit 0", "tui exit 2"], out
-    for node in NODES:
+    for node in nodes:
         assert f"state  {node} live" in with_keys, out
         assert any(line.startswith(f"[{node}] power  DDR_AB") for line in with_keys.splitlines()), out
     refusal = [line for line in without.splitlines() if line.startswith("hdeem-watch: error:")]
@@ -85,8 +66,9 @@ def _jobs_answer(text: str) -> dict[str, dict[str, object]]:
     return {answer["node"]: answer for answer in json.loads(line)["nodes"]}
 
 
-def test_jobs_reports_the_energy_of_a_two_node_job_from_both_nodes(two_node_cluster: _cluster.TwoNodeCluster) -> None:
+def test_jobs_reports_the_energy_of_a_two_node_job_from_both_nodes(two_node_cluster: Any) -> None:
     cluster = two_node_cluster
+    nodes = sorted(cluster.daemons)  # hwn1, hwn2
     keys = f"HDEEM_WATCH_SERVER_KEY={cluster.server_key} HDEEM_WATCH_CLIENT_KEY={cluster.client_key}"
     jobs = (f'{keys} HDEEM_WATCH_CONFIG="{cluster.root}/$SLURMD_NODENAME/hdeem-watchd.toml" {sys.executable} '
             f"-m hdeem_watch jobs --port {cluster.control_port} --json")
@@ -98,7 +80,7 @@ def test_jobs_reports_the_energy_of_a_two_node_job_from_both_nodes(two_node_clus
     assert "jobs exit 0" in out, out
     job_id = next(line.split()[-1] for line in out.splitlines() if line.startswith("job id"))
     inside = _jobs_answer(out)
-    assert sorted(inside) == list(NODES), out
+    assert sorted(inside) == nodes, out
     for answer in inside.values():
         assert answer["ok"], answer
         (record,) = answer["jobs"]  # type: ignore[misc]
@@ -108,10 +90,10 @@ def test_jobs_reports_the_energy_of_a_two_node_job_from_both_nodes(two_node_clus
     # After the Epilog, from the login node: both nodes over CURVE TCP, the finished records.
     login = cluster.run(["sh", "-c", cluster.login_command(
         f"{keys} HDEEM_WATCH_CONFIG=/nonexistent {sys.executable} -m hdeem_watch jobs --port {cluster.control_port} "
-        + "".join(f" --connect tcp://{node}:{cluster.control_port}" for node in NODES) + f" --job {job_id} --json")])
+        + "".join(f" --connect tcp://{node}:{cluster.control_port}" for node in nodes) + f" --job {job_id} --json")])
     assert login.returncode == 0, login.stdout + login.stderr
     after = _jobs_answer(login.stdout)
-    for node in NODES:
+    for node in nodes:
         (record,) = after[node]["jobs"]  # type: ignore[misc]
         assert after[node]["endpoint"].startswith(f"tcp://{node}:")
         assert record["state"] == "done" and record["dram_energy_j"] > 0 and record["nodes"], record
