@@ -1,6 +1,6 @@
-"""A real single-node SLURM (munged + slurmctld + slurmd) for the SLURM tests.
+"""Real SLURM clusters on this machine for the SLURM tests: one node (``slurm``) and two (``two_node_cluster``).
 
-Follows the usual single-node recipe (munged, then slurmctld and slurmd from a scratch
+The single-node cluster (munged + slurmctld + slurmd) follows the usual single-node recipe (munged, then slurmctld and slurmd from a scratch
 directory on Debian's SLURM 22.05 packages), with ``TaskPlugin=task/affinity`` instead of
 task/none so srun really binds tasks to CPUs (``--cpu-bind=none`` gives the unbound case). Needs root and the Debian packages slurmctld, slurmd,
 slurm-client and munge (``.ci/run`` installs them). The cluster runs from a scratch directory with
@@ -28,8 +28,6 @@ daemons use one CURVE key pair (a cluster's) and admit the clients in ``clients/
 (``daemon/slurm/``): each node's hook reads that node's daemon config (chosen by
 ``$SLURMD_NODENAME``, as each real node has its own ``/etc/hdeem-watch``) and talks to the daemon
 over its local ipc socket, as root.
-
-Needs root and the packages slurmctld, slurmd, slurm-client and munge (``.ci/run`` installs them).
 """
 
 from __future__ import annotations
