@@ -115,9 +115,8 @@ def interpolate(history: Sequence[CounterSnapshot], t_ns: int) -> CounterSnapsho
     """
     if not history:
         raise ValueError("no counter snapshot yet")
-    times = [s.t_ns for s in history]
-    i = bisect.bisect_left(times, t_ns)
-    if i < len(history) and times[i] == t_ns:
+    i = bisect.bisect_left(history, t_ns, key=lambda s: s.t_ns)
+    if i < len(history) and history[i].t_ns == t_ns:
         return history[i]
     if i == 0:
         return history[0]
@@ -127,7 +126,7 @@ def interpolate(history: Sequence[CounterSnapshot], t_ns: int) -> CounterSnapsho
     w = (t_ns - a.t_ns) / (b.t_ns - a.t_ns)
     counts = {ch: {role: float(v) + (float(b.counts[ch].get(role, math.nan)) - float(v)) * w
                    for role, v in roles.items()} for ch, roles in a.counts.items() if ch in b.counts}
-    return CounterSnapshot(int(t_ns), counts, b.unknown if b.unknown != a.unknown else a.unknown)
+    return CounterSnapshot(int(t_ns), counts, b.unknown)
 
 
 class RoleTotals:

@@ -116,17 +116,15 @@ class CounterSimNode:
         if closed.run is not None and closed.run.state != "aborted":
             closed.run.counters = self.windows.finish(closed.run, self.book.dram_channels)
 
-    def poll(self) -> None:
+    def poll(self, force_counters: bool = False) -> None:
         _fresh, closed = self.book.on_batch(self.sim.poll())
         if self.windows is not None:
-            self.read_counters(force=bool(closed))
+            self.read_counters(force=force_counters or bool(closed))
         for window in closed:
             self.ops.window_closed(window)
 
     def edge_poll(self) -> None:
-        self.poll()
-        if self.windows is not None:
-            self.read_counters(force=True)
+        self.poll(force_counters=True)
 
     def advance(self, seconds: float) -> None:
         for _ in range(max(1, math.ceil(seconds * 1e9 / POLL_NS))):

@@ -125,7 +125,7 @@ class CounterWindows:
         for window in windows:
             key = window_key(window)
             if key is not None and key not in self._starts:
-                self._starts[key] = interpolate(list(self.history), sample_time(window.t_start_mono_ns))
+                self._starts[key] = interpolate(self.history, sample_time(window.t_start_mono_ns))
 
     def finish(self, record: Any, dram_channels: Iterable[str]) -> dict[str, Any] | None:
         """The counters of a closed run (``record.counters``), or None without a start or snapshot."""
@@ -145,13 +145,11 @@ class CounterWindows:
         if end_t > self.history[-1].t_ns:
             status = f"short: the counters reach {(end_t - self.history[-1].t_ns) / 1e9:.3f} s less far than the samples"
             end_t = self.history[-1].t_ns
-        end = interpolate(list(self.history), end_t)
+        end = interpolate(self.history, end_t)
         window_s = (end.t_ns - start.t_ns) / 1e9
         if not window_s > 0:
             return {"source": self.kind, "status": "unknown: empty counter window", "window_s": window_s}
-        return {"source": self.kind, "generation": self.table_key, "status": status, "ranks": self.ranks,
-                "refresh_complete": self.refresh_complete, "t_start_ns": start.t_ns, "t_end_ns": end.t_ns,
-                "window_s": window_s, "sensors": dict(self.sensors), "channels": window_counts(start, end)}
+        return self._record(start, end, status)
 
     def so_far(self, key: str) -> dict[str, Any] | None:
         """The counters of an open window up to the newest snapshot (``open: true``; None without a
@@ -159,10 +157,13 @@ class CounterWindows:
         start = self._starts.get(key)
         if start is None or not self.history or self.history[-1].t_ns <= start.t_ns:
             return None
-        end = self.history[-1]
-        return {"source": self.kind, "generation": self.table_key, "status": "ok", "open": True,
-                "ranks": self.ranks, "refresh_complete": self.refresh_complete, "t_start_ns": start.t_ns,
-                "t_end_ns": end.t_ns, "window_s": (end.t_ns - start.t_ns) / 1e9, "sensors": dict(self.sensors),
+        return self._record(start, self.history[-1], "ok", open=True)
+
+    def _record(self, start: CounterSnapshot, end: CounterSnapshot, status: str, **extra: Any) -> dict[str, Any]:
+        """A window's counters record from its start and end snapshots."""
+        return {"source": self.kind, "generation": self.table_key, "status": status, **extra, "ranks": self.ranks,
+                "refresh_complete": self.refresh_complete, "t_start_ns": start.t_ns, "t_end_ns": end.t_ns,
+                "window_s": (end.t_ns - start.t_ns) / 1e9, "sensors": dict(self.sensors),
                 "channels": window_counts(start, end)}
 
     def forget(self, key: str) -> None:

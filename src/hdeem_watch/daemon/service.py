@@ -441,8 +441,9 @@ class Daemon:
 
     # -- polling ---------------------------------------------------------------------------------------
 
-    def poll_once(self) -> SourceBatch | None:
-        """Poll the source; account, publish and window the batch; return it (None if the poll failed)."""
+    def poll_once(self, *, force_counters: bool = False) -> SourceBatch | None:
+        """Poll the source; account, publish and window the batch; return it (None if the poll failed).
+        The counters are read when due, when a window closed, or when ``force_counters``."""
         assert self.publisher is not None and self.book is not None and self.source is not None
         book, operations = self.book, self.operations
         batch: SourceBatch | None = None
@@ -470,7 +471,7 @@ class Daemon:
             if self.recorder is not None:
                 self.recorder.write_batch(batch)
         if self.counters is not None:
-            self.counters.read(force=bool(closed))
+            self.counters.read(force=force_counters or bool(closed))
         if closed and operations is not None:
             for window in closed:
                 operations.window_closed(window)
@@ -486,10 +487,7 @@ class Daemon:
 
     def _edge_poll(self) -> SourceBatch | None:
         """A poll at a window edge (run.start, run.stop, baseline.measure): the counters are read too."""
-        batch = self.poll_once()
-        if self.counters is not None:
-            self.counters.read(force=True)
-        return batch
+        return self.poll_once(force_counters=True)
 
     def complete(self, pending: Pending, result: Any = None, error: tuple[str, str] | None = None) -> None:
         """Send a deferred control reply."""
