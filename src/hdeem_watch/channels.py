@@ -43,3 +43,24 @@ def normalise_channel_name(name: str) -> str:
         if known.replace("_", "") == squashed:
             return known
     return _SEP.sub("_", name.strip()).upper()
+
+
+def channel_letter(index: int) -> str:
+    """The letter HDEEM gives a memory channel (node-wide index: A, B, ...; ``CH<n>`` beyond Z).
+
+    >>> channel_letter(2), channel_letter(27)
+    ('C', 'CH27')
+    """
+    return chr(ord("A") + index) if index < 26 else f"CH{index}"
+
+
+def dimm_pair_channel(socket: int, channel: int, channels_per_socket: int) -> str:
+    """The HDEEM sensor of a memory channel: consecutive channels of a socket in pairs (``DDR_AB``
+    for channels 0 and 1 of socket 0), the last one alone when a socket has an odd number.
+
+    >>> dimm_pair_channel(1, 3, 4), dimm_pair_channel(0, 2, 3)
+    ('DDR_GH', 'DDR_C')
+    """
+    first = socket * channels_per_socket + (channel // 2) * 2
+    second = min(first + 1, socket * channels_per_socket + channels_per_socket - 1)
+    return "DDR_" + "".join(channel_letter(i) for i in sorted({first, second}))

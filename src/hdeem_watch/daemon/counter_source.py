@@ -31,6 +31,7 @@ import errno
 from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
 
+from hdeem_watch.channels import dimm_pair_channel
 from hdeem_watch.counters.event_tables import TABLES, EventTable
 from hdeem_watch.counters.sim_counters import imc_event_counts, role_counts_from_events
 from hdeem_watch.counters.source import (
@@ -179,9 +180,7 @@ def imc_sensors(channels: Any, power_channels: set[str]) -> dict[str, str | None
     for socket, members in boxes.items():
         ordered = sorted(members, key=lambda c: c.box)
         for index, channel in enumerate(ordered):
-            first = socket * len(ordered) + (index // 2) * 2
-            second = min(first + 1, socket * len(ordered) + len(ordered) - 1)
-            pair = "DDR_" + "".join(chr(ord("A") + i) for i in sorted({first, second}))
+            pair = dimm_pair_channel(socket, index, len(ordered))
             out[channel.name] = pair if pair in power_channels else (
                 f"DRAM{socket}" if f"DRAM{socket}" in power_channels else None)
     return out

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 
+from hdeem_watch.channels import dimm_pair_channel
 from hdeem_watch.node.description import NodeDescription
 
 
@@ -38,8 +39,5 @@ def sensor_map(node: NodeDescription) -> dict[str, list[str]]:
         rapl[f"DRAM{dimm.socket}"].append(dimm.locator)
         if dimm.channel is None or per_socket is None:
             continue
-        first = dimm.socket * per_socket + (dimm.channel // 2) * 2
-        second = min(first + 1, dimm.socket * per_socket + per_socket - 1)
-        name = "DDR_" + "".join(chr(ord("A") + i) if i < 26 else f"CH{i}" for i in sorted({first, second}))
-        pairs[name].append(dimm.locator)
+        pairs[dimm_pair_channel(dimm.socket, dimm.channel, per_socket)].append(dimm.locator)
     return {**dict(sorted(rapl.items())), **dict(sorted(pairs.items()))}

@@ -20,16 +20,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+from hdeem_watch.channels import channel_letter, dimm_pair_channel
 from hdeem_watch.dram.node import NodeTopology
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import ChannelInfo
 
 if TYPE_CHECKING:
     from hdeem_watch.node.description import NodeDescription
-
-
-def _letter(index: int) -> str:
-    return chr(ord("A") + index) if index < 26 else f"CH{index}"
 
 
 @dataclass(frozen=True)
@@ -58,12 +55,9 @@ class SimLayout:
         names, socket_of, sensor_of = [], [], []
         for s in range(sockets):
             for c in range(channels_per_socket):
-                index = s * channels_per_socket + c
-                first = s * channels_per_socket + (c // 2) * 2
-                last = min(first + 1, s * channels_per_socket + channels_per_socket - 1)
-                names.append(_letter(index))
+                names.append(channel_letter(s * channels_per_socket + c))
                 socket_of.append(s)
-                sensor_of.append("DDR_" + "".join(_letter(i) for i in sorted({first, last})))
+                sensor_of.append(dimm_pair_channel(s, c, channels_per_socket))
         sensors = tuple(dict.fromkeys(sensor_of))
         return cls(topology, tuple(names), tuple(socket_of), tuple(sensor_of), sensors)
 
