@@ -33,6 +33,7 @@ import numpy as np
 
 from hdeem_watch.counters.command_mapping import channel_stats
 from hdeem_watch.dram.energy import COMPONENTS, energy_columns
+from hdeem_watch.dram.node import node_counts
 from hdeem_watch.dram.stats import CommandStats, stretch_stats
 from hdeem_watch.errors import InputError
 
@@ -93,7 +94,7 @@ def counter_groups(spec: Any, counters: Mapping[str, Any]) -> tuple[list[tuple[C
 
 def node_totals(groups: Sequence[tuple[CommandStats, int]]) -> dict[str, float]:
     """Node totals of ACT, PRE, RD (incl. RDA), WR (incl. WRA) and REF."""
-    totals = {f: float(sum(stats.total(f) * n for stats, n in groups)) for f in ("act", "pre", "rd", "wr", "ref")}
+    totals = node_counts(groups)
     totals["rd"] += float(sum(stats.total("rda") * n for stats, n in groups))
     totals["wr"] += float(sum(stats.total("wra") * n for stats, n in groups))
     return totals
