@@ -32,9 +32,9 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.counters.command_mapping import channel_stats
-from hdeem_watch.dram.energy import COMPONENTS, energy_columns
+from hdeem_watch.dram.energy import COMPONENT_KINDS, component_energy
 from hdeem_watch.dram.node import node_counts
-from hdeem_watch.dram.stats import CommandStats, stretch_stats
+from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError
 
 #: The counts compared between the counters and the kernel model.
@@ -111,18 +111,6 @@ def cross_check(counted: Mapping[str, float], kernel: Mapping[str, float]) -> di
             "ratio": {f: (round(r, 6) if r is not None else None) for f, r in ratio.items()}}
 
 
-#: The model's components (:data:`hdeem_watch.dram.energy.COMPONENTS`) grouped by what spends the
-#: energy: the split a job record shows.
-COMPONENT_KINDS: dict[str, tuple[str, ...]] = {
-    "background": ("bg_act_j", "bg_pre_j"),
-    "activation": ("act_j", "pre_j"),
-    "read": ("rd_j", "rda_j"),
-    "write": ("wr_j", "wra_j"),
-    "refresh": ("ref_j",),
-    "power_down": ("pdna_j", "pdnp_j", "sref_j"),
-}
-
-
 def sum_counters(windows: Sequence[Mapping[str, Any] | None]) -> dict[str, Any] | None:
     """The counters of several windows of one job (its segments) as one: per channel and role the
     counts summed, ``window_s`` summed; a role missing in a counted window is unknown (NaN).
@@ -160,21 +148,6 @@ def sum_counters(windows: Sequence[Mapping[str, Any] | None]) -> dict[str, Any] 
             "ranks": first.get("ranks"), "refresh_complete": first.get("refresh_complete"),
             "window_s": float(sum(float(w.get("window_s") or 0.0) for w in counted)),
             "segments_counted": len(counted), "sensors": dict(first.get("sensors") or {}), "channels": channels}
-
-
-def component_energy(spec: Any, groups: Sequence[tuple[CommandStats, int]], window_s: float,
-                     currents_a: np.ndarray) -> dict[str, float]:
-    """Joules per model component (:data:`~hdeem_watch.dram.energy.COMPONENTS`) of ``groups`` over
-    ``window_s`` with these currents (in :data:`~hdeem_watch.dram.energy.CURRENT_NAMES` order): the
-    same stretched statistics as the calibration row
-    (:func:`hdeem_watch.calibrate.rows.node_observation`), so the components sum to its prediction."""
-    totals = dict.fromkeys(COMPONENTS, 0.0)
-    for stats, n in groups:
-        linear = energy_columns(spec, stretch_stats(spec, stats, window_s))
-        for name in COMPONENTS:
-            totals[name] += n * (float(linear.component_columns[name] @ currents_a)
-                                 + float(linear.component_constants_j[name]))
-    return totals
 
 
 def _split(components: Mapping[str, float]) -> dict[str, float]:

@@ -22,7 +22,7 @@ core energy of the same memspec.
 
 Example:
     >>> from hdeem_watch.dram.memspec import preset
-    >>> from hdeem_watch.dram.stats import CommandStats, RankStats
+    >>> from hdeem_watch.dram.stats import CommandStats, RankStats, stretch_stats
     >>> spec = preset("ddr4-2133-x8-4gb")
     >>> rank = RankStats(act=1, pre=1, rd=8, cycles_total=1000, cycles_act=100, cycles_pre=900,
     ...                  bank_active_cycles=100)
@@ -36,12 +36,13 @@ Example:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from hdeem_watch.dram.memspec import MemSpec
-from hdeem_watch.dram.stats import CommandStats, RankStats
+from hdeem_watch.dram.stats import CommandStats, RankStats, stretch_stats
 from hdeem_watch.errors import InputError
 
 #: Every current of a DDR4 memspec (amperes per device), the names of the linear columns.
@@ -55,6 +56,15 @@ COMPONENTS: tuple[str, ...] = (
     "act_j", "pre_j", "rd_j", "wr_j", "rda_j", "wra_j", "ref_j", "bg_act_j", "bg_pre_j",
     "pdna_j", "pdnp_j", "sref_j",
 )
+#: :data:`COMPONENTS` grouped by what spends the energy (a job record's split, the report's figure).
+COMPONENT_KINDS: dict[str, tuple[str, ...]] = {
+    "background": ("bg_act_j", "bg_pre_j"),
+    "activation": ("act_j", "pre_j"),
+    "read": ("rd_j", "rda_j"),
+    "write": ("wr_j", "wra_j"),
+    "refresh": ("ref_j",),
+    "power_down": ("pdna_j", "pdnp_j", "sref_j"),
+}
 _INDEX = {name: i for i, name in enumerate(CURRENT_NAMES)}
 
 
@@ -208,3 +218,17 @@ def energy_columns(spec: MemSpec, stats: CommandStats) -> LinearEnergy:
     columns = np.sum([comp[name] for name in COMPONENTS], axis=0)
     return LinearEnergy(names=CURRENT_NAMES, columns=columns, constant_j=float(sum(const.values())),
                         component_columns=comp, component_constants_j=const)
+
+
+def component_energy(spec: MemSpec, groups: Sequence[tuple[CommandStats, float]], window_s: float,
+                     currents_a: np.ndarray, *, name: str = "run") -> dict[str, float]:
+    """Joules per component (:data:`COMPONENTS`) of ``groups`` (statistics, how many channels have
+    them) stretched to ``window_s`` as the calibration row is (:func:`~hdeem_watch.dram.stats.stretch_stats`),
+    with these currents (:data:`CURRENT_NAMES` order): the components sum to the row's prediction."""
+    totals = dict.fromkeys(COMPONENTS, 0.0)
+    for stats, n in groups:
+        linear = energy_columns(spec, stretch_stats(spec, stats, window_s, name=name))
+        for component in COMPONENTS:
+            totals[component] += n * (float(linear.component_columns[component] @ currents_a)
+                                      + float(linear.component_constants_j[component]))
+    return totals

@@ -19,18 +19,16 @@ from typing import Any
 
 import numpy as np
 
+from hdeem_watch.dram.energy import COMPONENT_KINDS, component_energy
 from hdeem_watch.errors import InputError
 from hdeem_watch.report.records import BaselinePoint, FitEntry, JobRow, ReportData, RunRow, finite
 
-#: Energy components of the figure "energy by component", from :data:`hdeem_watch.dram.energy.COMPONENTS`.
+#: Energy components of the figure "energy by component": :data:`hdeem_watch.dram.energy.COMPONENT_KINDS`
+#: under the figure's labels, in its order.
 COMPONENT_GROUPS: dict[str, tuple[str, ...]] = {
-    "ACT/PRE": ("act_j", "pre_j"),
-    "RD": ("rd_j", "rda_j"),
-    "WR": ("wr_j", "wra_j"),
-    "background": ("bg_act_j", "bg_pre_j"),
-    "refresh": ("ref_j",),
-    "power-down": ("pdna_j", "pdnp_j", "sref_j"),
-}
+    label: COMPONENT_KINDS[kind] for kind, label in (("activation", "ACT/PRE"), ("read", "RD"), ("write", "WR"),
+                                                     ("background", "background"), ("refresh", "refresh"),
+                                                     ("power_down", "power-down"))}
 
 
 def model_currents(spec: Any, fit: Mapping[str, Any] | None) -> tuple[np.ndarray, float]:
@@ -139,18 +137,9 @@ def component_energies(spec: Any, fit: Mapping[str, Any] | None, run: RunRow) ->
     The statistics are stretched to the measured window as for the calibration row, so the
     components sum to the calibrated model energy less the fit's intercept (``offset``, its own entry).
     """
-    from hdeem_watch.dram.energy import energy_columns
-    from hdeem_watch.dram.stats import stretch_stats
-
     currents, intercept = model_currents(spec, fit)
-    totals = dict.fromkeys(COMPONENT_GROUPS, 0.0)
-    for stats, channels in run_groups(spec, run):
-        linear = energy_columns(spec, stretch_stats(spec, stats, run.window_s, name=run.name))
-        for group, parts in COMPONENT_GROUPS.items():
-            for part in parts:
-                column = linear.component_columns.get(part)
-                if column is not None:
-                    totals[group] += channels * float(column @ currents + linear.component_constants_j.get(part, 0.0))
+    per_component = component_energy(spec, run_groups(spec, run), run.window_s, currents, name=run.name)
+    totals = {group: float(sum(per_component[part] for part in parts)) for group, parts in COMPONENT_GROUPS.items()}
     totals["offset"] = intercept
     return totals
 
