@@ -24,7 +24,14 @@ from typing import Any, Protocol, cast
 
 from hdeem_watch.daemon.control import Handler, OpError, Pending
 from hdeem_watch.daemon.job_book import JobBook
-from hdeem_watch.daemon.job_records import JobRecord, exit_code_arg, job_id_arg, job_summary, parse_job_args
+from hdeem_watch.daemon.job_records import (
+    JOB_STATES,
+    JobRecord,
+    exit_code_arg,
+    job_id_arg,
+    job_summary,
+    parse_job_args,
+)
 from hdeem_watch.daemon.node_state import ClosedWindow, Conflict
 from hdeem_watch.daemon.persistence import StoreWorker
 from hdeem_watch.daemon.ports import PublisherPort, Reply, StorePort
@@ -76,7 +83,8 @@ class JobOperations:
 
     def __init__(self, jobs: JobBook, *, store: StoreWorker, publisher: PublisherPort, reply: Reply,
                  poll: Callable[[], object], checkpoint_s: float = CHECKPOINT_S,
-                 submit: Callable[..., None] | None = None, calibration: Any = None) -> None:
+                 submit: Callable[..., None] | None = None, calibration: Any = None,
+                 dispatch: Callable[[ClosedWindow], None] | None = None) -> None:
         self.jobs = jobs
         self.submit = submit
         self.calibration = calibration
@@ -84,6 +92,9 @@ class JobOperations:
         self.publisher = publisher
         self.reply = reply
         self.poll = poll
+        #: Where the windows a ``job.stop`` closes go: the daemon's dispatcher by window kind
+        #: (:meth:`Operations.window_closed`: a run or baseline window may close at the same time).
+        self.dispatch = dispatch or self.window_closed
         self.checkpoint_ns = round(checkpoint_s * 1e9)
         self._last_checkpoint_ns = jobs.book.monotonic()
         #: Deferred ``job.stop`` replies by job id.
@@ -128,12 +139,9 @@ class JobOperations:
         if job_id in self.waiters:  # closing already: the same answer
             self.waiters[job_id].append(pending)
             return pending
-        if not self.jobs.is_open(job_id):
-            self.store.read(lambda s: _jobs(s).list_jobs(job_id=job_id, limit=1),
-                            lambda found: self._stopped_before(pending, job_id, found), self._failed(pending))
-            return pending
-        self.poll()
-        if not self.jobs.is_open(job_id):  # the poll closed it (a stop already in flight)
+        if self.jobs.is_open(job_id):
+            self.poll()
+        if not self.jobs.is_open(job_id):  # stopped before, or the poll closed it (a stop already in flight)
             self.store.read(lambda s: _jobs(s).list_jobs(job_id=job_id, limit=1),
                             lambda found: self._stopped_before(pending, job_id, found), self._failed(pending))
             return pending
@@ -143,7 +151,7 @@ class JobOperations:
             self._finish(interrupted)
         else:
             for closed in self.jobs.book.close_ready():
-                self.window_closed(closed)
+                self.dispatch(closed)
         return pending
 
     def op_job_get(self, args: dict[str, Any]) -> Pending | dict[str, Any]:
@@ -170,7 +178,7 @@ class JobOperations:
         user, state, since_ns = args.get("user"), args.get("state"), args.get("since_ns")
         if user is not None and not isinstance(user, str):
             raise OpError("bad-args", f"args.user = {user!r}: expected a user name")
-        if state is not None and state not in ("running", "done", "interrupted"):
+        if state is not None and state not in JOB_STATES:
             raise OpError("bad-args", f"args.state = {state!r}: expected running, done or interrupted")
         if since_ns is not None and (isinstance(since_ns, bool) or not isinstance(since_ns, int)):
             raise OpError("bad-args", f"args.since_ns = {since_ns!r}: expected wall-clock ns")

@@ -35,6 +35,7 @@ import dataclasses
 import itertools
 import math
 import re
+import typing
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -44,7 +45,7 @@ from hdeem_watch.daemon.protocol import ProtocolError
 from hdeem_watch.daemon.runs import total_energy
 
 JobState = Literal["running", "done", "interrupted"]
-JOB_STATES = ("running", "done", "interrupted")
+JOB_STATES: tuple[str, ...] = typing.get_args(JobState)
 #: A SLURM job id: digits, with an array or het-job suffix (``123_4``, ``123+1``); any short token.
 _JOB_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}$")
 #: Most node names a ``job.start`` may list.
@@ -213,11 +214,6 @@ class JobRecord:
         return cls(job_id=args.job_id, node=node, user=args.user, uid=args.uid, nodes=args.nodes, cpus=args.cpus,
                    t_start_ns=int(t_wall_ns))
 
-    @property
-    def key(self) -> str:
-        """The storage key: a requeued job keeps its id but starts again."""
-        return f"{self.job_id}@{self.t_start_ns}"
-
     def sharing(self, job_ids: Iterable[str]) -> JobRecord:
         """A copy that also names ``job_ids`` as jobs that ran on the node at the same time."""
         merged = tuple(dict.fromkeys((*self.shared_with, *(j for j in job_ids if j != self.job_id))))
@@ -242,7 +238,7 @@ class JobRecord:
         body = dataclasses.asdict(self)
         body["nodes"] = list(self.nodes)
         body["shared_with"] = list(self.shared_with)
-        body["segments"] = [s.to_dict() for s in self.segments]
+        body["segments"] = list(body["segments"])  # asdict made each segment its to_dict() already
         return body
 
     @classmethod

@@ -265,7 +265,7 @@ class Daemon:
         job_ops = self.job_ops = JobOperations(JobBook(book, counters=self.counters.windows if self.counters is not None else None), store=self.store_worker,
                                                publisher=self.publisher, reply=self.complete, poll=self._edge_poll,
                                                checkpoint_s=settings.job_checkpoint_s, submit=self.model_jobs.submit,
-                                               calibration=self.calibration)
+                                               calibration=self.calibration, dispatch=self.operations.window_closed)
         if not self._job_owner_uids_given:
             self.authorizer.job_owner_uids = job_ops.jobs.running_job_uids
         self.operations.on_job_closed = job_ops.window_closed
