@@ -14,8 +14,7 @@ callable). A request's peer is known by the kernel or by its key, never by what 
   not change anything.
 
 Example:
-    >>> policy = Authorizer(job_owner_uids=lambda: frozenset({1000}), daemon_uid=999,
-    ...                     uid_of_user=lambda name: {"alice": 1000}.get(name))
+    >>> policy = Authorizer(job_owner_uids=lambda: frozenset({1000}), daemon_uid=999)
     >>> policy.refusal("status", Peer("tcp"))      # reading is open
     >>> policy.refusal("run.start", ipc_peer("localhost:1000:1000:42"))   # the job owner
     >>> print(policy.refusal("run.start", ipc_peer("localhost:1001:1001:43")))
@@ -127,15 +126,12 @@ class Authorizer:
     Args:
         job_owner_uids: the uids that own a job running on the node now (the job book's).
         daemon_uid: the user the daemon runs as (it may always control itself).
-        uid_of_user: user name → uid (for messages and tests; default the password database).
     """
 
     def __init__(self, *, job_owner_uids: Callable[[], frozenset[int]] = frozenset,
-                 daemon_uid: int | None = None,
-                 uid_of_user: Callable[[str], int | None] = local_uid) -> None:
+                 daemon_uid: int | None = None) -> None:
         self.job_owner_uids = job_owner_uids
         self.daemon_uid = os.geteuid() if daemon_uid is None else daemon_uid
-        self.uid_of_user = uid_of_user
 
     def allowed_uid(self, uid: int) -> bool:
         """Whether ``uid`` may change the daemon's state now."""

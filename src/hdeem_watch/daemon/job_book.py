@@ -101,10 +101,6 @@ class JobBook:
         """The uids owning the jobs open on this node now (for the authorization of control ops)."""
         return frozenset(j.record.uid for j in self._open.values() if j.record.uid is not None)
 
-    def running_ids(self) -> list[str]:
-        """The ids of the open jobs, oldest first."""
-        return list(self._open)
-
     def is_open(self, job_id: str) -> bool:
         """Whether ``job_id`` is open here (closing included)."""
         return job_id in self._open

@@ -69,7 +69,7 @@ class ClosedWindow:
         window_s: its duration on the source's clock.
         run: the finished run (state ``modelling``, or ``aborted``) for a run window.
         window: the closed window itself (a job window: its id, peaks and sample spans).
-        energy_j, spans_s: what the window measured per channel (J; seconds of sample time).
+        energy_j: what a job window measured per channel (J).
         baselines: the idle baselines it measured, by channel (channels without samples have none).
         kept: the channels whose stored baseline it replaced.
         cancelled: a ``baseline.cancel`` ended it (nothing measured).
@@ -83,7 +83,6 @@ class ClosedWindow:
     cancelled: bool = False
     window: Window | None = None
     energy_j: dict[str, float] = field(default_factory=dict)
-    spans_s: dict[str, float] = field(default_factory=dict)
 
 
 class BatchOutcome(NamedTuple):
@@ -331,7 +330,7 @@ class NodeState:
                                                 speed=self.speed)
         run = window.run
         if window.kind == "job":
-            return ClosedWindow(kind="job", window_s=window_s, window=window, energy_j=energy, spans_s=spans)
+            return ClosedWindow(kind="job", window_s=window_s, window=window, energy_j=energy)
         if run is None:
             found = self._window_baselines(window, energy, spans, origin="measured")
             return ClosedWindow(kind="baseline", window_s=window_s, baselines=found, kept=self._keep(found))
