@@ -62,7 +62,7 @@ class Window:
             channel's samples have reached the target.
         job_id: the job's id (``kind == "job"``).
         keep_samples: keep the samples (for the spread of a baseline); a job window, which may last
-            days, keeps only each channel's peak (``peak_w``) and count.
+            days, keeps only each channel's peak (``peak_w``).
         peak_w: per channel, the highest finite sample inside the window (only without
             ``keep_samples``).
     """
@@ -151,15 +151,14 @@ class Window:
 
     def add_samples(self, channel: str, power_w: np.ndarray) -> None:
         """Keep a channel's samples (up to :data:`MAX_RUN_SAMPLES`), for the window's spread; without
-        ``keep_samples`` only its peak and count."""
-        count = self._counts.get(channel, 0)
+        ``keep_samples`` only its peak."""
         if not self.keep_samples:
             if power_w.size:
-                self._counts[channel] = count + power_w.size
                 peak = _finite_max(power_w)
                 if peak > self.peak_w.get(channel, -math.inf):
                     self.peak_w[channel] = peak
             return
+        count = self._counts.get(channel, 0)
         if count >= MAX_RUN_SAMPLES or power_w.size == 0:
             return
         kept = np.array(power_w[: MAX_RUN_SAMPLES - count], dtype=float)
