@@ -66,10 +66,9 @@ class BoundedSolution:
     @property
     def free_dimension(self) -> int:
         """How many directions the constraints that hold leave free (``|F|`` without rules)."""
-        free = int(np.count_nonzero(self.active == 0))
         if not self.held_rows.size:
-            return free
-        return self.x.size - _constraint_rank(self.active, self.held_rows)
+            return int(np.count_nonzero(self.active == 0))
+        return int(_free_basis(self.active, self.held_rows).shape[1])
 
 
 def ridge_strength(design: np.ndarray) -> float:
@@ -247,27 +246,23 @@ def _equality_solve(r: np.ndarray, rhs: np.ndarray, equal: np.ndarray, floors: n
     if not equal.size:
         return np.linalg.lstsq(r, rhs, rcond=None)[0]
     base = np.linalg.lstsq(equal, floors, rcond=None)[0]
-    _, sv, vt = np.linalg.svd(equal)
-    rank = int(np.count_nonzero(sv > 1e-10 * max(float(sv.max(initial=0.0)), 1e-300)))
-    basis = vt[rank:].T
+    basis = _null_space(equal)
     if not basis.size:
         return base
     return base + basis @ np.linalg.lstsq(r @ basis, rhs - r @ base, rcond=None)[0]
 
 
-def _constraint_rank(active: np.ndarray, held_rows: np.ndarray) -> int:
-    """The rank of the constraints that hold: the bounds of ``active`` and the rows ``held_rows``."""
-    p = active.size
-    rows = np.vstack([np.eye(p)[active != 0], held_rows.reshape(-1, p)])
-    return int(np.linalg.matrix_rank(rows)) if rows.size else 0
-
-
 def _free_basis(active: np.ndarray, held_rows: np.ndarray) -> np.ndarray:
-    """An orthonormal basis (``p × f``) of the directions the constraints that hold leave free."""
+    """An orthonormal basis (``p × f``) of the directions the constraints that hold (the bounds of
+    ``active`` and the rules ``held_rows``) leave free."""
     p = active.size
     rows = np.vstack([np.eye(p)[active != 0], held_rows.reshape(-1, p)])
-    if not rows.size:
-        return np.eye(p)
+    return _null_space(rows) if rows.size else np.eye(p)
+
+
+def _null_space(rows: np.ndarray) -> np.ndarray:
+    """An orthonormal basis (``p × f``) of the null space of ``rows`` (singular values below 1e-10
+    of the largest count as zero)."""
     _, sv, vt = np.linalg.svd(rows)
     rank = int(np.count_nonzero(sv > 1e-10 * max(float(sv.max(initial=0.0)), 1e-300)))
     return vt[rank:].T

@@ -223,8 +223,10 @@ def energy_columns(spec: MemSpec, stats: CommandStats) -> LinearEnergy:
 def component_energy(spec: MemSpec, groups: Sequence[tuple[CommandStats, float]], window_s: float,
                      currents_a: np.ndarray, *, name: str = "run") -> dict[str, float]:
     """Joules per component (:data:`COMPONENTS`) of ``groups`` (statistics, how many channels have
-    them) stretched to ``window_s`` as the calibration row is (:func:`~hdeem_watch.dram.stats.stretch_stats`),
-    with these currents (:data:`CURRENT_NAMES` order): the components sum to the row's prediction."""
+    them) stretched over the whole ``window_s`` (:func:`~hdeem_watch.dram.stats.stretch_stats`), with
+    these currents (:data:`CURRENT_NAMES` order). The components sum to the calibration row's
+    prediction for a window without an announced traffic time (a counter window, a job); a kernel
+    run's row ends its traffic at the announced time (:func:`hdeem_watch.calibrate.rows.observation_from_run`)."""
     totals = dict.fromkeys(COMPONENTS, 0.0)
     for stats, n in groups:
         linear = energy_columns(spec, stretch_stats(spec, stats, window_s, name=name))

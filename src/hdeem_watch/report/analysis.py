@@ -134,8 +134,10 @@ def run_groups(spec: Any, run: RunRow) -> list[tuple[Any, float]]:
 def component_energies(spec: Any, fit: Mapping[str, Any] | None, run: RunRow) -> dict[str, float]:
     """Energy of each of :data:`COMPONENT_GROUPS` for one run with the calibrated currents (J).
 
-    The statistics are stretched to the measured window as for the calibration row, so the
-    components sum to the calibrated model energy less the fit's intercept (``offset``, its own entry).
+    The statistics are stretched over the measured window (:func:`hdeem_watch.dram.energy.component_energy`);
+    the fit's intercept is its own entry (``offset``). For a run that announced its traffic time
+    the calibration row ended the traffic there, so the figure's sum can differ from the row's
+    prediction by that idle tail's share (the record carries no traffic time).
     """
     currents, intercept = model_currents(spec, fit)
     per_component = component_energy(spec, run_groups(spec, run), run.window_s, currents, name=run.name)
