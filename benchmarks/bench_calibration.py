@@ -76,7 +76,6 @@ def accuracy(seed: int, runs_count: int, gap_s: float) -> dict[str, Any]:
     inside: dict[str, list[bool]] = {}
     joint = []
     for pair in PAIRS:
-        result = calib.calibrators[pair].latest
         result = fit(calib.calibrators[pair].observations, runs.modeller.spec, FitOptions(loo="exact"))
         every = True
         for j, current in enumerate(result.currents):
@@ -154,7 +153,7 @@ def main() -> None:
     if args.only in (None, "false"):
         t0 = time.perf_counter()
         by_kind: dict[str, int] = {}
-        any_alarm, runs_total = 0, 0
+        any_alarm = 0
         for seed in range(seeds):
             alarms = watch(seed, {}, 7200.0, args.gap)
             any_alarm += bool(alarms)
