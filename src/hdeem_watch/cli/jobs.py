@@ -30,7 +30,6 @@ from hdeem_watch.cli.control_port import CONTROL_PORT, CONTROL_PORT_ENV, control
 from hdeem_watch.cli.curve_options import add_server_key_argument, client_kwargs, curve_keys
 from hdeem_watch.errors import InputError
 
-#: Documented TCP port of a daemon's control endpoint on cluster nodes (as ``tui --slurm``).
 _AGO = re.compile(r"^(\d+(?:\.\d+)?)\s*(s|min|h|d)$")
 _UNITS = {"s": 1, "min": 60, "h": 3600, "d": 86400}
 

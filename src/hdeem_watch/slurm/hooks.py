@@ -126,7 +126,7 @@ def local_control_endpoint(env: Mapping[str, str] | None = None) -> str:
 
 
 # --------------------------------------------------------------------------- logging and files
-def _log(message: str, env: Mapping[str, str], *, error: bool = True) -> None:
+def _log(message: str, env: Mapping[str, str]) -> None:
     """One line to stderr and to syslog (``$HDEEM_WATCH_LOG_SOCKET``, default /dev/log)."""
     line = f"{SYSLOG_TAG}: {message}"
     print(line, file=sys.stderr)
@@ -136,7 +136,7 @@ def _log(message: str, env: Mapping[str, str], *, error: bool = True) -> None:
     except OSError:
         return  # no syslog here: stderr is all there is
     try:
-        record = logging.LogRecord(SYSLOG_TAG, logging.ERROR if error else logging.INFO, __file__, 0,
+        record = logging.LogRecord(SYSLOG_TAG, logging.ERROR, __file__, 0,
                                    f"{SYSLOG_TAG}: {message}", None, None)
         handler.emit(record)
     finally:
@@ -148,11 +148,16 @@ def _private_dir(path: Path) -> Path:
     return path
 
 
-def _append_bounded(path: Path, record: Mapping[str, Any]) -> None:
-    """Append one JSON line; beyond :data:`MAX_LOG_BYTES` the file becomes ``<name>.1`` first."""
+def _rotate(path: Path) -> None:
+    """Beyond :data:`MAX_LOG_BYTES` the file becomes ``<name>.1`` (the one before it goes)."""
     with contextlib.suppress(OSError):
         if path.stat().st_size > MAX_LOG_BYTES:
             os.replace(path, path.with_name(path.name + ".1"))
+
+
+def _append_bounded(path: Path, record: Mapping[str, Any]) -> None:
+    """Append one JSON line (to a file kept below :data:`MAX_LOG_BYTES`, :func:`_rotate`)."""
+    _rotate(path)
     with open(path, "a", encoding="utf-8") as out:
         out.write(json.dumps(record) + "\n")
 
@@ -178,7 +183,7 @@ def _cpus(env: Mapping[str, str]) -> int | None:
     return int(head) if head.isdigit() else None
 
 
-def _start_daemon(s: HookSettings, job_id: str, env: Mapping[str, str]) -> str:
+def _start_daemon(s: HookSettings, job_id: str) -> str:
     """Start a daemon with the daemon's own config; return ``started`` or why not."""
     if s.source == "hdeem" and not s.start_hdeem:
         return "not started: its source is hdeem and HDEEM_WATCH_START_HDEEM is not 1"
@@ -186,9 +191,7 @@ def _start_daemon(s: HookSettings, job_id: str, env: Mapping[str, str]) -> str:
     command += ["--config", s.config] if s.config else ["--pub", s.pub, "--control", s.control,
                                                          "--state-dir", str(s.state_dir)]
     log_path = s.hook_dir / "daemon.log"
-    with contextlib.suppress(OSError):
-        if log_path.stat().st_size > MAX_LOG_BYTES:
-            os.replace(log_path, log_path.with_name("daemon.log.1"))
+    _rotate(log_path)
     with open(log_path, "ab") as out:
         proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=out, stderr=out, start_new_session=True,
                                 close_fds=True, env=_daemon_env())
@@ -210,7 +213,7 @@ def _daemon_env() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if not k.startswith(("SLURM", "HDEEM_WATCH_"))}
 
 
-def _flush_pending_stops(s: HookSettings, env: Mapping[str, str]) -> None:
+def _flush_pending_stops(s: HookSettings) -> None:
     """Send the stops a daemon missed (with the time each job ended)."""
     pending = sorted(s.hook_dir.glob("stop-*.json"), key=lambda p: p.stat().st_mtime)
     if not pending or _call(s.control, "ping", None, min(2.0, s.timeout_s))[1] is not None:
@@ -232,16 +235,11 @@ def _flush_pending_stops(s: HookSettings, env: Mapping[str, str]) -> None:
 # --------------------------------------------------------------------------- the hooks
 def prolog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
     """Open the job's window in this node's daemon (see the module docstring); return what was done."""
-    env = os.environ if env is None else env
-    s = hook_settings(env)
-    ctx = hook_context(env)
-    job_id = ctx.get("job_id", "unknown")
-    _private_dir(s.hook_dir)
-    _flush_pending_stops(s, env)
+    env, s, ctx, job_id = _begin(env)
     record: dict[str, Any] = {"event": "prolog", "job_id": job_id, "user": ctx.get("user"), "node": ctx.get("node"),
                               "t_ns": time.time_ns(), "control": s.control, "daemon": "running"}
     if _call(s.control, "ping", None, min(2.0, s.timeout_s))[1] is not None:
-        record["daemon"] = _start_daemon(s, job_id, env) if s.start_daemon else "none"
+        record["daemon"] = _start_daemon(s, job_id) if s.start_daemon else "none"
         if record["daemon"] != "started":
             _log(f"prolog job {job_id}: no daemon answers on {s.control}; the job is not measured "
                  f"(daemon: {record['daemon']})", env)
@@ -261,6 +259,17 @@ def prolog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
     return record
 
 
+def _begin(env: Mapping[str, str] | None) -> tuple[Mapping[str, str], HookSettings, dict[str, str], str]:
+    """What both hooks do first: read their settings and the job, make the hooks' directory, and
+    send the stops a daemon missed; ``(env, settings, job context, job id)``."""
+    env = os.environ if env is None else env
+    s = hook_settings(env)
+    ctx = hook_context(env)
+    _private_dir(s.hook_dir)
+    _flush_pending_stops(s)
+    return env, s, ctx, ctx.get("job_id", "unknown")
+
+
 def _write_job(s: HookSettings, job_id: str, record: dict[str, Any]) -> None:
     (s.hook_dir / f"job-{job_id}.json").write_text(json.dumps(record))
     _append_bounded(s.hook_dir / "jobs.jsonl", record)
@@ -268,12 +277,7 @@ def _write_job(s: HookSettings, job_id: str, record: dict[str, Any]) -> None:
 
 def epilog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
     """Close the job's window in this node's daemon; return what was done."""
-    env = os.environ if env is None else env
-    s = hook_settings(env)
-    ctx = hook_context(env)
-    job_id = ctx.get("job_id", "unknown")
-    _private_dir(s.hook_dir)
-    _flush_pending_stops(s, env)
+    env, s, ctx, job_id = _begin(env)
     exit_code = ctx.get("exit_code")
     # The job's end goes along: a stop the daemon reads late (it hung; the request waited in its
     # socket) is then marked late instead of silently measuring past the end.
