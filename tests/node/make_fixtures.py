@@ -1,19 +1,18 @@
-"""Writes the fixture trees of tests/node/fixtures/ (run once; the trees are checked in).
+"""Builds the node fixture trees the tests read (``build(dest)``; the tests call it once per session into
+a temporary directory, so the trees are not committed).
 
 Each node: a sysfs subset laid out as Linux prints it (``devices/system/cpu``, ``devices/system/node``,
 ``devices/system/edac/mc``) and a ``dmidecode -t 17`` print-out in the spelling of the dmidecode
 version such a node ran. Sizes, speeds, part numbers and core counts are those of real products
 (Xeon E5-2680 v3, Gold 6148, Gold 6330, Silver 4116, EPYC 7302; the modules named in each file).
 
-Usage: ``python3 tests/node/make_fixtures.py`` from the repository root.
+Usage: ``python3 tests/node/make_fixtures.py DIR`` writes the trees into DIR (to look at them).
 """
 
 from __future__ import annotations
 
-import shutil
+import sys
 from pathlib import Path
-
-HERE = Path(__file__).resolve().parent / "fixtures"
 
 
 def cpu_list(cpus: list[int]) -> str:
@@ -112,9 +111,9 @@ def dmidecode_file(path: Path, version: str, records: list[str]) -> None:
     path.write_text(head + "\n" + "\n".join(records))
 
 
-def haswell() -> None:
+def haswell(dest: Path) -> None:
     """Taurus Haswell-EP: 2 x E5-2680 v3 (12 cores, HT), 4 channels/socket, 1 DPC, 8 x M393A1G43DB0-CPB."""
-    root = HERE / "haswell-ep-taurus"
+    root = dest / "haswell-ep-taurus"
     cpus(root / "sys", 2, 12, 2, die_id=False)
     edac(root / "sys", [[(f"CPU_SrcID#{s}_Ha#0_Chan#{c}_DIMM#0", f"channel {c} slot 0", 8192) for c in range(4)]
                         for s in range(2)], "Haswell SrcID#0_Ha#0", "Registered-DDR4", "x8")
@@ -128,10 +127,10 @@ def haswell() -> None:
     dmidecode_file(root / "dmidecode.txt", "2.12", recs)
 
 
-def skylake(name: str, numa: list[list[int]] | None) -> None:
+def skylake(dest: Path, name: str, numa: list[list[int]] | None) -> None:
     """2 x Xeon Gold 6148 (20 cores, HT), 6 channels/socket, 2 slots/channel, 1 populated:
     12 x Samsung M393A2K43BB1-CTD (16 GB 2Rx8, 8 Gb B-die, DDR4-2666)."""
-    root = HERE / name
+    root = dest / name
     cpus(root / "sys", 2, 20, 2, die_id=False, numa=numa)
     mcs = [[(f"CPU_SrcID#{s}_MC#{m}_Chan#{c}_DIMM#0", f"channel {c} slot 0", 16384) for c in range(3)]
            for s in range(2) for m in range(2)]
@@ -148,10 +147,10 @@ def skylake(name: str, numa: list[list[int]] | None) -> None:
     dmidecode_file(root / "dmidecode.txt", "3.2", recs)
 
 
-def icelake() -> None:
+def icelake(dest: Path) -> None:
     """2 x Xeon Gold 6330 (28 cores, HT), 8 channels/socket, 2 DPC: 32 x Micron MTA36ASF4G72PZ-3G2R1
     (32 GB 2Rx4, 8 Gb dies, DDR4-3200 run at 2933)."""
-    root = HERE / "icelake-sp-2dpc"
+    root = dest / "icelake-sp-2dpc"
     cpus(root / "sys", 2, 28, 2, die_id=True)
     mcs = [[(f"CPU_SrcID#{s}_MC#{m}_Chan#{c}_DIMM#{d}", f"channel {c} slot {d}", 32768) for c in range(2) for d in range(2)]
            for s in range(2) for m in range(4)]
@@ -168,10 +167,10 @@ def icelake() -> None:
     dmidecode_file(root / "dmidecode.txt", "3.3", recs)
 
 
-def epyc() -> None:
+def epyc(dest: Path) -> None:
     """2 x AMD EPYC 7302 (16 cores, SMT), NPS1, 8 channels/socket, 1 DPC, no EDAC driver loaded:
     16 x Samsung M393A4K40DB2-CVF (32 GB 2Rx4, 8 Gb D-die, DDR4-2933)."""
-    root = HERE / "epyc-rome-8ch"
+    root = dest / "epyc-rome-8ch"
     cpus(root / "sys", 2, 16, 2, die_id=True)
     recs = []
     h = 0x60
@@ -183,10 +182,10 @@ def epyc() -> None:
     dmidecode_file(root / "dmidecode.txt", "3.2", recs)
 
 
-def one_socket() -> None:
+def one_socket(dest: Path) -> None:
     """1 x Xeon Silver 4116 (12 cores, HT), 6 channels, 1 DPC: 6 x SK hynix HMA82GR7AFR8N-VK (16 GB 2Rx8, 8 Gb A-die,
     DDR4-2666 run at 2400)."""
-    root = HERE / "one-socket-skylake"
+    root = dest / "one-socket-skylake"
     cpus(root / "sys", 1, 12, 2, die_id=True)
     edac(root / "sys", [[(f"CPU_SrcID#0_MC#{m}_Chan#{c}_DIMM#0", f"channel {c} slot 0", 16384) for c in range(3)]
                         for m in range(2)], "Intel_Skylake_SP", "Registered-DDR4", "x8")
@@ -199,18 +198,19 @@ def one_socket() -> None:
     dmidecode_file(root / "dmidecode.txt", "3.3", recs)
 
 
-def main() -> None:
-    shutil.rmtree(HERE, ignore_errors=True)
-    haswell()
-    skylake("skylake-sp", None)
+def build(dest: Path) -> Path:
+    """Write every node fixture (``dest/<node>/sys`` and ``dest/<node>/dmidecode.txt``); returns ``dest``."""
+    haswell(dest)
+    skylake(dest, "skylake-sp", None)
     # SNC2: each socket's 20 cores split into two NUMA nodes of 10 (with their hyper-threads)
     snc = [[c + t * 40 for t in range(2) for c in range(s * 20 + h * 10, s * 20 + h * 10 + 10)]
            for s in range(2) for h in range(2)]
-    skylake("skylake-sp-snc2", snc)
-    icelake()
-    epyc()
-    one_socket()
+    skylake(dest, "skylake-sp-snc2", snc)
+    icelake(dest)
+    epyc(dest)
+    one_socket(dest)
+    return dest
 
 
 if __name__ == "__main__":
-    main()
+    build(Path(sys.argv[1]))

@@ -19,8 +19,6 @@ import pytest
 
 from hdeem_watch.cli import main
 
-FIXTURES = Path(__file__).resolve().parent / "fixtures"
-
 #: node -> (sockets, cores/socket, threads/core, NUMA/socket, channels/socket, DIMMs/channel, DIMMs,
 #:          size GiB, ranks, MT/s rated, part number, memspec, confidence)
 EXPECTED: dict[str, tuple[Any, ...]] = {
@@ -38,16 +36,16 @@ def _run_json(capsys: pytest.CaptureFixture[str], *argv: str) -> dict[str, Any]:
     return json.loads(capsys.readouterr().out)
 
 
-def _fixture_args(name: str) -> tuple[str, ...]:
-    return ("--sysfs-root", str(FIXTURES / name / "sys"), "--dmidecode", str(FIXTURES / name / "dmidecode.txt"))
+def _fixture_args(root: Path, name: str) -> tuple[str, ...]:
+    return ("--sysfs-root", str(root / name / "sys"), "--dmidecode", str(root / name / "dmidecode.txt"))
 
 
 @pytest.mark.parametrize("name", sorted(EXPECTED))
-def test_fixture_node_json(capsys: pytest.CaptureFixture[str], name: str) -> None:
+def test_fixture_node_json(node_trees: Path, capsys: pytest.CaptureFixture[str], name: str) -> None:
     """--json gives the machine's sockets, cores, NUMA, channels, DIMMs per channel, DIMMs and memspec."""
     (sockets, cores, threads, numa, channels, dpc, count, size_gib, ranks, speed, part, memspec,
      confidence) = EXPECTED[name]
-    out = _run_json(capsys, *_fixture_args(name))
+    out = _run_json(capsys, *_fixture_args(node_trees, name))
     assert (out["sockets"], out["cores_per_socket"], out["threads_per_core"], out["numa_nodes_per_socket"],
             out["channels_per_socket"], out["dimms_per_channel"]) == (sockets, cores, threads, numa, channels, dpc)
     dimms = out["dimms"]
@@ -66,9 +64,9 @@ def test_fixture_node_json(capsys: pytest.CaptureFixture[str], name: str) -> Non
 
 
 @pytest.mark.parametrize("name", sorted(EXPECTED))
-def test_sensor_map(capsys: pytest.CaptureFixture[str], name: str) -> None:
+def test_sensor_map(node_trees: Path, capsys: pytest.CaptureFixture[str], name: str) -> None:
     """RAPL DRAM<N> holds socket N's DIMMs; HDEEM-style pairs hold two consecutive channels of one socket."""
-    out = _run_json(capsys, *_fixture_args(name))
+    out = _run_json(capsys, *_fixture_args(node_trees, name))
     by_locator = {d["locator"]: d for d in out["dimms"]}
     sockets, channels = out["sockets"], out["channels_per_socket"]
     for s in range(sockets):
@@ -82,9 +80,9 @@ def test_sensor_map(capsys: pytest.CaptureFixture[str], name: str) -> None:
     assert sorted(x for v in pairs.values() for x in v) == sorted(by_locator)
 
 
-def test_taurus_sensor_map_is_hdeems(capsys: pytest.CaptureFixture[str]) -> None:
+def test_taurus_sensor_map_is_hdeems(node_trees: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """On the Taurus node: DDR_AB = socket 0 channels A, B ... DDR_GH = socket 1's last two channels."""
-    out = _run_json(capsys, *_fixture_args("haswell-ep-taurus"))
+    out = _run_json(capsys, *_fixture_args(node_trees, "haswell-ep-taurus"))
     assert out["sensors"]["DDR_AB"] == ["P1-DIMMA1", "P1-DIMMB1"]
     assert out["sensors"]["DDR_CD"] == ["P1-DIMMC1", "P1-DIMMD1"]
     assert out["sensors"]["DDR_EF"] == ["P2-DIMMA1", "P2-DIMMB1"]
@@ -97,9 +95,9 @@ def test_taurus_sensor_map_is_hdeems(capsys: pytest.CaptureFixture[str]) -> None
     assert dimm["sources"]["part_number"] == "dmidecode -t 17"
 
 
-def test_edac_alone_places_the_dimms(capsys: pytest.CaptureFixture[str]) -> None:
+def test_edac_alone_places_the_dimms(node_trees: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Without dmidecode (not root), the EDAC labels give socket and channel of every populated DIMM."""
-    out = _run_json(capsys, "--sysfs-root", str(FIXTURES / "icelake-sp-2dpc" / "sys"))
+    out = _run_json(capsys, "--sysfs-root", str(node_trees / "icelake-sp-2dpc" / "sys"))
     assert (out["channels_per_socket"], out["dimms_per_channel"], len(out["dimms"])) == (8, 2, 32)
     assert out["facts"]["channels_per_socket"]["source"].startswith("edac")
     assert {d["device_width"] for d in out["dimms"]} == {4}
@@ -107,9 +105,9 @@ def test_edac_alone_places_the_dimms(capsys: pytest.CaptureFixture[str]) -> None
     assert out["memspec"]["confidence"] == "low"     # no part number, no ranks: density unknown
 
 
-def test_text_output_and_notes(capsys: pytest.CaptureFixture[str]) -> None:
+def test_text_output_and_notes(node_trees: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The table names the memspec, its confidence and reason, the sensors and what was not detected."""
-    assert main(["node", *_fixture_args("epyc-rome-8ch")]) == 0
+    assert main(["node", *_fixture_args(node_trees, "epyc-rome-8ch")]) == 0
     text = capsys.readouterr().out
     assert "memspec: micron-8gb-x4-ddr4-2933  [high]" in text
     assert "P1 CHANNEL H DIMM 0" in text and "DRAM1" in text

@@ -73,7 +73,7 @@ def test_the_sim_models_the_node_table(tmp_path: Path) -> None:
     assert (node.sockets.value, node.cores_per_socket.value, node.channels_per_socket.value) == (2, 28, 8)
 
 
-def test_the_daemon_models_the_configured_sim_node(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+def test_the_daemon_models_the_configured_sim_node(node_trees: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     """Start-up: the memspec and topology are logged with their reasons; node.get answers; the run model
     is built on 2 x 28 cores and 16 DIMMs (not the default 8)."""
     from hdeem_watch.daemon.service import Daemon
@@ -99,17 +99,16 @@ def test_the_daemon_models_the_configured_sim_node(tmp_path: Path, caplog: pytes
         daemon.close()
 
 
-FIXTURES = Path(__file__).resolve().parent / "fixtures"
 
 
-def test_a_saved_dmidecode_print_out_stands_in_for_root(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_saved_dmidecode_print_out_stands_in_for_root(node_trees: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """[node] dmidecode = FILE: a daemon that is not root (and `hdeem-watch node --config`) reads the DIMMs
     from a saved `dmidecode -t 17`; an unreadable file is one line naming the key, exit 2."""
     import json
 
     from hdeem_watch.cli import main
 
-    fixture = FIXTURES / "epyc-rome-8ch"
+    fixture = node_trees / "epyc-rome-8ch"
     config = _config(tmp_path, f'[node]\ndmidecode = "{fixture / "dmidecode.txt"}"\n')
     assert main(["node", "--sysfs-root", str(fixture / "sys"), "--config", str(config), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
@@ -120,12 +119,12 @@ def test_a_saved_dmidecode_print_out_stands_in_for_root(tmp_path: Path, capsys: 
     assert "[node].dmidecode" in err and "nope.txt" in err and err.count("\n") == 1
 
 
-def test_the_daemon_detects_a_real_source_s_node_with_the_saved_print_out(tmp_path: Path) -> None:
+def test_the_daemon_detects_a_real_source_s_node_with_the_saved_print_out(node_trees: Path, tmp_path: Path) -> None:
     """A non-sim source: the daemon describes this machine (sysfs) with the DIMMs of [node] dmidecode, and the
     [node] counts over it; the memspec is the DIMMs' (a replayed recording is described by the table alone)."""
     from hdeem_watch.daemon.service import Daemon
 
-    fixture = FIXTURES / "skylake-sp"
+    fixture = node_trees / "skylake-sp"
     text = (f'source = "sim"\n[node]\ndmidecode = "{fixture / "dmidecode.txt"}"\nsockets = 2\n'
             'cores_per_socket = 20\n')
     settings = load_settings(_config(tmp_path, text), env={}, overrides={"state_dir": str(tmp_path / "s")})

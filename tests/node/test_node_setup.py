@@ -19,17 +19,15 @@ from hdeem_watch.node.setup import (
     node_setup,
 )
 
-FIXTURES = Path(__file__).resolve().parent / "fixtures"
 
-
-def fixture_node(name: str) -> Any:
-    root = FIXTURES / name
+def fixture_node(root: Path, name: str) -> Any:
+    root = root / name
     return describe_node(root / "sys", (root / "dmidecode.txt").read_text(encoding="utf-8"), "fixture")
 
 
-def test_a_detected_node_gives_its_memspec_topology_and_sensors() -> None:
+def test_a_detected_node_gives_its_memspec_topology_and_sensors(node_trees: Path) -> None:
     """Taurus: the part number names the preset (exact); 2 x 12 cores, 4 channels x 1 DIMM; HDEEM pairs."""
-    setup = node_setup(fixture_node("haswell-ep-taurus"), None, memspec_setting=None)
+    setup = node_setup(fixture_node(node_trees, "haswell-ep-taurus"), None, memspec_setting=None)
     assert (setup.memspec, setup.choice.confidence) == ("samsung-m393a1g43db0-cpb", "exact")
     assert setup.topology is not None
     assert (setup.topology.sockets, setup.topology.cores_per_socket, setup.topology.channels_per_socket,
@@ -43,15 +41,15 @@ def test_a_detected_node_gives_its_memspec_topology_and_sensors() -> None:
     assert len(body["dimms"]) == 8
 
 
-def test_two_dimms_per_channel_are_modelled_as_such() -> None:
+def test_two_dimms_per_channel_are_modelled_as_such(node_trees: Path) -> None:
     """The Ice Lake 2-DPC fixture: 2 x 8 channels of two DIMMs each, 32 DIMMs in the model."""
-    setup = node_setup(fixture_node("icelake-sp-2dpc"), None, memspec_setting=None)
+    setup = node_setup(fixture_node(node_trees, "icelake-sp-2dpc"), None, memspec_setting=None)
     assert setup.topology is not None and setup.topology.dimms == 32 and setup.topology.dimms_per_channel == 2
 
 
-def test_the_memspec_precedence_node_table_then_setting_then_dimms_then_default() -> None:
+def test_the_memspec_precedence_node_table_then_setting_then_dimms_then_default(node_trees: Path) -> None:
     """[node] memspec beats the memspec setting, which beats the DIMMs; nothing at all is the default."""
-    node = fixture_node("haswell-ep-taurus")
+    node = fixture_node(node_trees, "haswell-ep-taurus")
     table = parse_node_table({"memspec": "micron-4gb-x8-ddr4-2400-a"})
     assert node_setup(node, table, memspec_setting="ddr4-2133-x8-4gb").memspec == "micron-4gb-x8-ddr4-2400-a"
     chosen = node_setup(node, None, memspec_setting="ddr4-2133-x8-4gb")
@@ -97,9 +95,9 @@ def test_dmidecode_is_run_only_as_root_and_says_why_not() -> None:
     assert text is not None and "Memory Device" in text and why.startswith("dmidecode -t 17")
 
 
-def test_live_detection_reads_the_injected_tree(tmp_path: Path) -> None:
+def test_live_detection_reads_the_injected_tree(node_trees: Path, tmp_path: Path) -> None:
     """detect_live_node on a fixture tree with a saved print-out (the daemon's path on hdeem/rapl nodes)."""
-    root = FIXTURES / "skylake-sp"
+    root = node_trees / "skylake-sp"
     text = (root / "dmidecode.txt").read_text(encoding="utf-8")
     node = detect_live_node(root / "sys", cpuinfo=tmp_path / "none", dmidecode=(text, "saved"))
     assert node.sockets.value == 2 and node.channels_per_socket.value == 6 and len(node.dimms) == 12

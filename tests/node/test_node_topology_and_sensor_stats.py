@@ -16,12 +16,11 @@ from hdeem_watch.node.sensor_stats import dimm_channels, sensor_run_stats, split
 from hdeem_watch.node.sensors import sensor_map
 from hdeem_watch.node.topology import topology_from_node
 
-FIXTURES = Path(__file__).resolve().parent / "fixtures"
 SPEC = preset("samsung-m393a1g43db0-cpb")
 
 
-def fixture(name: str):  # type: ignore[no-untyped-def]
-    return describe_node(FIXTURES / name / "sys", (FIXTURES / name / "dmidecode.txt").read_text(), "fixture")
+def fixture(root: Path, name: str):  # type: ignore[no-untyped-def]
+    return describe_node(root / name / "sys", (root / name / "dmidecode.txt").read_text(), "fixture")
 
 
 @pytest.mark.parametrize(("name", "counts"), [
@@ -31,10 +30,10 @@ def fixture(name: str):  # type: ignore[no-untyped-def]
     ("skylake-sp-snc2", (2, 20, 2, 6, 1, 12)),
     ("epyc-rome-8ch", (2, 16, 1, 8, 1, 16)),
 ])
-def test_topology_of_each_fixture(name: str, counts: tuple[int, ...]) -> None:
+def test_topology_of_each_fixture(node_trees: Path, name: str, counts: tuple[int, ...]) -> None:
     """(sockets, cores/socket, NUMA/socket, channels/socket, DIMMs/channel, DIMMs) as detected; every online
     CPU has a domain, and each socket's CPUs are in that socket's domains."""
-    node = fixture(name)
+    node = fixture(node_trees, name)
     topo = topology_from_node(node)
     assert (topo.sockets, topo.cores_per_socket, topo.numa_nodes_per_socket, topo.channels_per_socket,
             topo.dimms_per_channel, topo.dimms) == counts
@@ -42,10 +41,10 @@ def test_topology_of_each_fixture(name: str, counts: tuple[int, ...]) -> None:
         assert {topo.socket_of_domain(topo.domain_of_cpu(c)) for c in cpus} == {socket}
 
 
-def test_snc_domains_follow_the_kernels_node_cpulists() -> None:
+def test_snc_domains_follow_the_kernels_node_cpulists(node_trees: Path) -> None:
     """On the SNC-2 fixture the core split matches sysfs node*/cpulist (node0 = CPUs 0-9,40-49, ...)."""
-    topo = topology_from_node(fixture("skylake-sp-snc2"))
-    root = FIXTURES / "skylake-sp-snc2" / "sys" / "devices" / "system" / "node"
+    topo = topology_from_node(fixture(node_trees, "skylake-sp-snc2"))
+    root = node_trees / "skylake-sp-snc2" / "sys" / "devices" / "system" / "node"
     from hdeem_watch.node.cpu_topology import parse_cpu_list
 
     for numa in range(4):
@@ -58,10 +57,10 @@ def test_unknown_counts_name_the_node_table_key(tmp_path: Path) -> None:
         topology_from_node(describe_node(tmp_path, None, "none"))
 
 
-def test_taurus_sensor_rows_of_a_socket_0_run() -> None:
+def test_taurus_sensor_rows_of_a_socket_0_run(node_trees: Path) -> None:
     """12 threads on Taurus load socket 0: DDR_AB and DDR_CD see 2 loaded DIMMs each, DDR_EF/DDR_GH 2 idle
     ones; RAPL DRAM0 sees 4 loaded. The sensor rows add up to the node row."""
-    node = fixture("haswell-ep-taurus")
+    node = fixture(node_trees, "haswell-ep-taurus")
     rows = sensor_run_stats(SPEC, node, "triad", 1 << 22, 12, 2, max_requests=50_000)
     idle = idle_channel_stats(SPEC)
     assert [(k, [n for _s, n in v]) for k, v in rows.items()] == [
@@ -73,10 +72,10 @@ def test_taurus_sensor_rows_of_a_socket_0_run() -> None:
     assert sum(p.constant_j for p in pairs) == pytest.approx(node_row.constant_j)
 
 
-def test_under_snc_a_pair_can_straddle_two_domains() -> None:
+def test_under_snc_a_pair_can_straddle_two_domains(node_trees: Path) -> None:
     """SNC-2 with 3 channels per domain: DDR_CD = channel C (domain 0) + channel D (domain 1); a run on the
     first cluster's CPUs loads C but not D."""
-    node = fixture("skylake-sp-snc2")
+    node = fixture(node_trees, "skylake-sp-snc2")
     topo = topology_from_node(node)
     groups = node_run_stats(SPEC, "read", 1 << 22, 10, 2, topo, cpus=range(10), max_requests=50_000)
     rows = split_by_sensor(topo, groups, sensor_map(node), dimm_channels(node))
@@ -85,8 +84,8 @@ def test_under_snc_a_pair_can_straddle_two_domains() -> None:
     assert [n for _s, n in rows["DRAM0"]] == [3, 3]
 
 
-def test_bad_sensor_maps_are_named() -> None:
-    node = fixture("haswell-ep-taurus")
+def test_bad_sensor_maps_are_named(node_trees: Path) -> None:
+    node = fixture(node_trees, "haswell-ep-taurus")
     topo = topology_from_node(node)
     groups = node_run_stats(SPEC, "idle", 0, 1, 1, topo)
     with pytest.raises(InputError, match="DDR_XY: DIMM 'nope' has no known socket and channel"):
@@ -112,12 +111,12 @@ def test_snc_domains_come_from_the_kernels_numa_cpu_lists() -> None:
     assert topology_from_node(odd).cpu_domains == (0, 0, 1, 1)
 
 
-def test_the_node_report_says_what_the_model_makes_of_the_node(tmp_path: Path) -> None:
+def test_the_node_report_says_what_the_model_makes_of_the_node(node_trees: Path, tmp_path: Path) -> None:
     """``hdeem-watch node --json``'s ``model``: memory domains and DIMMs of the SNC fixture; on a node without
     counts, the error naming the [node] keys."""
     from hdeem_watch.node.report import node_report
 
-    view = node_report(fixture("skylake-sp-snc2"))["model"]
+    view = node_report(fixture(node_trees, "skylake-sp-snc2"))["model"]
     assert view["error"] is None
     assert (view["memory_domains"], view["channels_per_domain"], view["dimms"]) == (4, 3, 12)
     assert view["cpu_numbering"] == "sysfs"

@@ -16,13 +16,11 @@ from hdeem_watch.node.locators import parse_location
 from hdeem_watch.node.memspec_choice import choose_memspec, devices_per_rank, for_dimm, width_from_part_number
 from hdeem_watch.node.overrides import parse_node_table
 
-FIXTURES = Path(__file__).resolve().parent / "fixtures"
 
-
-def test_dmidecode_versions_and_empty_slots() -> None:
+def test_dmidecode_versions_and_empty_slots(node_trees: Path) -> None:
     """2.12 spells sizes in MB and speeds in MHz; 3.x in GB and MT/s; an empty slot has no size."""
-    old = parse_dmidecode((FIXTURES / "haswell-ep-taurus" / "dmidecode.txt").read_text())
-    new = parse_dmidecode((FIXTURES / "skylake-sp" / "dmidecode.txt").read_text())
+    old = parse_dmidecode((node_trees / "haswell-ep-taurus" / "dmidecode.txt").read_text())
+    new = parse_dmidecode((node_trees / "skylake-sp" / "dmidecode.txt").read_text())
     assert (old[0].size_bytes, old[0].speed_mts, old[0].configured_mts) == (8 << 30, 2133, 2133)
     assert (new[0].size_bytes, new[0].speed_mts, new[0].configured_mts) == (16 << 30, 2666, 2666)
     assert new[0].part_number == "M393A2K43BB1-CTD"          # padding removed
@@ -75,9 +73,9 @@ def test_cpu_lists_and_missing_sysfs(tmp_path: Path) -> None:
     assert topo.sockets.value is None and "not Linux" in topo.sockets.source
 
 
-def test_snc_numa_per_socket() -> None:
+def test_snc_numa_per_socket(node_trees: Path) -> None:
     """SNC2: two NUMA nodes per socket, mapped to their socket."""
-    topo = read_cpu_topology(FIXTURES / "skylake-sp-snc2" / "sys")
+    topo = read_cpu_topology(node_trees / "skylake-sp-snc2" / "sys")
     assert topo.numa_nodes_per_socket.value == 2 and topo.numa_by_socket == {0: [0, 1], 1: [2, 3]}
 
 

@@ -15,7 +15,6 @@ from hdeem_watch.sources.sim_layout import TAURUS, SimLayout, layout_for_node
 from hdeem_watch.sources.sim_model import kernel_traffic_lines, modelled_line_rate
 
 S = 1_000_000_000
-FIXTURES = Path(__file__).resolve().parents[1] / "node" / "fixtures"
 ICE_LAKE_1DPC = SimLayout.regular(2, 28, 8)      # 2 x Xeon Gold 6330, 16 DIMMs
 ONE_SOCKET = SimLayout.regular(1, 12, 6)         # 1 x Xeon Silver 4116, 6 DIMMs
 
@@ -43,18 +42,18 @@ def test_taurus_is_the_default_and_hdeems_channel_set() -> None:
     assert SimSource(seed=1).layout is TAURUS
 
 
-def test_layout_from_the_detected_taurus_node() -> None:
+def test_layout_from_the_detected_taurus_node(node_trees: Path) -> None:
     """The Taurus fixture's description gives the default layout."""
-    node = describe_node(FIXTURES / "haswell-ep-taurus" / "sys",
-                         (FIXTURES / "haswell-ep-taurus" / "dmidecode.txt").read_text(), "fixture")
+    node = describe_node(node_trees / "haswell-ep-taurus" / "sys",
+                         (node_trees / "haswell-ep-taurus" / "dmidecode.txt").read_text(), "fixture")
     assert layout_for_node(node) == TAURUS
 
 
-def test_layout_needs_counts_and_one_dimm_per_channel(tmp_path: Path) -> None:
+def test_layout_needs_counts_and_one_dimm_per_channel(node_trees: Path, tmp_path: Path) -> None:
     """Unknown counts and 2 DIMMs per channel are clear errors, not a wrong model."""
     with pytest.raises(InputError, match="does not know sockets"):
         layout_for_node(describe_node(tmp_path, None, "none"))
-    icelake = FIXTURES / "icelake-sp-2dpc"
+    icelake = node_trees / "icelake-sp-2dpc"
     with pytest.raises(InputError, match="2 DIMMs per channel"):
         layout_for_node(describe_node(icelake / "sys", (icelake / "dmidecode.txt").read_text(), "fixture"))
 
