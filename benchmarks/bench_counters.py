@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import random
+import runpy
 import statistics
 import tempfile
 import time
@@ -91,8 +92,10 @@ def sim_overhead(job: bool) -> float:
 def perf_overhead() -> float:
     """The Haswell-EP plan's 112 events, each a real software event of this process."""
     cpuinfo = (FIXTURES / "cpuinfo" / "haswell_ep").read_text()
-    plan = plan_host(FIXTURES / "sysfs_haswell_ep", cpuinfo_text=cpuinfo,
-                     access=check_access(paranoid=0, capabilities=0), ranks=2)
+    with tempfile.TemporaryDirectory() as trees:  # the PMU tree as the tests build it
+        runpy.run_path(str(FIXTURES.parent / "pmu_trees.py"))["build"](Path(trees))
+        plan = plan_host(Path(trees) / "sysfs_haswell_ep", cpuinfo_text=cpuinfo,
+                         access=check_access(paranoid=0, capabilities=0), ranks=2)
     real = PerfCounterReader(pid=0, exclude_kernel=True)
 
     class SoftwareStandIn:  # the uncore events' opens redirected to a software event; reads are real

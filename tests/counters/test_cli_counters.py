@@ -20,14 +20,14 @@ def run(capsys, *args: str) -> tuple[int, str, str]:
     return code, out, err
 
 
-def host(sysfs: str, cpuinfo: str, proc: str = "proc_perfmon") -> list[str]:
-    return ["--sysfs-root", str(FIXTURES / sysfs), "--cpuinfo", str(FIXTURES / "cpuinfo" / cpuinfo),
+def host(trees: Path, sysfs: str, cpuinfo: str, proc: str = "proc_perfmon") -> list[str]:
+    return ["--sysfs-root", str(trees / sysfs), "--cpuinfo", str(FIXTURES / "cpuinfo" / cpuinfo),
             "--proc-root", str(FIXTURES / proc)]
 
 
-def test_haswell_ep_json(capsys):
+def test_haswell_ep_json(pmu_trees, capsys):
     """Haswell-EP: 8 channels as (socket, box), 14 events for 2 ranks, encoded; the JSON parses."""
-    code, out, _ = run(capsys, *host("sysfs_haswell_ep", "haswell_ep"), "--json")
+    code, out, _ = run(capsys, *host(pmu_trees, "sysfs_haswell_ep", "haswell_ep"), "--json")
     data = json.loads(out)
     assert code == 0 and data["usable"] and data["generation"] == "haswell-ep"
     assert [c["name"] for c in data["channels"]][:4] == ["S0.imc0", "S0.imc1", "S0.imc4", "S0.imc5"]
@@ -39,17 +39,17 @@ def test_haswell_ep_json(capsys):
     assert any("multiplexes" in note for note in data["notes"])
 
 
-def test_ice_lake_sp_text(capsys):
+def test_ice_lake_sp_text(pmu_trees, capsys):
     """Ice Lake-SP: 24 channels, free-running PMUs listed as not used, RDA/WRA events present."""
-    code, out, _ = run(capsys, *host("sysfs_ice_lake_sp", "ice_lake_sp"))
+    code, out, _ = run(capsys, *host(pmu_trees, "sysfs_ice_lake_sp", "ice_lake_sp"))
     assert code == 0
     assert "channels: 24" in out and "free-running (not used)" in out
     assert "UNC_M_CAS_COUNT.WR_PRE" in out and "status: ready to count" in out
 
 
-def test_this_vm_situation(capsys):
+def test_this_vm_situation(pmu_trees, capsys):
     """The VM fixture: exit 0, no IMC PMU, the PMUs it does have, and no event table for the AMD CPU."""
-    code, out, _ = run(capsys, *host("sysfs_vm", "vm_amd_epyc"), "--json")
+    code, out, _ = run(capsys, *host(pmu_trees, "sysfs_vm", "vm_amd_epyc"), "--json")
     data = json.loads(out)
     assert code == 0 and not data["usable"]
     assert data["other_pmus"] == ["breakpoint", "msr", "software", "tracepoint", "uprobe"]
@@ -57,17 +57,17 @@ def test_this_vm_situation(capsys):
     assert any("AuthenticAMD-26-2" in r for r in data["reasons"])
 
 
-def test_permissions_explained(capsys):
+def test_permissions_explained(pmu_trees, capsys):
     """An unprivileged process on a real host: not usable, with paranoid level, CAP_PERFMON and the fix."""
-    code, out, _ = run(capsys, *host("sysfs_haswell_ep", "haswell_ep", proc="proc_unprivileged"))
+    code, out, _ = run(capsys, *host(pmu_trees, "sysfs_haswell_ep", "haswell_ep", proc="proc_unprivileged"))
     assert code == 0 and "cannot count on this host" in out
     assert "perf_event_paranoid = 2" in out and "CAP_PERFMON" in out and "AmbientCapabilities" in out
     assert "events per channel: 14" in out  # what it would use is still listed
 
 
-def test_bad_input_is_one_line_exit_2(capsys, tmp_path):
+def test_bad_input_is_one_line_exit_2(pmu_trees, capsys, tmp_path):
     """A missing cpuinfo or a malformed PMU directory: one line on stderr, exit code 2, no traceback."""
-    code, _, err = run(capsys, "--sysfs-root", str(FIXTURES / "sysfs_haswell_ep"), "--cpuinfo", str(tmp_path / "x"))
+    code, _, err = run(capsys, "--sysfs-root", str(pmu_trees / "sysfs_haswell_ep"), "--cpuinfo", str(tmp_path / "x"))
     assert code == 2 and err.count("\n") == 1 and "cannot read" in err
     bad = tmp_path / "sysfs/bus/event_source/devices/uncore_imc_0"
     (bad / "format").mkdir(parents=True)
@@ -77,7 +77,7 @@ def test_bad_input_is_one_line_exit_2(capsys, tmp_path):
     code, _, err = run(capsys, "--sysfs-root", str(tmp_path / "sysfs"),
                        "--cpuinfo", str(FIXTURES / "cpuinfo/haswell_ep"))
     assert code == 2 and "uncore_imc_0/format/umask" in err and "Traceback" not in err
-    code, _, err = run(capsys, *host("sysfs_haswell_ep", "haswell_ep"), "--ranks", "9")
+    code, _, err = run(capsys, *host(pmu_trees, "sysfs_haswell_ep", "haswell_ep"), "--ranks", "9")
     assert code == 2 and "ranks = 9" in err
 
 

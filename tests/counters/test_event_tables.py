@@ -63,9 +63,9 @@ def test_autoprecharge_and_cke_gaps_follow_the_files():
 
 @pytest.mark.parametrize(("generation", "tree"), [("haswell-ep", "sysfs_haswell_ep"),
                                                   ("ice-lake-sp", "sysfs_ice_lake_sp")])
-def test_cas_and_clock_agree_with_the_kernel_aliases(generation, tree):
+def test_cas_and_clock_agree_with_the_kernel_aliases(pmu_trees, generation, tree):
     """The kernel's own ``events/`` aliases (cas_count_read/write, clockticks) encode like our table."""
-    events_dir = FIXTURES / tree / "bus/event_source/devices/uncore_imc_0/events"
+    events_dir = pmu_trees / tree / "bus/event_source/devices/uncore_imc_0/events"
     table = TABLES[generation]
     for alias, role in (("cas_count_read", "cas_rd"), ("cas_count_write", "cas_wr"), ("clockticks", "dclk")):
         fields = dict(part.split("=") for part in (events_dir / alias).read_text().strip().split(","))

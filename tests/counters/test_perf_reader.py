@@ -78,11 +78,11 @@ def test_an_unknown_pmu_type_is_the_kernels_error() -> None:
 
 
 @pytest.mark.parametrize("host", ["haswell_ep", "ice_lake_sp"])
-def test_the_perf_counter_source_on_fixture_hosts_recovers_the_truth(host: str) -> None:
+def test_the_perf_counter_source_on_fixture_hosts_recovers_the_truth(pmu_trees: Path, host: str) -> None:
     """Every planned event on every channel, multiplexed 4 of N: two reads a second apart give each
     channel's hidden triad counts (scaled back), and the model's statistics from them."""
     cpuinfo = (FIXTURES / "cpuinfo" / host).read_text()
-    plan = plan_host(FIXTURES / f"sysfs_{host}", cpuinfo_text=cpuinfo,
+    plan = plan_host(pmu_trees / f"sysfs_{host}", cpuinfo_text=cpuinfo,
                      access=check_access(paranoid=2, capabilities=1 << 38), ranks=2)
     assert plan.usable, plan.reasons
     truth_stats = kernel_stats(SPEC, "triad", 1_000_000, 12, repeat=1, channels=4).stats
@@ -113,10 +113,10 @@ def test_the_perf_counter_source_on_fixture_hosts_recovers_the_truth(host: str) 
     assert reader.open_handles == 0
 
 
-def test_refused_opens_are_explained_and_nothing_stays_open() -> None:
+def test_refused_opens_are_explained_and_nothing_stays_open(pmu_trees: Path) -> None:
     """EACCES names the paranoid level and the fix; a missing PMU says so; either way no event stays open."""
     cpuinfo = (FIXTURES / "cpuinfo" / "haswell_ep").read_text()
-    plan = plan_host(FIXTURES / "sysfs_haswell_ep", cpuinfo_text=cpuinfo,
+    plan = plan_host(pmu_trees / "sysfs_haswell_ep", cpuinfo_text=cpuinfo,
                      access=check_access(paranoid=2, capabilities=0), ranks=2)
     denied = FakeCounterReader(lambda *a: 0, denied=True)
     with pytest.raises(InputError, match=r"not allowed.*perf_event_paranoid"):

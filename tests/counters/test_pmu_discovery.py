@@ -10,15 +10,15 @@ import pytest
 from hdeem_watch.counters.pmu_discovery import discover_imc_pmus, list_pmus, parse_cpu_list
 from hdeem_watch.errors import InputError
 
-FIXTURES = Path(__file__).resolve().parent / "fixtures"
-HASWELL_SYSFS = FIXTURES / "sysfs_haswell_ep"
-ICE_LAKE_SYSFS = FIXTURES / "sysfs_ice_lake_sp"
-VM_SYSFS = FIXTURES / "sysfs_vm"
+
+@pytest.fixture
+def haswell_sysfs(pmu_trees: Path) -> Path:
+    return pmu_trees / "sysfs_haswell_ep"
 
 
-def test_haswell_ep_boxes_and_sockets():
+def test_haswell_ep_boxes_and_sockets(haswell_sysfs):
     """Haswell-EP with two home agents: boxes 0, 1, 4, 5, each counting both sockets via CPUs 0 and 12."""
-    pmus = discover_imc_pmus(HASWELL_SYSFS)
+    pmus = discover_imc_pmus(haswell_sysfs)
     assert [p.name for p in pmus] == ["uncore_imc_0", "uncore_imc_1", "uncore_imc_4", "uncore_imc_5"]
     assert [p.box for p in pmus] == [0, 1, 4, 5]
     assert all(p.cpus == (0, 12) and not p.free_running for p in pmus)
@@ -26,9 +26,9 @@ def test_haswell_ep_boxes_and_sockets():
     assert pmus[0].formats["umask"].describe() == "config:8-15"
 
 
-def test_ice_lake_sp_programmable_then_free_running():
+def test_ice_lake_sp_programmable_then_free_running(pmu_trees):
     """Ice Lake-SP: 12 channel boxes, then 4 per-controller free-running PMUs (not mistaken for channels)."""
-    pmus = discover_imc_pmus(ICE_LAKE_SYSFS)
+    pmus = discover_imc_pmus(pmu_trees / "sysfs_ice_lake_sp")
     programmable = [p for p in pmus if not p.free_running]
     free = [p for p in pmus if p.free_running]
     assert [p.box for p in programmable] == list(range(12))
@@ -36,17 +36,18 @@ def test_ice_lake_sp_programmable_then_free_running():
     assert pmus.index(free[0]) == 12
 
 
-def test_vm_has_no_imc_pmu():
+def test_vm_has_no_imc_pmu(pmu_trees):
     """This VM's PMU list has no uncore PMU: discovery returns nothing (not an error)."""
-    assert discover_imc_pmus(VM_SYSFS) == []
-    assert list_pmus(VM_SYSFS) == ["breakpoint", "msr", "software", "tracepoint", "uprobe"]
-    assert discover_imc_pmus(VM_SYSFS / "absent") == []
+    vm_sysfs = pmu_trees / "sysfs_vm"
+    assert discover_imc_pmus(vm_sysfs) == []
+    assert list_pmus(vm_sysfs) == ["breakpoint", "msr", "software", "tracepoint", "uprobe"]
+    assert discover_imc_pmus(vm_sysfs / "absent") == []
 
 
-def test_malformed_pmu_directory_is_named(tmp_path):
+def test_malformed_pmu_directory_is_named(haswell_sysfs, tmp_path):
     """A bad ``type`` or ``cpumask``, or a missing ``format/``, is an InputError naming the file."""
     root = tmp_path / "sysfs"
-    shutil.copytree(HASWELL_SYSFS, root)
+    shutil.copytree(haswell_sysfs, root)
     pmu = root / "bus/event_source/devices/uncore_imc_4"
     (pmu / "cpumask").write_text("0,x\n")
     with pytest.raises(InputError, match="uncore_imc_4/cpumask"):

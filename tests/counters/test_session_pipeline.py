@@ -34,9 +34,9 @@ class Clock:
 
 
 @pytest.fixture(scope="module")
-def plan():
+def plan(pmu_trees):
     cpuinfo = (FIXTURES / "cpuinfo/haswell_ep").read_text()
-    return plan_host(FIXTURES / "sysfs_haswell_ep", cpuinfo_text=cpuinfo,
+    return plan_host(pmu_trees / "sysfs_haswell_ep", cpuinfo_text=cpuinfo,
                      access=check_access(paranoid=2, capabilities=1 << 38), ranks=2)
 
 

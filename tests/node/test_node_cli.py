@@ -1,6 +1,6 @@
 """``hdeem-watch node`` on fixture trees of real machine generations (issue 15).
 
-Each fixture (tests/node/fixtures/<node>/, written by make_fixtures.py) is a sysfs subset as Linux
+Each fixture (<node>/ of the session's node_trees, built by make_fixtures.py) is a sysfs subset as Linux
 lays it out (cpu/cpuN/topology, node/nodeN/cpulist, edac/mc/mcN/dimmM; kernel
 Documentation/ABI/testing/sysfs-devices-edac) and a ``dmidecode -t 17`` print-out in the spelling
 of the dmidecode version such a node ran (2.12: "8192 MB", "MHz", "Configured Clock Speed"; 3.2+:

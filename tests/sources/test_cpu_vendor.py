@@ -12,7 +12,6 @@ from hdeem_watch.sources.cpu_vendor import no_dram_reason, read_cpuinfo
 from hdeem_watch.sources.rapl import RaplSource
 
 CPUINFO = Path(__file__).resolve().parent / "fixtures" / "cpuinfo"
-LAPTOP = Path(__file__).resolve().parent / "fixtures" / "powercap_laptop"
 
 
 def test_identity_is_read_from_the_first_processor():
@@ -35,10 +34,10 @@ def test_message_by_vendor_and_class(fixture, says, never):
     assert "hdeem" in reason and "replay" in reason
 
 
-def test_rapl_source_on_epyc_gives_the_amd_reason():
+def test_rapl_source_on_epyc_gives_the_amd_reason(powercap_trees):
     """The rapl source with no dram zone on an EPYC: unavailable, with the AMD message."""
     with pytest.raises(SourceUnavailable, match=r"AMD CPU .*no DRAM energy.*EPYC servers too"):
-        RaplSource(root=LAPTOP, cpuinfo=CPUINFO / "amd_epyc_7763.txt").open()
+        RaplSource(root=powercap_trees / "powercap_laptop", cpuinfo=CPUINFO / "amd_epyc_7763.txt").open()
 
 
 def test_unreadable_cpuinfo(tmp_path):

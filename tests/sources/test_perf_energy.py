@@ -24,10 +24,17 @@ from hdeem_watch.sources.perf_energy import event_config, perf_counters
 from hdeem_watch.sources.rapl import RaplSource
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures"
-PERF = FIXTURES / "perf_power"
-PMU = PERF / "bus" / "event_source" / "devices" / "power"
-CPUS = PERF / "devices" / "system" / "cpu"
 SCALE = 2.3283064365386962890625e-10
+
+
+@pytest.fixture
+def power_pmu(powercap_trees: Path) -> Path:
+    return powercap_trees / "perf_power" / "bus" / "event_source" / "devices" / "power"
+
+
+@pytest.fixture
+def cpu_dir(powercap_trees: Path) -> Path:
+    return powercap_trees / "perf_power" / "devices" / "system" / "cpu"
 
 
 class FakeEvent:
@@ -72,16 +79,16 @@ def test_refused_event_raises_with_errno():
     assert info.value.errno in (errno.EINVAL, errno.ENOENT, errno.EOPNOTSUPP)
 
 
-def test_config_word_from_the_format_files():
+def test_config_word_from_the_format_files(power_pmu):
     """'event=0x03' with format/event 'config:0-7' is config 3."""
-    assert event_config(PMU, "event=0x03\n") == 3
+    assert event_config(power_pmu, "event=0x03\n") == 3
 
 
-def test_one_counter_per_socket_from_the_cpumask():
+def test_one_counter_per_socket_from_the_cpumask(power_pmu, cpu_dir):
     """cpumask 0,24 → events on CPU 0 (package 0) and 24 (package 1), the PMU's type and config, in
     Joules × the sysfs scale; closing closes every event."""
     log: list = []
-    counters, close = perf_counters(PMU, CPUS, opener=lambda t, c, cpu: FakeEvent(log, t, c, cpu))
+    counters, close = perf_counters(power_pmu, cpu_dir, opener=lambda t, c, cpu: FakeEvent(log, t, c, cpu))
     assert [c.channel for c in counters] == ["DRAM0", "DRAM1"]
     assert [(t, c, cpu) for t, c, cpu, _ in log] == [(20, 3, 0), (20, 3, 24)]
     assert counters[1].joules_per_unit == SCALE and counters[1].modulus is None
@@ -90,11 +97,11 @@ def test_one_counter_per_socket_from_the_cpumask():
     assert all(event.closed for *_, event in log)
 
 
-def test_rapl_auto_falls_back_to_perf_when_powercap_is_closed(tmp_path):
+def test_rapl_auto_falls_back_to_perf_when_powercap_is_closed(power_pmu, cpu_dir, powercap_trees, tmp_path):
     """method='auto': energy_uj denied (CVE-2020-8694) → the power PMU; ΔE/Δt from the scaled counts."""
     log: list = []
     tree = tmp_path / "pc"
-    shutil.copytree(FIXTURES / "powercap_haswell_ep", tree)
+    shutil.copytree(powercap_trees / "powercap_haswell_ep", tree)
 
     def denied(path: Path) -> str:
         if path.name == "energy_uj":
@@ -103,7 +110,7 @@ def test_rapl_auto_falls_back_to_perf_when_powercap_is_closed(tmp_path):
 
     now = [0]
     src = RaplSource(root=tree, method="auto", read_text=denied, clock=lambda: now[0],
-                     perf_options={"sysfs": PMU, "cpu_dir": CPUS,
+                     perf_options={"sysfs": power_pmu, "cpu_dir": cpu_dir,
                                    "opener": lambda t, c, cpu: FakeEvent(log, t, c, cpu)})
     src.open()
     assert src.used_method == "perf" and [c.name for c in src.channels()] == ["DRAM0", "DRAM1"]
@@ -116,22 +123,22 @@ def test_rapl_auto_falls_back_to_perf_when_powercap_is_closed(tmp_path):
     assert all(event.closed for *_, event in log)
 
 
-def test_perf_refused_names_paranoid_and_capability():
+def test_perf_refused_names_paranoid_and_capability(power_pmu, cpu_dir):
     """EACCES from perf_event_open → unavailable, naming perf_event_paranoid and CAP_PERFMON."""
     def refuse(t: int, c: int, cpu: int) -> FakeEvent:
         raise PerfEventError(errno.EACCES, "Permission denied")
 
     with pytest.raises(SourceUnavailable, match=r"perf_event_paranoid = 2.*CAP_PERFMON"):
-        perf_counters(PMU, CPUS, opener=refuse, paranoid=lambda: 2)
+        perf_counters(power_pmu, cpu_dir, opener=refuse, paranoid=lambda: 2)
 
 
-def test_pmu_without_energy_ram_says_what_the_cpu_offers(tmp_path):
+def test_pmu_without_energy_ram_says_what_the_cpu_offers(power_pmu, cpu_dir, tmp_path):
     """An AMD power PMU (energy-pkg only): the reason is the AMD one, not a permission hint."""
     pmu = tmp_path / "power"
-    shutil.copytree(PMU, pmu)
+    shutil.copytree(power_pmu, pmu)
     for name in ("energy-ram", "energy-ram.scale", "energy-ram.unit"):
         (pmu / "events" / name).unlink()
     with pytest.raises(SourceUnavailable, match="AMD CPU"):
-        perf_counters(pmu, CPUS, cpuinfo=FIXTURES / "cpuinfo" / "amd_epyc_7763.txt")
+        perf_counters(pmu, cpu_dir, cpuinfo=FIXTURES / "cpuinfo" / "amd_epyc_7763.txt")
     with pytest.raises(SourceUnavailable, match="no power PMU"):
-        perf_counters(tmp_path / "none", CPUS)
+        perf_counters(tmp_path / "none", cpu_dir)

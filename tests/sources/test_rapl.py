@@ -11,14 +11,13 @@ import pytest
 from hdeem_watch.sources.base import RAPL_DRAM_COVERS, SourceUnavailable, available_sources, make_source
 from hdeem_watch.sources.rapl import RaplSource, probe, wrap_delta_uj
 
-FIXTURES = Path(__file__).resolve().parent / "fixtures"
 RANGE = 262143328850
 
 
 @pytest.fixture
-def tree(tmp_path) -> Path:
+def tree(powercap_trees, tmp_path) -> Path:
     root = tmp_path / "powercap"
-    shutil.copytree(FIXTURES / "powercap_haswell_ep", root)
+    shutil.copytree(powercap_trees / "powercap_haswell_ep", root)
     return root
 
 
@@ -102,10 +101,10 @@ def test_permission_denied_names_the_fix(tree):
     assert "root-only" in info.value.reason
 
 
-def test_no_dram_zone_and_missing_root(tmp_path):
+def test_no_dram_zone_and_missing_root(powercap_trees, tmp_path):
     """A client CPU (no 'dram' zone) and a missing powercap tree are unavailable with the reason."""
     with pytest.raises(SourceUnavailable, match="no DRAM zone"):
-        make_source("rapl", root=FIXTURES / "powercap_laptop").open()
+        make_source("rapl", root=powercap_trees / "powercap_laptop").open()
     reason = available_sources(rapl_root=str(tmp_path / "nope"))["rapl"]
     assert reason and "does not exist" in reason
 

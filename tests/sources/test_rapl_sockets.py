@@ -1,6 +1,6 @@
 """RAPL zones map to sockets by their package zone's name, in kernel-layout fixture trees.
 
-Trees (fixtures/make_powercap_trees.py) are laid out as sysfs presents powercap: zones numbered in
+Trees (powercap_trees.py, built per session) are laid out as sysfs presents powercap: zones numbered in
 registration order in hex (drivers/powercap/powercap_sys.c, powercap_register_zone), package zones
 named package-X or package-X-die-Y (drivers/powercap/intel_rapl_common.c, rapl_add_package), and
 class/powercap holding a symlink per zone.
@@ -25,8 +25,8 @@ DEVICES = Path("devices/virtual/powercap/intel-rapl")
 
 
 
-def copy(tmp_path: Path, name: str) -> Path:
-    shutil.copytree(FIXTURES / name, tmp_path / name, symlinks=True)
+def copy(trees: Path, tmp_path: Path, name: str) -> Path:
+    shutil.copytree(trees / name, tmp_path / name, symlinks=True)
     return tmp_path / name
 
 
@@ -46,18 +46,18 @@ def powers(tree: Path, bumps: dict[str, int], clock) -> dict[str, float]:  # clo
     return {ch: float(p[0]) for ch, (_, p) in batch.samples.items() if len(p)}
 
 
-def test_registration_order_is_not_socket_order(tmp_path, fake_clock):
+def test_registration_order_is_not_socket_order(powercap_trees, tmp_path, fake_clock):
     """intel-rapl:0 is package-1 here: its DRAM zone is DRAM1, not DRAM0."""
-    tree = copy(tmp_path, "powercap_2s_swapped")
+    tree = copy(powercap_trees, tmp_path, "powercap_2s_swapped")
     zones = find_dram_zones(tree / "class" / "powercap")
     assert [(z.channel, z.path.name) for z in zones] == [("DRAM0", "intel-rapl:1:0"), ("DRAM1", "intel-rapl:0:0")]
     assert powers(tree, {"intel-rapl:0:0": 3_000_000, "intel-rapl:1:0": 1_000_000}, fake_clock(1_000_000_000)) == {
         "DRAM0": pytest.approx(1.0), "DRAM1": pytest.approx(3.0)}
 
 
-def test_four_sockets_registered_out_of_order(tmp_path, fake_clock):
+def test_four_sockets_registered_out_of_order(powercap_trees, tmp_path, fake_clock):
     """4 sockets registered 2, 0, 3, 1 (and a psys zone): DRAM0..DRAM3 each read their own socket."""
-    tree = copy(tmp_path, "powercap_4s")
+    tree = copy(powercap_trees, tmp_path, "powercap_4s")
     zones = find_dram_zones(tree / "class" / "powercap")
     assert [z.channel for z in zones] == ["DRAM0", "DRAM1", "DRAM2", "DRAM3"]
     assert [z.path.name for z in zones] == ["intel-rapl:1:0", "intel-rapl:3:0", "intel-rapl:0:0", "intel-rapl:2:0"]
@@ -66,25 +66,25 @@ def test_four_sockets_registered_out_of_order(tmp_path, fake_clock):
                    "DRAM1": pytest.approx(4.0)}
 
 
-def test_multi_die_packages_name_socket_and_die(tmp_path, fake_clock):
+def test_multi_die_packages_name_socket_and_die(powercap_trees, tmp_path, fake_clock):
     """package-X-die-Y zones give DRAM<X>_DIE<Y>; a die without a DRAM zone gives no channel."""
-    tree = copy(tmp_path, "powercap_multidie")
+    tree = copy(powercap_trees, tmp_path, "powercap_multidie")
     zones = find_dram_zones(tree / "class" / "powercap")
     assert [(z.channel, z.socket, z.die) for z in zones] == [("DRAM0_DIE0", 0, 0), ("DRAM1_DIE0", 1, 0),
                                                               ("DRAM1_DIE1", 1, 1)]
     assert powers(tree, {"intel-rapl:2:0": 2_000_000}, fake_clock(1_000_000_000))["DRAM0_DIE0"] == pytest.approx(2.0)
 
 
-def test_nested_tree_without_symlinks_maps_the_same(tmp_path):
+def test_nested_tree_without_symlinks_maps_the_same(powercap_trees, tmp_path):
     """The real device directories (nested, no class/ symlinks) give the same mapping."""
-    tree = copy(tmp_path, "powercap_4s")
+    tree = copy(powercap_trees, tmp_path, "powercap_4s")
     zones = find_dram_zones(tree / DEVICES)
     assert (zones[0].channel, zones[0].path.name) == ("DRAM0", "intel-rapl:1:0")
 
 
-def test_health_recovers_when_every_channel_reads_again(tmp_path, fake_clock):
+def test_health_recovers_when_every_channel_reads_again(powercap_trees, tmp_path, fake_clock):
     """Issue 22.12: a read error makes health 'error: ...'; once every counter reads again it is 'ok'."""
-    tree = copy(tmp_path, "powercap_2s_swapped")
+    tree = copy(powercap_trees, tmp_path, "powercap_2s_swapped")
     failing: set[str] = set()
 
     def read(path: Path) -> str:
@@ -107,10 +107,10 @@ def test_health_recovers_when_every_channel_reads_again(tmp_path, fake_clock):
     assert batch.status == {"DRAM0": "ok", "DRAM1": "ok"} and src.health() == "ok"
 
 
-def test_idle_polling_reports_no_false_missing_samples(tmp_path, fake_clock):
+def test_idle_polling_reports_no_false_missing_samples(powercap_trees, tmp_path, fake_clock):
     """Issue 22.12: the daemon's idle poll (0.25 s, with jitter) over the rapl source built from the
     settings gives no 'missing' samples (was ~6.4 per second per channel at a nominal 10 Sa/s)."""
-    tree = copy(tmp_path, "powercap_2s_swapped")
+    tree = copy(powercap_trees, tmp_path, "powercap_2s_swapped")
     settings = load_settings(env={"HDEEM_WATCH_SOURCE": "rapl", "HDEEM_WATCH_RAPL_ROOT": str(tree / "class/powercap")})
     clock = fake_clock(1_000_000_000)
     wall = fake_clock(1_000_000_000)
@@ -133,7 +133,7 @@ def test_idle_polling_reports_no_false_missing_samples(tmp_path, fake_clock):
     assert missing == 0
 
 
-def test_laptop_tree_says_what_this_cpu_offers(tmp_path):
+def test_laptop_tree_says_what_this_cpu_offers(powercap_trees, tmp_path):
     """No DRAM zone: the reason names the CPU's vendor and what to use instead (from /proc/cpuinfo)."""
     with pytest.raises(Exception, match=r"Intel client CPU .*no DRAM energy.*use the hdeem source"):
-        RaplSource(root=FIXTURES / "powercap_laptop", cpuinfo=FIXTURES / "cpuinfo" / "intel_core_i7_1165g7.txt").open()
+        RaplSource(root=powercap_trees / "powercap_laptop", cpuinfo=FIXTURES / "cpuinfo" / "intel_core_i7_1165g7.txt").open()

@@ -13,7 +13,6 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 RULE = REPO / "systemd" / "90-hdeem-watch-rapl.rules"
-FIXTURES = Path(__file__).resolve().parent / "fixtures"
 TERM = re.compile(r'\s*([A-Z]+(?:\{[^}]*\})?)\s*(==|\+=|=)\s*"([^"]*)"\s*,?')
 
 
@@ -54,9 +53,9 @@ def touched(tree: Path) -> dict[str, list[str]]:
 
 
 @pytest.mark.parametrize("tree", ["powercap_4s", "powercap_multidie", "powercap_2s_swapped"])
-def test_only_dram_counters_are_opened_to_the_group(tree):
+def test_only_dram_counters_are_opened_to_the_group(powercap_trees, tree):
     """Every dram zone's energy_uj gets group hdeem-watch and mode 0440; nothing else is touched."""
-    root = FIXTURES / tree
+    root = powercap_trees / tree
     dram = sorted("/sys/" + str(p.parent.relative_to(root) / "energy_uj")
                   for p in root.rglob("name") if p.read_text().strip() == "dram")
     changes = touched(root)

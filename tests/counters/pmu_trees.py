@@ -1,0 +1,121 @@
+"""Builds the perf PMU sysfs trees of the counter tests (``build(dest)``; once per test session into a
+temporary directory, so the trees are not committed).
+
+Each tree is ``<root>/bus/event_source/devices/<pmu>/{type,cpumask,format/*,events/*}`` as the
+kernel lays it out (``Documentation/ABI/testing/sysfs-bus-event_source-devices-format`` and
+``-events``); the facts behind each PMU are cited where they are tabled below and in
+fixtures/README.md.
+
+Usage: ``python3 tests/counters/pmu_trees.py DIR`` writes the trees into DIR (to look at them).
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+#: ``snbep_uncore_formats_attr`` / ``skx_uncore_format_group`` (arch/x86/events/intel/uncore_snbep.c)
+UNCORE_FORMAT = {"edge": "config:18", "event": "config:0-7", "inv": "config:23", "thresh": "config:24-31",
+                 "umask": "config:8-15"}
+#: the core PMU's format (arch/x86/events/intel/core.c, ``intel_arch3_formats_attr``)
+CPU_FORMAT = {"any": "config:21", "cmask": "config:24-31", "edge": "config:18", "event": "config:0-7",
+              "inv": "config:23", "pc": "config:19", "umask": "config:8-15"}
+#: 64 bytes per CAS in MiB (the kernel's ``.scale`` of ``cas_count_*``)
+CAS_SCALE = {"scale": "6.103515625e-5", "unit": "MiB"}
+
+
+@dataclass(frozen=True)
+class Pmu:
+    """One PMU directory: its dynamic ``type`` number, ``cpumask`` (None: no file), format fields and
+    events (name → encoding, with optional ``.scale``/``.unit`` companions)."""
+
+    name: str
+    type: int
+    cpumask: str | None = None
+    format: dict[str, str] = field(default_factory=dict)
+    events: dict[str, str] = field(default_factory=dict)
+    units: dict[str, dict[str, str]] = field(default_factory=dict)
+
+
+def _plain(type_numbers: dict[str, int]) -> list[Pmu]:
+    """Software PMUs with only a ``type`` file."""
+    return [Pmu(name, number) for name, number in type_numbers.items()]
+
+
+def _host_common(cpus: str, per_socket: str) -> list[Pmu]:
+    """The PMUs every Intel host shows besides the uncore ones (so that discovery must pick the IMC ones)."""
+    return [*_plain({"software": 1, "tracepoint": 2, "breakpoint": 5}),
+            Pmu("cpu", 4, cpus, CPU_FORMAT),
+            Pmu("msr", 6, None, {"event": "config:0-63"}),
+            Pmu("power", 7, per_socket, {"event": "config:0-7"})]
+
+
+def _imc(box: int, type_number: int, cpumask: str, read_umask: str, write_umask: str) -> Pmu:
+    events = {"cas_count_read": f"event=0x04,umask={read_umask}", "cas_count_write": f"event=0x04,umask={write_umask}",
+              "clockticks": "event=0x00,umask=0x00"}
+    return Pmu(f"uncore_imc_{box}", type_number, cpumask, UNCORE_FORMAT, events,
+               {"cas_count_read": CAS_SCALE, "cas_count_write": CAS_SCALE})
+
+
+def haswell_ep() -> list[Pmu]:
+    """Two Xeon E5-2680 v3 (HT off: CPUs 0-11, 12-23). ``hswep_uncore_imc`` has 8 boxes (MC0 ch0-3 →
+    0-3, MC1 ch0-3 → 4-7); the 12-core die's two home agents with two channels each register boxes
+    0, 1, 4, 5. Events: ``hswep_uncore_imc_events`` (cas read umask 0x03, write 0x0c)."""
+    boxes = [_imc(box, 10 + i, "0,12", "0x03", "0x0c") for i, box in enumerate((0, 1, 4, 5))]
+    home_agents = [Pmu(f"uncore_ha_{i}", 8 + i, "0,12", UNCORE_FORMAT) for i in range(2)]
+    return [*_host_common("0-23", "0,12"), *home_agents, *boxes]
+
+
+def ice_lake_sp() -> list[Pmu]:
+    """Two Xeon Platinum 8358 (HT off: CPUs 0-31, 32-63). ``icx_uncore_imc``: 12 boxes (4 controllers
+    × ``ICX_NUMBER_IMC_CHN`` 3), events ``snr_uncore_imc_events`` (cas read umask 0x0f, write 0x30);
+    ``icx_uncore_imc_free_running``: one box per controller with ``icx_uncore_imc_freerunning_events``."""
+    boxes = [_imc(box, 20 + box, "0,32", "0x0f", "0x30") for box in range(12)]
+    free = [Pmu(f"uncore_imc_free_running_{i}", 40 + i, "0,32", {"event": "config:0-7", "umask": "config:8-15"},
+                {"dclk": "event=0xff,umask=0x10", "read": "event=0xff,umask=0x20", "write": "event=0xff,umask=0x21"},
+                {"read": CAS_SCALE, "write": CAS_SCALE})
+            for i in range(4)]
+    return [*_host_common("0-63", "0,32"), *boxes, *free]
+
+
+def vm() -> list[Pmu]:
+    """This KVM guest's own ``/sys/bus/event_source/devices`` (2026-11-25): no ``cpu``, no uncore PMU."""
+    return [*_plain({"software": 1, "tracepoint": 2, "breakpoint": 5}),
+            Pmu("uprobe", 8, None, {"ref_ctr_offset": "config:32-63", "retprobe": "config:0"}),
+            Pmu("msr", 9, None, {"event": "config:0-63"})]
+
+
+TREES = {"sysfs_haswell_ep": haswell_ep, "sysfs_ice_lake_sp": ice_lake_sp, "sysfs_vm": vm}
+
+
+def _write(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text + "\n")
+
+
+def write_pmu(devices: Path, pmu: Pmu) -> None:
+    """One PMU directory under ``devices``."""
+    base = devices / pmu.name
+    _write(base / "type", str(pmu.type))
+    if pmu.cpumask is not None:
+        _write(base / "cpumask", pmu.cpumask)
+    for key, bits in pmu.format.items():
+        _write(base / "format" / key, bits)
+    for event, encoding in pmu.events.items():
+        _write(base / "events" / event, encoding)
+        for suffix, value in pmu.units.get(event, {}).items():
+            _write(base / "events" / f"{event}.{suffix}", value)
+
+
+def build(dest: Path) -> Path:
+    """Write every tree (``dest/sysfs_<host>/bus/event_source/devices/...``); returns ``dest``."""
+    for name, pmus in TREES.items():
+        devices = dest / name / "bus" / "event_source" / "devices"
+        for pmu in pmus():
+            write_pmu(devices, pmu)
+    return dest
+
+
+if __name__ == "__main__":
+    build(Path(sys.argv[1]))
