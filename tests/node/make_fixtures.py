@@ -6,13 +6,22 @@ Each node: a sysfs subset laid out as Linux prints it (``devices/system/cpu``, `
 version such a node ran. Sizes, speeds, part numbers and core counts are those of real products
 (Xeon E5-2680 v3, Gold 6148, Gold 6330, Silver 4116, EPYC 7302; the modules named in each file).
 
+Two nodes take their ``dmidecode`` print-out from public captures kept in ``captures/`` (excerpts with
+their source in the header): ``haswell-ep-x10drl-cod`` (Supermicro X10DRL-i, 2 x Xeon E5-2695 v3
+with Cluster-on-Die, ``Type: Other`` DDR4 RDIMMs, bank locators whose ``NodeN`` repeats the socket)
+and ``skylake-sp-x11ddw-snc2`` (Supermicro X11DDW-L, 2 x Xeon Gold 6148 with SNC, bank locators
+whose ``NodeN`` is the memory controller); their sysfs trees follow the topology those pages print.
+
 Usage: ``python3 tests/node/make_fixtures.py DIR`` writes the trees into DIR (to look at them).
 """
 
 from __future__ import annotations
 
+import shutil
 import sys
 from pathlib import Path
+
+CAPTURES = Path(__file__).resolve().parent / "captures"
 
 
 def cpu_list(cpus: list[int]) -> str:
@@ -198,6 +207,31 @@ def one_socket(dest: Path) -> None:
     dmidecode_file(root / "dmidecode.txt", "3.3", recs)
 
 
+def haswell_cod(dest: Path) -> None:
+    """2 x Xeon E5-2695 v3 (14 cores, HT), Cluster-on-Die: two NUMA nodes of 7 cores per socket (the
+    page's likwid domains C0-C3); sb_edac: one controller per home agent, two channels each; x4 DIMMs."""
+    root = dest / "haswell-ep-x10drl-cod"
+    cod = [[c + t * 28 for t in range(2) for c in range(d * 7, d * 7 + 7)] for d in range(4)]
+    cpus(root / "sys", 2, 14, 2, die_id=False, numa=cod)
+    mcs = [[(f"CPU_SrcID#{s}_Ha#{h}_Chan#{c}_DIMM#0", f"channel {c} slot 0", 8192) for c in range(2)]
+           for s in range(2) for h in range(2)]
+    edac(root / "sys", mcs, "Haswell SrcID#0_Ha#0", "Registered-DDR4", "x4")
+    shutil.copyfile(CAPTURES / "supermicro-x10drl-i-haswell-ep.txt", root / "dmidecode.txt")
+
+
+def skylake_x11ddw(dest: Path) -> None:
+    """2 x Xeon Gold 6148 (20 cores, HT) with SNC2; skx_edac: 2 controllers x 3 channels per socket, one
+    8 GB 2Rx8 DIMM each."""
+    root = dest / "skylake-sp-x11ddw-snc2"
+    snc = [[c + t * 40 for t in range(2) for c in range(s * 20 + h * 10, s * 20 + h * 10 + 10)]
+           for s in range(2) for h in range(2)]
+    cpus(root / "sys", 2, 20, 2, die_id=False, numa=snc)
+    mcs = [[(f"CPU_SrcID#{s}_MC#{m}_Chan#{c}_DIMM#0", f"channel {c} slot 0", 8192) for c in range(3)]
+           for s in range(2) for m in range(2)]
+    edac(root / "sys", mcs, "Intel_Skylake_SP", "Registered-DDR4", "x8")
+    shutil.copyfile(CAPTURES / "supermicro-x11ddw-l-skylake-sp.txt", root / "dmidecode.txt")
+
+
 def build(dest: Path) -> Path:
     """Write every node fixture (``dest/<node>/sys`` and ``dest/<node>/dmidecode.txt``); returns ``dest``."""
     haswell(dest)
@@ -209,6 +243,8 @@ def build(dest: Path) -> Path:
     icelake(dest)
     epyc(dest)
     one_socket(dest)
+    haswell_cod(dest)
+    skylake_x11ddw(dest)
     return dest
 
 

@@ -39,7 +39,7 @@ def test_dmidecode_skips_other_types_and_junk() -> None:
 @pytest.mark.parametrize(("locator", "bank", "expect"), [
     ("CPU_SrcID#1_MC#3_Chan#1_DIMM#1", None, (1, 3, 1, None, 1)),
     ("CPU_SrcID#0_Ha#1_Chan#0_DIMM#0", None, (0, 1, 0, None, 0)),
-    ("P2-DIMMD2", "P1_Node1_Channel3_Dimm1", (1, None, 3, None, 1)),
+    ("P2-DIMMD2", "P1_Node1_Channel3_Dimm1", (1, None, 3, "D", 1)),
     ("DIMM 1", "P1 CHANNEL G", (1, None, None, "G", 0)),
     ("CPU2_DIMM_C1", "NODE 2", (1, None, None, "C", 0)),
     ("PROC 1 DIMM 3", None, (None, None, None, None, None)),

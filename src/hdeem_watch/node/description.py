@@ -20,6 +20,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from hdeem_watch.node.bank_nodes import bank_node_rule
+from hdeem_watch.node.cpu_model import CpuModel, cpu_from_cpuinfo, cpu_from_dmidecode, memory_controller
 from hdeem_watch.node.cpu_topology import CpuTopology, read_cpu_topology
 from hdeem_watch.node.dmidecode import MemoryDevice, parse_dmidecode
 from hdeem_watch.node.edac import EdacDimm, read_edac
@@ -88,6 +90,9 @@ class NodeDescription:
         cpus_by_socket: logical CPUs of each socket.
         notes: what could not be detected, and why (one line each).
         cpus_by_numa: logical CPUs of each NUMA node (sysfs ``node*/cpulist``).
+        channel_rule: which rule placed the DIMMs in channels when a bank locator's ``NodeN`` had to
+            be read (socket or memory controller), and what corroborates it; ``None`` otherwise.
+        cpu: the CPU model (``/proc/cpuinfo`` or dmidecode type 4), ``None`` unknown.
     """
 
     sockets: Fact[int]
@@ -101,6 +106,8 @@ class NodeDescription:
     cpus_by_socket: dict[int, list[int]] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
     cpus_by_numa: dict[int, list[int]] = field(default_factory=dict)
+    channel_rule: str | None = None
+    cpu: CpuModel | None = None
 
     def channel_letter(self, dimm: Dimm) -> str | None:
         """The node-wide channel letter of ``dimm`` (socket 0: A, B, ...; socket 1 continues)."""
@@ -291,8 +298,15 @@ def describe_node(sysfs_root: Path, dmidecode_text: str | None, dmidecode_note: 
     if not edac:
         notes.append(edac_note)
     installed, every = _dimms_from_dmidecode(devices)
+    cpu_model = cpu_from_cpuinfo(cpuinfo_text) or cpu_from_dmidecode(dmidecode_text)
+    rule = bank_node_rule(every, memory_controller(cpu_model))
+    if rule is not None:
+        installed = [(dimm, rule.place(g)) for dimm, g in installed]
+        every = [rule.place(g) for g in every]
     if installed:
         how = "dmidecode: distinct channels of the slots listed (populated or not)"
+        if rule is not None:
+            how += f"; {rule.text}"
         placed, channels, more = _place(installed, every, cpu.sockets.value, how)
         dimms = _enrich_from_edac(placed, edac)
     elif edac:
@@ -310,4 +324,5 @@ def describe_node(sysfs_root: Path, dmidecode_text: str | None, dmidecode_note: 
         sockets=cpu.sockets, dies_per_socket=cpu.dies_per_socket, cores_per_socket=cpu.cores_per_socket,
         threads_per_core=cpu.threads_per_core, numa_nodes_per_socket=cpu.numa_nodes_per_socket,
         channels_per_socket=channels, dimms_per_channel=_dimms_per_channel(dimms), dimms=tuple(dimms),
-        cpus_by_socket=cpu.cpus_by_socket, notes=tuple(notes), cpus_by_numa=cpu.cpus_by_numa)
+        cpus_by_socket=cpu.cpus_by_socket, notes=tuple(notes), cpus_by_numa=cpu.cpus_by_numa,
+        channel_rule=rule.text if rule is not None and installed else None, cpu=cpu_model)

@@ -27,7 +27,9 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from hdeem_watch.dram.presets import PRESET_INFO
+from hdeem_watch.node.cpu_model import CpuModel
 from hdeem_watch.node.description import Dimm
+from hdeem_watch.node.memory_type import infer_ddr
 
 #: Module part numbers (upper case, speed suffix included) → preset with the same die.
 KNOWN_MODULES: dict[str, str] = {
@@ -95,8 +97,19 @@ def die_gbit(dimm: Dimm, width: int | None) -> int | None:
     return int(gbit) if gbit >= 1 and float(gbit).is_integer() else None
 
 
-def choose_memspec(dimms: Sequence[Dimm]) -> MemspecChoice:
-    """The preset for the node's DIMMs (the most common kind when they differ)."""
+#: Die densities no preset has: the nearest preset is only the calibration's prior there. No complete
+#: public per-die IDD table of a 16 Gb DDR4 die was found (Micron MT40A1G16 rev D publishes IDD0, IPP0,
+#: IDD1, IDD2N, IDD2NT and IDD2P only).
+PRIOR_ONLY_GBIT = 16
+
+
+def choose_memspec(dimms: Sequence[Dimm], *, cpu: CpuModel | None = None) -> MemspecChoice:
+    """The preset for the node's DIMMs (the most common kind when they differ).
+
+    Args:
+        dimms: the node's DIMMs.
+        cpu: the node's CPU, to read a DDR generation dmidecode does not name (``Type: Other``).
+    """
     if not dimms:
         return MemspecChoice(None, "no DIMM detected; set memspec in the [node] table or pass --memspec", "none")
     kinds = Counter((d.part_number, d.type, d.speed_mts, d.size_bytes, d.ranks, d.device_width) for d in dimms)
@@ -108,6 +121,7 @@ def choose_memspec(dimms: Sequence[Dimm]) -> MemspecChoice:
         info = PRESET_INFO[name]
         return MemspecChoice(name, f"part number {part} is a known module ({info.die}){mixed}", "exact",
                              info.die_gbit, info.width, ranks, devices_per_rank(dimm, info.width))
+    mem_type, inferred = infer_ddr(mem_type, part, cpu)
     if mem_type is not None and mem_type.upper() != "DDR4":
         return MemspecChoice(None, f"memory type {mem_type}: only DDR4 presets exist{mixed}", "none")
     width = width or (width_from_part_number(part, ranks) if part else None)
@@ -134,6 +148,11 @@ def choose_memspec(dimms: Sequence[Dimm]) -> MemspecChoice:
         confidence = "low"
     told = f"{mem_type or 'DDR4?'} {rate or '?'} MT/s, {density or '?'} Gb x{width or '?'} dies"
     why = f"nearest preset to {told} ({info.die}, {info.speed_mts} MT/s)"
+    if inferred:
+        why = f"{inferred}; {why}"
+    if density is not None and density >= PRIOR_ONLY_GBIT:
+        why += (f"; {density} Gb dies have no preset (no complete public IDD table): {best} is only the "
+                f"calibration's prior, the calibration fits this node's currents")
     if missing:
         why += f"; unknown: {', '.join(missing)}"
     if mismatched:

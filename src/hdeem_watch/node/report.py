@@ -32,13 +32,15 @@ def node_report(node: NodeDescription, overrides: NodeOverrides | None = None) -
     if overrides is not None and overrides.memspec:
         choice = MemspecChoice(overrides.memspec, "set in the [node] table", "configured")
     else:
-        choice = choose_memspec(node.dimms)
+        choice = choose_memspec(node.dimms, cpu=node.cpu)
     sensors = sensor_map(node)
     if overrides is not None and overrides.sensors:
         sensors = {**sensors, **overrides.sensors}
     facts = node.facts()
     out: dict[str, Any] = {name: fact.value for name, fact in facts.items()}
     out["facts"] = {name: fact.to_json() for name, fact in facts.items()}
+    out["channel_rule"] = node.channel_rule
+    out["cpu"] = None if node.cpu is None else {"name": node.cpu.name, "source": node.cpu.source}
     out["cpus_by_socket"] = {str(s): cpus for s, cpus in sorted(node.cpus_by_socket.items())}
     out["dimms"] = [d.to_json(node.channel_letter(d)) for d in node.dimms]
     out["memspec"] = choice.to_json()

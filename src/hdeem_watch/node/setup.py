@@ -191,7 +191,7 @@ def choose(node: NodeDescription, overrides: NodeOverrides | None, memspec_setti
         return MemspecChoice(overrides.memspec, "set in the [node] table (memspec)", "configured")
     if memspec_setting:
         return MemspecChoice(memspec_setting, "set by the memspec setting", "configured")
-    choice = choose_memspec(node.dimms)
+    choice = choose_memspec(node.dimms, cpu=node.cpu)
     unknown = not any(d.part_number or d.type or d.size_bytes for d in node.dimms)  # slots, nothing more
     if choice.name is None or (default is not None and unknown):
         name, reason = default or (DEFAULT_MEMSPEC, f"{choice.reason}; the default preset")

@@ -1,0 +1,108 @@
+"""Which CPU the node has, and what its memory controller drives (channels per socket, DDR types).
+
+The CPU is read from ``/proc/cpuinfo`` (``model name``, ``cpu family``, ``model``) or, for a saved
+print-out, from dmidecode's Processor Information records (type 4: ``Version`` and ``Signature:
+Type 0, Family 6, Model 63, Stepping 2``). What the memory controller is comes from Intel's and
+AMD's product documentation:
+
+- Xeon E5-2600/4600 v3 (Haswell-EP, family 6 model 63) and v4 (Broadwell-EP, model 79): 4 DDR4
+  channels per socket, DDR4 only (the E7 v3/v4 parts of the same models also drive DDR3 through
+  memory buffers, so only the E5 names are matched);
+- Xeon Scalable 1st/2nd generation (Skylake-SP/Cascade Lake-SP, model 85): 2 IMCs × 3 channels =
+  6 DDR4 channels; 3rd generation (Ice Lake-SP, models 106/108): 4 IMCs × 2 = 8 DDR4 channels;
+  4th generation (Sapphire Rapids, model 143): 8 DDR5 channels;
+- AMD EPYC 7xx1/7xx2/7xx3 (Naples, Rome, Milan): 8 DDR4 channels.
+
+Example:
+    >>> cpu = cpu_from_cpuinfo("vendor_id : GenuineIntel\\ncpu family : 6\\nmodel : 63\\n"
+    ...                        "model name : Intel(R) Xeon(R) CPU E5-2680 v3 @ 2.50GHz\\n")
+    >>> memory_controller(cpu)
+    MemoryController(generation='Haswell-EP', channels_per_socket=4, memory_types=('DDR4',))
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class CpuModel:
+    """The node's CPU as one source names it.
+
+    Attributes:
+        name: the model name (``Intel(R) Xeon(R) Gold 6148 CPU @ 2.40GHz``).
+        family: CPU family, ``None`` unknown.
+        model: CPU model number, ``None`` unknown.
+        source: where it was read (``/proc/cpuinfo``, ``dmidecode -t 4``).
+    """
+
+    name: str
+    family: int | None
+    model: int | None
+    source: str
+
+
+@dataclass(frozen=True)
+class MemoryController:
+    """What a CPU generation's memory controller drives, per socket."""
+
+    generation: str
+    channels_per_socket: int
+    memory_types: tuple[str, ...]
+
+
+_BY_NAME: tuple[tuple[re.Pattern[str], MemoryController], ...] = (
+    (re.compile(r"\bE5-\d{4}\w*\s+v3\b"), MemoryController("Haswell-EP", 4, ("DDR4",))),
+    (re.compile(r"\bE5-\d{4}\w*\s+v4\b"), MemoryController("Broadwell-EP", 4, ("DDR4",))),
+    (re.compile(r"\bEPYC\s+7\d\d[123]\w*\b"), MemoryController("EPYC 7001-7003", 8, ("DDR4",))),
+)
+_BY_MODEL: dict[tuple[int, int], MemoryController] = {
+    (6, 85): MemoryController("Skylake-SP/Cascade Lake-SP", 6, ("DDR4",)),
+    (6, 106): MemoryController("Ice Lake-SP", 8, ("DDR4",)),
+    (6, 108): MemoryController("Ice Lake-SP", 8, ("DDR4",)),
+    (6, 143): MemoryController("Sapphire Rapids", 8, ("DDR5",)),
+}
+
+
+def memory_controller(cpu: CpuModel | None) -> MemoryController | None:
+    """The memory controller of ``cpu``'s generation, ``None`` when not in the table."""
+    if cpu is None:
+        return None
+    for pattern, controller in _BY_NAME:
+        if pattern.search(cpu.name):
+            return controller
+    if cpu.family is not None and cpu.model is not None:
+        return _BY_MODEL.get((cpu.family, cpu.model))
+    return None
+
+
+def _field(text: str, key: str) -> str | None:
+    match = re.search(rf"^{key}\s*:\s*(.+?)\s*$", text, re.M)
+    return match.group(1) if match else None
+
+
+def cpu_from_cpuinfo(text: str | None) -> CpuModel | None:
+    """The first processor of a ``/proc/cpuinfo`` text, ``None`` without a ``model name``."""
+    if not text:
+        return None
+    name = _field(text, "model name")
+    if name is None:
+        return None
+    family, model = _field(text, "cpu family"), _field(text, "model")
+    return CpuModel(name, int(family) if family and family.isdigit() else None,
+                    int(model) if model and model.isdigit() else None, "/proc/cpuinfo")
+
+
+def cpu_from_dmidecode(text: str | None) -> CpuModel | None:
+    """The first populated Processor Information record (DMI type 4) of a dmidecode print-out."""
+    for block in re.split(r"\n(?=Handle 0x)", (text or "").replace("\r\n", "\n")):
+        if not re.match(r"Handle 0x[0-9A-Fa-f]+, DMI type 4\b", block):
+            continue
+        name = re.search(r"^\s*Version:\s*(.+?)\s*$", block, re.M)
+        signature = re.search(r"Signature:.*Family (\d+), Model (\d+)", block)
+        if name is None or name.group(1).lower() in ("not specified", ""):
+            continue
+        return CpuModel(name.group(1), int(signature.group(1)) if signature else None,
+                        int(signature.group(2)) if signature else None, "dmidecode -t 4")
+    return None
