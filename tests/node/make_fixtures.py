@@ -87,6 +87,30 @@ def edac(root: Path, mcs: list[list[tuple[str, str, int]]], mc_name: str, mem_ty
             write(d / "dimm_ce_count", "0")
 
 
+def edac_ranks(root: Path, mcs: int, channels: int, chip_selects: list[int], size_mb: int, mc_name: str,
+               dev_type: str) -> None:
+    """A chip-select based driver's tree (amd64_edac: ``mci->csbased``): one ``rankN`` per populated
+    rank, N = chip select x channels + channel (the layer order CHIP_SELECT, CHANNEL), ``size`` one
+    rank's MB, label ``mc#<m>csrow#<cs>channel#<ch>``, location ``csrow <cs> channel <ch>``."""
+    base = root / "devices" / "system" / "edac" / "mc"
+    for m in range(mcs):
+        mc = base / f"mc{m}"
+        write(mc / "mc_name", mc_name)
+        write(mc / "size_mb", str(size_mb * channels * len(chip_selects)))
+        write(mc / "ce_count", "0")
+        write(mc / "ue_count", "0")
+        for cs in chip_selects:
+            for ch in range(channels):
+                rank = mc / f"rank{cs * channels + ch}"
+                write(rank / "size", str(size_mb))
+                write(rank / "dimm_label", f"mc#{m}csrow#{cs}channel#{ch}")
+                write(rank / "dimm_location", f"csrow {cs} channel {ch} ")
+                write(rank / "dimm_mem_type", "Registered-DDR4")
+                write(rank / "dimm_dev_type", dev_type)
+                write(rank / "dimm_edac_mode", "SECDED")
+                write(rank / "dimm_ce_count", "0")
+
+
 def dmi_record(handle: int, version: str, size_gb: int | None, locator: str, bank: str, *, speed: int, conf: int,
                ranks: int, maker: str, part: str, total_width: int = 72) -> str:
     """One DMI type 17 record as dmidecode ``version`` ("2.12", "3.2", "3.3") prints it."""
@@ -232,6 +256,14 @@ def skylake_x11ddw(dest: Path) -> None:
     shutil.copyfile(CAPTURES / "supermicro-x11ddw-l-skylake-sp.txt", root / "dmidecode.txt")
 
 
+def epyc_ranks(dest: Path) -> None:
+    """The EPYC 7302 node with amd64_edac loaded (one controller per socket, 8 UMC channels) and no
+    dmidecode: 16 x 32 GB 2Rx4 DIMMs show as 32 rank directories of 16 GB (chip selects 0 and 1)."""
+    root = dest / "epyc-rome-amd64-edac"
+    cpus(root / "sys", 2, 16, 2, die_id=True)
+    edac_ranks(root / "sys", 2, 8, [0, 1], 16384, "F17h_M30h", "x4")
+
+
 def build(dest: Path) -> Path:
     """Write every node fixture (``dest/<node>/sys`` and ``dest/<node>/dmidecode.txt``); returns ``dest``."""
     haswell(dest)
@@ -245,6 +277,7 @@ def build(dest: Path) -> Path:
     one_socket(dest)
     haswell_cod(dest)
     skylake_x11ddw(dest)
+    epyc_ranks(dest)
     return dest
 
 

@@ -162,7 +162,7 @@ def _dimms_from_edac(edac: list[EdacDimm]) -> list[tuple[Dimm, SlotGuess]]:
         width = int(entry.dev_type[1:]) if entry.dev_type and entry.dev_type[1:].isdigit() else None
         mem_type = entry.mem_type.split("-")[-1] if entry.mem_type else None
         values = {"size_bytes": None if entry.size_mb is None else entry.size_mb << 20, "type": mem_type,
-                  "type_detail": entry.mem_type, "device_width": width}
+                  "type_detail": entry.mem_type, "device_width": width, "ranks": entry.ranks}
         src = f"edac: mc{entry.mc}/{entry.name}"
         sources = {k: src for k, v in values.items() if v is not None}
         out.append((Dimm(locator=entry.label or f"mc{entry.mc}/{entry.name}", sources=sources, **values), guess))  # type: ignore[arg-type]
