@@ -21,6 +21,8 @@ UNCORE_FORMAT = {"edge": "config:18", "event": "config:0-7", "inv": "config:23",
 #: the core PMU's format (arch/x86/events/intel/core.c, ``intel_arch3_formats_attr``)
 CPU_FORMAT = {"any": "config:21", "cmask": "config:24-31", "edge": "config:18", "event": "config:0-7",
               "inv": "config:23", "pc": "config:19", "umask": "config:8-15"}
+#: the free-running PMUs' format (``skx_uncore_iio_freerunning_format_group``: event and umask only)
+FREE_RUNNING_FORMAT = {"event": "config:0-7", "umask": "config:8-15"}
 #: 64 bytes per CAS in MiB (the kernel's ``.scale`` of ``cas_count_*``)
 CAS_SCALE = {"scale": "6.103515625e-5", "unit": "MiB"}
 
@@ -70,13 +72,26 @@ def haswell_ep() -> list[Pmu]:
 def ice_lake_sp() -> list[Pmu]:
     """Two Xeon Platinum 8358 (HT off: CPUs 0-31, 32-63). ``icx_uncore_imc``: 12 boxes (4 controllers
     × ``ICX_NUMBER_IMC_CHN`` 3), events ``snr_uncore_imc_events`` (cas read umask 0x0f, write 0x30);
-    ``icx_uncore_imc_free_running``: one box per controller with ``icx_uncore_imc_freerunning_events``."""
+    ``icx_uncore_imc_free_running``: one box per controller with ``icx_uncore_imc_freerunning_events``
+    (``dclk``, DDR ``read``/``write`` and Optane DCPMM ``ddrt_read``/``ddrt_write``, bandwidth in MiB)."""
     boxes = [_imc(box, 20 + box, "0,32", "0x0f", "0x30") for box in range(12)]
-    free = [Pmu(f"uncore_imc_free_running_{i}", 40 + i, "0,32", {"event": "config:0-7", "umask": "config:8-15"},
-                {"dclk": "event=0xff,umask=0x10", "read": "event=0xff,umask=0x20", "write": "event=0xff,umask=0x21"},
-                {"read": CAS_SCALE, "write": CAS_SCALE})
+    events = {"dclk": "event=0xff,umask=0x10", "read": "event=0xff,umask=0x20", "write": "event=0xff,umask=0x21",
+              "ddrt_read": "event=0xff,umask=0x30", "ddrt_write": "event=0xff,umask=0x31"}
+    free = [Pmu(f"uncore_imc_free_running_{i}", 40 + i, "0,32", FREE_RUNNING_FORMAT, events,
+                {name: CAS_SCALE for name in events if name != "dclk"})
             for i in range(4)]
     return [*_host_common("0-63", "0,32"), *boxes, *free]
+
+
+def sapphire_rapids() -> list[Pmu]:
+    """Two Xeon Platinum 8480+ (56 cores, HT off: CPUs 0-55, 56-111), only the free-running IMC PMUs:
+    ``spr_uncore_imc_free_running`` (one per controller, 4 per socket) with
+    ``spr_uncore_imc_freerunning_events``: ``dclk`` and the read/write pending-queue cycles
+    ``rpq_cycles``, ``wpq_cycles`` (no bandwidth events)."""
+    events = {"dclk": "event=0xff,umask=0x10", "rpq_cycles": "event=0xff,umask=0x20",
+              "wpq_cycles": "event=0xff,umask=0x21"}
+    free = [Pmu(f"uncore_imc_free_running_{i}", 60 + i, "0,56", FREE_RUNNING_FORMAT, events) for i in range(4)]
+    return [*_host_common("0-111", "0,56"), *free]
 
 
 def vm() -> list[Pmu]:
@@ -86,7 +101,8 @@ def vm() -> list[Pmu]:
             Pmu("msr", 9, None, {"event": "config:0-63"})]
 
 
-TREES = {"sysfs_haswell_ep": haswell_ep, "sysfs_ice_lake_sp": ice_lake_sp, "sysfs_vm": vm}
+TREES = {"sysfs_haswell_ep": haswell_ep, "sysfs_ice_lake_sp": ice_lake_sp, "sysfs_sapphire_rapids": sapphire_rapids,
+         "sysfs_vm": vm}
 
 
 def _write(path: Path, text: str) -> None:

@@ -71,3 +71,29 @@ def test_cas_and_clock_agree_with_the_kernel_aliases(pmu_trees, generation, tree
         fields = dict(part.split("=") for part in (events_dir / alias).read_text().strip().split(","))
         (event,) = table.events_of(role)
         assert (int(fields["event"], 16), int(fields["umask"], 16)) == (event.event, event.umask)
+
+
+def test_ice_lake_page_misses_use_the_non_experimental_read_and_write_precharges():
+    """icelakex_uncore.json publishes PRE_COUNT.RD (0x04) and .WR (0x08); the experimental PAGE_MISS is
+    0x0c, exactly their two bits: the table counts page misses with the validated pair (issue 29)."""
+    table = TABLES["ice-lake-sp"]
+    source = published(table.sources)
+    events = table.events_of("pre_page_miss")
+    assert [e.name for e in events] == ["UNC_M_PRE_COUNT.RD", "UNC_M_PRE_COUNT.WR"]
+    assert not any(e.experimental for e in events)
+    code, umask, experimental = source["UNC_M_PRE_COUNT.PAGE_MISS"]
+    assert experimental and code == events[0].event
+    assert umask == events[0].umask | events[1].umask and events[0].umask & events[1].umask == 0
+
+
+@pytest.mark.parametrize("generation", ["haswell-ep", "broadwell-ep", "skylake-sp", "cascade-lake-sp"])
+def test_bypass_precharges_are_not_added_to_page_misses(generation):
+    """HSX-CLX publish PRE_COUNT by cause (PAGE_MISS 0x01, PAGE_CLOSE 0x02) and by requester (RD 0x04,
+    WR 0x08, BYP 0x10): two groupings of the same precharges, so BYP may overlap PAGE_MISS; the table
+    uses the causes only and the gap says why."""
+    table = TABLES[generation]
+    source = published(table.sources)
+    assert source["UNC_M_PRE_COUNT.BYP"][:2] == (0x02, 0x10)
+    precharges = {e.name for role in ("pre_page_miss", "pre_page_close") for e in table.events_of(role)}
+    assert precharges == {"UNC_M_PRE_COUNT.PAGE_MISS", "UNC_M_PRE_COUNT.PAGE_CLOSE"}
+    assert any("BYP may overlap PAGE_MISS" in gap for gap in table.gaps)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from hdeem_watch.counters.host_plan import free_running_note
 from hdeem_watch.counters.pmu_discovery import discover_imc_pmus, list_pmus, parse_cpu_list
 from hdeem_watch.errors import InputError
 
@@ -68,3 +69,18 @@ def test_cpu_lists():
     assert parse_cpu_list("0-2,8") == (0, 1, 2, 8)
     with pytest.raises(InputError):
         parse_cpu_list("")
+
+
+@pytest.mark.parametrize(("tree", "expect"), [
+    ("sysfs_ice_lake_sp", ("dclk", "ddrt_read", "ddrt_write", "read", "write")),
+    ("sysfs_sapphire_rapids", ("dclk", "rpq_cycles", "wpq_cycles")),
+])
+def test_free_running_pmus_are_described_by_their_own_events(pmu_trees, tree, expect):
+    """The kernel's free-running IMC events differ by generation (icx_/spr_uncore_imc_freerunning_events):
+    Ice Lake-SP adds Optane ddrt_read/ddrt_write to dclk/read/write, Sapphire Rapids has dclk and the
+    pending-queue cycles rpq_cycles/wpq_cycles, no bandwidth. The note names what the PMUs list."""
+    free = [p for p in discover_imc_pmus(pmu_trees / tree) if p.free_running]
+    assert len(free) == 4 and {p.events for p in free} == {expect}
+    note = free_running_note(free)
+    assert note is not None and f"({', '.join(expect)})" in note
+    assert ("bandwidth" in note) is False and ("read/write" in note) is False

@@ -18,7 +18,9 @@ Roles (what a counter means for the DRAM model, per channel):
 ``cas_rd_autopre``  the subset of ``cas_rd`` with auto-precharge (RDA) — Ice Lake-SP and later only.
 ``cas_wr_autopre``  the subset of ``cas_wr`` with auto-precharge (WRA) — Ice Lake-SP and later only.
 ``act``             activates (all ranks and banks of the channel together).
-``pre_page_miss``   explicit precharges for a page miss (the bank scheduler's rd/wr requests).
+``pre_page_miss``   explicit precharges for a page miss (the bank scheduler's rd/wr requests; on Ice
+                    Lake-SP the non-experimental ``PRE_COUNT.RD`` + ``.WR``, whose umask bits
+                    0x04|0x08 are those of the experimental ``PAGE_MISS`` 0x0c).
 ``pre_page_close``  explicit precharges by the page-close timer (idle page closed).
 ``refresh``         refresh commands (see :attr:`EventTable.refresh_complete`).
 ``cke_on_rank<n>``  cycles rank n has CKE on (not in power-down or self-refresh).
@@ -163,6 +165,9 @@ _GAPS_PRE_ICX = (
     "activates, precharges and CASes per rank: the counters are per channel",
     "active vs precharge standby: no event counts cycles with a bank open",
     "active vs precharge power-down per rank: only the channel-wide all-ranks-in-PPD count exists",
+    "precharges by requester: PRE_COUNT.RD/.WR/.BYP (umasks 0x04/0x08/0x10) group the same precharges as "
+    "PAGE_MISS/PAGE_CLOSE (0x01/0x02) by another key, and the files do not say which cause a bypass "
+    "precharge has, so BYP may overlap PAGE_MISS: only PAGE_MISS and PAGE_CLOSE are used, never added to BYP",
 )
 _GAPS_ICX_SPR = (
     "CKE residency per rank: the published POWER_CKE_CYCLES.LOW_<n> umasks select a DIMM ID and "
@@ -205,7 +210,8 @@ TABLES: dict[str, EventTable] = {
                                ImcEvent("UNC_M_CAS_COUNT.RD_PRE_UNDERFILL", 0x04, 0x08, True)),
             "cas_wr_autopre": (ImcEvent("UNC_M_CAS_COUNT.WR_PRE", 0x04, 0x20, True),),
             "act": (ImcEvent("UNC_M_ACT_COUNT.ALL", 0x01, 0x0B),),
-            "pre_page_miss": (ImcEvent("UNC_M_PRE_COUNT.PAGE_MISS", 0x02, 0x0C, True),),
+            # PAGE_MISS (0x0c, experimental) is exactly the bits of the non-experimental RD (0x04) and WR (0x08)
+            "pre_page_miss": (ImcEvent("UNC_M_PRE_COUNT.RD", 0x02, 0x04), ImcEvent("UNC_M_PRE_COUNT.WR", 0x02, 0x08)),
             "pre_page_close": (ImcEvent("UNC_M_PRE_COUNT.PGT", 0x02, 0x10),),
             "refresh": (ImcEvent("UNC_M_DRAM_REFRESH.OPPORTUNISTIC", 0x45, 0x01),
                         ImcEvent("UNC_M_DRAM_REFRESH.PANIC", 0x45, 0x02),

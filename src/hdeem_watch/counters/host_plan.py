@@ -13,6 +13,7 @@ Example:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -119,7 +120,8 @@ class HostPlan:
             "refresh_complete": None if self.table is None else self.table.refresh_complete,
             "gaps": [] if self.table is None else list(self.table.gaps),
             "pmus": [{"name": p.name, "type": p.pmu_type, "box": p.box, "free_running": p.free_running,
-                      "cpumask": list(p.cpus), "formats": {k: v.describe() for k, v in sorted(p.formats.items())}}
+                      "cpumask": list(p.cpus), "formats": {k: v.describe() for k, v in sorted(p.formats.items())},
+                      "events": list(p.events)}
                      for p in self.pmus],
             "other_pmus": list(self.other_pmus),
             "channels": [{"name": c.name, "socket": c.socket, "box": c.box, "pmu": c.pmu, "type": c.pmu_type,
@@ -166,6 +168,18 @@ def channels_of(pmus: list[UncorePmu] | tuple[UncorePmu, ...]) -> tuple[PlannedC
     return tuple(PlannedChannel(name=f"S{socket}.imc{p.box}", socket=socket, box=p.box, pmu=p.name,
                                 pmu_type=p.pmu_type, cpu=p.cpus[socket])
                  for socket in range(sockets) for p in programmable if socket < len(p.cpus))
+
+
+def free_running_note(pmus: Sequence[UncorePmu]) -> str | None:
+    """What the ``uncore_imc_free_running_*`` PMUs count, as their ``events/`` name it, and why they are
+    not used (``None``: there are none)."""
+    free = [p for p in pmus if p.free_running]
+    if not free:
+        return None
+    events = sorted({e for p in free for e in p.events})
+    counted = ", ".join(events) if events else "no event aliases listed"
+    return (f"{len(free)} uncore_imc_free_running_* PMU(s), one per controller ({counted}) are listed but not "
+            "used: they have no ACT/PRE/power-state events")
 
 
 def plan_host(sysfs_root: str | Path = DEFAULT_SYSFS_ROOT, cpuinfo_text: str | None = None,
@@ -224,9 +238,8 @@ def plan_host(sysfs_root: str | Path = DEFAULT_SYSFS_ROOT, cpuinfo_text: str | N
             notes.append(f"{distinct} events per channel on {GENERIC_COUNTERS_PER_BOX} counters: the kernel "
                          "multiplexes them; counts are scaled by time_enabled/time_running per window")
         notes.extend(f"gap: {gap}" for gap in table.gaps)
-        if any(p.free_running for p in pmus):
-            notes.append("uncore_imc_free_running_* PMUs (per controller: DCLK, read/write bandwidth) are "
-                         "listed but not used: they have no ACT/PRE/power-state events")
+        if (note := free_running_note(pmus)) is not None:
+            notes.append(note)
     return HostPlan(cpu=cpu, generation=generation, table=table, pmus=pmus, other_pmus=others,
                     channels=channels_of(programmable) if events else (), events=events,
                     access=access, reasons=tuple(reasons), notes=tuple(notes))

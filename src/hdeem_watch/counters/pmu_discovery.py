@@ -11,8 +11,13 @@ registered: a Haswell-EP die with two home agents of two channels each shows ``u
 on that CPU counts that socket's channel. So a node channel is a pair (socket, box).
 
 Ice Lake-SP and later also expose ``uncore_imc_free_running_<controller>``: fixed free-running
-counters (DCLK, read and write bandwidth) per memory *controller*; they have no ACT/PRE/power-state
-events, so they are listed but not used for command statistics.
+counters per memory *controller*. What they count differs by generation (``uncore_snbep.c``):
+Ice Lake-SP's ``icx_uncore_imc_freerunning_events`` are ``dclk``, ``read``, ``write`` (DDR bandwidth)
+and ``ddrt_read``, ``ddrt_write`` (Optane DCPMM bandwidth); Sapphire Rapids'
+``spr_uncore_imc_freerunning_events`` are ``dclk``, ``rpq_cycles`` and ``wpq_cycles`` (read and write
+pending-queue cycles, no bandwidth). The event names are read from each PMU's ``events/``
+directory, never assumed. None has ACT/PRE/power-state events, so they are listed but not used for
+command statistics.
 
 Each PMU directory holds ``type`` (the ``perf_event_attr.type`` to open it with), ``cpumask`` (a CPU
 list such as ``0,12``) and ``format/<field>`` files (:mod:`hdeem_watch.counters.event_format`).
@@ -51,6 +56,7 @@ class UncorePmu:
         pmu_type: the ``type`` file: ``perf_event_attr.type``.
         cpus: the ``cpumask`` CPUs, one per socket, in socket order.
         formats: ``format/`` field name → bit field.
+        events: the kernel's event aliases in ``events/`` (``.scale``/``.unit`` companions left out).
     """
 
     name: str
@@ -59,6 +65,7 @@ class UncorePmu:
     pmu_type: int
     cpus: tuple[int, ...]
     formats: dict[str, FormatField]
+    events: tuple[str, ...] = ()
 
 
 def parse_cpu_list(text: str, where: str = "cpumask") -> tuple[int, ...]:
@@ -109,9 +116,10 @@ def read_pmu(path: Path) -> UncorePmu:
     if not type_text.isdigit():
         raise InputError(f"{path / 'type'}: {type_text!r} is not a PMU type number")
     formats = {f.name: parse_format(f.read_text(), where=str(f)) for f in format_files}
+    events = tuple(sorted(e.name for e in (path / "events").glob("*") if "." not in e.name))
     return UncorePmu(name=name, box=int(match.group(1)), free_running=name.startswith("uncore_imc_free"),
                      pmu_type=int(type_text), cpus=parse_cpu_list(cpumask_text, where=str(path / "cpumask")),
-                     formats=formats)
+                     formats=formats, events=events)
 
 
 def discover_imc_pmus(sysfs_root: str | Path = DEFAULT_SYSFS_ROOT) -> list[UncorePmu]:
