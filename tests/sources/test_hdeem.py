@@ -18,7 +18,7 @@ import pytest
 
 from hdeem_watch.sources.base import CHANNELS, SourceUnavailable, available_sources, make_source
 from hdeem_watch.sources.hdeem import HdeemSource
-from hdeem_watch.sources.hdeem_lib import BMC_POLLING, VR_OVERFLOW, ShimLib, build_shim
+from hdeem_watch.sources.hdeem_lib import BMC_POLLING, VR_OVERFLOW, HdeemError, ShimLib, build_shim
 
 
 def opened(fake, **kw) -> HdeemSource:
@@ -40,6 +40,20 @@ def test_shim_builds_once_and_reads_names(fake_hdeem):
         assert lib.sensor_count(handle) == (1, 6)
     finally:
         lib.close(handle)
+
+
+def test_a_failed_init_is_closed(fake_hdeem):
+    """After hdeem_init fails the shim calls hdeem_close before freeing the handle, as hdeem_cxx's
+    connection::init does since commit 5b77f10 ("we might be leaking FDs if we don't close")."""
+    lib = ShimLib(build_shim(**fake_hdeem.options(libs=("hdeem", "freeipmi", "rt"))))
+    fake_hdeem.control("log_reset")
+    fake_hdeem.control("fail_init", 1)
+    with pytest.raises(HdeemError, match="hdeem_init"):
+        lib.open()
+    assert fake_hdeem.calls() == ["init", "close"]
+    handle = lib.open()                 # the next init succeeds and is closed once, by the caller
+    lib.close(handle)
+    assert fake_hdeem.calls() == ["init", "close", "init", "close"]
 
 
 def test_missing_header_is_unavailable(tmp_path):

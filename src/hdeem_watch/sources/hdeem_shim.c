@@ -68,7 +68,8 @@ int hws_features(void) {
 
 static void global_release(hws_t *h);
 
-/* Connect; returns a handle, or NULL with *err = hdeem_init's code (or -12 out of memory). */
+/* Connect; returns a handle, or NULL with *err = hdeem_init's code (or -12 out of memory). A failed
+ * hdeem_init is followed by hdeem_close before the handle is freed. */
 void *hws_open(const char *host, const char *user, const char *password, int *err) {
     hws_t *h = calloc(1, sizeof(hws_t));
     if (!h) {
@@ -87,6 +88,9 @@ void *hws_open(const char *host, const char *user, const char *password, int *er
 #endif
     int rc = hdeem_init(&h->bmc);
     if (rc != 0) {
+        /* as hdeem_cxx does (commit 5b77f10, connection::init): "not suggested by the manual [...] we
+         * assume we might be leaking FDs if we don't close" */
+        hdeem_close(&h->bmc);
         free(h->host);
         free(h->user);
         free(h->password);
