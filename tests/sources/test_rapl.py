@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from hdeem_watch.sources.base import RAPL_DRAM_COVERS, SourceUnavailable, available_sources, make_source
-from hdeem_watch.sources.rapl import RaplSource, probe, wrap_delta_uj
+from hdeem_watch.sources.rapl import RaplSource, probe, wrap_delta_uj, wrap_modulus_uj
 
 RANGE = 262143328850
 
@@ -26,8 +26,9 @@ def dram(root: Path, socket: int) -> Path:
 
 
 def bump(path: Path, delta_uj: int, max_range: int = RANGE) -> None:
+    """Add energy as the kernel shows it: the register's period is 2^32 units = max_range + one unit."""
     value = int(path.read_text())
-    path.write_text(f"{(value + delta_uj) % (max_range + 1)}\n")
+    path.write_text(f"{int((value + delta_uj) % (max_range * 2**32 / (2**32 - 1)))}\n")
 
 
 def test_dram_zones_per_socket(tree):
@@ -41,7 +42,8 @@ def test_dram_zones_per_socket(tree):
 
 
 def test_power_is_delta_e_over_delta_t_across_a_wrap(tree, fake_clock):
-    """ΔE/Δt per poll; socket 0's counter wraps between polls and the delta is taken modulo range + 1."""
+    """ΔE/Δt per poll; socket 0's counter wraps between polls and the delta is taken modulo the
+    register's period (max_energy_range_uj + one unit)."""
     clock = fake_clock(1_000_000_000)
     src = RaplSource(root=tree, clock=clock)
     src.open()
@@ -53,7 +55,24 @@ def test_power_is_delta_e_over_delta_t_across_a_wrap(tree, fake_clock):
     assert batch.samples["DRAM0"][1][0] == pytest.approx(6.0)  # 3 J in 0.5 s
     assert batch.samples["DRAM1"][1][0] == pytest.approx(3.0)
     assert batch.energy_j == {"DRAM0": pytest.approx(3.0), "DRAM1": pytest.approx(1.5)}
-    assert wrap_delta_uj(RANGE, 0, RANGE) == 1
+    assert wrap_delta_uj(RANGE, 0, wrap_modulus_uj(RANGE)) == pytest.approx(61.035, abs=1e-3)
+
+
+@pytest.mark.parametrize(("unit_pj", "what"), [(15300, "Haswell-EP DRAM domain, 15.3 uJ"),
+                                               (61035, "2^-14 J, the package unit of these trees")])
+def test_wrap_modulus_is_the_registers_period(unit_pj, what):
+    """drivers/powercap/intel_rapl_common.c: energy_uj = raw * unit // 1000 (rapl_unit_xlate, unit in the
+    driver's 1e-9 uJ steps) of the 32-bit MSR (ENERGY_STATUS_MASK), max_energy_range_uj the same of
+    0xffffffff. A wrap from raw 2^32 - 7 to 9 is 16 units; the delta matches within 1 uJ (truncation),
+    where 'max_energy_range_uj + 1' misses one unit minus 1 uJ (14.3 uJ on the DRAM unit)."""
+    def energy_uj(raw: int) -> int:
+        return raw * unit_pj // 1000
+
+    max_range = energy_uj(2**32 - 1)
+    old, new = energy_uj(2**32 - 7), energy_uj(9)
+    true_uj = 16 * unit_pj / 1000
+    assert abs(wrap_delta_uj(old, new, wrap_modulus_uj(max_range)) - true_uj) < 1.0, what
+    assert (new - old) % (max_range + 1) == pytest.approx(true_uj - (unit_pj / 1000 - 1), abs=1.0)
 
 
 def test_unmoved_counter_gives_no_sample_not_zero(tree, fake_clock):

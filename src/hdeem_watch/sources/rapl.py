@@ -14,8 +14,9 @@ Two ways to the same counters (``method``): ``"powercap"`` reads ``energy_uj`` o
 
 Each read publishes one sample per counter, ``ΔE/Δt`` over the interval since the previous read
 (``rate_hz`` = the read rate, ``1/interval_s``; a read is due once 90 % of the interval has passed, so
-a poll a little early does not skip a whole interval). powercap counters wrap at
-``max_energy_range_uj`` (delta modulo range + 1); perf counts are 64-bit. A delta that cannot be
+a poll a little early does not skip a whole interval). powercap counters wrap after
+``max_energy_range_uj`` plus one counter unit (the 32-bit register's period,
+:func:`~hdeem_watch.sources.rapl_zones.wrap_modulus_uj`); perf counts are 64-bit. A delta that cannot be
 trusted — zero (no new reading), negative, or above ``max_power_w`` (several wraps or a reset) — is
 dropped, never published as a zero or a negative. :meth:`RaplSource.health` is the state of the last
 read: an error clears once every counter reads again.
@@ -39,9 +40,11 @@ from hdeem_watch.sources.rapl_zones import (
     find_dram_zones,
     read_text,
     wrap_delta_uj,
+    wrap_modulus_uj,
 )
 
-__all__ = ["DEFAULT_ROOT", "PERMISSION_FIX", "EnergyCounter", "RaplSource", "probe", "wrap_delta_uj"]
+__all__ = ["DEFAULT_ROOT", "PERMISSION_FIX", "EnergyCounter", "RaplSource", "probe", "wrap_delta_uj",
+           "wrap_modulus_uj"]
 
 METHODS = ("auto", "powercap", "perf")
 #: A read is due once this fraction of ``interval_s`` has passed since the previous one.
@@ -56,17 +59,17 @@ class EnergyCounter:
     channel: str
     read_raw: Callable[[], int]
     joules_per_unit: float
-    modulus: int | None
+    modulus: float | None
 
 
 def powercap_counters(root: str | Path, read: Callable[[Path], str] = read_text,
                       cpuinfo: str | Path = "/proc/cpuinfo") -> list[EnergyCounter]:
-    """The DRAM zones as counters (µJ, wrapping at ``max_energy_range_uj + 1``)."""
+    """The DRAM zones as counters (µJ, with the period 2³² units = ``max_energy_range_uj`` + one unit)."""
 
     def reader(zone: DramZone) -> Callable[[], int]:
         return lambda: int(read(zone.path / "energy_uj").strip())
 
-    return [EnergyCounter(z.channel, reader(z), 1e-6, z.max_energy_range_uj + 1)
+    return [EnergyCounter(z.channel, reader(z), 1e-6, wrap_modulus_uj(z.max_energy_range_uj))
             for z in find_dram_zones(root, read, cpuinfo)]
 
 
@@ -224,7 +227,7 @@ class RaplSource:
             if current == previous or dt_s <= 0:
                 samples[ch], status[ch] = empty, STATUS_STALE   # no new reading: keep the old baseline
                 continue
-            delta = wrap_delta_uj(previous, current, counter.modulus - 1) if counter.modulus else current - previous
+            delta = wrap_delta_uj(previous, current, counter.modulus) if counter.modulus else current - previous
             self._last[ch] = (current, now)
             energy = delta * counter.joules_per_unit
             power = energy / dt_s

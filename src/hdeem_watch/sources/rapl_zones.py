@@ -11,8 +11,10 @@ intel_rapl_common.c, ``rapl_add_package``). ``/sys/class/powercap`` holds a syml
 Example:
     >>> channel_name(3, None), channel_name(1, 0)
     ('DRAM3', 'DRAM1_DIE0')
-    >>> wrap_delta_uj(990, 40, 1000)
-    51
+    >>> wrap_delta_uj(990, 40, 1000.0)
+    50.0
+    >>> round(wrap_modulus_uj(65712999613) - 65712999613, 3)   # Haswell-EP DRAM unit: 15.3 uJ
+    15.3
 """
 
 from __future__ import annotations
@@ -116,6 +118,24 @@ def find_dram_zones(root: str | Path = DEFAULT_ROOT, read: Callable[[Path], str]
     return [zones[k] for k in sorted(zones)]
 
 
-def wrap_delta_uj(previous: int, current: int, max_range_uj: int) -> int:
-    """Counter delta across at most one wrap: ``(current − previous) mod (range + 1)``."""
-    return (current - previous) % (max_range_uj + 1)
+#: The RAPL energy status registers are 32 bits wide (``ENERGY_STATUS_MASK`` 0xffffffff).
+ENERGY_STATUS_STATES = 1 << 32
+
+
+def wrap_modulus_uj(max_range_uj: int) -> float:
+    """The period of a powercap ``energy_uj`` counter in µJ: 2³² counter units.
+
+    The kernel (drivers/powercap/intel_rapl_common.c) reports ``energy_uj = raw · unit`` and
+    ``max_energy_range_uj`` = ``ENERGY_STATUS_MASK · unit`` = (2³² − 1) · unit (``rapl_unit_xlate``,
+    integer arithmetic), where ``raw`` is the 32-bit register. The register wraps from 2³² − 1 to 0,
+    so ``energy_uj`` falls by 2³² · unit = ``max_energy_range_uj`` + one unit, not + 1 µJ (the
+    difference, unit − 1 µJ, is 14.3 µJ per wrap with Haswell-EP's 15.3 µJ DRAM unit). The unit is
+    recovered as ``max_energy_range_uj / (2³² − 1)`` (exact to 2.4e-10 µJ).
+    """
+    return max_range_uj * ENERGY_STATUS_STATES / (ENERGY_STATUS_STATES - 1)
+
+
+def wrap_delta_uj(previous: int, current: int, modulus_uj: float) -> float:
+    """Counter delta across at most one wrap: ``(current − previous) mod modulus`` (see
+    :func:`wrap_modulus_uj`); within 1 µJ of the true energy (``energy_uj`` is truncated to µJ)."""
+    return (current - previous) % modulus_uj
