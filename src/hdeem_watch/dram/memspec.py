@@ -27,6 +27,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from hdeem_watch.dram.memspec_check import check_physical
 from hdeem_watch.errors import InputError
 
 #: memarchitecturespec: JSON key -> attribute (all positive integers).
@@ -312,8 +313,6 @@ def parse_memspec(data: Any, where: str = "memspec", *, allow_unphysical: bool =
                        currents=currents, fact_rho=fact_rho, _raw=raw, _current_keys=current_keys,
                        **volts, **values)
     if not allow_unphysical:
-        from hdeem_watch.dram.memspec_check import check_physical
-
         check_physical(spec_out, where)
     return spec_out
 

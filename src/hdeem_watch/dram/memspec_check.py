@@ -16,8 +16,17 @@ VPP: ``ipp*``), with ρ = ``factRho``, Iβ (= I0 unless the memspec gives ``iBet
 
 A memspec that breaks one of these (e.g. module currents divided evenly over the dies, which puts
 IDD0 below IDD3N) gives negative activation or burst energies, and a calibration against it is
-meaningless. :func:`physical_violations` lists every broken rule with the currents it involves;
-:func:`check_physical` raises them as one line.
+meaningless. :func:`physical_violations` lists every broken rule with the currents it involves.
+
+The timings are held against JEDEC's DDR4 minimums (JESD79-4, as the Micron DDR4 die datasheets
+print them) by :func:`timing_violations`: tAA (RL), tRCD and tRP at least the fastest speed bin of
+the data rate (DDR4-1600J 13.75, -1866L 13.92, -2133N 13.13, -2400P 12.5, -2666T 12.75, -2933V 12.96,
+-3200W 12.5 ns), tRAS the bin's minimum (35/34/33/32 ns), tRC ≥ tRAS + tRP, tWR 15 ns, tRTP
+max(4 nCK, 7.5 ns), tWTR_S max(2 nCK, 2.5 ns), tWTR_L max(4 nCK, 7.5 ns), tXP max(4 nCK, 6 ns),
+tCKE max(3 nCK, 5 ns), tRFC1 the density's (2/4/8/16 Gb: 160/260/350/550 ns), tXS ≥ tRFC1 + 10 ns,
+tCCD_S, tRRD_S ≥ 4 nCK, and tREFI at most 7.8 µs. Nanoseconds become clocks by JEDEC's rounding
+(``ceil(t/tCK − 0.026)``: its 0.974 correction). :func:`check_physical`, the load-time check, raises
+the current violations and the speed-bin ones (tAA, tRCD, tRP, tRAS, tRC) as one line.
 
 Example:
     >>> from hdeem_watch.dram.memspec import preset
@@ -30,12 +39,35 @@ Example:
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import math
+from collections.abc import Mapping
+from typing import Protocol
 
 from hdeem_watch.errors import InputError
 
-if TYPE_CHECKING:
-    from hdeem_watch.dram.memspec import MemSpec
+
+class SpecView(Protocol):
+    """What the checks read of a memspec (:class:`hdeem_watch.dram.memspec.MemSpec` has it all; this
+    module does not import that one, so the two do not import each other)."""
+
+    @property
+    def currents(self) -> Mapping[str, float]: ...
+    @property
+    def timings(self) -> Mapping[str, int]: ...
+    @property
+    def nbr_of_banks(self) -> int: ...
+    @property
+    def nbr_of_rows(self) -> int: ...
+    @property
+    def nbr_of_columns(self) -> int: ...
+    @property
+    def width(self) -> int: ...
+    @property
+    def fact_rho(self) -> float: ...
+    @property
+    def tck_s(self) -> float: ...
+    @property
+    def refresh_currents(self) -> tuple[str, str]: ...
 
 #: Relative slack for rounding in datasheet-derived currents (a few nA on tens of mA).
 TOLERANCE = 1e-9
@@ -45,7 +77,7 @@ def _ma(value: float) -> str:
     return f"{value * 1e3:.4g}"
 
 
-def _domain_violations(spec: MemSpec, prefix: str) -> list[str]:
+def _domain_violations(spec: SpecView, prefix: str) -> list[str]:
     """Broken rules of one supply (``"idd"`` or ``"ipp"``), each a short phrase in mA."""
     cur = spec.currents
     up = prefix.upper()
@@ -88,7 +120,7 @@ def _domain_violations(spec: MemSpec, prefix: str) -> list[str]:
     return out
 
 
-def physical_violations(spec: MemSpec) -> list[str]:
+def physical_violations(spec: SpecView) -> list[str]:
     """Every rule of the module docstring ``spec`` breaks, VDD supply first (empty: physical).
 
     Args:
@@ -100,8 +132,70 @@ def physical_violations(spec: MemSpec) -> list[str]:
     return _domain_violations(spec, "idd") + _domain_violations(spec, "ipp")
 
 
-def check_physical(spec: MemSpec, where: str = "memspec") -> None:
-    """Raise if ``spec`` would give a negative per-command energy.
+#: Data rate (MT/s) -> (tAA/tRCD/tRP, tRAS) minimum in ns of its fastest JESD79-4 speed bin.
+SPEED_BIN_MIN_NS: dict[int, tuple[float, float]] = {
+    1600: (13.75, 35.0), 1866: (13.92, 34.0), 2133: (13.13, 33.0), 2400: (12.5, 32.0),
+    2666: (12.75, 32.0), 2933: (12.96, 32.0), 3200: (12.5, 32.0),
+}
+#: Die density (Gbit) -> tRFC1 minimum in ns (JESD79-4).
+TRFC1_NS = {2: 160.0, 4: 260.0, 8: 350.0, 16: 550.0}
+#: tREFI may not exceed 7.8 us (0-85 C).
+TREFI_MAX_NS = 7800.0
+
+
+def _clocks(ns: float, tck_ns: float, floor_nck: int = 0) -> int:
+    """JEDEC's rounding of a minimum time to clocks (0.974 correction), at least ``floor_nck``."""
+    return max(floor_nck, math.ceil(ns / tck_ns - 0.026))
+
+
+def _timing_minimums(spec: SpecView, tck_ns: float) -> dict[str, tuple[int, str]]:
+    """Timing key -> (minimum clocks, what it is) for the memspec's data rate and density."""
+    rate = min(SPEED_BIN_MIN_NS, key=lambda r: abs(r - 2000.0 / tck_ns))
+    taa, tras = SPEED_BIN_MIN_NS[rate]
+    gbit = spec.nbr_of_banks * spec.nbr_of_rows * spec.nbr_of_columns * spec.width / (1 << 30)
+    out = {key: (_clocks(taa, tck_ns), f"{taa} ns (DDR4-{rate} fastest bin)") for key in ("RL", "RCD", "RP")}
+    out["RAS"] = (_clocks(tras, tck_ns), f"{tras:g} ns (DDR4-{rate})")
+    out["WR"] = (_clocks(15.0, tck_ns), "15 ns")
+    out["RTP"] = (_clocks(7.5, tck_ns, 4), "max(4 nCK, 7.5 ns)")
+    out["WTR_S"] = (_clocks(2.5, tck_ns, 2), "max(2 nCK, 2.5 ns)")
+    out["WTR_L"] = (_clocks(7.5, tck_ns, 4), "max(4 nCK, 7.5 ns)")
+    out["XP"] = (_clocks(6.0, tck_ns, 4), "max(4 nCK, 6 ns)")
+    out["CKE"] = (_clocks(5.0, tck_ns, 3), "max(3 nCK, 5 ns)")
+    out["CCD_S"] = (4, "4 nCK")
+    out["RRD_S"] = (4, "4 nCK")
+    if (rfc := TRFC1_NS.get(round(gbit))) is not None:
+        out["RFC1"] = (_clocks(rfc, tck_ns), f"{rfc:g} ns ({round(gbit)} Gb)")
+        out["XS"] = (_clocks(rfc + 10.0, tck_ns), f"tRFC1 + 10 ns = {rfc + 10:g} ns")
+    return out
+
+
+#: The speed-bin timings (the load-time check holds these; the others only with ``every=True``).
+SPEED_BIN_KEYS = ("RL", "RCD", "RP", "RAS")
+
+
+def timing_violations(spec: SpecView, *, every: bool = True) -> list[str]:
+    """Every timing below its JESD79-4 minimum (or tREFI above 7.8 us), one phrase each in clocks.
+
+    Args:
+        spec: the memspec.
+        every: all rules of the module docstring; ``False``: the speed bin's only (tAA, tRCD, tRP,
+            tRAS, tRC), what the load-time check enforces (reference memspecs of other tools carry
+            refresh-exit times below the standard's, e.g. Ramulator's 8 Gb DDR4-2133P tXS of a 4 Gb die).
+    """
+    tck_ns = spec.tck_s * 1e9
+    timings = spec.timings
+    out = [f"t{key} {timings[key]} nCK < {need} nCK = {why}"
+           for key, (need, why) in _timing_minimums(spec, tck_ns).items()
+           if key in timings and timings[key] < need and (every or key in SPEED_BIN_KEYS)]
+    if "RC" in timings and "RAS" in timings and "RP" in timings and timings["RC"] < timings["RAS"] + timings["RP"]:
+        out.append(f"tRC {timings['RC']} nCK < tRAS + tRP = {timings['RAS'] + timings['RP']} nCK")
+    if every and "REFI" in timings and timings["REFI"] * tck_ns > TREFI_MAX_NS * (1 + 1e-6):
+        out.append(f"tREFI {timings['REFI']} nCK = {timings['REFI'] * tck_ns:.0f} ns > 7.8 us")
+    return out
+
+
+def check_physical(spec: SpecView, where: str = "memspec") -> None:
+    """Raise if ``spec`` would give a negative per-command energy or a speed-bin timing below JEDEC's.
 
     Args:
         spec: a loaded memspec.
@@ -110,8 +204,9 @@ def check_physical(spec: MemSpec, where: str = "memspec") -> None:
     Raises:
         InputError: one line listing every broken rule and how to load the file anyway.
     """
-    problems = physical_violations(spec)
-    if problems:
-        raise InputError(f"{where}: unphysical currents (DRAMPower energy would be negative): "
-                         f"{'; '.join(problems)}; load with allow_unphysical=True (--allow-unphysical) "
+    currents, timing = physical_violations(spec), timing_violations(spec, every=False)
+    parts = ([f"unphysical currents (DRAMPower energy would be negative): {'; '.join(currents)}"] if currents else [])
+    parts += [f"timings below JEDEC DDR4 minimums (JESD79-4): {'; '.join(timing)}"] if timing else []
+    if parts:
+        raise InputError(f"{where}: {'; '.join(parts)}; load with allow_unphysical=True (--allow-unphysical) "
                          f"to study it anyway")

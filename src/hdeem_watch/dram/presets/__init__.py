@@ -1,5 +1,14 @@
 """Built-in DDR4 memspecs (DRAMPower JSON files in this directory) and where each number comes from.
 
+Every preset's timings come from one named source (:attr:`PresetInfo.timings`, tested value for value
+against excerpts of it in tests/dram/sources/): a DRAMPower memspec, a DRAMsim3 config file, or
+JESD79-4 itself. Where a DRAMsim3 file is the source, every timing the file gives is taken in its
+cycles, and the fields it has not are derived the same way for every such preset: ``tCK`` =
+the bin's JESD79-4 tCK (0.9375, 0.833, 0.75, 0.682, 0.625 ns; the files round it to 10 ps), ``REFI`` = 7.8 us in those clocks, ``RL`` = ``CL``,
+``WL`` = ``CWL``, ``RC`` = ``RAS + RP``, ``XPDLL`` = 24 ns and ``XSDLL`` = tDLLK (JESD79-4). The
+load-time check also holds every timing against JESD79-4's minimums
+(:func:`hdeem_watch.dram.memspec_check.timing_violations`).
+
 Every preset describes one channel of dual-rank x8 modules with 9 devices per rank (2Rx8 ECC RDIMM,
 the common HPC configuration) unless said otherwise (the x4 preset: 2Rx4, 18 devices per rank); :func:`hdeem_watch.node.memspec_choice.for_dimm`
 re-shapes a preset to the ranks and devices of a detected DIMM. Every preset passes the physical
@@ -61,9 +70,11 @@ amperes per device, as DRAMPower wants them.
     IDD5B = 2475/9 - 25 = 250, IPP0 = 54/9 - 3 = 3, IPP5B = 279/9 - 3 = 28 mA. The other IPPs
     (IPP2N, IPP2P, IPP3P, IPP4R, IPP4W, IPP6N) are set to IPP3N = 3 mA: Micron's 8 Gb datasheet
     states the IPP3N limit applies to all IDD2x, IDD3x, IDD4x (and, in the 16 Gb one, IDD6x)
-    conditions. Timings: the DDR4-2400 speed bin of the 4 Gb preset above (the module's Table 1:
-    tRCD = tRP = 13.32 ns, tRC 45.32 ns), with the 8 Gb refresh times tRFC1/2/4 = 350/260/160 ns
-    (420/312/192 cycles) and XS = tRFC1 + 10 ns = 432.
+    conditions. Timings: DRAMsim3's ``configs/DDR4_8Gb_x8_2400.ini`` (the same die and bin), by the
+    rules above: 17-17-17 (the module's -2G3 grade is DDR4-2400 CL17), RAS 39, RC 56, CWL 12, RTP 9,
+    FAW 26, the 8 Gb refresh times tRFC1/2/4 = 420/312/192 cycles, XS 432, XPDLL 29, XSDLL 768.
+    (Until issue 29 the preset carried the 4 Gb rev-A DRAMPower timings: WL 16, RTP 12, XPDLL 325,
+    XSDLL 512, RCD/RP 16.)
 
 ``micron-8gb-x8-ddr4-3200-g`` (``micron-8gb-x8-ddr4-3200-g.json``)
     Micron 8 Gb x8 die revision G (MT40A1G8, -062E, DDR4-3200AA), as DRAMPower's memspec
@@ -88,9 +99,9 @@ amperes per device, as DRAMPower wants them.
     (IDD0 48, IDD3N 43, IDD4R 135, IDD4W 123, IDD3P 37, the rest shared), which the module datasheet
     gave independently. The source has no IPP5B for x4: the x8 die's 28 mA is used (IPP0 and IPP3N
     are equal for x4 and x8 there); IPP2N, IPP2P, IPP3P, IPP4R, IPP4W, IPP6N = IPP3N as above.
-    Geometry: 16 banks in 4 bank groups, 131072 rows x 1024 columns (512 B page). Timings: the
-    DDR4-2400 bin of the x8 preset (the speed bin and the refresh times are the die's), except
-    FAW = 16 cycles (13.3 ns: tFAW of a 512 B page is max(16 nCK, 13 ns); gem5 ``tXAW`` 13.328 ns).
+    Geometry: 16 banks in 4 bank groups, 131072 rows x 1024 columns (512 B page). Timings: DRAMsim3's
+    ``configs/DDR4_8Gb_x4_2400.ini`` by the rules above: those of the x8 preset except FAW = 16
+    cycles (13.3 ns: tFAW of a 512 B page is max(16 nCK, 13 ns); gem5 ``tXAW`` 13.328 ns).
 
 ``micron-8gb-x16-ddr4-2666-b`` (``micron-8gb-x16-ddr4-2666-b.json``)
     Micron 8 Gb x16 die revision B (MT40A512M16), DDR4-2666, one channel of single-rank x64 modules
@@ -108,20 +119,24 @@ amperes per device, as DRAMPower wants them.
     in 2 bank groups, 65536 rows x 1024 columns (2 KB page). Timings: the module's -2G6 grade is the
     component's -075 (Micron's module-to-component speed-grade table, e.g. asf18c1gx72az.pdf Rev. F
     Table 12), DDR4-2666 CL19: tCK 0.75 ns,
-    RL = RCD = RP = 19 (14.25 ns), RAS 43 (32 ns), RC 62, WL 14 (CWL 14); the JESD79-4 values
-    for a 2 KB page at 2666 in cycles of 0.75 ns, rounded up: RRD_S 8 (5.3 ns), RRD_L 9 (6.4 ns),
+    RL = RCD = RP = 19 (14.25 ns), RAS 43 (32 ns), RC 62, WL 14 (CWL 14); the one source is
+    JESD79-4: its values for a 2 KB page at 2666 in cycles of 0.75 ns, by JEDEC's rounding: RRD_S 8 (5.3 ns), RRD_L 9 (6.4 ns),
     FAW 40 (30 ns), CCD_L 7 (5 ns), WTR_S/L 4/10 (2.5/7.5 ns), WR 20 (15 ns), RTP 10 (7.5 ns), XP 8
     (6 ns), XPDLL 32 (24 ns), CKE 7 (5 ns), CKESR 8, XSDLL 854 (tDLLK at 2666); the 8 Gb refresh
     times RFC1/2/4 467/347/214 (350/260/160 ns), XS 480 (RFC1 + 10 ns), REFI 10400 (7.8 us).
+    DRAMsim3's ``DDR4_8Gb_x16_2666.ini`` has RRD_S 7: 5.3 ns is 7.07 clocks, which JEDEC's rounding
+    (0.974 correction) makes 8; the preset keeps JESD79-4's 8.
 
 ``micron-8gb-x8-ddr4-2666``, ``micron-8gb-x8-ddr4-2933``, ``micron-8gb-x4-ddr4-2666``, ``micron-8gb-x4-ddr4-2933``, ``micron-8gb-x4-ddr4-3200``
     Micron 8 Gb DDR4 dies (MT40A1G8 x8, MT40A2G4 x4) at the DDR4-2666, -2933 and -3200 speed bins,
     one channel of 2Rx8 (9 devices per rank) or 2Rx4 (18 devices per rank) ECC RDIMMs. Currents:
     the Micron "8Gb: x4, x8, x16 DDR4 SDRAM" datasheet (8gb_ddr4_sdram.pdf) columns as DRAMsim3
     quotes them (umd-memsys/DRAMsim3 ``configs/DDR4_8Gb_x{4,8}_{2666,2933,3200}.ini``; the file
-    ``DDR4_8Gb_x8_2400.ini`` of the same set names its part, "Micron MT40A1G8PM-083E"). The set is
-    checked against the sources above: its x8 2400 currents are the per-device figures of Micron's
-    MTA18ASF2G72HZ module table (``micron-8gb-x8-ddr4-2400-b``; IDD6 31 vs 30 mA), its x4 2400
+    ``DDR4_8Gb_x8_2400.ini`` of the same set named its part, "Micron MT40A1G8PM-083E", until the
+    comment was dropped in commit 7bf30ed of 2018-05-07). The set is checked against the sources
+    above: its x8 2400 currents are the per-device figures of Micron's MTA18ASF2G72HZ module table
+    (``micron-8gb-x8-ddr4-2400-b``, IDD6x = 30 mA in every version of the file; 31 mA is the
+    IDD6N of DRAMPower's rev-G 3200 memspec), its x4 2400
     currents are gem5's MT40A2G4 ones (``micron-8gb-x4-ddr4-2400-b``), and its x16 2666 currents
     are exactly Micron's MTA4ATF51264AZ table divided by its 4 devices (``micron-8gb-x16-ddr4-2666-b``).
     Per device, mA (IDD0, IDD2N, IDD2P, IDD3N, IDD3P, IDD4R, IDD4W, IDD5B, IDD6N; IPP0 3 for all):
@@ -134,11 +149,11 @@ amperes per device, as DRAMPower wants them.
     ``micron-8gb-x8-ddr4-3200-g``, IDD3N 56 and IDD4W 155: another datasheet revision; that preset is
     kept.) The files give IDD5 as the refresh current, used as IDD5B. Not in them: IPP3N (3 mA) and
     IPP5B (28 mA) are the 8 Gb x8 rev-B module table's (above); the other IPPs = IPP3N (the
-    datasheet's IPP3N note). Timings: the files' cycles (JESD79-4 speed bins: 2666 19-19-19 at
-    0.75 ns, 2933 21-21-21 at 0.682 ns, 3200 22-22-22 at 0.625 ns; RAS 43/47/52, RRD_L 7/8/8 (4.9 ns),
+    datasheet's IPP3N note). Timings: each file's, by the rules above (2666 19-19-19 at 0.75 ns,
+    2933 21-21-21 at 0.682 ns, 3200 22-22-22 at 0.625 ns; RAS 43/47/52, RRD_L 7/8/8 (4.9 ns),
     FAW x8 28/31 (21 ns) and x4 16 (16 nCK), WR 20/22/24, RTP 10/11/12, CCD_L 7/8/8, WTR_S/L 4 and
-    10/11/12, CKE 7/8/8, XP 8/9/10, 8 Gb RFC1/2/4 350/260/160 ns, XS = RFC1 + 10 ns, CWL 14/16/16);
-    RC = RAS + RP; REFI = 7.8 us; XPDLL = 24 ns and XSDLL = tDLLK (854/940/1024 nCK) from JESD79-4.
+    10/11/12, CKE 7/8/8, XP 8/9/10, 8 Gb RFC1/2/4 350/260/160 ns, XS = RFC1 + 10 ns, CWL 14/16/16;
+    XSDLL = tDLLK 854/940/1024 nCK).
     Geometry: 16 banks in 4 bank groups, 65536 (x8) or 131072 (x4) rows of 1024 columns.
 
 ``micron-4gb-x4-ddr4-2133``, ``micron-4gb-x4-ddr4-2400``
@@ -153,15 +168,19 @@ amperes per device, as DRAMPower wants them.
     = 55 and 801/9 - 29 = 60 mA at 2133 and 2400. The other IPPs are not in the files: 0, as in
     DRAMPower's 4 Gb memspecs. Timings: the files' cycles (2133 16-16-16 at 0.9375 ns, 2400 17-17-17
     at 0.833 ns; RAS 36/39, RFC1/2/4 278/171/118 and 312/192/132 (4 Gb: 260/160/110 ns), RRD_L 6,
-    FAW 16, WR 16/18, RTP 8/9, CCD_L 6, WTR_S/L 3 and 8/9, CKE 6, XP 7/8, XS 289/324, CWL 11/12);
-    RC = RAS + RP; REFI = 7.8 us; XPDLL = 24 ns and XSDLL = tDLLK (597/768 nCK) from JESD79-4.
+    FAW 16, WR 16/18, RTP 8/9, CCD_L 6, WTR_S/L 3 and 8/9, CKE 6, XP 7/8, XS 289/324, CWL 11/12),
+    by the rules above (XSDLL 597/768 nCK).
     Geometry: 16 banks in 4 bank groups, 65536 rows x 1024 columns.
 
-Not (yet) in the library, for want of a complete public per-die IDD table we could read (the
-stored copies of Micron's 16 Gb datasheet and SK hynix's H5ANAG4/8/6NCJR 16 Gb datasheet show only
-the first rows of their IDD tables; DRAMSys and DRAMPower ship DDR4 memspecs of 4 Gb x8 only, gem5 of
-8 Gb DDR4-2400 only, DRAMsim3 of 4 and 8 Gb dies only, Ramulator 2 timings without currents): 16 Gb
-dies. Bring your own (``--memspec FILE``; docs/your-node.md).
+Not (yet) in the library, for want of a complete public per-die IDD table (a partial one exists:
+Micron's MT40A1G16 rev D datasheet gives IDD0, IPP0, IDD1, IDD2N, IDD2NT and IDD2P only; the stored
+copy of SK hynix's H5ANAG4/8/6NCJR 16 Gb datasheet stops after the first rows as well; DRAMSys ships
+DDR4 memspecs of 4 Gb x8, DRAMPower's history 4 Gb x8 and the 8 Gb x8/x16 rev-G 3200 ones (one used
+here), gem5 8 Gb DDR4-2400 only, DRAMsim3 4 and 8 Gb dies only; Ramulator 2's DDR4 carried an
+unattributed "Default" current preset (IDD0 60, IDD2N 50, IDD3N 55 mA ...) from commit 6c0cd42 of
+2024-05-23 until 38c51d4 of 2026-06-27): 16 Gb dies. The node's choice then takes the nearest preset
+as the calibration's prior and says so (:mod:`hdeem_watch.node.memspec_choice`); bring your own
+(``--memspec FILE``; docs/your-node.md) or let the calibration fit the currents.
 """
 
 from __future__ import annotations
@@ -182,6 +201,8 @@ class PresetInfo:
         vendor: die (or module) manufacturer.
         die: die name and revision.
         source: the datasheet the currents come from (one line).
+        timings: the one named source of every timing (see the module docstring for the rules that
+            derive what a DRAMsim3 file does not give).
     """
 
     file: str
@@ -191,44 +212,59 @@ class PresetInfo:
     vendor: str
     die: str
     source: str
+    timings: str = ""
 
 
 #: Preset name -> what it describes.
 PRESET_INFO: dict[str, PresetInfo] = {
     "ddr4-2133-x8-4gb": PresetInfo("ddr4-2133-x8-4gb.json", 2133, 4, 8, "Micron", "4Gb x8 rev A (interpolated)",
-                                   "DRAMPower 4.1 Micron 4Gb x8 rev A 1866/2400 memspecs, mid-point"),
+                                   "DRAMPower 4.1 Micron 4Gb x8 rev A 1866/2400 memspecs, mid-point",
+        timings="DRAMPower reference memspec ddr4_2133_x8_2r_8dev.json"),
     "samsung-m393a1g43db0-cpb": PresetInfo("samsung-m393a1g43db0-cpb.json", 2133, 4, 8, "Samsung",
                                            "K4A4G085WD (4Gb x8 D-die)",
-                                           "Samsung M393A1G43DB0 module IDDs, Micron's dual-rank module definition"),
+                                           "Samsung M393A1G43DB0 module IDDs, Micron's dual-rank module definition",
+        timings="DRAMPower reference memspec ddr4_2133_x8_2r_8dev.json"),
     "micron-4gb-x8-ddr4-2400-a": PresetInfo("micron-4gb-x8-ddr4-2400-a.json", 2400, 4, 8, "Micron",
                                             "MT40A512M8 (4Gb x8 rev A)",
-                                            "DRAMPower memspec MICRON_4Gb_DDR4-2400_8bit_A"),
+                                            "DRAMPower memspec MICRON_4Gb_DDR4-2400_8bit_A",
+        timings="DRAMPower memspec MICRON_4Gb_DDR4-2400_8bit_A"),
     "micron-8gb-x8-ddr4-2400-b": PresetInfo("micron-8gb-x8-ddr4-2400-b.json", 2400, 8, 8, "Micron",
                                             "MT40A1G8 (8Gb x8 rev B)",
-                                            "Micron MTA18ASF2G72HZ datasheet Rev. F, Table 15"),
+                                            "Micron MTA18ASF2G72HZ datasheet Rev. F, Table 15",
+        timings="DRAMsim3 configs/DDR4_8Gb_x8_2400.ini"),
     "micron-8gb-x4-ddr4-2400-b": PresetInfo("micron-8gb-x4-ddr4-2400-b.json", 2400, 8, 4, "Micron",
                                             "MT40A2G4 (8Gb x4)",
-                                            "Micron 8Gb DDR4 datasheet x4 DDR4-2400 IDDs as gem5's DDR4_2400_16x4 quotes"),
+                                            "Micron 8Gb DDR4 datasheet x4 DDR4-2400 IDDs as gem5's DDR4_2400_16x4 quotes",
+        timings="DRAMsim3 configs/DDR4_8Gb_x4_2400.ini"),
     "micron-8gb-x16-ddr4-2666-b": PresetInfo("micron-8gb-x16-ddr4-2666-b.json", 2666, 8, 16, "Micron",
                                              "MT40A512M16 (8Gb x16 rev B)",
-                                             "Micron MTA4ATF51264AZ datasheet Rev. B, Table 13 (2666)"),
+                                             "Micron MTA4ATF51264AZ datasheet Rev. B, Table 13 (2666)",
+        timings="JESD79-4 DDR4-2666V (19-19-19), 2 KB page"),
     "micron-4gb-x4-ddr4-2133": PresetInfo("micron-4gb-x4-ddr4-2133.json", 2133, 4, 4, "Micron", "MT40A1G4 (4Gb x4)",
-                                          "Micron 4Gb DDR4 datasheet as DRAMsim3 DDR4_4Gb_x4_2133 quotes it"),
+                                          "Micron 4Gb DDR4 datasheet as DRAMsim3 DDR4_4Gb_x4_2133 quotes it",
+        timings="DRAMsim3 configs/DDR4_4Gb_x4_2133.ini"),
     "micron-4gb-x4-ddr4-2400": PresetInfo("micron-4gb-x4-ddr4-2400.json", 2400, 4, 4, "Micron", "MT40A1G4 (4Gb x4)",
-                                          "Micron 4Gb DDR4 datasheet as DRAMsim3 DDR4_4Gb_x4_2400 quotes it"),
+                                          "Micron 4Gb DDR4 datasheet as DRAMsim3 DDR4_4Gb_x4_2400 quotes it",
+        timings="DRAMsim3 configs/DDR4_4Gb_x4_2400.ini"),
     "micron-8gb-x8-ddr4-2666": PresetInfo("micron-8gb-x8-ddr4-2666.json", 2666, 8, 8, "Micron", "MT40A1G8 (8Gb x8)",
-                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x8_2666 quotes it"),
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x8_2666 quotes it",
+        timings="DRAMsim3 configs/DDR4_8Gb_x8_2666.ini"),
     "micron-8gb-x8-ddr4-2933": PresetInfo("micron-8gb-x8-ddr4-2933.json", 2933, 8, 8, "Micron", "MT40A1G8 (8Gb x8)",
-                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x8_2933 quotes it"),
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x8_2933 quotes it",
+        timings="DRAMsim3 configs/DDR4_8Gb_x8_2933.ini"),
     "micron-8gb-x4-ddr4-2666": PresetInfo("micron-8gb-x4-ddr4-2666.json", 2666, 8, 4, "Micron", "MT40A2G4 (8Gb x4)",
-                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x4_2666 quotes it"),
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x4_2666 quotes it",
+        timings="DRAMsim3 configs/DDR4_8Gb_x4_2666.ini"),
     "micron-8gb-x4-ddr4-2933": PresetInfo("micron-8gb-x4-ddr4-2933.json", 2933, 8, 4, "Micron", "MT40A2G4 (8Gb x4)",
-                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x4_2933 quotes it"),
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x4_2933 quotes it",
+        timings="DRAMsim3 configs/DDR4_8Gb_x4_2933.ini"),
     "micron-8gb-x4-ddr4-3200": PresetInfo("micron-8gb-x4-ddr4-3200.json", 3200, 8, 4, "Micron", "MT40A2G4 (8Gb x4)",
-                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x4_3200 quotes it"),
+                                          "Micron 8Gb DDR4 datasheet as DRAMsim3 DDR4_8Gb_x4_3200 quotes it",
+        timings="DRAMsim3 configs/DDR4_8Gb_x4_3200.ini"),
     "micron-8gb-x8-ddr4-3200-g": PresetInfo("micron-8gb-x8-ddr4-3200-g.json", 3200, 8, 8, "Micron",
                                             "MT40A1G8 (8Gb x8 rev G)",
-                                            "DRAMPower memspec MICRON_8Gb_DDR4-3200_8bit_G (8gb_ddr4_sdram.pdf)"),
+                                            "DRAMPower memspec MICRON_8Gb_DDR4-3200_8bit_G (8gb_ddr4_sdram.pdf)",
+        timings="DRAMPower memspec MICRON_8Gb_DDR4-3200_8bit_G"),
 }
 
 #: Preset name -> file name in this directory.
