@@ -35,6 +35,7 @@ from hdeem_watch.daemon.job_records import (
 from hdeem_watch.daemon.node_state import ClosedWindow, Conflict
 from hdeem_watch.daemon.persistence import StoreWorker
 from hdeem_watch.daemon.ports import PublisherPort, Reply, StorePort
+from hdeem_watch.daemon.protocol import quoted
 
 log = logging.getLogger("hdeem_watch.daemon")
 
@@ -110,19 +111,19 @@ class JobOperations:
 
     # -- ops --------------------------------------------------------------------------------------
 
-    def op_job_start(self, args: dict[str, Any]) -> Pending:
-        """Open a job's window; the reply (the record) comes once it is stored."""
+    def op_job_start(self, args: dict[str, Any]) -> Pending | dict[str, Any]:
+        """Open a job's window; the reply (the record) comes once it is stored. A job already open
+        (a retried Prolog) gets its record at once."""
         job_args = parse_job_args(args)
         self.poll()
         try:
             record, new = self.jobs.start(job_args)
         except Conflict as error:
             raise OpError("conflict", str(error)) from None
-        pending = Pending("job.start")
         body = record.to_dict()
         if not new:
-            self.reply(pending, body, None)
-            return pending
+            return body
+        pending = Pending("job.start")
         log.info("job %s started (user %s, uid %s)", record.job_id, record.user, record.uid)
         self.publisher.publish("job", {"event": "start", "job": job_summary(body)})
         self._save(body, lambda _written: self.reply(pending, body, None))
@@ -134,7 +135,7 @@ class JobOperations:
         exit_code = exit_code_arg(args.get("exit_code"))
         ended_ns = args.get("ended_ns")
         if ended_ns is not None and (isinstance(ended_ns, bool) or not isinstance(ended_ns, int) or ended_ns < 0):
-            raise OpError("bad-args", f"args.ended_ns = {ended_ns!r}: expected the wall-clock ns the job ended")
+            raise OpError("bad-args", f"args.ended_ns = {quoted(ended_ns)}: expected the wall-clock ns the job ended")
         pending = Pending("job.stop")
         if job_id in self.waiters:  # closing already: the same answer
             self.waiters[job_id].append(pending)
@@ -166,7 +167,7 @@ class JobOperations:
             if found:
                 self.reply(pending, found[0], None)
             else:
-                self.reply(pending, None, ("not-found", f"no job {job_id!r} on this node"))
+                self.reply(pending, None, ("not-found", f"no job {quoted(job_id)} on this node"))
 
         self.store.read(lambda s: _jobs(s).list_jobs(job_id=job_id, limit=1), done, self._failed(pending))
         return pending
@@ -177,17 +178,17 @@ class JobOperations:
         job_id = None if args.get("job_id") is None else job_id_arg(args.get("job_id"))
         user, state, since_ns = args.get("user"), args.get("state"), args.get("since_ns")
         if user is not None and not isinstance(user, str):
-            raise OpError("bad-args", f"args.user = {user!r}: expected a user name")
+            raise OpError("bad-args", f"args.user = {quoted(user)}: expected a user name")
         if state is not None and state not in JOB_STATES:
-            raise OpError("bad-args", f"args.state = {state!r}: expected running, done or interrupted")
+            raise OpError("bad-args", f"args.state = {quoted(state)}: expected running, done or interrupted")
         if since_ns is not None and (isinstance(since_ns, bool) or not isinstance(since_ns, int)):
-            raise OpError("bad-args", f"args.since_ns = {since_ns!r}: expected wall-clock ns")
+            raise OpError("bad-args", f"args.since_ns = {quoted(since_ns)}: expected wall-clock ns")
         limit = args.get("limit", DEFAULT_JOBS)
         if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_JOBS:
-            raise OpError("bad-args", f"args.limit = {limit!r}: expected an integer 1..{MAX_JOBS}")
+            raise OpError("bad-args", f"args.limit = {quoted(limit)}: expected an integer 1..{MAX_JOBS}")
         full = args.get("full", False)
         if not isinstance(full, bool):
-            raise OpError("bad-args", f"args.full = {full!r}: expected true or false")
+            raise OpError("bad-args", f"args.full = {quoted(full)}: expected true or false")
         pending = Pending("job.list")
 
         def done(found: list[dict[str, Any]]) -> None:
@@ -309,7 +310,7 @@ class JobOperations:
         if found and found[0].get("state") != "running":
             self.reply(pending, found[0], None)  # stopped before: the same answer again
         else:
-            self.reply(pending, None, ("not-found", f"no job {job_id!r} open on this node"))
+            self.reply(pending, None, ("not-found", f"no job {quoted(job_id)} open on this node"))
 
     def _failed(self, pending: Pending) -> Callable[[BaseException], None]:
         return lambda error: self.reply(pending, None, ("internal", f"{type(error).__name__}: {error}"))

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from hdeem_watch.daemon.group_fits import DEFAULT_MIN_SAMPLES
 from hdeem_watch.daemon.modelling import MAX_HISTORY, RunModeller, compact_fit
+from hdeem_watch.daemon.wire import quoted
 
 if TYPE_CHECKING:
     from hdeem_watch.calibrate.group_rows import SensorGroup
@@ -81,7 +82,7 @@ class Worker:
                 if error is None:
                     done(future.result())
                 else:
-                    log.error("%s job failed: %s: %s", self.name, type(error).__name__, error)
+                    log.error("%s job failed: %s: %s", self.name, type(error).__name__, quoted(str(error)))
                     if failed is not None:
                         failed(error)
             except Exception:

@@ -234,8 +234,12 @@ def _flush_pending_stops(s: HookSettings) -> None:
 
 # --------------------------------------------------------------------------- the hooks
 def prolog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
-    """Open the job's window in this node's daemon (see the module docstring); return what was done."""
+    """Open the job's window in this node's daemon (see the module docstring); return what was done.
+
+    Without a job id (``SLURM_JOB_ID`` empty or unset) nothing is opened: :func:`_no_job_id`."""
     env, s, ctx, job_id = _begin(env)
+    if job_id is None:
+        return _no_job_id("prolog", env, ctx)
     record: dict[str, Any] = {"event": "prolog", "job_id": job_id, "user": ctx.get("user"), "node": ctx.get("node"),
                               "t_ns": time.time_ns(), "control": s.control, "daemon": "running"}
     if _call(s.control, "ping", None, min(2.0, s.timeout_s))[1] is not None:
@@ -259,15 +263,23 @@ def prolog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
     return record
 
 
-def _begin(env: Mapping[str, str] | None) -> tuple[Mapping[str, str], HookSettings, dict[str, str], str]:
+def _begin(env: Mapping[str, str] | None) -> tuple[Mapping[str, str], HookSettings, dict[str, str], str | None]:
     """What both hooks do first: read their settings and the job, make the hooks' directory, and
-    send the stops a daemon missed; ``(env, settings, job context, job id)``."""
+    send the stops a daemon missed; ``(env, settings, job context, job id or None)``."""
     env = os.environ if env is None else env
     s = hook_settings(env)
     ctx = hook_context(env)
     _private_dir(s.hook_dir)
     _flush_pending_stops(s)
-    return env, s, ctx, ctx.get("job_id", "unknown")
+    job_id = ctx.get("job_id", "").strip()
+    return env, s, ctx, job_id or None
+
+
+def _no_job_id(event: str, env: Mapping[str, str], ctx: Mapping[str, str]) -> dict[str, Any]:
+    """A hook without a job id: nothing is opened or closed (jobs must not share a made-up id); say why."""
+    why = "SLURM_JOB_ID is empty or unset: no job window opened or closed"
+    _log(f"{event}: {why} (user {ctx.get('user', '?')}, node {ctx.get('node', '?')})", env)
+    return {"event": event, "job_id": None, "skipped": why, "t_ns": time.time_ns()}
 
 
 def _write_job(s: HookSettings, job_id: str, record: dict[str, Any]) -> None:
@@ -276,8 +288,10 @@ def _write_job(s: HookSettings, job_id: str, record: dict[str, Any]) -> None:
 
 
 def epilog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
-    """Close the job's window in this node's daemon; return what was done."""
+    """Close the job's window in this node's daemon; return what was done (nothing without a job id)."""
     env, s, ctx, job_id = _begin(env)
+    if job_id is None:
+        return _no_job_id("epilog", env, ctx)
     exit_code = ctx.get("exit_code")
     # The job's end goes along: a stop the daemon reads late (it hung; the request waited in its
     # socket) is then marked late instead of silently measuring past the end.
