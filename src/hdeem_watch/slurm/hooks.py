@@ -271,14 +271,29 @@ def _begin(env: Mapping[str, str] | None) -> tuple[Mapping[str, str], HookSettin
     ctx = hook_context(env)
     _private_dir(s.hook_dir)
     _flush_pending_stops(s)
-    job_id = ctx.get("job_id", "").strip()
-    return env, s, ctx, job_id or None
+    return env, s, ctx, _job_id(ctx)
+
+
+def _job_id(ctx: Mapping[str, str]) -> str | None:
+    """The job's id when it is one the daemon takes (a SLURM job id), else None."""
+    from hdeem_watch.daemon.job_records import job_id_arg
+    from hdeem_watch.daemon.protocol import ProtocolError
+
+    try:
+        return job_id_arg(ctx.get("job_id", "").strip(), "SLURM_JOB_ID")
+    except ProtocolError:
+        return None
 
 
 def _no_job_id(event: str, env: Mapping[str, str], ctx: Mapping[str, str]) -> dict[str, Any]:
-    """A hook without a job id: nothing is opened or closed (jobs must not share a made-up id); say why."""
-    why = "SLURM_JOB_ID is empty or unset: no job window opened or closed"
-    _log(f"{event}: {why} (user {ctx.get('user', '?')}, node {ctx.get('node', '?')})", env)
+    """A hook without a usable job id: nothing is opened or closed (jobs must not share a made-up
+    id, nor name files after a 100 KB one); say why."""
+    from hdeem_watch.daemon.protocol import quoted
+
+    raw = ctx.get("job_id", "").strip()
+    why = (f"SLURM_JOB_ID = {quoted(raw, 80)} is not a SLURM job id" if raw else "SLURM_JOB_ID is empty or unset")
+    why += ": no job window opened or closed"
+    _log(f"{event}: {why} (user {quoted(ctx.get('user', '?'), 80)}, node {quoted(ctx.get('node', '?'), 80)})", env)
     return {"event": event, "job_id": None, "skipped": why, "t_ns": time.time_ns()}
 
 
