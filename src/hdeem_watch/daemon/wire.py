@@ -55,7 +55,7 @@ def quoted(value: Any, limit: int = MAX_QUOTED_CHARS) -> str:
 
     Example:
         >>> quoted("x" * 1000, 12)
-        "'xxxxxxxxxxx… (1002 chars)"
+        "'xxxxxxxxxx… (1002 chars)"
     """
     text = repr(value)
     return text if len(text) <= limit else f"{text[:limit - 1]}… ({len(text)} chars)"
