@@ -102,3 +102,62 @@ def test_bad_rows_and_a_damaged_page_at_start_are_quarantined_and_the_daemon_com
     err = d.stderr()
     assert "state database:" in err and "damaged" in err and "Traceback" not in err
     assert list(d.state_dir.glob("state.db.corrupt-*"))
+
+
+def _seed_every_table(path: Any) -> None:
+    """A state database with a usable row and a row of valid JSON the daemon cannot use in each table."""
+    from hdeem_watch.daemon.job_records import JobRecord, parse_job_args
+
+    store = Store(path)
+    store.save_run({"run_id": "r1", "kernel": "triad", "state": "done", "t_start_ns": 1})
+    store.save_run({"run_id": "r2", "kernel": "triad", "state": "running", "t_start_ns": 2})
+    fit = {"n_runs": 1, "error": {"after": 0.1}, "currents": {"idd0": {"calibrated": 0.05}}}
+    store.save_calibration(5, {"observations": []}, fit, "r1")
+    store.save_calibration(6, {"observations": []}, fit, "r1")
+    for channel, origin in (("DDR_AB", "measured"), ("DDR_CD", "guessed")):
+        store.save_baseline(channel, {"power_w": 2.0, "spread_w": 0.1, "n": 100, "t_ns": 1, "origin": origin})
+    store.save_alarm(7, "r1", {"group": "DDR_AB", "current": "idd0", "kind": "cusum"})
+    store.save_alarm(8, "r1", {"current": "idd0"})
+    for job_id in ("41", "42"):
+        store.save_job(JobRecord.start(parse_job_args({"job_id": job_id, "uid": 1000, "user": "alice"}), node="testnode",
+                                       t_wall_ns=int(job_id)).to_dict())
+    store.close()
+    db = sqlite3.connect(path, isolation_level=None)
+    db.execute("""UPDATE fits SET fit = '{"currents": [1, 2]}' WHERE t_ns = 6""")  # the probe's row
+    db.execute("""UPDATE runs SET record = '{"run_id": "r2", "state": "running", "t_start_ns": "soon"}' WHERE run_id = 'r2'""")
+    db.execute("""UPDATE calibrator SET state = '{"observations": "x"}'""")
+    db.execute("""UPDATE jobs SET record = json_set(record, '$.segments', 5) WHERE job_id = '42'""")
+    db.close()
+
+
+@pytest.mark.slow
+def test_a_row_of_the_wrong_shape_in_any_table_is_quarantined_and_the_daemon_starts(daemon_factory: Any) -> None:
+    """Valid JSON the daemon cannot use in fits, runs, calibrator, baselines, alarms and jobs (once:
+    ``update fits set fit='{"currents": [1,2]}'`` gave an AttributeError and exit 1 at every start):
+    each row goes to the quarantine table with the reason, the daemon starts with the rest."""
+    d = daemon_factory(**FAST)
+    path = d.state_dir / "state.db"
+    d.state_dir.mkdir(parents=True)
+    _seed_every_table(path)
+    d.start()
+    with d.client(timeout_s=30.0) as client:
+        deadline = time.monotonic() + 30
+        while client.call("calib.get").get("loading"):
+            assert time.monotonic() < deadline
+            time.sleep(0.1)
+        calib = client.call("calib.get")
+        runs = client.call("runs.list")["runs"]
+        jobs = client.call("status")["jobs"]
+        baselines = client.call("baseline.get")["channels"]
+    assert [h["t_ns"] for h in calib["history"]] == [5]
+    assert [r["run_id"] for r in runs] == ["r1"]
+    assert [j["job_id"] for j in jobs] == ["41"]
+    assert baselines["DDR_AB"]["origin"] == "measured" and baselines.get("DDR_CD", {}).get("origin") != "guessed"
+    assert d.terminate() == 0, d.stderr()[-3000:]
+    err = d.stderr()
+    assert "Traceback" not in err and err.count("(moved to table quarantine)") == 6, err[-3000:]
+    db = sqlite3.connect(path)
+    moved = db.execute("SELECT source, reason FROM quarantine").fetchall()
+    db.close()
+    assert sorted(source for source, _reason in moved) == ["alarms", "baselines", "calibrator", "fits", "jobs", "runs"]
+    assert all(reason.startswith("unusable: ") for _source, reason in moved)

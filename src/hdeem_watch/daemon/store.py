@@ -44,7 +44,12 @@ from typing import Any
 from hdeem_watch.daemon.protocol import jsonable
 from hdeem_watch.daemon.runs import run_summary
 from hdeem_watch.daemon.store_jobs import INSERT_JOB, JobRow, job_matches, job_query, job_row
-from hdeem_watch.daemon.store_repair import SCHEMA, quarantine_bad_rows, salvage_if_corrupt
+from hdeem_watch.daemon.store_repair import (
+    SCHEMA,
+    quarantine_bad_rows,
+    quarantine_unusable_rows,
+    salvage_if_corrupt,
+)
 from hdeem_watch.daemon.store_writer import BackgroundWriter
 
 log = logging.getLogger("hdeem_watch.daemon.store")
@@ -117,6 +122,7 @@ class _CalibOp:
     state: str | None  # None: calib.reset (the calibrator is forgotten)
     fit: str | None  # None with a state: the state alone (a group's reset), no history entry
     run_id: str | None
+    quarantine: str | None = None  # the stored state cannot be restored: moved aside for this reason
 
 
 class Store:
@@ -129,6 +135,8 @@ class Store:
         retry_max_s: longest pause between two tries of a failed write.
         sync_wait_s: how long a save waits for its write while the database is healthy
             (:data:`SYNC_WAIT_S`; 0 = never wait).
+        row_checks: per table, how the rows the daemon loads at start are checked beyond their JSON
+            (:data:`hdeem_watch.daemon.store_checks.ROW_CHECKS`); a row that fails is quarantined.
 
     Attributes:
         quarantined: one line per damaged page or bad row found at start-up (empty when sound).
@@ -138,7 +146,8 @@ class Store:
     """
 
     def __init__(self, path: str | Path, *, clock: Callable[[], int] = time.time_ns, retry_min_s: float = 0.2,
-                 retry_max_s: float = 5.0, sync_wait_s: float = SYNC_WAIT_S) -> None:
+                 retry_max_s: float = 5.0, sync_wait_s: float = SYNC_WAIT_S,
+                 row_checks: Mapping[str, Any] | None = None) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True, mode=0o750)
         try:
@@ -161,6 +170,8 @@ class Store:
             raise StoreError(f"{self.path}: cannot use the state database ({error.strerror})") from None
         try:
             self.quarantined += quarantine_bad_rows(self._db, t_ns=clock())
+            if row_checks:
+                self.quarantined += quarantine_unusable_rows(self._db, row_checks, t_ns=clock())
         except sqlite3.Error as error:
             log.warning("%s: bad rows not quarantined (%s); the loaders skip them", self.path, error)
         for line in self.quarantined:
@@ -345,6 +356,10 @@ class Store:
         """Forget the calibrator state (``calib.reset``); the fit history keeps a null entry."""
         self._save_calib(_CalibOp(int(t_ns), None, None, None))
 
+    def quarantine_calibrator(self, t_ns: int, reason: str) -> None:
+        """Move the stored calibrator state, which could not be restored, to ``quarantine``."""
+        self._save_calib(_CalibOp(int(t_ns), None, None, None, quarantine=" ".join(reason.split())[:200]))
+
     def _save_calib(self, op: _CalibOp) -> None:
         with self._lock:
             key = next(self._calib_ids)
@@ -367,7 +382,7 @@ class Store:
             rows = self._query("SELECT t_ns, run_id, fit FROM fits WHERE fit IS NULL OR json_valid(fit) "
                                "ORDER BY id DESC LIMIT ?", (int(limit),))
             pending = [(op.t_ns, op.run_id, op.fit) for _k, op in sorted(self._calib.items())
-                       if op.state is None or op.fit is not None]
+                       if op.quarantine is None and (op.state is None or op.fit is not None)]
         entries = [(int(t), r, f) for t, r, f in reversed(rows)] + pending
         return [(t, r, _loads(f)) for t, r, f in entries[-max(0, int(limit)):]] if limit > 0 else []
 
@@ -449,6 +464,10 @@ class Store:
             db.execute(INSERT_JOB, pending.values(key))
         elif kind == "alarm":
             db.execute("INSERT INTO alarms (t_ns, run_id, grp, alarm) VALUES (?, ?, ?, ?)", pending)
+        elif pending.quarantine is not None:
+            db.execute("INSERT INTO quarantine (t_ns, source, row_key, content, reason) SELECT ?, 'calibrator', "
+                       "id, state, ? FROM calibrator", (pending.t_ns, f"unusable: {pending.quarantine}"))
+            db.execute("DELETE FROM calibrator")
         elif pending.state is None:
             db.execute("DELETE FROM calibrator")
             db.execute("INSERT INTO fits (t_ns, run_id, fit) VALUES (?, NULL, NULL)", (pending.t_ns,))

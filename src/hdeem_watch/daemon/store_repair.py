@@ -7,7 +7,9 @@ still be read and without guessing at what cannot:
   still be read is copied into a fresh file, which takes the database's place; the damaged file is
   kept beside it as ``state.db.corrupt-<ns>`` for a post-mortem.
 * :func:`quarantine_bad_rows`: rows whose JSON is malformed or not an object move to the
-  ``quarantine`` table (table, key, text, reason), out of the way of the loaders.
+  ``quarantine`` table (table, key, text, reason), out of the way of the loaders;
+  :func:`quarantine_unusable_rows` likewise the rows of valid JSON the daemon cannot use
+  (:mod:`~hdeem_watch.daemon.store_checks`).
 
 Both return one line per finding for the log and the ``quarantined`` list.
 
@@ -22,10 +24,11 @@ Example:
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import sqlite3
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -107,6 +110,33 @@ def quarantine_bad_rows(db: sqlite3.Connection, *, t_ns: int) -> list[str]:
                  "ELSE 1 END")
         for rowid, row_key, valid in db.execute(query).fetchall():
             found.append((table, rowid, str(row_key), "not a JSON object" if valid else "malformed JSON"))
+    return _move_to_quarantine(db, found, t_ns)
+
+
+def quarantine_unusable_rows(db: sqlite3.Connection, checks: Mapping[str, Any], *, t_ns: int) -> list[str]:
+    """Move rows of valid JSON that the daemon cannot use to ``quarantine``; one line each.
+
+    ``checks``: per table a :class:`~hdeem_watch.daemon.store_checks.RowCheck` (``check``,
+    ``where``, ``newest``); a row whose check raises is moved, the reason naming the error.
+    """
+    found: list[tuple[str, object, str, str]] = []
+    for table, rule in checks.items():
+        key, column, _columns = TABLES[table]
+        query = (f"SELECT rowid, {key}, {column} FROM {table} WHERE {column} IS NOT NULL AND json_valid({column}) "
+                 f"AND ({rule.where}) ORDER BY rowid DESC")
+        if rule.newest is not None:
+            query += f" LIMIT {int(rule.newest)}"
+        for rowid, row_key, text in db.execute(query).fetchall():
+            try:
+                rule.check(json.loads(text))
+            except Exception as error:  # whatever the reader would have met
+                reason = " ".join(f"unusable: {type(error).__name__}: {error}".split())
+                found.append((table, rowid, str(row_key), reason[:200]))
+    return _move_to_quarantine(db, found, t_ns)
+
+
+def _move_to_quarantine(db: sqlite3.Connection, found: list[tuple[str, object, str, str]], t_ns: int) -> list[str]:
+    """Move ``(table, rowid, key, reason)`` rows to ``quarantine`` in one transaction; one line each."""
     if not found:
         return []
     db.execute("BEGIN IMMEDIATE")
