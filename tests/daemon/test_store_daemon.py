@@ -161,3 +161,59 @@ def test_a_row_of_the_wrong_shape_in_any_table_is_quarantined_and_the_daemon_sta
     db.close()
     assert sorted(source for source, _reason in moved) == ["alarms", "baselines", "calibrator", "fits", "jobs", "runs"]
     assert all(reason.startswith("unusable: ") for _source, reason in moved)
+
+
+@pytest.fixture
+def small_disk(tmp_path: Any) -> Any:
+    """A real file system of 16 MiB (tmpfs) to fill up: ``(mount point, fill, free)``."""
+    mount = tmp_path / "d" / "state"
+    mount.mkdir(parents=True)
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=16m,mode=0750", "tmpfs", str(mount)], check=True)
+    filler = mount / "filler"
+
+    def fill() -> None:
+        with open(filler, "ab") as out:
+            try:
+                while True:
+                    out.write(b"\0" * 65536)
+                    out.flush()
+            except OSError:
+                pass
+
+    try:
+        yield mount, fill, lambda: filler.unlink()
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], check=False)
+
+
+@pytest.mark.slow
+def test_run_ids_given_on_a_full_disk_are_never_given_again_after_kill_9(daemon_factory: Any, small_disk: Any) -> None:
+    """The probe's path on a real full file system: runs acknowledged while the database cannot be
+    written say ``"stored": false`` (once: nothing said so); kill -9, space freed, restart: the
+    next run id is new (once: the lost runs' ids were given again)."""
+    _mount, fill, free = small_disk
+    d = daemon_factory("--speed", "20", **FAST)
+    d.start()
+    with d.client(timeout_s=30.0) as client:
+        first = client.call("run.start", {"kernel": "idle"})
+        assert first["stored"] is True
+        assert client.call("run.stop", {"run_id": first["run_id"], "abort": True})["stored"] is True
+        fill()
+        given = []
+        for _ in range(2):
+            started = client.call("run.start", {"kernel": "idle"})
+            stopped = client.call("run.stop", {"run_id": started["run_id"], "abort": True})
+            assert started["stored"] is False and stopped["stored"] is False, (started, stopped)
+            given.append(started["run_id"])
+        assert client.call("status")["store"]["health"].startswith("degraded")
+    d.kill9()
+    free()
+    d.start()
+    with d.client(timeout_s=30.0) as client:
+        lost = [r["run_id"] for r in client.call("runs.list")["runs"]]
+        new = client.call("run.start", {"kernel": "idle"})
+        client.call("run.stop", {"run_id": new["run_id"], "abort": True})
+    assert lost == [first["run_id"]]  # the rows of the runs acknowledged on the full disk died with the daemon
+    seq = [int(run_id[1:]) for run_id in (first["run_id"], *given)]
+    assert seq == [1, 2, 3] and new["run_id"] == "r4", (given, new)
+    assert new["stored"] is True

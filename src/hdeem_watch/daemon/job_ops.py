@@ -54,7 +54,7 @@ MODELLING = "modelling: the energy by component is computed from the counters (t
 class JobStore(Protocol):
     """What the job ops use of :class:`~hdeem_watch.daemon.store.Store`."""
 
-    def save_job(self, record: Mapping[str, Any]) -> None: ...
+    def save_job(self, record: Mapping[str, Any]) -> bool: ...
 
     def list_jobs(self, *, job_id: str | None = None, user: str | None = None, since_ns: int | None = None,
                   state: str | None = None, limit: int = 100) -> list[dict[str, Any]]: ...
@@ -121,12 +121,12 @@ class JobOperations:
         except Conflict as error:
             raise OpError("conflict", str(error)) from None
         body = record.to_dict()
-        if not new:
-            return body
+        if not new:  # stored with the first start, unless the database cannot be written now
+            return {**body, "stored": self.store.health() == "ok"}
         pending = Pending("job.start")
         log.info("job %s started (user %s, uid %s)", record.job_id, record.user, record.uid)
         self.publisher.publish("job", {"event": "start", "job": job_summary(body)})
-        self._save(body, lambda _written: self.reply(pending, body, None))
+        self._save(body, lambda written: self.reply(pending, {**body, "stored": written}, None))
         return pending
 
     def op_job_stop(self, args: dict[str, Any]) -> Pending:
@@ -297,13 +297,14 @@ class JobOperations:
         self.publisher.publish("job", {"event": "stop", "job": job_summary(body)})
         waiters = self.waiters.pop(record.job_id, [])
 
-        def answer(_written: bool) -> None:
+        def answer(written: bool) -> None:
             for pending in waiters:
-                self.reply(pending, body, None)
+                self.reply(pending, {**body, "stored": written}, None)
 
         self._save(body, answer)
 
     def _save(self, body: dict[str, Any], done: Callable[[bool], None] | None = None) -> None:
+        """Store a job record; ``done(written)``: whether it is on disk (False: kept in memory, retried)."""
         self.store.write(f"job {body['job_id']}", lambda s: _jobs(s).save_job(body), done)
 
     def _stopped_before(self, pending: Pending, job_id: str, found: list[dict[str, Any]]) -> None:

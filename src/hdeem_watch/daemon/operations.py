@@ -162,13 +162,13 @@ class Operations:
         self._runs_generation += 1
         self._pages.clear()
 
-        def save(store: StorePort) -> None:
+        def save(store: StorePort) -> bool:
             # The calibration first: a crash between the two leaves the run "modelling", and the
             # restart's remodelling finds the run already in the calibrator (it is not added twice).
             if calibration is not None:
                 t_ns, state, fit = calibration
                 store.save_calibration(t_ns, state, fit, str(body["run_id"]))
-            store.save_run(body)
+            return store.save_run(body)
 
         self.store.write(f"run {body['run_id']}", save, done)
 
@@ -259,7 +259,7 @@ class Operations:
         self.publisher.publish("run", {"event": "start", "run": body})
         pending = Pending("run.start")
         reply = {"run_id": record.run_id, "t_start_ns": record.t_start_ns, "run": body}
-        self._save_run(body, lambda _written: self.reply(pending, reply, None))
+        self._save_run(body, lambda written: self.reply(pending, {**reply, "stored": written}, None))
         return pending
 
     @staticmethod
@@ -352,7 +352,7 @@ class Operations:
         self.waiters.setdefault(record.run_id, [])
         body = record.to_dict()
         if record.state == "aborted":
-            self._save_run(body, lambda _written: self._finished(record))
+            self._save_run(body, lambda written: self._finished(record, stored=written))
             return
         self._save_run(body)
         self.model(record)
@@ -392,15 +392,16 @@ class Operations:
             self.publisher.publish("alarm", {"event": "alarm", "run_id": record.run_id, "alarm": alarm})
             self.store.write(f"alarm {alarm.get('group')}", _save_alarm(int(alarm.get("time_ns") or 0), record.run_id, alarm))
         calibration = (int(done.t_stop_ns or 0), state, fit) if fit is not None and state is not None else None
-        self._save_run(done, lambda _written: self._finished(done, calib=True), calibration)
+        self._save_run(done, lambda written: self._finished(done, calib=True, stored=written), calibration)
 
-    def _finished(self, record: RunRecord, *, calib: bool = False) -> None:
+    def _finished(self, record: RunRecord, *, calib: bool = False, stored: bool = True) -> None:
+        """Publish a finished run and answer its stops (``stored``: whether its record is on disk)."""
         body = record.to_dict()
         self.publisher.publish("run", {"event": "stop", "run": body})
         if calib:
             self.reporter.publish_calib()
         for pending in self.waiters.pop(record.run_id, []):
-            self.reply(pending, body, None)
+            self.reply(pending, {**body, "stored": stored}, None)
 
     def resume_modelling(self, stored: list[dict[str, Any]]) -> int:
         """Model again the runs a crash left ``modelling`` (``stored``: their records); return how many."""

@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from hdeem_watch.daemon.protocol import jsonable
+from hdeem_watch.daemon.run_ids import RunIdMark
 from hdeem_watch.daemon.runs import run_summary
 from hdeem_watch.daemon.store_jobs import INSERT_JOB, JobRow, job_matches, job_query, job_row
 from hdeem_watch.daemon.store_repair import (
@@ -162,8 +163,11 @@ class Store:
                 self._db.execute("INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)",
                                  (str(SCHEMA_VERSION),))
                 self._db.execute(f"PRAGMA busy_timeout = {round(READ_TIMEOUT_S * 1000)}")
-            # Before the quarantine: a run id is never given twice, even one whose row was set aside.
-            self._max_seq = int(self._db.execute("SELECT COALESCE(MAX(seq), 0) FROM runs").fetchone()[0])
+            # Before the quarantine: a run id is never given twice, even one whose row was set aside,
+            # nor one given while the database could not be written (its row lost by a crash).
+            self._run_ids = RunIdMark(self.path.with_name(self.path.name + ".run-ids"))
+            self._max_seq = max(int(self._db.execute("SELECT COALESCE(MAX(seq), 0) FROM runs").fetchone()[0]),
+                                self._run_ids.read())
         except sqlite3.DatabaseError as error:
             raise StoreError(f"{self.path}: cannot use the state database ({error})") from None
         except OSError as error:
@@ -234,15 +238,18 @@ class Store:
         if unsaved:
             log.error("state database: %d writes could not be saved before exit (%s): %s", len(unsaved),
                       self._writer.health, ", ".join(str(op) for op in unsaved[:10]))
+        self._run_ids.close()
         self._db.close()
 
-    def _submit(self, op: Hashable) -> None:
+    def _submit(self, op: Hashable) -> bool:
+        """Queue a write; whether it is on disk on return (False: it waits in memory, retried)."""
         ticket = self._writer.submit(op)
         # Wait for the write while the database keeps up; after one wait timed out, not again
         # until that write went through (a lock or a slow disk costs the loop one wait, not one per save).
         waiting = self._sync_wait_s > 0 and self._writer.health == "ok" and self._writer.completed >= self._stalled_at
         if waiting and not self._writer.wait_for(ticket, self._sync_wait_s):
             self._stalled_at = ticket
+        return self._writer.completed >= ticket
 
     # -- reading -------------------------------------------------------------------------------------
 
@@ -265,8 +272,10 @@ class Store:
         """A run id not used before in this state directory: ``r<n>``."""
         return f"r{self._max_seq + 1}"
 
-    def save_run(self, record: Mapping[str, Any]) -> None:
-        """Insert or replace a run record (``run_id`` of the form ``r<n>``); returns at once."""
+    def save_run(self, record: Mapping[str, Any]) -> bool:
+        """Insert or replace a run record (``run_id`` of the form ``r<n>``); returns at once, True
+        when the record is on disk then (False: it waits in memory, and its id is marked
+        durably as given out: :class:`~hdeem_watch.daemon.run_ids.RunIdMark`)."""
         run_id = str(record["run_id"])
         row = _RunRow(seq=int(run_id.lstrip("r")), kernel=str(record.get("kernel", "")),
                       state=str(record.get("state", "")), t_start_ns=int(record.get("t_start_ns") or 0),
@@ -276,7 +285,10 @@ class Store:
             if row.seq > self._max_seq:
                 self._max_seq = row.seq
                 self._count += 1
-        self._submit(("run", run_id))
+        written = self._submit(("run", run_id))
+        if not written and row.seq > self._run_ids.read():
+            self._run_ids.write(row.seq)
+        return written
 
     def get_run(self, run_id: str) -> dict[str, Any] | None:
         """One run record, or None."""
@@ -422,12 +434,13 @@ class Store:
 
     # -- SLURM jobs ----------------------------------------------------------------------------------
 
-    def save_job(self, record: Mapping[str, Any]) -> None:
-        """Insert or replace a job record (keyed by job id and start time); returns at once."""
+    def save_job(self, record: Mapping[str, Any]) -> bool:
+        """Insert or replace a job record (keyed by job id and start time); returns at once, True
+        when the record is on disk then."""
         key, row = job_row(record)
         with self._lock:
             self._jobs[key] = row
-        self._submit(("job", key))
+        return self._submit(("job", key))
 
     def list_jobs(self, *, job_id: str | None = None, user: str | None = None, since_ns: int | None = None,
                   state: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
