@@ -309,7 +309,8 @@ class JobOperations:
 
     def _stopped_before(self, pending: Pending, job_id: str, found: list[dict[str, Any]]) -> None:
         if found and found[0].get("state") != "running":
-            self.reply(pending, found[0], None)  # stopped before: the same answer again
+            # Stopped before: the same answer again (on disk unless the database cannot be written now).
+            self.reply(pending, {**found[0], "stored": self.store.health() == "ok"}, None)
         else:
             self.reply(pending, None, ("not-found", f"no job {quoted(job_id)} open on this node"))
 

@@ -298,7 +298,8 @@ class Operations:
 
     def _stopped_before(self, pending: Pending, run_id: str, stored: dict[str, Any] | None) -> None:
         if stored is not None and stored.get("state") in FINISHED_STATES:
-            self.reply(pending, stored, None)  # stopped before: the same answer again
+            # Stopped before: the same answer again (on disk unless the database cannot be written now).
+            self.reply(pending, {**stored, "stored": self.store.health() == "ok"}, None)
         elif stored is not None and stored.get("state") == "modelling":
             self.reply(pending, None, ("unavailable", f"run {run_id} is not modelled yet; ask again later"))
         else:
