@@ -3,6 +3,7 @@ stall or kill it, and bad rows or a damaged page at start-up are quarantined whi
 
 from __future__ import annotations
 
+import os
 import sqlite3
 import subprocess
 import sys
@@ -217,3 +218,22 @@ def test_run_ids_given_on_a_full_disk_are_never_given_again_after_kill_9(daemon_
     seq = [int(run_id[1:]) for run_id in (first["run_id"], *given)]
     assert seq == [1, 2, 3] and new["run_id"] == "r4", (given, new)
     assert new["stored"] is True
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("umask", [0o022, 0o000])
+def test_state_files_are_private_whatever_the_umask(daemon_factory: Any, umask: int) -> None:
+    """Run by hand with ``umask 022`` (or none at all), the daemon's state files are still its own:
+    state.db and its -wal and -shm, the run id mark and the lock at most 0640 (once: state.db 0644)."""
+    d = daemon_factory()
+    old = os.umask(umask)
+    try:
+        d.start()
+    finally:
+        os.umask(old)
+    with d.client() as client:
+        client.call("job.start", {"job_id": "5"})  # a write: the -wal and -shm exist
+    files = {p.name: p.stat().st_mode & 0o7777 for p in d.state_dir.iterdir() if p.is_file()}
+    assert {"state.db", "state.db-wal", "state.db-shm", "state.db.run-ids", "daemon.lock"} <= set(files), files
+    assert all(mode & 0o137 == 0 for mode in files.values()), {k: oct(v) for k, v in files.items()}
+    assert d.terminate() == 0

@@ -8,6 +8,7 @@ Syslog is a real datagram socket the test binds (the hooks' ``HDEEM_WATCH_LOG_SO
 from __future__ import annotations
 
 import json
+import os
 import socket
 import subprocess
 import sys
@@ -259,6 +260,7 @@ def test_a_retried_prolog_and_a_refused_one_return_at_once(tmp_path: Path, syslo
     from hdeem_watch.slurm import hooks
 
     control, daemon = _start_daemon(tmp_path)
+    umask = os.umask(0o022)  # slurmd's, usually: the hooks' files are private all the same
     try:
         env = _hook_env(tmp_path, syslog, SLURM_JOB_ID="555")
         assert hooks.prolog(env)["job_start"] == "ok"
@@ -271,6 +273,9 @@ def test_a_retried_prolog_and_a_refused_one_return_at_once(tmp_path: Path, syslo
         assert refused["job_start"].startswith("bad-args") and time.monotonic() - began < 1.0, refused
         with ControlClient(control, timeout_s=5.0) as client:
             assert [j["job_id"] for j in client.call("status")["jobs"]] == ["555"]
+        hook_files = {p.name: p.stat().st_mode & 0o777 for p in (tmp_path / "state" / "slurm-hooks").iterdir()}
+        assert hook_files["job-555.json"] == 0o600 and hook_files["jobs.jsonl"] == 0o600, hook_files
     finally:
+        os.umask(umask)
         daemon.terminate()
         daemon.wait(timeout=20)

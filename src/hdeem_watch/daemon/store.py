@@ -47,6 +47,7 @@ from hdeem_watch.daemon.runs import run_summary
 from hdeem_watch.daemon.store_jobs import INSERT_JOB, JobRow, job_matches, job_query, job_row
 from hdeem_watch.daemon.store_repair import (
     SCHEMA,
+    create_private,
     quarantine_bad_rows,
     quarantine_unusable_rows,
     salvage_if_corrupt,
@@ -153,6 +154,7 @@ class Store:
         self.path.parent.mkdir(parents=True, exist_ok=True, mode=0o750)
         try:
             self.quarantined = salvage_if_corrupt(self.path, t_ns=clock())
+            create_private(self.path)  # 0600 whatever the umask; its -wal and -shm take its mode
             self._db = self._connect(READ_TIMEOUT_S)
             version = self._schema_version()
             if version is not None and version > SCHEMA_VERSION:

@@ -153,6 +153,30 @@ def _move_to_quarantine(db: sqlite3.Connection, found: list[tuple[str, object, s
     return [f"{table} {row_key!r}: {reason} (moved to table quarantine)" for table, _r, row_key, reason in found]
 
 
+#: The most a state database file may allow (SQLite gives its ``-wal`` and ``-shm`` the same mode).
+STATE_FILE_MODE = 0o640
+
+
+def create_private(path: Path) -> None:
+    """Create ``path`` empty with mode 0600 when it is missing, whatever the umask (SQLite would
+    create it 0644 less the umask); an existing file is narrowed to :data:`STATE_FILE_MODE`.
+
+    Raises:
+        OSError: it cannot be created.
+    """
+    try:
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o600))
+        return
+    except FileExistsError:
+        pass
+    mode = os.stat(path).st_mode & 0o7777
+    if mode & ~STATE_FILE_MODE:
+        try:
+            os.chmod(path, mode & STATE_FILE_MODE)
+        except OSError as error:  # a read-only file system: the daemon still reads it
+            log.warning("%s: mode %04o not narrowed to %04o (%s)", path, mode, mode & STATE_FILE_MODE, error.strerror)
+
+
 def is_corrupt(db: sqlite3.Connection) -> str | None:
     """SQLite's ``quick_check`` verdict: None when the file is sound, else its first complaint."""
     try:
@@ -186,6 +210,7 @@ def salvage_if_corrupt(path: Path, *, t_ns: int) -> list[str]:
         log.error("%s is damaged (%s); salvaging the readable rows", path, problem)
         fresh_path = path.with_name(path.name + ".salvage")
         fresh_path.unlink(missing_ok=True)
+        create_private(fresh_path)
         fresh = sqlite3.connect(str(fresh_path), isolation_level=None)
         lost: list[str] = [f"{path.name}: damaged ({problem[:200]}); kept as {path.name}.corrupt-{t_ns}"]
         try:
