@@ -237,3 +237,52 @@ def test_state_files_are_private_whatever_the_umask(daemon_factory: Any, umask: 
     assert {"state.db", "state.db-wal", "state.db-shm", "state.db.run-ids", "daemon.lock"} <= set(files), files
     assert all(mode & 0o137 == 0 for mode in files.values()), {k: oct(v) for k, v in files.items()}
     assert d.terminate() == 0
+
+
+@pytest.fixture
+def ext4_state(tmp_path: Any) -> Any:
+    """The state directory on a real ext4 file system (a loop device) mounted ``errors=remount-ro``;
+    yields a function that makes the kernel remount it read-only, as after an I/O error (ext4's
+    ``trigger_fs_error``, documented in the kernel's Documentation/ABI/testing/sysfs-fs-ext4)."""
+    image, mount = tmp_path / "fs.img", tmp_path / "d" / "state"
+    mount.mkdir(parents=True)
+    with open(image, "wb") as out:
+        out.truncate(32 << 20)
+    subprocess.run(["mkfs.ext4", "-q", "-F", str(image)], check=True)
+    subprocess.run(["mount", "-o", "loop,errors=remount-ro", str(image), str(mount)], check=True)
+    device = subprocess.run(["findmnt", "-no", "SOURCE", str(mount)], capture_output=True, text=True,
+                            check=True).stdout.strip()
+
+    def remount_read_only() -> None:
+        with open(f"/sys/fs/ext4/{os.path.basename(device)}/trigger_fs_error", "w") as trigger:
+            trigger.write("hdeem-watch test: a disk error")
+        options = subprocess.run(["findmnt", "-no", "OPTIONS", str(mount)], capture_output=True, text=True).stdout
+        assert "ro" in options.split(",") or "emergency_ro" in options, options
+
+    try:
+        yield remount_read_only
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], check=False)
+
+
+@pytest.mark.slow
+def test_a_read_only_remount_while_running_degrades_and_acks_say_not_stored(daemon_factory: Any, ext4_state: Any) -> None:
+    """The kernel remounts the state directory's file system read-only under the running daemon:
+    the status turns ``degraded`` at once (once: ``ok``) and the acknowledgements of job.start,
+    run.start and run.stop say ``"stored": false`` (once: acknowledged like any other); the
+    daemon goes on measuring."""
+    d = daemon_factory("--speed", "20", **FAST)
+    d.start()
+    with d.client(timeout_s=30.0) as client:
+        assert client.call("status")["store"]["health"] == "ok"
+        assert client.call("job.start", {"job_id": "7"})["stored"] is True
+        ext4_state()
+        health = client.call("status")["store"]["health"]
+        assert health.startswith("degraded") and "read-only" in health.lower(), health
+        assert client.call("job.start", {"job_id": "8"})["stored"] is False
+        run = client.call("run.start", {"kernel": "idle"})
+        stopped = client.call("run.stop", {"run_id": run["run_id"], "abort": True})
+        assert run["stored"] is False and stopped["stored"] is False and stopped["state"] == "aborted"
+        assert client.call("job.get", {"job_id": "8"})["state"] == "running"  # kept in memory
+        assert client.call("status")["store"]["health"].startswith("degraded")
+    assert "Traceback" not in d.stderr()

@@ -82,6 +82,18 @@ class RunIdMark:
             return False
         return True
 
+    def refusal(self) -> str | None:
+        """Why the file system refuses a write now (None when it takes one): the mark rewritten
+        as it is, unsynced (a page-cache write; an ext4 that remounted itself read-only after an
+        error refuses it although ``statvfs`` may not say read-only)."""
+        if self._fd is None:
+            return None
+        try:
+            os.pwrite(self._fd, os.pread(self._fd, MARK_BYTES, 0), 0)
+        except OSError as error:
+            return error.strerror or str(error)
+        return None
+
     def close(self) -> None:
         """Close the file."""
         if self._fd is not None:

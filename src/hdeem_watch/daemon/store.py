@@ -33,6 +33,7 @@ from __future__ import annotations
 import itertools
 import json
 import logging
+import os
 import sqlite3
 import threading
 import time
@@ -224,11 +225,25 @@ class Store:
         return int(self._schema_version() or SCHEMA_VERSION)
 
     def health(self) -> str:
-        """``"ok"``, or ``"degraded: <reason>"`` while writes wait in memory or reads fail."""
+        """``"ok"``, or ``"degraded: <reason>"`` while writes wait in memory or reads fail, or
+        while the file system of the database is read-only (remounted so after an error): the next
+        write would fail, and the replies would say ``"stored": false``."""
         writer = self._writer.health
         if writer != "ok":
             return f"{writer}; {self._writer.pending} writes pending"
+        refusal = self._write_refusal()
+        if refusal is not None:
+            return f"degraded: state directory not writable ({refusal}); nothing can be stored"
         return self._read_health
+
+    def _write_refusal(self) -> str | None:
+        """Why the state directory's file system refuses writes now (two system calls, no disk I/O)."""
+        try:
+            if os.statvfs(self.path.parent).f_flag & os.ST_RDONLY:
+                return "Read-only file system"
+        except OSError:
+            pass
+        return self._run_ids.refusal()
 
     def flush(self, timeout_s: float = CLOSE_FLUSH_S) -> bool:
         """Wait until every saved record is written; False when ``timeout_s`` passed first."""
