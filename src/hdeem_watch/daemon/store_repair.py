@@ -5,7 +5,9 @@ still be read and without guessing at what cannot:
 
 * :func:`salvage_if_corrupt`: when SQLite's ``quick_check`` finds damaged pages, every row that can
   still be read is copied into a fresh file, which takes the database's place; the damaged file is
-  kept beside it as ``state.db.corrupt-<ns>`` for a post-mortem.
+  kept beside it as ``state.db.corrupt-<ns>`` for a post-mortem. A file cut short (truncated) is
+  read up to where it ends. (The ``sqlite3`` shell's ``.recover`` needs its ``sqlite_dbpage``
+  table, which Debian 12's shell is built without; the row scan here needs nothing but SQLite.)
 * :func:`quarantine_bad_rows`: rows whose JSON is malformed or not an object move to the
   ``quarantine`` table (table, key, text, reason), out of the way of the loaders;
   :func:`quarantine_unusable_rows` likewise the rows of valid JSON the daemon cannot use
@@ -201,6 +203,10 @@ def salvage_if_corrupt(path: Path, *, t_ns: int) -> list[str]:
     # Read-write (a read-only open cannot recover a WAL left without its -shm), but only reading.
     source = sqlite3.connect(str(path), isolation_level=None, timeout=0.5)
     source.execute("PRAGMA query_only = 1")
+    # A file shorter than its header says (truncated: a full disk during a copy, a crash of the file
+    # system) is refused as a whole unless the schema is "writable": SQLite then reads the pages
+    # that are there (query_only: nothing is written all the same).
+    source.execute("PRAGMA writable_schema = 1")
     try:
         problem = is_corrupt(source)
         if problem is None:
@@ -212,7 +218,8 @@ def salvage_if_corrupt(path: Path, *, t_ns: int) -> list[str]:
         fresh_path.unlink(missing_ok=True)
         create_private(fresh_path)
         fresh = sqlite3.connect(str(fresh_path), isolation_level=None)
-        lost: list[str] = [f"{path.name}: damaged ({problem[:200]}); kept as {path.name}.corrupt-{t_ns}"]
+        lost: list[str] = [f"{path.name}: damaged ({' '.join(problem.split())[:200]}); kept as "
+                           f"{path.name}.corrupt-{t_ns}"]
         try:
             fresh.executescript(SCHEMA)
             fresh.execute("BEGIN")
@@ -228,7 +235,8 @@ def salvage_if_corrupt(path: Path, *, t_ns: int) -> list[str]:
                 marks = ",".join("?" * len(columns))
                 fresh.executemany(f"INSERT OR IGNORE INTO {table} ({','.join(columns)}) VALUES ({marks})", rows)
                 if unreadable:
-                    lost.append(f"{table}: {unreadable} rows in damaged pages lost, {len(rows)} kept")
+                    lost.append(f"{table}: rows in damaged or missing pages lost (at least {unreadable}), "
+                                f"{len(rows)} kept")
             fresh.execute("COMMIT")
         finally:
             fresh.close()
