@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -35,6 +36,8 @@ class _Router:
             req = protocol.decode_request(frames[-1])
             if req.op == "fail":
                 body = protocol.encode_reply_error(req.id, "bad-args", "nope")
+            elif req.op == "unreadable-id":  # as the daemon answers a request whose id it cannot read
+                body = protocol.encode_reply_error(None, "bad-args", "integer out of range")
             else:
                 self.stop.wait(self.delays.get(req.op, 0.0))
                 body = protocol.encode_reply_ok(req.id, {"op": req.op, "args": req.args})
@@ -63,6 +66,18 @@ def test_call_returns_result_and_raises_control_error(router: str, socket_type: 
         with pytest.raises(ControlError) as info:
             client.call("fail")
         assert info.value.code == "bad-args"
+        assert client.call("again") == {"op": "again", "args": {}}
+
+
+@pytest.mark.parametrize("socket_type", ["dealer", "req"])
+def test_an_error_reply_without_id_is_the_answer_not_a_timeout(router: str, socket_type: str) -> None:
+    """An error reply whose id the daemon could not read (``"id": null``) answers the request in
+    flight at once (once: the client waited out its timeout, 10 s per Prolog)."""
+    with ControlClient(router, timeout_s=5.0, socket_type=socket_type) as client:
+        began = time.monotonic()
+        with pytest.raises(ControlError) as info:
+            client.call("unreadable-id")
+        assert time.monotonic() - began < 1.0 and info.value.code == "bad-args"
         assert client.call("again") == {"op": "again", "args": {}}
 
 

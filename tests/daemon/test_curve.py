@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -55,3 +57,56 @@ def test_gen_keys_writes_a_pair(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     public, secret = load_secret_key(tmp_path / "server.key_secret")
     assert load_public_key(tmp_path / "server.key") == public and len(secret) == 40
+
+
+def _spoil(tmp_path: Path, how: str) -> None:
+    """Make the CURVE files of ``tmp_path`` unsafe in one way (the probe's and its kin)."""
+    clients = tmp_path / "clients"
+    if how == "clients dir 0777":
+        clients.chmod(0o777)
+    elif how == "clients dir of another user":
+        os.chown(clients, 40003, 40003)
+    elif how == "secret key 0644":
+        (tmp_path / "keys" / "server.key_secret").chmod(0o644)
+    elif how == "client key 0666":
+        (clients / "tui.key").chmod(0o666)
+    elif how == "one key under two names":
+        shutil.copy(clients / "tui.key", clients / "root.key")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("how", ["clients dir 0777", "clients dir of another user", "secret key 0644",
+                                 "client key 0666", "one key under two names"])
+def test_unsafe_curve_files_refuse_the_start_in_one_line(daemon_factory: Any, tmp_path: Path, how: str) -> None:
+    """A clients directory or key others may write or read, or a key registered under two names,
+    refuses the start: exit 2, one line naming the file (once accepted: another user copied their
+    public key to ``root.key`` in a 0777 directory and became root over TCP)."""
+    _public, secret = generate_keys(tmp_path / "keys", "server")
+    generate_keys(tmp_path / "clients", "tui")
+    _spoil(tmp_path, how)
+    d = daemon_factory("--curve-secret-key", str(secret), "--curve-clients", str(tmp_path / "clients"), tcp=True)
+    done = subprocess.run(d.command(), env=d.env, capture_output=True, text=True, timeout=30)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert "refusing to start" in lines[0] and "Traceback" not in done.stderr
+    named = {"secret key 0644": "server.key_secret", "client key 0666": "tui.key",
+             "one key under two names": "root.key"}.get(how, "clients")
+    assert named in lines[0]
+
+
+@pytest.mark.slow
+def test_safe_curve_files_under_any_umask_start(daemon_factory: Any, tmp_path: Path) -> None:
+    """Keys written by --gen-keys under umask 000 are still safe: the daemon starts with them."""
+    old = os.umask(0)
+    try:
+        public, secret = generate_keys(tmp_path / "keys", "server")
+        _, client_secret = generate_keys(tmp_path / "clients", "root")
+    finally:
+        os.umask(old)
+    d = daemon_factory("--curve-secret-key", str(secret), "--curve-clients", str(tmp_path / "clients"), tcp=True)
+    with open(d.stderr_path, "ab") as err:
+        d.proc = subprocess.Popen(d.command(), env=d.env, stdout=subprocess.DEVNULL, stderr=err)
+    with ControlClient(d.control, timeout_s=20.0, curve_server_key=load_public_key(public),
+                       curve_client_keys=load_secret_key(client_secret)) as client:
+        assert client.call("whoami")["role"] == "root"
+    assert d.terminate() == 0, d.stderr()

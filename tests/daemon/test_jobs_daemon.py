@@ -73,3 +73,20 @@ def test_a_job_over_sockets_survives_kill_9(daemon_factory: Any, receive: Any) -
     assert cli.returncode == 0, cli.stderr
     shown = json.loads(cli.stdout)["nodes"][0]
     assert shown["ok"] and shown["node"] == "testnode" and shown["jobs"][0]["dram_energy_j"] == record["dram_energy_j"]
+
+
+@pytest.mark.slow
+def test_a_retried_job_start_gets_the_record_again_at_once(daemon_factory: Any) -> None:
+    """A retried Prolog (job.start of a job already open) gets the open record again at once, not
+    a 10 s wait: the deferred reply was sent before the server knew where to send it."""
+    d = daemon_factory().start()
+    args = {"job_id": "555", "user": "alice", "uid": 1000, "nodes": ["testnode"], "cpus": 1}
+    with d.client(timeout_s=10.0) as client:
+        first = client.call("job.start", args)
+        for _ in range(3):
+            began = time.monotonic()
+            again = client.call("job.start", args)
+            assert time.monotonic() - began < 1.0
+            assert again["job_id"] == "555" and again["state"] == "running"
+            assert again["t_start_ns"] == first["t_start_ns"]
+        assert [j["job_id"] for j in client.call("status")["jobs"]] == ["555"]

@@ -232,3 +232,28 @@ def test_a_garbled_schema_version_is_one_store_error(tmp_path: Path) -> None:
     with pytest.raises(StoreError, match="schema_version = 'one'"):
         Store(path)
 
+
+
+def test_a_database_cut_to_half_its_size_keeps_what_is_left(tmp_path: Path) -> None:
+    """A state.db truncated to half its size (once: every table "unreadable", 0 rows kept): the rows
+    in the pages that remain are salvaged into a fresh file, the cut file kept aside."""
+    path = tmp_path / "state.db"
+    store = Store(path)
+    for i in range(1, 301):
+        store.save_run(_run(i, pad=300))
+    store.save_baseline("DDR_AB", {"power_w": 2.0, "t_ns": 1})
+    store.close()
+    db = sqlite3.connect(path)
+    db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    db.close()
+    with open(path, "r+b") as f:
+        f.truncate(path.stat().st_size // 2)
+    store = Store(path)
+    kept = [r["run_id"] for r in store.list_runs(limit=1000)]
+    assert store.quarantined[0].startswith("state.db: damaged") and "\n" not in store.quarantined[0]
+    assert len(kept) >= 50 and "r1" in kept and "r300" not in kept, len(kept)
+    assert store.load_baselines()["DDR_AB"]["power_w"] == 2.0
+    store.save_run(_run(301))
+    assert store.flush() and store.get_run("r301") is not None and store.health() == "ok"
+    store.close()
+    assert list(tmp_path.glob("state.db.corrupt-*"))

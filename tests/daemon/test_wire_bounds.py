@@ -107,3 +107,25 @@ def test_a_pending_reply_that_cannot_be_encoded_is_an_error_reply() -> None:
     finally:
         client.close(linger=0)
         server.close()
+
+
+@pytest.mark.parametrize(("body", "request_id"), [
+    (b'{"id": 41, "op": "job.start", "args": {"job_id": "1", "uid": 99999999999999999999}}', 41),
+    (b'{"id": "p-41", "op": "job.start", "args": {"x": 1e400}}', "p-41"),
+    (b'{"id": 41, "op": "job.start", "args": {"job_id": "' + b"7" * 100_000 + b'"}}', 41),
+], ids=["int-out-of-range", "float-out-of-range", "too-large"])
+def test_an_error_reply_echoes_the_id_whenever_it_can_be_read(body: bytes, request_id: Any) -> None:
+    """A request refused for a value out of range or for its size still has a readable id: the
+    reply carries it, so the caller's client takes it as the answer instead of waiting out its
+    timeout (once: ``{"id": null}``)."""
+    reply = protocol.decode_reply(dispatch(body, {"job.start": lambda args: {}}))  # type: ignore[arg-type]
+    assert not reply.ok and reply.code in ("bad-args", "too-large")
+    assert reply.id == request_id
+
+
+def test_an_id_out_of_bounds_is_not_echoed() -> None:
+    """Only an id the protocol allows comes back: not a 20-digit integer, a huge string or a float
+    that overflows."""
+    for body in (b'{"id": 99999999999999999999, "op": "ping"}', b'{"id": "' + b"i" * 300 + b'", "op": "x", "args": 5}',
+                 b'{"id": 1e400, "op": "ping"}'):
+        assert protocol.decode_reply(dispatch(body, {"ping": lambda args: {}})).id is None  # type: ignore[arg-type]

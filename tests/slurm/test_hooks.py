@@ -8,6 +8,7 @@ Syslog is a real datagram socket the test binds (the hooks' ``HDEEM_WATCH_LOG_SO
 from __future__ import annotations
 
 import json
+import os
 import socket
 import subprocess
 import sys
@@ -209,3 +210,72 @@ def test_the_hooks_log_is_bounded(tmp_path: Path) -> None:
     sizes = [p.stat().st_size for p in sorted(tmp_path.glob("jobs.jsonl*"))]
     assert len(sizes) == 2 and all(size <= hooks.MAX_LOG_BYTES + 1100 for size in sizes)
     assert json.loads(log.read_text().splitlines()[-1]) == line
+
+
+def _hook_env(tmp_path: Path, syslog: Syslog, **fields: str) -> dict[str, str]:
+    """A Prolog/Epilog environment for calling the hooks in this process (the daemon's config file
+    ``tmp_path/daemon.toml``)."""
+    env = {"SLURM_JOB_USER": "alice", "SLURM_JOB_UID": "1000", "SLURMD_NODENAME": "n1", "SLURM_NODELIST": "n1",
+           "SLURM_JOB_EXIT_CODE": "0", "HDEEM_WATCH_LOG_SOCKET": str(syslog.path),
+           "HDEEM_WATCH_CONFIG": str(tmp_path / "daemon.toml"), "HDEEM_WATCH_HOOK_CALL_TIMEOUT_S": "10"}
+    env.update(fields)
+    return {k: v for k, v in env.items() if v is not None}
+
+
+@pytest.mark.slow
+def test_an_empty_or_unset_job_id_opens_nothing_and_says_why(tmp_path: Path, syslog: Syslog) -> None:
+    """SLURM_JOB_ID empty (the shell hook, as slurmd runs it), unset, or no job id at all (100 KB):
+    the hooks exit 0, open and close nothing in the daemon (once: a job named ``"unknown"`` every
+    such hook shared) and log why."""
+    from hdeem_watch.daemon.client import ControlClient
+    from hdeem_watch.slurm import hooks
+
+    control, daemon = _start_daemon(tmp_path)
+    try:
+        proc, _s = _hook("prolog", tmp_path, syslog, SLURM_JOB_ID="", HDEEM_WATCH_PYTHON=sys.executable)
+        assert proc.returncode == 0, proc.stderr
+        assert any("SLURM_JOB_ID is empty or unset: no job window opened" in line for line in syslog.lines())
+        for hook in (hooks.prolog, hooks.epilog):
+            assert hook(_hook_env(tmp_path, syslog))["job_id"] is None
+            assert any("SLURM_JOB_ID is empty or unset" in line for line in syslog.lines())
+            began = time.monotonic()
+            record = hook(_hook_env(tmp_path, syslog, SLURM_JOB_ID="7" * 100_000))
+            assert record["job_id"] is None and time.monotonic() - began < 1.0
+            said = [line for line in syslog.lines() if "is not a SLURM job id" in line]
+            assert said and all(len(line) < 400 for line in said)
+        with ControlClient(control, timeout_s=5.0) as client:
+            assert client.call("job.list")["jobs"] == [] and client.call("status")["jobs"] == []
+        assert [p.name for p in (tmp_path / "state" / "slurm-hooks").glob("job-*")] == []
+    finally:
+        daemon.terminate()
+        daemon.wait(timeout=20)
+
+
+@pytest.mark.slow
+def test_a_retried_prolog_and_a_refused_one_return_at_once(tmp_path: Path, syslog: Syslog) -> None:
+    """A Prolog run twice for one job (slurmd retries) gets the open job's record again in well
+    under a second (once: 10 s, the call's timeout); one whose uid is out of range is refused by the
+    daemon at once too (once: its error reply had no id, the client waited 10 s)."""
+    from hdeem_watch.daemon.client import ControlClient
+    from hdeem_watch.slurm import hooks
+
+    control, daemon = _start_daemon(tmp_path)
+    umask = os.umask(0o022)  # slurmd's, usually: the hooks' files are private all the same
+    try:
+        env = _hook_env(tmp_path, syslog, SLURM_JOB_ID="555")
+        assert hooks.prolog(env)["job_start"] == "ok"
+        began = time.monotonic()
+        again = hooks.prolog(env)
+        retried_s = time.monotonic() - began
+        assert again["job_start"] == "ok" and retried_s < 1.0, (again, retried_s)
+        began = time.monotonic()
+        refused = hooks.prolog(_hook_env(tmp_path, syslog, SLURM_JOB_ID="556", SLURM_JOB_UID="9" * 20))
+        assert refused["job_start"].startswith("bad-args") and time.monotonic() - began < 1.0, refused
+        with ControlClient(control, timeout_s=5.0) as client:
+            assert [j["job_id"] for j in client.call("status")["jobs"]] == ["555"]
+        hook_files = {p.name: p.stat().st_mode & 0o777 for p in (tmp_path / "state" / "slurm-hooks").iterdir()}
+        assert hook_files["job-555.json"] == 0o600 and hook_files["jobs.jsonl"] == 0o600, hook_files
+    finally:
+        os.umask(umask)
+        daemon.terminate()
+        daemon.wait(timeout=20)

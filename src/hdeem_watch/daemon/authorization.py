@@ -1,9 +1,18 @@
 """Who may change the daemon's state: the pure policy and the peer identities it decides on.
 
 Reading (``status``, ``runs.list``, ``calib.get``, the stream) is open to whoever can reach a socket.
-The operations in :data:`STATE_CHANGING_OPS` are allowed only to root, to the user the daemon runs
-as, and to the owner of a job currently running on the node (the job book's uids, injected as a
-callable). A request's peer is known by the kernel or by its key, never by what it claims:
+The operations in :data:`STATE_CHANGING_OPS` are allowed per op (:data:`OP_CALLERS`):
+
+* **operators** — root and the user the daemon runs as — may run every one of them: job windows
+  are opened and closed by the SLURM Prolog and Epilog (root), baselines measured and the
+  calibration reset by the node's administrators;
+* **the owner of a job running on the node** (the job book's uids, injected as a callable) may
+  announce runs (``run.start``, ``run.stop``) while that job runs, and nothing else: no job window
+  of their own (which would outlive their job, also across a restart), none in another user's
+  name, no stop of another user's job, no reset of the node's calibration;
+* everybody else may only read.
+
+A request's peer is known by the kernel or by its key, never by what it claims:
 
 * on ``ipc://`` by the connecting process's credentials: libzmq reads ``SO_PEERCRED`` of every
   Unix-socket connection and appends ``:uid:gid:pid`` to the message property ``Peer-Address``
@@ -17,6 +26,8 @@ Example:
     >>> policy = Authorizer(job_owner_uids=lambda: frozenset({1000}), daemon_uid=999)
     >>> policy.refusal("status", Peer("tcp"))      # reading is open
     >>> policy.refusal("run.start", ipc_peer("localhost:1000:1000:42"))   # the job owner
+    >>> print(policy.refusal("job.start", ipc_peer("localhost:1000:1000:42")))
+    job.start needs root or the daemon's user; the peer is uid 1000 (ipc, pid 42)
     >>> print(policy.refusal("run.start", ipc_peer("localhost:1001:1001:43")))
     run.start needs root, the daemon's user or the owner of a job running on this node; the peer is uid 1001 (ipc, pid 43)
 """
@@ -29,20 +40,30 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 
-#: Every control operation that changes the daemon's state (runs, jobs, baselines, calibration).
-#: Everything else (``ping``, ``status``, ``runs.list``, ``jobs.list``, ``calib.get``,
-#: ``baseline.get``) only reads.
-STATE_CHANGING_OPS: frozenset[str] = frozenset({
-    "run.start", "run.stop",
-    "job.start", "job.stop",
-    "baseline.measure", "baseline.cancel",
-    "calib.reset",
-})
+#: Callers of an op: root and the daemon's user only.
+OPERATORS = "operators"
+#: Callers of an op: the operators and the owner of a job running on the node.
+JOB_OWNERS = "job owners"
+
+#: Who may call each control operation that changes the daemon's state (runs, jobs, baselines,
+#: calibration); docs/protocol.md has the same table. Everything else (``ping``, ``status``,
+#: ``runs.list``, ``jobs.list``, ``calib.get``, ``baseline.get``, ...) only reads and is open.
+OP_CALLERS: dict[str, str] = {
+    "run.start": JOB_OWNERS, "run.stop": JOB_OWNERS,
+    "job.start": OPERATORS, "job.stop": OPERATORS,
+    "baseline.measure": OPERATORS, "baseline.cancel": OPERATORS,
+    "calib.reset": OPERATORS,
+}
+#: Every control operation that changes the daemon's state.
+STATE_CHANGING_OPS: frozenset[str] = frozenset(OP_CALLERS)
 
 #: The error code of a refused request.
 FORBIDDEN = "forbidden"
-#: Who may change state, for messages.
-RULE = "root, the daemon's user or the owner of a job running on this node"
+#: Who may call an op of each kind, for messages.
+RULES = {OPERATORS: "root or the daemon's user",
+         JOB_OWNERS: "root, the daemon's user or the owner of a job running on this node"}
+#: Who may change state at all (announce runs), for messages.
+RULE = RULES[JOB_OWNERS]
 
 _IPC_CREDENTIALS = re.compile(r":(\d+):(\d+):(\d+)$")
 
@@ -121,7 +142,7 @@ def _is_user_name(text: str) -> bool:
 
 
 class Authorizer:
-    """The policy: who may run which operation.
+    """The policy: who may run which operation (:data:`OP_CALLERS`).
 
     Args:
         job_owner_uids: the uids that own a job running on the node now (the job book's).
@@ -133,16 +154,33 @@ class Authorizer:
         self.job_owner_uids = job_owner_uids
         self.daemon_uid = os.geteuid() if daemon_uid is None else daemon_uid
 
-    def allowed_uid(self, uid: int) -> bool:
-        """Whether ``uid`` may change the daemon's state now."""
-        return uid == 0 or uid == self.daemon_uid or uid in self.job_owner_uids()
+    def is_operator(self, peer: Peer) -> bool:
+        """Whether ``peer`` is root or the daemon's user."""
+        return peer.uid is not None and peer.uid in (0, self.daemon_uid)
+
+    def role(self, peer: Peer) -> str:
+        """``root``, ``daemon user``, ``job owner`` (of a job running now) or ``other``."""
+        if peer.uid == 0:
+            return "root"
+        if peer.uid is not None and peer.uid == self.daemon_uid:
+            return "daemon user"
+        if peer.uid is not None and peer.uid in self.job_owner_uids():
+            return "job owner"
+        return "other"
+
+    def allowed_ops(self, peer: Peer) -> list[str]:
+        """The state-changing ops ``peer`` may run now, sorted."""
+        return sorted(op for op in STATE_CHANGING_OPS if self.refusal(op, peer) is None)
 
     def may_change_state(self, peer: Peer) -> bool:
-        """Whether ``peer`` may run the state-changing ops now."""
-        return peer.uid is not None and self.allowed_uid(peer.uid)
+        """Whether ``peer`` may announce runs now (``run.start``, ``run.stop``)."""
+        return self.refusal("run.start", peer) is None
 
     def refusal(self, op: str, peer: Peer) -> str | None:
         """Why ``peer`` may not run ``op`` (one line), or None when it may."""
-        if op not in STATE_CHANGING_OPS or self.may_change_state(peer):
+        callers = OP_CALLERS.get(op)
+        if callers is None or self.is_operator(peer):
             return None
-        return f"{op} needs {RULE}; the peer is {peer.describe()}"
+        if callers == JOB_OWNERS and peer.uid is not None and peer.uid in self.job_owner_uids():
+            return None
+        return f"{op} needs {RULES[callers]}; the peer is {peer.describe()}"

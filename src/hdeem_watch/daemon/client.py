@@ -4,7 +4,10 @@ The daemon's control socket is a ROUTER; this client uses a DEALER (default) or 
 socket. Both send ``[b"", request]`` (the REQ envelope), so the daemon sees the same frames.
 A request that gets no reply within ``timeout_s`` raises :class:`DaemonUnreachable`; the socket is
 then recreated so a REQ client never stays stuck in its send/receive state machine, and a DEALER
-client drops late replies to earlier requests by their ``id``.
+client drops late replies to earlier requests by their ``id``. An error reply without an ``id``
+(the daemon could not read one from the request: an ``id`` out of range) is the answer to the
+request in flight: no earlier request can still be answered on this socket, as it is recreated
+after every timeout.
 
 On TCP a socket monitor (:class:`~hdeem_watch.daemon.handshake.HandshakeWatch`) watches the
 security handshake: a CURVE key the daemon refuses, a wrong server key or CURVE on one side only
@@ -267,7 +270,7 @@ class ControlClient:
             except protocol.ProtocolError as error:
                 self._drop_socket()
                 raise ControlError("bad-reply", str(error)) from None
-            if reply.id == request_id:
+            if reply.id == request_id or (reply.id is None and not reply.ok):
                 return reply
             remaining = int((end - time.monotonic()) * 1000)  # a late reply to an earlier request
         failure = watch.failure if watch is not None else None

@@ -129,11 +129,14 @@ class RequestPeer:
         return refusal
 
     def whoami(self) -> dict[str, Any]:
-        """The ``whoami`` result: the peer as the daemon sees it and whether it may change state."""
+        """The ``whoami`` result: the peer as the daemon sees it, its role and what it may change
+        now (``may_change_state``: it may announce runs; ``allowed_ops``: every state-changing op
+        it may run)."""
         peer = self.peer
         may = self._authorizer.may_change_state(peer)
         return {"transport": peer.transport, "uid": peer.uid, "user": peer.user, "pid": peer.pid,
-                "peer": peer.describe(), "may_change_state": may,
+                "peer": peer.describe(), "role": self._authorizer.role(peer), "may_change_state": may,
+                "allowed_ops": self._authorizer.allowed_ops(peer),
                 "reason": None if may else f"changing state needs {RULE}",
                 "state_changing_ops": sorted(STATE_CHANGING_OPS)}
 

@@ -35,6 +35,7 @@ from hdeem_watch.daemon.job_records import (
 from hdeem_watch.daemon.node_state import ClosedWindow, Conflict
 from hdeem_watch.daemon.persistence import StoreWorker
 from hdeem_watch.daemon.ports import PublisherPort, Reply, StorePort
+from hdeem_watch.daemon.protocol import quoted
 
 log = logging.getLogger("hdeem_watch.daemon")
 
@@ -53,7 +54,7 @@ MODELLING = "modelling: the energy by component is computed from the counters (t
 class JobStore(Protocol):
     """What the job ops use of :class:`~hdeem_watch.daemon.store.Store`."""
 
-    def save_job(self, record: Mapping[str, Any]) -> None: ...
+    def save_job(self, record: Mapping[str, Any]) -> bool: ...
 
     def list_jobs(self, *, job_id: str | None = None, user: str | None = None, since_ns: int | None = None,
                   state: str | None = None, limit: int = 100) -> list[dict[str, Any]]: ...
@@ -110,22 +111,22 @@ class JobOperations:
 
     # -- ops --------------------------------------------------------------------------------------
 
-    def op_job_start(self, args: dict[str, Any]) -> Pending:
-        """Open a job's window; the reply (the record) comes once it is stored."""
+    def op_job_start(self, args: dict[str, Any]) -> Pending | dict[str, Any]:
+        """Open a job's window; the reply (the record) comes once it is stored. A job already open
+        (a retried Prolog) gets its record at once."""
         job_args = parse_job_args(args)
         self.poll()
         try:
             record, new = self.jobs.start(job_args)
         except Conflict as error:
             raise OpError("conflict", str(error)) from None
-        pending = Pending("job.start")
         body = record.to_dict()
-        if not new:
-            self.reply(pending, body, None)
-            return pending
+        if not new:  # stored with the first start, unless the database cannot be written now
+            return {**body, "stored": self.store.health() == "ok"}
+        pending = Pending("job.start")
         log.info("job %s started (user %s, uid %s)", record.job_id, record.user, record.uid)
         self.publisher.publish("job", {"event": "start", "job": job_summary(body)})
-        self._save(body, lambda _written: self.reply(pending, body, None))
+        self._save(body, lambda written: self.reply(pending, {**body, "stored": written}, None))
         return pending
 
     def op_job_stop(self, args: dict[str, Any]) -> Pending:
@@ -134,7 +135,7 @@ class JobOperations:
         exit_code = exit_code_arg(args.get("exit_code"))
         ended_ns = args.get("ended_ns")
         if ended_ns is not None and (isinstance(ended_ns, bool) or not isinstance(ended_ns, int) or ended_ns < 0):
-            raise OpError("bad-args", f"args.ended_ns = {ended_ns!r}: expected the wall-clock ns the job ended")
+            raise OpError("bad-args", f"args.ended_ns = {quoted(ended_ns)}: expected the wall-clock ns the job ended")
         pending = Pending("job.stop")
         if job_id in self.waiters:  # closing already: the same answer
             self.waiters[job_id].append(pending)
@@ -166,7 +167,7 @@ class JobOperations:
             if found:
                 self.reply(pending, found[0], None)
             else:
-                self.reply(pending, None, ("not-found", f"no job {job_id!r} on this node"))
+                self.reply(pending, None, ("not-found", f"no job {quoted(job_id)} on this node"))
 
         self.store.read(lambda s: _jobs(s).list_jobs(job_id=job_id, limit=1), done, self._failed(pending))
         return pending
@@ -177,17 +178,17 @@ class JobOperations:
         job_id = None if args.get("job_id") is None else job_id_arg(args.get("job_id"))
         user, state, since_ns = args.get("user"), args.get("state"), args.get("since_ns")
         if user is not None and not isinstance(user, str):
-            raise OpError("bad-args", f"args.user = {user!r}: expected a user name")
+            raise OpError("bad-args", f"args.user = {quoted(user)}: expected a user name")
         if state is not None and state not in JOB_STATES:
-            raise OpError("bad-args", f"args.state = {state!r}: expected running, done or interrupted")
+            raise OpError("bad-args", f"args.state = {quoted(state)}: expected running, done or interrupted")
         if since_ns is not None and (isinstance(since_ns, bool) or not isinstance(since_ns, int)):
-            raise OpError("bad-args", f"args.since_ns = {since_ns!r}: expected wall-clock ns")
+            raise OpError("bad-args", f"args.since_ns = {quoted(since_ns)}: expected wall-clock ns")
         limit = args.get("limit", DEFAULT_JOBS)
         if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_JOBS:
-            raise OpError("bad-args", f"args.limit = {limit!r}: expected an integer 1..{MAX_JOBS}")
+            raise OpError("bad-args", f"args.limit = {quoted(limit)}: expected an integer 1..{MAX_JOBS}")
         full = args.get("full", False)
         if not isinstance(full, bool):
-            raise OpError("bad-args", f"args.full = {full!r}: expected true or false")
+            raise OpError("bad-args", f"args.full = {quoted(full)}: expected true or false")
         pending = Pending("job.list")
 
         def done(found: list[dict[str, Any]]) -> None:
@@ -296,20 +297,22 @@ class JobOperations:
         self.publisher.publish("job", {"event": "stop", "job": job_summary(body)})
         waiters = self.waiters.pop(record.job_id, [])
 
-        def answer(_written: bool) -> None:
+        def answer(written: bool) -> None:
             for pending in waiters:
-                self.reply(pending, body, None)
+                self.reply(pending, {**body, "stored": written}, None)
 
         self._save(body, answer)
 
     def _save(self, body: dict[str, Any], done: Callable[[bool], None] | None = None) -> None:
+        """Store a job record; ``done(written)``: whether it is on disk (False: kept in memory, retried)."""
         self.store.write(f"job {body['job_id']}", lambda s: _jobs(s).save_job(body), done)
 
     def _stopped_before(self, pending: Pending, job_id: str, found: list[dict[str, Any]]) -> None:
         if found and found[0].get("state") != "running":
-            self.reply(pending, found[0], None)  # stopped before: the same answer again
+            # Stopped before: the same answer again (on disk unless the database cannot be written now).
+            self.reply(pending, {**found[0], "stored": self.store.health() == "ok"}, None)
         else:
-            self.reply(pending, None, ("not-found", f"no job {job_id!r} open on this node"))
+            self.reply(pending, None, ("not-found", f"no job {quoted(job_id)} open on this node"))
 
     def _failed(self, pending: Pending) -> Callable[[BaseException], None]:
         return lambda error: self.reply(pending, None, ("internal", f"{type(error).__name__}: {error}"))

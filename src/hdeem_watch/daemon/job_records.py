@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from hdeem_watch.daemon.counter_model import sum_counters
-from hdeem_watch.daemon.protocol import ProtocolError
+from hdeem_watch.daemon.protocol import ProtocolError, quoted
 from hdeem_watch.daemon.runs import total_energy
 
 JobState = Literal["running", "done", "interrupted"]
@@ -61,7 +61,7 @@ def job_id_arg(value: Any, key: str = "job_id") -> str:
     if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
         value = str(value)
     if not isinstance(value, str) or not _JOB_ID.match(value):
-        raise ProtocolError(f"args.{key} = {value!r}: expected a SLURM job id such as '4242' or '4242_3'",
+        raise ProtocolError(f"args.{key} = {quoted(value)}: expected a SLURM job id such as '4242' or '4242_3'",
                             code="bad-args")
     return value
 
@@ -84,7 +84,7 @@ def _optional_int(args: Mapping[str, Any], key: str, maximum: int) -> int | None
     if isinstance(value, str) and value.isdigit():
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= maximum:
-        raise ProtocolError(f"args.{key} = {value!r}: expected an integer in [0, {maximum}]", code="bad-args")
+        raise ProtocolError(f"args.{key} = {quoted(value)}: expected an integer in [0, {maximum}]", code="bad-args")
     return int(value)
 
 
@@ -99,7 +99,7 @@ def parse_job_args(args: Mapping[str, Any]) -> JobArgs:
     job_id = job_id_arg(args.get("job_id"))
     user = args.get("user") or ""
     if not isinstance(user, str) or len(user) > 256:
-        raise ProtocolError(f"args.user = {user!r}: expected a user name", code="bad-args")
+        raise ProtocolError(f"args.user = {quoted(user)}: expected a user name", code="bad-args")
     nodes = args.get("nodes") or []
     if isinstance(nodes, str):
         nodes = [nodes]
@@ -119,7 +119,7 @@ def exit_code_arg(value: Any) -> int | str | None:
         return value
     if isinstance(value, str) and re.fullmatch(r"-?\d{1,10}(:\d{1,10})?", value):
         return int(value) if ":" not in value else value
-    raise ProtocolError(f"args.exit_code = {value!r}: expected an integer (SLURM_JOB_EXIT_CODE)", code="bad-args")
+    raise ProtocolError(f"args.exit_code = {quoted(value)}: expected an integer (SLURM_JOB_EXIT_CODE)", code="bad-args")
 
 
 @dataclass(frozen=True)

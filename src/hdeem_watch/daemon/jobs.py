@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from hdeem_watch.daemon.group_fits import DEFAULT_MIN_SAMPLES
 from hdeem_watch.daemon.modelling import MAX_HISTORY, RunModeller, compact_fit
+from hdeem_watch.daemon.wire import dumps, quoted
 
 if TYPE_CHECKING:
     from hdeem_watch.calibrate.group_rows import SensorGroup
@@ -81,7 +82,7 @@ class Worker:
                 if error is None:
                     done(future.result())
                 else:
-                    log.error("%s job failed: %s: %s", self.name, type(error).__name__, error)
+                    log.error("%s job failed: %s: %s", self.name, type(error).__name__, quoted(str(error)))
                     if failed is not None:
                         failed(error)
             except Exception:
@@ -139,7 +140,8 @@ class ModelSettings:
 def restore_calibration(calibration: Calibration, *, settings: ModelSettings,
                         state: dict[str, Any] | None,
                         fits: Sequence[tuple[int, str | None, dict[str, Any] | None]],
-                        submit: Callable[..., None], on_built: Callable[[], None]) -> None:
+                        submit: Callable[..., None], on_built: Callable[[], None],
+                        on_unrestorable: Callable[[str, str | None], None] | None = None) -> None:
     """Restore the stored fit history and calibrator; build the run modeller as the worker's first job.
 
     Args:
@@ -149,6 +151,10 @@ def restore_calibration(calibration: Calibration, *, settings: ModelSettings,
         fits: the stored fit history, oldest first (a None fit is a ``calib.reset``).
         submit: the model worker's ``submit``.
         on_built: called in the loop once the modeller is built (or failed to build).
+        on_unrestorable: called in the loop when the stored state could not be restored, with the
+            reason and what was restored of it (JSON text: the node calibrator without the groups,
+            or a fresh one; None without a modeller): the daemon moves the stored row to
+            ``quarantine`` and stores that instead.
     """
     history: list[dict[str, Any]] = []
     for t_ns, _run_id, fit in fits[-MAX_HISTORY:]:
@@ -163,22 +169,28 @@ def restore_calibration(calibration: Calibration, *, settings: ModelSettings,
                         "drift": {}, "memspec": settings.memspec, "model_error": None, "truth": None,
                         "loading": True}
 
-    def build() -> dict[str, Any]:
+    def build() -> tuple[dict[str, Any], str | None]:
         modeller = RunModeller(settings.memspec, dimms=settings.dimms, topology=settings.topology,
                                currents=settings.currents, half_life_s=settings.half_life_s or None,
                                physical_rules=settings.physical_rules,
                                max_requests=settings.max_requests, state=state, history=history,
                                groups=settings.groups, dram_rates_hz=settings.dram_rates_hz,
                                min_samples=settings.min_samples)
+        restored = None
         if modeller.restore_error:
-            log.warning("calibrator state not restored: %s", modeller.restore_error)
+            log.warning("calibrator state not restored: %s", quoted(modeller.restore_error))
+            restored = None if modeller.state() is None else dumps(modeller.state()).decode()
         if modeller.error:
             log.warning("runs will not be modelled: %s", modeller.error)
         calibration.modeller = modeller  # set on the worker: every later model job runs after this one
-        return modeller.body()
+        return modeller.body(), restored
 
-    def built(body: dict[str, Any]) -> None:
+    def built(result: tuple[dict[str, Any], str | None]) -> None:
+        body, restored = result
         calibration.body = body
+        modeller = calibration.modeller
+        if modeller is not None and modeller.restore_error and on_unrestorable is not None:
+            on_unrestorable(modeller.restore_error, restored)
         on_built()
 
     def not_built(error: BaseException) -> None:

@@ -32,12 +32,16 @@ from hdeem_watch.daemon.jobs import Calibration
 from hdeem_watch.daemon.node_state import ClosedWindow, Conflict, NodeState
 from hdeem_watch.daemon.persistence import StoreWorker
 from hdeem_watch.daemon.ports import PublisherPort, Reply, StorePort, Submit
+from hdeem_watch.daemon.protocol import quoted
 from hdeem_watch.daemon.reporting import Reporter
 from hdeem_watch.daemon.runs import FINISHED_STATES, OPAQUE_KERNEL, RunRecord, parse_run_args
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import RunAware, RunEvent, Source
 
 log = logging.getLogger("hdeem_watch.daemon")
+
+#: Longest sensor group name ``calib.reset`` takes (longer ones are refused before the worker sees them).
+MAX_GROUP_CHARS = 64
 
 #: ``runs.list`` page sizes: summaries (default, most), and full records (``"full": true``).
 DEFAULT_SUMMARIES = 100
@@ -113,20 +117,20 @@ class Operations:
         """Stored runs, newest first: summaries, or full records with ``"full": true`` (read off the loop)."""
         full = args.get("full", False)
         if not isinstance(full, bool):
-            raise OpError("bad-args", f"args.full = {full!r}: expected true or false")
+            raise OpError("bad-args", f"args.full = {quoted(full)}: expected true or false")
         most = MAX_FULL_RECORDS if full else MAX_SUMMARIES
         limit = args.get("limit", MAX_FULL_RECORDS if full else DEFAULT_SUMMARIES)
         if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= most:
-            raise OpError("bad-args", f"args.limit = {limit!r}: expected an integer 1..{most}"
+            raise OpError("bad-args", f"args.limit = {quoted(limit)}: expected an integer 1..{most}"
                           + ("" if full else " (full records: 1..20)"))
         kernel = args.get("kernel")
         if kernel is not None and not isinstance(kernel, str):
-            raise OpError("bad-args", f"args.kernel = {kernel!r}: expected a string")
+            raise OpError("bad-args", f"args.kernel = {quoted(kernel)}: expected a string")
         before = args.get("before")
         before_seq = None
         if before is not None:
             if not isinstance(before, str) or not before.startswith("r") or not before[1:].isdigit():
-                raise OpError("bad-args", f"args.before = {before!r}: expected a run id (the last one of a page)")
+                raise OpError("bad-args", f"args.before = {quoted(before)}: expected a run id (the last one of a page)")
             before_seq = int(before[1:])
         key = (limit, kernel, before_seq, full)
         cached = self._pages.get(key)
@@ -158,13 +162,13 @@ class Operations:
         self._runs_generation += 1
         self._pages.clear()
 
-        def save(store: StorePort) -> None:
+        def save(store: StorePort) -> bool:
             # The calibration first: a crash between the two leaves the run "modelling", and the
             # restart's remodelling finds the run already in the calibrator (it is not added twice).
             if calibration is not None:
                 t_ns, state, fit = calibration
                 store.save_calibration(t_ns, state, fit, str(body["run_id"]))
-            store.save_run(body)
+            return store.save_run(body)
 
         self.store.write(f"run {body['run_id']}", save, done)
 
@@ -178,22 +182,32 @@ class Operations:
 
     def op_calib_reset(self, args: dict[str, Any]) -> Pending:
         """Forget the calibration runs (on the worker, after any refit in progress): of every fit, or
-        with ``args.group`` of one sensor group (or ``"node"``, the fit of the groups' sum)."""
+        with ``args.group`` of one sensor group (or ``"node"``, the fit of the groups' sum).
+
+        An unknown group is the caller's mistake: a ``bad-args`` reply, logged at INFO with the
+        value cut, not a failed model job."""
         group = args.get("group")
-        if group is not None and not isinstance(group, str):
-            raise OpError("bad-args", f"args.group = {group!r}: expected a sensor group name (e.g. \"DDR_CD\")")
+        if group is not None and (not isinstance(group, str) or len(group) > MAX_GROUP_CHARS):
+            raise OpError("bad-args", f"args.group = {quoted(group)}: expected a sensor group name (e.g. \"DDR_CD\")")
         pending = Pending("calib.reset")
         calibration = self.calibration
 
-        def job() -> tuple[dict[str, Any], str | None]:
+        def job() -> tuple[dict[str, Any], str | None] | InputError:
             modeller = calibration.modeller  # read on the worker, after the job that built it
             if modeller is None:
                 raise RuntimeError("the calibrator is not available (it failed to build; see the log)")
-            modeller.reset(group)
+            try:
+                modeller.reset(group)
+            except InputError as error:  # an unknown group: answered, not a worker failure
+                return error
             state = None if group is None else protocol.dumps(modeller.state()).decode()
             return modeller.body(), state
 
-        def done(result: tuple[dict[str, Any], str | None]) -> None:
+        def done(result: tuple[dict[str, Any], str | None] | InputError) -> None:
+            if isinstance(result, InputError):
+                log.info("calib.reset refused: %s", protocol.quoted(str(result)))
+                self.reply(pending, None, ("bad-args", str(result)))
+                return
             body, state = result
             t_ns = self.book.wall()
             calibration.body = body
@@ -205,8 +219,7 @@ class Operations:
                                  lambda _written: self._after_reset(pending))
 
         def failed(error: BaseException) -> None:
-            code = "bad-args" if isinstance(error, InputError) else "unavailable"
-            self.reply(pending, None, (code, str(error)))
+            self.reply(pending, None, ("unavailable", str(error)))
 
         self.submit(job, done, failed)
         return pending
@@ -246,7 +259,7 @@ class Operations:
         self.publisher.publish("run", {"event": "start", "run": body})
         pending = Pending("run.start")
         reply = {"run_id": record.run_id, "t_start_ns": record.t_start_ns, "run": body}
-        self._save_run(body, lambda _written: self.reply(pending, reply, None))
+        self._save_run(body, lambda written: self.reply(pending, {**reply, "stored": written}, None))
         return pending
 
     @staticmethod
@@ -260,11 +273,11 @@ class Operations:
         """Close a run window; the reply (energies, model, fit) comes when it is modelled and stored."""
         run_id = args.get("run_id")
         if not isinstance(run_id, str | int) or isinstance(run_id, bool):
-            raise OpError("bad-args", f"args.run_id = {run_id!r}: expected the run id run.start returned")
+            raise OpError("bad-args", f"args.run_id = {quoted(run_id)}: expected the run id run.start returned")
         run_id = str(run_id)
         abort = args.get("abort", False)
         if not isinstance(abort, bool):
-            raise OpError("bad-args", f"args.abort = {abort!r}: expected true or false")
+            raise OpError("bad-args", f"args.abort = {quoted(abort)}: expected true or false")
         pending = Pending("run.stop")
         if run_id in self.waiters:  # closing, modelling, or being modelled again after a restart
             self.waiters[run_id].append(pending)
@@ -285,11 +298,12 @@ class Operations:
 
     def _stopped_before(self, pending: Pending, run_id: str, stored: dict[str, Any] | None) -> None:
         if stored is not None and stored.get("state") in FINISHED_STATES:
-            self.reply(pending, stored, None)  # stopped before: the same answer again
+            # Stopped before: the same answer again (on disk unless the database cannot be written now).
+            self.reply(pending, {**stored, "stored": self.store.health() == "ok"}, None)
         elif stored is not None and stored.get("state") == "modelling":
             self.reply(pending, None, ("unavailable", f"run {run_id} is not modelled yet; ask again later"))
         else:
-            self.reply(pending, None, ("not-found", f"no run {run_id!r} in progress"))
+            self.reply(pending, None, ("not-found", f"no run {quoted(run_id)} in progress"))
 
     # -- idle baselines --------------------------------------------------------------------------------
 
@@ -339,7 +353,7 @@ class Operations:
         self.waiters.setdefault(record.run_id, [])
         body = record.to_dict()
         if record.state == "aborted":
-            self._save_run(body, lambda _written: self._finished(record))
+            self._save_run(body, lambda written: self._finished(record, stored=written))
             return
         self._save_run(body)
         self.model(record)
@@ -379,15 +393,16 @@ class Operations:
             self.publisher.publish("alarm", {"event": "alarm", "run_id": record.run_id, "alarm": alarm})
             self.store.write(f"alarm {alarm.get('group')}", _save_alarm(int(alarm.get("time_ns") or 0), record.run_id, alarm))
         calibration = (int(done.t_stop_ns or 0), state, fit) if fit is not None and state is not None else None
-        self._save_run(done, lambda _written: self._finished(done, calib=True), calibration)
+        self._save_run(done, lambda written: self._finished(done, calib=True, stored=written), calibration)
 
-    def _finished(self, record: RunRecord, *, calib: bool = False) -> None:
+    def _finished(self, record: RunRecord, *, calib: bool = False, stored: bool = True) -> None:
+        """Publish a finished run and answer its stops (``stored``: whether its record is on disk)."""
         body = record.to_dict()
         self.publisher.publish("run", {"event": "stop", "run": body})
         if calib:
             self.reporter.publish_calib()
         for pending in self.waiters.pop(record.run_id, []):
-            self.reply(pending, body, None)
+            self.reply(pending, {**body, "stored": stored}, None)
 
     def resume_modelling(self, stored: list[dict[str, Any]]) -> int:
         """Model again the runs a crash left ``modelling`` (``stored``: their records); return how many."""

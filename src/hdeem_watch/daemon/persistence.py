@@ -80,7 +80,9 @@ class StoreWorker:
             return f"degraded: store health unknown: {type(error).__name__}"
 
     def write(self, what: str, action: Action, done: Callable[[bool], None] | None = None) -> None:
-        """Run ``action(store)`` on the worker; ``done(written)`` in the loop (False: kept for a retry)."""
+        """Run ``action(store)`` on the worker; ``done(written)`` in the loop: False when the write
+        is kept for a retry here, or when ``action`` returned False (the store keeps it in memory
+        and retries it: not on disk yet)."""
 
         def job() -> bool:
             self._drain()
@@ -118,7 +120,7 @@ class StoreWorker:
 
     def _attempt(self, what: str, action: Action) -> bool:
         try:
-            action(self.store)
+            written = action(self.store)
         except Exception as error:
             self._keep(what, action)
             reason = f"{what}: {type(error).__name__}: {error}"
@@ -126,7 +128,7 @@ class StoreWorker:
                 log.error("state database write failed (kept for a retry): %s", reason)
             self._error = reason
             return False
-        return True
+        return written is not False
 
     def _keep(self, what: str, action: Action) -> None:
         self._backlog.append((what, action))

@@ -58,13 +58,14 @@ from hdeem_watch.daemon.wire import (
     dumps,
     jsonable,
     loads_object,
+    quoted,
 )
 
 __all__ = [
     "ERROR_CODES", "KINDS", "MAX_REQUEST_BYTES", "MAX_REQUEST_DEPTH", "SAMPLE_DTYPE", "TIME_DTYPE", "TOPIC_PREFIX", "VERSION",
     "GapTracker", "Message", "ProtocolError", "Reply", "Request", "SamplesEncoder", "SequenceCounter", "decode", "decode_reply",
     "decode_request", "dumps", "encode", "encode_reply_error", "encode_reply_ok", "encode_request",
-    "encode_samples", "jsonable", "loads_object", "now_ns", "pack_samples", "parse_topic", "request_id_of",
+    "encode_samples", "jsonable", "loads_object", "now_ns", "pack_samples", "parse_topic", "quoted", "request_id_of",
     "samples_topic", "subscription", "topic", "unpack_samples",
 ]
 

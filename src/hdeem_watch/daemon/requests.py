@@ -11,11 +11,19 @@ Example:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from hdeem_watch.daemon.wire import MAX_REQUEST_BYTES, MAX_REQUEST_DEPTH, ProtocolError, dumps, loads_object
+from hdeem_watch.daemon.wire import (
+    MAX_JSON_INT,
+    MAX_REQUEST_BYTES,
+    MAX_REQUEST_DEPTH,
+    ProtocolError,
+    dumps,
+    loads_object,
+)
 
 
 @dataclass(frozen=True)
@@ -71,18 +79,53 @@ def decode_request(data: bytes, max_bytes: int = MAX_REQUEST_BYTES) -> Request:
     return Request(id=request_id, op=op, args=args)
 
 
+#: Longest string ``id`` echoed in the error reply of a request that failed to parse.
+MAX_ECHOED_ID_CHARS = 256
+
+
 def request_id_of(data: bytes) -> Any:
-    """Best-effort ``id`` of a request that failed to parse (None if it cannot be found)."""
-    if len(data) > MAX_REQUEST_BYTES:
+    """Best-effort ``id`` of a request that failed to parse, so that its error reply reaches the
+    caller's ``call`` (None when no id can be read within bounds).
+
+    The request is read again leniently: a request refused for a value out of range elsewhere (an
+    integer beyond 64 bits, ``1e400``) or for its size still has its ``id`` read, as long as the
+    frame is JSON within the nesting bound and no larger than the socket lets in (64 ×
+    :data:`MAX_REQUEST_BYTES`). Only an id the protocol allows comes back: a string of at most
+    :data:`MAX_ECHOED_ID_CHARS`, a 64-bit integer or a finite number.
+
+    Example:
+        >>> request_id_of(b'{"id": 7, "op": "job.start", "args": {"uid": 99999999999999999999}}')
+        7
+        >>> request_id_of(b'{"id": 99999999999999999999, "op": "ping"}') is None
+        True
+    """
+    if len(data) > 64 * MAX_REQUEST_BYTES:
         return None
     try:
-        value = loads_object(data, "request", max_depth=MAX_REQUEST_DEPTH, strict=True)
+        value = loads_object(data, "request", max_depth=MAX_REQUEST_DEPTH)
     except ProtocolError:
         return None
-    rid = value.get("id")
-    if isinstance(rid, str | int | float) and not isinstance(rid, bool):
-        return rid
+    return _echoable_id(value.get("id"))
+
+
+def _echoable_id(rid: Any) -> Any:
+    if isinstance(rid, bool):
+        return None
+    if isinstance(rid, str):
+        return rid if len(rid) <= MAX_ECHOED_ID_CHARS and _is_utf8(rid) else None
+    if isinstance(rid, int):
+        return rid if abs(rid) <= MAX_JSON_INT else None
+    if isinstance(rid, float):
+        return rid if math.isfinite(rid) else None
     return None
+
+
+def _is_utf8(text: str) -> bool:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def encode_reply_ok(request_id: Any, result: Any) -> bytes:

@@ -29,7 +29,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from hdeem_watch.daemon.protocol import ProtocolError
+from hdeem_watch.daemon.protocol import ProtocolError, quoted
 
 #: Kernels that move no memory traffic: their run pins the standby currents and is an idle baseline.
 NO_TRAFFIC_KERNELS = ("idle", "sleep")
@@ -99,13 +99,13 @@ def _int_arg(args: Mapping[str, Any], key: str, default: int, minimum: int, maxi
     if value is None:
         value = default
     if isinstance(value, bool) or not isinstance(value, int) or not minimum <= value <= maximum:
-        raise ProtocolError(f"args.{key} = {value!r}: expected an integer in [{minimum}, {maximum}]", code="bad-args")
+        raise ProtocolError(f"args.{key} = {quoted(value)}: expected an integer in [{minimum}, {maximum}]", code="bad-args")
     return int(value)
 
 
 def _text_arg(value: Any, key: str) -> str:
     if not isinstance(value, str):
-        raise ProtocolError(f"args.{key} = {value!r}: expected a string", code="bad-args")
+        raise ProtocolError(f"args.{key} = {quoted(value)}: expected a string", code="bad-args")
     try:
         value.encode("utf-8")
     except UnicodeEncodeError:
@@ -123,7 +123,7 @@ def parse_run_args(args: Mapping[str, Any], limits: RunLimits | None = None) -> 
     kernel = args.get("kernel", OPAQUE_KERNEL)
     kernel = OPAQUE_KERNEL if kernel is None else kernel
     if not isinstance(kernel, str) or not kernel.strip():
-        raise ProtocolError(f"args.kernel = {kernel!r}: expected a kernel name (e.g. 'triad', 'idle')", code="bad-args")
+        raise ProtocolError(f"args.kernel = {quoted(kernel)}: expected a kernel name (e.g. 'triad', 'idle')", code="bad-args")
     kernel = _text_arg(kernel, "kernel").strip().lower()
     name = _text_arg(args.get("name") or kernel, "name")
     metadata = args.get("metadata") or {}

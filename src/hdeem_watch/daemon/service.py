@@ -52,6 +52,8 @@ from hdeem_watch.daemon.publisher import Publisher
 from hdeem_watch.daemon.reporting import Identity, Reporter
 from hdeem_watch.daemon.runs import RunLimits
 from hdeem_watch.daemon.store import Store, StoreError
+from hdeem_watch.daemon.store_checks import ROW_CHECKS
+from hdeem_watch.daemon.wire import quoted
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import Source, SourceBatch, SourceUnavailable, make_source, source_speed
 
@@ -191,7 +193,7 @@ class Daemon:
         state_dir = Path(settings.state_dir)
         self._lock(state_dir)
         try:
-            store = self.store = Store(state_dir / "state.db")
+            store = self.store = Store(state_dir / "state.db", row_checks=ROW_CHECKS)
         except StoreError as error:
             raise InputError(str(error)) from None
         store.close_interrupted_runs(self.wall_clock())
@@ -284,13 +286,23 @@ class Daemon:
                                                                           else max(1, settings.dimms // 2))),
                                    dram_rates_hz=dram_rates),
             state=store.load_calibrator(), fits=store.fit_history(MAX_HISTORY), submit=self.model_jobs.submit,
-            on_built=reporter.publish_calib)
+            on_built=reporter.publish_calib, on_unrestorable=self._quarantine_calibrator)
         self.operations.resume_modelling(unfinished_runs(store))
         job_ops.remodel(unmodelled_jobs(store))
         for line in setup.log_lines():  # once started: a start that fails says one line only
             log.info("%s", line)
         log.info("hdeem-watch daemon %s: node %s, source %s, pub %s, control %s", __version__, self.node,
                  settings.source, self.pub_endpoint, self.control_endpoint)
+
+    def _quarantine_calibrator(self, why: str, restored: str | None) -> None:
+        """The stored calibrator state could not be restored: move it to ``quarantine`` and store
+        what was restored of it (the node calibrator without its groups, or a fresh one)."""
+        assert self.store_worker is not None
+        t_ns = self.wall_clock()
+        log.warning("state database: calibrator: %s (moved to table quarantine)", quoted(why))
+        self.store_worker.write("calibrator quarantine", lambda s: s.quarantine_calibrator(t_ns, why))
+        if restored is not None:
+            self.store_worker.write("calibrator", lambda s: s.save_calibrator_state(t_ns, restored))
 
     def request_stop(self) -> None:
         """Ask the loop to end (safe from a signal handler)."""

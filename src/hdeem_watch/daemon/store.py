@@ -33,6 +33,7 @@ from __future__ import annotations
 import itertools
 import json
 import logging
+import os
 import sqlite3
 import threading
 import time
@@ -42,9 +43,16 @@ from pathlib import Path
 from typing import Any
 
 from hdeem_watch.daemon.protocol import jsonable
+from hdeem_watch.daemon.run_ids import RunIdMark
 from hdeem_watch.daemon.runs import run_summary
 from hdeem_watch.daemon.store_jobs import INSERT_JOB, JobRow, job_matches, job_query, job_row
-from hdeem_watch.daemon.store_repair import SCHEMA, quarantine_bad_rows, salvage_if_corrupt
+from hdeem_watch.daemon.store_repair import (
+    SCHEMA,
+    create_private,
+    quarantine_bad_rows,
+    quarantine_unusable_rows,
+    salvage_if_corrupt,
+)
 from hdeem_watch.daemon.store_writer import BackgroundWriter
 
 log = logging.getLogger("hdeem_watch.daemon.store")
@@ -117,6 +125,7 @@ class _CalibOp:
     state: str | None  # None: calib.reset (the calibrator is forgotten)
     fit: str | None  # None with a state: the state alone (a group's reset), no history entry
     run_id: str | None
+    quarantine: str | None = None  # the stored state cannot be restored: moved aside for this reason
 
 
 class Store:
@@ -129,6 +138,8 @@ class Store:
         retry_max_s: longest pause between two tries of a failed write.
         sync_wait_s: how long a save waits for its write while the database is healthy
             (:data:`SYNC_WAIT_S`; 0 = never wait).
+        row_checks: per table, how the rows the daemon loads at start are checked beyond their JSON
+            (:data:`hdeem_watch.daemon.store_checks.ROW_CHECKS`); a row that fails is quarantined.
 
     Attributes:
         quarantined: one line per damaged page or bad row found at start-up (empty when sound).
@@ -138,11 +149,13 @@ class Store:
     """
 
     def __init__(self, path: str | Path, *, clock: Callable[[], int] = time.time_ns, retry_min_s: float = 0.2,
-                 retry_max_s: float = 5.0, sync_wait_s: float = SYNC_WAIT_S) -> None:
+                 retry_max_s: float = 5.0, sync_wait_s: float = SYNC_WAIT_S,
+                 row_checks: Mapping[str, Any] | None = None) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True, mode=0o750)
         try:
             self.quarantined = salvage_if_corrupt(self.path, t_ns=clock())
+            create_private(self.path)  # 0600 whatever the umask; its -wal and -shm take its mode
             self._db = self._connect(READ_TIMEOUT_S)
             version = self._schema_version()
             if version is not None and version > SCHEMA_VERSION:
@@ -153,14 +166,19 @@ class Store:
                 self._db.execute("INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)",
                                  (str(SCHEMA_VERSION),))
                 self._db.execute(f"PRAGMA busy_timeout = {round(READ_TIMEOUT_S * 1000)}")
-            # Before the quarantine: a run id is never given twice, even one whose row was set aside.
-            self._max_seq = int(self._db.execute("SELECT COALESCE(MAX(seq), 0) FROM runs").fetchone()[0])
+            # Before the quarantine: a run id is never given twice, even one whose row was set aside,
+            # nor one given while the database could not be written (its row lost by a crash).
+            self._run_ids = RunIdMark(self.path.with_name(self.path.name + ".run-ids"))
+            self._max_seq = max(int(self._db.execute("SELECT COALESCE(MAX(seq), 0) FROM runs").fetchone()[0]),
+                                self._run_ids.read())
         except sqlite3.DatabaseError as error:
             raise StoreError(f"{self.path}: cannot use the state database ({error})") from None
         except OSError as error:
             raise StoreError(f"{self.path}: cannot use the state database ({error.strerror})") from None
         try:
             self.quarantined += quarantine_bad_rows(self._db, t_ns=clock())
+            if row_checks:
+                self.quarantined += quarantine_unusable_rows(self._db, row_checks, t_ns=clock())
         except sqlite3.Error as error:
             log.warning("%s: bad rows not quarantined (%s); the loaders skip them", self.path, error)
         for line in self.quarantined:
@@ -207,11 +225,25 @@ class Store:
         return int(self._schema_version() or SCHEMA_VERSION)
 
     def health(self) -> str:
-        """``"ok"``, or ``"degraded: <reason>"`` while writes wait in memory or reads fail."""
+        """``"ok"``, or ``"degraded: <reason>"`` while writes wait in memory or reads fail, or
+        while the file system of the database is read-only (remounted so after an error): the next
+        write would fail, and the replies would say ``"stored": false``."""
         writer = self._writer.health
         if writer != "ok":
             return f"{writer}; {self._writer.pending} writes pending"
+        refusal = self._write_refusal()
+        if refusal is not None:
+            return f"degraded: state directory not writable ({refusal}); nothing can be stored"
         return self._read_health
+
+    def _write_refusal(self) -> str | None:
+        """Why the state directory's file system refuses writes now (two system calls, no disk I/O)."""
+        try:
+            if os.statvfs(self.path.parent).f_flag & os.ST_RDONLY:
+                return "Read-only file system"
+        except OSError:
+            pass
+        return self._run_ids.refusal()
 
     def flush(self, timeout_s: float = CLOSE_FLUSH_S) -> bool:
         """Wait until every saved record is written; False when ``timeout_s`` passed first."""
@@ -223,15 +255,18 @@ class Store:
         if unsaved:
             log.error("state database: %d writes could not be saved before exit (%s): %s", len(unsaved),
                       self._writer.health, ", ".join(str(op) for op in unsaved[:10]))
+        self._run_ids.close()
         self._db.close()
 
-    def _submit(self, op: Hashable) -> None:
+    def _submit(self, op: Hashable) -> bool:
+        """Queue a write; whether it is on disk on return (False: it waits in memory, retried)."""
         ticket = self._writer.submit(op)
         # Wait for the write while the database keeps up; after one wait timed out, not again
         # until that write went through (a lock or a slow disk costs the loop one wait, not one per save).
         waiting = self._sync_wait_s > 0 and self._writer.health == "ok" and self._writer.completed >= self._stalled_at
         if waiting and not self._writer.wait_for(ticket, self._sync_wait_s):
             self._stalled_at = ticket
+        return self._writer.completed >= ticket
 
     # -- reading -------------------------------------------------------------------------------------
 
@@ -254,8 +289,10 @@ class Store:
         """A run id not used before in this state directory: ``r<n>``."""
         return f"r{self._max_seq + 1}"
 
-    def save_run(self, record: Mapping[str, Any]) -> None:
-        """Insert or replace a run record (``run_id`` of the form ``r<n>``); returns at once."""
+    def save_run(self, record: Mapping[str, Any]) -> bool:
+        """Insert or replace a run record (``run_id`` of the form ``r<n>``); returns at once, True
+        when the record is on disk then (False: it waits in memory, and its id is marked
+        durably as given out: :class:`~hdeem_watch.daemon.run_ids.RunIdMark`)."""
         run_id = str(record["run_id"])
         row = _RunRow(seq=int(run_id.lstrip("r")), kernel=str(record.get("kernel", "")),
                       state=str(record.get("state", "")), t_start_ns=int(record.get("t_start_ns") or 0),
@@ -265,7 +302,10 @@ class Store:
             if row.seq > self._max_seq:
                 self._max_seq = row.seq
                 self._count += 1
-        self._submit(("run", run_id))
+        written = self._submit(("run", run_id))
+        if not written and row.seq > self._run_ids.read():
+            self._run_ids.write(row.seq)
+        return written
 
     def get_run(self, run_id: str) -> dict[str, Any] | None:
         """One run record, or None."""
@@ -345,6 +385,10 @@ class Store:
         """Forget the calibrator state (``calib.reset``); the fit history keeps a null entry."""
         self._save_calib(_CalibOp(int(t_ns), None, None, None))
 
+    def quarantine_calibrator(self, t_ns: int, reason: str) -> None:
+        """Move the stored calibrator state, which could not be restored, to ``quarantine``."""
+        self._save_calib(_CalibOp(int(t_ns), None, None, None, quarantine=" ".join(reason.split())[:200]))
+
     def _save_calib(self, op: _CalibOp) -> None:
         with self._lock:
             key = next(self._calib_ids)
@@ -367,7 +411,7 @@ class Store:
             rows = self._query("SELECT t_ns, run_id, fit FROM fits WHERE fit IS NULL OR json_valid(fit) "
                                "ORDER BY id DESC LIMIT ?", (int(limit),))
             pending = [(op.t_ns, op.run_id, op.fit) for _k, op in sorted(self._calib.items())
-                       if op.state is None or op.fit is not None]
+                       if op.quarantine is None and (op.state is None or op.fit is not None)]
         entries = [(int(t), r, f) for t, r, f in reversed(rows)] + pending
         return [(t, r, _loads(f)) for t, r, f in entries[-max(0, int(limit)):]] if limit > 0 else []
 
@@ -407,12 +451,13 @@ class Store:
 
     # -- SLURM jobs ----------------------------------------------------------------------------------
 
-    def save_job(self, record: Mapping[str, Any]) -> None:
-        """Insert or replace a job record (keyed by job id and start time); returns at once."""
+    def save_job(self, record: Mapping[str, Any]) -> bool:
+        """Insert or replace a job record (keyed by job id and start time); returns at once, True
+        when the record is on disk then."""
         key, row = job_row(record)
         with self._lock:
             self._jobs[key] = row
-        self._submit(("job", key))
+        return self._submit(("job", key))
 
     def list_jobs(self, *, job_id: str | None = None, user: str | None = None, since_ns: int | None = None,
                   state: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
@@ -449,6 +494,10 @@ class Store:
             db.execute(INSERT_JOB, pending.values(key))
         elif kind == "alarm":
             db.execute("INSERT INTO alarms (t_ns, run_id, grp, alarm) VALUES (?, ?, ?, ?)", pending)
+        elif pending.quarantine is not None:
+            db.execute("INSERT INTO quarantine (t_ns, source, row_key, content, reason) SELECT ?, 'calibrator', "
+                       "id, state, ? FROM calibrator", (pending.t_ns, f"unusable: {pending.quarantine}"))
+            db.execute("DELETE FROM calibrator")
         elif pending.state is None:
             db.execute("DELETE FROM calibrator")
             db.execute("INSERT INTO fits (t_ns, run_id, fit) VALUES (?, NULL, NULL)", (pending.t_ns,))

@@ -5,9 +5,13 @@ still be read and without guessing at what cannot:
 
 * :func:`salvage_if_corrupt`: when SQLite's ``quick_check`` finds damaged pages, every row that can
   still be read is copied into a fresh file, which takes the database's place; the damaged file is
-  kept beside it as ``state.db.corrupt-<ns>`` for a post-mortem.
+  kept beside it as ``state.db.corrupt-<ns>`` for a post-mortem. A file cut short (truncated) is
+  read up to where it ends. (The ``sqlite3`` shell's ``.recover`` needs its ``sqlite_dbpage``
+  table, which Debian 12's shell is built without; the row scan here needs nothing but SQLite.)
 * :func:`quarantine_bad_rows`: rows whose JSON is malformed or not an object move to the
-  ``quarantine`` table (table, key, text, reason), out of the way of the loaders.
+  ``quarantine`` table (table, key, text, reason), out of the way of the loaders;
+  :func:`quarantine_unusable_rows` likewise the rows of valid JSON the daemon cannot use
+  (:mod:`~hdeem_watch.daemon.store_checks`).
 
 Both return one line per finding for the log and the ``quarantined`` list.
 
@@ -22,10 +26,11 @@ Example:
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import sqlite3
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -107,6 +112,33 @@ def quarantine_bad_rows(db: sqlite3.Connection, *, t_ns: int) -> list[str]:
                  "ELSE 1 END")
         for rowid, row_key, valid in db.execute(query).fetchall():
             found.append((table, rowid, str(row_key), "not a JSON object" if valid else "malformed JSON"))
+    return _move_to_quarantine(db, found, t_ns)
+
+
+def quarantine_unusable_rows(db: sqlite3.Connection, checks: Mapping[str, Any], *, t_ns: int) -> list[str]:
+    """Move rows of valid JSON that the daemon cannot use to ``quarantine``; one line each.
+
+    ``checks``: per table a :class:`~hdeem_watch.daemon.store_checks.RowCheck` (``check``,
+    ``where``, ``newest``); a row whose check raises is moved, the reason naming the error.
+    """
+    found: list[tuple[str, object, str, str]] = []
+    for table, rule in checks.items():
+        key, column, _columns = TABLES[table]
+        query = (f"SELECT rowid, {key}, {column} FROM {table} WHERE {column} IS NOT NULL AND json_valid({column}) "
+                 f"AND ({rule.where}) ORDER BY rowid DESC")
+        if rule.newest is not None:
+            query += f" LIMIT {int(rule.newest)}"
+        for rowid, row_key, text in db.execute(query).fetchall():
+            try:
+                rule.check(json.loads(text))
+            except Exception as error:  # whatever the reader would have met
+                reason = " ".join(f"unusable: {type(error).__name__}: {error}".split())
+                found.append((table, rowid, str(row_key), reason[:200]))
+    return _move_to_quarantine(db, found, t_ns)
+
+
+def _move_to_quarantine(db: sqlite3.Connection, found: list[tuple[str, object, str, str]], t_ns: int) -> list[str]:
+    """Move ``(table, rowid, key, reason)`` rows to ``quarantine`` in one transaction; one line each."""
     if not found:
         return []
     db.execute("BEGIN IMMEDIATE")
@@ -121,6 +153,30 @@ def quarantine_bad_rows(db: sqlite3.Connection, *, t_ns: int) -> list[str]:
         raise
     db.execute("COMMIT")
     return [f"{table} {row_key!r}: {reason} (moved to table quarantine)" for table, _r, row_key, reason in found]
+
+
+#: The most a state database file may allow (SQLite gives its ``-wal`` and ``-shm`` the same mode).
+STATE_FILE_MODE = 0o640
+
+
+def create_private(path: Path) -> None:
+    """Create ``path`` empty with mode 0600 when it is missing, whatever the umask (SQLite would
+    create it 0644 less the umask); an existing file is narrowed to :data:`STATE_FILE_MODE`.
+
+    Raises:
+        OSError: it cannot be created.
+    """
+    try:
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o600))
+        return
+    except FileExistsError:
+        pass
+    mode = os.stat(path).st_mode & 0o7777
+    if mode & ~STATE_FILE_MODE:
+        try:
+            os.chmod(path, mode & STATE_FILE_MODE)
+        except OSError as error:  # a read-only file system: the daemon still reads it
+            log.warning("%s: mode %04o not narrowed to %04o (%s)", path, mode, mode & STATE_FILE_MODE, error.strerror)
 
 
 def is_corrupt(db: sqlite3.Connection) -> str | None:
@@ -147,6 +203,10 @@ def salvage_if_corrupt(path: Path, *, t_ns: int) -> list[str]:
     # Read-write (a read-only open cannot recover a WAL left without its -shm), but only reading.
     source = sqlite3.connect(str(path), isolation_level=None, timeout=0.5)
     source.execute("PRAGMA query_only = 1")
+    # A file shorter than its header says (truncated: a full disk during a copy, a crash of the file
+    # system) is refused as a whole unless the schema is "writable": SQLite then reads the pages
+    # that are there (query_only: nothing is written all the same).
+    source.execute("PRAGMA writable_schema = 1")
     try:
         problem = is_corrupt(source)
         if problem is None:
@@ -156,8 +216,10 @@ def salvage_if_corrupt(path: Path, *, t_ns: int) -> list[str]:
         log.error("%s is damaged (%s); salvaging the readable rows", path, problem)
         fresh_path = path.with_name(path.name + ".salvage")
         fresh_path.unlink(missing_ok=True)
+        create_private(fresh_path)
         fresh = sqlite3.connect(str(fresh_path), isolation_level=None)
-        lost: list[str] = [f"{path.name}: damaged ({problem[:200]}); kept as {path.name}.corrupt-{t_ns}"]
+        lost: list[str] = [f"{path.name}: damaged ({' '.join(problem.split())[:200]}); kept as "
+                           f"{path.name}.corrupt-{t_ns}"]
         try:
             fresh.executescript(SCHEMA)
             fresh.execute("BEGIN")
@@ -173,7 +235,8 @@ def salvage_if_corrupt(path: Path, *, t_ns: int) -> list[str]:
                 marks = ",".join("?" * len(columns))
                 fresh.executemany(f"INSERT OR IGNORE INTO {table} ({','.join(columns)}) VALUES ({marks})", rows)
                 if unreadable:
-                    lost.append(f"{table}: {unreadable} rows in damaged pages lost, {len(rows)} kept")
+                    lost.append(f"{table}: rows in damaged or missing pages lost (at least {unreadable}), "
+                                f"{len(rows)} kept")
             fresh.execute("COMMIT")
         finally:
             fresh.close()

@@ -45,6 +45,22 @@ ERROR_CODES = (
 )
 
 
+#: Most characters of a client's value quoted in an error message or a log line.
+MAX_QUOTED_CHARS = 200
+
+
+def quoted(value: Any, limit: int = MAX_QUOTED_CHARS) -> str:
+    """``repr(value)`` cut to ``limit`` characters (saying how long it was), for messages and logs:
+    a client's 64 KiB value must not become a 64 KiB log line.
+
+    Example:
+        >>> quoted("x" * 1000, 12)
+        "'xxxxxxxxxx… (1002 chars)"
+    """
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit - 1]}… ({len(text)} chars)"
+
+
 class ProtocolError(ValueError):
     """A message or request that does not follow protocol v1.
 

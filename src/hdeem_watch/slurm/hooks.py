@@ -39,7 +39,7 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from hdeem_watch.slurm import allocation_nodes, hook_context, hook_setting
 
@@ -148,6 +148,17 @@ def _private_dir(path: Path) -> Path:
     return path
 
 
+def _private_file(path: Path, mode: str = "w") -> IO[str]:
+    """``open(path, mode)`` of a file created 0600 whatever the umask (slurmd's is usually 022)."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC | (os.O_APPEND if mode.startswith("a") else os.O_TRUNC)
+    return os.fdopen(os.open(path, flags, 0o600), mode, encoding="utf-8")
+
+
+def _write_private(path: Path, text: str) -> None:
+    with _private_file(path) as out:
+        out.write(text)
+
+
 def _rotate(path: Path) -> None:
     """Beyond :data:`MAX_LOG_BYTES` the file becomes ``<name>.1`` (the one before it goes)."""
     with contextlib.suppress(OSError):
@@ -158,7 +169,7 @@ def _rotate(path: Path) -> None:
 def _append_bounded(path: Path, record: Mapping[str, Any]) -> None:
     """Append one JSON line (to a file kept below :data:`MAX_LOG_BYTES`, :func:`_rotate`)."""
     _rotate(path)
-    with open(path, "a", encoding="utf-8") as out:
+    with _private_file(path, "a") as out:
         out.write(json.dumps(record) + "\n")
 
 
@@ -192,7 +203,7 @@ def _start_daemon(s: HookSettings, job_id: str) -> str:
                                                          "--state-dir", str(s.state_dir)]
     log_path = s.hook_dir / "daemon.log"
     _rotate(log_path)
-    with open(log_path, "ab") as out:
+    with os.fdopen(os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_CLOEXEC, 0o600), "ab") as out:
         proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=out, stderr=out, start_new_session=True,
                                 close_fds=True, env=_daemon_env())
     deadline = time.monotonic() + s.start_timeout_s
@@ -200,8 +211,8 @@ def _start_daemon(s: HookSettings, job_id: str) -> str:
         if proc.poll() is not None:
             return f"not started: it exited with {proc.returncode} (see {log_path})"
         if _call(s.control, "ping", None, 0.5)[1] is None:
-            (s.hook_dir / "daemon.json").write_text(json.dumps({"pid": proc.pid, "job_id": job_id,
-                                                                "command": command}))
+            _write_private(s.hook_dir / "daemon.json", json.dumps({"pid": proc.pid, "job_id": job_id,
+                                                                    "command": command}))
             return "started"
         time.sleep(0.1)
     return f"started (pid {proc.pid}) but it did not answer within {s.start_timeout_s:g} s"
@@ -234,8 +245,12 @@ def _flush_pending_stops(s: HookSettings) -> None:
 
 # --------------------------------------------------------------------------- the hooks
 def prolog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
-    """Open the job's window in this node's daemon (see the module docstring); return what was done."""
+    """Open the job's window in this node's daemon (see the module docstring); return what was done.
+
+    Without a job id (``SLURM_JOB_ID`` empty or unset) nothing is opened: :func:`_no_job_id`."""
     env, s, ctx, job_id = _begin(env)
+    if job_id is None:
+        return _no_job_id("prolog", env, ctx)
     record: dict[str, Any] = {"event": "prolog", "job_id": job_id, "user": ctx.get("user"), "node": ctx.get("node"),
                               "t_ns": time.time_ns(), "control": s.control, "daemon": "running"}
     if _call(s.control, "ping", None, min(2.0, s.timeout_s))[1] is not None:
@@ -259,25 +274,50 @@ def prolog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
     return record
 
 
-def _begin(env: Mapping[str, str] | None) -> tuple[Mapping[str, str], HookSettings, dict[str, str], str]:
+def _begin(env: Mapping[str, str] | None) -> tuple[Mapping[str, str], HookSettings, dict[str, str], str | None]:
     """What both hooks do first: read their settings and the job, make the hooks' directory, and
-    send the stops a daemon missed; ``(env, settings, job context, job id)``."""
+    send the stops a daemon missed; ``(env, settings, job context, job id or None)``."""
     env = os.environ if env is None else env
     s = hook_settings(env)
     ctx = hook_context(env)
     _private_dir(s.hook_dir)
     _flush_pending_stops(s)
-    return env, s, ctx, ctx.get("job_id", "unknown")
+    return env, s, ctx, _job_id(ctx)
+
+
+def _job_id(ctx: Mapping[str, str]) -> str | None:
+    """The job's id when it is one the daemon takes (a SLURM job id), else None."""
+    from hdeem_watch.daemon.job_records import job_id_arg
+    from hdeem_watch.daemon.protocol import ProtocolError
+
+    try:
+        return job_id_arg(ctx.get("job_id", "").strip(), "SLURM_JOB_ID")
+    except ProtocolError:
+        return None
+
+
+def _no_job_id(event: str, env: Mapping[str, str], ctx: Mapping[str, str]) -> dict[str, Any]:
+    """A hook without a usable job id: nothing is opened or closed (jobs must not share a made-up
+    id, nor name files after a 100 KB one); say why."""
+    from hdeem_watch.daemon.protocol import quoted
+
+    raw = ctx.get("job_id", "").strip()
+    why = (f"SLURM_JOB_ID = {quoted(raw, 80)} is not a SLURM job id" if raw else "SLURM_JOB_ID is empty or unset")
+    why += ": no job window opened or closed"
+    _log(f"{event}: {why} (user {quoted(ctx.get('user', '?'), 80)}, node {quoted(ctx.get('node', '?'), 80)})", env)
+    return {"event": event, "job_id": None, "skipped": why, "t_ns": time.time_ns()}
 
 
 def _write_job(s: HookSettings, job_id: str, record: dict[str, Any]) -> None:
-    (s.hook_dir / f"job-{job_id}.json").write_text(json.dumps(record))
+    _write_private(s.hook_dir / f"job-{job_id}.json", json.dumps(record))
     _append_bounded(s.hook_dir / "jobs.jsonl", record)
 
 
 def epilog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
-    """Close the job's window in this node's daemon; return what was done."""
+    """Close the job's window in this node's daemon; return what was done (nothing without a job id)."""
     env, s, ctx, job_id = _begin(env)
+    if job_id is None:
+        return _no_job_id("epilog", env, ctx)
     exit_code = ctx.get("exit_code")
     # The job's end goes along: a stop the daemon reads late (it hung; the request waited in its
     # socket) is then marked late instead of silently measuring past the end.
@@ -290,7 +330,7 @@ def epilog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
     record: dict[str, Any] = {"event": "epilog", "job_id": job_id, "user": ctx.get("user"), "node": ctx.get("node"),
                               "t_ns": time.time_ns(), "exit_code": exit_code, "job_stop": "ok" if why is None else why}
     if why is not None and why.startswith("unreachable"):
-        (s.hook_dir / f"stop-{job_id}.json").write_text(json.dumps(args))
+        _write_private(s.hook_dir / f"stop-{job_id}.json", json.dumps(args))
         _log(f"epilog job {job_id}: {why}; the stop is kept and sent by the next hook", env)
     elif isinstance(result, dict):
         record["dram_energy_j"] = result.get("dram_energy_j")
