@@ -74,6 +74,13 @@ def test_every_component_equals_drampower(memspec: str, trace: str) -> None:
         assert ours[name] == pytest.approx(theirs[name], rel=1e-9, abs=1e-24), name
     interface = cli["InterfaceEnergy"]
     assert sum(ours.values()) == pytest.approx(cli["TotalEnergy"] - _interface_total(interface), rel=1e-9)
+    # bg_act's two parts apart: the rank's active time (shared) and the banks' active time (per bank)
+    shared = 0.0
+    for prefix, volt in (("idd", spec.vdd), ("ipp", spec.vpp)):
+        i2n, i3n = spec.currents[f"{prefix}2n"], spec.currents[f"{prefix}3n"]
+        i_rho = i2n + spec.fact_rho * (i3n - i2n)
+        shared += volt * spec.nbr_of_devices * i_rho * stats.total("cycles_act") * spec.tck_s
+    assert shared == pytest.approx(cli["CoreEnergy"]["E_bg_act_shared"], rel=1e-9, abs=1e-24)
 
 
 def _interface_total(interface: dict[str, Any]) -> float:
@@ -227,3 +234,15 @@ def test_cli_json_has_ddr4_keys_plus_refsb(tmp_path: Path) -> None:
     table = subprocess.run([sys.executable, "-m", "hdeem_watch", "model", "energy", "--memspec", str(memspec),
                             "--trace", str(trace)], capture_output=True, text=True, check=True).stdout
     assert "refsb" in table
+
+
+def test_ddr4_memspec_refuses_ddr5_commands(tmp_path: Path) -> None:
+    """A REFSB or PRESB in a trace for a DDR4 memspec is named, not silently ignored."""
+    from hdeem_watch.dram.memspec import preset
+    from hdeem_watch.dram.trace_state import trace_stats
+    from hdeem_watch.errors import InputError
+
+    path = tmp_path / "t.csv"
+    path.write_text("0,ACT,0,0,1,0,0\n30,PRESB,0,0,1,0,0\n100,END,0,0,0,0,0\n")
+    with pytest.raises(InputError, match=r"line 2: PRESB is a DDR5 command; memspec .* is DDR4"):
+        trace_stats(preset("ddr4-2133-x8-4gb"), read_command_trace(path))
