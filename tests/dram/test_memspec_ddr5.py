@@ -83,7 +83,7 @@ def test_physical_rules_of_ddr5(toy: dict[str, Any]) -> None:
     assert problems[0].startswith("same-bank refresh: IDD5C 36 mA < I_BG")
     assert any(p.startswith("read: IPP4R 0 mA < IPP3N 1 mA") for p in problems)
     toy["memspec"]["mempowerspec"]["idd5c"] = 0.036
-    with pytest.raises(InputError, match="unphysical currents.*same-bank refresh"):
+    with pytest.raises(InputError, match=r"unphysical currents.*same-bank refresh"):
         parse_memspec_ddr5(toy, "toy")
     assert parse_memspec_ddr5(toy, "toy", allow_unphysical=True).currents["idd5c"] == 0.036
 
