@@ -83,6 +83,35 @@ def test_every_component_equals_drampower(memspec: str, trace: str) -> None:
     assert shared == pytest.approx(cli["CoreEnergy"]["E_bg_act_shared"], rel=1e-9, abs=1e-24)
 
 
+def stats_from_drampower(internal: dict[str, Any], spec: MemSpecDDR5) -> CommandStats:
+    """CommandStats from DRAMPower's own counters (``<trace>.stats.json``, SimulationStats at T)."""
+    banks, ranks = spec.nbr_of_banks, []
+    for r, rank in enumerate(internal["rank_total"]):
+        per_bank = internal["bank"][r * banks:(r + 1) * banks]
+
+        def total(key: str, stats: list[dict[str, Any]] = per_bank) -> float:
+            return float(sum(b["counter"][key] for b in stats))
+
+        cycles = rank["cycles"]
+        ranks.append(RankStats(
+            act=total("act"), pre=total("pre"), rd=total("reads"), wr=total("writes"), rda=total("readAuto"),
+            wra=total("writeAuto"), ref=total("refAllBank") / banks,
+            refsb=total("refSameBank") / spec.nbr_of_bankgroups, cycles_total=float(internal["lastCommandTime"]),
+            cycles_act=cycles["act"], cycles_pre=cycles["pre"], cycles_pdna=cycles["powerDownAct"],
+            cycles_pdnp=cycles["powerDownPre"], cycles_sref=cycles["selfRefresh"],
+            bank_active_cycles=float(sum(b["cycles"]["act"] for b in per_bank))))
+    return CommandStats(ranks=tuple(ranks))
+
+
+@pytest.mark.parametrize(("memspec", "trace"), CASES, ids=[f"{m}-{t}" for m, t in CASES])
+def test_statistics_equal_drampower_counters(memspec: str, trace: str) -> None:
+    """Every count and cycle figure of every rank equals DRAMPower's own counters exactly."""
+    spec, stats, _ = _case(memspec, trace)
+    internal = json.loads((REF / "results" / memspec / f"{trace}.stats.json").read_text())
+    assert stats == stats_from_drampower(internal, spec)
+    assert core_energy_ddr5(spec, stats).core_j == pytest.approx(internal["total_core"], rel=1e-9)
+
+
 def _interface_total(interface: dict[str, Any]) -> float:
     return float(sum(side[kind] for side in interface.values() for kind in ("dynamicEnergy", "staticEnergy")))
 
