@@ -5,7 +5,8 @@ Usage::
     hdeem-watch model energy --memspec M.json --trace T.csv [--allow-unphysical] [--json]
 
 ``--memspec`` takes a DRAMPower JSON memspec file or a preset name (``ddr4-2133-x8-4gb``,
-``samsung-m393a1g43db0-cpb``). The default output is a table; ``--json`` prints one JSON object:
+``samsung-m393a1g43db0-cpb``). A file with ``memoryType`` DDR5 selects the DDR5 model
+(:mod:`hdeem_watch.dram.energy_ddr5`): the components gain ``refsb_j`` and the counts ``refsb``. The default output is a table; ``--json`` prints one JSON object:
 ``total_j``, ``core_j``, ``interface_j`` (null: the interface is not modelled, see
 ``interface_status``), ``components`` (``act_j`` ... ``sref_j``), per-rank ``counts`` (``act, pre,
 rd, wr, rda, wra, ref``) and ``cycles`` (``act, pre, pdna, pdnp, sref``) as lists indexed by rank,
@@ -25,20 +26,21 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from hdeem_watch.dram.presets import PRESETS  # no numpy: the model itself is imported when it runs
-from hdeem_watch.dram.stats import COUNT_FIELDS, CYCLE_FIELDS
+from hdeem_watch.dram.stats import COUNT_FIELDS, CYCLE_FIELDS, DDR5_COUNT_FIELDS
 from hdeem_watch.errors import InputError
 
 if TYPE_CHECKING:
     from hdeem_watch.dram.energy import EnergyBreakdown
     from hdeem_watch.dram.memspec import MemSpec
+    from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
     from hdeem_watch.dram.stats import CommandStats
 
 
 def register(subparsers: Any) -> None:
     """Add ``model energy`` to the ``model`` subcommand's subparsers."""
     parser = subparsers.add_parser(
-        "energy", help="DRAM core energy of a DRAMPower command trace (DRAMPower v6 DDR4 model)",
-        description="Energy of a DRAMPower CSV command trace for a DDR4 memspec (one channel).")
+        "energy", help="DRAM core energy of a DRAMPower command trace (DRAMPower v6 DDR4/DDR5 model)",
+        description="Energy of a DRAMPower CSV command trace for a DDR4 or DDR5 memspec (one channel).")
     parser.add_argument("--memspec", required=True, metavar="M.json",
                         help=f"DRAMPower JSON memspec, or a preset (NAME or preset:NAME): "
                              f"{', '.join(sorted(PRESETS))}")
@@ -87,9 +89,27 @@ def resolve_memspec(value: str, *, allow_unphysical: bool = False) -> MemSpec:
     return memspec_from(text, allow_unphysical=allow_unphysical)
 
 
-def report(spec: MemSpec, stats: CommandStats, energy: EnergyBreakdown, *, trace_path: str,
+def ddr5_memspec(value: str, *, allow_unphysical: bool = False) -> MemSpecDDR5 | None:
+    """The DDR5 memspec ``value`` names, or None when it names a preset or a non-DDR5 file.
+
+    Raises:
+        InputError: a DDR5 file that is malformed or (without ``allow_unphysical``) unphysical.
+    """
+    path = Path(str(value))
+    if str(value).startswith("preset:") or not path.is_file():
+        return None
+    from hdeem_watch.dram.memspec_ddr5 import is_ddr5, parse_memspec_ddr5, read_memspec_json
+
+    data = read_memspec_json(path)
+    if not is_ddr5(data):
+        return None
+    return parse_memspec_ddr5(data, where=str(path), allow_unphysical=allow_unphysical)
+
+
+def report(spec: MemSpec | MemSpecDDR5, stats: CommandStats, energy: EnergyBreakdown, *, trace_path: str,
            commands: int, memspec: str) -> dict[str, Any]:
     """The ``--json`` object (pure: no I/O)."""
+    count_fields = DDR5_COUNT_FIELDS if spec.memory_type.upper() == "DDR5" else COUNT_FIELDS
     end = stats.ranks[0].cycles_total if stats.ranks else 0.0
     duration_s = end * spec.tck_s
     return {
@@ -105,20 +125,20 @@ def report(spec: MemSpec, stats: CommandStats, energy: EnergyBreakdown, *, trace
         "interface_status": "not modelled (total_j is the core energy)",
         "average_power_w": energy.core_j / duration_s if duration_s > 0 else None,
         "components": dict(energy.components),
-        "counts": [{name: getattr(rank, name) for name in COUNT_FIELDS} for rank in stats.ranks],
+        "counts": [{name: getattr(rank, name) for name in count_fields} for rank in stats.ranks],
         "cycles": [{name: getattr(rank, f"cycles_{name}") for name in CYCLE_FIELDS} for rank in stats.ranks],
         "ranks": [{"rank": r, "core_j": sum(parts.values()), "components": parts,
-                   "counts": {name: getattr(stats.ranks[r], name) for name in COUNT_FIELDS},
+                   "counts": {name: getattr(stats.ranks[r], name) for name in count_fields},
                    "cycles": {name: getattr(stats.ranks[r], f"cycles_{name}") for name in CYCLE_FIELDS},
                    "bank_active_cycles": stats.ranks[r].bank_active_cycles}
                   for r, parts in enumerate(energy.ranks)],
     }
 
 
-def format_table(data: dict[str, Any], spec: MemSpec) -> str:
+def format_table(data: dict[str, Any], spec: MemSpec | MemSpecDDR5) -> str:
     """The human-readable report."""
-    from hdeem_watch.dram.energy import COMPONENTS
-
+    components = list(data["components"])
+    count_fields = list(data["counts"][0]) if data["counts"] else list(COUNT_FIELDS)
     lines = [
         f"memspec   {data['memory_id']}  ({spec.nbr_of_ranks} ranks x {spec.nbr_of_devices} devices, "
         f"tCK {spec.tck_s * 1e9:g} ns)",
@@ -128,7 +148,7 @@ def format_table(data: dict[str, Any], spec: MemSpec) -> str:
         f"{'component':<12}{'energy [J]':>14}{'share':>9}",
     ]
     core = data["core_j"]
-    for name in COMPONENTS:
+    for name in components:
         value = data["components"][name]
         share = f"{100 * value / core:7.2f} %" if core else ""
         lines.append(f"{name.removesuffix('_j'):<12}{value:>14.6e}{share:>9}")
@@ -136,10 +156,10 @@ def format_table(data: dict[str, Any], spec: MemSpec) -> str:
               f"{'total':<12}{data['total_j']:>14.6e}"]
     if data["average_power_w"] is not None:
         lines.append(f"{'avg power':<12}{data['average_power_w']:>14.6f} W")
-    lines += ["", "rank " + "".join(f"{n:>10}" for n in COUNT_FIELDS) + " | cycles "
+    lines += ["", "rank " + "".join(f"{n:>10}" for n in count_fields) + " | cycles "
               + "".join(f"{n:>12}" for n in CYCLE_FIELDS)]
     for r, (counts, cycles) in enumerate(zip(data["counts"], data["cycles"])):
-        lines.append(f"{r:<5}" + "".join(f"{counts[n]:>10.0f}" for n in COUNT_FIELDS) + " |        "
+        lines.append(f"{r:<5}" + "".join(f"{counts[n]:>10.0f}" for n in count_fields) + " |        "
                      + "".join(f"{cycles[n]:>12.0f}" for n in CYCLE_FIELDS))
     return "\n".join(lines)
 
@@ -150,10 +170,21 @@ def run(args: argparse.Namespace) -> int:
     from hdeem_watch.dram.energy import core_energy
     from hdeem_watch.dram.trace_state import trace_stats
 
-    spec = resolve_memspec(args.memspec, allow_unphysical=args.allow_unphysical)
-    trace = read_command_trace(args.trace)
-    stats = trace_stats(spec, trace)
-    energy = core_energy(spec, stats)
+    ddr5 = ddr5_memspec(args.memspec, allow_unphysical=args.allow_unphysical)
+    trace = None
+    if ddr5 is not None:
+        from hdeem_watch.dram.energy_ddr5 import core_energy_ddr5
+        from hdeem_watch.dram.trace_state_ddr5 import trace_stats_ddr5
+
+        spec: MemSpec | MemSpecDDR5 = ddr5
+        trace = read_command_trace(args.trace)
+        stats = trace_stats_ddr5(ddr5, trace)
+        energy = core_energy_ddr5(ddr5, stats)
+    else:
+        ddr4 = resolve_memspec(args.memspec, allow_unphysical=args.allow_unphysical)
+        spec, trace = ddr4, read_command_trace(args.trace)
+        stats = trace_stats(ddr4, trace)
+        energy = core_energy(ddr4, stats)
     data = report(spec, stats, energy, trace_path=str(args.trace), commands=len(trace), memspec=str(args.memspec))
     if args.json:
         sys.stdout.write(json.dumps(data) + "\n")

@@ -7,7 +7,7 @@ Format (DRAMPower v6 CLI, no header), one command per line::
     cycle,CMD,rank,bankgroup,bank,row,column[,hexdata]
 
 ``CMD`` is one of ACT PRE PREA REFA RD RDA WR WRA PDEA PDXA PDEP PDXP SREFEN SREFEX END (and NOP,
-ignored); ``bank`` is the flat bank index within the rank; ``cycle`` must not decrease; the END
+ignored), and for DDR5 also PRESB and REFSB; ``bank`` is the flat bank index within the rank; ``cycle`` must not decrease; the END
 cycle (else the last cycle) is the evaluation time T. Spaces, tabs and carriage returns are ignored
 (DRAMPower trims them). The data field is optional and not used by the core model.
 
@@ -41,10 +41,13 @@ from hdeem_watch.errors import InputError, excerpt, not_a_file_error
 
 #: Command names in code order (``CommandTrace.cmd`` holds the index into this tuple).
 COMMANDS: tuple[str, ...] = ("ACT", "PRE", "PREA", "REFA", "RD", "RDA", "WR", "WRA",
-                             "PDEA", "PDXA", "PDEP", "PDXP", "SREFEN", "SREFEX", "END", "NOP")
+                             "PDEA", "PDXA", "PDEP", "PDXP", "SREFEN", "SREFEX", "END", "NOP",
+                             "PRESB", "REFSB")
 CODE = {name: i for i, name in enumerate(COMMANDS)}
 #: DRAMPower commands of other standards (named in the error message).
-OTHER_STANDARD = ("PRESB", "REFB", "REFSB", "REFP2B", "REFDB", "DSMEN", "DSMEX")
+OTHER_STANDARD = ("REFB", "REFP2B", "REFDB", "DSMEN", "DSMEX")
+#: Commands only DDR5 has (same-bank precharge and refresh); a DDR4 memspec refuses them.
+DDR5_ONLY = ("PRESB", "REFSB")
 
 #: Bytes read per chunk (whole lines are parsed per chunk; bounds the temporary arrays).
 CHUNK_BYTES = 1 << 24

@@ -30,6 +30,8 @@ if TYPE_CHECKING:
 
 #: Command counters of a rank, in the order of the ``counts`` object of ``model energy --json``.
 COUNT_FIELDS = ("act", "pre", "rd", "wr", "rda", "wra", "ref")
+#: :data:`COUNT_FIELDS` of a DDR5 rank (same-bank refreshes added).
+DDR5_COUNT_FIELDS = (*COUNT_FIELDS, "refsb")
 #: State-residency fields of a rank, as ``cycles_<name>``, in the order of ``cycles`` in the JSON.
 CYCLE_FIELDS = ("act", "pre", "pdna", "pdnp", "sref")
 #: Fields that :func:`stretch_stats` scales with the window (state residency, bank activity).
@@ -49,6 +51,8 @@ class RankStats:
         rda: reads with auto-precharge.
         wra: writes with auto-precharge.
         ref: all-bank refreshes (REFA, and the refresh that starts a self-refresh).
+        refsb: DDR5 same-bank refreshes (REFSB commands; each refreshes one bank in every bank
+            group). Always 0 for DDR4.
         cycles_total: the window T in clock cycles.
         cycles_act: cycles with at least one bank active (including refresh).
         cycles_pre: cycles with all banks precharged and not in power-down or self-refresh.
@@ -66,6 +70,7 @@ class RankStats:
     rda: float = 0.0
     wra: float = 0.0
     ref: float = 0.0
+    refsb: float = 0.0
     cycles_total: float = 0.0
     cycles_act: float = 0.0
     cycles_pre: float = 0.0
@@ -179,7 +184,7 @@ def stretch_stats(spec: MemSpec, stats: CommandStats, window_s: float, *, name: 
     ranks = []
     for i, rank in enumerate(stats.ranks):
         if rank.cycles_total <= 0:
-            if any(getattr(rank, f) > 0 for f in COUNT_FIELDS):
+            if any(getattr(rank, f) > 0 for f in DDR5_COUNT_FIELDS):
                 raise InputError(f"run {name!r}: rank {i} has commands but cycles_total = 0")
             ranks.append(RankStats(cycles_total=cycles_w, cycles_pre=cycles_w,
                                    ref=cycles_w / refi if refi > 0 else 0.0))
@@ -187,6 +192,7 @@ def stretch_stats(spec: MemSpec, stats: CommandStats, window_s: float, *, name: 
         factor = cycles_w / rank.cycles_total
         changes: dict[str, float] = {f: getattr(rank, f) * factor for f in _STRETCHED}
         changes["ref"] = rank.ref * factor
+        changes["refsb"] = rank.refsb * factor
         changes["cycles_total"] = cycles_w
         ranks.append(replace(rank, **changes))
     return CommandStats(ranks=tuple(ranks))

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hdeem_watch.dram.command_trace import CODE, CommandTrace, check_ranges
+from hdeem_watch.dram.command_trace import CODE, DDR5_ONLY, CommandTrace, check_ranges
 from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.dram.stats import CommandStats, RankStats
 from hdeem_watch.errors import InputError
@@ -262,7 +262,13 @@ def trace_stats(spec: MemSpec, trace: CommandTrace) -> CommandStats:
     The rules are in this module's docstring.
 
     Raises:
-        InputError: a rank or bank out of range, or power-down/self-refresh commands out of order.
+        InputError: a rank or bank out of range, power-down/self-refresh commands out of order, or
+            a DDR5-only command (PRESB, REFSB).
     """
+    ddr5 = np.flatnonzero(np.isin(trace.cmd, [CODE[name] for name in DDR5_ONLY]))
+    if ddr5.size:
+        name = DDR5_ONLY[[CODE[n] for n in DDR5_ONLY].index(int(trace.cmd[ddr5[0]]))]
+        raise InputError(f"{trace.path}: line {ddr5[0] + 1}: {name} is a DDR5 command; memspec "
+                         f"{spec.memory_id!r} is DDR4 (expected a DDR5 memspec for this trace)")
     check_ranges(spec, trace)
     return command_stats(spec, trace)
