@@ -26,7 +26,7 @@ def test_a_job_with_counters_is_modelled_by_component(daemon_factory: Any) -> No
         stopped = client.call("job.stop", {"job_id": "88", "exit_code": 0})
         stored = client.call("job.get", {"job_id": "88"})  # from the store now
     assert live["counters"] is not None and live["model"] is None and live["model_error"].startswith("running")
-    assert stored == stopped
+    assert stopped.pop("stored") is True and stored == stopped  # the stop's reply: the record and that it is on disk
     assert stored["state"] == "done" and stored["model_error"] is None, stored["model_error"]
     counters, model = stored["counters"], stored["model"]
     assert counters["source"] == "sim" and counters["status"] == "ok" and len(counters["channels"]) == 8

@@ -266,3 +266,60 @@ async def test_daemon_restart_is_survived(tmp_path: Path, broker: Any, manager: 
     finally:
         code = stop(proc)
     assert code == 0, (tmp_path / "source.err").read_text()
+
+
+def _kill_broker(broker: Any) -> None:
+    """The broker crashes: SIGKILL to its process group (no clean shutdown, connections just drop)."""
+    import os
+    import signal
+
+    os.killpg(broker.proc.pid, signal.SIGKILL)
+    broker.proc.wait(timeout=10)
+
+
+async def test_a_broker_crash_is_survived_and_the_series_is_whole_once_the_sink_is_back(
+        tmp_path: Path, broker: Any, manager: Any, sim_daemon: Any, standin: Any) -> None:
+    """The broker is killed mid-stream (no clean shutdown) and restarted: the source keeps reading
+    the daemon, buffers, drops nothing, reconnects and sends what waited. What the sink misses is
+    what RabbitMQ could not route: the points in flight at the crash and those published before the
+    sink (reconnecting on its own) had its queue again; from its first chunk after the restart on,
+    every sample the daemon streamed arrives, in order, with its value. Measured here: the hole
+    spans the outage plus the sink's reconnect delay (aio-pika's 5 s), nothing after it."""
+    recorder = StreamRecorder(sim_daemon.pub)
+    proc, status_path = start_source(tmp_path, broker.url, sim_daemon.pub)
+    sink = standin.RecordingSink(broker.url)
+    blade = f"{PREFIX}.testnode.blade.power"
+    try:
+        await wait_for(lambda: blade in manager.metadata, 60, "the declarations")
+        await sink.connect()
+        await sink.subscribe([blade])
+        await wait_for(lambda: sink.series(blade)[0].size > 1000, 20, "data before the crash")
+        t_kill = time.time_ns()
+        await asyncio.to_thread(_kill_broker, broker)
+        await wait_for(lambda: read_status(status_path).get("broker") == "down", 20, "the broker shown down")
+        before = read_status(status_path)
+        await wait_for(lambda: read_status(status_path).get("messages", 0) > before.get("messages", 0) + 50, 10,
+                       "the source to keep reading while the broker is down")
+        assert read_status(status_path)["points_waiting"] > 0
+        back = sink.series(blade)[0].size  # points received before the crash
+        await asyncio.to_thread(broker.start)  # the manager and the sink reconnect by themselves
+        await wait_for(lambda: read_status(status_path).get("broker") == "connected", 60, "the reconnect")
+        await wait_for(lambda: sink.series(blade)[0].size > back + 3000, 60, "3 s of data after the restart at the sink")
+        await wait_for(lambda: read_status(status_path).get("points_waiting", 1e9) < 5000, 20, "the backlog sent")
+        t, v = sink.series(blade)
+        status = read_status(status_path)
+    finally:
+        await sink.stop(silent=True)
+        code = stop(proc)
+        await recorder.close()
+    assert code == 0, (tmp_path / "source.err").read_text()
+    assert status["points_dropped"] == 0 and status["reconnects"] >= 1 and status["points_waiting"] < 5000
+    assert np.all(np.diff(t) > 0)
+    reference = recorder.samples["BLADE"]
+    got = dict(zip(t.tolist(), v.tolist()))
+    assert all(got[x] == reference[x] for x in got)
+    after = t[back:]  # the first chunk after the restart and everything since
+    expected_after = [x for x in reference if after[0] <= x <= after[-1]]
+    assert after.size > 1000 and all(x in got for x in expected_after), "a hole after the sink was back"
+    hole = [x for x in reference if t[0] <= x < after[0] and x not in got]
+    assert not hole or (t_kill - 1e9 <= hole[0] and hole[-1] < after[0])  # only the outage and the sink's return
