@@ -10,8 +10,14 @@ AMD's product documentation:
   memory buffers, so only the E5 names are matched);
 - Xeon Scalable 1st/2nd generation (Skylake-SP/Cascade Lake-SP, model 85): 2 IMCs × 3 channels =
   6 DDR4 channels; 3rd generation (Ice Lake-SP, models 106/108): 4 IMCs × 2 = 8 DDR4 channels;
-  4th generation (Sapphire Rapids, model 143): 8 DDR5 channels;
-- AMD EPYC 7xx1/7xx2/7xx3 (Naples, Rome, Milan): 8 DDR4 channels.
+  4th generation (Sapphire Rapids, model 143) and 5th (Emerald Rapids, model 207): 8 DDR5 channels;
+- Xeon 6 with P-cores (Granite Rapids, model 173): 12 DDR5 channels on the 6900P parts, 8 on the
+  6700P/6500P parts (the model number does not tell them apart, so the name is matched);
+- AMD EPYC 7xx1/7xx2/7xx3 (Naples, Rome, Milan): 8 DDR4 channels; EPYC 9xx4 (Genoa, family 25
+  model 17) and 9xx5 (Turin, family 26 model 2): 12 DDR5 channels; EPYC 8xx4 (Siena): 6 DDR5 channels.
+
+:func:`is_amd` tells AMD parts apart: they have no DRAM energy sensor (RAPL on AMD has package and core
+domains only), so the node's DRAM energy is modelled from the ``amd_umc`` counters there.
 
 Example:
     >>> cpu = cpu_from_cpuinfo("vendor_id : GenuineIntel\\ncpu family : 6\\nmodel : 63\\n"
@@ -56,13 +62,30 @@ _BY_NAME: tuple[tuple[re.Pattern[str], MemoryController], ...] = (
     (re.compile(r"\bE5-\d{4}\w*\s+v3\b"), MemoryController("Haswell-EP", 4, ("DDR4",))),
     (re.compile(r"\bE5-\d{4}\w*\s+v4\b"), MemoryController("Broadwell-EP", 4, ("DDR4",))),
     (re.compile(r"\bEPYC\s+7\d\d[123]\w*\b"), MemoryController("EPYC 7001-7003", 8, ("DDR4",))),
+    (re.compile(r"\bEPYC\s+9\d\d4\w*\b"), MemoryController("Genoa (EPYC 9004)", 12, ("DDR5",))),
+    (re.compile(r"\bEPYC\s+9\d\d5\w*\b"), MemoryController("Turin (EPYC 9005)", 12, ("DDR5",))),
+    (re.compile(r"\bEPYC\s+8\d\d4\w*\b"), MemoryController("Siena (EPYC 8004)", 6, ("DDR5",))),
+    (re.compile(r"\bXeon\(R\)\s+69\d\d[A-Z]*\b"), MemoryController("Granite Rapids-AP (Xeon 6900P)", 12, ("DDR5",))),
+    (re.compile(r"\bXeon\(R\)\s+6[5-7]\d\d[A-Z]*\b"), MemoryController("Granite Rapids-SP (Xeon 6700P/6500P)", 8,
+                                                                    ("DDR5",))),
 )
 _BY_MODEL: dict[tuple[int, int], MemoryController] = {
     (6, 85): MemoryController("Skylake-SP/Cascade Lake-SP", 6, ("DDR4",)),
     (6, 106): MemoryController("Ice Lake-SP", 8, ("DDR4",)),
     (6, 108): MemoryController("Ice Lake-SP", 8, ("DDR4",)),
     (6, 143): MemoryController("Sapphire Rapids", 8, ("DDR5",)),
+    (6, 207): MemoryController("Emerald Rapids", 8, ("DDR5",)),
+    (25, 17): MemoryController("Genoa (EPYC 9004)", 12, ("DDR5",)),
+    (26, 2): MemoryController("Turin (EPYC 9005)", 12, ("DDR5",)),
 }
+
+
+def is_amd(cpu: CpuModel | None) -> bool:
+    """An AMD (or Hygon) processor: ``AMD`` in its name, or family 23 or later (Zen's families; Intel's are 6
+    and 15)."""
+    if cpu is None:
+        return False
+    return "AMD" in cpu.name.upper() or (cpu.family or 0) >= 23
 
 
 def memory_controller(cpu: CpuModel | None) -> MemoryController | None:

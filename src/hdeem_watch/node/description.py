@@ -24,6 +24,7 @@ from hdeem_watch.node.bank_nodes import bank_node_rule
 from hdeem_watch.node.cpu_model import CpuModel, cpu_from_cpuinfo, cpu_from_dmidecode, memory_controller
 from hdeem_watch.node.cpu_topology import CpuTopology, read_cpu_topology
 from hdeem_watch.node.dmidecode import MemoryDevice, parse_dmidecode
+from hdeem_watch.node.dram_energy import DramEnergy, detect_dram_energy
 from hdeem_watch.node.edac import EdacDimm, read_edac
 from hdeem_watch.node.facts import Fact
 from hdeem_watch.node.locators import SlotGuess, parse_location
@@ -93,6 +94,7 @@ class NodeDescription:
         channel_rule: which rule placed the DIMMs in channels when a bank locator's ``NodeN`` had to
             be read (socket or memory controller), and what corroborates it; ``None`` otherwise.
         cpu: the CPU model (``/proc/cpuinfo`` or dmidecode type 4), ``None`` unknown.
+        dram_energy: the DRAM energy source (RAPL DRAM zones, or none and what models it instead).
     """
 
     sockets: Fact[int]
@@ -108,6 +110,7 @@ class NodeDescription:
     cpus_by_numa: dict[int, list[int]] = field(default_factory=dict)
     channel_rule: str | None = None
     cpu: CpuModel | None = None
+    dram_energy: DramEnergy | None = None
 
     def channel_letter(self, dimm: Dimm) -> str | None:
         """The node-wide channel letter of ``dimm`` (socket 0: A, B, ...; socket 1 continues)."""
@@ -325,4 +328,5 @@ def describe_node(sysfs_root: Path, dmidecode_text: str | None, dmidecode_note: 
         threads_per_core=cpu.threads_per_core, numa_nodes_per_socket=cpu.numa_nodes_per_socket,
         channels_per_socket=channels, dimms_per_channel=_dimms_per_channel(dimms), dimms=tuple(dimms),
         cpus_by_socket=cpu.cpus_by_socket, notes=tuple(notes), cpus_by_numa=cpu.cpus_by_numa,
-        channel_rule=rule.text if rule is not None and installed else None, cpu=cpu_model)
+        channel_rule=rule.text if rule is not None and installed else None, cpu=cpu_model,
+        dram_energy=detect_dram_energy(sysfs_root, cpu_model))

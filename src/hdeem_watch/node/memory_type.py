@@ -6,7 +6,9 @@ two Xeon E5-2695 v3 and Samsung M393A1G40DB0-CPB RDIMMs). Two other facts say DD
 - the module part number's family prefix: Samsung ``M3xxA``/``M4xxA`` (``M393A`` RDIMM, ``M386A``
   LRDIMM, ``M378A``/``M391A`` UDIMM, ``M471A``/``M474A`` SODIMM; ``…B`` is DDR3, ``M321R`` DDR5),
   SK hynix ``HMA`` (``HMT`` DDR3, ``HMC`` DDR5), Micron ``MTA<n>A…`` (``<n>ASF`` RDIMM, ``<n>ATF``
-  UDIMM, ``<n>ADF``; dmidecode often drops the ``MTA``; ``KSF``/``JSF`` are DDR3);
+  UDIMM, ``<n>ADF``; dmidecode often drops the ``MTA``; ``KSF``/``JSF`` are DDR3); DDR5 modules:
+  Samsung ``M3xxR``/``M4xxR`` (``M321R`` RDIMM), SK hynix ``HMC``, Micron ``MTC<n>F…``
+  (``MTC20F2085S1RC48BA1`` 32 GB 2Rx8 RDIMM);
 - the CPU generation: the memory controller of Xeon E5 v3/v4 and of Xeon Scalable up to Ice
   Lake-SP drives DDR4 only (:mod:`.cpu_model`).
 
@@ -28,6 +30,9 @@ _PART_FAMILIES: tuple[tuple[re.Pattern[str], str, str], ...] = (
     (re.compile(r"HMA"), "DDR4", "an SK hynix DDR4 module (HMA)"),
     (re.compile(r"(?:MTA)?\d{1,2}A[SDT]F"), "DDR4", "a Micron DDR4 module (MTA<n>A…)"),
     (re.compile(r"M[34]\d\dB\d|HMT|(?:MT)?\d{1,2}[KJ][SDT]F"), "DDR3", "a DDR3 module"),
+    (re.compile(r"M[34]\d\dR\d"), "DDR5", "a Samsung DDR5 module (M3xxR)"),
+    (re.compile(r"HMC"), "DDR5", "an SK hynix DDR5 module (HMC)"),
+    (re.compile(r"MTC\d{1,2}F"), "DDR5", "a Micron DDR5 module (MTC<n>F…)"),
 )
 #: dmidecode ``Type`` values that name no DDR generation.
 UNTOLD = {"other", "unknown", "dram", "sdram"}

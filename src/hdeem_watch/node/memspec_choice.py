@@ -46,7 +46,7 @@ class MemspecChoice:
     """The memspec chosen for the node's DIMMs.
 
     Attributes:
-        name: a preset name (``None``: nothing fits, e.g. not DDR4).
+        name: a preset name (``None``: nothing fits, e.g. DDR5, for which no preset exists).
         reason: why (one line).
         confidence: ``exact``, ``high``, ``medium``, ``low`` or ``none``.
         die_gbit: die density worked out for the DIMMs (``None`` unknown).
@@ -71,7 +71,8 @@ class MemspecChoice:
 
 
 def width_from_part_number(part: str, ranks: int | None) -> int | None:
-    """Device width from a DDR4 module part number's organisation code (Samsung, SK hynix, Micron).
+    """Device width from a module part number's organisation code (Samsung, SK hynix, Micron DDR4;
+    Micron DDR5 ``MTC<devices>F…``).
 
     Samsung ``M393A1G43...``: ``43`` x8, ``40`` x4; SK hynix ``HMA82GR7AFR8N``: ``R8`` x8, ``R4`` x4;
     Micron ``MTA18ASF...``: devices per module with the ranks (18 devices, 2 ranks → x8).
@@ -85,6 +86,9 @@ def width_from_part_number(part: str, ranks: int | None) -> int | None:
         devices = int(m.group(1))
         per_rank = devices / ranks
         return {18.0: 4, 9.0: 8, 8.0: 8, 16.0: 4, 4.0: 16}.get(per_rank)
+    if (m := re.match(r"MTC(\d+)F", text)) and ranks:   # DDR5: two 32-bit sub-channels (+ 4 or 8 ECC bits each)
+        per_rank = int(m.group(1)) / ranks
+        return {20.0: 4, 10.0: 8, 16.0: 4, 8.0: 8, 4.0: 16}.get(per_rank)
     return None
 
 
@@ -122,11 +126,14 @@ def choose_memspec(dimms: Sequence[Dimm], *, cpu: CpuModel | None = None) -> Mem
         return MemspecChoice(name, f"part number {part} is a known module ({info.die}){mixed}", "exact",
                              info.die_gbit, info.width, ranks, devices_per_rank(dimm, info.width))
     mem_type, inferred = infer_ddr(mem_type, part, cpu)
-    if mem_type is not None and mem_type.upper() != "DDR4":
-        return MemspecChoice(None, f"memory type {mem_type}: only DDR4 presets exist{mixed}", "none")
     width = width or (width_from_part_number(part, ranks) if part else None)
     density = die_gbit(dimm, width)
     rate = dimm.configured_mts or speed
+    if mem_type is not None and mem_type.upper() == "DDR5":
+        why = ddr5_reason(rate, density, width) + (f" ({inferred})" if inferred else "") + mixed
+        return MemspecChoice(None, why, "none", density, width, ranks, devices_per_rank(dimm, width))
+    if mem_type is not None and mem_type.upper() != "DDR4":
+        return MemspecChoice(None, f"memory type {mem_type}: only DDR4 presets exist{mixed}", "none")
 
     def score(name: str) -> tuple[int, int, int]:
         info = PRESET_INFO[name]
@@ -160,6 +167,20 @@ def choose_memspec(dimms: Sequence[Dimm], *, cpu: CpuModel | None = None) -> Mem
     if part:
         why += f"; part number {part} not in the known-module table"
     return MemspecChoice(best, why + mixed, confidence, density, width, ranks, devices_per_rank(dimm, width))
+
+
+#: The DDR5 memspec the repository ships: DRAMPower's own DDR5 test memspec (a worked example, not a
+#: datasheet of any module).
+DDR5_EXAMPLE = "examples/ddr5_drampower_test.json"
+
+
+def ddr5_reason(rate: int | None, density: int | None, width: int | None) -> str:
+    """Why no memspec is chosen for DDR5 DIMMs, and the way in (a DDR5 memspec file)."""
+    told = f"DDR5 {rate or '?'} MT/s, {density or '?'} Gb x{width or '?'} dies"
+    return (f"memory type DDR5 ({told}): there is no DDR5 preset: no public, complete IDD/IPP table of a "
+            f"DDR5 die exists to build one from, and no number is invented; give a DDR5 memspec file in "
+            f"DRAMPower's JSON with --memspec FILE or memspec = \"FILE\" in the [node] table "
+            f"({DDR5_EXAMPLE} is DRAMPower's DDR5 test memspec: a format example, not this DIMM's currents)")
 
 
 def for_dimm(spec: Any, ranks: int | None, devices_per_rank: int | None) -> Any:

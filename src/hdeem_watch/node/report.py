@@ -44,6 +44,7 @@ def node_report(node: NodeDescription, overrides: NodeOverrides | None = None) -
     out["cpus_by_socket"] = {str(s): cpus for s, cpus in sorted(node.cpus_by_socket.items())}
     out["dimms"] = [d.to_json(node.channel_letter(d)) for d in node.dimms]
     out["memspec"] = choice.to_json()
+    out["dram_energy"] = dram_energy_view(node, choice)
     out["sensors"] = sensors
     out["cpus_by_numa"] = {str(n): cpus for n, cpus in sorted(node.cpus_by_numa.items())}
     out["model"] = model_view(node)
@@ -62,3 +63,21 @@ def model_view(node: NodeDescription) -> dict[str, Any]:
             "channels_per_domain": topo.channels_per_domain, "dimms_per_channel": topo.dimms_per_channel,
             "dimms": topo.dimms, "ranks_per_dimm": topo.ranks_per_dimm,
             "cpu_numbering": "sysfs" if topo.cpu_domains else "default (CPU i on socket (i // cores) % sockets)"}
+
+
+def dram_energy_view(node: NodeDescription, choice: MemspecChoice) -> dict[str, Any] | None:
+    """``dram_energy`` in ``--json``: the sensor (RAPL zones) or, without one, what models the DRAM energy
+    and with which currents (``currents``: ``datasheet`` of a preset, ``memspec file`` as configured, or
+    ``none`` while no memspec is known)."""
+    if node.dram_energy is None:
+        return None
+    out = node.dram_energy.to_json()
+    if node.dram_energy.sensor is None and node.dram_energy.model is not None:
+        if choice.confidence == "configured":
+            out["currents"] = (f"memspec file {choice.name}: its currents (datasheet values, or a calibrated "
+                               f"memspec imported from a node that has DRAM sensors)")
+        elif choice.name is not None:
+            out["currents"] = f"datasheet: preset {choice.name}"
+        else:
+            out["currents"] = "none: no memspec for these DIMMs yet (see memspec.reason); nothing is modelled"
+    return out

@@ -6,6 +6,8 @@
   letters: ``DDR_AB`` = socket 0 channels A and B, ``DDR_CD`` = channels C and D, ... (on the
   2 × 4-channel Haswell-EP blades HDEEM was built for: DDR_AB, DDR_CD, DDR_EF, DDR_GH).
 
+An AMD node has neither (no DRAM energy sensor: :mod:`.dram_energy`), so its map is empty.
+
 Overridable: the ``sensors`` key of the ``[node]`` table maps a sensor to DIMM locators.
 
 Example:
@@ -23,11 +25,15 @@ from __future__ import annotations
 from collections import defaultdict
 
 from hdeem_watch.channels import dimm_pair_channel
+from hdeem_watch.node.cpu_model import is_amd
 from hdeem_watch.node.description import NodeDescription
 
 
 def sensor_map(node: NodeDescription) -> dict[str, list[str]]:
-    """Sensor name → locators of the DIMMs it measures (RAPL ``DRAM<N>`` first, then HDEEM pairs)."""
+    """Sensor name → locators of the DIMMs it measures (RAPL ``DRAM<N>`` first, then HDEEM pairs; none on
+    AMD nodes, which have no DRAM sensor)."""
+    if is_amd(node.cpu):
+        return {}
     rapl: dict[str, list[str]] = defaultdict(list)
     pairs: dict[str, list[str]] = defaultdict(list)
     per_socket = node.channels_per_socket.value

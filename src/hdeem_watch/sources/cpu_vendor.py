@@ -79,6 +79,7 @@ def no_dram_reason(info: CpuInfo | None) -> str:
     if info.vendor == "GenuineIntel":
         if info.server:
             return (f"this Intel server CPU ({name}) normally has a DRAM domain: check that the BIOS enables "
-                    "DRAM RAPL and that intel_rapl_msr is loaded; else " + ALTERNATIVES)
+                    "DRAM RAPL and that intel_rapl_msr (intel_rapl_tpmi on Granite Rapids and later) is loaded; else "
+                    + ALTERNATIVES)
         return f"this Intel client CPU ({name}) exposes no DRAM energy (client parts have no DRAM domain); {ALTERNATIVES}"
     return f"this CPU ({info.vendor or 'unknown vendor'}, {name}) exposes no DRAM energy through RAPL; {ALTERNATIVES}"

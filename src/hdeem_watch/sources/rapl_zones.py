@@ -8,6 +8,13 @@ multi-socket machine ``intel-rapl:0`` can be socket 1. The socket is in the pare
 intel_rapl_common.c, ``rapl_add_package``). ``/sys/class/powercap`` holds a symlink for every zone
 (flat); the real directories nest subzones inside their package zone.
 
+Zones are found by their ``name`` (``dram``), whatever driver registered them: the MSR driver
+(``intel-rapl:``, Haswell-EP to Emerald Rapids), the MMIO one (``intel-rapl-mmio:``) and Granite
+Rapids' TPMI driver (drivers/powercap/intel_rapl_tpmi.c maps ``TPMI_RAPL_DOMAIN_MEMORY`` to
+``RAPL_DOMAIN_DRAM``, named ``dram``). Mainline registers the TPMI zones under the ``intel-rapl``
+control type (commit 9eef7f9da928); Intel's TPMI driver (linux-intel-lts) under ``intel-rapl-tpmi``,
+so ``intel-rapl-tpmi:<n>:<m>`` zones are read too.
+
 Example:
     >>> channel_name(3, None), channel_name(1, 0)
     ('DRAM3', 'DRAM1_DIE0')
@@ -34,7 +41,7 @@ PERMISSION_FIX = ("energy_uj is root-only since the CVE-2020-8694 fix (Linux 5.1
                   "readable by the group hdeem-watch), run the daemon as the privileged collector (root), or "
                   "use rapl_method = 'perf' (the power PMU; needs perf_event_paranoid <= 0 or CAP_PERFMON)")
 
-_ZONE_ID = re.compile(r"^intel-rapl(?:-mmio)?:[0-9a-f]+(?::[0-9a-f]+)?$")
+_ZONE_ID = re.compile(r"^intel-rapl(?:-mmio|-tpmi)?:[0-9a-f]+(?::[0-9a-f]+)?$")
 _PACKAGE = re.compile(r"^package-(\d+)(?:-die-(\d+))?$")
 
 
