@@ -4,7 +4,9 @@ a temporary directory, so the trees are not committed).
 Each node: a sysfs subset laid out as Linux prints it (``devices/system/cpu``, ``devices/system/node``,
 ``devices/system/edac/mc``) and a ``dmidecode -t 17`` print-out in the spelling of the dmidecode
 version such a node ran. Sizes, speeds, part numbers and core counts are those of real products
-(Xeon E5-2680 v3, Gold 6148, Gold 6330, Silver 4116, EPYC 7302; the modules named in each file).
+(Xeon E5-2680 v3, Gold 6148, Gold 6330, Silver 4116, EPYC 7302, Platinum 8480+, EPYC 9654; the modules
+named in each file). The two DDR5 nodes (``sapphire-rapids-2s``, ``genoa-2s``) also carry the processor
+records (DMI type 4) and a ``class/powercap`` tree: RAPL DRAM zones on the Intel node, none on the AMD one.
 
 Two nodes take their ``dmidecode`` print-out from public captures kept in ``captures/`` (excerpts with
 their source in the header): ``haswell-ep-x10drl-cod`` (Supermicro X10DRL-i, 2 x Xeon E5-2695 v3
@@ -112,8 +114,11 @@ def edac_ranks(root: Path, mcs: int, channels: int, chip_selects: list[int], siz
 
 
 def dmi_record(handle: int, version: str, size_gb: int | None, locator: str, bank: str, *, speed: int, conf: int,
-               ranks: int, maker: str, part: str, total_width: int = 72) -> str:
-    """One DMI type 17 record as dmidecode ``version`` ("2.12", "3.2", "3.3") prints it."""
+               ranks: int, maker: str, part: str, total_width: int = 72, mem_type: str = "DDR4",
+               volts: str = "1.2") -> str:
+    """One DMI type 17 record as dmidecode ``version`` ("2.12", "3.2", "3.3", "3.4") prints it (DDR5
+    RDIMMs: ``Type: DDR5``, ``Total Width: 80 bits`` = two 32-bit sub-channels with 8 ECC bits each,
+    1.1 V)."""
     old = version.startswith("2.")
     unit = "MHz" if old else "MT/s"
     conf_key = "Configured Clock Speed" if version in ("2.12", "3.0", "3.1") else "Configured Memory Speed"
@@ -129,13 +134,38 @@ def dmi_record(handle: int, version: str, size_gb: int | None, locator: str, ban
         size = f"{size_gb * 1024} MB" if old else f"{size_gb} GB"
         lines += [f"\tTotal Width: {total_width} bits", "\tData Width: 64 bits", f"\tSize: {size}",
                   "\tForm Factor: DIMM", "\tSet: None", f"\tLocator: {locator}", f"\tBank Locator: {bank}",
-                  "\tType: DDR4", "\tType Detail: Synchronous Registered (Buffered)", f"\tSpeed: {speed} {unit}",
+                  f"\tType: {mem_type}", "\tType Detail: Synchronous Registered (Buffered)", f"\tSpeed: {speed} {unit}",
                   f"\tManufacturer: {maker}", f"\tSerial Number: {0x1A2B3C00 + handle:08X}",
                   f"\tAsset Tag: {locator}_AssetTag", f"\tPart Number: {part:<20}", f"\tRank: {ranks}",
                   f"\t{conf_key}: {conf} {unit}"]
         if not old:
-            lines += ["\tMinimum Voltage: 1.2 V", "\tMaximum Voltage: 1.2 V", "\tConfigured Voltage: 1.2 V"]
+            lines += [f"\tMinimum Voltage: {volts} V", f"\tMaximum Voltage: {volts} V", f"\tConfigured Voltage: {volts} V"]
     return "\n".join(lines) + "\n"
+
+
+def processor_record(handle: int, socket: int, version: str, maker: str, signature: str, cores: int) -> str:
+    """One populated DMI type 4 (Processor Information) record as dmidecode 3.x prints it."""
+    lines = [f"Handle 0x{handle:04X}, DMI type 4, 48 bytes", "Processor Information",
+             f"\tSocket Designation: CPU{socket}", "\tType: Central Processor", f"\tManufacturer: {maker}",
+             f"\tSignature: {signature}", f"\tVersion: {version}", "\tStatus: Populated, Enabled",
+             f"\tCore Count: {cores}", f"\tCore Enabled: {cores}", f"\tThread Count: {2 * cores}"]
+    return "\n".join(lines) + "\n"
+
+
+def powercap(root: Path, packages: list[tuple[str, list[str]]]) -> None:
+    """``class/powercap`` as intel_rapl_msr registers it (see tests/sources/powercap_trees.py): package zones
+    ``intel-rapl:<i>`` in registration order with their subzones, real directories under
+    ``devices/virtual/powercap/intel-rapl`` and a symlink per zone in ``class/powercap``."""
+    control = root / "devices" / "virtual" / "powercap" / "intel-rapl"
+    links = root / "class" / "powercap"
+    links.mkdir(parents=True)
+    for i, (name, subzones) in enumerate(packages):
+        zones = [(f"intel-rapl:{i:x}", name)] + [(f"intel-rapl:{i:x}/intel-rapl:{i:x}:{j:x}", sub)
+                                                 for j, sub in enumerate(subzones)]
+        for rel, zone_name in zones:
+            for key, value in (("name", zone_name), ("energy_uj", 1000), ("max_energy_range_uj", 262143328850)):
+                write(control / rel / key, str(value))
+            (links / rel.split("/")[-1]).symlink_to(f"../../devices/virtual/powercap/intel-rapl/{rel}")
 
 
 def dmidecode_file(path: Path, version: str, records: list[str]) -> None:
@@ -264,6 +294,49 @@ def epyc_ranks(dest: Path) -> None:
     edac_ranks(root / "sys", 2, 8, [0, 1], 16384, "F17h_M30h", "x4")
 
 
+def sapphire_rapids(dest: Path) -> None:
+    """2 x Xeon Platinum 8480+ (56 cores, HT; family 6 model 143 = INTEL_SAPPHIRERAPIDS_X), 8 DDR5 channels per
+    socket (4 controllers x 2), 2 slots per channel, 1 populated: 16 x Micron MTC20F2085S1RC48BA1 (32 GB 2Rx8
+    DDR5-4800 RDIMM, 16 Gb dies, 20 devices = 2 ranks x 2 sub-channels x (4 + 1 ECC) x8). Slot names as
+    ASUS/Gigabyte AMI BIOSes print them (``CPU1_DIMM_A1``, bank ``NODE 1``); RAPL: one ``dram`` zone per
+    package (``rapl_defaults_spr_server`` of intel_rapl_common.c)."""
+    root = dest / "sapphire-rapids-2s"
+    cpus(root / "sys", 2, 56, 2, die_id=True)
+    powercap(root / "sys", [("package-0", ["dram"]), ("package-1", ["dram"])])
+    recs = [processor_record(0x20 + s, s, "Intel(R) Xeon(R) Platinum 8480+", "Intel(R) Corporation",
+                             "Type 0, Family 6, Model 143, Stepping 8", 56) for s in range(2)]
+    h = 0x80
+    for s in range(2):
+        for letter in "ABCDEFGH":
+            for slot in (1, 2):
+                recs.append(dmi_record(h, "3.4", 32 if slot == 1 else None, f"CPU{s + 1}_DIMM_{letter}{slot}",
+                                       f"NODE {s + 1}", speed=4800, conf=4800, ranks=2, maker="Micron Technology",
+                                       part="MTC20F2085S1RC48BA1", total_width=80, mem_type="DDR5", volts="1.1"))
+                h += 1
+    dmidecode_file(root / "dmidecode.txt", "3.4", recs)
+
+
+def genoa(dest: Path) -> None:
+    """2 x AMD EPYC 9654 (96 cores, SMT; family 25 model 17), NPS1, 12 DDR5 channels per socket, 1 DPC, no
+    EDAC driver loaded: 24 x Micron MTC40F2046S1RC48BA1 (64 GB 2Rx4 DDR5-4800 RDIMM, 16 Gb dies). Slot names
+    as AMD reference-BIOS boards print them (``DIMM 0`` in bank ``P0 CHANNEL A`` .. ``L``, as the Rome
+    fixture); RAPL: package zones with a ``core`` subzone and no ``dram`` zone (intel_rapl_msr on AMD:
+    package and core energy only)."""
+    root = dest / "genoa-2s"
+    cpus(root / "sys", 2, 96, 2, die_id=True)
+    powercap(root / "sys", [("package-0", ["core"]), ("package-1", ["core"])])
+    recs = [processor_record(0x30 + s, s, "AMD EPYC 9654 96-Core Processor", "Advanced Micro Devices, Inc.",
+                             "Family 25, Model 17, Stepping 1", 96) for s in range(2)]
+    h = 0x90
+    for s in range(2):
+        for letter in "ABCDEFGHIJKL":
+            recs.append(dmi_record(h, "3.4", 64, "DIMM 0", f"P{s} CHANNEL {letter}", speed=4800, conf=4800,
+                                   ranks=2, maker="Micron Technology", part="MTC40F2046S1RC48BA1", total_width=80,
+                                   mem_type="DDR5", volts="1.1"))
+            h += 1
+    dmidecode_file(root / "dmidecode.txt", "3.4", recs)
+
+
 def build(dest: Path) -> Path:
     """Write every node fixture (``dest/<node>/sys`` and ``dest/<node>/dmidecode.txt``); returns ``dest``."""
     haswell(dest)
@@ -278,6 +351,8 @@ def build(dest: Path) -> Path:
     haswell_cod(dest)
     skylake_x11ddw(dest)
     epyc_ranks(dest)
+    sapphire_rapids(dest)
+    genoa(dest)
     return dest
 
 

@@ -60,7 +60,9 @@ def test_haswell_ep_type_other_gets_the_ddr4_memspec_of_its_part(node_trees: Pat
     assert "E5-2695 v3 @ 2.30GHz (Haswell-EP) drives DDR4 only" in memspec["reason"]
     assert (out["channels_per_socket"], out["dimms_per_channel"], out["numa_nodes_per_socket"]) == (4, 1, 2)
     assert out["channel_rule"].startswith("bank locator NodeN repeats the socket")
-    assert out["cpu"] == {"name": "Intel(R) Xeon(R) CPU E5-2695 v3 @ 2.30GHz", "source": "dmidecode -t 4"}
+    assert out["cpu"] == {"name": "Intel(R) Xeon(R) CPU E5-2695 v3 @ 2.30GHz", "source": "dmidecode -t 4",
+                          "memory_controller": {"generation": "Haswell-EP", "channels_per_socket": 4,
+                                                "memory_types": ["DDR4"]}}
     # the letters run on across sockets on this board (P2-DIMME1 is socket 1's first channel)
     first = next(d for d in out["dimms"] if d["locator"] == "P2-DIMME1")
     assert (first["socket"], first["channel"], first["channel_letter"]) == (1, 0, "E")

@@ -80,10 +80,16 @@ def render(report: dict[str, Any]) -> str:
     memspec = report["memspec"]
     lines.append(f"memspec: {memspec['name'] or '(none)'}  [{memspec['confidence']}]  {memspec['reason']}")
     lines.append("sensors:")
+    energy = report.get("dram_energy") or {}
     if not report["sensors"]:
-        lines.append("  (none: no DIMM with a known socket)")
+        lines.append("  (none: no DRAM sensor)" if energy.get("model") else "  (none: no DIMM with a known socket)")
     for sensor, locators in report["sensors"].items():
         lines.append(f"  {sensor:<8} {', '.join(locators)}")
+    if energy:
+        source = energy["sensor"] or (f"none; modelled: {energy['model']}" if energy.get("model") else "none")
+        lines.append(f"DRAM energy: {source}  ({energy['how']})")
+        if energy.get("currents"):
+            lines.append(f"  currents: {energy['currents']}")
     if report["notes"]:
         lines.append("not detected:")
         lines.extend(f"  - {note}" for note in report["notes"])

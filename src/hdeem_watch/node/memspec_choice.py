@@ -179,7 +179,7 @@ def ddr5_reason(rate: int | None, density: int | None, width: int | None) -> str
     told = f"DDR5 {rate or '?'} MT/s, {density or '?'} Gb x{width or '?'} dies"
     return (f"memory type DDR5 ({told}): there is no DDR5 preset: no public, complete IDD/IPP table of a "
             f"DDR5 die exists to build one from, and no number is invented; give a DDR5 memspec file in "
-            f"DRAMPower's JSON with --memspec FILE or memspec = \"FILE\" in the [node] table "
+            f"DRAMPower's JSON with --memspec FILE (daemon, model commands) or memspec = \"FILE\" in the [node] table "
             f"({DDR5_EXAMPLE} is DRAMPower's DDR5 test memspec: a format example, not this DIMM's currents)")
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 from typing import Any
 
 from hdeem_watch.errors import InputError
+from hdeem_watch.node.cpu_model import memory_controller
 from hdeem_watch.node.description import NodeDescription, describe_node
 from hdeem_watch.node.memspec_choice import MemspecChoice, choose_memspec
 from hdeem_watch.node.overrides import NodeOverrides
@@ -40,7 +41,12 @@ def node_report(node: NodeDescription, overrides: NodeOverrides | None = None) -
     out: dict[str, Any] = {name: fact.value for name, fact in facts.items()}
     out["facts"] = {name: fact.to_json() for name, fact in facts.items()}
     out["channel_rule"] = node.channel_rule
-    out["cpu"] = None if node.cpu is None else {"name": node.cpu.name, "source": node.cpu.source}
+    controller = memory_controller(node.cpu)
+    out["cpu"] = None if node.cpu is None else {
+        "name": node.cpu.name, "source": node.cpu.source,
+        "memory_controller": None if controller is None else {
+            "generation": controller.generation, "channels_per_socket": controller.channels_per_socket,
+            "memory_types": list(controller.memory_types)}}
     out["cpus_by_socket"] = {str(s): cpus for s, cpus in sorted(node.cpus_by_socket.items())}
     out["dimms"] = [d.to_json(node.channel_letter(d)) for d in node.dimms]
     out["memspec"] = choice.to_json()
