@@ -83,15 +83,49 @@ def ice_lake_sp() -> list[Pmu]:
     return [*_host_common("0-63", "0,32"), *boxes, *free]
 
 
+#: ``spr_uncore_raw_formats_attr`` (uncore_snbep.c): ``umask_ext4`` puts the umask in config:8-15,32-55
+SPR_FORMAT = {"edge": "config:18", "event": "config:0-7", "inv": "config:23", "thresh": "config:24-31",
+              "umask": "config:8-15,32-55"}
+#: ``spr_uncore_imc_events`` (Linux commit of lore.kernel.org 20230419214241.2310385-1-eranian@google.com):
+#: ``clockticks`` is event 0x01 umask 0x00, which perfmon names UNC_M_HCLOCKTICKS (not the DCLK 0x01/0x01)
+SPR_IMC_EVENTS = {"clockticks": "event=0x01,umask=0x00", "cas_count_read": "event=0x05,umask=0xcf",
+                  "cas_count_write": "event=0x05,umask=0xf0"}
+
+
 def sapphire_rapids() -> list[Pmu]:
-    """Two Xeon Platinum 8480+ (56 cores, HT off: CPUs 0-55, 56-111), only the free-running IMC PMUs:
-    ``spr_uncore_imc_free_running`` (one per controller, 4 per socket) with
-    ``spr_uncore_imc_freerunning_events``: ``dclk`` and the read/write pending-queue cycles
-    ``rpq_cycles``, ``wpq_cycles`` (no bandwidth events)."""
+    """Two Xeon Platinum 8480+ (56 cores, HT off: CPUs 0-55, 56-111). Programmable IMC PMUs
+    ``uncore_imc_0..7`` (``spr_uncore_imc``, one box per channel: 4 controllers x 2 channels on the
+    XCC die, numbered from the uncore discovery table), format ``spr_uncore_raw_format_group``, events
+    :data:`SPR_IMC_EVENTS`; and the free-running ones ``spr_uncore_imc_free_running`` (one per
+    controller, 4 per socket) with ``spr_uncore_imc_freerunning_events``: ``dclk`` and the read/write
+    pending-queue cycles ``rpq_cycles``, ``wpq_cycles`` (no bandwidth events)."""
+    boxes = [Pmu(f"uncore_imc_{box}", 50 + box, "0,56", SPR_FORMAT, SPR_IMC_EVENTS,
+                 {"cas_count_read": CAS_SCALE, "cas_count_write": CAS_SCALE}) for box in range(8)]
     events = {"dclk": "event=0xff,umask=0x10", "rpq_cycles": "event=0xff,umask=0x20",
               "wpq_cycles": "event=0xff,umask=0x21"}
     free = [Pmu(f"uncore_imc_free_running_{i}", 60 + i, "0,56", FREE_RUNNING_FORMAT, events) for i in range(4)]
-    return [*_host_common("0-111", "0,56"), *free]
+    return [*_host_common("0-111", "0,56"), *boxes, *free]
+
+
+#: ``amd_uncore_umc_format_attr`` (arch/x86/events/amd/uncore.c): ``event8`` and ``rdwrmask``
+UMC_FORMAT = {"event": "config:0-7", "rdwrmask": "config:8-9"}
+
+
+def genoa() -> list[Pmu]:
+    """Two AMD EPYC 9654 (96 cores, SMT off: CPUs 0-95, 96-191), NPS1. ``amd_umc_0..23``: the UMC PMUs
+    ``amd_uncore_umc_ctx_init`` registers, one per active UMC (12 per socket), numbered across the two
+    groups (sockets); each PMU's ``cpumask`` is the one CPU counting its group (0 or 96); format
+    :data:`UMC_FORMAT`, no ``events/``. Besides: ``amd_df`` and ``amd_l3`` (the other amd_uncore PMUs,
+    format ``event`` config:0-7,32-35 and ``umask`` config:8-15 on family 19h), the core ``cpu`` PMU and
+    ``power`` (package energy only)."""
+    umcs = [Pmu(f"amd_umc_{i}", 30 + i, "0" if i < 12 else "96", UMC_FORMAT) for i in range(24)]
+    df = {"event": "config:0-7,32-35", "umask": "config:8-15"}
+    return [*_plain({"software": 1, "tracepoint": 2, "breakpoint": 5}),
+            Pmu("cpu", 4, "0-191", {"edge": "config:18", "event": "config:0-7,32-35", "inv": "config:23",
+                                     "cmask": "config:24-31", "umask": "config:8-15"}),
+            Pmu("msr", 6, None, {"event": "config:0-63"}),
+            Pmu("power", 7, "0,96", {"event": "config:0-7"}, {"energy-pkg": "event=0x02"}),
+            Pmu("amd_df", 8, "0,96", df), Pmu("amd_l3", 9, "0,96", df), *umcs]
 
 
 def vm() -> list[Pmu]:
@@ -102,7 +136,7 @@ def vm() -> list[Pmu]:
 
 
 TREES = {"sysfs_haswell_ep": haswell_ep, "sysfs_ice_lake_sp": ice_lake_sp, "sysfs_sapphire_rapids": sapphire_rapids,
-         "sysfs_vm": vm}
+         "sysfs_genoa": genoa, "sysfs_vm": vm}
 
 
 def _write(path: Path, text: str) -> None:

@@ -48,13 +48,57 @@ def test_ice_lake_sp_text(pmu_trees, capsys):
 
 
 def test_this_vm_situation(pmu_trees, capsys):
-    """The VM fixture: exit 0, no IMC PMU, the PMUs it does have, and no event table for the AMD CPU."""
+    """The VM fixture: exit 0, the Zen 5 table of its host CPU (family 26 model 2, Turin), but no amd_umc PMU:
+    a guest gets none; the PMUs it does have are listed."""
     code, out, _ = run(capsys, *host(pmu_trees, "sysfs_vm", "vm_amd_epyc"), "--json")
     data = json.loads(out)
-    assert code == 0 and not data["usable"]
+    assert code == 0 and not data["usable"] and data["generation"] == "zen5"
     assert data["other_pmus"] == ["breakpoint", "msr", "software", "tracepoint", "uprobe"]
-    assert any("no uncore_imc_* PMU" in r and "Virtual machines" in r for r in data["reasons"])
-    assert any("AuthenticAMD-26-2" in r for r in data["reasons"])
+    assert any("no amd_umc_* PMU" in r and "Virtual machines" in r for r in data["reasons"])
+    assert len(data["reasons"]) == 1 and data["channels"] == []
+
+
+def test_sapphire_rapids_json(pmu_trees, capsys):
+    """SPR: 16 channels (2 sockets x uncore_imc_0..7), CAS per pseudo-channel, the underfill precharges, and
+    perf's names: cas_count_read/write are ours; its clockticks (0x01/0x00) is not our dclk (0x01/0x01)."""
+    code, out, _ = run(capsys, *host(pmu_trees, "sysfs_sapphire_rapids", "sapphire_rapids"), "--json")
+    data = json.loads(out)
+    assert code == 0 and data["usable"] and data["generation"] == "sapphire-rapids"
+    assert len(data["channels"]) == 16 and {c["cpu"] for c in data["channels"]} == {0, 56}
+    events = {e["name"]: e for e in data["events"]}
+    for name in ("UNC_M_CAS_COUNT.PCH0", "UNC_M_CAS_COUNT.PCH1", "UNC_M_PRE_COUNT.UFILL", "UNC_M_PRE_COUNT.RD",
+                 "UNC_M_PRE_COUNT.WR", "UNC_M_PRE_COUNT.PGT", "UNC_M_CLOCKTICKS"):
+        assert name in events, name
+    assert events["UNC_M_PRE_COUNT.UFILL"]["config"] == "0x4403"
+    assert events["UNC_M_CAS_COUNT.RD"]["perf_alias"] == "cas_count_read"
+    assert events["UNC_M_CAS_COUNT.WR"]["perf_alias"] == "cas_count_write"
+    assert events["UNC_M_CLOCKTICKS"]["perf_alias"] is None
+    assert any("clockticks" in n and "UNC_M_HCLOCKTICKS" in n for n in data["notes"])
+
+
+def test_genoa_json(pmu_trees, capsys):
+    """Genoa: 24 channels, one amd_umc PMU each, socket from the counting CPU; the Zen 4 umc events encoded in
+    event and rdwrmask; the DRAM energy is modelled (no sensor), and the notes say so."""
+    code, out, _ = run(capsys, *host(pmu_trees, "sysfs_genoa", "genoa"), "--json")
+    data = json.loads(out)
+    assert code == 0 and data["usable"] and data["generation"] == "zen4"
+    channels = data["channels"]
+    assert len(channels) == 24 and channels[0]["name"] == "S0.umc0" and channels[12]["name"] == "S1.umc12"
+    assert {c["cpu"] for c in channels if c["socket"] == 1} == {96}
+    events = {e["name"]: e for e in data["events"]}
+    assert set(events) == {"umc_mem_clk", "umc_cas_cmd.rd", "umc_cas_cmd.wr", "umc_act_cmd.all", "umc_pchg_cmd.all"}
+    assert events["umc_cas_cmd.wr"]["config"] == "0x20a" and events["umc_cas_cmd.rd"]["config"] == "0x10a"
+    assert events["umc_act_cmd.all"]["config"] == "0x5" and events["umc_pchg_cmd.all"]["config"] == "0x6"
+    assert data["event_sources"] == ["tools/perf/pmu-events/arch/x86/amdzen4/memory-controller.json"]
+    assert any("no DRAM energy sensor" in n and "datasheet" in n and "calibrated memspec" in n for n in data["notes"])
+    assert "amd_df" in data["other_pmus"] and not any(p.startswith("amd_umc") for p in data["other_pmus"])
+
+
+def test_genoa_text(pmu_trees, capsys):
+    """The text report lists the UMC events with their rdwrmask and the perf JSON they come from."""
+    code, out, _ = run(capsys, *host(pmu_trees, "sysfs_genoa", "genoa"))
+    assert code == 0 and "channels: 24" in out and "status: ready to count" in out
+    assert "umc_cas_cmd.rd" in out and "rdwrmask 0x01" in out and "amdzen4/memory-controller.json" in out
 
 
 def test_permissions_explained(pmu_trees, capsys):

@@ -11,12 +11,21 @@ from hdeem_watch.counters.event_tables import PERFMON_COMMIT, ROLES, TABLES
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures"
 PERFMON = FIXTURES / "perfmon"
+PERF_JSON = FIXTURES / "perf"
+INTEL = sorted(g for g, t in TABLES.items() if t.pmu_prefix == "uncore_imc")
+AMD = sorted(g for g, t in TABLES.items() if t.pmu_prefix == "amd_umc")
 
 
 def published(sources: tuple[str, ...]) -> dict[str, tuple[int, int, bool]]:
-    """Event name → (code, umask, experimental) from the perfmon excerpts a table cites."""
+    """Event name → (code, umask, experimental) from the perfmon excerpts a table cites (AMD: the perf
+    tool's memory-controller.json, umask = RdWrMask)."""
     events: dict[str, tuple[int, int, bool]] = {}
     for source in sources:
+        if source.startswith("tools/perf/"):
+            data = json.loads((PERF_JSON / Path(source).parent.name / Path(source).name).read_text())
+            for event in data:
+                events[event["EventName"]] = (int(event["EventCode"], 16), int(event.get("RdWrMask", "0"), 16), False)
+            continue
         path, version = source.split(" ")
         data = json.loads((PERFMON / Path(path).name).read_text())
         assert data["source"].endswith(path) and PERFMON_COMMIT in data["source"]
@@ -38,7 +47,7 @@ def test_every_entry_is_published_exactly(generation):
         assert (event.event, event.umask, event.experimental) == source[event.name], event.name
 
 
-@pytest.mark.parametrize("generation", sorted(TABLES))
+@pytest.mark.parametrize("generation", INTEL)
 def test_roles_are_known_and_core_roles_present(generation):
     """Every role is a documented one; CAS, ACT, PRE, power states and DRAM clock exist on every generation,
     refresh on all but Cascade Lake-SP (its files publish no DRAM_REFRESH event)."""
@@ -48,6 +57,36 @@ def test_roles_are_known_and_core_roles_present(generation):
                  "sref_cycles"):
         assert table.events_of(role), f"{generation} lacks {role}"
     assert bool(table.events_of("refresh")) is (generation != "cascade-lake-sp")
+
+
+@pytest.mark.parametrize("generation", AMD)
+def test_amd_umc_roles(generation):
+    """Zen 4/5: MEMCLK, CAS by read/write (RdWrMask 1/2), all ACTs and all PRECHARGEs, placed in rdwrmask; no
+    refresh or power-state event is published, and the gaps say so."""
+    table = TABLES[generation]
+    assert set(table.roles) == {"dclk", "cas_rd", "cas_wr", "act", "pre_all"}
+    assert [(e.name, e.event, e.umask, e.mask_field) for e in table.events()] == [
+        ("umc_mem_clk", 0x00, 0, "rdwrmask"), ("umc_cas_cmd.rd", 0x0A, 1, "rdwrmask"),
+        ("umc_cas_cmd.wr", 0x0A, 2, "rdwrmask"), ("umc_act_cmd.all", 0x05, 0, "rdwrmask"),
+        ("umc_pchg_cmd.all", 0x06, 0, "rdwrmask")]
+    assert table.memory == "DDR5" and not table.refresh_complete
+    assert any(g.startswith("refresh") for g in table.gaps) and any("DRAM energy" in n for n in table.notes)
+
+
+def test_sapphire_rapids_pseudo_channels_and_underfill_precharges():
+    """SPR: CAS per pseudo-channel (PCH0 0x40, PCH1 0x80) and the underfill precharges 0x03/0x44, so that the
+    counted precharges are PRE_COUNT.ALL = RD|WR|UFILL|PGT; dclk is 0x01/0x01, not perf's clockticks (0x01/0x00)."""
+    table = TABLES["sapphire-rapids"]
+    assert [(e.name, e.umask) for e in table.events_of("cas_pch0") + table.events_of("cas_pch1")] == [
+        ("UNC_M_CAS_COUNT.PCH0", 0x40), ("UNC_M_CAS_COUNT.PCH1", 0x80)]
+    precharges = [e for role in ("pre_page_miss", "pre_page_close", "pre_underfill") for e in table.events_of(role)]
+    assert {e.event for e in precharges} == {0x03}
+    umasks = [e.umask for e in precharges]
+    assert sum(umasks) == 0xFF and all(a & b == 0 for i, a in enumerate(umasks) for b in umasks[i + 1:])
+    assert published(table.sources)["UNC_M_PRE_COUNT.ALL"] == (0x03, 0xFF, False)
+    ((dclk),) = table.events_of("dclk")
+    assert (dclk.name, dclk.event, dclk.umask) == ("UNC_M_CLOCKTICKS", 0x01, 0x01)
+    assert published(table.sources)["UNC_M_HCLOCKTICKS"] == (0x01, 0x00, False)
 
 
 def test_autoprecharge_and_cke_gaps_follow_the_files():

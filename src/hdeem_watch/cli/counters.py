@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from hdeem_watch.counters.cpu_identity import DEFAULT_CPUINFO
-from hdeem_watch.counters.event_tables import PERFMON_COMMIT
+from hdeem_watch.counters.event_tables import PERF_JSON_COMMIT, PERFMON_COMMIT
 from hdeem_watch.counters.host_plan import HostPlan, plan_host
 from hdeem_watch.counters.permissions import probe_access
 from hdeem_watch.counters.pmu_discovery import DEFAULT_SYSFS_ROOT
@@ -50,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     access = probe_access(proc / "sys/kernel/perf_event_paranoid", proc / "self/status")
     plan = plan_host(sysfs_root=args.sysfs_root, cpuinfo_path=args.cpuinfo, access=access, ranks=args.ranks)
     if args.json:
-        print(json.dumps({**plan.to_dict(), "perfmon_commit": PERFMON_COMMIT}, indent=2))
+        print(json.dumps({**plan.to_dict(), "perfmon_commit": PERFMON_COMMIT, "perf_json_commit": PERF_JSON_COMMIT},
+                         indent=2))
     else:
         print(render_text(plan))
     return 0
@@ -64,8 +65,10 @@ def render_text(plan: HostPlan) -> str:
         title = plan.table.title if plan.table is not None else "no event table"
         lines.append(f"CPU: {cpu.signature()} stepping {cpu.stepping} ({cpu.model_name or 'unnamed'}) -> {title}")
     if plan.table is not None:
-        lines.append(f"event sources: intel/perfmon@{PERFMON_COMMIT[:12]} " + "; ".join(plan.table.sources))
-    lines.append(f"IMC PMUs: {len(plan.pmus)}" + ("" if plan.pmus else " (none)"))
+        origin = (f"linux@{PERF_JSON_COMMIT[:12]} " if plan.table.pmu_prefix == "amd_umc"
+                  else f"intel/perfmon@{PERFMON_COMMIT[:12]} ")
+        lines.append("event sources: " + origin + "; ".join(plan.table.sources))
+    lines.append(f"memory-controller PMUs: {len(plan.pmus)}" + ("" if plan.pmus else " (none)"))
     for pmu in plan.pmus:
         formats = " ".join(f"{name}={field.describe()}" for name, field in sorted(pmu.formats.items()))
         kind = " free-running (not used)" if pmu.free_running else ""
@@ -78,8 +81,9 @@ def render_text(plan: HostPlan) -> str:
         lines.append(f"events per channel: {len(plan.events)}")
         for e in plan.events:
             flag = " (experimental)" if e.experimental else ""
-            lines.append(f"  {e.role:<16} {e.name:<36} event {e.event:#04x} umask {e.umask:#04x} "
-                         f"config {e.config:#x}{flag}")
+            alias = f" = perf {e.perf_alias}" if e.perf_alias else ""
+            lines.append(f"  {e.role:<16} {e.name:<36} event {e.event:#04x} {e.mask_field} {e.umask:#04x} "
+                         f"config {e.config:#x}{flag}{alias}")
     lines.append(f"permissions: {plan.access.explanation}")
     lines.extend(f"note: {note}" for note in plan.notes)
     if plan.usable:

@@ -21,7 +21,8 @@ in DRAM clock cycles, from its wall-clock length and the memspec's tCK):
 ``rda``, ``wra``       ``cas_rd_autopre``/``cas_wr_autopre`` where published (Ice Lake-SP and later);
                        otherwise 0 and the auto-precharges are charged as precharges (below): RD and
                        RDA draw the same IDD4R burst energy, so this is energy-neutral.
-``pre``                explicit (``pre_page_miss + pre_page_close``) + implicit (``rda + wra`` when
+``pre``                explicit (``pre_page_miss + pre_page_close [+ pre_underfill]``, or AMD's
+                       ``pre_all``) + implicit (``rda + wra`` when
                        known, else ``max(0, act − explicit)``: every opened row is closed once).
 ``ref``                ``refresh`` / ranks; where the published events miss some refresh causes
                        (:attr:`EventTable.refresh_complete` false) ``max(counted, nominal)`` with the
@@ -129,6 +130,10 @@ def channel_stats(counts: Mapping[str, float], *, ranks: int, window_cycles: flo
 
     rda, wra = _value(counts, "cas_rd_autopre"), _value(counts, "cas_wr_autopre")
     explicit = _value(counts, "pre_page_miss") + _value(counts, "pre_page_close")
+    if _known(underfill := _value(counts, "pre_underfill")):
+        explicit += underfill
+    if not _known(explicit):
+        explicit = _value(counts, "pre_all")
     if _known(rda) and _known(wra):
         implicit = rda + wra
         explicit = explicit if _known(explicit) else max(0.0, act - implicit)

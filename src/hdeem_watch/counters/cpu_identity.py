@@ -3,7 +3,10 @@
 The generation decides the event encodings (:mod:`hdeem_watch.counters.event_tables`). The model
 numbers are those of Intel's perfmon ``mapfile.csv`` (github.com/intel/perfmon), which also picks the
 event file per CPU: ``GenuineIntel-6-3F`` Haswell-EP, ``6-4F`` Broadwell-EP, ``6-55`` stepping 0-4
-Skylake-SP and 5-F Cascade Lake-SP, ``6-6A``/``6-6C`` Ice Lake-SP, ``6-8F`` Sapphire Rapids.
+Skylake-SP and 5-F Cascade Lake-SP, ``6-6A``/``6-6C`` Ice Lake-SP, ``6-8F`` Sapphire Rapids. AMD's are
+the Linux perf tool's ``tools/perf/pmu-events/arch/x86/mapfile.csv``: ``AuthenticAMD-25-…`` is Zen 4
+except models 00-0F and 20-5F (Zen 3, whose UMC has no perf PMU), ``AuthenticAMD-26-…`` models 00-2F,
+40-4F and 60-7F Zen 5.
 
 Example:
     >>> ident = parse_cpuinfo("vendor_id : GenuineIntel\\ncpu family : 6\\nmodel : 63\\nstepping : 2\\n")
@@ -102,8 +105,19 @@ def read_cpuinfo(path: str | Path = DEFAULT_CPUINFO) -> CpuIdentity:
     return parse_cpuinfo(text, where=str(path))
 
 
+def _amd_generation(family: int, model: int) -> str | None:
+    """``zen4``/``zen5`` by perf's mapfile.csv rows (Zen 3 and unknown families: ``None``)."""
+    if family == 25 and not (model < 0x10 or 0x20 <= model < 0x60):
+        return "zen4"
+    if family == 26 and (model < 0x30 or 0x40 <= model < 0x50 or 0x60 <= model < 0x80):
+        return "zen5"
+    return None
+
+
 def generation_of(identity: CpuIdentity) -> str | None:
-    """The IMC counter generation of a CPU, or ``None`` when no event table covers it."""
+    """The memory-controller counter generation of a CPU, or ``None`` when no event table covers it."""
+    if identity.vendor == "AuthenticAMD":
+        return _amd_generation(identity.family, identity.model)
     if identity.vendor != "GenuineIntel":
         return None
     if (identity.family, identity.model) == (6, _MODEL_SKX_CLX):

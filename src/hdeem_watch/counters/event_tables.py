@@ -1,6 +1,6 @@
 """IMC event encodings per CPU generation, each entry traceable to Intel's public event files.
 
-Every :class:`ImcEvent` below is copied by name, ``EventCode`` and ``UMask`` from Intel's perfmon
+Every Intel :class:`ImcEvent` below is copied by name, ``EventCode`` and ``UMask`` from Intel's perfmon
 event files (github.com/intel/perfmon, the upstream of the Linux kernel's
 ``tools/perf/pmu-events/arch/x86/<gen>/uncore-memory.json``), read at perfmon commit
 :data:`PERFMON_COMMIT`; :attr:`EventTable.sources` names the file(s) and version per table, and
@@ -8,6 +8,12 @@ event files (github.com/intel/perfmon, the upstream of the Linux kernel's
 where a role needs several published sub-events (Haswell-EP's activates: ``ACT_COUNT.RD + .WR +
 .BYP``), the table lists each and the reader sums them. A role the files do not cover is absent
 from the table (and listed in :attr:`EventTable.gaps`); it is never guessed.
+
+AMD Zen 4 and Zen 5 (EPYC 9004 Genoa, 9005 Turin) count DRAM commands in the ``amd_umc_<n>`` PMUs (one
+per memory channel, arch/x86/events/amd/uncore.c, PerfMonV2); their events are the Linux perf tool's
+``tools/perf/pmu-events/arch/x86/amdzen4|amdzen5/memory-controller.json`` (read at Linux commit
+:data:`PERF_JSON_COMMIT`): ``EventCode`` and ``RdWrMask``, which the PMU's ``format/rdwrmask``
+(``config:8-9``) places (:attr:`ImcEvent.mask_field`).
 
 Roles (what a counter means for the DRAM model, per channel):
 
@@ -22,6 +28,12 @@ Roles (what a counter means for the DRAM model, per channel):
                     Lake-SP the non-experimental ``PRE_COUNT.RD`` + ``.WR``, whose umask bits
                     0x04|0x08 are those of the experimental ``PAGE_MISS`` 0x0c).
 ``pre_page_close``  explicit precharges by the page-close timer (idle page closed).
+``pre_underfill``   explicit precharges for an underfill read (Sapphire Rapids' ``PRE_COUNT.UFILL``;
+                    ``PRE_COUNT.ALL`` 0xff is exactly RD|WR|UFILL|PGT = 0x11|0x22|0x44|0x88).
+``pre_all``         every PRECHARGE command the controller sent (AMD's ``umc_pchg_cmd.all``, which
+                    does not say how the precharges divide by cause).
+``cas_pch0``        CAS commands of pseudo-channel (DDR5 sub-channel) 0 — Sapphire Rapids.
+``cas_pch1``        CAS commands of pseudo-channel 1.
 ``refresh``         refresh commands (see :attr:`EventTable.refresh_complete`).
 ``cke_on_rank<n>``  cycles rank n has CKE on (not in power-down or self-refresh).
 ``ppd_cycles``      cycles every rank of the channel is in precharge power-down.
@@ -43,6 +55,8 @@ from dataclasses import dataclass, field
 
 #: The intel/perfmon commit the tables were read from (2026-08-13).
 PERFMON_COMMIT = "6dadedf3aa483393943e044ba5ec88a4507cd040"
+#: The Linux commit the perf tool's AMD ``memory-controller.json`` files were read at.
+PERF_JSON_COMMIT = "3c69140734a27f8b145f12fa0ae80c1fe36a02ca"
 #: Width of the IMC's programmable counters (``perf_ctr_bits = 48`` of ``hswep_uncore_imc``,
 #: ``bdx_uncore_imc``, ``skx_uncore_imc``, ``icx_uncore_imc`` in the kernel's uncore_snbep.c).
 IMC_COUNTER_BITS = 48
@@ -50,8 +64,8 @@ IMC_COUNTER_BITS = 48
 MAX_CKE_RANKS = 8
 
 ROLES = ("dclk", "cas_rd", "cas_wr", "cas_rd_autopre", "cas_wr_autopre", "act", "pre_page_miss",
-         "pre_page_close", "refresh", *(f"cke_on_rank{n}" for n in range(MAX_CKE_RANKS)),
-         "ppd_cycles", "sref_cycles")
+         "pre_page_close", "pre_underfill", "pre_all", "refresh", *(f"cke_on_rank{n}" for n in range(MAX_CKE_RANKS)),
+         "ppd_cycles", "sref_cycles", "cas_pch0", "cas_pch1")
 
 
 @dataclass(frozen=True)
@@ -59,20 +73,22 @@ class ImcEvent:
     """One published IMC event.
 
     Attributes:
-        name: Intel's ``EventName``.
+        name: the publisher's ``EventName`` (Intel's perfmon, or the perf tool's JSON for AMD).
         event: ``EventCode``.
-        umask: ``UMask``.
+        umask: ``UMask`` (AMD: ``RdWrMask``, 0 when the JSON gives none).
         experimental: from the ``*_uncore_experimental.json`` file (published, not validated by Intel).
+        mask_field: the PMU format field that holds :attr:`umask` (``umask``; AMD's UMC: ``rdwrmask``).
     """
 
     name: str
     event: int
     umask: int
     experimental: bool = False
+    mask_field: str = "umask"
 
     def fields(self) -> dict[str, int]:
-        """The format-field values (``event``, ``umask``) to encode with the PMU's ``format/``."""
-        return {"event": self.event, "umask": self.umask}
+        """The format-field values (``event``, ``umask`` or ``rdwrmask``) to encode with the PMU's ``format/``."""
+        return {"event": self.event, self.mask_field: self.umask}
 
 
 @dataclass(frozen=True)
@@ -88,6 +104,8 @@ class EventTable:
             priority, not opportunistic): ``refresh`` is then a lower bound.
         memory: the DRAM standard the IMC drives (``DDR4`` or ``DDR5``).
         gaps: what this generation's public files do not give, in words.
+        pmu_prefix: the PMUs that count these events (``uncore_imc``; AMD: ``amd_umc``).
+        notes: facts about the kernel's own names for these events worth saying (one line each).
     """
 
     generation: str
@@ -97,6 +115,8 @@ class EventTable:
     refresh_complete: bool
     memory: str
     gaps: tuple[str, ...] = field(default=())
+    pmu_prefix: str = "uncore_imc"
+    notes: tuple[str, ...] = field(default=())
 
     def events_of(self, role: str) -> tuple[ImcEvent, ...]:
         """The events of ``role`` (empty when the generation does not count it)."""
@@ -176,6 +196,41 @@ _GAPS_ICX_SPR = (
     "active vs precharge standby: no event counts cycles with a bank open",
 )
 
+#: perf's ``clockticks`` alias of the SPR IMC is not the DRAM clock (kernel ``spr_uncore_imc_events``).
+SPR_CLOCKTICKS_NOTE = ("perf's uncore_imc_<n>/clockticks/ alias on Sapphire Rapids is event=0x01,umask=0x00 "
+                       "(spr_uncore_imc_events of uncore_snbep.c, lore.kernel.org 20230419214241.2310385-1-eranian@google.com), "
+                       "which perfmon names UNC_M_HCLOCKTICKS (the controller's half-rate clock); the DRAM clock "
+                       "(dclk) is UNC_M_CLOCKTICKS event=0x01,umask=0x01, counted here")
+
+
+def _amd_umc_roles() -> dict[str, tuple[ImcEvent, ...]]:
+    """Zen 4 and Zen 5 publish the same UMC encodings (``umc_*`` of memory-controller.json; ``.rd``/``.wr``
+    select with ``RdWrMask`` 1/2, ``.all`` has none)."""
+    def umc(name: str, code: int, rdwr: int = 0) -> ImcEvent:
+        return ImcEvent(name, code, rdwr, mask_field="rdwrmask")
+
+    return {
+        "dclk": (umc("umc_mem_clk", 0x00),),
+        "cas_rd": (umc("umc_cas_cmd.rd", 0x0A, 0x1),),
+        "cas_wr": (umc("umc_cas_cmd.wr", 0x0A, 0x2),),
+        "act": (umc("umc_act_cmd.all", 0x05),),
+        "pre_all": (umc("umc_pchg_cmd.all", 0x06),),
+    }
+
+
+#: What stands in for the DRAM energy sensor AMD lacks.
+AMD_ENERGY_NOTE = ("DRAM energy: AMD has no DRAM energy sensor (RAPL has package and core domains only); a job's "
+                   "DRAM energy is modelled from these counts with a memspec's currents: its datasheet values, "
+                   "or a calibrated memspec imported from a node that has DRAM sensors (hdeem-watch node says "
+                   "which memspec applies)")
+_GAPS_AMD_UMC = (
+    "refresh: no published UMC refresh event (refreshes are nominal, one per tREFI)",
+    "power-down and self-refresh residency: no published UMC event (power-down taken as 0)",
+    "RDA/WRA: umc_cas_cmd does not separate auto-precharge CASes",
+    "precharges by cause: umc_pchg_cmd.all counts every PRECHARGE command (.rd/.wr split by requester only)",
+    "sub-channels and ranks: each amd_umc PMU counts one channel (both DDR5 sub-channels, every rank)",
+)
+
 TABLES: dict[str, EventTable] = {
     "haswell-ep": EventTable(
         generation="haswell-ep", title="Haswell-EP (Xeon E5 v3)", memory="DDR4",
@@ -237,13 +292,26 @@ TABLES: dict[str, EventTable] = {
             "act": (ImcEvent("UNC_M_ACT_COUNT.ALL", 0x02, 0xFF),),
             "pre_page_miss": (ImcEvent("UNC_M_PRE_COUNT.RD", 0x03, 0x11), ImcEvent("UNC_M_PRE_COUNT.WR", 0x03, 0x22)),
             "pre_page_close": (ImcEvent("UNC_M_PRE_COUNT.PGT", 0x03, 0x88),),
+            "pre_underfill": (ImcEvent("UNC_M_PRE_COUNT.UFILL", 0x03, 0x44, True),),
             "refresh": (ImcEvent("UNC_M_DRAM_REFRESH.PANIC", 0x45, 0x12, True),
                         ImcEvent("UNC_M_DRAM_REFRESH.HIGH", 0x45, 0x24, True)),
             "ppd_cycles": (ImcEvent("UNC_M_POWER_CHANNEL_PPD", 0x85, 0x00, True),),
             "sref_cycles": (ImcEvent("UNC_M_POWER_SELF_REFRESH", 0x43, 0x00, True),),
+            "cas_pch0": (ImcEvent("UNC_M_CAS_COUNT.PCH0", 0x05, 0x40, True),),
+            "cas_pch1": (ImcEvent("UNC_M_CAS_COUNT.PCH1", 0x05, 0x80, True),),
         },
         refresh_complete=False,
         gaps=(*_GAPS_ICX_SPR,
               "refresh: only DRAM_REFRESH.PANIC and .HIGH are published (no opportunistic refreshes)",
-              "DDR5: each channel has two sub-channels; the DDR4 model of this project does not apply as is")),
+              "pseudo-channels: CAS_COUNT.PCH0/.PCH1 split the CASes by DDR5 sub-channel; ACT_COUNT.ALL and "
+              "the power-state events are per channel (both sub-channels)"),
+        notes=(SPR_CLOCKTICKS_NOTE,)),
+    "zen4": EventTable(
+        generation="zen4", title="AMD Zen 4 (EPYC 9004 Genoa)", memory="DDR5", pmu_prefix="amd_umc",
+        sources=("tools/perf/pmu-events/arch/x86/amdzen4/memory-controller.json",),
+        roles=_amd_umc_roles(), refresh_complete=False, gaps=_GAPS_AMD_UMC, notes=(AMD_ENERGY_NOTE,)),
+    "zen5": EventTable(
+        generation="zen5", title="AMD Zen 5 (EPYC 9005 Turin)", memory="DDR5", pmu_prefix="amd_umc",
+        sources=("tools/perf/pmu-events/arch/x86/amdzen5/memory-controller.json",),
+        roles=_amd_umc_roles(), refresh_complete=False, gaps=_GAPS_AMD_UMC, notes=(AMD_ENERGY_NOTE,)),
 }

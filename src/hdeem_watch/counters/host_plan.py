@@ -22,7 +22,13 @@ from hdeem_watch.counters.cpu_identity import DEFAULT_CPUINFO, CpuIdentity, gene
 from hdeem_watch.counters.event_format import encode_event
 from hdeem_watch.counters.event_tables import MAX_CKE_RANKS, TABLES, EventTable
 from hdeem_watch.counters.permissions import PerfAccess, probe_access
-from hdeem_watch.counters.pmu_discovery import DEFAULT_SYSFS_ROOT, UncorePmu, discover_imc_pmus, list_pmus
+from hdeem_watch.counters.pmu_discovery import (
+    DEFAULT_SYSFS_ROOT,
+    UncorePmu,
+    discover_imc_pmus,
+    is_memory_pmu,
+    list_pmus,
+)
 from hdeem_watch.errors import InputError
 
 #: Generic counters per IMC channel box (``num_counters = 4`` of the kernel's IMC uncore types).
@@ -61,6 +67,8 @@ class PlannedEvent:
         umask: unit mask.
         config: the ``perf_event_attr.config`` word.
         experimental: from Intel's experimental event file.
+        perf_alias: the kernel's own name for the same encoding in the PMU's ``events/`` (what ``perf
+            list`` shows, e.g. ``cas_count_read``), ``None`` when it has none.
     """
 
     role: str
@@ -69,6 +77,8 @@ class PlannedEvent:
     umask: int
     config: int
     experimental: bool
+    perf_alias: str | None = None
+    mask_field: str = "umask"
 
 
 @dataclass(frozen=True)
@@ -127,7 +137,9 @@ class HostPlan:
             "channels": [{"name": c.name, "socket": c.socket, "box": c.box, "pmu": c.pmu, "type": c.pmu_type,
                           "cpu": c.cpu} for c in self.channels],
             "events": [{"role": e.role, "name": e.name, "event": e.event, "umask": e.umask,
-                        "config": f"{e.config:#x}", "experimental": e.experimental} for e in self.events],
+                        "config": f"{e.config:#x}", "experimental": e.experimental, "perf_alias": e.perf_alias,
+                        "mask_field": e.mask_field}
+                       for e in self.events],
             "permissions": {"perf_event_paranoid": self.access.paranoid, "cap_perfmon": self.access.cap_perfmon,
                             "cap_sys_admin": self.access.cap_sys_admin, "allowed": self.access.allowed,
                             "explanation": self.access.explanation},
@@ -157,12 +169,23 @@ def encode_table(table: EventTable, pmu: UncorePmu, ranks: int | None = None) ->
             except InputError as error:
                 raise InputError(f"{pmu.name}: cannot encode {event.name}: {error}") from None
             planned.append(PlannedEvent(role=role, name=event.name, event=event.event, umask=event.umask,
-                                        config=words["config"], experimental=event.experimental))
+                                        config=words["config"], experimental=event.experimental,
+                                        perf_alias=pmu.alias_of(event.fields()), mask_field=event.mask_field))
     return tuple(planned)
 
 
+def umc_channels(pmus: Sequence[UncorePmu]) -> tuple[PlannedChannel, ...]:
+    """AMD: one channel per ``amd_umc_<n>`` PMU; its socket is the rank of its counting CPU among the PMUs'."""
+    owners = sorted({p.cpus[0] for p in pmus if p.cpus})
+    return tuple(sorted((PlannedChannel(name=f"S{owners.index(p.cpus[0])}.umc{p.box}", socket=owners.index(p.cpus[0]),
+                                        box=p.box, pmu=p.name, pmu_type=p.pmu_type, cpu=p.cpus[0])
+                         for p in pmus if p.cpus), key=lambda c: (c.socket, c.box)))
+
+
 def channels_of(pmus: list[UncorePmu] | tuple[UncorePmu, ...]) -> tuple[PlannedChannel, ...]:
-    """One channel per (socket, programmable PMU), socket-major, boxes ascending."""
+    """One channel per (socket, programmable PMU), socket-major, boxes ascending (AMD: :func:`umc_channels`)."""
+    if any(p.umc for p in pmus):
+        return umc_channels([p for p in pmus if p.umc])
     programmable = [p for p in pmus if not p.free_running]
     sockets = max((len(p.cpus) for p in programmable), default=0)
     return tuple(PlannedChannel(name=f"S{socket}.imc{p.box}", socket=socket, box=p.box, pmu=p.name,
@@ -208,18 +231,21 @@ def plan_host(sysfs_root: str | Path = DEFAULT_SYSFS_ROOT, cpuinfo_text: str | N
     access = probe_access() if access is None else access
     pmus = tuple(discover_imc_pmus(sysfs_root))
     all_names = list_pmus(sysfs_root)
-    others = tuple(n for n in all_names if not n.startswith("uncore_imc"))
+    others = tuple(n for n in all_names if not is_memory_pmu(n))
     reasons: list[str] = []
     notes: list[str] = []
-    programmable = [p for p in pmus if not p.free_running]
+    prefix = table.pmu_prefix if table is not None else ("amd_umc" if cpu.vendor == "AuthenticAMD" else "uncore_imc")
+    programmable = [p for p in pmus if not p.free_running and p.name.startswith(prefix + "_")]
     if not all_names:
         reasons.append(f"{Path(sysfs_root) / 'bus/event_source/devices'} does not exist or is empty: "
                        "no perf_event PMUs are visible (not Linux, or sysfs not mounted)")
     elif not programmable:
         seen = ", ".join(others) if others else "none"
-        reasons.append("no uncore_imc_* PMU: the kernel exposes no memory-controller counters here "
+        driver = ("the amd_uncore driver with UMC support (PerfMonV2, Zen 4 and later)" if prefix == "amd_umc"
+                  else "the intel_uncore driver")
+        reasons.append(f"no {prefix}_* PMU: the kernel exposes no memory-controller counters here "
                        f"(PMUs present: {seen}). Virtual machines and containers on VMs do not get the "
-                       "host's uncore PMUs; run on the bare-metal node with the intel_uncore driver loaded")
+                       f"host's uncore PMUs; run on the bare-metal node with {driver} loaded")
     if table is None:
         reasons.append(f"no IMC event table for CPU {cpu.signature()} ({cpu.model_name or 'unnamed'}); "
                        f"tables exist for: {', '.join(t.title for t in TABLES.values())}")
@@ -238,6 +264,7 @@ def plan_host(sysfs_root: str | Path = DEFAULT_SYSFS_ROOT, cpuinfo_text: str | N
             notes.append(f"{distinct} events per channel on {GENERIC_COUNTERS_PER_BOX} counters: the kernel "
                          "multiplexes them; counts are scaled by time_enabled/time_running per window")
         notes.extend(f"gap: {gap}" for gap in table.gaps)
+        notes.extend(table.notes)
         if (note := free_running_note(pmus)) is not None:
             notes.append(note)
     return HostPlan(cpu=cpu, generation=generation, table=table, pmus=pmus, other_pmus=others,
