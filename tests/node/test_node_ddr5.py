@@ -114,3 +114,15 @@ def test_ddr5_read_from_part_number_and_cpu() -> None:
     ddr, why = infer_ddr("Other", "MTC20F2085S1RC48BA1", genoa)
     assert ddr == "DDR5" and why is not None and "Micron DDR5" in why and "drives DDR5 only" in why
     assert infer_ddr("Unknown", "M321R4GA3BB6-CQK", None)[0] == "DDR5"
+
+
+def test_granite_rapids_tpmi_zones_are_the_sensor(powercap_trees: Path) -> None:
+    """A Granite Rapids node whose DRAM zones come from Intel's TPMI driver (intel-rapl-tpmi:<n>:0): RAPL."""
+    from hdeem_watch.node.dram_energy import detect_dram_energy
+
+    gnr = CpuModel("Intel(R) Xeon(R) 6980P", 6, 173, "test")
+    energy = detect_dram_energy(powercap_trees / "powercap_gnr_tpmi", gnr)
+    assert energy.sensor == "rapl" and sorted(energy.zones) == ["DRAM0", "DRAM1"]
+    assert "intel-rapl-tpmi" in energy.how and energy.zones["DRAM1"].endswith("intel-rapl-tpmi:2:0")
+    missing = detect_dram_energy(powercap_trees / "powercap_gnr_tpmi_nodram", gnr)
+    assert missing.sensor is None and missing.model is None and "no zone named 'dram'" in missing.how
