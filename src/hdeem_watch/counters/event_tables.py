@@ -199,7 +199,7 @@ _GAPS_ICX_SPR = (
 #: perf's ``clockticks`` alias of the SPR IMC is not the DRAM clock (kernel ``spr_uncore_imc_events``).
 SPR_CLOCKTICKS_NOTE = ("perf's uncore_imc_<n>/clockticks/ alias on Sapphire Rapids is event=0x01,umask=0x00 "
                        "(spr_uncore_imc_events of uncore_snbep.c, lore.kernel.org 20230419214241.2310385-1-eranian@google.com), "
-                       "which perfmon names UNC_M_HCLOCKTICKS (the controller's half-rate clock); the DRAM clock "
+                       "which perfmon names UNC_M_HCLOCKTICKS (the controller's HCLK, by its name); the DRAM clock "
                        "(dclk) is UNC_M_CLOCKTICKS event=0x01,umask=0x01, counted here")
 
 
