@@ -67,7 +67,8 @@ def detect_dram_energy(sysfs_root: Path, cpu: CpuModel | None) -> DramEnergy:
     """
     powercap = sysfs_root / "class" / "powercap"
     try:
-        zones = find_dram_zones(powercap, cpuinfo=sysfs_root / "nonexistent-cpuinfo")
+        # the zones' own reason reads a cpuinfo; the node names its CPU itself, so none is given
+        zones = find_dram_zones(powercap, cpuinfo=sysfs_root / "no-cpuinfo-here")
     except SourceUnavailable as error:
         if is_amd(cpu):
             return DramEnergy(None, AMD_NO_SENSOR, UMC_MODEL)
