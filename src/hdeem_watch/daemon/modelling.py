@@ -149,6 +149,8 @@ class RunModeller:
         dram_rates_hz: sample rate of each DRAM channel, for the guard rail (None: no guard rail;
             the daemon always gives them).
         min_samples: fewest samples per DRAM channel for a run to be fitted.
+        trust: widen the node fit's intervals by what its rows do not know and hold currents
+            without a state of their own (:mod:`hdeem_watch.calibrate.trust`).
 
     Attributes:
         error: why runs cannot be modelled (None = they can).
@@ -170,6 +172,7 @@ class RunModeller:
         groups: Sequence[SensorGroup] = (),
         dram_rates_hz: Mapping[str, float] | None = None,
         min_samples: int = DEFAULT_MIN_SAMPLES,
+        trust: bool = True,
     ) -> None:
         self.memspec = memspec
         self.dimms = int(topology.dimms) if topology is not None else int(dimms)
@@ -196,6 +199,9 @@ class RunModeller:
                                                    max_runs=MAX_CALIBRATION_RUNS,
                                                    max_history=MAX_CALIBRATOR_HISTORY)
             self.calibrator.rules = bool(physical_rules)
+            from hdeem_watch.calibrate.trust import TrustOptions
+
+            self.calibrator.trust = TrustOptions() if trust else None
             self.calibrator.max_runs = min(self.calibrator.max_runs, MAX_CALIBRATION_RUNS)
             self.calibrator.max_history = min(self.calibrator.max_history, MAX_CALIBRATOR_HISTORY)
             observations = self.calibrator.observations
@@ -222,6 +228,7 @@ class RunModeller:
 
             self.topology = topology_for(self.dimms)
         self._stats_cache = functools.lru_cache(maxsize=64)(self._kernel_stats)
+        self._family_cache = functools.lru_cache(maxsize=64)(self._family_factors)
 
     def _kernel_stats(self, kernel: str, elements: int, threads: int, repeat: int,
                       cpus: tuple[int, ...] | None) -> Any:
@@ -229,6 +236,27 @@ class RunModeller:
 
         return tuple(node_run_stats(self.spec, kernel, elements, threads, repeat, self.topology, cpus=cpus,
                                     max_requests=self.max_requests))
+
+    def _family_factors(self, kernel: str, elements: int, threads: int, repeat: int,
+                        cpus: tuple[int, ...] | None) -> tuple[float, ...]:
+        from hdeem_watch.dram.node import MAPPING_FAMILIES, node_counts, node_run_stats
+
+        own = node_counts(self._stats_cache(kernel, elements, threads, repeat, cpus))["act"]
+        out = []
+        for scheme, xor in MAPPING_FAMILIES[1:]:
+            groups = node_run_stats(self.spec, kernel, elements, threads, repeat, self.topology, cpus=cpus,
+                                    max_requests=self.max_requests, mapping=scheme, xor_bank=xor)
+            out.append(node_counts(groups)["act"] / own if own > 0 else 1.0)
+        return tuple(out)
+
+    def mapping_factors(self, kernel: str, elements: int, threads: int, repeat: int,
+                        cpus: Sequence[int] | None = None) -> tuple[float, ...]:
+        """The run's activation count under each other mapping family relative to the model's own
+        (:data:`hdeem_watch.dram.node.MAPPING_FAMILIES`; cached; empty for a run without traffic)."""
+        if kernel in NO_TRAFFIC_KERNELS or elements == 0:
+            return ()
+        return self._family_cache(kernel, int(elements), int(threads), int(repeat),
+                                  None if cpus is None else tuple(int(c) for c in cpus))
 
     def groups_for(self, kernel: str, elements: int, threads: int, repeat: int,
                    cpus: Sequence[int] | None = None) -> list[tuple[Any, int]]:
@@ -337,8 +365,11 @@ class RunModeller:
             # A kernel's traffic lasts what the run announced; the window may run on past it (the stop is
             # seen at the next poll): the rest of the window is standby. Counters measure the window itself.
             traffic_s = announced_traffic_s(record)
+            factors = () if counted is not None or opaque else self.mapping_factors(
+                str(record["kernel"]), int(record["elements"]), int(record["threads"]), int(record["repeat"]), cpus)
             obs = node_observation(self.spec, groups, float(window_s), float(measured), name=run_name, time_ns=stop_ns,
-                                   traffic_s=traffic_s if counted is None else None)
+                                   traffic_s=traffic_s if counted is None else None,
+                                   commands="model" if counted is None else "counters", act_factors=factors)
         except InputError as error:
             return None, None, str(error)
         before = self.latest_fit()
