@@ -87,6 +87,16 @@ def announced_cpus(record: Mapping[str, Any]) -> tuple[tuple[int, ...] | None, s
     return tuple(int(c) for c in cpus), "announced cpus"
 
 
+def is_holdout(record: Mapping[str, Any]) -> bool:
+    """Whether a run was announced as a hold-out run (``metadata.holdout = true``): predicted, never fitted.
+
+    >>> is_holdout({"metadata": {"holdout": True}}), is_holdout({"metadata": {}})
+    (True, False)
+    """
+    metadata = record.get("metadata")
+    return isinstance(metadata, Mapping) and metadata.get("holdout") is True
+
+
 def load_spec(memspec: str) -> Any:
     """A preset by name, or a DRAMPower JSON file.
 
@@ -402,6 +412,8 @@ class RunModeller:
             model["predicted_j"] = model["calibrated_j"] = obs.predicted_j(vec, intercept)
             if kernel_obs is not None:
                 model["kernel_model"]["predicted_j"] = kernel_obs.predicted_j(vec, intercept)
+        if is_holdout(record):
+            return model, None, "hold-out run: predicted with the fit from before it, never fitted"
         if self.group_fits is not None and (reason := self.group_fits.unmeasured(record)) is not None:
             return model, None, reason  # the guard rail: recorded, not fitted
         if self.has_run(str(record.get("run_id"))):  # modelled again after a crash: already in the fit

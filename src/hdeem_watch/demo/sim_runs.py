@@ -87,14 +87,19 @@ class SimRuns:
             ``--speed 60`` (polls every 2.4 sim-s) the windows of 1.25–1.75 s runs came out
             1.4–5 s (:data:`DEMO_TAIL_S`). None: exact windows.
         seed_tail: seeds the tails.
+        counters: count every run's commands with the sim's memory-controller counters (the
+            daemon's ``counters = "sim"``; its rows then come from them).
+        holdout: add the demo's hold-out runs (predicted, never fitted).
+        groups: fit the sensor groups too (False: the node fit only, faster).
     """
 
     def __init__(self, seed: int, *, age: Mapping[str, float] | None = None,
                  age_start_s: Mapping[str, float] | None = None, gap_s: float = DEMO_GAP_S, memspec: str = MEMSPEC,
                  half_life_s: float | None = None, sim_options: Mapping[str, Any] | None = None,
                  tail_s: tuple[float, float, float, float, float] | None = None, seed_tail: int = 0,
-                 counters: bool = False) -> None:
+                 counters: bool = False, holdout: bool = False, groups: bool = True) -> None:
         self._mono_ns = 0
+        self.holdout = holdout
         self.tail_s = tail_s
         self._tail_rng = np.random.default_rng([int(seed), int(seed_tail), 9973])
         self.sim = SimSource(seed=seed, clock=lambda: self._mono_ns, wall_clock=lambda: _T0_WALL_NS,
@@ -108,7 +113,7 @@ class SimRuns:
         self.counters = SimCounters(self.sim) if counters else None
         currents = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
         self.modeller = RunModeller(memspec, currents=currents_with_counters(currents) if counters else currents,
-                                    half_life_s=half_life_s, groups=source_groups(self.sim, rates, 2, 4),
+                                    half_life_s=half_life_s, groups=source_groups(self.sim, rates, 2, 4) if groups else (),
                                     dram_rates_hz=rates)
         if self.modeller.error is not None:
             raise RuntimeError(self.modeller.error)
@@ -124,7 +129,7 @@ class SimRuns:
     def _demo_runs(self) -> Iterator[DemoRun]:
         round_no = 0
         while True:
-            yield from demo_round(THREAD_ROUNDS[round_no % len(THREAD_ROUNDS)], round_no)
+            yield from demo_round(THREAD_ROUNDS[round_no % len(THREAD_ROUNDS)], round_no, holdout=self.holdout)
             round_no += 1
 
     def _advance(self, seconds: float) -> dict[str, float]:
@@ -159,7 +164,8 @@ class SimRuns:
                   "threads": spec.threads, "elements": elements, "repeat": spec.repeat, "window_s": window_s,
                   "t_start_ns": _T0_WALL_NS + t_start, "t_stop_ns": _T0_WALL_NS + self._mono_ns,
                   "energy_j": energy, "dram_energy_j": sum(energy[c] for c in self.dram),
-                  "metadata": {"simulated": True, "source": "demo", "modelled_s": round(run.seconds, 4)}}
+                  "metadata": {"simulated": True, "source": "demo", "modelled_s": round(run.seconds, 4),
+                               **({"holdout": True} if run.holdout else {})}}
         if counted is not None:
             record["counters"] = counted
         model, _fit, error = self.modeller.evaluate(record)
