@@ -257,6 +257,20 @@ def _act_free(rows: Sequence[Observation], spec: SpecLike, options: FitOptions, 
         return None
 
 
+def _unbounded_half(result: FitResult, name: str) -> float:
+    """95 % half-width (A) of current ``name`` with every bound ignored, at the fit's own residual
+    scale: a bound a free unknown sits at must not make a current look determined."""
+    model = result.model
+    if model is None or not math.isfinite(result.noise_rel):
+        return math.inf
+    j = result.currents.index(name)
+    try:
+        variance = float(np.linalg.inv(model.info)[j, j])
+    except np.linalg.LinAlgError:
+        return math.inf
+    return 1.96 * result.noise_rel * math.sqrt(max(variance, 0.0)) * float(model.scales_a[j])
+
+
 def _held_range(base: FitResult, current: str, anchor: str, lower: Mapping[str, float]) -> tuple[float, float]:
     floor_name = RANGE_FLOOR.get(current)
     cal = base.calibrated
@@ -302,12 +316,12 @@ def trusted_fit(rows: Sequence[Observation], spec: SpecLike, options: FitOptions
         for j, n in enumerate(names):
             if n in held or n not in free.currents:
                 continue
-            lo_f, hi_f = free.interval(n)
-            if not (math.isfinite(lo_f) and math.isfinite(hi_f)):
-                lo_f, hi_f = 0.0, float(base.datasheet_a[j])
+            half_f = _unbounded_half(free, n)
             scale = max(abs(float(free.calibrated[n])), 0.05 * float(base.datasheet_a[j]))
-            if (hi_f - lo_f) / 2 > options.settings.max_rel_ci * scale:
+            lo_f, hi_f = float(free.calibrated[n]) - half_f, float(free.calibrated[n]) + half_f
+            if not half_f <= options.settings.max_rel_ci * scale:
                 unconfirmed.append(n)
+                lo_f, hi_f = 0.0, float(base.datasheet_a[j])
             low[j], high[j] = min(low[j], lo_f), max(high[j], hi_f)
     held_info = {}
     for current, v in held.items():
