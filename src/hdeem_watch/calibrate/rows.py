@@ -30,7 +30,6 @@ from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.dram.stats import CommandStats, RankStats, stretch_stats
 from hdeem_watch.errors import InputError
 
-
 #: The energy components that scale with the activation count (the ACT and its PRE).
 ACT_COMPONENTS = ("act_j", "pre_j")
 
@@ -118,7 +117,8 @@ def node_observation(spec: MemSpec, groups: Sequence[tuple[CommandStats, int]], 
                                  weight=weight, traffic_s=traffic_s, commands=commands) for stats, n in groups]
     columns = np.sum([row.columns for row in rows], axis=0)
     constant = float(sum(row.constant_j for row in rows))
-    act = None if commands != "model" else np.sum([row.act_columns for row in rows], axis=0)
+    act = None if commands != "model" else np.sum([row.act_columns for row in rows if row.act_columns is not None],
+                                                   axis=0)
     return Observation(name=rows[0].name, columns=columns, constant_j=constant, measured_j=rows[0].measured_j,
                        time_ns=rows[0].time_ns, weight=rows[0].weight, window_s=rows[0].window_s,
                        commands=commands, act_columns=act, act_factors=tuple(act_factors) if act is not None else ())

@@ -119,7 +119,9 @@ class _HeldSpec:
 
 
 def _quiet(options: FitOptions) -> FitOptions:
-    return dataclasses.replace(options, loo="none", uncertainty="analytic")
+    """The options of the extra refits: no leave-one-out, analytic intervals, any number of runs (a
+    refit with fewer runs than unknowns answers, and its intervals say so)."""
+    return dataclasses.replace(options, loo="none", uncertainty="analytic", require_overdetermined=False)
 
 
 def _held_values(base: FitResult, spec: SpecLike, anchors: Mapping[str, str],

@@ -51,6 +51,8 @@ if TYPE_CHECKING:
 
 #: Compact fit-history entries kept for the ``calib`` topic.
 MAX_HISTORY = 200
+#: Runs not fitted whose reasons the ``calib`` body keeps.
+MAX_SKIPPED = 200
 #: Kinds of run kept as candidates for the suggested next run.
 MAX_CANDIDATES = 64
 #: Runs the daemon's calibrator keeps (the oldest are dropped first): its saved state stays small
@@ -195,6 +197,8 @@ class RunModeller:
         self.calibrator: Any = None
         self.group_fits: GroupFits | None = None
         self.history: list[dict[str, Any]] = [dict(h) for h in history][-MAX_HISTORY:]
+        #: runs the node fit did not take, and why (newest last)
+        self.skipped: list[dict[str, Any]] = []
         try:
             self.spec = with_ranks(load_spec(memspec), getattr(topology, "ranks_per_dimm", None))
             from hdeem_watch.calibrate import OnlineCalibrator
@@ -413,15 +417,16 @@ class RunModeller:
             if kernel_obs is not None:
                 model["kernel_model"]["predicted_j"] = kernel_obs.predicted_j(vec, intercept)
         if is_holdout(record):
-            return model, None, "hold-out run: predicted with the fit from before it, never fitted"
+            return model, None, self._skip(run_name, stop_ns, "hold-out run: predicted with the fit from before "
+                                                                "it, never fitted")
         if self.group_fits is not None and (reason := self.group_fits.unmeasured(record)) is not None:
-            return model, None, reason  # the guard rail: recorded, not fitted
+            return model, None, self._skip(run_name, stop_ns, reason)  # the guard rail: recorded, not fitted
         if self.has_run(str(record.get("run_id"))):  # modelled again after a crash: already in the fit
             return model, None, "the calibrator already had this run (modelled again after a restart)"
         try:
             result = self.calibrator.add_run(obs)
         except InputError as error:
-            return model, None, str(error)
+            return model, None, self._skip(run_name, stop_ns, str(error))
         if self.group_fits is not None and kernel_groups is None:
             model["group_error"] = "a job without a kernel: the sensor groups are fitted on kernel runs only"
         elif self.group_fits is not None:
@@ -436,6 +441,12 @@ class RunModeller:
         self.history.append(compact_fit(int(result.time_ns or obs.time_ns), fit))
         del self.history[:-MAX_HISTORY]
         return model, fit, None
+
+    def _skip(self, name: str, time_ns: int, reason: str) -> str:
+        """Keep why a run was not fitted (``node_skipped`` of the body); the reason."""
+        self.skipped.append({"name": name, "time_ns": int(time_ns), "reason": reason})
+        del self.skipped[:-MAX_SKIPPED]
+        return reason
 
     def model_counters(self, counters: Mapping[str, Any] | None,
                        measured_j: Mapping[str, float] | None = None) -> tuple[dict[str, Any] | None, str]:
@@ -502,16 +513,21 @@ class RunModeller:
         return [[name, round(float(score), 4)] for name, score in ranking[:top]]
 
     def reset(self, group: str | None = None) -> None:
-        """Forget the runs and fits of ``group`` (a sensor group, or ``"node"``: the fit of the
-        groups' sum); None: every run and fit, the node calibrator's too.
+        """Forget the runs and fits of ``group`` (a sensor group, ``"node"``: the node fit, or
+        ``"total"``: the fit of the groups' sum); None: every run and fit.
 
         Raises:
             InputError: an unknown group.
         """
+        if group == "node":  # the node fit (what ``calib show`` shows as node)
+            if self.calibrator is not None:
+                self.calibrator.reset()
+            self.history.clear()
+            return
         if group is not None:
             if self.group_fits is None:
                 raise InputError(f"calib.reset: group {group!r}: the model is not available")
-            self.group_fits.reset(group)
+            self.group_fits.reset("node" if group == "total" else group)
             return
         if self.calibrator is not None:
             self.calibrator.reset()
@@ -551,5 +567,6 @@ class RunModeller:
             "model_error": self.error,
             "truth": dict(truth) if truth is not None else None,
             "suggest": self.suggest(),
+            "node_skipped": list(self.skipped[-20:]),
             **(self.group_fits.body() if self.group_fits is not None else {}),
         }
