@@ -20,7 +20,8 @@ body carries ``suggest``: the calibrator's ranking of the runs seen so far (and 
 much one more of each would determine the weakest current
 (:func:`hdeem_watch.calibrate.suggest_next`).
 
-This class does no I/O and is used from ONE worker thread of the daemon (the fit and the kernel
+This class does no I/O (beyond one log line when the command source of the fitted rows changes)
+and is used from ONE worker thread of the daemon (the fit and the kernel
 model can take tens of milliseconds; the poll loop must not wait for them).
 
 Example:
@@ -33,6 +34,7 @@ Example:
 from __future__ import annotations
 
 import functools
+import logging
 import math
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
@@ -48,6 +50,8 @@ if TYPE_CHECKING:
     from hdeem_watch.calibrate.drift import DriftAlarm
     from hdeem_watch.calibrate.group_rows import SensorGroup
     from hdeem_watch.dram.node import NodeTopology
+
+log = logging.getLogger("hdeem_watch.daemon")
 
 #: Compact fit-history entries kept for the ``calib`` topic.
 MAX_HISTORY = 200
@@ -199,6 +203,7 @@ class RunModeller:
         self.history: list[dict[str, Any]] = [dict(h) for h in history][-MAX_HISTORY:]
         #: runs the node fit did not take, and why (newest last)
         self.skipped: list[dict[str, Any]] = []
+        self._source_said: str | None = None
         try:
             self.spec = with_ranks(load_spec(memspec), getattr(topology, "ranks_per_dimm", None))
             from hdeem_watch.calibrate import OnlineCalibrator
@@ -427,6 +432,7 @@ class RunModeller:
             result = self.calibrator.add_run(obs)
         except InputError as error:
             return model, None, self._skip(run_name, stop_ns, str(error))
+        self._say_source(run_name, model["source"], record)
         if self.group_fits is not None and kernel_groups is None:
             model["group_error"] = "a job without a kernel: the sensor groups are fitted on kernel runs only"
         elif self.group_fits is not None:
@@ -441,6 +447,19 @@ class RunModeller:
         self.history.append(compact_fit(int(result.time_ns or obs.time_ns), fit))
         del self.history[:-MAX_HISTORY]
         return model, fit, None
+
+    def _say_source(self, run_name: str, source: str, record: Mapping[str, Any]) -> None:
+        """Log once, and again whenever it changes, where the fitted rows' commands come from."""
+        if source == self._source_said:
+            return
+        self._source_said = source
+        if source == "counters":
+            where = (record.get("counters") or {}).get("source", "?")
+            log.info("calibration: rows from the commands counted in each run's window (counters = %s) from run "
+                     "%s on; the kernel model is the cross-check", where, run_name)
+        else:
+            log.info("calibration: rows from the kernel model's commands (no counters) from run %s on; currents "
+                     "that rest on its activations are not shown as determined", run_name)
 
     def _skip(self, name: str, time_ns: int, reason: str) -> str:
         """Keep why a run was not fitted (``node_skipped`` of the body); the reason."""
