@@ -31,10 +31,14 @@ import numpy as np
 from hdeem_watch.calibrate.fit import FitOptions, fit
 from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS, Observation, SpecLike, current_names
 from hdeem_watch.calibrate.result import FitResult, FitSettings
-from hdeem_watch.calibrate.trust import TrustOptions, trusted_fit
+from hdeem_watch.calibrate.trust import TrustOptions, carried, trusted_fit
 from hdeem_watch.errors import InputError
 
 _STATE_VERSION = 1
+#: A trusted calibrator computes its full intervals at every refit up to this many runs ...
+TRUST_FULL_UNTIL = 64
+#: ... and then every this many runs (carried in between).
+TRUST_EVERY = 8
 
 
 class OnlineCalibrator:
@@ -89,6 +93,9 @@ class OnlineCalibrator:
         self.loo = loo
         self.rules = bool(rules)
         self.trust = trust
+        self._full_trust: FitResult | None = None
+        self._full_options: TrustOptions | None = None
+        self._since_full = 0
         self.observations: list[Observation] = []
         self.history: list[tuple[int, FitResult]] = []
         self.latest: FitResult | None = None
@@ -128,7 +135,8 @@ class OnlineCalibrator:
         return self._refit(decay)
 
     def refit(self) -> FitResult | None:
-        """Refit on the kept runs (after a settings change); records the fit."""
+        """Refit on the kept runs (after a settings change), trusted intervals in full; records the fit."""
+        self._full_trust = None
         return self._refit(self.weights()) if self.observations else None
 
     def _refit(self, decay: np.ndarray) -> FitResult:
@@ -141,10 +149,22 @@ class OnlineCalibrator:
         return result
 
     def _fit(self, weights: np.ndarray, time_ns: int) -> FitResult:
+        """The refit: plain, or :func:`trusted_fit` — in full while the fit is young and every
+        :data:`TRUST_EVERY` runs after, in between its central fit with the last full intervals and
+        verdicts carried (:func:`~hdeem_watch.calibrate.trust.carried`: a full one costs ~30–50 refits)."""
         if self.trust is None:
             return fit(self.observations, self.spec, self.fit_options(), weights=weights, time_ns=time_ns)
-        return trusted_fit(self.observations, self.spec, self.fit_options(), weights=weights, time_ns=time_ns,
-                           trust=self.trust)
+        last = self._full_trust
+        self._since_full += 1
+        if last is None or len(self.observations) <= TRUST_FULL_UNTIL or self._since_full >= TRUST_EVERY or \
+                set(last.currents) != set(self.currents) or self._full_options is not self.trust:
+            self._full_options, self._since_full = self.trust, 0
+            self._full_trust = trusted_fit(self.observations, self.spec, self.fit_options(), weights=weights,
+                                           time_ns=time_ns, trust=self.trust)
+            return self._full_trust
+        cheap = trusted_fit(self.observations, self.spec, self.fit_options(), weights=weights, time_ns=time_ns,
+                            trust=TrustOptions(anchors=self.trust.anchors, jackknife=False, draws=0))
+        return carried(cheap, last)
 
     def drift(self) -> dict[str, bool]:
         """Per calibrated current: has it moved beyond the 95 % interval of the reference fit?
@@ -172,6 +192,7 @@ class OnlineCalibrator:
 
     def reset(self) -> None:
         """Forget every run and fit (e.g. after a DIMM was replaced)."""
+        self._full_trust = None
         self.observations.clear()
         self.history.clear()
         self.latest = None

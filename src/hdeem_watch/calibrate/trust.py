@@ -370,3 +370,34 @@ def commands_of(rows: Sequence[Observation]) -> str:
     if sources <= {"counters", "model", ""} and {"counters", "model"} <= sources:
         return "mixed"
     return "unknown" if "" in sources and len(sources) == 1 else "mixed"
+
+
+def carried(cheap: FitResult, full: FitResult) -> FitResult:
+    """``cheap`` (a fit with held currents only: no jackknife, no mapping refits) with the interval
+    widths — relative to each value — and the verdicts of ``full``, the latest fit that computed them
+    (the online calibrator refreshes them every few runs; they change slowly once a fit has dozens of
+    runs). ``trust.refreshed_runs`` says how many runs ``full`` had."""
+    low, high, determined = [], [], []
+    for j, name in enumerate(cheap.currents):
+        value = float(cheap.calibrated_a[j])
+        if name not in full.currents:
+            low.append(float(cheap.ci95_a[j, 0]))
+            high.append(float(cheap.ci95_a[j, 1]))
+            determined.append(bool(cheap.identifiable[j]))
+            continue
+        k = full.currents.index(name)
+        reference = float(full.calibrated_a[k])
+        lo_f, hi_f = (float(v) for v in full.ci95_a[k])
+        held = name in (full.trust or {}).get("held", {})
+        unconfirmed = name in (full.trust or {}).get("unconfirmed", [])
+        if held or unconfirmed or not reference > 0:
+            low.append(lo_f)
+            high.append(hi_f)
+        else:
+            low.append(max(0.0, value * lo_f / reference))
+            high.append(value * hi_f / reference)
+        determined.append(bool(full.identifiable[k]))
+    info = {**dict(full.trust or {}), "held": dict((cheap.trust or {}).get("held", {})),
+            "refreshed_runs": full.n_runs}
+    return dataclasses.replace(cheap, ci95_a=np.column_stack([low, high]), identifiable=np.array(determined),
+                               trust=info, uncertainty=full.uncertainty)
