@@ -60,15 +60,15 @@ def holdout_figure(data: ReportData) -> ReportFigure:
     """Figure 7: per hold-out kernel and thread count the mean measured energy beside both models'."""
     plt = pyplot()
     groups = holdout_groups(data.runs)
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(max(7.0, 0.5 * len(groups) + 2), 6.0), sharex=True,
-                                      gridspec_kw={"height_ratios": (3, 2)})
     how = ("Runs of kernels the calibration never fitted, each predicted with the fit from before it; the lower "
            "panel is each model's error against the measurement (0 % = exact).")
-    if not groups:
-        message = "no hold-out runs (hdeem-watch demo runs them; bench --kernels holdout)"
-        no_data(top, message)
-        no_data(bottom, message)
+    if not groups:  # one clear panel, not two empty boxes
+        fig, ax = plt.subplots(figsize=(7.0, 2.8))
+        no_data(ax, "No hold-out runs: kernels the fit never saw, predicted from before each run\n"
+                    "(hdeem-watch demo runs them; hdeem-watch bench --kernels holdout --daemon)")
         return ReportFigure(KEY, TITLE, how, fig, missing=("hold-out runs",))
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(max(7.0, 0.5 * len(groups) + 2), 6.0), sharex=True,
+                                      gridspec_kw={"height_ratios": (3, 2)})
     x = np.arange(len(groups))
     width = 0.27
     for k, (name, values) in enumerate((("measured", [g.measured_j for g in groups]),
