@@ -1,11 +1,14 @@
 """``hdeem-watch calib show|reset|export``: inspect, reset and export a running daemon's calibration.
 
-``calib show [--group G] [--json]`` prints the fits ``calib.get`` returns: the node fit and, from a
-daemon with per-group calibration (docs/calibration.md, "Per-sensor-group fits"), one per sensor
-group, with their drift alarms and the runs that were too short to fit. ``calib reset [--group G]``
+``calib show [--group G] [--json]`` prints the fits ``calib.get`` returns: the daemon's node fit (with
+the source of its rows' commands), and from a daemon with per-group calibration (docs/calibration.md,
+"Per-sensor-group fits") the fit of the groups' sum (``total``) and one per sensor group, with their
+drift alarms and the runs not fitted and why. ``calib reset [--group G]``
 forgets the runs of every fit (or of one group). ``calib export --out RUNS.json [--group G]`` writes
-the calibration rows of the daemon's finished runs as a RUNS.json that ``hdeem-watch calibrate
---runs`` reads back (each run's model columns, constant and measured energy). ``--connect EP``
+exactly the calibration rows the daemon's fit holds as a RUNS.json that ``hdeem-watch calibrate
+--runs`` reads back to the same currents (each run's model columns, constant, measured energy and
+command source; the fit's currents under ``calibration``; the finished runs it did not fit, and why,
+under ``not_fitted``). ``--connect EP``
 names the daemon's control endpoint (default: the local daemon's).
 
 Exit codes: 0 done, 1 the daemon is unreachable or refused, 2 bad input (an unknown group).
