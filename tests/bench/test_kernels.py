@@ -23,6 +23,7 @@ REFERENCE = {
     "triad": lambda v: {"a": v["b"] + 2.0 * v["a"]},
     "copy": lambda v: {"b": v["a"]},
     "selfscale": lambda v: {"a": 2.0 * v["a"]},
+    "mix31": lambda v: {"a": (v["a"] + v["b"]) + v["c"]},
 }
 
 
@@ -291,3 +292,30 @@ def test_triad_library_loads_before_the_window_opens(monkeypatch: pytest.MonkeyP
     run_one(RunSpec("triad", 1, 8 * 1000, 2), on_start=on_start)
     assert events[0] == "load" and "window" in events
     assert events.index("window") > events.index("load")
+
+
+# -- hold-out kernels (issue #32) ---------------------------------------------------------------------
+
+
+def test_holdout_kernels_read_what_they_say_and_match_the_models_traffic() -> None:
+    """Strides sum every 2nd/4th line, gups as many random lines as the range has, the chase walks
+    the whole cycle back to its start; each pass's lines are the DRAM model's."""
+    from hdeem_watch.bench.schedule import HOLDOUT_KERNELS, parse_kernels
+
+    elements = 8 * 4096
+    lines = elements // 8
+    sums = {}
+    for kernel in HOLDOUT_KERNELS:
+        arrays = _filled(kernel, elements)
+        sums[kernel] = K.run_pass(kernel, arrays, 0, lines, np.empty(K.scratch_size(kernel)))
+        traffic = kernel_traffic(kernel, elements)
+        assert K.local_traffic(kernel, elements) == (traffic.lines_read, traffic.lines_written), kernel
+    assert sums["stride2"] == lines / 2 and sums["stride4"] == lines / 4 and sums["gups"] == lines
+    assert sums["chase"] == 0.0  # once around the cycle: back at line 0
+    chase = _filled("chase", elements)["p"][::8].astype(int)
+    seen, k = set(), 0
+    for _ in range(lines):
+        seen.add(k)
+        k = int(chase[k])
+    assert len(seen) == lines  # one cycle through every line
+    assert parse_kernels("holdout") == list(HOLDOUT_KERNELS)

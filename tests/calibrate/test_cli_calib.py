@@ -58,25 +58,43 @@ def _runs(control: str) -> None:
             client.call("run.stop", {"run_id": run["run_id"]})
 
 
+def _short_run(control: str) -> None:
+    """A run far too short to measure (the guard rail refuses it)."""
+    with ControlClient(control, timeout_s=30.0) as client:
+        run = client.call("run.start", {"kernel": "read", "threads": 2, "elements": 1 << 20, "repeat": 1})
+        client.call("run.stop", {"run_id": run["run_id"]})
+
+
+@pytest.mark.slow
 def test_show_export_calibrate_round_trip_and_reset(daemon: str, tmp_path: Path, capsys) -> None:
     _runs(daemon)
+    _short_run(daemon)
+    time.sleep(0.5)  # the model worker has the refused run
     assert main(["calib", "show", "--connect", daemon, "--json"]) == 0
     shown = json.loads(capsys.readouterr().out)
     node_fit = shown["node"]["fit"]
     assert node_fit["n_runs"] == 8
+    assert node_fit["trust"]["commands"] == "modelled"  # the daemon's default: no counters
+    node_skipped = [s for s in shown["skipped"] if s["group"] == "node"]
+    assert [s["name"].split(":")[1] for s in node_skipped] == ["read"] and "samples" in node_skipped[0]["reason"]
     assert main(["calib", "show", "--connect", daemon]) == 0
     text = capsys.readouterr().out
     assert text.startswith("node: 8 runs") and "idd3n" in text
+    assert "commands from the kernel model" in text and "not fitted: " in text
 
     runs_json = tmp_path / "RUNS.json"
     assert main(["calib", "export", "--connect", daemon, "--out", str(runs_json)]) == 0
-    assert "8 runs written" in capsys.readouterr().out
+    assert "8 fitted runs written" in capsys.readouterr().out
     exported = json.loads(runs_json.read_text())
     assert len(exported["runs"]) == 8 and set(exported["runs"][0]["columns"]) >= {"idd0", "idd3n"}
+    assert len(exported["not_fitted"]) == 1 and "samples" in exported["not_fitted"][0]["reason"]
+    assert exported["calibration"] == {"currents": list(node_fit["currents"]), "trust": True}
     assert main(["calibrate", "--runs", str(runs_json), "--json"]) == 0
     refit = json.loads(capsys.readouterr().out)
-    for name, entry in node_fit["currents"].items():  # the same rows, the same fit
+    for name, entry in node_fit["currents"].items():  # the same rows, the same fit, the same intervals
         assert refit["currents"][name]["calibrated"] == pytest.approx(entry["calibrated"], rel=1e-6, abs=1e-9)
+        assert refit["currents"][name]["ci95"] == pytest.approx(entry["ci95"], rel=1e-6, abs=1e-9)
+        assert refit["currents"][name]["identifiable"] == entry["identifiable"]
     assert refit["error"]["after"] == pytest.approx(node_fit["error"]["after"], rel=1e-6)
 
     assert main(["calib", "show", "--connect", daemon, "--group", "DDR_XY"]) == 2
@@ -85,7 +103,9 @@ def test_show_export_calibrate_round_trip_and_reset(daemon: str, tmp_path: Path,
     assert "calibration reset" in capsys.readouterr().out
     assert main(["calib", "show", "--connect", daemon, "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["node"]["fit"] is None
-    assert main(["calib", "export", "--connect", daemon, "--out", str(tmp_path / "again.json")]) == 0  # runs stay stored
+    # the runs stay stored, but the fit holds none of them: nothing it fitted to export
+    assert main(["calib", "export", "--connect", daemon, "--out", str(tmp_path / "again.json")]) == 2
+    assert "holds no runs (9 finished runs not fitted" in capsys.readouterr().err
 
 
 def test_unreachable_daemon_is_one_line_exit_1(tmp_path: Path, capsys) -> None:

@@ -207,8 +207,9 @@ def test_one_model_for_the_whole_node_stands_for_every_socket(spec: Any) -> None
 
 
 def test_calib_show_reads_the_group_shape(spec: Any, planned: list[Any]) -> None:
-    """``hdeem-watch calib show`` reads the body of a daemon with groups: node first, then each group;
-    --group picks one, an unknown one is a one-line error listing the groups; alarms are printed."""
+    """``hdeem-watch calib show`` reads the body of a daemon with groups: node first (the daemon's node
+    fit, not the groups' sum), then ``total`` (the groups' sum) and each group; --group picks one, an
+    unknown one is a one-line error listing the groups; alarms are printed."""
     from hdeem_watch.cli.calib import _select, fits_of, format_fits
 
     node = NODE_SIM.SyntheticNode(spec, 4, planned=planned)
@@ -219,10 +220,11 @@ def test_calib_show_reads_the_group_shape(spec: Any, planned: list[Any]) -> None
         calib.add_run(node.run(config=i % len(planned)))
     body = json.loads(json.dumps(calib.body(), allow_nan=False))
     fits = fits_of(body)
-    assert list(fits) == ["node", "DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"]
+    assert list(fits) == ["node", "total", "DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"]
+    assert fits["node"]["fit"] is None and fits["total"]["fit"]["n_runs"] == 70  # a body without the node fit
     text = format_fits(_select(fits, "DDR_GH"), [a for a in body["alarms"] if a["group"] == "DDR_GH"], [])
     assert text.startswith("DDR_GH: 70 runs") and "ALARM DDR_GH" in text and "sibling" in text
-    with pytest.raises(InputError, match="--group DDR_XY: unknown group; this daemon has node, DDR_AB"):
+    with pytest.raises(InputError, match="--group DDR_XY: unknown group; this daemon has node, total, DDR_AB"):
         _select(fits, "DDR_XY")
 
 

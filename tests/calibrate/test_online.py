@@ -131,3 +131,30 @@ def test_max_runs_keeps_the_newest(synth, truth_a) -> None:
         calib.add_run(obs)
     assert len(calib.observations) == 20
     assert [o.name for o in calib.observations] == [f"run{i}" for i in range(10, 30)]
+
+
+def test_a_trusted_calibrator_refreshes_its_intervals_every_eight_runs_after_64() -> None:
+    """The full trusted intervals (a jackknife and mapping refits: tens of fits) are computed at every
+    refit of a young fit, then every 8th run; in between the central fit carries the last ones, with
+    the same values as a full refit would give."""
+    from hdeem_watch.calibrate.trust import TrustOptions, trusted_fit
+
+    class Spec:
+        def __init__(self) -> None:
+            self.currents = {"a": 1.0, "b": 1.0}
+
+    calib = OnlineCalibrator(Spec(), currents=("a", "b"), names=("a", "b"), half_life_s=None, intercept=False,
+                             trust=TrustOptions())
+    rng = np.random.default_rng(3)
+    refreshed = []
+    for i in range(90):
+        x = float(rng.uniform(1, 3))
+        result = calib.add_run(Observation(f"r{i}:k{i % 6}", np.array([x, 1.0]), 0.0,
+                                           0.5 * x + 0.8 + 0.005 * rng.normal(), time_ns=i))
+        refreshed.append((result.trust or {}).get("refreshed_runs"))
+    assert refreshed[:64] == [None] * 64
+    assert [i + 1 for i, r in enumerate(refreshed) if r is None][64:] == [72, 80, 88]
+    assert refreshed[-1] == 88
+    full = trusted_fit(calib.observations, Spec(), calib.fit_options(), trust=TrustOptions())
+    assert np.allclose(calib.latest.calibrated_a, full.calibrated_a)
+    assert np.allclose(calib.latest.ci95_a, full.ci95_a, rtol=0.05)

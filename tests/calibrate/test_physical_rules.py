@@ -95,3 +95,23 @@ def test_cli_physical_rules_writes_a_memspec_that_loads(tmp_path, synth, samsung
     assert loaded.currents["idd3n"] == pytest.approx(loaded.currents["idd2n"], rel=1e-9)
     assert main(["calibrate", "--runs", str(tmp_path / "RUNS.json"), "--physical-rules"]) == 0
     assert "held at a physical rule (the data wants past it): background" in capsys.readouterr().out
+
+
+def test_the_example_is_physical_and_physical_rules_write_a_memspec_that_loads(tmp_path, capsys) -> None:
+    """examples/RUNS.json fits without an unphysical warning (its hidden truth is a physical device);
+    with --physical-rules every rule of the memspec check holds — also IDD3N ≥ IDD3P, whose state no
+    run uses — so the memspec written loads without --allow-unphysical (issue #28)."""
+    from pathlib import Path
+
+    from hdeem_watch.cli import main
+
+    runs = Path(__file__).resolve().parents[2] / "examples" / "RUNS.json"
+    assert main(["calibrate", "--runs", str(runs)]) == 0
+    assert "unphysical" not in capsys.readouterr().err
+    out = tmp_path / "physical.json"
+    assert main(["calibrate", "--runs", str(runs), "--physical-rules", "--currents", "idd0,idd2n,idd3n",
+                 "--write-memspec", str(out)]) == 0
+    capsys.readouterr()
+    spec = load_memspec(out)
+    assert spec.currents["idd3n"] >= spec.currents["idd3p"] - 1e-12
+    assert spec.currents["idd3n"] >= spec.currents["idd2n"] - 1e-12

@@ -98,7 +98,8 @@ def test_calib_get_and_calib_show_have_a_fit_per_pair(daemon: str, tmp_path: Pat
 
     assert main(["calib", "show", "--connect", daemon, "--json"]) == 0
     shown = json.loads(capsys.readouterr().out)
-    assert set(shown["groups"]) == PAIRS
+    assert set(shown["groups"]) == PAIRS | {"total"}  # the groups' sum beside them; "node" = the daemon's node fit
+    assert shown["node"]["fit"]["n_runs"] == 8 and shown["groups"]["total"]["fit"]["n_runs"] == 8
     assert shown["groups"]["DDR_AB"]["fit"]["n_runs"] == 8 and shown["groups"]["DDR_CD"]["fit"] is None
     assert set(shown["groups"]["DDR_GH"]["fit"]["currents"]) >= {"idd0", "idd3n", "idd4r", "idd4w"}
 

@@ -91,3 +91,42 @@ def test_text_format_has_no_leading_zeros() -> None:
     assert format_requests(addresses, is_write) == b"0x0 R\n0x1f W\n0xabc0 R\n0x10000000000 W\n"
     assert format_requests(addresses, is_write, "ramulator2") == (
         b"LD 0x0\nST 0x1f\nLD 0xabc0\nST 0x10000000000\n")
+
+
+# -- hold-out kernels (issue #32): workloads the calibration schedule never runs ----------------------
+
+
+def test_holdout_kernels_move_the_lines_they_say() -> None:
+    """Strides read every 2nd/4th line, the random kernels one random line of the array per iteration,
+    mix31 three lines read and the first written back."""
+    from hdeem_watch.dram.kernels import HOLDOUT_KERNELS, kernel_requests, kernel_traffic
+
+    lines = (1 << 20) // 8
+    assert kernel_traffic("stride2", 1 << 20).lines_read == lines // 2
+    assert kernel_traffic("stride4", 1 << 20).lines_read == lines // 4
+    assert kernel_traffic("gups", 1 << 20) == kernel_traffic("chase", 1 << 20) == kernel_traffic("read", 1 << 20)
+    assert kernel_traffic("mix31", 1 << 20) == kernel_traffic("add", 1 << 20)  # 3 reads : 1 write
+    addresses, is_write = kernel_requests("stride4", 1 << 12, threads=1)
+    assert (np.diff(addresses.astype(np.int64)) == 4 * 64).all() and not is_write.any()
+    addresses, _ = kernel_requests("gups", 1 << 16, threads=2)
+    offsets = (addresses - (1 << 30)) // 64
+    assert offsets.max() < (1 << 16) // 8 and len(np.unique(offsets)) > 0.5 * offsets.size  # random, within a
+    assert not (np.diff(offsets.astype(np.int64)) == 1).mean() > 0.01
+    addresses, is_write = kernel_requests("mix31", 64, threads=1)
+    assert is_write.reshape(-1, 4).tolist()[0] == [False, False, False, True]
+    assert set(HOLDOUT_KERNELS) == {"gups", "chase", "stride2", "stride4", "mix31"}
+
+
+def test_the_model_gives_random_reads_an_activation_per_request() -> None:
+    """Random 64-byte reads over 128 MiB miss the row buffer almost always; a 4-line stride reads a
+    row's lines at a quarter of the stream's hits."""
+    from hdeem_watch.dram.kernels import kernel_stats
+    from hdeem_watch.dram.memspec import preset
+
+    spec = preset("samsung-m393a1g43db0-cpb")
+    act_per = {}
+    for kernel in ("read", "stride4", "gups", "chase"):
+        stats = kernel_stats(spec, kernel, 1 << 24, 4, channels=4, xor_bank=True).stats
+        act_per[kernel] = stats.total("act") / (stats.total("rd") + stats.total("wr"))
+    assert act_per["gups"] > 0.9 and act_per["chase"] > 0.9
+    assert act_per["read"] < act_per["stride4"] < act_per["gups"]

@@ -42,7 +42,7 @@ def test_page_opens_without_console_problems_and_every_figure_is_drawn(
     browser.open(written.page.resolve().as_uri())
     assert browser.console_problems() == []
     rects = browser.evaluate(IMAGE_RECTS)
-    assert len(rects) == 6
+    assert len(rects) == 7
     assert all(r[4] for r in rects), "an embedded figure failed to decode"
     assert all(r[2] >= 600 and r[3] >= 250 for r in rects), rects
     shot = tmp_path / "report.png"

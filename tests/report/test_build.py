@@ -16,7 +16,8 @@ from hdeem_watch.report.records import ReportData
 from hdeem_watch.report.runs_reader import read_runs
 from hdeem_watch.report.state_reader import read_state
 
-FIGURES = ("fig1-energy", "fig2-currents", "fig3-residuals", "fig4-aging", "fig5-components", "fig6-jobs")
+FIGURES = ("fig1-energy", "fig2-currents", "fig3-residuals", "fig4-aging", "fig5-components", "fig6-jobs",
+           "fig7-holdout")
 
 
 @pytest.fixture

@@ -320,3 +320,30 @@ def test_a_start_behind_the_published_samples_keeps_the_runs_energy(fake_clock):
     total_s = (clock.t // 10_000_000) * 0.01   # the last whole sample
     expected = float(plan.idle_w.sum()) * total_s + float(plan.excess_w.sum()) * plan.duration_ns * 1e-9
     assert dram_energy([before, after]) == pytest.approx(expected, rel=1e-9)
+
+
+def test_a_stopped_run_owes_no_spike(fake_clock):
+    """Stopped at a quarter of its traffic, the rest of a run's energy comes within what a pair can
+    draw: no sample of a DIMM pair above its physical maximum or below 0 W, BLADE's rise no larger than
+    all DIMMs' maximum, and every joule still arrives (issue #28: 133 W on DDR_AB before)."""
+    from hdeem_watch.sources.sim_power import dimm_peak_w
+
+    clock = fake_clock()
+    sim = quiet_sim(clock)
+    kernel, elements, threads, repeat = "copy", 4_000_000, 24, 40
+    sim.on_run(RunEvent("start", "r", kernel, threads, elements, repeat, 0))
+    plan = sim.run_plan("r", timeout_s=120)
+    stop = (plan.duration_ns // 4) // 10_000_000 * 10_000_000
+    clock.t = stop
+    first = sim.poll()
+    sim.on_run(RunEvent("stop", "r", kernel, threads, elements, repeat, stop))
+    clock.t = stop + 20 * S
+    second = sim.poll()
+    peak = dimm_peak_w(sim.truth_node.spec)
+    for pair in DRAM_CHANNELS:
+        values = np.concatenate([b.samples[pair][1] for b in (first, second)])
+        assert values.min() >= 0.0 and values.max() <= 2 * peak + 1e-9, (pair, values.max())
+    blade = second.samples["BLADE"][1]
+    assert blade.max() - np.median(blade) <= 8 * peak + 1e-9
+    idle_after = float(plan.idle_w.sum()) * 20.0
+    assert dram_energy([first, second]) == pytest.approx(plan_energy_j(plan, stop) + idle_after, rel=1e-6)

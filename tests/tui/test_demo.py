@@ -120,7 +120,7 @@ def test_demo_headless_prints_progress_and_stops_the_daemon() -> None:
 def test_demo_schedule_runs_last_about_the_target() -> None:
     """Each demo run is sized with the modelled line rate to last one of the target lengths; a round has idle + 7 kernels."""
     runs = demo_round("24")
-    assert runs[0].spec.kernel == "idle" and len(runs) == 8
+    assert runs[0].spec.kernel == "idle" and len(runs) == 8  # round 0: no hold-out run yet
     assert all(r.spec.threads == 24 for r in runs)
     for i, run in enumerate(runs[1:]):
         target = RUN_LENGTHS_S[i % len(RUN_LENGTHS_S)]
@@ -159,7 +159,9 @@ def test_demo_design_determines_the_currents_near_the_effective_truth() -> None:
     model = default_model()
     currents = TruthModel(model.names, model.datasheet, 0).currents(0.0)
     effective = effective_currents(model, currents, 0.0).mean(axis=0)
-    modeller = RunModeller("samsung-m393a1g43db0-cpb", dimms=8)
+    # the design's information on rows that are right by construction (the model's own commands): the
+    # plain fit; the daemon's shown fit also says what rests on unconfirmed activations (test_trust_sim)
+    modeller = RunModeller("samsung-m393a1g43db0-cpb", dimms=8, trust=False)
     rng = np.random.default_rng(1)
     fit: dict = {}
     for i, run in enumerate(demo_plan(4)[:30]):
@@ -209,3 +211,18 @@ def test_tui_without_a_terminal_prints_text_lines(fake_node) -> None:  # type: i
     lines = done.stdout.splitlines()
     assert any(line.startswith("state  fake1 live") for line in lines), done.stdout
     assert any(line.startswith("power ") and all(ch in line for ch in DRAM) for line in lines), done.stdout
+
+
+def test_hold_out_runs_join_from_the_fifth_round() -> None:
+    """Every thread count is fitted once before the first hold-out run; then each round ends with one,
+    a kernel the fit never sees, cycling through the hold-out kernels."""
+    from hdeem_watch.demo.schedule import HOLDOUT_FROM_ROUND
+    from hdeem_watch.dram.kernels import HOLDOUT_KERNELS
+
+    assert HOLDOUT_FROM_ROUND == 4 and not any(r.holdout for r in demo_plan(4))
+    rounds = [demo_round(t, 4 + i) for i, t in enumerate(("24", "4", "12", "1", "24"))]
+    last = [r[-1] for r in rounds]
+    assert all(r.holdout for r in last) and [r.spec.kernel for r in last] == list(HOLDOUT_KERNELS)
+    assert [r.spec.threads for r in last] == [24, 4, 12, 1, 24]
+    assert all(1.0 < r.seconds < 2.0 for r in last)
+    assert not any(r.holdout for r in demo_round("24", 5, holdout=False))

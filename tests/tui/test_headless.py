@@ -133,3 +133,20 @@ def test_a_nan_power_never_prints_as_zero() -> None:
     model.apply_status({"channels": {"DDR_AB": {"rate_hz": 100.0}}})
     line = power_line(_snapshot(model))
     assert "DDR_AB –" in line and not math.isfinite(_snapshot(model).channels[0].power_w)
+
+
+def test_hold_out_runs_are_summed_up_in_one_line() -> None:
+    """Runs of hold-out kernels (never fitted) count into the closing ``holdout:`` line with the
+    prediction from before each; other runs do not, and none counts before it has a prediction."""
+    model = NodeModel("ipc:///x")
+    printer = ProgressPrinter()
+    assert printer.holdout_line() is None
+    for i, (kernel, measured, datasheet, calibrated) in enumerate((
+            ("gups", 10.0, 16.0, 10.2), ("read", 10.0, 16.0, 13.0), ("stride4", 8.0, 12.0, 7.6),
+            ("chase", 5.0, 8.0, None))):
+        model.apply_run_event({"event": "stop", "run": {
+            "run_id": f"r{i}", "name": f"{kernel}-4t", "kernel": kernel, "threads": 4, "window_s": 1.5,
+            "dram_energy_j": measured, "model": {"datasheet_j": datasheet, "calibrated_j": calibrated}}})
+        printer.lines(_snapshot(model), now_s=float(i))
+    assert printer.holdout_line() == ("holdout: 2 runs, median error 3.5 %, worst 5.0 % "
+                                      "(datasheet: median 55.0 %, worst 60.0 %)")

@@ -28,7 +28,7 @@ from typing import Any
 
 import zmq
 
-from hdeem_watch.bench.schedule import RunSpec
+from hdeem_watch.bench.schedule import HOLDOUT_KERNELS, RunSpec
 from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable, HandshakeFailed
 from hdeem_watch.errors import InputError
 
@@ -111,6 +111,8 @@ class Announcer:
         array_bytes = getattr(spec, "array_bytes", 0)
         if array_bytes:
             placement["array_bytes"] = int(array_bytes)
+        if spec.kernel in HOLDOUT_KERNELS:  # predicted with the fit from before it, never fitted
+            placement["holdout"] = True
         return {"name": run_name(spec), "kernel": spec.kernel, "threads": spec.threads,
                 "elements": spec.elements, "repeat": spec.repeat,
                 "metadata": {"host": socket.gethostname(), "pid": os.getpid(), "tool": "hdeem-watch bench",

@@ -14,7 +14,18 @@ add        ``c[k] = a[k] + b[k]``  a, b        c                   a, b, c
 triad      ``a[k] = b[k] + 2 a[k]``  b, a      a                   a, b
 copy       ``b[k] = a[k]``         a           b                   a, b
 selfscale  ``a[k] = 2 a[k]``       a           a                   a
+stride2    ``sum += a[2k]``        a (½)       -                   a
+stride4    ``sum += a[4k]``        a (¼)       -                   a
+gups       ``sum += a[r(k)]``      a (random)  -                   a
+chase      ``k = p[k]``            p (random)  -                   p
+mix31      ``a = a + b + c``       a, b, c     a                   a, b, c
 =========  ======================  ==========  ==================  =============
+
+The last five are the hold-out kernels (:data:`~hdeem_watch.bench.schedule.HOLDOUT_KERNELS`): the
+strides read every 2nd/4th line of the range; gups reads as many random lines of the whole array as
+the range has (a fixed generator per pass); chase follows a random cycle through the range's lines
+stored in ``p`` (each line holds the index of the next: one dependent miss at a time); mix31 runs
+in chunks like add (``a += b``, then ``a += c`` with ``a``'s lines still cached).
 
 Read, assign, copy and selfscale are one numpy call per pass on strided views with ``out=`` (no
 temporaries). Triad is one call per pass of OpenBLAS's fused ``daxpby`` (``a = 1.0 b + 2.0 a``,
@@ -65,7 +76,7 @@ STRIDE = 8
 LINE_BYTES = 64
 #: Kernels that run in chunks (two numpy calls per chunk, the destination's lines kept in cache);
 #: triad only when OpenBLAS is missing.
-CHUNKED_KERNELS = ("scale", "add", "triad")
+CHUNKED_KERNELS = ("scale", "add", "triad", "mix31")
 #: Default lines per chunk: 2 arrays x 4096 lines x 64 B = 512 KiB of lines, inside a 1 MiB L2 and
 #: any LLC (used when the LLC size is unknown).
 CHUNK_LINES = 4096
@@ -79,13 +90,16 @@ IDLE_BUFFER = 2048
 
 #: Initial values written at first touch, per array.
 INIT_VALUES: dict[str, float] = {"a": 1.0, "b": 2.0, "c": 0.0}
+#: The pointer chase's array: each line holds the index of the next line of a random cycle.
+CHASE_ARRAY = "p"
 
 #: Lines per iteration counted by STREAM's convention (McCalpin's STREAM: 2 words per element for
 #: copy and scale, 3 for add and triad): each array read or written counted once, no write-allocate
 #: read of the destination. A "word" here is the 64-byte line the stride-8 access moves; read,
 #: assign and selfscale, which STREAM lacks, follow the same rule.
 STREAM_LINES: dict[str, int] = {"read": 1, "assign": 1, "scale": 2, "add": 3, "triad": 3, "copy": 2,
-                                "selfscale": 2, IDLE_KERNEL: 0}
+                                "selfscale": 2, IDLE_KERNEL: 0, "stride2": 1, "stride4": 1, "gups": 1, "chase": 1,
+                                "mix31": 4}
 
 #: Arrays each kernel uses (allocated and first-touched).
 KERNEL_ARRAYS: dict[str, tuple[str, ...]] = {
@@ -97,7 +111,14 @@ KERNEL_ARRAYS: dict[str, tuple[str, ...]] = {
     "copy": ("a", "b"),
     "selfscale": ("a",),
     IDLE_KERNEL: (),
+    "stride2": ("a",),
+    "stride4": ("a",),
+    "gups": ("a",),
+    "chase": ("p",),
+    "mix31": ("a", "b", "c"),
 }
+#: Line step of the strided kernels.
+LINE_STEP = {"stride2": 2, "stride4": 4}
 
 #: Lines read and written per array line per pass, write-allocate (read for ownership) included.
 #: ``(reads, writes)`` per line index; multiply by the number of lines for a pass.
@@ -110,6 +131,9 @@ _LINE_TRAFFIC: dict[str, tuple[int, int]] = {
     "copy": (2, 1),        # a, RFO of b; b
     "selfscale": (1, 1),   # a (destination already read); a
     IDLE_KERNEL: (0, 0),
+    "gups": (1, 0),
+    "chase": (1, 0),
+    "mix31": (3, 1),       # a, b, c; a
 }
 
 
@@ -130,7 +154,10 @@ def local_traffic(kernel: str, elements: int) -> tuple[int, int]:
     model's ``kernel_traffic`` when it is installed and the two are checked against each other in
     the tests.
     """
-    reads, writes = _LINE_TRAFFIC[canonical_kernel(kernel)]
+    name = canonical_kernel(kernel)
+    if name in LINE_STEP:
+        return -(-lines_of(elements) // LINE_STEP[name]), 0
+    reads, writes = _LINE_TRAFFIC[name]
     n = lines_of(elements)
     return reads * n, writes * n
 
@@ -161,8 +188,14 @@ def _aligned_empty(elements: int) -> np.ndarray:
 
 
 def init_arrays(arrays: Mapping[str, np.ndarray], lo_line: int, hi_line: int) -> None:
-    """First-touch every element of lines ``[lo_line, hi_line)`` with :data:`INIT_VALUES`."""
+    """First-touch every element of lines ``[lo_line, hi_line)`` with :data:`INIT_VALUES` (the chase's
+    ``p``: a random cycle through the range's lines, each line holding the next one's index)."""
     for name, array in arrays.items():
+        if name == CHASE_ARRAY:
+            array[lo_line * STRIDE:hi_line * STRIDE] = 0.0
+            order = lo_line + np.random.default_rng(lo_line).permutation(max(0, hi_line - lo_line))
+            _view(array, lo_line, hi_line)[order - lo_line] = np.roll(order, -1).astype(np.float64)
+            continue
         array[lo_line * STRIDE:hi_line * STRIDE] = INIT_VALUES[name]
 
 
@@ -220,6 +253,16 @@ def run_pass(kernel: str, arrays: Mapping[str, np.ndarray], lo_line: int, hi_lin
         _triad(arrays["a"], arrays["b"], lo_line, hi_line, scratch.size)
     elif kernel == IDLE_KERNEL:
         return _idle(hi_line - lo_line, scratch)
+    elif kernel in LINE_STEP:
+        return float(np.einsum("i->", arrays["a"][lo_line * STRIDE:hi_line * STRIDE:STRIDE * LINE_STEP[kernel]]))
+    elif kernel == "gups":
+        lines = lines_of(arrays["a"].size)
+        picks = np.random.default_rng(lo_line).integers(0, lines, hi_line - lo_line) * STRIDE
+        return float(np.take(arrays["a"], picks).sum())
+    elif kernel == "chase":
+        return _chase(arrays[CHASE_ARRAY], lo_line, hi_line)
+    elif kernel == "mix31":
+        _mix31(arrays["a"], arrays["b"], arrays["c"], lo_line, hi_line, scratch.size)
     else:  # pragma: no cover - canonical names are checked by the schedule
         raise ValueError(f"unknown kernel {kernel!r}; expected one of {KERNELS}")
     return 0.0
@@ -278,6 +321,23 @@ def _triad(a_full: np.ndarray, b_full: np.ndarray, lo_line: int, hi_line: int, s
         a = _view(a_full, lo, hi)
         np.add(a, a, out=a)  # 2a in place: exact (or inf, as 2.0 * a); the lines stay cached
         np.add(_view(b_full, lo, hi), a, out=a)  # b + 2a, one rounding: bit-exact with C
+
+
+def _chase(p: np.ndarray, lo_line: int, hi_line: int) -> float:
+    """Follow the cycle from ``lo_line`` once around (one dependent load per line); the last index."""
+    k = lo_line
+    for _ in range(hi_line - lo_line):
+        k = int(p[k * STRIDE])
+    return float(k)
+
+
+def _mix31(a_full: np.ndarray, b_full: np.ndarray, c_full: np.ndarray, lo_line: int, hi_line: int,
+           step: int) -> None:
+    for lo in range(lo_line, hi_line, step):
+        hi = min(lo + step, hi_line)
+        a = _view(a_full, lo, hi)
+        np.add(a, _view(b_full, lo, hi), out=a)
+        np.add(a, _view(c_full, lo, hi), out=a)  # a's lines still cached: 3 lines read, 1 written
 
 
 def _idle(lines: int, scratch: np.ndarray) -> float:

@@ -23,8 +23,12 @@ from hdeem_watch.errors import InputError
 KERNELS: tuple[str, ...] = ("read", "assign", "scale", "add", "triad", "copy", "selfscale")
 #: The compute-only kernel: cores busy in registers, DRAM idle (static power, baselines).
 IDLE_KERNEL = "idle"
+#: Workloads a calibration never fits (``hdeem_watch.dram.kernels.HOLDOUT_KERNELS``): GUPS-like random
+#: reads, a dependent pointer chase, 2- and 4-line strides, a 3:1 read/write mix; announced with
+#: ``metadata.holdout = true`` the daemon predicts them with the fit from before and never fits them.
+HOLDOUT_KERNELS: tuple[str, ...] = ("gups", "chase", "stride2", "stride4", "mix31")
 #: Every kernel name the bench accepts, after alias resolution.
-ALL_KERNELS: tuple[str, ...] = (*KERNELS, IDLE_KERNEL)
+ALL_KERNELS: tuple[str, ...] = (*KERNELS, IDLE_KERNEL, *HOLDOUT_KERNELS)
 #: Accepted spellings that map onto a canonical name.
 KERNEL_ALIASES: dict[str, str] = {"addition": "add"}
 
@@ -71,7 +75,8 @@ def canonical_kernel(name: str) -> str:
 def parse_kernels(spec: str | Iterable[str]) -> list[str]:
     """Parse a kernel list (``"read,copy"``, ``"all"`` or an iterable of names).
 
-    ``all`` expands to the seven STREAM-like kernels; ``all+idle`` adds the idle kernel.
+    ``all`` expands to the seven STREAM-like kernels; ``all+idle`` adds the idle kernel; ``holdout``
+    the hold-out kernels (:data:`HOLDOUT_KERNELS`).
 
     Raises:
         InputError: an empty list or an unknown name.
@@ -85,7 +90,9 @@ def parse_kernels(spec: str | Iterable[str]) -> list[str]:
         if word == "all":
             out.extend(KERNELS)
         elif word == "all+idle":
-            out.extend(ALL_KERNELS)
+            out.extend((*KERNELS, IDLE_KERNEL))
+        elif word == "holdout":
+            out.extend(HOLDOUT_KERNELS)
         else:
             out.append(canonical_kernel(word))
     if not out:

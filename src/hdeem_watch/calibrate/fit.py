@@ -160,7 +160,9 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
     all_a = np.array([float(spec.currents.get(nm, 0.0)) for nm in names])
     datasheet = all_a[index]
     used = {name for name, column in zip(names, cols.T) if np.any(column != 0)}
-    limits = physical_limits(spec, chosen, used) if options.physical or options.rules else None
+    # With the rules kept, every rule holds (a memspec DRAMPower and the memspec check accept), also
+    # those against a current whose state no run uses (IDD3N ≥ IDD3P without power-down residency).
+    limits = physical_limits(spec, chosen, None if options.rules else used) if options.physical or options.rules else None
     lower_a, upper_a = _bounds(chosen, datasheet, options.bounds, limits.bounds if limits and options.physical else None)
     scales = np.where(datasheet > 0, datasheet, np.where(np.isfinite(upper_a) & (upper_a > 0), upper_a, 1.0))
     fixed = np.ones(len(names), dtype=bool)

@@ -57,6 +57,12 @@ class Observation:
         time_ns: wall-clock time of the run (its end), integer ns; used for forgetting.
         weight: relative weight of the row (1 = normal).
         window_s: the measured window in seconds (informational; NaN = unknown).
+        commands: where the row's command counts come from: ``"counters"`` (counted in its
+            window), ``"model"`` (the kernel model) or ``""`` (not said: a trace, a file).
+        act_columns: the part of ``columns`` that the activations and their precharges carry (J per
+            A; scales with the ACT count), for rows whose ACTs are modelled; None: not kept.
+        act_factors: for a modelled row, its activation count under each other address-mapping
+            family relative to the model's own (``dram.node.MAPPING_FAMILIES[1:]``); empty: none.
     """
 
     name: str
@@ -66,12 +72,24 @@ class Observation:
     time_ns: int = 0
     weight: float = 1.0
     window_s: float = field(default=math.nan)
+    commands: str = ""
+    act_columns: np.ndarray | None = None
+    act_factors: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         columns = np.asarray(self.columns, dtype=float)
         if columns.ndim != 1:
             raise InputError(f"run {self.name!r}: columns must be a 1-d array, got shape {columns.shape}")
         object.__setattr__(self, "columns", columns)
+        if self.act_columns is not None:
+            act = np.asarray(self.act_columns, dtype=float)
+            if act.shape != columns.shape or not np.all(np.isfinite(act)):
+                raise InputError(f"run {self.name!r}: act_columns must be finite and shaped like columns")
+            object.__setattr__(self, "act_columns", act)
+        factors = tuple(float(f) for f in self.act_factors)
+        if not all(math.isfinite(f) and f >= 0 for f in factors):
+            raise InputError(f"run {self.name!r}: act_factors must be finite and >= 0")
+        object.__setattr__(self, "act_factors", factors)
         check_measured(self.name, self.measured_j)
         if not np.all(np.isfinite(columns)):
             raise InputError(f"run {self.name!r}: model columns contain NaN or infinity")
@@ -95,6 +113,9 @@ class Observation:
             "time_ns": int(self.time_ns),
             "weight": float(self.weight),
             "window_s": None if math.isnan(self.window_s) else float(self.window_s),
+            **({"commands": self.commands} if self.commands else {}),
+            **({"act_columns": [float(c) for c in self.act_columns]} if self.act_columns is not None else {}),
+            **({"act_factors": list(self.act_factors)} if self.act_factors else {}),
         }
 
     @classmethod
@@ -114,6 +135,9 @@ class Observation:
                 time_ns=int(data.get("time_ns", 0)),
                 weight=float(data.get("weight", 1.0)),
                 window_s=math.nan if window is None else float(window),
+                commands=str(data.get("commands", "")),
+                act_columns=None if data.get("act_columns") is None else np.asarray(data["act_columns"], dtype=float),
+                act_factors=tuple(float(f) for f in data.get("act_factors") or ()),
             )
         except (KeyError, TypeError, ValueError) as error:
             raise InputError(f"observation {data.get('name', '?')!r}: malformed ({error})") from None

@@ -31,9 +31,14 @@ import numpy as np
 from hdeem_watch.calibrate.fit import FitOptions, fit
 from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS, Observation, SpecLike, current_names
 from hdeem_watch.calibrate.result import FitResult, FitSettings
+from hdeem_watch.calibrate.trust import TrustOptions, carried, trusted_fit
 from hdeem_watch.errors import InputError
 
 _STATE_VERSION = 1
+#: A trusted calibrator computes its full intervals at every refit up to this many runs ...
+TRUST_FULL_UNTIL = 64
+#: ... and then every this many runs (carried in between).
+TRUST_EVERY = 8
 
 
 class OnlineCalibrator:
@@ -52,6 +57,8 @@ class OnlineCalibrator:
         loo: leave-one-out mode of each refit (``"hat"``: cheap).
         rules: keep the ordering rules between calibrated currents in each refit
             (:attr:`~hdeem_watch.calibrate.fit.FitOptions.rules`; may be changed between refits).
+        trust: widen every refit's intervals and hold currents without a state of their own
+            (:func:`~hdeem_watch.calibrate.trust.trusted_fit`); None: the plain fit.
 
     Example::
 
@@ -67,7 +74,8 @@ class OnlineCalibrator:
                  prior_weight: float = 0.0, settings: FitSettings | None = None,
                  names: Sequence[str] | None = None, min_weight: float = 1e-4, max_history: int = 256,
                  max_runs: int = 2000,
-                 drift_lag_s: float | None = None, loo: str = "hat", rules: bool = False) -> None:
+                 drift_lag_s: float | None = None, loo: str = "hat", rules: bool = False,
+                 trust: TrustOptions | None = None) -> None:
         if half_life_s is not None and not (half_life_s > 0):
             raise InputError(f"half_life_s: {half_life_s!r}; expected a duration > 0 s (or None)")
         self.spec = spec
@@ -84,6 +92,10 @@ class OnlineCalibrator:
         self.drift_lag_s = drift_lag_s
         self.loo = loo
         self.rules = bool(rules)
+        self.trust = trust
+        self._full_trust: FitResult | None = None
+        self._full_options: TrustOptions | None = None
+        self._since_full = 0
         self.observations: list[Observation] = []
         self.history: list[tuple[int, FitResult]] = []
         self.latest: FitResult | None = None
@@ -123,17 +135,36 @@ class OnlineCalibrator:
         return self._refit(decay)
 
     def refit(self) -> FitResult | None:
-        """Refit on the kept runs (after a settings change); records the fit."""
+        """Refit on the kept runs (after a settings change), trusted intervals in full; records the fit."""
+        self._full_trust = None
         return self._refit(self.weights()) if self.observations else None
 
     def _refit(self, decay: np.ndarray) -> FitResult:
         now = max(o.time_ns for o in self.observations)
-        result = fit(self.observations, self.spec, self.fit_options(), weights=decay, time_ns=now)
+        result = self._fit(decay, now)
         self.latest = result
         self.history.append((now, result))
         if len(self.history) > self.max_history:
             del self.history[: len(self.history) - self.max_history]
         return result
+
+    def _fit(self, weights: np.ndarray, time_ns: int) -> FitResult:
+        """The refit: plain, or :func:`trusted_fit` — in full while the fit is young and every
+        :data:`TRUST_EVERY` runs after, in between its central fit with the last full intervals and
+        verdicts carried (:func:`~hdeem_watch.calibrate.trust.carried`: a full one costs ~30–50 refits)."""
+        if self.trust is None:
+            return fit(self.observations, self.spec, self.fit_options(), weights=weights, time_ns=time_ns)
+        last = self._full_trust
+        self._since_full += 1
+        if last is None or len(self.observations) <= TRUST_FULL_UNTIL or self._since_full >= TRUST_EVERY or \
+                set(last.currents) != set(self.currents) or self._full_options is not self.trust:
+            self._full_options, self._since_full = self.trust, 0
+            self._full_trust = trusted_fit(self.observations, self.spec, self.fit_options(), weights=weights,
+                                           time_ns=time_ns, trust=self.trust)
+            return self._full_trust
+        cheap = trusted_fit(self.observations, self.spec, self.fit_options(), weights=weights, time_ns=time_ns,
+                            trust=TrustOptions(anchors=self.trust.anchors, jackknife=False, draws=0))
+        return carried(cheap, last)
 
     def drift(self) -> dict[str, bool]:
         """Per calibrated current: has it moved beyond the 95 % interval of the reference fit?
@@ -161,6 +192,7 @@ class OnlineCalibrator:
 
     def reset(self) -> None:
         """Forget every run and fit (e.g. after a DIMM was replaced)."""
+        self._full_trust = None
         self.observations.clear()
         self.history.clear()
         self.latest = None
@@ -183,6 +215,9 @@ class OnlineCalibrator:
                 "intercept": self.intercept, "prior_weight": self.prior_weight, "names": list(self.names),
                 "min_weight": self.min_weight, "max_history": self.max_history, "max_runs": self.max_runs,
                 "drift_lag_s": self.drift_lag_s, "loo": self.loo, "rules": self.rules,
+                "trust": None if self.trust is None else {"act_factor": self.trust.act_factor,
+                                                          "draws": self.trust.draws,
+                                                          "jackknife": self.trust.jackknife},
                 "noise_floor": self.settings.noise_floor, "max_rel_ci": self.settings.max_rel_ci,
                 "min_sensitivity": self.settings.min_sensitivity,
             },
@@ -209,14 +244,16 @@ class OnlineCalibrator:
                                              min_sensitivity=float(s["min_sensitivity"])),
                         names=s["names"], min_weight=float(s["min_weight"]), max_history=int(s["max_history"]),
                         max_runs=int(s.get("max_runs", 2000)),
-                        drift_lag_s=s["drift_lag_s"], loo=str(s["loo"]), rules=bool(s.get("rules", False)))
+                        drift_lag_s=s["drift_lag_s"], loo=str(s["loo"]), rules=bool(s.get("rules", False)),
+                        trust=None if not s.get("trust") else TrustOptions(
+                            act_factor=float(s["trust"]["act_factor"]), draws=int(s["trust"]["draws"]),
+                            jackknife=bool(s["trust"]["jackknife"])))
             calib.observations = [Observation.from_dict(o) for o in data["observations"]]
             calib.history = [(int(h["time_ns"]), FitResult.from_dict(h["fit"])) for h in data["history"]]
         except (KeyError, TypeError, ValueError, AttributeError) as error:
             raise InputError(f"calibrator state: malformed ({error!r})") from None
         if calib.observations:
-            calib.latest = fit(calib.observations, spec, calib.fit_options(), weights=calib.weights(),
-                               time_ns=max(o.time_ns for o in calib.observations))
+            calib.latest = calib._fit(calib.weights(), max(o.time_ns for o in calib.observations))
             if calib.history:
                 calib.history[-1] = (calib.history[-1][0], calib.latest)
         return calib

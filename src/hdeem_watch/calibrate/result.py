@@ -78,6 +78,9 @@ class FitResult:
     #: The physical rules between calibrated currents that hold with equality (e.g. ``"ACT+PRE"``:
     #: IDD0 sits at the tRAS/tRC mix of IDD3N and IDD2N); see :mod:`hdeem_watch.calibrate.physical`.
     rules_held: tuple[str, ...] = ()
+    #: What widened the intervals and which currents are held (:mod:`hdeem_watch.calibrate.trust`);
+    #: None for a plain fit.
+    trust: Mapping[str, Any] | None = None
     #: Everything :func:`~hdeem_watch.calibrate.observe.suggest_next` needs (absent after from_dict).
     model: FitModel | None = field(default=None, compare=False, repr=False)
 
@@ -85,6 +88,15 @@ class FitResult:
     def calibrated(self) -> dict[str, float]:
         """Calibrated currents by name (A)."""
         return {n: float(v) for n, v in zip(self.currents, self.calibrated_a)}
+
+    def interval(self, name: str) -> tuple[float, float]:
+        """The 95 % interval of current ``name`` (A)."""
+        j = self.currents.index(name)
+        return float(self.ci95_a[j, 0]), float(self.ci95_a[j, 1])
+
+    def determined(self, name: str) -> bool:
+        """Whether the runs determine current ``name`` (its ``identifiable`` verdict)."""
+        return bool(self.identifiable[self.currents.index(name)])
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON contract: ``currents.<name>.{datasheet, calibrated, ci95, identifiable}``, ...
@@ -125,6 +137,7 @@ class FitResult:
             "uncertainty": self.uncertainty,
             "time_ns": self.time_ns,
             "runs": [dict(run) for run in self.runs],
+            "trust": None if self.trust is None else dict(self.trust),
         }
 
     @classmethod
@@ -164,6 +177,7 @@ class FitResult:
                 runs=tuple(dict(r) for r in data.get("runs", [])),
                 rules_held=tuple(str(r) for r in data.get("rules_held", [])),
                 time_ns=int(data.get("time_ns", 0)),
+                trust=dict(data["trust"]) if isinstance(data.get("trust"), Mapping) else None,
             )
         except (KeyError, TypeError, ValueError) as error:
             raise InputError(f"fit: malformed fit record ({error!r})") from None

@@ -30,6 +30,9 @@ from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.dram.stats import CommandStats, RankStats, stretch_stats
 from hdeem_watch.errors import InputError
 
+#: The energy components that scale with the activation count (the ACT and its PRE).
+ACT_COMPONENTS = ("act_j", "pre_j")
+
 
 def model_columns(spec: MemSpec, stats: CommandStats) -> tuple[np.ndarray, float]:
     """The energy model's columns (J per A, over ``CURRENT_NAMES``) and constant for ``stats``."""
@@ -37,9 +40,15 @@ def model_columns(spec: MemSpec, stats: CommandStats) -> tuple[np.ndarray, float
     return np.asarray(linear.columns, dtype=float), float(linear.constant_j)
 
 
+def act_columns(spec: MemSpec, stats: CommandStats) -> np.ndarray:
+    """The part of ``model_columns(spec, stats)`` that the activations and precharges carry."""
+    linear = energy_columns(spec, stats)
+    return np.sum([np.asarray(linear.component_columns[c], dtype=float) for c in ACT_COMPONENTS], axis=0)
+
+
 def observation_from_run(spec: MemSpec, model_stats: CommandStats, window_s: float, measured_j: float, *,
                          scale: float = 1.0, name: str = "run", time_ns: int = 0,
-                         weight: float = 1.0, traffic_s: float | None = None) -> Observation:
+                         weight: float = 1.0, traffic_s: float | None = None, commands: str = "") -> Observation:
     """A calibration row for one measured run.
 
     Args:
@@ -57,6 +66,8 @@ def observation_from_run(spec: MemSpec, model_stats: CommandStats, window_s: flo
             state mix stretched over all of it. For windows that end well after the traffic (the
             demo's at high speed end at the daemon's first poll after the stop, up to seconds of
             sim time later). None or a longer traffic: stretched to the window as always.
+        commands: where ``model_stats``' commands come from (``"counters"``, ``"model"``; see
+            :class:`Observation`); a ``"model"`` row keeps its activations' columns.
 
     Raises:
         InputError: a bad energy, window or scale, naming the run.
@@ -66,14 +77,18 @@ def observation_from_run(spec: MemSpec, model_stats: CommandStats, window_s: flo
         raise InputError(f"run {name!r}: scale = {scale!r}; expected a number > 0")
     own_s = traffic_s if traffic_s is not None and math.isfinite(traffic_s) and traffic_s > 0 else math.nan
     if math.isfinite(own_s) and isinstance(window_s, int | float) and window_s > own_s:
-        columns, constant = model_columns(spec, stretch_stats(spec, model_stats, own_s, name=name))
+        busy = stretch_stats(spec, model_stats, own_s, name=name)
+        columns, constant = model_columns(spec, busy)
         idle = CommandStats(ranks=tuple(RankStats() for _ in model_stats.ranks))
         idle_columns, idle_constant = model_columns(spec, stretch_stats(spec, idle, float(window_s) - own_s, name=name))
         columns, constant = columns + idle_columns, constant + idle_constant
     else:
-        columns, constant = model_columns(spec, stretch_stats(spec, model_stats, window_s, name=name))
+        busy = stretch_stats(spec, model_stats, window_s, name=name)
+        columns, constant = model_columns(spec, busy)
+    act = act_columns(spec, busy) * scale if commands == "model" else None
     return Observation(name=name, columns=columns * scale, constant_j=constant * scale, measured_j=measured,
-                       time_ns=int(time_ns), weight=weight, window_s=float(window_s))
+                       time_ns=int(time_ns), weight=weight, window_s=float(window_s), commands=commands,
+                       act_columns=act)
 
 
 def stats_window_s(spec: MemSpec, stats: CommandStats) -> float:
@@ -84,7 +99,8 @@ def stats_window_s(spec: MemSpec, stats: CommandStats) -> float:
 
 def node_observation(spec: MemSpec, groups: Sequence[tuple[CommandStats, int]], window_s: float,
                      measured_j: float, *, name: str = "run", time_ns: int = 0,
-                     weight: float = 1.0, traffic_s: float | None = None) -> Observation:
+                     weight: float = 1.0, traffic_s: float | None = None, commands: str = "",
+                     act_factors: Sequence[float] = ()) -> Observation:
     """ONE calibration row for a node: its channel groups' rows over the same window, summed.
 
     Each group's row is ``observation_from_run(spec, stats, window_s, measured_j, scale=channels,
@@ -98,8 +114,11 @@ def node_observation(spec: MemSpec, groups: Sequence[tuple[CommandStats, int]], 
     if not groups:
         raise InputError(f"run {name!r}: no channel groups")
     rows = [observation_from_run(spec, stats, window_s, measured_j, scale=float(n), name=name, time_ns=time_ns,
-                                 weight=weight, traffic_s=traffic_s) for stats, n in groups]
+                                 weight=weight, traffic_s=traffic_s, commands=commands) for stats, n in groups]
     columns = np.sum([row.columns for row in rows], axis=0)
     constant = float(sum(row.constant_j for row in rows))
+    act = None if commands != "model" else np.sum([row.act_columns for row in rows if row.act_columns is not None],
+                                                   axis=0)
     return Observation(name=rows[0].name, columns=columns, constant_j=constant, measured_j=rows[0].measured_j,
-                       time_ns=rows[0].time_ns, weight=rows[0].weight, window_s=rows[0].window_s)
+                       time_ns=rows[0].time_ns, weight=rows[0].weight, window_s=rows[0].window_s,
+                       commands=commands, act_columns=act, act_factors=tuple(act_factors) if act is not None else ())

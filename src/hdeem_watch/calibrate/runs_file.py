@@ -22,14 +22,20 @@ model's residency and refresh are stretched to it; default: the trace's/statisti
 Instead of ``trace`` or ``stats`` a run may give its calibration row as the daemon built it
 (``hdeem-watch calib export`` writes these): ``columns`` (current name → J per A of the whole
 measured energy, e.g. ``{"idd0": 812.5, "idd2n": 96.1, ...}``; currents not named count 0) and
-``constant_j`` (the model energy that depends on no current); ``scale`` then multiplies both.
+``constant_j`` (the model energy that depends on no current); ``scale`` then multiplies both. Such a
+row may also say where its commands came from, ``commands`` (``"counters"`` or ``"model"``), and for a
+modelled row the columns its activations carry, ``act_columns``, and its activation count under the
+other address-mapping families, ``act_factors`` (:mod:`hdeem_watch.calibrate.trust` uses them). A
+top-level ``calibration`` object (``calib export`` writes the daemon's ``currents`` and ``trust``) sets
+``hdeem-watch calibrate``'s defaults; ``not_fitted`` lists the daemon's runs it did not fit (read by
+no one: the record of what was left out).
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +49,9 @@ from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError, not_a_file_error
 
 _RUN_KEYS = {"name", "measured_j", "hdeem_printout", "printout_block", "trace", "stats", "scale", "window_s",
-             "time_ns", "weight", "columns", "constant_j"}
+             "time_ns", "weight", "columns", "constant_j", "commands", "act_columns", "act_factors"}
+#: Fields only a ``columns`` row may have (what ``calib export`` keeps of the daemon's row).
+_ROW_ONLY = ("constant_j", "commands", "act_columns", "act_factors")
 
 
 def load_spec(value: str, base: Path, where: str, *, allow_unphysical: bool = False) -> MemSpec:
@@ -137,8 +145,9 @@ def _observation(spec: MemSpec, run: Any, i: int, base: Path, where: str) -> Obs
         if "trace" in run or "stats" in run:
             raise InputError(f"run {name!r}: give columns, trace or stats, not several")
         return _row_observation(run, name, measured, printout_window)
-    if "constant_j" in run:
-        raise InputError(f"run {name!r}: constant_j belongs to a 'columns' row")
+    for key in _ROW_ONLY:
+        if key in run:
+            raise InputError(f"run {name!r}: {key} belongs to a 'columns' row")
     has_trace, has_stats = "trace" in run, "stats" in run
     if has_trace == has_stats:
         raise InputError(f"run {name!r}: expected exactly one of 'trace' (a path), 'stats' (an object) "
@@ -178,15 +187,6 @@ def _row_observation(run: Mapping[str, Any], name: str, measured: float, printou
     from hdeem_watch.dram.energy import CURRENT_NAMES
 
     columns = run["columns"]
-    if not isinstance(columns, Mapping) or not columns:
-        raise InputError(f"run {name!r}: columns: expected an object of current name -> J per A")
-    values = dict.fromkeys(CURRENT_NAMES, 0.0)
-    for key, value in columns.items():
-        if str(key).lower() not in values:
-            raise InputError(f"run {name!r}: columns.{key}: unknown current; expected some of {', '.join(CURRENT_NAMES)}")
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise InputError(f"run {name!r}: columns.{key} = {value!r}; expected a finite number (J per A)")
-        values[str(key).lower()] = float(value)
     constant = run.get("constant_j", 0.0)
     if isinstance(constant, bool) or not isinstance(constant, int | float) or not math.isfinite(constant):
         raise InputError(f"run {name!r}: constant_j = {constant!r}; expected a finite number (J)")
@@ -195,9 +195,47 @@ def _row_observation(run: Mapping[str, Any], name: str, measured: float, printou
     if isinstance(time_ns, bool) or not isinstance(time_ns, int):
         raise InputError(f"run {name!r}: time_ns = {time_ns!r}; expected an integer (ns)")
     window = _number(run, "window_s", name, 1.0) if "window_s" in run else printout_window
-    return Observation(name=name, columns=np.array([values[n] for n in CURRENT_NAMES]) * scale,
+    commands = run.get("commands", "")
+    if commands not in ("", "counters", "model"):
+        raise InputError(f"run {name!r}: commands = {commands!r}; expected 'counters' or 'model'")
+    act = None
+    if "act_columns" in run:
+        act = _current_row(run["act_columns"], name, "act_columns", CURRENT_NAMES) * scale
+    factors = run.get("act_factors", [])
+    if not isinstance(factors, list) or any(isinstance(f, bool) or not isinstance(f, int | float) or not f >= 0
+                                            for f in factors):
+        raise InputError(f"run {name!r}: act_factors = {factors!r}; expected a list of numbers >= 0")
+    return Observation(name=name, columns=_current_row(columns, name, "columns", CURRENT_NAMES) * scale,
                        constant_j=float(constant) * scale, measured_j=measured, time_ns=time_ns,
-                       weight=run.get("weight", 1.0), window_s=window)
+                       weight=run.get("weight", 1.0), window_s=window, commands=str(commands), act_columns=act,
+                       act_factors=tuple(float(f) for f in factors))
+
+
+def _current_row(values: Any, name: str, field: str, names: Sequence[str]) -> np.ndarray:
+    """An object of current name → number as a row over ``names`` (currents not named are 0; an
+    empty ``act_columns`` is a row without activations)."""
+    if not isinstance(values, Mapping) or (not values and field == "columns"):
+        raise InputError(f"run {name!r}: {field}: expected an object of current name -> J per A")
+    row = dict.fromkeys(names, 0.0)
+    for key, value in values.items():
+        if str(key).lower() not in row:
+            raise InputError(f"run {name!r}: {field}.{key}: unknown current; expected some of {', '.join(names)}")
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise InputError(f"run {name!r}: {field}.{key} = {value!r}; expected a finite number (J per A)")
+        row[str(key).lower()] = float(value)
+    return np.array([row[n] for n in names])
+
+
+def read_calibration_settings(path: str | Path) -> dict[str, Any]:
+    """The ``calibration`` object ``calib export`` writes beside the runs (the daemon's calibrated
+    ``currents`` and whether its fit widened the intervals, ``trust``); ``{}`` when absent or unreadable
+    (:func:`read_runs_file` reports a broken file)."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return {}
+    settings = data.get("calibration") if isinstance(data, Mapping) else None
+    return dict(settings) if isinstance(settings, Mapping) else {}
 
 
 def _trace_stats(spec: MemSpec, value: Any, name: str, base: Path) -> CommandStats:

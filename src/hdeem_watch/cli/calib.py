@@ -1,11 +1,14 @@
 """``hdeem-watch calib show|reset|export``: inspect, reset and export a running daemon's calibration.
 
-``calib show [--group G] [--json]`` prints the fits ``calib.get`` returns: the node fit and, from a
-daemon with per-group calibration (docs/calibration.md, "Per-sensor-group fits"), one per sensor
-group, with their drift alarms and the runs that were too short to fit. ``calib reset [--group G]``
+``calib show [--group G] [--json]`` prints the fits ``calib.get`` returns: the daemon's node fit (with
+the source of its rows' commands), and from a daemon with per-group calibration (docs/calibration.md,
+"Per-sensor-group fits") the fit of the groups' sum (``total``) and one per sensor group, with their
+drift alarms and the runs not fitted and why. ``calib reset [--group G]``
 forgets the runs of every fit (or of one group). ``calib export --out RUNS.json [--group G]`` writes
-the calibration rows of the daemon's finished runs as a RUNS.json that ``hdeem-watch calibrate
---runs`` reads back (each run's model columns, constant and measured energy). ``--connect EP``
+exactly the calibration rows the daemon's fit holds as a RUNS.json that ``hdeem-watch calibrate
+--runs`` reads back to the same currents (each run's model columns, constant, measured energy and
+command source; the fit's currents under ``calibration``; the finished runs it did not fit, and why,
+under ``not_fitted``). ``--connect EP``
 names the daemon's control endpoint (default: the local daemon's).
 
 Exit codes: 0 done, 1 the daemon is unreachable or refused, 2 bad input (an unknown group).
@@ -23,6 +26,8 @@ from typing import Any
 from hdeem_watch.errors import InputError
 
 NODE = "node"
+#: The fit of the sensor groups' sum (kernel runs only), beside the node fit.
+TOTAL = "total"
 
 
 def register(subparsers: Any) -> None:
@@ -55,13 +60,12 @@ def _client(args: argparse.Namespace) -> Any:
 
 
 def fits_of(body: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """Name → entry (``fit``, ``runs``, ``alarms``, ...) of a ``calib.get`` body: ``node`` first,
-    then the groups; a daemon without groups gives its one fit as ``node``."""
-    if isinstance(body.get("total"), dict):  # the node-level fit of the groups' sum
-        node = dict(body["total"])
-    else:
-        node = {"fit": body.get("fit"), "runs": body.get("runs"), "drift": body.get("drift"), "alarms": []}
-    return {NODE: node, **{str(k): dict(v) for k, v in (body.get("groups") or {}).items()}}
+    """Name → entry (``fit``, ``runs``, ``alarms``, ...) of a ``calib.get`` body: ``node`` first (the
+    daemon's node fit: every fitted run, from the commands its source gave), then ``total`` (with
+    sensor groups: the fit of the groups' sum, kernel runs only) and the groups."""
+    node: dict[str, Any] = {"fit": body.get("fit"), "runs": body.get("runs"), "drift": body.get("drift"), "alarms": []}
+    total = {TOTAL: dict(body["total"])} if isinstance(body.get("total"), dict) else {}
+    return {NODE: node, **total, **{str(k): dict(v) for k, v in (body.get("groups") or {}).items()}}
 
 
 def _select(fits: dict[str, dict[str, Any]], group: str | None) -> dict[str, dict[str, Any]]:
@@ -95,7 +99,8 @@ def _run(args: argparse.Namespace) -> int:
 
 def _show(body: dict[str, Any], chosen: dict[str, dict[str, Any]], *, as_json: bool) -> int:
     alarms = [a for a in body.get("alarms") or [] if a.get("group") in chosen]
-    skipped = [s for s in body.get("skipped") or [] if s.get("group") in chosen]
+    skipped = [{**s, "group": NODE} for s in body.get("node_skipped") or []] if NODE in chosen else []
+    skipped += [s for s in body.get("skipped") or [] if s.get("group") in chosen]
     if as_json:
         out = {"memspec": body.get("memspec"), "node": chosen.get(NODE),
                "groups": {k: v for k, v in chosen.items() if k != NODE}, "alarms": alarms, "skipped": skipped}
@@ -120,6 +125,7 @@ def format_fits(chosen: dict[str, dict[str, Any]], alarms: list[dict[str, Any]],
         loo = (fit.get("error") or {}).get("loo")
         loo_text = "—" if loo is None else f"{loo * 100:.2f} %"
         lines.append(f"{name}: {fit.get('n_runs')} runs, status {fit.get('status')}, leave-one-out {loo_text}")
+        lines.extend(trust_lines(fit))
         for current, c in (fit.get("currents") or {}).items():
             lo, hi = (c.get("ci95") or [None, None])[:2]
             flags = "" if c.get("identifiable") else "  not determined"
@@ -132,6 +138,26 @@ def format_fits(chosen: dict[str, dict[str, Any]], alarms: list[dict[str, Any]],
     for s in skipped[-5:]:
         lines.append(f"not fitted: {s.get('reason')}")
     return "\n".join(lines)
+
+
+COMMAND_SOURCES = {"counted": "commands counted in each run's window (memory-controller counters)",
+                   "modelled": "commands from the kernel model (no counters)",
+                   "mixed": "commands counted where the runs had counters, else modelled"}
+
+
+def trust_lines(fit: dict[str, Any]) -> list[str]:
+    """What a fit rests on: its command source, held currents, currents the modelled commands leave open."""
+    trust = fit.get("trust")
+    if not isinstance(trust, dict):
+        return []
+    lines = [f"  commands: {COMMAND_SOURCES.get(str(trust.get('commands')), str(trust.get('commands')))}"]
+    for current, held in (trust.get("held") or {}).items():
+        lo, hi = (held.get("range") or [None, None])[:2]
+        lines.append(f"  {current} held at {_ma(held.get('value'))} mA (datasheet scaled like {held.get('anchor')}; "
+                     f"no run shows its state; range [{_ma(lo)}, {_ma(hi)}] carried into the others)")
+    if trust.get("unconfirmed"):
+        lines.append(f"  rest on modelled activations nothing confirms: {', '.join(trust['unconfirmed'])}")
+    return lines
 
 
 def _reset(client: Any, body: dict[str, Any], group: str | None) -> int:
@@ -155,26 +181,39 @@ def _export(client: Any, body: dict[str, Any], group: str | None, out: Path) -> 
     spec_path = Path(memspec)
     if spec_path.is_file():
         memspec = str(spec_path.resolve())
+    fit = (fits_of(body).get(group or NODE) or {}).get("fit") or {}
+    fitted = {str(r.get("name")) for r in fit.get("runs") or []}
     runs: list[dict[str, Any]] = []
+    refused: list[dict[str, Any]] = []
     before = None
     while True:
         page = client.call("runs.list", {"full": True, "limit": 20, **({"before": before} if before else {})})
         for record in page.get("runs") or []:
             row = _row_of(record, group)
-            if row is not None:
+            if row is not None and str(row.get("name")) in fitted:
                 runs.append(_run_entry(record, row, CURRENT_NAMES))
+            elif record.get("state") == "done":
+                refused.append({"name": f"{record.get('run_id')}:{record.get('name')}",
+                                "reason": str(record.get("model_error") or "not in the daemon's current fit "
+                                              "(forgotten, or fitted before a reset)")})
         before = page.get("next_before")
         if not before:
             break
     if not runs:
         where = f" of group {group}" if group else ""
-        raise InputError(f"calib export: the daemon has no modelled runs{where} to export")
+        raise InputError(f"calib export: the daemon's fit{where} holds no runs ({len(refused)} finished runs not "
+                         "fitted, e.g. after calib reset); nothing to export")
     runs.reverse()  # oldest first
+    refused.reverse()
+    calibration = {"currents": list((fit.get("currents") or {}).keys()),
+                   "trust": isinstance(fit.get("trust"), dict)}
     try:
-        out.write_text(json.dumps({"memspec": memspec, "runs": runs}, indent=1) + "\n", encoding="utf-8")
+        out.write_text(json.dumps({"memspec": memspec, "calibration": calibration, "runs": runs,
+                                   "not_fitted": refused}, indent=1) + "\n", encoding="utf-8")
     except OSError as error:
         raise InputError(f"--out {out}: cannot write: {error.strerror or error}") from None
-    print(f"{len(runs)} runs written to {out} (hdeem-watch calibrate --runs {out})")
+    print(f"{len(runs)} fitted runs written to {out} (hdeem-watch calibrate --runs {out}); "
+          f"{len(refused)} runs not fitted listed under not_fitted")
     return 0
 
 
@@ -198,4 +237,10 @@ def _run_entry(record: dict[str, Any], row: dict[str, Any], names: tuple[str, ..
                              "time_ns": int(row.get("time_ns") or 0)}
     if row.get("window_s") is not None:
         entry["window_s"] = float(row["window_s"])
+    if row.get("commands"):
+        entry["commands"] = str(row["commands"])
+    if row.get("act_columns") is not None:
+        entry["act_columns"] = {n: float(c) for n, c in zip(names, row["act_columns"]) if c}
+    if row.get("act_factors"):
+        entry["act_factors"] = [float(f) for f in row["act_factors"]]
     return entry

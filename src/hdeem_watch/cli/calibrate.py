@@ -31,7 +31,8 @@ from hdeem_watch.calibrate.fit import FitOptions, check_bound_a, fit
 from hdeem_watch.calibrate.observation import DEFAULT_CURRENTS
 from hdeem_watch.calibrate.physical import fit_violations
 from hdeem_watch.calibrate.result import FitResult, energy_units_warning
-from hdeem_watch.calibrate.runs_file import read_runs_file
+from hdeem_watch.calibrate.runs_file import read_calibration_settings, read_runs_file
+from hdeem_watch.calibrate.trust import TrustOptions, trusted_fit
 from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.errors import InputError
 
@@ -46,8 +47,9 @@ def register(subparsers: Any) -> None:
                         help='{"memspec": path, "runs": [{"name", "measured_j", "trace"|"stats", "scale"}]}')
     parser.add_argument("--memspec", metavar="M.json",
                         help="memspec overriding the one RUNS.json names (a path or preset:NAME)")
-    parser.add_argument("--currents", default=",".join(DEFAULT_CURRENTS), metavar="LIST",
-                        help=f"comma-separated currents to calibrate (default {','.join(DEFAULT_CURRENTS)})")
+    parser.add_argument("--currents", default=None, metavar="LIST",
+                        help=f"comma-separated currents to calibrate (default: the file's calibration.currents, "
+                        f"else {','.join(DEFAULT_CURRENTS)})")
     parser.add_argument("--bounds", default="", metavar="NAME=LO:HI,...",
                         help="bounds in A overriding 0..datasheet, e.g. idd4r=0:0.2")
     parser.add_argument("--no-intercept", action="store_true", help="do not fit a per-run energy offset")
@@ -63,6 +65,10 @@ def register(subparsers: Any) -> None:
                              "written from an unphysical fit)")
     parser.add_argument("--prior-weight", type=float, default=0.0, metavar="W",
                         help="weight of a prior toward the datasheet values (0 = off)")
+    parser.add_argument("--trust", choices=("auto", "on", "off"), default="auto",
+                        help="hold currents without a state of their own and widen the intervals by what the rows "
+                        "do not know, as the daemon does (docs/calibration.md); auto: when the file says the "
+                        "daemon did (calib export)")
     parser.add_argument("--uncertainty", choices=("analytic", "bootstrap"), default="analytic",
                         help="95%% intervals from the active-set covariance or a residual bootstrap")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -71,7 +77,10 @@ def register(subparsers: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    currents = [c.strip() for c in args.currents.split(",") if c.strip()]
+    settings = read_calibration_settings(args.runs)
+    listed = settings.get("currents") if isinstance(settings.get("currents"), list) else None
+    text = args.currents if args.currents is not None else ",".join(map(str, listed or DEFAULT_CURRENTS))
+    currents = [c.strip() for c in text.split(",") if c.strip()]
     if not currents:
         raise InputError("--currents: expected a comma-separated list of current names")
     if not math.isfinite(args.prior_weight) or args.prior_weight < 0:
@@ -81,7 +90,8 @@ def _run(args: argparse.Namespace) -> int:
     options = FitOptions(currents=currents, bounds=bounds, intercept=not args.no_intercept,
                          prior_weight=args.prior_weight, uncertainty=args.uncertainty,
                          physical=not args.no_physical_bounds, rules=args.physical_rules)
-    result = fit(observations, spec, options)
+    trust = args.trust == "on" or (args.trust == "auto" and settings.get("trust") is True)
+    result = trusted_fit(observations, spec, options, trust=TrustOptions()) if trust else fit(observations, spec, options)
     violations = fit_violations(spec, result.calibrated)
     warnings = [w for w in (energy_units_warning(result.runs),) if w]
     if violations:
@@ -170,6 +180,10 @@ def format_table(result: FitResult, memory_id: str) -> str:
                      f"{result.sensitivity[j]:>11.3f}  {'yes' if result.identifiable[j] else 'NO (weak)'}{bound}")
     if result.rules_held:
         lines.append(f"held at a physical rule (the data wants past it): {', '.join(result.rules_held)}")
+    if result.trust is not None:
+        from hdeem_watch.cli.calib import trust_lines
+
+        lines.extend(line.strip() for line in trust_lines({"trust": dict(result.trust)}))
     if result.intercept_fitted:
         lo, hi = result.intercept_ci95_j
         lines.append(f"intercept {result.intercept_j:.4g} J per run  [{lo:.4g}, {hi:.4g}]")

@@ -55,6 +55,13 @@ def register(subparsers: Any) -> None:
                         help="a DIMM pair of the simulated node ages: its currents drift in sim time, e.g. "
                         "DDR_CD=+30%%/h (with --speed 60 an hour passes in a minute); the calibration's "
                         "drift detector should name that pair")
+    parser.add_argument("--counters", choices=("sim", "none"), default="sim",
+                        help="where the runs' DRAM commands come from: sim = the simulated node's memory-controller "
+                        "counters (default; a Haswell-EP IMC's ACT/PRE/CAS/CKE counts), none = the kernel model only "
+                        "(its intervals then carry the unknown address mapping)")
+    parser.add_argument("--no-holdout", dest="holdout", action="store_false",
+                        help="no hold-out runs (by default each round from the fifth adds one kernel the fit never "
+                        "sees, predicted with the fit from before it)")
     parser.add_argument("--report", default=None, metavar="DIR",
                         help="write the report (hdeem-watch report) of the demo's state into DIR at the end")
     parser.set_defaults(func=_run)
@@ -84,8 +91,8 @@ def _run(args: argparse.Namespace) -> int:
     from hdeem_watch.demo.daemon import DaemonFailed, DemoDaemon
     from hdeem_watch.demo.schedule import DemoSchedule
 
-    daemon = DemoDaemon(state_dir=args.state_dir, speed=args.speed,
-                        extra_args=("--sim-age", args.sim_age) if args.sim_age else ())
+    extra = ("--counters", args.counters, *(("--sim-age", args.sim_age) if args.sim_age else ()))
+    daemon = DemoDaemon(state_dir=args.state_dir, speed=args.speed, extra_args=extra)
     handled = (signal.SIGTERM, signal.SIGHUP)
     previous = {sig: signal.getsignal(sig) for sig in handled}
 
@@ -158,7 +165,7 @@ def _headless(control: str, args: argparse.Namespace) -> int:
         print(line, flush=True)
     hub = FeedHub([control], snapshot_hz=4.0)
     hub.set_view(focus=-1, window_s=10.0, width=0)
-    schedule = DemoSchedule(control, speed=args.speed, on_event=on_event)
+    schedule = DemoSchedule(control, speed=args.speed, on_event=on_event, holdout=args.holdout)
     hub.start()
     schedule.start()
     start = time.monotonic()

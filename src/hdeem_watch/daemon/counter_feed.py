@@ -42,6 +42,8 @@ class CounterFeed:
         self.book = book
         self.clock = clock
         self.recorder = recorder
+        #: counts at an exact time, where the source can (the sim's ``read_at``); None: interpolated
+        self.exact = getattr(counters, "read_at", None)
         self.windows = CounterWindows(
             counters.kind, table_key=counters.table.generation, ranks=counters.ranks,
             refresh_complete=counters.table.refresh_complete,
@@ -100,7 +102,7 @@ class CounterFeed:
                     log.warning("counter read failed: %s", error)
                 windows.failed(error, now_mono_ns=now)
         if book.windows:
-            windows.track(book.windows, book.sample_time_of)
+            windows.track(book.windows, book.sample_time_of, self.exact)
 
     def window_closed(self, closed: Any) -> None:
         """Attach the counters of a closed run window to its record (before it is stored and modelled)."""
@@ -110,7 +112,7 @@ class CounterFeed:
         if run.state == "aborted":
             self.windows.forget(run.run_id)
             return
-        run.counters = self.windows.finish(run, self.book.dram_channels)
+        run.counters = self.windows.finish(run, self.book.dram_channels, self.exact)
 
     def rates_body(self) -> dict[str, Any]:
         """The ``counters`` topic's body: per channel ACT/s, RD/s, WR/s and power-down share."""

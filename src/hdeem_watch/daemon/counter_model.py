@@ -25,6 +25,7 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -37,6 +38,9 @@ from hdeem_watch.dram.node import node_counts
 from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError
 
+#: How counted windows split awake time into active and precharged standby (:func:`open_page_split`).
+OPEN_PAGE_NOTE = ("cycles_act/cycles_pre: open-page estimate (no counter): a rank with activations keeps rows "
+                  "open while its clock is on, minus tRP per refresh; without activations it is precharged")
 #: The counts compared between the counters and the kernel model.
 CHECKED = ("act", "rd", "wr")
 #: Currents the counters make identifiable: they measure power-down residency (CKE, PPD), which no
@@ -86,10 +90,45 @@ def counter_groups(spec: Any, counters: Mapping[str, Any]) -> tuple[list[tuple[C
                                trefi_cycles=float(spec.timings["REFI"]))
         if mapped.stats is None:
             raise InputError(f"counters: channel {name}: {mapped.status}")
-        notes.update(mapped.estimated)
+        notes.update(n for n in mapped.estimated if not n.startswith("cycles_act/cycles_pre"))
+        notes.add(OPEN_PAGE_NOTE)
+        stats = open_page_split(spec, mapped.stats)
         for d in range(dimms):
-            groups.append((CommandStats(ranks=mapped.stats.ranks[d * per_dimm:(d + 1) * per_dimm]), 1))
+            groups.append((CommandStats(ranks=stats.ranks[d * per_dimm:(d + 1) * per_dimm]), 1))
     return groups, sorted(notes)
+
+
+def open_page_split(spec: Any, stats: CommandStats) -> CommandStats:
+    """Active vs precharged standby of counted statistics under an open-page controller (pure).
+
+    No IMC counter tells active from precharged standby. An open-page controller with power-down
+    (Haswell-EP's default, and the simulated node's) leaves a row open after its last access and
+    puts an idle rank into power-down: a rank that activated rows in the window has them open
+    whenever its clock is on, except the ``tRP`` before each refresh. A rank without activations in
+    the window was precharged while awake (its refreshes' ``tRFC`` count as active, as DRAMPower
+    books them). So per rank: ``cycles_act = CKE-on − REF·tRP`` when ``act > 0``, else
+    ``min(CKE-on, REF·tRFC)``; ``cycles_pre`` the rest of CKE-on. The earlier ``ACT × tRC`` (a
+    closed-page bound) undercounted a streaming kernel's open rows many times (CAS per ACT 4–60).
+
+    >>> from hdeem_watch.dram.memspec import preset
+    >>> from hdeem_watch.dram.stats import RankStats
+    >>> spec = preset("samsung-m393a1g43db0-cpb")
+    >>> busy = RankStats(act=10, rd=400, ref=2, cycles_total=1e4, cycles_act=10 * 50, cycles_pre=8000 - 500,
+    ...                  cycles_pdna=2000)
+    >>> rank = open_page_split(spec, CommandStats(ranks=(busy,))).ranks[0]
+    >>> rank.cycles_act + rank.cycles_pre, rank.cycles_pre == 2 * spec.timings["RP"]
+    (8000.0, True)
+    """
+    trp, trfc = float(spec.timings["RP"]), float(spec.trfc)
+    ranks = []
+    for rank in stats.ranks:
+        awake = rank.cycles_act + rank.cycles_pre
+        if rank.act > 0:
+            active = max(0.0, awake - rank.ref * trp)
+        else:
+            active = min(awake, rank.ref * trfc)
+        ranks.append(dataclasses.replace(rank, cycles_act=active, cycles_pre=awake - active, bank_active_cycles=active))
+    return CommandStats(ranks=tuple(ranks))
 
 
 def node_totals(groups: Sequence[tuple[CommandStats, int]]) -> dict[str, float]:

@@ -96,12 +96,24 @@ class SimCounters:
     def read(self) -> CounterSnapshot:
         """The counts an IMC would show for the sim's hidden commands so far."""
         t_ns, stats = self.sim.hidden_commands()
+        return self._snapshot(int(t_ns), stats)
+
+    def read_at(self, t_ns: int) -> CounterSnapshot | None:
+        """The counts at exactly ``t_ns`` (the samples' time axis) — a window edge — or None when the
+        sim does not know that time's commands yet (a run's plan still being computed) or no longer
+        (older than a retired run). Interpolating between reads instead would spread a run's commands
+        over the whole gap between the read before its plan was known and the one after."""
+        at = getattr(self.sim, "hidden_commands_at", None)
+        stats = at(int(t_ns)) if at is not None else None
+        return None if stats is None else self._snapshot(int(t_ns), stats)
+
+    def _snapshot(self, t_ns: int, stats: list[CommandStats]) -> CounterSnapshot:
         counts = {}
         for channel, dimm_stats in zip(self._channels, stats, strict=True):
             events = imc_event_counts(dimm_stats, self.table, opportunistic_refresh_share=SIM_OPPORTUNISTIC_REFRESH,
                                       page_close_share=SIM_PAGE_CLOSE)
             counts[channel.name] = role_counts_from_events(self.table, events)
-        return CounterSnapshot(int(t_ns), counts)
+        return CounterSnapshot(t_ns, counts)
 
     def close(self) -> None:
         """Nothing to release."""

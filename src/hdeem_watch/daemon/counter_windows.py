@@ -118,23 +118,29 @@ class CounterWindows:
 
     # -- windows ---------------------------------------------------------------------------------
 
-    def track(self, windows: Iterable[Any], sample_time: Callable[[int], int]) -> None:
-        """Give every new run or job window its start: the counters at its start poll (interpolated)."""
+    def track(self, windows: Iterable[Any], sample_time: Callable[[int], int],
+              exact: Callable[[int], CounterSnapshot | None] | None = None) -> None:
+        """Give every new run or job window its start: the counters at its start poll (``exact`` when
+        the source can count at any time it knows, else interpolated between reads)."""
         if not self.history:
             return
         for window in windows:
             key = window_key(window)
             if key is not None and key not in self._starts:
-                self._starts[key] = interpolate(self.history, sample_time(window.t_start_mono_ns))
+                t_ns = sample_time(window.t_start_mono_ns)
+                start = exact(t_ns) if exact is not None else None
+                self._starts[key] = start if start is not None else interpolate(self.history, t_ns)
 
-    def finish(self, record: Any, dram_channels: Iterable[str]) -> dict[str, Any] | None:
+    def finish(self, record: Any, dram_channels: Iterable[str],
+               exact: Callable[[int], CounterSnapshot | None] | None = None) -> dict[str, Any] | None:
         """The counters of a closed run (``record.counters``), or None without a start or snapshot."""
-        return self.finish_window(str(record.run_id), record.samples_ns, dram_channels)
+        return self.finish_window(str(record.run_id), record.samples_ns, dram_channels, exact)
 
-    def finish_window(self, key: str, samples_ns: Mapping[str, Any] | None,
-                      dram_channels: Iterable[str]) -> dict[str, Any] | None:
+    def finish_window(self, key: str, samples_ns: Mapping[str, Any] | None, dram_channels: Iterable[str],
+                      exact: Callable[[int], CounterSnapshot | None] | None = None) -> dict[str, Any] | None:
         """The counters of a closed window (run or job segment), cut where its DRAM samples end
-        (``samples_ns``: channel → ``[first, last]`` sample time); None without a start or snapshot."""
+        (``samples_ns``: channel → ``[first, last]`` sample time; counted there ``exact``ly when the
+        source can); None without a start or snapshot."""
         start = self._starts.pop(key, None)
         if start is None or not self.history:
             return None
@@ -145,7 +151,8 @@ class CounterWindows:
         if end_t > self.history[-1].t_ns:
             status = f"short: the counters reach {(end_t - self.history[-1].t_ns) / 1e9:.3f} s less far than the samples"
             end_t = self.history[-1].t_ns
-        end = interpolate(self.history, end_t)
+        end = exact(end_t) if exact is not None else None
+        end = end if end is not None else interpolate(self.history, end_t)
         window_s = (end.t_ns - start.t_ns) / 1e9
         if not window_s > 0:
             return {"source": self.kind, "status": "unknown: empty counter window", "window_s": window_s}

@@ -20,7 +20,8 @@ body carries ``suggest``: the calibrator's ranking of the runs seen so far (and 
 much one more of each would determine the weakest current
 (:func:`hdeem_watch.calibrate.suggest_next`).
 
-This class does no I/O and is used from ONE worker thread of the daemon (the fit and the kernel
+This class does no I/O (beyond one log line when the command source of the fitted rows changes)
+and is used from ONE worker thread of the daemon (the fit and the kernel
 model can take tens of milliseconds; the poll loop must not wait for them).
 
 Example:
@@ -33,6 +34,7 @@ Example:
 from __future__ import annotations
 
 import functools
+import logging
 import math
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
@@ -49,8 +51,12 @@ if TYPE_CHECKING:
     from hdeem_watch.calibrate.group_rows import SensorGroup
     from hdeem_watch.dram.node import NodeTopology
 
+log = logging.getLogger("hdeem_watch.daemon")
+
 #: Compact fit-history entries kept for the ``calib`` topic.
 MAX_HISTORY = 200
+#: Runs not fitted whose reasons the ``calib`` body keeps.
+MAX_SKIPPED = 200
 #: Kinds of run kept as candidates for the suggested next run.
 MAX_CANDIDATES = 64
 #: Runs the daemon's calibrator keeps (the oldest are dropped first): its saved state stays small
@@ -85,6 +91,16 @@ def announced_cpus(record: Mapping[str, Any]) -> tuple[tuple[int, ...] | None, s
         return None, (f"default: metadata.cpus {str(cpus)[:80]!r} is not one CPU per thread ({threads!r}); "
                       "threads fill socket 0 first")
     return tuple(int(c) for c in cpus), "announced cpus"
+
+
+def is_holdout(record: Mapping[str, Any]) -> bool:
+    """Whether a run was announced as a hold-out run (``metadata.holdout = true``): predicted, never fitted.
+
+    >>> is_holdout({"metadata": {"holdout": True}}), is_holdout({"metadata": {}})
+    (True, False)
+    """
+    metadata = record.get("metadata")
+    return isinstance(metadata, Mapping) and metadata.get("holdout") is True
 
 
 def load_spec(memspec: str) -> Any:
@@ -149,6 +165,8 @@ class RunModeller:
         dram_rates_hz: sample rate of each DRAM channel, for the guard rail (None: no guard rail;
             the daemon always gives them).
         min_samples: fewest samples per DRAM channel for a run to be fitted.
+        trust: widen the node fit's intervals by what its rows do not know and hold currents
+            without a state of their own (:mod:`hdeem_watch.calibrate.trust`).
 
     Attributes:
         error: why runs cannot be modelled (None = they can).
@@ -170,6 +188,7 @@ class RunModeller:
         groups: Sequence[SensorGroup] = (),
         dram_rates_hz: Mapping[str, float] | None = None,
         min_samples: int = DEFAULT_MIN_SAMPLES,
+        trust: bool = True,
     ) -> None:
         self.memspec = memspec
         self.dimms = int(topology.dimms) if topology is not None else int(dimms)
@@ -182,6 +201,9 @@ class RunModeller:
         self.calibrator: Any = None
         self.group_fits: GroupFits | None = None
         self.history: list[dict[str, Any]] = [dict(h) for h in history][-MAX_HISTORY:]
+        #: runs the node fit did not take, and why (newest last)
+        self.skipped: list[dict[str, Any]] = []
+        self._source_said: str | None = None
         try:
             self.spec = with_ranks(load_spec(memspec), getattr(topology, "ranks_per_dimm", None))
             from hdeem_watch.calibrate import OnlineCalibrator
@@ -196,6 +218,9 @@ class RunModeller:
                                                    max_runs=MAX_CALIBRATION_RUNS,
                                                    max_history=MAX_CALIBRATOR_HISTORY)
             self.calibrator.rules = bool(physical_rules)
+            from hdeem_watch.calibrate.trust import TrustOptions
+
+            self.calibrator.trust = TrustOptions() if trust else None
             self.calibrator.max_runs = min(self.calibrator.max_runs, MAX_CALIBRATION_RUNS)
             self.calibrator.max_history = min(self.calibrator.max_history, MAX_CALIBRATOR_HISTORY)
             observations = self.calibrator.observations
@@ -222,6 +247,7 @@ class RunModeller:
 
             self.topology = topology_for(self.dimms)
         self._stats_cache = functools.lru_cache(maxsize=64)(self._kernel_stats)
+        self._family_cache = functools.lru_cache(maxsize=64)(self._family_factors)
 
     def _kernel_stats(self, kernel: str, elements: int, threads: int, repeat: int,
                       cpus: tuple[int, ...] | None) -> Any:
@@ -229,6 +255,27 @@ class RunModeller:
 
         return tuple(node_run_stats(self.spec, kernel, elements, threads, repeat, self.topology, cpus=cpus,
                                     max_requests=self.max_requests))
+
+    def _family_factors(self, kernel: str, elements: int, threads: int, repeat: int,
+                        cpus: tuple[int, ...] | None) -> tuple[float, ...]:
+        from hdeem_watch.dram.node import MAPPING_FAMILIES, node_counts, node_run_stats
+
+        own = node_counts(self._stats_cache(kernel, elements, threads, repeat, cpus))["act"]
+        out = []
+        for scheme, xor in MAPPING_FAMILIES[1:]:
+            groups = node_run_stats(self.spec, kernel, elements, threads, repeat, self.topology, cpus=cpus,
+                                    max_requests=self.max_requests, mapping=scheme, xor_bank=xor)
+            out.append(node_counts(groups)["act"] / own if own > 0 else 1.0)
+        return tuple(out)
+
+    def mapping_factors(self, kernel: str, elements: int, threads: int, repeat: int,
+                        cpus: Sequence[int] | None = None) -> tuple[float, ...]:
+        """The run's activation count under each other mapping family relative to the model's own
+        (:data:`hdeem_watch.dram.node.MAPPING_FAMILIES`; cached; empty for a run without traffic)."""
+        if kernel in NO_TRAFFIC_KERNELS or elements == 0:
+            return ()
+        return self._family_cache(kernel, int(elements), int(threads), int(repeat),
+                                  None if cpus is None else tuple(int(c) for c in cpus))
 
     def groups_for(self, kernel: str, elements: int, threads: int, repeat: int,
                    cpus: Sequence[int] | None = None) -> list[tuple[Any, int]]:
@@ -337,8 +384,11 @@ class RunModeller:
             # A kernel's traffic lasts what the run announced; the window may run on past it (the stop is
             # seen at the next poll): the rest of the window is standby. Counters measure the window itself.
             traffic_s = announced_traffic_s(record)
+            factors = () if counted is not None or opaque else self.mapping_factors(
+                str(record["kernel"]), int(record["elements"]), int(record["threads"]), int(record["repeat"]), cpus)
             obs = node_observation(self.spec, groups, float(window_s), float(measured), name=run_name, time_ns=stop_ns,
-                                   traffic_s=traffic_s if counted is None else None)
+                                   traffic_s=traffic_s if counted is None else None,
+                                   commands="model" if counted is None else "counters", act_factors=factors)
         except InputError as error:
             return None, None, str(error)
         before = self.latest_fit()
@@ -371,14 +421,18 @@ class RunModeller:
             model["predicted_j"] = model["calibrated_j"] = obs.predicted_j(vec, intercept)
             if kernel_obs is not None:
                 model["kernel_model"]["predicted_j"] = kernel_obs.predicted_j(vec, intercept)
+        if is_holdout(record):
+            return model, None, self._skip(run_name, stop_ns, "hold-out run: predicted with the fit from before "
+                                                                "it, never fitted")
         if self.group_fits is not None and (reason := self.group_fits.unmeasured(record)) is not None:
-            return model, None, reason  # the guard rail: recorded, not fitted
+            return model, None, self._skip(run_name, stop_ns, reason)  # the guard rail: recorded, not fitted
         if self.has_run(str(record.get("run_id"))):  # modelled again after a crash: already in the fit
             return model, None, "the calibrator already had this run (modelled again after a restart)"
         try:
             result = self.calibrator.add_run(obs)
         except InputError as error:
-            return model, None, str(error)
+            return model, None, self._skip(run_name, stop_ns, str(error))
+        self._say_source(run_name, model["source"], record)
         if self.group_fits is not None and kernel_groups is None:
             model["group_error"] = "a job without a kernel: the sensor groups are fitted on kernel runs only"
         elif self.group_fits is not None:
@@ -393,6 +447,25 @@ class RunModeller:
         self.history.append(compact_fit(int(result.time_ns or obs.time_ns), fit))
         del self.history[:-MAX_HISTORY]
         return model, fit, None
+
+    def _say_source(self, run_name: str, source: str, record: Mapping[str, Any]) -> None:
+        """Log once, and again whenever it changes, where the fitted rows' commands come from."""
+        if source == self._source_said:
+            return
+        self._source_said = source
+        if source == "counters":
+            where = (record.get("counters") or {}).get("source", "?")
+            log.info("calibration: rows from the commands counted in each run's window (counters = %s) from run "
+                     "%s on; the kernel model is the cross-check", where, run_name)
+        else:
+            log.info("calibration: rows from the kernel model's commands (no counters) from run %s on; currents "
+                     "that rest on its activations are not shown as determined", run_name)
+
+    def _skip(self, name: str, time_ns: int, reason: str) -> str:
+        """Keep why a run was not fitted (``node_skipped`` of the body); the reason."""
+        self.skipped.append({"name": name, "time_ns": int(time_ns), "reason": reason})
+        del self.skipped[:-MAX_SKIPPED]
+        return reason
 
     def model_counters(self, counters: Mapping[str, Any] | None,
                        measured_j: Mapping[str, float] | None = None) -> tuple[dict[str, Any] | None, str]:
@@ -459,16 +532,21 @@ class RunModeller:
         return [[name, round(float(score), 4)] for name, score in ranking[:top]]
 
     def reset(self, group: str | None = None) -> None:
-        """Forget the runs and fits of ``group`` (a sensor group, or ``"node"``: the fit of the
-        groups' sum); None: every run and fit, the node calibrator's too.
+        """Forget the runs and fits of ``group`` (a sensor group, ``"node"``: the node fit, or
+        ``"total"``: the fit of the groups' sum); None: every run and fit.
 
         Raises:
             InputError: an unknown group.
         """
+        if group == "node":  # the node fit (what ``calib show`` shows as node)
+            if self.calibrator is not None:
+                self.calibrator.reset()
+            self.history.clear()
+            return
         if group is not None:
             if self.group_fits is None:
                 raise InputError(f"calib.reset: group {group!r}: the model is not available")
-            self.group_fits.reset(group)
+            self.group_fits.reset("node" if group == "total" else group)
             return
         if self.calibrator is not None:
             self.calibrator.reset()
@@ -508,5 +586,6 @@ class RunModeller:
             "model_error": self.error,
             "truth": dict(truth) if truth is not None else None,
             "suggest": self.suggest(),
+            "node_skipped": list(self.skipped[-20:]),
             **(self.group_fits.body() if self.group_fits is not None else {}),
         }

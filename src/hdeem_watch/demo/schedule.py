@@ -16,6 +16,11 @@ The design is what makes the five currents identifiable within a minute (about 3
   run) are the same column;
 - an idle run (kernel ``idle``) per round, of a different length each round
   (:data:`IDLE_SECONDS`): it pins the precharge standby current and the intercept.
+
+From the fifth round on (every thread count seen once) each round ends with a **hold-out** run: one
+of :data:`hdeem_watch.dram.kernels.HOLDOUT_KERNELS` (GUPS-like random reads, a pointer chase, 2- and
+4-line strides, a 3:1 read/write mix) at the round's thread count, announced with
+``metadata.holdout = true``: the daemon predicts it with the fit from before it and never fits it.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ from typing import Any
 
 from hdeem_watch.bench.schedule import IDLE_KERNEL, KERNELS, RunSpec, sweep
 from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
-from hdeem_watch.dram.kernels import kernel_traffic
+from hdeem_watch.dram.kernels import HOLDOUT_KERNELS, kernel_traffic
 from hdeem_watch.dram.node import HASWELL_EP, NodeTopology
 from hdeem_watch.sources.sim import modelled_line_rate
 
@@ -43,6 +48,8 @@ IDLE_SECONDS = (1.25, 3.0, 1.5, 2.25)
 ELEMENTS = 1 << 24
 #: Thread counts of the rounds, cycled.
 THREAD_ROUNDS = ("24", "4", "12", "1")
+#: The first round with a hold-out run (after every thread count was fitted once).
+HOLDOUT_FROM_ROUND = len(THREAD_ROUNDS)
 #: Pause between runs, seconds (the plots show the steps).
 GAP_S = 0.4
 #: Pause after a run was stopped by someone else (the TUI's ``s`` key), wall-clock seconds: room
@@ -109,10 +116,12 @@ class DemoRun:
 
     spec: RunSpec
     seconds: float
+    holdout: bool = False
 
 
-def demo_round(threads_spec: str, round_no: int = 0) -> list[DemoRun]:
-    """Round ``round_no``: an idle run, then every kernel at each thread count of ``threads_spec``.
+def demo_round(threads_spec: str, round_no: int = 0, *, holdout: bool = True) -> list[DemoRun]:
+    """Round ``round_no``: an idle run, then every kernel at each thread count of ``threads_spec``,
+    then (``holdout``, from round :data:`HOLDOUT_FROM_ROUND`) one hold-out run (module docstring).
 
     The idle run lasts ``IDLE_SECONDS[round_no]`` (cycled); the kernel runs cycle through
     :data:`RUN_LENGTHS_S`, shifted by the round so each kernel gets different lengths.
@@ -123,6 +132,12 @@ def demo_round(threads_spec: str, round_no: int = 0) -> list[DemoRun]:
         target = RUN_LENGTHS_S[(i + round_no) % len(RUN_LENGTHS_S)]
         sized = RunSpec(spec.kernel, spec.threads, spec.elements, repeat_for(spec.kernel, spec.threads, target_s=target))
         runs.append(DemoRun(sized, run_seconds(sized)))
+    if holdout and round_no >= HOLDOUT_FROM_ROUND:
+        kernel = HOLDOUT_KERNELS[(round_no - HOLDOUT_FROM_ROUND) % len(HOLDOUT_KERNELS)]
+        threads = int(str(threads_spec).split(",")[0])
+        target = RUN_LENGTHS_S[round_no % len(RUN_LENGTHS_S)]
+        sized = RunSpec(kernel, threads, ELEMENTS, repeat_for(kernel, threads, target_s=target))
+        runs.append(DemoRun(sized, run_seconds(sized), holdout=True))
     return runs
 
 
@@ -163,6 +178,7 @@ class DemoSchedule(threading.Thread):
         speed: the sim's time factor (a run is held ``modelled time / speed``).
         on_event: called (in this thread) for each start/stop/error.
         max_runs: stop after this many runs (None: go on until :meth:`stop`).
+        holdout: add the hold-out runs (:func:`demo_round`).
     """
 
     def __init__(
@@ -172,12 +188,14 @@ class DemoSchedule(threading.Thread):
         speed: float = 1.0,
         on_event: Callable[[ScheduleEvent], None] | None = None,
         max_runs: int | None = None,
+        holdout: bool = True,
     ) -> None:
         super().__init__(name="hdeem-watch-demo-schedule", daemon=True)
         self.control_endpoint = control_endpoint
         self.speed = speed if speed > 0 else 1.0
         self.on_event = on_event or (lambda _event: None)
         self.max_runs = max_runs
+        self.holdout = holdout
         self._halt = threading.Event()
         self.completed = 0
         self.topology = HASWELL_EP
@@ -195,7 +213,7 @@ class DemoSchedule(threading.Thread):
         try:
             self.topology = node_topology(client)
             while not self._halt.is_set():
-                for run in demo_round(THREAD_ROUNDS[round_no % len(THREAD_ROUNDS)], round_no):
+                for run in demo_round(THREAD_ROUNDS[round_no % len(THREAD_ROUNDS)], round_no, holdout=self.holdout):
                     if self._halt.is_set() or (self.max_runs is not None and index >= self.max_runs):
                         return
                     index += 1
@@ -210,6 +228,8 @@ class DemoSchedule(threading.Thread):
         """Hold one run; False when the daemon was busy and the run should be tried again."""
         spec = run.spec
         metadata: dict[str, Any] = {"simulated": True, "source": "demo", "modelled_s": round(run.seconds, 4)}
+        if run.holdout:
+            metadata["holdout"] = True
         cpus = sim_cpus(spec.threads, self.topology)
         if cpus is not None:
             metadata["cpus"] = cpus

@@ -29,6 +29,9 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.calibrate.drift import DriftAlarm
+from hdeem_watch.counters.source import CounterSnapshot, window_counts
+from hdeem_watch.daemon.counter_model import currents_with_counters
+from hdeem_watch.daemon.counter_source import SimCounters
 from hdeem_watch.daemon.group_fits import source_groups
 from hdeem_watch.daemon.modelling import RunModeller
 from hdeem_watch.demo.schedule import ELEMENTS, THREAD_ROUNDS, DemoRun, demo_round
@@ -84,13 +87,19 @@ class SimRuns:
             ``--speed 60`` (polls every 2.4 sim-s) the windows of 1.25–1.75 s runs came out
             1.4–5 s (:data:`DEMO_TAIL_S`). None: exact windows.
         seed_tail: seeds the tails.
+        counters: count every run's commands with the sim's memory-controller counters (the
+            daemon's ``counters = "sim"``; its rows then come from them).
+        holdout: add the demo's hold-out runs (predicted, never fitted).
+        groups: fit the sensor groups too (False: the node fit only, faster).
     """
 
     def __init__(self, seed: int, *, age: Mapping[str, float] | None = None,
                  age_start_s: Mapping[str, float] | None = None, gap_s: float = DEMO_GAP_S, memspec: str = MEMSPEC,
                  half_life_s: float | None = None, sim_options: Mapping[str, Any] | None = None,
-                 tail_s: tuple[float, float, float, float, float] | None = None, seed_tail: int = 0) -> None:
+                 tail_s: tuple[float, float, float, float, float] | None = None, seed_tail: int = 0,
+                 counters: bool = False, holdout: bool = False, groups: bool = True) -> None:
         self._mono_ns = 0
+        self.holdout = holdout
         self.tail_s = tail_s
         self._tail_rng = np.random.default_rng([int(seed), int(seed_tail), 9973])
         self.sim = SimSource(seed=seed, clock=lambda: self._mono_ns, wall_clock=lambda: _T0_WALL_NS,
@@ -101,8 +110,10 @@ class SimRuns:
         infos = self.sim.channels()
         self.dram = tuple(i.name for i in infos if i.kind == "dram")
         rates = {i.name: float(i.rate_hz) for i in infos if i.kind == "dram"}
-        self.modeller = RunModeller(memspec, currents=("idd0", "idd2n", "idd3n", "idd4r", "idd4w"),
-                                    half_life_s=half_life_s, groups=source_groups(self.sim, rates, 2, 4),
+        self.counters = SimCounters(self.sim) if counters else None
+        currents = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
+        self.modeller = RunModeller(memspec, currents=currents_with_counters(currents) if counters else currents,
+                                    half_life_s=half_life_s, groups=source_groups(self.sim, rates, 2, 4) if groups else (),
                                     dram_rates_hz=rates)
         if self.modeller.error is not None:
             raise RuntimeError(self.modeller.error)
@@ -118,7 +129,7 @@ class SimRuns:
     def _demo_runs(self) -> Iterator[DemoRun]:
         round_no = 0
         while True:
-            yield from demo_round(THREAD_ROUNDS[round_no % len(THREAD_ROUNDS)], round_no)
+            yield from demo_round(THREAD_ROUNDS[round_no % len(THREAD_ROUNDS)], round_no, holdout=self.holdout)
             round_no += 1
 
     def _advance(self, seconds: float) -> dict[str, float]:
@@ -142,18 +153,34 @@ class SimRuns:
         run_id = f"r{self.index}"
         elements = 0 if spec.kernel == "idle" else (spec.elements or ELEMENTS)
         t_start = self._mono_ns
+        count_start = None if self.counters is None else self.counters.read()
         self.sim.on_run(RunEvent("start", run_id, spec.kernel, spec.threads, elements, spec.repeat, t_start))
         stop = self._advance(run.seconds + self._tail())
         self.sim.on_run(RunEvent("stop", run_id, spec.kernel, spec.threads, elements, spec.repeat, self._mono_ns))
+        counted = None if count_start is None else self._window_counters(count_start)
         energy = {c: stop[c] - start[c] for c in stop}
         window_s = (self._mono_ns - t_start) * 1e-9
         record = {"run_id": run_id, "name": f"{spec.kernel}-{spec.threads}t", "kernel": spec.kernel,
                   "threads": spec.threads, "elements": elements, "repeat": spec.repeat, "window_s": window_s,
                   "t_start_ns": _T0_WALL_NS + t_start, "t_stop_ns": _T0_WALL_NS + self._mono_ns,
                   "energy_j": energy, "dram_energy_j": sum(energy[c] for c in self.dram),
-                  "metadata": {"simulated": True, "source": "demo", "modelled_s": round(run.seconds, 4)}}
+                  "metadata": {"simulated": True, "source": "demo", "modelled_s": round(run.seconds, 4),
+                               **({"holdout": True} if run.holdout else {})}}
+        if counted is not None:
+            record["counters"] = counted
         model, _fit, error = self.modeller.evaluate(record)
         return FinishedRun(self.index, self.t_s, record, model, error, tuple(self.modeller.take_alarms()))
+
+    def _window_counters(self, start: CounterSnapshot) -> dict[str, Any]:
+        """The run's counters record, as the daemon's :class:`CounterWindows` makes it."""
+        assert self.counters is not None
+        end = self.counters.read()
+        table = self.counters.table
+        return {"source": "sim", "generation": "haswell-ep", "status": "ok", "ranks": self.counters.ranks,
+                "refresh_complete": table.refresh_complete, "t_start_ns": start.t_ns, "t_end_ns": end.t_ns,
+                "window_s": (end.t_ns - start.t_ns) / 1e9,
+                "sensors": {c.name: c.sensor for c in self.counters.channels()},
+                "channels": window_counts(start, end)}
 
     def until(self, t_s: float) -> Iterator[FinishedRun]:
         """Runs until the sim time reaches ``t_s``."""

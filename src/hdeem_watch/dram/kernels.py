@@ -35,6 +35,15 @@ if TYPE_CHECKING:
 
 #: The kernels, in the order of the seed paper.
 KERNELS = ("read", "assign", "scale", "add", "triad", "copy", "selfscale")
+#: Workloads the calibration schedule does not run, kept to test a calibration on what it never saw:
+#: random 64-byte reads over the array (GUPS-like, many misses in flight), a dependent pointer chase
+#: (the same random reads, one miss in flight per thread), reads of every 2nd and 4th line, and a
+#: 3:1 read/write mix (``a = f(a, b, c)``: three lines read, the first written back).
+HOLDOUT_KERNELS = ("gups", "chase", "stride2", "stride4", "mix31")
+#: Line step of the strided kernels (one line read per step).
+LINE_STRIDES = {"stride2": 2, "stride4": 4}
+#: Kernels whose line per iteration is random (uniform over the array, with replacement).
+RANDOM_KERNELS = ("gups", "chase")
 #: Accepted alternative names.
 ALIASES = {"addition": "add", "sum": "read"}
 #: Bytes per request (one cache line, one BL8 burst of a 64-bit channel).
@@ -56,6 +65,11 @@ _OPERANDS: dict[str, tuple[tuple[str, ...], str | None]] = {
     "triad": (("b", "a"), "a"),
     "copy": (("a",), "b"),
     "selfscale": (("a",), "a"),
+    "gups": (("a",), None),
+    "chase": (("a",), None),
+    "stride2": (("a",), None),
+    "stride4": (("a",), None),
+    "mix31": (("a", "b", "c"), "a"),
 }
 
 
@@ -106,7 +120,8 @@ def canonical_kernel(kernel: str) -> str:
     name = str(kernel).strip().lower()
     name = ALIASES.get(name, name)
     if name not in _OPERANDS:
-        raise InputError(f"kernel {kernel!r}: unknown; expected one of {', '.join(KERNELS)} (or 'addition')")
+        raise InputError(f"kernel {kernel!r}: unknown; expected one of {', '.join(KERNELS + HOLDOUT_KERNELS)} "
+                         "(or 'addition')")
     return name
 
 
@@ -128,6 +143,37 @@ def kernel_lines(elements: int) -> int:
     return -(-int(elements) // STRIDE_DOUBLES)
 
 
+def kernel_iterations(kernel: str, elements: int) -> int:
+    """Iterations of one pass (one access of each operand each): the array's lines, every
+    ``LINE_STRIDES``-th of them for a strided kernel."""
+    return -(-kernel_lines(elements) // LINE_STRIDES.get(canonical_kernel(kernel), 1))
+
+
+def _mix(values: np.ndarray, seed: int) -> np.ndarray:
+    """A fixed pseudo-random 64-bit hash of each value (splitmix64's finaliser)."""
+    with np.errstate(over="ignore"):
+        z = values.astype(np.uint64) + np.uint64((0x9E3779B97F4A7C15 * (int(seed) + 1)) & (2 ** 64 - 1))
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        return z ^ (z >> np.uint64(31))
+
+
+def iteration_lines(kernel: str, lines: int, iterations: np.ndarray, seed: int = 0) -> np.ndarray:
+    """The array line each iteration touches: itself (streams), ``stride ×`` it (strided kernels),
+    or a random line of the array's ``lines`` (random kernels; fixed by ``seed``).
+
+    >>> iteration_lines("stride4", 100, np.arange(3, dtype=np.uint64)).tolist()
+    [0, 4, 8]
+    >>> bool((iteration_lines("gups", 100, np.arange(1000, dtype=np.uint64)) < 100).all())
+    True
+    """
+    name = canonical_kernel(kernel)
+    it = np.asarray(iterations, dtype=np.uint64)
+    if name in RANDOM_KERNELS:
+        return _mix(it, seed) % np.uint64(max(1, int(lines)))
+    return it * np.uint64(LINE_STRIDES.get(name, 1))
+
+
 def kernel_traffic(kernel: str, elements: int) -> Traffic:
     """Lines read and written by one pass of ``kernel`` over ``elements`` doubles per array.
 
@@ -135,7 +181,7 @@ def kernel_traffic(kernel: str, elements: int) -> Traffic:
     once as written unless it is also a source.
     """
     pattern = access_pattern(kernel)
-    lines = kernel_lines(elements)
+    lines = kernel_iterations(kernel, elements)
     writes = sum(1 for _, is_write in pattern if is_write)
     return Traffic(lines_read=lines * (len(pattern) - writes), lines_written=lines * writes)
 
@@ -181,7 +227,8 @@ def kernel_requests(kernel: str, elements: int, threads: int = 1, *,
         order the controller receives them.
     """
     pattern = access_pattern(kernel)
-    order = thread_line_order(kernel_lines(elements), threads, max_steps) * np.uint64(LINE_BYTES)
+    order = iteration_lines(kernel, kernel_lines(elements),
+                            thread_line_order(kernel_iterations(kernel, elements), threads, max_steps)) * np.uint64(LINE_BYTES)
     width = len(pattern)
     addresses = np.empty((order.size, width), dtype=np.uint64)
     is_write = np.empty((order.size, width), dtype=bool)
@@ -258,10 +305,10 @@ def kernel_stats(
         if isinstance(value, bool) or int(value) != value or value < low:
             raise InputError(f"{label} {value!r}: expected an integer >= {low}")
     width = len(access_pattern(name))
-    total_lines = kernel_lines(elements)
+    total_lines = kernel_iterations(name, elements)
     lines_per_channel = total_lines / channels
     full_requests = lines_per_channel * width * repeat
-    channel_lines = int(np.ceil(lines_per_channel))
+    channel_lines = int(np.ceil(kernel_lines(elements) / channels))
     threads = int(threads)
     if isinstance(threads, bool) or threads < 1:
         raise InputError(f"threads {threads!r}: expected a positive integer")

@@ -214,9 +214,17 @@ def socket_elements(elements: int, threads: int, socket_threads: int) -> int:
     return round(int(elements) * socket_threads / threads)
 
 
+#: Address-mapping families a node may use (scheme, XOR bank hash); the first is the model's own.
+#: Nothing but counters tells which one a node has: the calibration carries the spread of the
+#: activation counts over these into its intervals (:mod:`hdeem_watch.calibrate.trust`).
+MAPPING_FAMILIES: tuple[tuple[str, bool], ...] = (
+    ("RoBaRaCoCh", True), ("RoBaRaCoCh", False), ("ChRaBaRoCo", True), ("RoRaBgBaCoCh", True))
+
+
 def node_run_stats(spec: MemSpec, kernel: str, elements: int, threads: int, repeat: int,
                    topology: NodeTopology = HASWELL_EP, *, cpus: Sequence[int] | None = None,
-                   xor_bank: bool = True, max_requests: int | None = None) -> list[tuple[CommandStats, int]]:
+                   xor_bank: bool = True, max_requests: int | None = None,
+                   mapping: str = "RoBaRaCoCh") -> list[tuple[CommandStats, int]]:
     """Per memory domain (in order: socket 0's, then socket 1's, ...; one per socket without SNC),
     the statistics of ONE of its DIMMs and how many DIMMs it has.
 
@@ -231,6 +239,7 @@ def node_run_stats(spec: MemSpec, kernel: str, elements: int, threads: int, repe
             threads fill socket 0 first).
         xor_bank: XOR bank hashing in the channels' address mapping.
         max_requests: prefix size of the kernel model (None = its default).
+        mapping: the channels' address-mapping scheme (:data:`MAPPING_FAMILIES`).
 
     Returns:
         ``[(stats, dimms), ...]``, one entry per domain; a domain without traffic is an idle
@@ -252,7 +261,8 @@ def node_run_stats(spec: MemSpec, kernel: str, elements: int, threads: int, repe
         if no_traffic or domain_threads == 0 or n_elements <= 0:
             groups.append((idle, per_domain))
             continue
-        options: dict[str, Any] = {"repeat": int(repeat), "channels": per_domain, "xor_bank": xor_bank}
+        options: dict[str, Any] = {"repeat": int(repeat), "channels": per_domain, "xor_bank": xor_bank,
+                                   "mapping": mapping}
         if max_requests:
             options["max_requests"] = int(max_requests)
         stats = kernel_stats(spec, kernel, n_elements, domain_threads, **options).stats

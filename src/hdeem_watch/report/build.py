@@ -24,6 +24,7 @@ from typing import Any
 
 from hdeem_watch.errors import InputError
 from hdeem_watch.report.figure import ReportFigure
+from hdeem_watch.report.figures_holdout import holdout_figure
 from hdeem_watch.report.figures_model import (
     calibrated_memspec,
     components_figure,
@@ -39,7 +40,7 @@ from hdeem_watch.report.style import pyplot
 FORMATS = ("html", "png", "svg", "pdf")
 #: The figure builders, in page order.
 BUILDERS: tuple[Callable[[ReportData], ReportFigure], ...] = (
-    energy_figure, currents_figure, residuals_figure, aging_figure, components_figure, jobs_figure)
+    energy_figure, currents_figure, residuals_figure, aging_figure, components_figure, jobs_figure, holdout_figure)
 
 
 @dataclass(frozen=True)

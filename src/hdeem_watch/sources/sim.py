@@ -34,6 +34,7 @@ Example:
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
 import time
@@ -48,14 +49,14 @@ import numpy as np
 from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.sources.base import STATUS_GAP, STATUS_OK, ChannelInfo, RunEvent, SourceBatch
 from hdeem_watch.sources.sim_age import check_pairs
-from hdeem_watch.sources.sim_commands import HiddenCommands
+from hdeem_watch.sources.sim_commands import HiddenCommands, array_stats, plan_end_ns
 from hdeem_watch.sources.sim_currents import PartCurrents
 from hdeem_watch.sources.sim_fast import IdleBlocks, NoiseBank
 from hdeem_watch.sources.sim_jobs import JOB_KERNEL, JobPlan, job_plan
 from hdeem_watch.sources.sim_layout import TAURUS, SimLayout, layout_for_node
 from hdeem_watch.sources.sim_model import modelled_line_rate, socket_shares, threads_per_socket
 from hdeem_watch.sources.sim_plan import TruthNode
-from hdeem_watch.sources.sim_power import PowerPhysics
+from hdeem_watch.sources.sim_power import PowerPhysics, dimm_peak_w
 from hdeem_watch.sources.sim_signal import (
     NOISE_W,
     Plan,
@@ -75,6 +76,8 @@ log = logging.getLogger(__name__)
 
 #: How often (sim s) ``truth()`` runs the memspec check on the hidden currents again.
 CHECK_EVERY_S = 60.0
+#: Retired run plans kept to count their commands exactly at a window edge before they ended.
+RETIRED_KEPT = 16
 
 
 @dataclass
@@ -163,6 +166,11 @@ class SimSource:
                                         pairs=self.layout.dimm_sensor, age=age, age_start_s=starts,
                                         ambient_c=ambient_c)
         self._infos = self.layout.channel_infos()
+        peak = dimm_peak_w(self.truth_node.spec)
+        #: per DRAM pair its physical maximum (W); BLADE: the most its DIMMs can add (owed energy is
+        #: deposited within these, never as a one-sample spike)
+        self._peak_w = {info.name: peak * (len(self.layout.sensor_dimms(info.name)) if info.kind == "dram"
+                                           else len(self.layout.dimm_names)) for info in self._infos}
         rng = np.random.default_rng([self.seed, 104729])
         self._offset_w = {
             info.name: (float(rng.uniform(-0.1, 0.3)) if info.kind == "dram" else float(rng.uniform(-1.0, 1.0)))
@@ -192,6 +200,10 @@ class SimSource:
         self._open = False
         self._t0_mono = 0
         self._t0_wall = 0
+        #: the latest retired plans (to count exactly at a time before they ended), and the latest end
+        #: of those no longer kept (no exact count before it)
+        self._retired: collections.deque[Plan] = collections.deque(maxlen=RETIRED_KEPT)
+        self._forgotten_until_ns = 0
         self._next_k: dict[str, int] = {}
         self._energy_j: dict[str, float] = {}
         self._plans: dict[str, Plan] = {}
@@ -300,7 +312,8 @@ class SimSource:
             t_end = ks * period
             power = channel_power_w(name, t_end, period, idle, plans, offset_w=offset, layout=self.layout, gain=gain)
             if name in self._owed:
-                keep = deposit_owed(self._owed[name], t_end, period, power)
+                room = self._peak_w[name] - power if info.kind == "dram" else self._peak_w[name]
+                keep = deposit_owed(self._owed[name], t_end, period, power, room)
                 if keep:
                     self._owed[name] = keep
                 else:
@@ -431,11 +444,33 @@ class SimSource:
         """
         if not self._open:
             raise RuntimeError("SimSource.hidden_commands() before open()")
+        sim_ns = self._known_commands_ns()
+        return self._t0_wall + sim_ns, self._hidden.at(sim_ns, self._plans.values())
+
+    def hidden_commands_at(self, t_ns: int) -> list[CommandStats] | None:
+        """Every DIMM's cumulative hidden commands at ``t_ns`` on the samples' time axis (an exact
+        window edge for the memory-controller counters), or None when that time is not known yet (a
+        run's plan is still being computed) or lies before the end of a retired run (its commands are
+        folded into the settled totals)."""
+        if not self._open:
+            raise RuntimeError("SimSource.hidden_commands_at() before open()")
+        sim_ns = int(t_ns) - self._t0_wall
+        if sim_ns > self._known_commands_ns() or sim_ns < 0:
+            return None
+        total = self._hidden.array_at(sim_ns, self._plans.values())
+        if sim_ns < self._forgotten_until_ns:
+            return None  # a retired run no longer kept ended after that time
+        for plan in (p for p in self._retired if plan_end_ns(p) > sim_ns):
+            total = total - self._hidden.unsettled_at(sim_ns, plan)
+        return [array_stats(values) for values in total]
+
+    def _known_commands_ns(self) -> int:
+        """The latest sim time whose commands are known (a pending plan holds it at its start)."""
         sim_ns = max(self._sim_ns, self.sim_time_ns(self._clock()))
         if self._pending:
             self._resolve_plans()
             sim_ns = min([sim_ns, *(p.t0_ns for p in self._pending.values())])
-        return self._t0_wall + sim_ns, self._hidden.at(sim_ns, self._plans.values())
+        return sim_ns
 
     # -- energy owed by stopped runs -------------------------------------------------------------------
     def _add_owed(self, name: str, t_ns: int, joules: float) -> None:
@@ -445,4 +480,7 @@ class SimSource:
         for run_id, plan in list(self._plans.items()):
             if plan.cpu_end_ns is not None and plan.cpu_end_ns <= sim_now and plan.traffic_end_ns <= sim_now:
                 self._hidden.settle(plan)
+                if len(self._retired) == self._retired.maxlen:
+                    self._forgotten_until_ns = max(self._forgotten_until_ns, plan_end_ns(self._retired[0]))
+                self._retired.append(plan)
                 del self._plans[run_id]

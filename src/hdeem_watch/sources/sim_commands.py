@@ -72,6 +72,11 @@ def _plan_part(plan: RunPlan | JobPlan, t_ns: int, idle_per_s: np.ndarray) -> np
     return out
 
 
+def plan_end_ns(plan: RunPlan | JobPlan) -> int:
+    """When a plan's traffic and CPU load are both over (sim ns)."""
+    return max(plan.traffic_end_ns, plan.cpu_end_ns or 0)
+
+
 class HiddenCommands:
     """Cumulative hidden statistics of every DIMM since the sim opened.
 
@@ -89,7 +94,12 @@ class HiddenCommands:
 
     def settle(self, plan: RunPlan | JobPlan) -> None:
         """Fold a finished plan (traffic and CPU load over) into the settled totals."""
-        self.settled += _plan_part(plan, max(plan.traffic_end_ns, plan.cpu_end_ns or 0), self.idle_per_s)
+        self.settled += _plan_part(plan, plan_end_ns(plan), self.idle_per_s)
+
+    def unsettled_at(self, t_ns: int, plan: RunPlan | JobPlan) -> np.ndarray:
+        """What a settled ``plan`` had not yet added at ``t_ns`` (its whole part minus its part then):
+        subtract it from the totals to count at a time before the plan ended."""
+        return _plan_part(plan, plan_end_ns(plan), self.idle_per_s) - _plan_part(plan, int(t_ns), self.idle_per_s)
 
     def array_at(self, t_ns: int, plans: Iterable[RunPlan | JobPlan]) -> np.ndarray:
         """``(dimms, ranks, fields)`` cumulative statistics at sim time ``t_ns``."""

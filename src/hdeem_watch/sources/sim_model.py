@@ -61,6 +61,9 @@ CHANNELS_PER_SOCKET = TOPOLOGY.channels_per_socket
 MEMSPEC_PRESET = "samsung-m393a1g43db0-cpb"
 
 PER_THREAD_BPS = 7.0e9
+#: Per-thread demand of kernels that cannot stream: random reads keep fewer misses in flight (no
+#: prefetcher), a dependent pointer chase one (a line per ~90 ns of load-to-use latency).
+KERNEL_THREAD_BPS = {"gups": 2.5e9, "chase": 0.7e9}
 SOCKET_MAX_BPS = 58.0e9
 WRITE_FACTOR = 0.88
 LINE_BYTES = 64
@@ -83,10 +86,10 @@ def socket_shares(threads: int) -> tuple[float, float]:
     return s0, s1
 
 
-def _socket_bps(n_threads: int) -> float:
+def _socket_bps(n_threads: int, kernel: str = "") -> float:
     if n_threads <= 0:
         return 0.0
-    x = n_threads * PER_THREAD_BPS
+    x = n_threads * KERNEL_THREAD_BPS.get(kernel, PER_THREAD_BPS)
     return float((x ** -4 + SOCKET_MAX_BPS ** -4) ** -0.25)
 
 
@@ -120,7 +123,7 @@ def line_rate_of(model: DramModel, kernel: str, threads: int, groups: list[tuple
     for n_threads, share_lines, cap in zip(counts, lines, capacity):
         if share_lines <= 0:
             continue
-        demand = _socket_bps(n_threads) * (WRITE_FACTOR if traffic[1] else 1.0) / LINE_BYTES
+        demand = _socket_bps(n_threads, kernel) * (WRITE_FACTOR if traffic[1] else 1.0) / LINE_BYTES
         socket_rate = min(demand, cap) if cap > 0 else demand
         rate = min(rate, socket_rate * total / share_lines)
     return 0.0 if rate == math.inf else float(rate)

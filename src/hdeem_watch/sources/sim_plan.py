@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hdeem_watch.dram.kernels import access_pattern, kernel_lines
+from hdeem_watch.dram.kernels import access_pattern, kernel_iterations
 from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.sources.sim_layout import TAURUS, SimLayout
 from hdeem_watch.sources.sim_model import RunPlan, kernel_traffic_lines, load_model, modelled_line_rate
@@ -85,7 +85,7 @@ class TruthNode:
             n_elements = round(int(elements) * n_threads / threads) if threads > 0 else 0
             if n_threads <= 0 or n_elements <= 0:
                 continue
-            requests = float(kernel_lines(n_elements) * width * repeat)
+            requests = float(kernel_iterations(kernel, n_elements) * width * repeat)
             rows = socket_row_outcomes(spec, kernel, n_elements, n_threads, layout.topology.channels_per_socket,
                                        seed=self.seed, socket=socket)
             dimms = [d for d, s in enumerate(layout.dimm_socket) if s == socket]

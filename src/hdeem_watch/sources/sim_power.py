@@ -61,6 +61,24 @@ class PowerPhysics:
     hot_c: float = HOT_C
 
 
+def dimm_peak_w(spec: Any, physics: PowerPhysics | None = None) -> float:
+    """The most one DIMM can draw (W): every rank at the datasheet's largest operating current
+    (IDD0, IDD4R, IDD4W) and IPP0 at once, plus I/O for a line every burst time — above anything the
+    sim's truth (≤ 0.85 × datasheet, one burst at a time per channel) produces, and the bound no sample
+    of a DIMM-pair sensor exceeds beyond its noise.
+
+    >>> from hdeem_watch.dram.memspec import preset
+    >>> round(dimm_peak_w(preset("samsung-m393a1g43db0-cpb")), 2)
+    4.16
+    """
+    physics = physics or PowerPhysics()
+    cur = spec.currents
+    per_device = float(spec.vdd) * max(float(cur.get(n, 0.0)) for n in ("idd0", "idd4r", "idd4w")) \
+        + float(spec.vpp) * float(cur.get("ipp0", 0.0))
+    io = max(physics.io_read_j, physics.io_write_j) / (float(spec.burst_cycles) * float(spec.tck_s))
+    return per_device * int(spec.nbr_of_devices) * int(spec.nbr_of_ranks) + io
+
+
 def refresh_per_s(spec: Any, temp_c: float, hot_c: float = HOT_C) -> float:
     """All-bank refreshes per second of one rank at ``temp_c`` (doubled above ``hot_c``)."""
     base = 1.0 / (float(spec.timings["REFI"]) * float(spec.tck_s))

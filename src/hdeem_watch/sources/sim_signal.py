@@ -121,16 +121,33 @@ def flat_power_w(idle_w: np.ndarray, offset_w: Mapping[str, float], layout: SimL
 
 
 def deposit_owed(owed: list[tuple[int, float]], t_end: np.ndarray, period: int,
-                 power_w: np.ndarray) -> list[tuple[int, float]]:
-    """Add energy owed by stopped runs, ``[(sim ns of the stop, J)]``, to the first sample ending at or
-    after each stop (``power_w`` in place); return the entries whose sample is not among ``t_end`` yet."""
+                 power_w: np.ndarray, room_w: np.ndarray | float = math.inf) -> list[tuple[int, float]]:
+    """Add energy owed by stopped runs, ``[(sim ns of the stop, J)]``, to the samples ending at or after
+    each stop (``power_w`` in place), at most ``room_w`` more watts per sample (what a sensor can
+    still read: the pair's physical maximum minus its power), the rest to the following samples; return
+    what is still owed after ``t_end`` (stamped at its last sample, so the next batch continues). The
+    energy is exact: every joule owed is deposited once.
+
+    >>> power = np.array([1.0, 1.0, 1.0])
+    >>> deposit_owed([(0, 10.0)], np.array([1, 2, 3]) * 10**9, 10**9, power, room_w=3.0), power.tolist()
+    ([(3000000001, 1.0)], [4.0, 4.0, 4.0])
+    """
     if not len(t_end):
         return list(owed)
+    room = np.broadcast_to(np.asarray(room_w, dtype=float), power_w.shape).copy()
+    seconds = period * 1e-9
     keep = []
     for t_owed, joules in owed:
         if t_owed > t_end[-1]:
             keep.append((t_owed, joules))
             continue
         i = int(np.searchsorted(t_end, t_owed, side="left"))
-        power_w[i] += joules / (period * 1e-9)
+        while joules > 0 and i < len(t_end):
+            added = min(joules / seconds, max(0.0, float(room[i])))
+            power_w[i] += added
+            room[i] -= added
+            joules -= added * seconds
+            i += 1
+        if joules > 1e-12:
+            keep.append((int(t_end[-1]) + 1, joules))
     return keep

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.dram.kernels import access_pattern, kernel_lines
+from hdeem_watch.dram.kernels import access_pattern, iteration_lines, kernel_iterations, kernel_lines
 
 #: Requests of a socket's stream that are decoded (the rest scales linearly).
 PREFIX_REQUESTS = 1 << 15
@@ -77,22 +77,27 @@ def _frames(seed: int, n_frames: int, socket: int) -> np.ndarray:
     return np.random.default_rng([int(seed), 2 ** 20 + socket]).permutation(n_frames).astype(np.uint64)
 
 
-def socket_stream(kernel: str, elements: int, threads: int, budget: int = PREFIX_REQUESTS) -> tuple[np.ndarray, np.ndarray]:
+def socket_stream(kernel: str, elements: int, threads: int, budget: int = PREFIX_REQUESTS,
+                  seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Virtual line addresses and write flags of a prefix of one socket's stream (threads round-robin).
 
-    Each thread owns a contiguous chunk of the lines; per iteration it touches each operand in order
-    (a read-for-ownership before a write of a line not also read), one iteration of each thread in turn.
+    Each thread owns a contiguous chunk of the iterations; per iteration it touches each operand in
+    order (a read-for-ownership before a write of a line not also read), one iteration of each thread
+    in turn. An iteration's line is itself, a multiple of it (strided kernels) or random over the
+    array (random kernels; drawn from the node's ``seed``, not the model's).
     Arrays sit one after another in virtual memory, each rounded up to whole pages.
     """
     pattern = access_pattern(kernel)
     lines = kernel_lines(elements)
+    iterations = kernel_iterations(kernel, elements)
     width = len(pattern)
     threads = max(1, int(threads))
-    steps = max(1, min(-(-lines // threads), budget // max(1, threads * width)))
-    chunk = -(-lines // threads)
-    line = (np.arange(threads, dtype=np.uint64)[None, :] * np.uint64(chunk)
+    steps = max(1, min(-(-iterations // threads), budget // max(1, threads * width)))
+    chunk = -(-iterations // threads)
+    step = (np.arange(threads, dtype=np.uint64)[None, :] * np.uint64(chunk)
             + np.arange(steps, dtype=np.uint64)[:, None]).ravel()
-    line = line[line < np.uint64(max(1, lines))]
+    step = step[step < np.uint64(max(1, iterations))]
+    line = iteration_lines(kernel, lines, step, seed=seed + 7919)
     page_lines = PAGE_BYTES // LINE_BYTES
     span = -(-max(1, lines) // page_lines) * page_lines
     arrays = {name: i for i, name in enumerate(dict.fromkeys(a for a, _ in pattern))}
@@ -125,7 +130,7 @@ def socket_row_outcomes(spec: Any, kernel: str, elements: int, threads: int, cha
 @functools.lru_cache(maxsize=512)
 def _outcomes(ranks: int, groups: int, banks: int, rows: int, bursts_per_row: int, kernel: str, elements: int,
               threads: int, channels: int, seed: int, socket: int) -> RowOutcomes:
-    vline, is_write = socket_stream(kernel, elements, threads)
+    vline, is_write = socket_stream(kernel, elements, threads, seed=seed)
     page_lines = np.uint64(PAGE_BYTES // LINE_BYTES)
     channel_lines = ranks * groups * banks * rows * bursts_per_row
     n_frames = max(1, channels * channel_lines // int(page_lines))

@@ -52,8 +52,13 @@ EFFECTS: tuple[tuple[str, str, str], ...] = (
 )
 
 
+#: The currents a fit of counted windows calibrates besides :data:`CALIBRATED`: the counters measure
+#: power-down residency (``hdeem_watch.daemon.counter_model.POWERDOWN_CURRENTS``).
+COUNTED_EXTRA = ("idd2p", "idd3p")
+
+
 def absorbable_currents(node: TruthNode, currents: np.ndarray, temps_c: np.ndarray, gains: np.ndarray,
-                        offsets_w: np.ndarray) -> np.ndarray:
+                        offsets_w: np.ndarray, *, counted: bool = False) -> np.ndarray:
     """Per DIMM, a first-order estimate of the currents a node-level fit of :data:`CALIBRATED` recovers.
 
     Args:
@@ -62,22 +67,31 @@ def absorbable_currents(node: TruthNode, currents: np.ndarray, temps_c: np.ndarr
         temps_c: the DIMMs' temperatures.
         gains: the sensor gain of each DIMM's pair.
         offsets_w: each DIMM's share of its pair's sensor offset (W).
+        counted: the fit's rows come from the memory controller's counters: power-down residency
+            is counted (IDD2P/IDD3P calibrated too), so IDD2N does not absorb the idle power-down.
     """
     model, spec = node.model, node.spec
     names = list(model.names)
     index = {n: i for i, n in enumerate(names)}
-    calibrated = [index[n] for n in CALIBRATED if n in index]
+    fitted = CALIBRATED + (COUNTED_EXTRA if counted else ())
+    calibrated = [index[n] for n in fitted if n in index]
     out = np.broadcast_to(model.datasheet, currents.shape).copy()
     out[:, calibrated] = currents[:, calibrated]
     burst_j_per_a = model.burst_j_per_a()
     out[:, index["idd4r"]] += node.physics.io_read_j / burst_j_per_a
     out[:, index["idd4w"]] += node.physics.io_write_j / burst_j_per_a
     out[:, index["idd0"]] += (currents[:, index["ipp0"]] - model.datasheet[index["ipp0"]]) * float(spec.vpp) / float(spec.vdd)
-    idle_cols, idle_const = node.model_idle_columns()
-    model_idle_w = out @ idle_cols + idle_const
-    out[:, index["idd2n"]] += (node.idle_power_w(currents, temps_c) - model_idle_w) / idle_cols[index["idd2n"]]
-    out[:, calibrated] *= gains[:, None]
+    if not counted:
+        idle_cols, idle_const = node.model_idle_columns()
+        model_idle_w = out @ idle_cols + idle_const
+        out[:, index["idd2n"]] += (node.idle_power_w(currents, temps_c) - model_idle_w) / idle_cols[index["idd2n"]]
     f_ref = float(spec.trfc) / float(spec.timings["REFI"])
+    if counted:  # the fit holds IDD5B at its datasheet value: the refresh power's deviation is a constant power
+        i5b = index["idd5b"]
+        refresh = (currents[:, i5b] - model.datasheet[i5b]) * f_ref / (1.0 - f_ref)
+        for j in calibrated:
+            out[:, j] += refresh
+    out[:, calibrated] *= gains[:, None]
     shift = offsets_w / (model.standby_w_per_a() * (1.0 - f_ref))
     for j in calibrated:
         if names[j].startswith("idd"):
@@ -107,6 +121,7 @@ def truth_report(node: TruthNode, parts: PartCurrents, t_s: float, *, t_ns: int,
     gains = np.array([gain[p] for p in pair_of])
     offsets = np.array([offset_w[p] / len(layout.sensor_dimms(p)) for p in pair_of])
     effective = absorbable_currents(node, currents, temps, gains, offsets)
+    counted = absorbable_currents(node, currents, temps, gains, offsets, counted=True)
     base_refresh = refresh_per_s(node.spec, node.physics.hot_c - 1.0)
 
     def by_name(values: np.ndarray) -> dict[str, float]:
@@ -119,6 +134,7 @@ def truth_report(node: TruthNode, parts: PartCurrents, t_s: float, *, t_ns: int,
             "dimms": [f"DIMM_{layout.dimm_names[d]}" for d in dimms],
             "currents_a": by_name(currents[dimms].mean(axis=0)),
             "effective_currents_a": by_name(effective[dimms].mean(axis=0)),
+            "counted_currents_a": by_name(counted[dimms].mean(axis=0)),
             "part_factor": float(parts.part_factor[pair]),
             "sensor_gain": float(gain[pair]),
             "sensor_offset_w": float(offset_w[pair]),
@@ -138,6 +154,9 @@ def truth_report(node: TruthNode, parts: PartCurrents, t_s: float, *, t_ns: int,
         "datasheet": by_name(model.datasheet),
         "mean_currents_a": by_name(currents.mean(axis=0)),
         "effective_currents_a": by_name(effective.mean(axis=0)),
+        "counted_currents_a": by_name(counted.mean(axis=0)),
+        "counted_note": "the same for a fit of counted windows: power-down residency is counted, so IDD2N does "
+                        "not absorb the idle power-down and IDD2P/IDD3P are calibrated as well",
         "effective_note": "first-order estimate of a node-level fit: calibrated core truth + I/O per burst "
                           "(IDD4R/IDD4W) + real vs model idle power (IDD2N), × sensor gain, + sensor offsets; "
                           "the effects marked 'no' keep a fit a few percent off",

@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import math
 import shutil
+import statistics
 import sys
 import textwrap
 import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, TextIO
 
+from hdeem_watch.dram.kernels import HOLDOUT_KERNELS
 from hdeem_watch.tui.group_views import alarm_text, is_drift
 from hdeem_watch.tui.snapshot import CalibView, NodeSnapshot, RunView
 from hdeem_watch.tui.widgets.fmt import percent
@@ -163,6 +165,20 @@ class ProgressPrinter:
         self._seen_alarms: set[tuple[str, str, str, int]] = set()
         self._state: tuple[str, str] = ("", "")
         self._last_power_s = -math.inf
+        #: hold-out runs seen: (calibrated error, datasheet error) of each
+        self.holdout: list[tuple[float, float]] = []
+
+    def holdout_line(self) -> str | None:
+        """``holdout: N runs, median error X %, worst Y % (datasheet …)``: the hold-out runs
+        (:data:`hdeem_watch.dram.kernels.HOLDOUT_KERNELS`, never fitted) predicted with the fit from
+        before each, against their measured energy; None before the first."""
+        return holdout_text(self.holdout)
+
+    def _note_holdout(self, run: RunView) -> None:
+        if run.kernel in HOLDOUT_KERNELS and not run.running and not run.history:
+            cal, ds = run.error_calibrated, run.error_datasheet
+            if math.isfinite(cal) and math.isfinite(ds):
+                self.holdout.append((abs(cal), abs(ds)))
 
     def lines(self, snapshot: NodeSnapshot, now_s: float) -> list[str]:
         """New lines for ``snapshot`` at ``now_s`` (seconds on any monotonic clock)."""
@@ -183,6 +199,7 @@ class ProgressPrinter:
         for run in snapshot.runs:
             if run.run_id not in self._seen_runs:
                 self._seen_runs.add(run.run_id)
+                self._note_holdout(run)
                 if not run.history:
                     out += fit_width(run_parts(run), self.width)
         calib = snapshot.calib
@@ -198,6 +215,21 @@ class ProgressPrinter:
             self._last_power_s = now_s
             out += fit_width(power_parts(snapshot), self.width)
         return out
+
+
+def holdout_text(errors: Sequence[tuple[float, float]]) -> str | None:
+    """The hold-out summary line of ``(|calibrated error|, |datasheet error|)`` pairs (None: none).
+
+    >>> holdout_text([(0.02, 0.4), (0.05, 0.6), (0.01, 0.5)])
+    'holdout: 3 runs, median error 2.0 %, worst 5.0 % (datasheet: median 50.0 %, worst 60.0 %)'
+    """
+    if not errors:
+        return None
+    cal = sorted(e for e, _ in errors)
+    ds = sorted(d for _, d in errors)
+    return (f"holdout: {len(cal)} {_runs(len(cal))}, median error {100 * statistics.median(cal):.1f} %, "
+            f"worst {100 * cal[-1]:.1f} % (datasheet: median {100 * statistics.median(ds):.1f} %, "
+            f"worst {100 * ds[-1]:.1f} %)")
 
 
 def terminal_width() -> int:
@@ -257,4 +289,10 @@ def print_progress(
         at_end()
         time.sleep(period_s)  # the last runs' records reach the snapshots
         print_new()
+    for printer, snapshot in zip(printers, hub.snapshots()):
+        line = printer.holdout_line()
+        if line is not None:
+            prefix = f"[{snapshot.node}] " if len(printers) > 1 else ""
+            print(prefix + line, file=stream, flush=True)
+            count += 1
     return count

@@ -150,9 +150,13 @@ def calib_view(body: Mapping[str, Any], *, history_len: int = 40) -> CalibView:
     truth_raw = body.get("truth")
     truth = _current_values(truth_raw) if isinstance(truth_raw, Mapping) else {}
     truth_core: dict[str, float] = {}
-    if isinstance(truth_raw, Mapping) and isinstance(truth_raw.get("effective_currents_a"), Mapping):
+    counted = isinstance(fit, Mapping) and isinstance(fit.get("trust"), Mapping) and \
+        fit["trust"].get("commands") == "counted"  # a fit of counted windows recovers other effective values
+    key = "counted_currents_a" if counted and isinstance(truth_raw, Mapping) and \
+        isinstance(truth_raw.get("counted_currents_a"), Mapping) else "effective_currents_a"
+    if isinstance(truth_raw, Mapping) and isinstance(truth_raw.get(key), Mapping):
         truth_core = truth
-        truth = _current_values(truth_raw["effective_currents_a"])
+        truth = _current_values(truth_raw[key])
     simulated = bool(truth) or bool(isinstance(truth_raw, Mapping) and truth_raw.get("simulated"))
     history_raw = body.get("history")
     series = history_series(history_raw if isinstance(history_raw, list) else [])
