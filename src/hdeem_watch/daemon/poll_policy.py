@@ -14,13 +14,13 @@ whenever a subscription, a window or a job changes.
 
 Example:
     >>> from hdeem_watch.sources.base import QuietLimit
-    >>> policy = PollPolicy(fast_s=0.04, idle_s=0.25, limit=QuietLimit(60.0))
-    >>> policy.interval_s(PollDemand(watched=True))
+    >>> policy = PollPolicy(fast_s=0.04, idle_s=0.25, limit=QuietLimit(60.0), checkpoint_s=5.0)
+    >>> policy.interval_s(PollDemand(watched=True, listening=True))
     0.04
     >>> policy.interval_s(PollDemand())            # nobody watches: half the 60 s buffer
     30.0
-    >>> policy.interval_s(PollDemand(jobs_open=True, checkpoint_s=5.0))
-    5.0
+    >>> policy.interval_s(PollDemand(listening=True)), policy.interval_s(PollDemand(jobs_open=True))
+    (1.0, 5.0)
 """
 
 from __future__ import annotations
@@ -45,16 +45,17 @@ class PollDemand:
     """What asks for polls now.
 
     Attributes:
-        watched: a stream subscriber is connected (the XPUB socket saw its subscription).
-        window_open: a run or baseline window is open (its edges and its live status).
-        jobs_open: a job window is open (its energy so far is checkpointed every ``checkpoint_s``).
-        checkpoint_s: the job checkpoint period.
+        watched: a subscriber takes samples (the XPUB socket saw its subscription): full rate.
+        listening: some subscriber is connected (e.g. to ``status`` alone): polls at least every
+            heartbeat, so that the status it receives is current.
+        window_open: a run or baseline window is open (its live status, the sim's run traffic).
+        jobs_open: a job window is open (its energy so far is checkpointed).
     """
 
     watched: bool = False
+    listening: bool = False
     window_open: bool = False
     jobs_open: bool = False
-    checkpoint_s: float = math.inf
 
     @property
     def live(self) -> bool:
@@ -72,6 +73,8 @@ class PollPolicy:
             (``idle_poll_interval_s``; 0 = always full rate).
         limit: the source's quiet limit (None = it states none).
         speed: source seconds per daemon second (a sped-up sim fills its buffer faster).
+        heartbeat_s: the status period (the longest period while someone listens).
+        checkpoint_s: the job checkpoint period (the longest period while a job is open).
         max_s: the longest quiet period (:data:`QUIET_MAX_S`).
     """
 
@@ -79,10 +82,12 @@ class PollPolicy:
     idle_s: float
     limit: QuietLimit | None = None
     speed: float = 1.0
+    heartbeat_s: float = 1.0
+    checkpoint_s: float = math.inf
     max_s: float = QUIET_MAX_S
 
     def quiet_s(self) -> float:
-        """The period while nobody watches and no window is open (never below ``fast_s``)."""
+        """The period while nobody listens and nothing is open (never below ``fast_s``)."""
         if self.idle_s <= 0:
             return self.fast_s
         if self.limit is None:
@@ -95,10 +100,12 @@ class PollPolicy:
         """The poll period now."""
         if demand.live:
             return self.fast_s
-        quiet = self.quiet_s()
+        period = self.quiet_s()
+        if demand.listening:
+            period = min(period, self.heartbeat_s)
         if demand.jobs_open:
-            quiet = max(self.fast_s, min(quiet, demand.checkpoint_s))
-        return quiet
+            period = min(period, self.checkpoint_s)
+        return max(self.fast_s, period)
 
     def interval_ns(self, demand: PollDemand) -> int:
         """:meth:`interval_s` in integer ns (the loop's timers)."""

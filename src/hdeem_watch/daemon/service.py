@@ -214,7 +214,8 @@ class Daemon:
         infos = source.channels()
         limit = source.quiet_limit if isinstance(source, QuietPolling) else None
         self.poll_policy = PollPolicy(settings.poll_interval_s, settings.idle_poll_interval_s, limit=limit,
-                                      speed=source_speed(source))
+                                      speed=source_speed(source), heartbeat_s=settings.heartbeat_s,
+                                      checkpoint_s=settings.job_checkpoint_s)
         dram_rates = {info.name: float(info.rate_hz) for info in infos if info.kind == "dram"}
         baselines = {}
         for channel, data in store.load_baselines().items():
@@ -411,12 +412,12 @@ class Daemon:
         windows = len(book.windows)
         # The heartbeat and the re-publication are served at the first poll after their deadline
         # (at most one poll period late) instead of waking the loop once more for them; while
-        # nobody watches, always.
+        # nobody listens, always.
         slowest_ns = min(heartbeat.interval_ns, republish.interval_ns) // 4
         backlog = False
         while not self._stop:
             wake = poll_timer.next_ns
-            if demand.live and poll_timer.interval_ns > slowest_ns:
+            if demand.listening and poll_timer.interval_ns > slowest_ns:
                 wake = min(wake, heartbeat.next_ns, republish.next_ns)
             timeout_ms = 0 if backlog else max(0, -(-(wake - clock()) // 1_000_000))
             ready = dict(poller.poll(timeout_ms))
@@ -497,10 +498,9 @@ class Daemon:
         assert self.book is not None and self.publisher is not None
         self.stream_samples = self.publisher.watched("samples")
         windows = self.book.windows
-        return PollDemand(watched=bool(self.publisher.prefixes),
+        return PollDemand(watched=self.stream_samples, listening=bool(self.publisher.prefixes),
                           window_open=any(w.kind != "job" for w in windows),
-                          jobs_open=any(w.kind == "job" for w in windows),
-                          checkpoint_s=self.settings.job_checkpoint_s)
+                          jobs_open=any(w.kind == "job" for w in windows))
 
     # -- polling ---------------------------------------------------------------------------------------
 
