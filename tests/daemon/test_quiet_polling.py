@@ -8,8 +8,10 @@ says. The samples the sensor delivered are the truth every energy is checked aga
 
 from __future__ import annotations
 
+import contextlib
 import math
 import shutil
+import time
 from pathlib import Path
 from typing import Any
 
@@ -272,3 +274,64 @@ def test_a_paced_source_read_rarely_counts_no_missing_samples(fake_clock: Any, p
     account = shell.book.accounts["DRAM0"]
     assert account.energy_j - start == pytest.approx(source.energy - start, rel=1e-12)
     assert (account.gaps == 0) is paced
+
+
+# -- the real daemon -----------------------------------------------------------------------------------
+
+
+def _switches(pid: int) -> int:
+    """Voluntary + involuntary context switches of every thread of ``pid``."""
+    total = 0
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):
+            text = (task / "status").read_text()
+            total += sum(int(line.split()[1]) for line in text.splitlines() if "ctxt_switches" in line)
+    return total
+
+
+@pytest.mark.slow
+def test_a_quiet_daemon_wakes_rarely_and_its_run_windows_are_exact(daemon_factory: Any, tmp_path: Path) -> None:
+    """The sim daemon nobody watches polls every 30 s and its threads switch at most a few times a
+    second (17/s before issue 31); a run started while it is quiet is exact to the sample (its energy
+    per channel is the integral of the recorded samples inside its edges, its first sample the one
+    whose interval holds the start); a subscriber that connects sees live samples at once."""
+    from hdeem_watch.daemon import protocol
+    from hdeem_watch.sources.replay import read_recording
+
+    recording = tmp_path / "samples.csv"
+    d = daemon_factory("--record", str(recording)).start()
+    assert d.proc is not None
+    with d.client() as client:
+        deadline = time.monotonic() + 20
+        while client.call("status")["poll_interval_s"] != 30.0 and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert client.call("status")["poll_interval_s"] == 30.0
+        time.sleep(3.0)  # past the start's work (the model worker builds the model)
+        before, t0 = _switches(d.proc.pid), time.monotonic()
+        time.sleep(8.0)
+        rate = (_switches(d.proc.pid) - before) / (time.monotonic() - t0)
+        assert rate <= 4.0, f"{rate:.1f} context switches/s while nobody watches"
+        run_id = client.call("run.start", {"kernel": "idle"})["run_id"]
+        time.sleep(1.5)
+        record = client.call("run.stop", {"run_id": run_id})
+        sub = d.subscriber(protocol.subscription(d.node, "samples"))
+        t_connect, live_after = time.monotonic(), math.nan
+        while time.monotonic() - t_connect < 5 and live_after != live_after:
+            if sub.poll(100):
+                t, _ = protocol.decode(sub.recv_multipart()).samples()
+                if t.size and time.time_ns() - int(t[-1]) < 100_000_000:
+                    live_after = time.monotonic() - t_connect
+        sub.close()
+    assert d.terminate() == 0, d.stderr()
+    assert live_after < 1.0
+    samples = read_recording(recording).channels
+    for name in DRAM_SIM:
+        t, p = samples[name]
+        first, last = record["samples_ns"][name]
+        inside = (t > first) & (t <= last)
+        assert record["energy_j"][name] == pytest.approx(float(p[inside].sum()) * 0.01, rel=1e-9)
+        assert first <= record["t_start_ns"] < first + 10_000_000 + 20_000_000  # the sample holding the start
+        assert int(t[inside][0]) == first + 10_000_000  # no sample of the window left out
+
+
+DRAM_SIM = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")

@@ -2,12 +2,16 @@
 
 The decisions (accounting, run and idle windows, baselines) are the pure
 :class:`~hdeem_watch.daemon.node_state.NodeState`'s; this module wires it to the world. One thread
-runs the ZeroMQ poll loop: it wakes for control requests, new subscriptions, finished worker jobs
-and three fixed-rate deadlines (poll the source, heartbeat, re-publish calibration/baselines and
-look for quiet periods). Two worker threads do the slow work: the model worker (kernel model,
-refit; :mod:`hdeem_watch.daemon.jobs`) and the store worker (every database read and write after
-start; :mod:`hdeem_watch.daemon.persistence`). Their callbacks run in the loop. The control
-operations are in :mod:`hdeem_watch.daemon.operations`, the topics in
+runs the ZeroMQ poll loop: it wakes for control requests, subscriptions, finished worker jobs (and
+signals) through their sockets and its wake-up pipe, and for one timer, the next poll. The poll
+period is :class:`~hdeem_watch.daemon.poll_policy.PollPolicy`'s: full rate while a subscriber takes
+samples or a run or baseline window is open, the source's quiet limit while nobody watches. The
+heartbeat and the re-publication (calibration, baselines, quiet periods) are served at the first
+poll after their deadline; they wake the loop on their own only while someone listens and the poll
+period is longer than they are. Two worker threads do the slow work, sleeping on their queues: the
+model worker (kernel model, refit; :mod:`hdeem_watch.daemon.jobs`) and the store worker (every
+database read and write after start; :mod:`hdeem_watch.daemon.persistence`). Their callbacks run in
+the loop. The control operations are in :mod:`hdeem_watch.daemon.operations`, the topics in
 :mod:`hdeem_watch.daemon.reporting`.
 
 Example:
