@@ -337,3 +337,35 @@ def test_a_quiet_daemon_wakes_rarely_and_its_run_windows_are_exact(daemon_factor
 
 
 DRAM_SIM = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
+
+
+@pytest.mark.slow
+def test_the_metrics_endpoint_sleeps_until_scraped() -> None:
+    """The Prometheus endpoint's thread does not wake between scrapes (the stock server wakes twice
+    a second), answers a scrape, and closes at once."""
+    import threading
+    import urllib.request
+
+    from hdeem_watch.daemon.metrics import DaemonMetrics, NodeCollector
+
+    metrics = DaemonMetrics(NodeCollector("n1", accounts=dict, baselines=dict, fit=lambda: None,
+                                          runs_finished=lambda: 3))
+    port = metrics.serve(0)
+    try:
+        [thread] = [t for t in threading.enumerate() if t.name == "hdeem-metrics"]
+        status = Path(f"/proc/self/task/{thread.native_id}/status")
+
+        def switches() -> int:
+            return sum(int(line.split()[1]) for line in status.read_text().splitlines() if "ctxt_switches" in line)
+
+        time.sleep(0.2)
+        before = switches()
+        time.sleep(2.0)
+        assert switches() - before <= 1
+        text = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5).read().decode()
+        assert 'hdeem_watch_runs_total{node="n1"} 3.0' in text
+    finally:
+        t0 = time.monotonic()
+        metrics.close()
+        assert time.monotonic() - t0 < 2.0
+    assert not thread.is_alive()
