@@ -405,7 +405,7 @@ class Daemon:
         self.poll_interval_ns = self.poll_policy.interval_ns(demand)
         poll_timer = IntervalTimer(self.poll_interval_ns, clock=clock)
         heartbeat = IntervalTimer(round(settings.heartbeat_s * 1e9), clock=clock)
-        republish = IntervalTimer(round(settings.republish_s * 1e9), clock=clock, start_ns=clock())
+        republish = IntervalTimer(self._republish_ns(demand), clock=clock, start_ns=clock())
         control_sockets, pub_socket, wake_fd = self.control.sockets, publisher.socket, self._wake_r
         poller = zmq.Poller()
         for sock in control_sockets:
@@ -417,7 +417,7 @@ class Daemon:
         # The heartbeat and the re-publication are served at the first poll after their deadline
         # (at most one poll period late) instead of waking the loop once more for them; while
         # nobody listens, always.
-        slowest_ns = min(heartbeat.interval_ns, republish.interval_ns) // 4
+        slowest_ns = min(heartbeat.interval_ns, round(settings.republish_s * 1e9)) // 4
         backlog = False
         while not self._stop:
             wake = poll_timer.next_ns
@@ -440,7 +440,7 @@ class Daemon:
                                        control_waiting=any(sock in ready for sock in control_sockets))
             if changed or len(book.windows) != windows:
                 windows = len(book.windows)
-                demand = self._retune(demand, poll_timer)
+                demand = self._retune(demand, poll_timer, republish)
 
     def _periodic(self, now: int, heartbeat: IntervalTimer, republish: IntervalTimer) -> None:
         """The heartbeat's and the re-publication's work when due (they never wake the loop alone)."""
@@ -465,12 +465,15 @@ class Daemon:
             reporter.publish_calib()
             reporter.publish_baselines()
 
-    def _retune(self, demand: PollDemand, poll_timer: IntervalTimer) -> PollDemand:
+    def _retune(self, demand: PollDemand, poll_timer: IntervalTimer, republish: IntervalTimer) -> PollDemand:
         """Follow a change of subscriptions or windows: the new poll period (and a poll at once
-        when the stream turns live: a new subscriber gets the buffered samples now)."""
+        when the stream turns live: a new subscriber gets the buffered samples now) and the new
+        re-publication period."""
         now_demand = self._demand()
         if now_demand == demand:
             return demand
+        if (republish_ns := self._republish_ns(now_demand)) != republish.interval_ns:
+            republish.set_interval(republish_ns)
         interval_ns = self.poll_policy.interval_ns(now_demand)
         if interval_ns != poll_timer.interval_ns:
             faster = interval_ns < poll_timer.interval_ns
@@ -496,6 +499,17 @@ class Daemon:
             left = control_waiting or (models.pending and models.ready) or (store.pending and store.ready)
             if not left or clock() >= end_ns:
                 return bool(left)
+
+    def _republish_ns(self, demand: PollDemand) -> int:
+        """The re-publication period: ``republish_s`` while someone listens; otherwise (the cached
+        topics reach a late joiner anyway) as often as the quiet-period search sees new samples,
+        once per ``quiet_history_s`` of source time."""
+        assert self.book is not None
+        settings = self.settings
+        seconds = settings.republish_s
+        if not demand.listening:
+            seconds = max(seconds, settings.quiet_history_s / self.book.speed)
+        return round(seconds * 1e9)
 
     def _demand(self) -> PollDemand:
         """What asks for polls now: subscribers, open windows, open jobs."""
