@@ -53,6 +53,15 @@ def test_full_rate_while_watched_or_a_window_is_open_else_the_sources_limit() ->
     assert PollPolicy(FAST_S, 0.0, limit=QuietLimit(60.0)).interval_s(PollDemand()) == FAST_S
 
 
+def test_the_policy_examples_hold() -> None:
+    """The module's examples (its documentation) are run."""
+    import doctest
+
+    from hdeem_watch.daemon import poll_policy
+
+    assert doctest.testmod(poll_policy).failed == 0
+
+
 def test_each_source_states_what_it_may_go_unpolled(tmp_path: Path) -> None:
     """The sim: its 60 s sensor buffer; RAPL: paced, a DRAM zone's range at 500 W; a replay: no limit."""
     sim = make_source("sim", seed=1)
