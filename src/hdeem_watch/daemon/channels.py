@@ -111,9 +111,12 @@ class ChannelAccount:
         samples: samples received since start.
         gaps: samples missing since start.
         history: recent samples (DRAM channels), for quiet-period baselines.
+        paced: each sample spans the time since the previous read (a ΔE/Δt source,
+            :class:`~hdeem_watch.sources.base.QuietLimit`): a longer step is a slower read, not
+            missing samples, so only the source's own report counts.
     """
 
-    def __init__(self, name: str, rate_hz: float, kind: str, history_s: float = 60.0) -> None:
+    def __init__(self, name: str, rate_hz: float, kind: str, history_s: float = 60.0, *, paced: bool = False) -> None:
         self.name = name
         self.rate_hz = float(rate_hz)
         self.kind = kind
@@ -128,6 +131,7 @@ class ChannelAccount:
         self._window_start_t_ns: int | None = None
         self._period_ns = 1e9 / self.rate_hz if self.rate_hz > 0 else math.inf
         self.measured_rate_hz = math.nan
+        self.paced = paced
 
     def update(
         self,
@@ -165,8 +169,9 @@ class ChannelAccount:
                 self.gaps += int(reported_missing)
             return news
         last, previous = t_ns.item(-1), self.last_t_ns
-        if previous is not None and last - previous < (n + 0.5) * self._period_ns and t_ns.item(0) > previous:
-            missing = 0  # the batch spans no more than its samples: a regular, gap-free grid
+        if self.paced or (previous is not None and last - previous < (n + 0.5) * self._period_ns
+                          and t_ns.item(0) > previous):
+            missing = 0  # paced, or the batch spans no more than its samples: a regular, gap-free grid
         else:
             missing = count_missing(t_ns, rate_hz=self.rate_hz, prev_t_ns=previous)
         if self._window_start_t_ns is None:

@@ -26,11 +26,16 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import math
+import socket
+import threading
+import time
 from collections.abc import Callable, Iterator, Mapping
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
-from prometheus_client import CollectorRegistry, ProcessCollector, generate_latest, start_http_server
+from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, ProcessCollector, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 
 from hdeem_watch.daemon.baselines import Baseline
@@ -127,18 +132,59 @@ class DaemonMetrics:
         self._server: Any = None
 
     def serve(self, port: int, addr: str = "127.0.0.1") -> int:
-        """Start the HTTP endpoint in a background thread; return the bound port."""
-        server, _thread = start_http_server(port, addr=addr, registry=self.registry)
+        """Start the HTTP endpoint in a background thread; return the bound port.
+
+        The thread sleeps in ``select`` until a scrape arrives (the stock server wakes twice a
+        second to look for a shutdown request); :meth:`close` wakes it with a connection.
+        """
+        server = _MetricsServer((addr, port), self.exposition)
+        threading.Thread(target=server.serve_forever, kwargs={"poll_interval": None},
+                         name="hdeem-metrics", daemon=True).start()
         self._server = server
         return int(server.server_address[1])
 
     def close(self) -> None:
         """Stop the HTTP endpoint if it runs."""
-        if self._server is not None:
-            self._server.shutdown()
-            self._server.server_close()
-            self._server = None
+        server, self._server = self._server, None
+        if server is None:
+            return
+        stopper = threading.Thread(target=server.shutdown, daemon=True)
+        stopper.start()
+        host, port = server.server_address[:2]
+        loopback = {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(host, host)
+        deadline = time.monotonic() + 5.0
+        while stopper.is_alive() and time.monotonic() < deadline:  # until the flag is seen
+            with contextlib.suppress(OSError):
+                socket.create_connection((loopback, port), timeout=0.5).close()
+            stopper.join(0.05)
+        server.server_close()
 
     def exposition(self) -> bytes:
         """The text exposition format of every metric (what a scrape returns)."""
         return generate_latest(self.registry)
+
+
+class _MetricsServer(ThreadingHTTPServer):
+    """A scrape endpoint: ``GET`` any path returns the exposition (IPv6 when ``addr`` is)."""
+
+    daemon_threads = True
+
+    def __init__(self, address: tuple[str, int], exposition: Callable[[], bytes]) -> None:
+        self.address_family = socket.AF_INET6 if ":" in address[0] else socket.AF_INET
+        self.exposition = exposition
+        super().__init__(address, _ScrapeHandler)
+
+
+class _ScrapeHandler(BaseHTTPRequestHandler):
+    server: _MetricsServer
+
+    def do_GET(self) -> None:
+        body = self.server.exposition()
+        self.send_response(200)
+        self.send_header("Content-Type", CONTENT_TYPE_LATEST)
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_message(self, format: str, *args: Any) -> None:
+        """Scrapes are not logged."""

@@ -52,8 +52,6 @@ Clock = Callable[[], int]
 CLOSE_GRACE_S = 3.0
 #: Longest ``baseline.measure`` window in seconds (it blocks ``run.start`` while it lasts).
 MAX_BASELINE_S = 600.0
-#: Longest stretch of source time between two idle polls (s): a sped-up sim's 60 s buffer must not overflow.
-IDLE_MAX_SOURCE_S = 10.0
 
 
 class Conflict(Exception):
@@ -106,18 +104,22 @@ class NodeState:
         next_seq: the number of the next run id (``r<n>``; continue the stored ones).
         baselines: the stored baselines.
         limits: bounds of ``run.start``'s numbers.
+        paced: the source publishes one sample per read (:class:`~hdeem_watch.sources.base.QuietLimit`):
+            no missing samples are counted between reads.
     """
 
     def __init__(self, channels: Sequence[ChannelInfo], *, node: str, monotonic: Clock, wall: Clock,
                  speed: float = 1.0, poll_interval_s: float = 0.04, history_s: float = 60.0, next_seq: int = 1,
-                 baselines: Mapping[str, bl.Baseline] | None = None, limits: RunLimits | None = None) -> None:
+                 baselines: Mapping[str, bl.Baseline] | None = None, limits: RunLimits | None = None,
+                 paced: bool = False) -> None:
         self.node = node
         self.monotonic = monotonic
         self.wall = wall
         self.speed = float(speed)
         self.poll_interval_s = float(poll_interval_s)
         self.limits = limits
-        self.accounts = {i.name: ChannelAccount(i.name, i.rate_hz, i.kind, history_s=history_s) for i in channels}
+        self.accounts = {i.name: ChannelAccount(i.name, i.rate_hz, i.kind, history_s=history_s, paced=paced)
+                         for i in channels}
         self.dram_channels = tuple(i.name for i in channels if i.kind == "dram")
         self.windows: list[Window] = []
         self.baselines: dict[str, bl.Baseline] = dict(baselines or {})
@@ -199,13 +201,6 @@ class NodeState:
         if not self._offsets:
             return self.wall()
         return round(int(t_mono_ns) * self.speed) + max(self._offsets)
-
-    def poll_interval_ns(self, *, watched: bool, idle_s: float) -> int:
-        """The fast poll period while someone receives samples or a window is open, else the idle one."""
-        fast = self.poll_interval_s
-        if watched or idle_s <= 0 or self.exclusive_windows():
-            return round(fast * 1e9)
-        return round(max(fast, min(idle_s, IDLE_MAX_SOURCE_S / self.speed)) * 1e9)
 
     # -- runs -------------------------------------------------------------------------------------
 

@@ -125,9 +125,9 @@ class Reporter:
         """Store and publish baselines that replaced the kept ones (nothing when empty)."""
         if not kept:
             return
-        for channel, baseline in kept.items():
-            record = baseline.to_dict()
-            self.store.write(f"baseline {channel}", _save_baseline(channel, record))
+        # One store call for all of them: one wake-up of the store threads, not one per channel.
+        records = {channel: baseline.to_dict() for channel, baseline in kept.items()}
+        self.store.write(f"baselines {', '.join(records)}", _save_baselines(records))
         self.publish_baselines()
 
     def look_for_quiet_periods(self, *, window_s: float, max_spread_w: float) -> None:
@@ -135,8 +135,9 @@ class Reporter:
         self.baselines_kept(self.book.quiet_baselines(window_s=window_s, max_spread_w=max_spread_w))
 
 
-def _save_baseline(channel: str, record: dict[str, Any]) -> Callable[[StorePort], None]:
+def _save_baselines(records: Mapping[str, dict[str, Any]]) -> Callable[[StorePort], None]:
     def save(store: StorePort) -> None:
-        store.save_baseline(channel, record)
+        for channel, record in records.items():
+            store.save_baseline(channel, record)
 
     return save

@@ -2,12 +2,16 @@
 
 The decisions (accounting, run and idle windows, baselines) are the pure
 :class:`~hdeem_watch.daemon.node_state.NodeState`'s; this module wires it to the world. One thread
-runs the ZeroMQ poll loop: it wakes for control requests, new subscriptions, finished worker jobs
-and three fixed-rate deadlines (poll the source, heartbeat, re-publish calibration/baselines and
-look for quiet periods). Two worker threads do the slow work: the model worker (kernel model,
-refit; :mod:`hdeem_watch.daemon.jobs`) and the store worker (every database read and write after
-start; :mod:`hdeem_watch.daemon.persistence`). Their callbacks run in the loop. The control
-operations are in :mod:`hdeem_watch.daemon.operations`, the topics in
+runs the ZeroMQ poll loop: it wakes for control requests, subscriptions, finished worker jobs (and
+signals) through their sockets and its wake-up pipe, and for one timer, the next poll. The poll
+period is :class:`~hdeem_watch.daemon.poll_policy.PollPolicy`'s: full rate while a subscriber takes
+samples or a run or baseline window is open, the source's quiet limit while nobody watches. The
+heartbeat and the re-publication (calibration, baselines, quiet periods) are served at the first
+poll after their deadline; they wake the loop on their own only while someone listens and the poll
+period is longer than they are. Two worker threads do the slow work, sleeping on their queues: the
+model worker (kernel model, refit; :mod:`hdeem_watch.daemon.jobs`) and the store worker (every
+database read and write after start; :mod:`hdeem_watch.daemon.persistence`). Their callbacks run in
+the loop. The control operations are in :mod:`hdeem_watch.daemon.operations`, the topics in
 :mod:`hdeem_watch.daemon.reporting`.
 
 Example:
@@ -22,8 +26,10 @@ import contextlib
 import fcntl
 import logging
 import os
+import signal
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
@@ -47,6 +53,7 @@ from hdeem_watch.daemon.modelling import MAX_HISTORY
 from hdeem_watch.daemon.node_state import NodeState
 from hdeem_watch.daemon.operations import Operations, unfinished_runs
 from hdeem_watch.daemon.persistence import StoreWorker
+from hdeem_watch.daemon.poll_policy import PollDemand, PollPolicy
 from hdeem_watch.daemon.poller import IntervalTimer
 from hdeem_watch.daemon.publisher import Publisher
 from hdeem_watch.daemon.reporting import Identity, Reporter
@@ -55,7 +62,14 @@ from hdeem_watch.daemon.store import Store, StoreError
 from hdeem_watch.daemon.store_checks import ROW_CHECKS
 from hdeem_watch.daemon.wire import quoted
 from hdeem_watch.errors import InputError
-from hdeem_watch.sources.base import Source, SourceBatch, SourceUnavailable, make_source, source_speed
+from hdeem_watch.sources.base import (
+    QuietPolling,
+    Source,
+    SourceBatch,
+    SourceUnavailable,
+    make_source,
+    source_speed,
+)
 
 log = logging.getLogger("hdeem_watch.daemon")
 
@@ -109,6 +123,10 @@ class Daemon:
         self.node_setup: Any = None
         self.curve: Any = None
         self.poll_interval_ns = round(settings.poll_interval_s * 1e9)
+        #: How often to poll (set at start, from the source's quiet limit).
+        self.poll_policy = PollPolicy(settings.poll_interval_s, settings.idle_poll_interval_s)
+        #: Whether some subscriber takes samples (the samples of a poll are encoded only then).
+        self.stream_samples = False
         self._stop = False
         self._lock_file: IO[str] | None = None
         self._wake_r, self._wake_w = -1, -1
@@ -200,6 +218,10 @@ class Daemon:
         source = self._open_source()
         setup = self.node_setup = self._describe_node(source)
         infos = source.channels()
+        limit = source.quiet_limit if isinstance(source, QuietPolling) else None
+        self.poll_policy = PollPolicy(settings.poll_interval_s, settings.idle_poll_interval_s, limit=limit,
+                                      speed=source_speed(source), heartbeat_s=settings.heartbeat_s,
+                                      checkpoint_s=settings.job_checkpoint_s)
         dram_rates = {info.name: float(info.rate_hz) for info in infos if info.kind == "dram"}
         baselines = {}
         for channel, data in store.load_baselines().items():
@@ -210,7 +232,8 @@ class Daemon:
         book = self.book = NodeState(
             infos, node=self.node, monotonic=self.clock, wall=self.wall_clock, speed=source_speed(source),
             poll_interval_s=settings.poll_interval_s, history_s=settings.quiet_history_s,
-            next_seq=int(store.next_run_id()[1:]), baselines=baselines, limits=RunLimits.of_this_node())
+            next_seq=int(store.next_run_id()[1:]), baselines=baselines, limits=RunLimits.of_this_node(),
+            paced=limit is not None and limit.paced)
         self.counters = CounterFeed.open(settings.counters, source, book, memspec=setup.memspec, clock=self.clock,
                                          heartbeat_s=settings.heartbeat_s, record_file=settings.record_file,
                                          replay_file=settings.replay_file)
@@ -305,8 +328,9 @@ class Daemon:
             self.store_worker.write("calibrator", lambda s: s.save_calibrator_state(t_ns, restored))
 
     def request_stop(self) -> None:
-        """Ask the loop to end (safe from a signal handler)."""
+        """Ask the loop to end (safe from a signal handler and from another thread)."""
         self._stop = True
+        self._wake()
 
     def close(self) -> None:
         """Finish the model jobs (queued ones are modelled again at the next start), write what is
@@ -363,33 +387,55 @@ class Daemon:
     # -- the loop --------------------------------------------------------------------------------------
 
     def run(self) -> None:
-        """Serve until :meth:`request_stop` (or SIGTERM/SIGINT via the command line)."""
+        """Serve until :meth:`request_stop` (or SIGTERM/SIGINT via the command line).
+
+        The loop sleeps until the next poll, a control request, a subscription or a finished worker
+        job: nothing else wakes it (a signal writes to the wake-up pipe).
+        """
+        assert self.publisher is not None and self.book is not None
+        with self._signals_wake_loop():
+            self._serve()
+
+    @contextlib.contextmanager
+    def _signals_wake_loop(self) -> Iterator[None]:
+        """Signals write to the wake-up pipe while the loop runs (only the main thread may set it):
+        a SIGTERM that another thread receives still ends a long quiet wait at once."""
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+        previous = signal.set_wakeup_fd(self._wake_w, warn_on_full_buffer=False)
+        try:
+            yield
+        finally:
+            signal.set_wakeup_fd(previous)
+
+    def _serve(self) -> None:
         assert self.publisher is not None and self.control is not None and self.book is not None
         assert self.reporter is not None and self.store_worker is not None and self.model_jobs is not None
-        clock, settings, book = self.clock, self.settings, self.book
-        self.poll_interval_ns = self._poll_interval_ns()
+        clock, settings, book, publisher = self.clock, self.settings, self.book, self.publisher
+        demand = self._demand()
+        self.poll_interval_ns = self.poll_policy.interval_ns(demand)
         poll_timer = IntervalTimer(self.poll_interval_ns, clock=clock)
         heartbeat = IntervalTimer(round(settings.heartbeat_s * 1e9), clock=clock)
-        republish = IntervalTimer(round(settings.republish_s * 1e9), clock=clock, start_ns=clock())
-        control, publisher, reporter, store = self.control, self.publisher, self.reporter, self.store_worker
+        republish = IntervalTimer(self._republish_ns(demand), clock=clock, start_ns=clock())
+        control_sockets, pub_socket, wake_fd = self.control.sockets, publisher.socket, self._wake_r
         poller = zmq.Poller()
-        for sock in control.sockets:
+        for sock in control_sockets:
             poller.register(sock, zmq.POLLIN)
-        poller.register(publisher.socket, zmq.POLLIN)
-        poller.register(self._wake_r, zmq.POLLIN)
-        control_sockets, pub_socket, wake_fd = control.sockets, publisher.socket, self._wake_r
+        poller.register(pub_socket, zmq.POLLIN)
+        poller.register(wake_fd, zmq.POLLIN)
         self.poll_once()
-        open_windows = len(book.windows)
+        windows = len(book.windows)
         # The heartbeat and the re-publication are served at the first poll after their deadline
-        # (at most one poll period late) instead of waking the loop once more for them.
-        slowest_ns = min(heartbeat.interval_ns, republish.interval_ns) // 4
-        coalesce = poll_timer.interval_ns <= slowest_ns
+        # (at most one poll period late) instead of waking the loop once more for them; while
+        # nobody listens, always.
+        slowest_ns = min(heartbeat.interval_ns, round(settings.republish_s * 1e9)) // 4
         backlog = False
         while not self._stop:
-            wake = poll_timer.next_ns if coalesce else min(poll_timer.next_ns, heartbeat.next_ns, republish.next_ns)
-            timeout_ms = min(100, max(0, -(-(wake - clock()) // 1_000_000)))
-            if backlog:
-                timeout_ms = 0
+            wake = poll_timer.next_ns
+            if demand.listening and poll_timer.interval_ns > slowest_ns:
+                wake = min(wake, heartbeat.next_ns, republish.next_ns)
+            timeout_ms = 0 if backlog else max(0, -(-(wake - clock()) // 1_000_000))
             ready = dict(poller.poll(timeout_ms))
             now = clock()
             if now >= poll_timer.next_ns:  # the stream first: control work waits, samples do not
@@ -401,33 +447,53 @@ class Daemon:
             if wake_fd in ready:
                 with contextlib.suppress(BlockingIOError):
                     os.read(wake_fd, 4096)
-            if now >= heartbeat.next_ns:
-                heartbeat.advance(now)
-                reporter.publish_status()
-                if self.counters is not None:
-                    self.publisher.publish("counters", self.counters.rates_body())
-                if self.job_ops is not None:
-                    self.job_ops.checkpoint()
-                store.retry()
-                if self.recorder is not None:
-                    self.recorder.flush()
-                if self.counters is not None:
-                    self.counters.flush()
-            if now >= republish.next_ns:
-                republish.advance(now)
-                reporter.look_for_quiet_periods(window_s=settings.quiet_window_s,
-                                                max_spread_w=settings.quiet_max_spread_w)
-                reporter.publish_calib()
-                reporter.publish_baselines()
+            self._periodic(now, heartbeat, republish)
             backlog = self._work_slice(clock() + WORK_SLICE_NS,
                                        control_waiting=any(sock in ready for sock in control_sockets))
-            if changed or len(book.windows) != open_windows:
-                open_windows = len(book.windows)
-                interval_ns = self._poll_interval_ns()
-                if interval_ns != poll_timer.interval_ns:
-                    poll_timer.set_interval(interval_ns)
-                    coalesce = interval_ns <= slowest_ns
-                    self.poll_interval_ns = interval_ns
+            if changed or len(book.windows) != windows:
+                windows = len(book.windows)
+                demand = self._retune(demand, poll_timer, republish)
+
+    def _periodic(self, now: int, heartbeat: IntervalTimer, republish: IntervalTimer) -> None:
+        """The heartbeat's and the re-publication's work when due (they never wake the loop alone)."""
+        assert self.reporter is not None and self.publisher is not None and self.store_worker is not None
+        reporter, settings = self.reporter, self.settings
+        if now >= heartbeat.next_ns:
+            heartbeat.advance(now)
+            reporter.publish_status()
+            if self.counters is not None:
+                self.publisher.publish("counters", self.counters.rates_body())
+            if self.job_ops is not None:
+                self.job_ops.checkpoint()
+            self.store_worker.retry()
+            if self.recorder is not None:
+                self.recorder.flush()
+            if self.counters is not None:
+                self.counters.flush()
+        if now >= republish.next_ns:
+            republish.advance(now)
+            reporter.look_for_quiet_periods(window_s=settings.quiet_window_s,
+                                            max_spread_w=settings.quiet_max_spread_w)
+            reporter.publish_calib()
+            reporter.publish_baselines()
+
+    def _retune(self, demand: PollDemand, poll_timer: IntervalTimer, republish: IntervalTimer) -> PollDemand:
+        """Follow a change of subscriptions or windows: the new poll period (and a poll at once
+        when the stream turns live: a new subscriber gets the buffered samples now) and the new
+        re-publication period."""
+        now_demand = self._demand()
+        if now_demand == demand:
+            return demand
+        if (republish_ns := self._republish_ns(now_demand)) != republish.interval_ns:
+            republish.set_interval(republish_ns)
+        interval_ns = self.poll_policy.interval_ns(now_demand)
+        if interval_ns != poll_timer.interval_ns:
+            faster = interval_ns < poll_timer.interval_ns
+            poll_timer.set_interval(interval_ns)
+            if faster and now_demand.live and not demand.live:
+                poll_timer.next_ns = self.clock()
+            self.poll_interval_ns = interval_ns
+        return now_demand
 
     def _work_slice(self, end_ns: int, *, control_waiting: bool) -> bool:
         """Answer control requests and run worker callbacks one at a time until ``end_ns``; return
@@ -446,10 +512,25 @@ class Daemon:
             if not left or clock() >= end_ns:
                 return bool(left)
 
-    def _poll_interval_ns(self) -> int:
+    def _republish_ns(self, demand: PollDemand) -> int:
+        """The re-publication period: ``republish_s`` while someone listens; otherwise (the cached
+        topics reach a late joiner anyway) as often as the quiet-period search sees new samples,
+        once per ``quiet_history_s`` of source time."""
         assert self.book is not None
-        watched = self.publisher is not None and self.publisher.watched("samples")
-        return self.book.poll_interval_ns(watched=watched, idle_s=self.settings.idle_poll_interval_s)
+        settings = self.settings
+        seconds = settings.republish_s
+        if not demand.listening:
+            seconds = max(seconds, settings.quiet_history_s / self.book.speed)
+        return round(seconds * 1e9)
+
+    def _demand(self) -> PollDemand:
+        """What asks for polls now: subscribers, open windows, open jobs."""
+        assert self.book is not None and self.publisher is not None
+        self.stream_samples = self.publisher.watched("samples")
+        windows = self.book.windows
+        return PollDemand(watched=self.stream_samples, listening=bool(self.publisher.prefixes),
+                          window_open=any(w.kind != "job" for w in windows),
+                          jobs_open=any(w.kind == "job" for w in windows))
 
     # -- polling ---------------------------------------------------------------------------------------
 
@@ -469,7 +550,7 @@ class Daemon:
             closed = book.close_ready()  # a window's deadline passes even while the source fails
         else:
             fresh, closed = book.on_batch(batch)
-            if fresh:
+            if fresh and self.stream_samples:  # nobody takes samples: nothing to encode
                 # All channels at once: one wake-up of the I/O thread per poll, not one per message.
                 header_t_ns = self.wall_clock()
                 encode, accounts, samples = self.publisher.samples_message, book.accounts, batch.samples

@@ -175,6 +175,36 @@ class RunAware(Protocol):
         ...
 
 
+@dataclass(frozen=True)
+class QuietLimit:
+    """How long a source may go unpolled without losing anything.
+
+    Attributes:
+        max_s: the longest stretch of the source's own time between two polls after which every
+            sample and every joule is still there (a sensor buffer's depth, a counter's wrap time
+            at its highest plausible power); ``math.inf`` = no limit.
+        paced: each poll publishes one sample spanning the time since the previous read (a ΔE/Δt
+            source: RAPL, HDEEM's energy method), so a longer stretch widens that sample instead of
+            leaving samples out (the daemon then counts no missing samples between reads).
+    """
+
+    max_s: float
+    paced: bool = False
+
+
+@runtime_checkable
+class QuietPolling(Protocol):
+    """A source that says how rarely it may be polled while nobody watches (:class:`QuietLimit`).
+
+    The daemon polls a source without it at its ``idle_poll_interval_s``.
+    """
+
+    @property
+    def quiet_limit(self) -> QuietLimit:
+        """This source's limit (it may depend on its settings, e.g. the read method)."""
+        ...
+
+
 def source_speed(source: object) -> float:
     """Source seconds per monotonic second: a :class:`SpeedControlled` source's positive finite
     ``speed``, else 1.

@@ -49,6 +49,7 @@ from hdeem_watch.sources.base import (
     STATUS_STALE,
     ChannelInfo,
     ChannelKind,
+    QuietLimit,
     SourceBatch,
     SourceUnavailable,
     normalise_channel_name,
@@ -281,6 +282,13 @@ class HdeemSource:
                 self.stop()
         self.lib.close(self._handle)
         self._handle = None
+
+    @property
+    def quiet_limit(self) -> QuietLimit:
+        """The BMC keeps a measurement's samples 8 hours (an owned one must be re-armed before);
+        the energy method publishes one ΔE/Δt sample per read (paced)."""
+        limit = BMC_BUFFER_S - self.rearm_ns / 1e9 if self.own_measurement else BMC_BUFFER_S
+        return QuietLimit(limit, paced=self.method == "energy")
 
     def health(self) -> str:
         """``"ok"``, the connection error, the overflow flags, or that no measurement runs."""

@@ -32,7 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
-from hdeem_watch.sources.base import STATUS_OK, STATUS_STALE, ChannelInfo, SourceBatch, SourceUnavailable
+from hdeem_watch.sources.base import (
+    STATUS_OK,
+    STATUS_STALE,
+    ChannelInfo,
+    QuietLimit,
+    SourceBatch,
+    SourceUnavailable,
+)
 from hdeem_watch.sources.rapl_zones import (
     DEFAULT_ROOT,
     PERMISSION_FIX,
@@ -197,6 +204,14 @@ class RaplSource:
             self._close_perf()
             self._close_perf = None
         self._health = "closed"
+
+    @property
+    def quiet_limit(self) -> QuietLimit:
+        """One ΔE/Δt sample per read (paced); a read must come before a counter can wrap twice: its
+        range at ``max_power_w`` (a DRAM zone's 2³² × 15.3 µJ ≈ 65 kJ: 131 s at 500 W; perf counts do
+        not wrap)."""
+        wraps = [c.modulus * c.joules_per_unit / self.max_power_w for c in self.counters if c.modulus]
+        return QuietLimit(min(wraps, default=math.inf), paced=True)
 
     def health(self) -> str:
         """``"ok"``, ``"closed"``, or the errors of the last read (cleared when every counter reads)."""

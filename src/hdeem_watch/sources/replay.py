@@ -52,6 +52,7 @@ from hdeem_watch.sources.base import (
     STATUS_STALE,
     ChannelInfo,
     ChannelKind,
+    QuietLimit,
     SourceBatch,
     normalise_channel_name,
 )
@@ -293,6 +294,11 @@ class ReplaySource:
     def close(self) -> None:
         """Stop playback (idempotent)."""
         self._state = "closed"
+
+    @property
+    def quiet_limit(self) -> QuietLimit:
+        """A recording loses nothing however rarely it is read: every recorded sample stays in the file."""
+        return QuietLimit(math.inf)
 
     def health(self) -> str:
         """``"ok"``, ``"ended"`` (played once, no loop) or ``"closed"``."""

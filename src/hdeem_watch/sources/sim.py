@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hdeem_watch.dram.stats import CommandStats
-from hdeem_watch.sources.base import STATUS_GAP, STATUS_OK, ChannelInfo, RunEvent, SourceBatch
+from hdeem_watch.sources.base import STATUS_GAP, STATUS_OK, ChannelInfo, QuietLimit, RunEvent, SourceBatch
 from hdeem_watch.sources.sim_age import check_pairs
 from hdeem_watch.sources.sim_commands import HiddenCommands, array_stats, plan_end_ns
 from hdeem_watch.sources.sim_currents import PartCurrents
@@ -250,6 +250,11 @@ class SimSource:
         if self._executor is not None:
             self._executor.shutdown(wait=False, cancel_futures=True)
             self._executor = None
+
+    @property
+    def quiet_limit(self) -> QuietLimit:
+        """Unpolled, the simulated sensors keep ``buffer_s`` of samples (sim time), like HDEEM's buffer."""
+        return QuietLimit(self.buffer_ns / 1e9)
 
     def health(self) -> str:
         """``"ok"`` when open, else ``"closed"``."""
