@@ -165,3 +165,42 @@ def test_ctrl_c_aborts_the_announced_run_and_the_daemon_takes_the_next_at_once(d
         client.call("run.stop", {"run_id": other["run_id"]})
         (stored,) = [r for r in client.call("runs.list", {"limit": 10})["runs"] if r["run_id"] == running["run_id"]]
     assert stored["state"] == "aborted"
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "hdeem_watch", *args], capture_output=True, text=True,
+                          timeout=60, env=_env())
+
+
+@pytest.mark.slow
+def test_run_list_and_run_stop_abort_against_a_real_daemon(daemon: str) -> None:
+    """Issue 28: `run stop --abort` ends the run in progress (a bench killed with -9 leaves one
+    open) without calibrating; `run list` shows it aborted beside a calibrated one; with no run in
+    progress `run stop` says so (exit 1)."""
+    with ControlClient(daemon, timeout_s=5.0) as client:
+        left_open = client.call("run.start", {"kernel": "triad", "name": "killed-bench"})["run_id"]
+    stopped = _cli("run", "stop", "--abort", "--connect", daemon)
+    assert stopped.returncode == 0, stopped.stderr
+    assert stopped.stdout.startswith(f"run {left_open} (killed-bench) aborted (stored, not calibrated)")
+    again = _cli("run", "stop", "--connect", daemon)
+    assert again.returncode == 1 and "no run is in progress" in again.stderr and "Traceback" not in again.stderr
+    bench = _cli("bench", "--kernels", "read", "--seconds", "1.5", "--daemon", daemon, "--json")
+    assert bench.returncode == 0, bench.stderr
+    listed = _cli("run", "list", "--connect", daemon)
+    assert listed.returncode == 0, listed.stderr
+    lines = listed.stdout.splitlines()
+    assert lines[0].split()[:3] == ["run", "name", "state"] and max(map(len, lines)) <= 80
+    rows = {line.split()[0]: line for line in lines[1:]}
+    assert "aborted" in rows[left_open] and rows[left_open].endswith("no (aborted)")
+    (bench_run,) = [json.loads(line)["run_id"] for line in bench.stdout.splitlines()]
+    assert rows[bench_run].endswith("yes"), listed.stdout
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("endpoint", ["garbage", "tcp://nohost", "udp://x:1"])
+def test_run_commands_refuse_a_bad_endpoint_in_one_line(endpoint: str) -> None:
+    """A --connect that is no control endpoint is bad input: one line naming it, exit 2."""
+    proc = _cli("run", "list", "--connect", endpoint)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines() == [f"hdeem-watch: error: --connect {endpoint!r}: expected a control "
+                                                "endpoint such as tcp://node7:5591 or ipc:///run/hdeem-watch/control.sock"]

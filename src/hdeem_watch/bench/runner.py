@@ -48,6 +48,9 @@ from hdeem_watch.errors import InputError
 BACKENDS = ("thread", "process")
 #: Seconds a run may take to prepare or finish before the runner gives up on its workers.
 WORKER_TIMEOUT_S = 3600.0
+#: A run sized by time is probed with up to this many passes, or this many seconds of them.
+PROBE_ROUNDS = 10
+PROBE_S = 0.25
 #: Most passes a run sized by time may get (what run.start accepts; a probe pass of a few lines
 #: can take microseconds).
 MAX_TIMED_REPEAT = 1_000_000
@@ -204,16 +207,19 @@ def validate(specs: list[RunSpec], allowed: list[int] | None = None, *, oversubs
 
 def _worker(kernel: str, arrays: Mapping[str, np.ndarray], lo: int, hi: int, repeat: Any, cpu: int,
             scratch_n: int, ready: Any, go: Any, report: Callable[[tuple[tuple[int, ...], float]], None],
-            probe: Any = None) -> None:
-    """One worker: pin, first-touch, [one probe pass between the ``probe`` barriers], then
-    ``repeat.value`` passes between ``go`` and the report (``repeat`` is read after the probe)."""
+            probe: Any = None, probe_more: Any = None) -> None:
+    """One worker: pin, first-touch, [probe passes between pairs of ``probe`` barriers while
+    ``probe_more.value``], then ``repeat.value`` passes between ``go`` and the report (``repeat``
+    is read after the probe)."""
     os.sched_setaffinity(0, {cpu})
     affinity = tuple(sorted(os.sched_getaffinity(0)))
     K.init_arrays(arrays, lo, hi)
     scratch = np.zeros(scratch_n)
     ready.wait()
-    if probe is not None:
+    while probe is not None:
         probe.wait()
+        if not probe_more.value:
+            break
         K.run_pass(kernel, arrays, lo, hi, scratch)
         probe.wait()
     go.wait()
@@ -301,18 +307,15 @@ def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None
     )
 
 
-def _probe_and_start(start_hook: Callable[[int], None], probe: Any, repeat: Any, seconds: float | None,
-                     go: Any) -> None:
-    """Time the workers' probe pass (when the run is sized by ``seconds``) and set ``repeat.value``
-    from it; then call the start hook with the pass count. If anything raises (e.g. the daemon
-    refused the run, or Ctrl-C), release the workers waiting at a barrier (it breaks and they end)
-    before the error goes up."""
+def _probe_and_start(start_hook: Callable[[int], None], probe: Any, more: Any, repeat: Any,
+                     seconds: float | None, go: Any) -> None:
+    """Time the workers' probe passes (when the run is sized by ``seconds``) and set
+    ``repeat.value`` from the fastest; then call the start hook with the pass count. If anything
+    raises (e.g. the daemon refused the run, or Ctrl-C), release the workers waiting at a barrier
+    (it breaks and they end) before the error goes up."""
     try:
         if probe is not None and seconds is not None:
-            probe.wait(WORKER_TIMEOUT_S)
-            m0 = time.perf_counter_ns()
-            probe.wait(WORKER_TIMEOUT_S)
-            repeat.value = passes_for(seconds, (time.perf_counter_ns() - m0) / 1e9)
+            repeat.value = passes_for(seconds, _probe(probe, more))
         start_hook(int(repeat.value))
     except BaseException:
         if probe is not None:
@@ -321,8 +324,26 @@ def _probe_and_start(start_hook: Callable[[int], None], probe: Any, repeat: Any,
         raise
 
 
+def _probe(probe: Any, more: Any) -> float:
+    """Seconds of the fastest probe pass: up to :data:`PROBE_ROUNDS` passes or :data:`PROBE_S` in
+    all. The fastest, because on a shared machine a pass is only ever slowed down (another
+    process's time slice), and a pass count from a slowed pass gives a run too short to measure."""
+    fastest, spent, rounds = math.inf, 0.0, 0
+    while rounds < PROBE_ROUNDS and spent < PROBE_S:
+        more.value = 1
+        probe.wait(WORKER_TIMEOUT_S)
+        m0 = time.perf_counter_ns()
+        probe.wait(WORKER_TIMEOUT_S)
+        took = (time.perf_counter_ns() - m0) / 1e9
+        fastest, spent, rounds = min(fastest, took), spent + took, rounds + 1
+    more.value = 0
+    probe.wait(WORKER_TIMEOUT_S)  # the workers see 0 and go on to ``go``
+    return fastest
+
+
 class _Passes:
-    """The pass count the thread workers read after the probe (``.value``, like ``mp.Value``)."""
+    """A number the thread workers read (``.value``, like ``mp.Value``): the pass count, or
+    whether another probe pass follows."""
 
     def __init__(self, value: int) -> None:
         self.value = value
@@ -338,14 +359,14 @@ def _run_threads(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple
     n = spec.threads
     ready, go = threading.Barrier(n + 1), threading.Barrier(n + 1)
     probe = threading.Barrier(n + 1) if seconds is not None else None
-    repeat = _Passes(spec.repeat)
+    repeat, more = _Passes(spec.repeat), _Passes(0)
     reports: list[Any] = [None] * n
     errors: list[BaseException] = []
 
     def body(i: int) -> None:
         try:
             _worker(kernel, arrays, *ranges[i], repeat, cpus[i], scratch_n, ready, go,
-                    lambda r: reports.__setitem__(i, r), probe)
+                    lambda r: reports.__setitem__(i, r), probe, more)
         except BaseException as error:  # surfaced below; the barriers must not hang
             errors.append(error)
             ready.abort()
@@ -358,7 +379,7 @@ def _run_threads(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple
         worker.start()
     try:
         ready.wait(WORKER_TIMEOUT_S)
-        _probe_and_start(start_hook, probe, repeat, seconds, go)
+        _probe_and_start(start_hook, probe, more, repeat, seconds, go)
         t0_ns, m0 = time.time_ns(), time.perf_counter_ns()
         go.wait(WORKER_TIMEOUT_S)
         for worker in workers:
@@ -388,7 +409,7 @@ def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tup
     n = spec.threads
     ready, go = ctx.Barrier(n + 1), ctx.Barrier(n + 1)
     probe = ctx.Barrier(n + 1) if seconds is not None else None
-    repeat = ctx.Value("q", spec.repeat, lock=False)
+    repeat, more = ctx.Value("q", spec.repeat, lock=False), ctx.Value("b", 0, lock=False)
     pipes = [ctx.Pipe(duplex=False) for _ in range(n)]
 
     def body(i: int) -> None:
@@ -396,7 +417,7 @@ def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tup
         lo, hi = ranges[i]
         try:
             local = K.make_arrays(kernel, max(0, min(hi * 8, spec.elements) - lo * 8))
-            _worker(kernel, local, 0, hi - lo, repeat, cpus[i], scratch_n, ready, go, send.send, probe)
+            _worker(kernel, local, 0, hi - lo, repeat, cpus[i], scratch_n, ready, go, send.send, probe, more)
             if keep:
                 send.send(local)
         except BaseException:
@@ -416,7 +437,7 @@ def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tup
     out: dict[str, np.ndarray] = {}
     try:
         ready.wait(WORKER_TIMEOUT_S)
-        _probe_and_start(start_hook, probe, repeat, seconds, go)
+        _probe_and_start(start_hook, probe, more, repeat, seconds, go)
         t0_ns, m0 = time.time_ns(), time.perf_counter_ns()
         go.wait(WORKER_TIMEOUT_S)
         reports = [recv.recv() for recv, _ in pipes]

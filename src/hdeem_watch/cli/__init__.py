@@ -19,7 +19,7 @@ from hdeem_watch.errors import InputError
 
 #: Subcommand modules, in the order ``--help`` lists them.
 SUBCOMMAND_MODULES = ("demo", "daemon", "tui", "bench", "model", "calibrate", "calib", "report", "node", "counters",
-                      "metricq_source", "jobs")
+                      "metricq_source", "jobs", "run", "completion")
 
 EXIT_OK = 0
 EXIT_FAILURE = 1

@@ -1,0 +1,46 @@
+"""``hdeem-watch completion bash|zsh``: scripts generated from the parser (issue 28)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from hdeem_watch.cli import SUBCOMMAND_MODULES
+from hdeem_watch.cli.completion import script
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def test_both_scripts_name_every_subcommand_and_the_new_flags() -> None:
+    """Generated from the parser: every subcommand, and flags added in this version (bench's
+    --seconds, run stop's --abort) are in both scripts."""
+    for shell in ("bash", "zsh"):
+        text = script(shell)
+        for module in SUBCOMMAND_MODULES:
+            assert module.replace("_", "-") in text, (shell, module)
+        assert "--seconds" in text and "--abort" in text
+
+
+@pytest.mark.slow
+def test_bash_completes_subcommands_and_flags(tmp_path: Path) -> None:
+    """A real bash sources the script and completes `hdeem-watch ru` → run, `run st` → stop and
+    `bench --sec` → --seconds."""
+    completion = tmp_path / "hdeem-watch.bash"
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    made = subprocess.run([sys.executable, "-m", "hdeem_watch", "completion", "bash"], capture_output=True,
+                          text=True, timeout=60, env=env, check=True)
+    completion.write_text(made.stdout)
+    probe = f"""
+source {completion}
+complete_words() {{ COMP_WORDS=("$@"); COMP_CWORD=$(( ${{#COMP_WORDS[@]}} - 1 )); COMP_LINE="$*"
+  COMP_POINT=${{#COMP_LINE}}; COMPREPLY=(); _shtab_hdeem_watch; echo "${{COMPREPLY[*]}}"; }}
+complete_words hdeem-watch ru
+complete_words hdeem-watch run st
+complete_words hdeem-watch bench --sec
+"""
+    out = subprocess.run(["bash", "-c", probe], capture_output=True, text=True, timeout=30, check=True).stdout
+    assert out.splitlines() == ["run", "stop", "--seconds"], out
