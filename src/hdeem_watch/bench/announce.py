@@ -177,8 +177,8 @@ class Announcer:
                 status = self.client.call("status")
                 run = status.get("run") if isinstance(status, Mapping) else None
                 metadata = run.get("metadata") if isinstance(run, Mapping) else None
-                if not isinstance(metadata, Mapping) or metadata.get("pid") != os.getpid() \
-                        or metadata.get("host") != socket.gethostname():
+                if not isinstance(run, Mapping) or not isinstance(metadata, Mapping) \
+                        or metadata.get("pid") != os.getpid() or metadata.get("host") != socket.gethostname():
                     return None
                 run_id = run.get("run_id")
             self.client.call("run.stop", {"run_id": run_id, "abort": True})

@@ -77,7 +77,7 @@ def format_runs(runs: list[Mapping[str, Any]]) -> str:
         return "no runs yet"
     lines = [f"{'run':<6}{'name':<22}{'state':<10}{'seconds':>9}{'DRAM J':>9}  {'started':<10}calibrated"]
     for run in runs:
-        lines.append(f"{str(run.get('run_id')):<6}{str(run.get('name'))[:21]:<22}{str(run.get('state')):<10}"
+        lines.append(f"{run.get('run_id')!s:<6}{str(run.get('name'))[:21]:<22}{run.get('state')!s:<10}"
                      f"{_number(run.get('window_s'), 3):>9}{_number(run.get('dram_energy_j'), 2):>9}  "
                      f"{_clock(run.get('t_start_ns')):<10}{_calibrated(run)}")
     return "\n".join(lines)
