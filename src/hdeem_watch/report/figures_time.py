@@ -207,14 +207,16 @@ def _draw_currents(ax: Any, data: ReportData, history: Sequence[FitEntry], names
                 label="drift (node fit)")
     pair_alarms = [a for a in data.alarms if dated and int(a.get("time_ns") or 0) > 0]
     if pair_alarms:
+        import matplotlib.dates as mdates
         import matplotlib.transforms as mtransforms
 
         at_top = mtransforms.blended_transform_factory(ax.transData, ax.transAxes)
-        ax.plot([utc(int(a["time_ns"])) for a in pair_alarms], [0.96] * len(pair_alarms), linestyle="none",
-                marker="X", color="#000000", markersize=10, transform=at_top, label="drift alarm (pair)")
-        for a in pair_alarms[:6]:
-            ax.annotate(f"{a.get('group')} {a.get('current')}", (utc(int(a["time_ns"])), 0.96), xycoords=at_top,
-                        xytext=(4, -12), textcoords="offset points", fontsize=7)
+        when = [float(mdates.date2num(utc(int(a["time_ns"])))) for a in pair_alarms]
+        ax.plot(when, [0.96] * len(pair_alarms), linestyle="none", marker="X", color="#000000", markersize=10,
+                transform=at_top, label="drift alarm (pair)")
+        for a, t in list(zip(pair_alarms, when))[:6]:
+            ax.annotate(f"{a.get('group')} {a.get('current')}", (t, 0.96), xycoords=at_top,
+                        xytext=(-4, -14), textcoords="offset points", fontsize=8, ha="right")
     ax.set_ylabel("calibrated current (mA)")
     legend_outside(ax)
     scope = "node-level fit" + (f"; {len(data.pair_fits)} per-DIMM-pair fits in Figure 2" if data.pair_fits
