@@ -49,7 +49,8 @@ class _ArgumentParser(argparse.ArgumentParser):
     """An argparse parser whose usage errors are one line and exit code 2."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        raise InputError(f"{self.prog}: {message}")
+        command = self.prog.removeprefix("hdeem-watch").strip()  # main() says "hdeem-watch: error:" once
+        raise InputError(f"{command}: {message}" if command else message)
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:

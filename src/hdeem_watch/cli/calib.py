@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from hdeem_watch.cli.daemon_client import add_connect_arguments, open_client
 from hdeem_watch.errors import InputError
 
 NODE = "node"
@@ -36,10 +37,11 @@ def register(subparsers: Any) -> None:
                        ("export", "write the calibration rows as RUNS.json for 'hdeem-watch calibrate'")):
         sub = actions.add_parser(name, help=text, description=text)
         sub.add_argument("--group", metavar="G", help="one sensor group (e.g. DDR_CD, DRAM1) or 'node'")
-        sub.add_argument("--connect", metavar="EP", help="the daemon's control endpoint (default: the local daemon)")
-        sub.add_argument("--timeout", type=float, default=10.0, metavar="S", help="reply timeout in seconds")
+        add_connect_arguments(sub)
         if name == "show":
             sub.add_argument("--json", action="store_true", help="print one JSON object")
+        if name == "reset":
+            sub.add_argument("--yes", action="store_true", help="confirm: the runs cannot be brought back")
         if name == "export":
             sub.add_argument("--out", required=True, metavar="RUNS.json", help="where to write the runs")
         sub.set_defaults(func=_run)
@@ -47,11 +49,9 @@ def register(subparsers: Any) -> None:
 
 
 def _client(args: argparse.Namespace) -> Any:
-    from hdeem_watch.daemon.client import ControlClient, default_endpoints
-
-    if not (args.timeout > 0 and math.isfinite(args.timeout)):
-        raise InputError(f"--timeout: {args.timeout!r}; expected seconds > 0")
-    return ControlClient(args.connect or default_endpoints()[1], timeout_s=args.timeout)
+    """The control client of ``--connect``/``--timeout``/``--server-key``/``--client-key`` (one
+    line, exit 2, for a bad endpoint: hdeem_watch.cli.daemon_client)."""
+    return open_client(args)
 
 
 def fits_of(body: dict[str, Any]) -> dict[str, dict[str, Any]]:
@@ -83,6 +83,10 @@ def _run(args: argparse.Namespace) -> int:
             if args.action == "show":
                 return _show(body, chosen, as_json=args.json)
             if args.action == "reset":
+                if not args.yes:
+                    runs = ", ".join(f"{n} {(e.get('runs') or 0)} runs" for n, e in chosen.items())
+                    raise InputError(f"calib reset forgets the calibration runs ({runs}) for good; "
+                                     "add --yes to confirm")
                 return _reset(client, body, args.group)
             return _export(client, body, args.group, Path(args.out))
     except DaemonUnreachable as error:

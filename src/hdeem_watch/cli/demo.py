@@ -17,6 +17,7 @@ import os
 import signal
 import sys
 import time
+from pathlib import Path
 from types import FrameType
 from typing import Any
 
@@ -70,13 +71,42 @@ def _check(args: argparse.Namespace) -> None:
     if not args.window > 0:
         raise InputError(f"--window {args.window}: expected a positive number of seconds")
     if args.sim_age is not None:
-        from hdeem_watch.sources.sim_age import parse_sim_age
+        from hdeem_watch.channels import DRAM_CHANNELS
+        from hdeem_watch.sources.sim_age import check_pairs, parse_sim_age
 
-        parse_sim_age(args.sim_age)
+        check_pairs(parse_sim_age(args.sim_age), DRAM_CHANNELS)  # the demo's node: Taurus Haswell-EP
+    for flag, directory in (("--state-dir", args.state_dir), ("--report", args.report)):
+        if directory is not None:
+            _writable_directory(flag, directory)
+
+
+def _writable_directory(flag: str, directory: str) -> None:
+    """Create ``directory`` if needed and check it can be written, before the demo starts (not
+    after a long run).
+
+    Raises:
+        InputError: it cannot be created or written.
+    """
+    path = Path(directory)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise InputError(f"{flag} {directory}: cannot create the directory ({error.strerror or error})") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise InputError(f"{flag} {directory}: not writable by this user; expected a directory to write into")
 
 
 def _run(args: argparse.Namespace) -> int:
     _check(args)
+    if args.report:
+        from hdeem_watch.report.style import MissingPlotting, pyplot
+
+        try:
+            pyplot()
+        except MissingPlotting:
+            print("hdeem-watch demo: error: --report needs matplotlib; pip install 'hdeem-watch[report]'",
+                  file=sys.stderr)
+            return 1
     if not args.headless and not _is_terminal():
         print("hdeem-watch demo: standard output is not a terminal; printing progress as text (--headless)",
               file=sys.stderr)
