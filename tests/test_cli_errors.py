@@ -1,0 +1,85 @@
+"""Bad input is one line naming what was wrong, exit 2, no traceback (issue 28, "Errors, flags,
+words"): each case below was a traceback, a wrong exit code or a wrong name before."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from hdeem_watch.cli import main
+
+
+def _one_line(capsys: pytest.CaptureFixture[str]) -> str:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    return err.strip()
+
+
+def test_demo_checks_its_directories_before_it_starts(capsys: pytest.CaptureFixture[str]) -> None:
+    """`demo --state-dir /proc/nope` was a FileNotFoundError; `demo --report /proc/nope` was checked
+    only after the run (exit 0)."""
+    assert main(["demo", "--headless", "--duration", "1", "--state-dir", "/proc/nope"]) == 2
+    assert _one_line(capsys) == ("hdeem-watch: error: --state-dir /proc/nope: cannot create the directory "
+                                 "(No such file or directory)")
+    assert main(["demo", "--headless", "--duration", "1", "--report", "/proc/nope/r"]) == 2
+    assert "--report /proc/nope/r: cannot create the directory" in _one_line(capsys)
+
+
+def test_demo_refuses_a_pair_the_sim_does_not_have(capsys: pytest.CaptureFixture[str]) -> None:
+    """`demo --sim-age DDR_XX=+30%/h` started the daemon, which failed: exit 1; now bad input, exit 2."""
+    assert main(["demo", "--headless", "--duration", "1", "--sim-age", "DDR_XX=+30%/h"]) == 2
+    assert "'DDR_XX' is not a DRAM sensor" in _one_line(capsys)
+
+
+@pytest.mark.parametrize(("config", "env", "flags", "message"), [
+    ("sndhwm = 99999999999999999999\n", {}, [], "sndhwm = 99999999999999999999; expected 1..2147483647"),
+    ("", {"HDEEM_WATCH_SNDHWM": "99999999999999999999"}, [], "environment HDEEM_WATCH_SNDHWM: sndhwm ="),
+    ("", {}, ["--speed", "1e308"], "--speed: speed = 1e+308; expected a time factor up to 1e+06"),
+    ("", {}, ["--prometheus", "99999"], "--prometheus: prometheus_port = 99999; expected 0..65535"),
+    ("node = 5\n", {}, [], "node = 5; expected a string in quotes"),
+    ('node = "a"\n[daemon]\nnode = "b"\n', {}, [], "node is set twice, at the top ('a') and in [daemon] ('b')"),
+])
+def test_daemon_settings_out_of_range(config: str, env: dict[str, str], flags: list[str], message: str,
+                                      tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """OverflowError tracebacks (sndhwm), an accepted 1e308 speed, the flag named by its field
+    (--prometheus-port), node = 5 taken as "5" and a node set twice are one line, exit 2."""
+    for key, value in env.items():
+        monkeypatch.setenv(key, value)
+    path = tmp_path / "d.toml"
+    path.write_text(config)
+    argv = ["daemon", *(["--config", str(path)] if config else []), "--state-dir", str(tmp_path / "s"), *flags]
+    assert main(argv) == 2
+    assert message in _one_line(capsys)
+
+
+def test_a_damaged_sysfs_capture_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`node --sysfs-root` with core_id = zz was a ValueError."""
+    topology = tmp_path / "devices/system/cpu/cpu0/topology"
+    topology.mkdir(parents=True)
+    (topology / "core_id").write_text("zz\n")
+    (topology / "physical_package_id").write_text("0\n")
+    assert main(["node", "--sysfs-root", str(tmp_path)]) == 2
+    assert _one_line(capsys).endswith("core_id: 'zz' is not a number; expected the kernel's topology id")
+
+
+def test_counters_refuses_a_missing_sysfs_root_like_node(capsys: pytest.CaptureFixture[str]) -> None:
+    """`counters --sysfs-root /nonexistent` printed a plan and exited 0; `node` says exit 2."""
+    assert main(["counters", "--sysfs-root", "/nonexistent"]) == 2
+    assert _one_line(capsys) == "hdeem-watch: error: --sysfs-root /nonexistent: not a directory"
+
+
+def test_no_doubled_prefix(capsys: pytest.CaptureFixture[str]) -> None:
+    """'hdeem-watch: error: hdeem-watch: unrecognized arguments' said the name twice."""
+    assert main(["bench", "--bogus"]) == 2
+    assert _one_line(capsys) == "hdeem-watch: error: unrecognized arguments: --bogus"
+    assert main(["bench", "--threads"]) == 2
+    assert _one_line(capsys) == "hdeem-watch: error: bench: argument --threads: expected one argument"
+
+
+def test_node_does_not_advise_a_flag_it_lacks() -> None:
+    """`node` advised '--memspec', which only the daemon has."""
+    from hdeem_watch.node.memspec_choice import choose_memspec
+
+    assert choose_memspec([]).reason.endswith("(or the daemon's --memspec)")
