@@ -44,3 +44,29 @@ complete_words hdeem-watch bench --sec
 """
     out = subprocess.run(["bash", "-c", probe], capture_output=True, text=True, timeout=30, check=True).stdout
     assert out.splitlines() == ["run", "stop", "--seconds"], out
+
+
+def _parsers(parser, name="hdeem-watch"):
+    import argparse
+
+    yield name, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            seen = set()
+            for sub_name, sub in action.choices.items():
+                if id(sub) not in seen:
+                    seen.add(id(sub))
+                    yield from _parsers(sub, f"{name} {sub_name}")
+
+
+def test_every_help_text_fits_80_columns(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 28: `demo --help` had 157-character lines, `tui --help` 126 (even in an 80-column
+    terminal); every command's help is now at most 80 columns, and the tui's names the g key."""
+    from hdeem_watch.cli import build_parser
+
+    monkeypatch.setenv("COLUMNS", "200")  # a wide terminal still gets 80-column help
+    helps = {name: parser.format_help() for name, parser in _parsers(build_parser())}
+    assert len(helps) > 15
+    for name, text in helps.items():
+        assert max(len(line) for line in text.splitlines()) <= 80, name
+    assert "g per-pair calibration" in helps["hdeem-watch tui"]

@@ -37,9 +37,10 @@ def register(subparsers: Any) -> None:
         "watch the DRAM model's currents calibrate. Ctrl-C or q stops everything.",
         epilog="examples:\n"
         "  hdeem-watch demo                             # the TUI until q\n"
-        "  hdeem-watch demo --headless --duration 60    # text lines for 60 s (CI, dumb terminals)\n"
-        "  hdeem-watch demo --state-dir ~/hw-demo       # keep the state and the daemon log\n"
-        "exit codes: 0 done, 1 the daemon did not start, 2 bad input, 130 interrupted (--headless)",
+        "  hdeem-watch demo --headless --duration 60    # text lines for 60 s (CI)\n"
+        "  hdeem-watch demo --state-dir ~/hw-demo       # keep the state and its log\n"
+        "exit codes: 0 done, 1 the daemon did not start, 2 bad input,\n"
+        "  130 interrupted (--headless)",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--headless", action="store_true", help="print progress as text lines instead of the TUI")

@@ -23,7 +23,7 @@ from hdeem_watch.cli.daemon_client import Failed, add_connect_arguments, open_cl
 
 EPILOG = """examples:
   hdeem-watch run list                      # this node's daemon: its newest runs
-  hdeem-watch run stop --abort              # end the run in progress without calibrating
+  hdeem-watch run stop --abort              # end the run, not calibrating
   hdeem-watch run stop --run r53 --connect tcp://node7:5591
 exit codes: 0 done, 1 no reply, refused, or no run in progress, 2 bad input"""
 
