@@ -109,8 +109,7 @@ def _run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
             return 1
     if not args.headless and not _is_terminal():
-        print("hdeem-watch demo: standard output is not a terminal; printing progress as text (--headless)",
-              file=sys.stderr)
+        print(f"hdeem-watch demo: {why_no_tui()}; printing progress as text (--headless)", file=sys.stderr)
         args.headless = True
     from hdeem_watch.demo.daemon import DaemonFailed, DemoDaemon
     from hdeem_watch.demo.schedule import DemoSchedule
@@ -149,6 +148,15 @@ def _run(args: argparse.Namespace) -> int:
 
             report_at_end(daemon.state_dir, args.report)
         daemon.stop()
+
+
+def why_no_tui() -> str:
+    """Why the TUI cannot run here: a dumb terminal (``TERM=dumb``), or no terminal at all."""
+    if sys.stdout.isatty() and os.environ.get("TERM", "") == "dumb":
+        return "TERM=dumb: this terminal cannot draw the TUI"
+    if os.environ.get("TERM", "") == "dumb":
+        return "TERM=dumb and standard output is not a terminal"
+    return "standard output is not a terminal"
 
 
 def _is_terminal() -> bool:
@@ -195,6 +203,10 @@ def _headless(control: str, args: argparse.Namespace) -> int:
     start = time.monotonic()
     try:
         print_progress(hub, duration_s=args.duration, at_end=schedule.stop)
+    except KeyboardInterrupt:
+        print("demo: interrupted; stopping the run in progress, the feed and the sim daemon (about a second)",
+              file=sys.stderr, flush=True)
+        raise
     finally:
         schedule.stop()
         hub.stop()

@@ -199,8 +199,9 @@ def _headless(hub: Any, args: argparse.Namespace) -> int:
     from hdeem_watch.tui.headless import print_progress, silent_nodes
 
     if not args.headless:
-        print("hdeem-watch tui: standard output is not a terminal; printing progress as text (--headless)",
-              file=sys.stderr)
+        from hdeem_watch.cli.demo import why_no_tui
+
+        print(f"hdeem-watch tui: {why_no_tui()}; printing progress as text (--headless)", file=sys.stderr)
     hub.set_view(focus=-1, window_s=10.0, width=0)
     hub.start()
     try:
