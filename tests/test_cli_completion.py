@@ -70,3 +70,37 @@ def test_every_help_text_fits_80_columns(monkeypatch: pytest.MonkeyPatch) -> Non
     for name, text in helps.items():
         assert max(len(line) for line in text.splitlines()) <= 80, name
     assert "g per-pair calibration" in helps["hdeem-watch tui"]
+
+
+def test_every_flag_in_the_readmes_command_table_exists() -> None:
+    """Issue 28: README's calib row promised `export --json`, which export does not have. Each
+    command cell of README's table names only flags its (sub)command's parser has."""
+    import re
+
+    from hdeem_watch.cli import build_parser
+
+    parsers = dict(_parsers(build_parser()))
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    checked = 0
+    for row in re.findall(r"^\| (`hdeem-watch .*?) \| ", readme, flags=re.M):
+        top = ""
+        for cell in re.findall(r"`([^`]*)`", row):
+            words = cell.replace("\\|", "|").split()
+            if words[0] == "hdeem-watch":
+                words, top = words[1:], words[1]
+            elif not words[0].startswith("-"):  # `calib reset ...` after `hdeem-watch calib show ...`
+                top = words[0]
+            else:  # `--config FILE`: the row's command again
+                words = [top, *words]
+            names = ["hdeem-watch"]
+            for word in words:
+                longer = [f"{n} {w}" for n in names for w in word.split("|") if f"{n} {w}" in parsers]
+                if not longer:
+                    break
+                names = longer
+            for name in names:
+                known = {o for a in parsers[name]._actions for o in a.option_strings}
+                for flag in re.findall(r"(--[a-z][a-z-]*)", cell):
+                    assert flag in known, (name, flag)
+                checked += 1
+    assert checked >= 15
