@@ -83,3 +83,11 @@ def test_node_does_not_advise_a_flag_it_lacks() -> None:
     from hdeem_watch.node.memspec_choice import choose_memspec
 
     assert choose_memspec([]).reason.endswith("(or the daemon's --memspec)")
+
+
+def test_one_run_is_not_one_runs() -> None:
+    """Issue 28: "1 runs"."""
+    from hdeem_watch.cli.calib import format_fits
+
+    assert format_fits({"node": {"fit": None, "runs": 1}}, [], []) == "node: no fit yet (1 run)"
+    assert format_fits({"node": {"fit": None, "runs": 2}}, [], []) == "node: no fit yet (2 runs)"

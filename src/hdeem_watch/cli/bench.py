@@ -32,6 +32,7 @@ from hdeem_watch.bench.announce import WAIT_S, RunRefused
 from hdeem_watch.bench.runner import BACKENDS, RunResult, run_one, validate
 from hdeem_watch.bench.schedule import sweep
 from hdeem_watch.cli.curve_options import add_server_key_argument, client_kwargs, curve_keys
+from hdeem_watch.cli.numbers import counted
 from hdeem_watch.errors import InputError
 
 if TYPE_CHECKING:
@@ -211,7 +212,7 @@ def _run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         progress.clear()
         aborted = announcer.abort_open() if announcer is not None else None
-        done = f"{len(results)} of {len(specs)} runs done"
+        done = f"{len(results)} of {counted(len(specs), 'run')} done"
         print(f"hdeem-watch bench: interrupted; {done}" + (f"; run {aborted} aborted" if aborted else ""),
               file=sys.stderr)
         return 130
@@ -223,7 +224,7 @@ def _run(args: argparse.Namespace) -> int:
     if (summary := too_short_summary(results, by_time)) is not None:
         warn(summary)
     if refused is not None:
-        print(f"hdeem-watch bench: error: {refused}; {len(results)} of {len(specs)} runs done", file=sys.stderr)
+        print(f"hdeem-watch bench: error: {refused}; {len(results)} of {counted(len(specs), 'run')} done", file=sys.stderr)
         return 1
     return 0
 

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from hdeem_watch.cli.daemon_client import add_connect_arguments, open_client
+from hdeem_watch.cli.numbers import counted
 from hdeem_watch.errors import InputError
 
 NODE = "node"
@@ -84,7 +85,7 @@ def _run(args: argparse.Namespace) -> int:
                 return _show(body, chosen, as_json=args.json)
             if args.action == "reset":
                 if not args.yes:
-                    runs = ", ".join(f"{n} {(e.get('runs') or 0)} runs" for n, e in chosen.items())
+                    runs = ", ".join(f"{n} {counted(e.get('runs') or 0, 'run')}" for n, e in chosen.items())
                     raise InputError(f"calib reset forgets the calibration runs ({runs}) for good; "
                                      "add --yes to confirm")
                 return _reset(client, body, args.group)
@@ -119,11 +120,11 @@ def format_fits(chosen: dict[str, dict[str, Any]], alarms: list[dict[str, Any]],
     for name, entry in chosen.items():
         fit = entry.get("fit")
         if not fit:
-            lines.append(f"{name}: no fit yet ({entry.get('runs') or 0} runs)")
+            lines.append(f"{name}: no fit yet ({counted(entry.get('runs') or 0, 'run')})")
             continue
         loo = (fit.get("error") or {}).get("loo")
         loo_text = "—" if loo is None else f"{loo * 100:.2f} %"
-        lines.append(f"{name}: {fit.get('n_runs')} runs, status {fit.get('status')}, leave-one-out {loo_text}")
+        lines.append(f"{name}: {counted(fit.get('n_runs'), 'run')}, status {fit.get('status')}, leave-one-out {loo_text}")
         for current, c in (fit.get("currents") or {}).items():
             lo, hi = (c.get("ci95") or [None, None])[:2]
             flags = "" if c.get("identifiable") else "  not determined"
@@ -178,7 +179,7 @@ def _export(client: Any, body: dict[str, Any], group: str | None, out: Path) -> 
         out.write_text(json.dumps({"memspec": memspec, "runs": runs}, indent=1) + "\n", encoding="utf-8")
     except OSError as error:
         raise InputError(f"--out {out}: cannot write: {error.strerror or error}") from None
-    print(f"{len(runs)} runs written to {out} (hdeem-watch calibrate --runs {out})")
+    print(f"{counted(len(runs), 'run')} written to {out} (hdeem-watch calibrate --runs {out})")
     return 0
 
 

@@ -211,7 +211,9 @@ def _headless(control: str, args: argparse.Namespace) -> int:
         schedule.stop()
         hub.stop()
     calib = hub.snapshots()[0].calib
-    print(f"demo: done after {time.monotonic() - start:.0f} s, {schedule.completed} runs "
+    from hdeem_watch.cli.numbers import counted
+
+    print(f"demo: done after {time.monotonic() - start:.0f} s, {counted(schedule.completed, 'run')} "
           f"(the calibration holds {calib.n_runs})", flush=True)
     print(alarm_summary(calib.alarms), flush=True)
     return 0
