@@ -104,3 +104,23 @@ def test_every_flag_in_the_readmes_command_table_exists() -> None:
                     assert flag in known, (name, flag)
                 checked += 1
     assert checked >= 15
+
+
+def test_model_energy_tables_fit_80_columns(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 28: `model energy`'s per-rank table was ~150 columns; commands and cycles per rank are
+    two tables now, each row's numbers those of the JSON output."""
+    import json
+
+    from hdeem_watch.cli import main
+
+    data = Path(__file__).resolve().parent / "data" / "drampower"
+    args = ["model", "energy", "--memspec", str(data / "memspecs" / "ddr4_2133_x8_2r_1dev.json"),
+            "--trace", str(data / "traces" / "idle_refresh.csv")]
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert max(len(line) for line in text.splitlines()) <= 80
+    assert main([*args, "--json"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    lines = text.splitlines()
+    rank0 = lines[lines.index("commands per rank") + 2].split()
+    assert [float(v) for v in rank0[1:]] == [float(v) for v in record["counts"][0].values()]
