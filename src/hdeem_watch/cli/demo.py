@@ -184,14 +184,32 @@ def _headless(control: str, args: argparse.Namespace) -> int:
     from hdeem_watch.tui.feed import FeedHub
     from hdeem_watch.tui.headless import fit_width, print_progress, terminal_width
 
+    ending = False
+
     def on_event(event: ScheduleEvent) -> None:
         if event.event == "error":
             print(f"error  run {event.index} {event.spec.kernel} {event.spec.threads}t: {event.detail}", flush=True)
+        if event.event == "stop" and ending:
+            window = (event.result or {}).get("window_s")
+            length = f" after {window:.2f} s" if isinstance(window, float) else ""
+            print(f"note   the last run ({event.spec.kernel}-{event.spec.threads}t) was cut short by the end of "
+                  f"the demo{length}; it is calibrated like the others", flush=True)
+
+    def at_end() -> None:
+        nonlocal ending
+        ending = True
+        schedule.stop()
 
     intro = [
         f"demo: daemon at {control};",
         f"schedule: rounds of an idle run + 7 kernels at {'/'.join(THREAD_ROUNDS)} threads,",
-        f"runs of {'/'.join(f'{s:g}' for s in RUN_LENGTHS_S)} s; Ctrl-C stops",
+        f"runs of {'/'.join(f'{s:g}' for s in RUN_LENGTHS_S)} s; Ctrl-C stops.",
+        "reading the lines:", "run = measured vs modelled DRAM energy",
+        "(datasheet and calibrated currents, error in %);", "calib = the fit:",
+        "'idd0 107.4->48.2 mA' = datasheet->calibrated current per device,",
+        "'?' = not determined by the runs so far,", "loo = leave-one-out error,",
+        "'sim incl. I/O' = the simulated node's truth the fit should reach", "(core = the DRAM core alone);",
+        "idle = each pair's idle baseline.",
     ]
     for line in fit_width(intro, terminal_width()):
         print(line, flush=True)
@@ -202,7 +220,7 @@ def _headless(control: str, args: argparse.Namespace) -> int:
     schedule.start()
     start = time.monotonic()
     try:
-        print_progress(hub, duration_s=args.duration, at_end=schedule.stop)
+        print_progress(hub, duration_s=args.duration, at_end=at_end)
     except KeyboardInterrupt:
         print("demo: interrupted; stopping the run in progress, the feed and the sim daemon (about a second)",
               file=sys.stderr, flush=True)
