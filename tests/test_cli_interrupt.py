@@ -42,7 +42,7 @@ def test_the_headless_demo_says_how_to_read_it_and_marks_the_cut_off_run() -> No
         if "note   the last run (" in done.stdout:
             break
     out = done.stdout
-    flat = " ".join(line.strip() for line in out.splitlines())
+    flat = " ".join(out.split())
     assert "'?' = not determined by the runs so far, loo = leave-one-out error" in flat
     assert "'sim incl. I/O' = the simulated node's truth the fit should reach" in flat
     assert " mA" in out.split("calib", 2)[-1]
