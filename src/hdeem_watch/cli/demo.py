@@ -192,8 +192,10 @@ def _headless(control: str, args: argparse.Namespace) -> int:
         if event.event == "stop" and ending:
             window = (event.result or {}).get("window_s")
             length = f" after {window:.2f} s" if isinstance(window, float) else ""
-            print(f"note   the last run ({event.spec.kernel}-{event.spec.threads}t) was cut short by the end of "
-                  f"the demo{length}; it is calibrated like the others", flush=True)
+            note = [f"note   the last run ({event.spec.kernel}-{event.spec.threads}t) was cut short",
+                    f"by the end of the demo{length};", "it is calibrated like the others"]
+            for line in fit_width(note, terminal_width()):
+                print(line, flush=True)
 
     def at_end() -> None:
         nonlocal ending
