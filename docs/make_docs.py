@@ -74,7 +74,7 @@ def render(facts: dict[str, Any]) -> dict[str, str]:
     """The text of every marked block, from the facts."""
     lines = facts["headless"]
     first_calib = next(i for i, line in enumerate(lines) if line.startswith("calib"))
-    excerpt = lines[: first_calib + 3] + ["       ..."]  # from the state line: no temporary paths
+    excerpt = [*lines[: first_calib + 3], "       ..."]  # from the state line: no temporary paths
     last_calib = max(i for i, line in enumerate(lines) if line.startswith("calib"))
     final = lines[last_calib: last_calib + 7]
     state = facts["state"]
