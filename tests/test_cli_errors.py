@@ -91,3 +91,22 @@ def test_one_run_is_not_one_runs() -> None:
 
     assert format_fits({"node": {"fit": None, "runs": 1}}, [], []) == "node: no fit yet (1 run)"
     assert format_fits({"node": {"fit": None, "runs": 2}}, [], []) == "node: no fit yet (2 runs)"
+
+
+def test_metricq_source_takes_the_stream_not_connect(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 28: one meaning per flag: `--connect` is a control endpoint in every command;
+    metricq-source reads the stream, named --stream (and --server-key like every client)."""
+    assert main(["metricq-source", "--server", "amqp://localhost/", "--connect", "tcp://node7:5590"]) == 2
+    assert "use --stream" not in (err := _one_line(capsys)) and "give its stream endpoint with --stream EP" in err
+    from hdeem_watch.cli import build_parser
+
+    args = build_parser("metricq_source").parse_args(["metricq-source", "--stream", "ipc:///x", "--server-key", "k"])
+    assert args.connect == ["ipc:///x"] and args.curve_server_key == "k"
+
+
+@pytest.mark.slow
+def test_metricq_source_that_never_reached_the_broker_exits_1(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 28: a source that never reached its broker exited 0."""
+    assert main(["metricq-source", "--server", "amqp://127.0.0.1:9/", "--stream", "ipc:///nonexistent/pub.sock",
+                 "--duration", "2"]) == 1
+    assert "never reached the MetricQ broker" in capsys.readouterr().err
