@@ -110,3 +110,18 @@ def test_metricq_source_that_never_reached_the_broker_exits_1(capsys: pytest.Cap
     assert main(["metricq-source", "--server", "amqp://127.0.0.1:9/", "--stream", "ipc:///nonexistent/pub.sock",
                  "--duration", "2"]) == 1
     assert "never reached the MetricQ broker" in capsys.readouterr().err
+
+
+def test_a_port_conflict_on_remote_control_names_that_flag(tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 28: a port taken on --remote-control was blamed on the pub and control endpoints."""
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert main(["daemon", "--runtime-dir", str(tmp_path / "r"), "--state-dir", str(tmp_path / "s"),
+                     "--remote-control", f"tcp://127.0.0.1:{port}"]) == 2
+    assert _one_line(capsys) == (f"hdeem-watch: error: --remote-control tcp://127.0.0.1:{port}: cannot bind: "
+                                 "Address already in use")
