@@ -125,3 +125,17 @@ def test_a_port_conflict_on_remote_control_names_that_flag(tmp_path: Path,
                      "--remote-control", f"tcp://127.0.0.1:{port}"]) == 2
     assert _one_line(capsys) == (f"hdeem-watch: error: --remote-control tcp://127.0.0.1:{port}: cannot bind: "
                                  "Address already in use")
+
+
+def test_calib_show_prints_intervals_one_way() -> None:
+    """Issue 28: `calib show` printed `[—, —]` for some groups and numbers for others; an interval is
+    `[lo, hi]` in mA or "no interval", explained once."""
+    from hdeem_watch.cli.calib import format_fits
+
+    fit = {"n_runs": 9, "status": "ok", "error": {"loo": 0.01}, "currents": {
+        "idd0": {"calibrated": 0.05, "ci95": [0.045, 0.055], "datasheet": 0.1, "identifiable": True},
+        "idd4w": {"calibrated": 0.08, "ci95": None, "datasheet": 0.16, "identifiable": False}}}
+    lines = format_fits({"node": {"fit": fit}, "DDR_AB": {"fit": fit}}, [], []).splitlines()
+    assert "[45.00, 55.00]" in lines[1] and "—" not in "\n".join(lines)
+    assert "no interval" in lines[2] and lines[-1].startswith("no interval: the fit gives none")
+    assert lines[1].index("datasheet") == lines[2].index("datasheet")

@@ -115,8 +115,10 @@ def _ma(value: Any) -> str:
 
 
 def format_fits(chosen: dict[str, dict[str, Any]], alarms: list[dict[str, Any]], skipped: list[dict[str, Any]]) -> str:
-    """The human-readable ``calib show``: one block per fit, then the alarms and skipped runs."""
+    """The human-readable ``calib show``: one block per fit (each current with its 95 % interval
+    in mA, or "no interval" where the fit gives none), then the alarms and skipped runs."""
     lines = []
+    missing_interval = False
     for name, entry in chosen.items():
         fit = entry.get("fit")
         if not fit:
@@ -129,8 +131,12 @@ def format_fits(chosen: dict[str, dict[str, Any]], alarms: list[dict[str, Any]],
             lo, hi = (c.get("ci95") or [None, None])[:2]
             flags = "" if c.get("identifiable") else "  not determined"
             flags += f"  at {c['at_bound']} bound" if c.get("at_bound") else ""
-            lines.append(f"  {current:<6} {_ma(c.get('calibrated')):>8} mA  [{_ma(lo)}, {_ma(hi)}]  "
+            interval = f"[{_ma(lo)}, {_ma(hi)}]" if "—" not in (_ma(lo), _ma(hi)) else "no interval"
+            missing_interval = missing_interval or interval == "no interval"
+            lines.append(f"  {current:<6} {_ma(c.get('calibrated')):>8} mA  {interval:<17}  "
                          f"datasheet {_ma(c.get('datasheet'))}{flags}")
+    if missing_interval:
+        lines.append("no interval: the fit gives none for that current (too few runs for it to be determined)")
     for a in alarms:
         lines.append(f"ALARM {a.get('group')} {a.get('current')} ({a.get('kind')}, {a.get('direction')}): "
                      f"{a.get('statistic')} > {a.get('threshold')}")
