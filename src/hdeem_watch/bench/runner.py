@@ -51,6 +51,8 @@ WORKER_TIMEOUT_S = 3600.0
 #: A run sized by time is probed with up to this many passes, or this many seconds of them.
 PROBE_ROUNDS = 10
 PROBE_S = 0.25
+#: A probe round shorter than this gets four times the passes in the next round.
+PROBE_ROUND_S = 0.01
 #: Most passes a run sized by time may get (what run.start accepts; a probe pass of a few lines
 #: can take microseconds).
 MAX_TIMED_REPEAT = 1_000_000
@@ -220,7 +222,8 @@ def _worker(kernel: str, arrays: Mapping[str, np.ndarray], lo: int, hi: int, rep
         probe.wait()
         if not probe_more.value:
             break
-        K.run_pass(kernel, arrays, lo, hi, scratch)
+        for _ in range(probe_more.value):
+            K.run_pass(kernel, arrays, lo, hi, scratch)
         probe.wait()
     go.wait()
     checksum = 0.0
@@ -325,17 +328,19 @@ def _probe_and_start(start_hook: Callable[[int], None], probe: Any, more: Any, r
 
 
 def _probe(probe: Any, more: Any) -> float:
-    """Seconds of the fastest probe pass: up to :data:`PROBE_ROUNDS` passes or :data:`PROBE_S` in
-    all. The fastest, because on a shared machine a pass is only ever slowed down (another
+    """Seconds of the fastest probe pass: up to :data:`PROBE_ROUNDS` rounds or :data:`PROBE_S` in
+    all (a round of short passes runs several, see :data:`PROBE_ROUND_S`). The fastest, because on a shared machine a pass is only ever slowed down (another
     process's time slice), and a pass count from a slowed pass gives a run too short to measure."""
-    fastest, spent, rounds = math.inf, 0.0, 0
+    fastest, spent, rounds, passes = math.inf, 0.0, 0, 1
     while rounds < PROBE_ROUNDS and spent < PROBE_S:
-        more.value = 1
+        more.value = passes
         probe.wait(WORKER_TIMEOUT_S)
         m0 = time.perf_counter_ns()
         probe.wait(WORKER_TIMEOUT_S)
         took = (time.perf_counter_ns() - m0) / 1e9
-        fastest, spent, rounds = min(fastest, took), spent + took, rounds + 1
+        fastest, spent, rounds = min(fastest, took / passes), spent + took, rounds + 1
+        if took < PROBE_ROUND_S:  # short passes: more per round, so the barriers' latency does not count
+            passes = min(passes * 4, MAX_TIMED_REPEAT)
     more.value = 0
     probe.wait(WORKER_TIMEOUT_S)  # the workers see 0 and go on to ``go``
     return fastest
@@ -409,7 +414,7 @@ def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tup
     n = spec.threads
     ready, go = ctx.Barrier(n + 1), ctx.Barrier(n + 1)
     probe = ctx.Barrier(n + 1) if seconds is not None else None
-    repeat, more = ctx.Value("q", spec.repeat, lock=False), ctx.Value("b", 0, lock=False)
+    repeat, more = ctx.Value("q", spec.repeat, lock=False), ctx.Value("q", 0, lock=False)
     pipes = [ctx.Pipe(duplex=False) for _ in range(n)]
 
     def body(i: int) -> None:
