@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import subprocess
 import sys
 import time
@@ -59,7 +60,7 @@ def test_a_node_that_does_not_answer_is_a_line_not_a_hang(tmp_path: Path) -> Non
     assert time.monotonic() - began < 1.5
     assert [a["ok"] for a in answers] == [False, False]
     lines = table(answers)
-    assert lines[1].startswith("a ") and "unreachable" in lines[1] and "unreachable" in lines[2]
+    assert lines[1].startswith("a  ") and "unreachable" in lines[1] and "unreachable" in lines[2]
     proc = subprocess.run([sys.executable, "-m", "hdeem_watch", "jobs", "--connect", "tcp://127.0.0.1:9",
                            "--timeout", "0.3"], capture_output=True, text=True, timeout=30,
                           env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"})
@@ -116,3 +117,42 @@ def test_a_curve_daemon_answers_jobs_given_its_key(tmp_path: Path, monkeypatch: 
         server.close()
         curve.close()
         context.term()
+
+
+def test_the_table_fits_80_columns_with_a_peak_column_and_says_when_a_node_has_no_jobs() -> None:
+    """Issue 28: the table was ~130 columns without the peak power the README promises, and a node
+    without jobs printed nothing under the header."""
+    job = {"job_id": "4242", "user": "alice", "state": "running", "t_start_ns": 1_795_000_000 * 10**9,
+           "duration_s": 3723.0, "dram_energy_j": 1234.5, "dram_above_baseline_j": 234.5, "measured_s": 100.0,
+           "peak_power_w": {"DDR_AB": 6.25, "DDR_CD": 7.5, "BLADE": 300.0}, "status": "ok"}
+    lines = table([{"node": "node7", "ok": True, "jobs": [job], "op": "job.list"},
+                   {"node": "node8", "ok": True, "jobs": [], "op": "job.list"}])
+    assert max(len(line) for line in lines) <= 80
+    assert lines[0].rstrip().endswith("mean W peak W")
+    row = lines[1].split()
+    assert row[:3] == ["node7", "4242", "alice"]
+    assert row[-2:] == ["12.3", "7.5"]  # mean 1234.5 J / 100 s; peak: the highest DRAM pair, not BLADE
+    assert lines[2].strip() == "running: ok"
+    assert lines[3] == "node8     (no jobs on this node)"
+
+
+def test_an_unknown_host_is_said_at_once() -> None:
+    """Issue 28: an unknown host was reported as "no reply within 10 s" after the timeout."""
+    began = time.monotonic()
+    (answer,) = query([Target("x", "tcp://no-such-host.invalid:5591")], "job.list", {}, timeout_s=10.0)
+    assert time.monotonic() - began < 5.0
+    assert not answer["ok"] and answer["error"].startswith("unknown host 'no-such-host.invalid'")
+
+
+@pytest.mark.slow
+def test_ctrl_c_ends_jobs_within_a_second() -> None:
+    """Issue 28: `jobs --timeout 20` against a daemon that does not answer exited 19 s after Ctrl-C
+    (the thread pool was waited for); now within a second, exit 130."""
+    proc = subprocess.Popen([sys.executable, "-m", "hdeem_watch", "jobs", "--connect", "tcp://127.0.0.1:9",
+                             "--timeout", "20"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"})
+    time.sleep(2.0)  # importing and asking
+    began = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=10)
+    assert proc.returncode == 130 and time.monotonic() - began <= 1.0

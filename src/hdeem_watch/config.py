@@ -51,6 +51,13 @@ class SettingError(InputError):
         super().__init__(message)
         self.setting = setting
 SOURCE_KINDS = ("sim", "hdeem", "rapl", "replay")
+#: The largest value a ZeroMQ integer option (and a C int) holds.
+MAX_C_INT = 2**31 - 1
+#: The fastest the sim or a replay may run (beyond it the sim's clock overflows within a poll).
+MAX_SPEED = 1e6
+#: Settings whose command-line flag is not ``--`` + the field name with dashes.
+FLAG_NAMES = {"prometheus_port": "--prometheus", "record_file": "--record", "poll_interval_s": "--poll-interval",
+              "curve_secret_key_file": "--curve-secret-key", "curve_clients_dir": "--curve-clients"}
 
 
 def default_node() -> str:
@@ -219,8 +226,11 @@ class DaemonSettings:
             raise SettingError("half_life_s", f"half_life_s = {self.half_life_s!r}; expected >= 0 (0 = no forgetting)")
         if self.dimms < 1:
             raise SettingError("dimms", f"dimms = {self.dimms!r}; expected >= 1")
-        if self.sndhwm < 1:
-            raise SettingError("sndhwm", f"sndhwm = {self.sndhwm!r}; expected >= 1")
+        if not 1 <= self.sndhwm <= MAX_C_INT:
+            raise SettingError("sndhwm", f"sndhwm = {self.sndhwm!r}; expected 1..{MAX_C_INT} messages")
+        if self.speed > MAX_SPEED:
+            raise SettingError("speed", f"speed = {self.speed!r}; expected a time factor up to {MAX_SPEED:g}")
+
         if self.prometheus_port is not None and not 0 <= self.prometheus_port <= 65535:
             raise SettingError("prometheus_port", f"prometheus_port = {self.prometheus_port!r}; expected 0..65535")
         if self.log_level not in ("debug", "info", "warning", "error"):
@@ -331,9 +341,9 @@ def _coerce(name: str, value: Any, where: str) -> Any:
                 raise ValueError
             return float(value)
         if base is str:
-            if not isinstance(value, str | int | float) or isinstance(value, bool):
+            if not isinstance(value, str):  # node = 5 is a mistake, not the node "5"
                 raise ValueError
-            return str(value)
+            return value
         if typing.get_origin(base) is tuple:
             items = value.split(",") if isinstance(value, str) else value
             if not isinstance(items, list | tuple) or not all(isinstance(i, str) for i in items):
@@ -343,7 +353,8 @@ def _coerce(name: str, value: Any, where: str) -> Any:
         pass
     else:
         return value
-    raise InputError(f"{where}: {name} = {value!r}; expected {getattr(base, '__name__', str(base))}")
+    expected = "a string in quotes" if base is str else getattr(base, "__name__", str(base))
+    raise InputError(f"{where}: {name} = {value!r}; expected {expected}")
 
 
 def _apply(values: dict[str, Any], data: Mapping[str, Any], where: str, origins: dict[str, str]) -> None:
@@ -416,6 +427,9 @@ def load_settings(
             values["node_table"] = dict(table)
             origins["node_table"] = str(path)
         if "daemon" in own and isinstance(own["daemon"], dict):
+            if "node" in values and "node" in own["daemon"]:
+                raise InputError(f"{path}: node is set twice, at the top ({values['node']!r}) and in [daemon] "
+                                 f"({own['daemon']['node']!r}); expected one of them")
             rest = {k: v for k, v in own.items() if k != "daemon"}
             _apply(values, rest, str(path), origins)
             _apply(values, own["daemon"], f"{path} [daemon]", origins)
@@ -434,8 +448,9 @@ def load_settings(
             if value is not None:
                 if name not in _FIELDS or name in _TABLE_FIELDS:
                     raise InputError(f"unknown setting {name!r}")
-                values[name] = _coerce(name, value, f"--{name.replace('_', '-')}")
-                origins[name] = f"--{name.replace('_', '-')}"
+                flag = FLAG_NAMES.get(name, f"--{name.replace('_', '-')}")
+                values[name] = _coerce(name, value, flag)
+                origins[name] = flag
     try:
         settings = DaemonSettings(**values)
         if check_model:

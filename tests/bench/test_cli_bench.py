@@ -63,14 +63,16 @@ def test_json_lines_one_object_per_run() -> None:
 
 
 def test_table_without_json() -> None:
-    """Without --json the runs are printed as a table with a header and one row per run."""
+    """Without --json the runs are printed as a table with a header and one row per run, in 80
+    columns (issue 28: it wrapped)."""
     proc = bench("--kernels", "copy,triad", "--threads", "1", "--elements", "4096", "--repeat", "1")
     assert proc.returncode == 0, proc.stderr
     rows = proc.stdout.splitlines()
     assert rows[0].split()[:3] == ["kernel", "threads", "elements"]
     assert [row.split()[0] for row in rows[1:3]] == ["copy", "triad"]
     assert "DRAM GB/s" in rows[0] and "STREAM GB/s" in rows[0]
-    assert rows[3].startswith("DRAM GB/s: what moves, write-allocate") and "STREAM GB/s: STREAM's count" in rows[3]
+    assert rows[3].startswith("DRAM GB/s: what moves, write-allocate") and "STREAM GB/s: STREAM's" in rows[3]
+    assert max(len(row) for row in rows) <= 80
     dram, stream = map(float, rows[1].split()[6:8])  # kernel threads elements repeat seconds Mlines/s DRAM STREAM
     # copy moves 3 lines per element (read a, write-allocate b, write b); STREAM counts 2
     assert dram == pytest.approx(1.5 * stream, abs=0.02)

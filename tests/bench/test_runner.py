@@ -170,3 +170,22 @@ def test_available_memory_respects_cgroup_limit(tmp_path: Path) -> None:
     unlimited = system.available_memory_bytes(tmp_path)
     uncapped = system.available_memory_bytes(tmp_path / "no-cgroup")
     assert unlimited > 0 and abs(unlimited - uncapped) < 256 << 20
+
+
+@pytest.mark.parametrize("backend", ["thread", "process"])
+def test_a_run_sized_by_seconds_lasts_them_and_announces_its_pass_count(backend: str) -> None:
+    """Issue 28: ``seconds`` replaces the repeat by the passes that fill it (from probe passes
+    outside the window); the announced spec carries that count, and the window lasts about as long
+    (at least half: a shared machine only slows a run down, the fastest probe pass is the guide)."""
+    seen: list[RunSpec] = []
+    result = run_one(RunSpec("triad", 2, 1 << 16, 1), backend=backend, seconds=0.3,
+                     on_start=lambda spec: seen.append(spec) or {})
+    assert result.spec.repeat > 10 and seen[0].repeat == result.spec.repeat
+    assert 0.15 <= result.seconds < 5.0
+
+
+def test_seconds_must_be_positive() -> None:
+    """A non-positive or non-finite ``seconds`` is refused before any worker starts."""
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="--seconds"):
+            run_one(RunSpec("copy", 1, 1 << 12, 1), seconds=bad)

@@ -99,13 +99,30 @@ def test_show_export_calibrate_round_trip_and_reset(daemon: str, tmp_path: Path,
 
     assert main(["calib", "show", "--connect", daemon, "--group", "DDR_XY"]) == 2
     assert "--group DDR_XY: unknown group" in capsys.readouterr().err
-    assert main(["calib", "reset", "--connect", daemon]) == 0
+    assert main(["calib", "reset", "--connect", daemon]) == 2  # issue 28: forgetting the runs needs --yes
+    assert "add --yes to confirm" in capsys.readouterr().err
+    assert main(["calib", "reset", "--connect", daemon, "--yes"]) == 0
     assert "calibration reset" in capsys.readouterr().out
     assert main(["calib", "show", "--connect", daemon, "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["node"]["fit"] is None
     # the runs stay stored, but the fit holds none of them: nothing it fitted to export
     assert main(["calib", "export", "--connect", daemon, "--out", str(tmp_path / "again.json")]) == 2
     assert "holds no runs (9 finished runs not fitted" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("action", [["show"], ["reset", "--yes"], ["export", "--out", "x.json"]])
+def test_a_garbage_endpoint_is_one_line_exit_2(action: list[str], capsys) -> None:
+    """Issue 28: `calib ... --connect garbage` was a ZMQError traceback."""
+    assert main(["calib", *action, "--connect", "garbage"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--connect 'garbage': expected a control endpoint" in err
+
+
+def test_calib_takes_the_curve_key_options_of_every_client(capsys) -> None:
+    """Issue 28: one meaning per flag: calib takes --server-key/--client-key like tui, bench, jobs
+    and run (a key file that does not exist is bad input naming it)."""
+    assert main(["calib", "show", "--connect", "tcp://127.0.0.1:5591", "--server-key", "/nonexistent.key"]) == 2
+    assert "/nonexistent.key" in capsys.readouterr().err
 
 
 def test_unreachable_daemon_is_one_line_exit_1(tmp_path: Path, capsys) -> None:

@@ -272,3 +272,13 @@ def test_interval_change_takes_effect_within_one_new_period() -> None:
     assert timer.next_ns == 35
     timer.set_interval(250)
     assert timer.next_ns == 35 and timer.interval_ns == 250
+
+
+@pytest.mark.parametrize("name", [[], {}, 0, False])
+def test_run_start_refuses_a_name_that_is_no_string(name: object) -> None:
+    """Issue 28: a `name` of [], {}, 0 or false was silently replaced by the kernel's name; it is
+    refused naming the argument (absent, null or "" still mean the kernel's name)."""
+    with pytest.raises(ProtocolError, match=r"args.name = .*: expected a string"):
+        parse_run_args({"kernel": "triad", "name": name})
+    for absent in ({}, {"name": None}, {"name": ""}):
+        assert parse_run_args({"kernel": "triad", **absent}).name == "triad"

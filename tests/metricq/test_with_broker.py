@@ -74,7 +74,7 @@ def start_source(tmp_path: Path, server: str, pub: str, *extra: str) -> tuple[su
     status = tmp_path / "metricq-status.json"
     with open(tmp_path / "source.err", "ab") as err:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "hdeem_watch", "metricq-source", "--server", server, "--connect", pub,
+            [sys.executable, "-m", "hdeem_watch", "metricq-source", "--server", server, "--stream", pub,
              "--prefix", PREFIX, "--token", "source-hw-test", "--status-file", str(status),
              "--status-interval", "0.3", "--reconnect-max", "2", *extra],
             stdout=subprocess.DEVNULL, stderr=err, env=daemon_env())

@@ -50,13 +50,15 @@ def test_bad_input_is_one_line_and_exit_2(state_dir: Path, tmp_path: Path, capsy
     assert message in err and len(err.splitlines()) == 1
 
 
-def test_without_matplotlib_one_line_and_exit_2(state_dir: Path, tmp_path: Path) -> None:
-    """With matplotlib not importable, ``report`` says to install the extra, in one line, exit 2."""
+def test_without_matplotlib_one_line_and_exit_1(state_dir: Path, tmp_path: Path) -> None:
+    """With matplotlib not importable, ``report`` says how to install the extra, in one line, exit 1
+    (issue 28: it was 2, the bad-input code, although nothing was wrong with the input)."""
     done = _python("import sys; sys.modules['matplotlib'] = None\n"
                    "from hdeem_watch.cli import main; sys.exit(main(sys.argv[1:]))",
                    "report", "--state-dir", str(state_dir), "--out", str(tmp_path / "r"))
-    assert done.returncode == 2
-    assert done.stderr.strip() == "hdeem-watch report: install hdeem-watch[report] (matplotlib) to draw reports"
+    assert done.returncode == 1
+    assert done.stderr.strip() == ("hdeem-watch report: error: matplotlib is not installed; "
+                                   "pip install 'hdeem-watch[report]'")
     assert not (tmp_path / "r").exists()
 
 

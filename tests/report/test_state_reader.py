@@ -145,3 +145,26 @@ def test_damaged_rows_are_left_out_and_said(state_dir: Path) -> None:
     assert [h.fit for h in data.fit_history if h.run_id == "r2"] == [None]
     assert any("1 run record(s)" in n for n in data.notes)
     assert any("set 1 damaged row(s)" in n for n in data.notes)
+
+
+def test_per_pair_fits_and_alarms_come_from_the_daemons_state(aged_state_dir: Path, tmp_path: Path) -> None:
+    """Issue 28: a state of the current daemon holds a fit per DIMM pair (its per-group
+    calibrators) and the drift alarm DDR_CD raised; the report reads and shows both (before: "node-level
+    fits only", "no drift alarms")."""
+    from hdeem_watch.report.build import build_report
+
+    data = read_state(aged_state_dir)
+    assert sorted(data.pair_fits) == ["DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"]
+    assert all(len(history) > 10 for history in data.pair_history.values())
+    assert all(fit["currents"]["idd0"]["calibrated"] > 0 for fit in data.pair_fits.values())
+    assert [(a["group"], a["current"], a["direction"]) for a in data.alarms] == [("DDR_CD", "energy", "up")]
+    written = build_report(data, tmp_path / "out", fmt="html")
+    page = written.page.read_text()
+    assert "node-level fits only" not in page and "No data: drift alarms" not in page
+    assert "calibrated (DDR_CD)" in page or "DDR_CD" in page
+    assert written.missing["fig2-currents"] == () and written.missing["fig4-aging"] == ()
+    numbers = json.loads((tmp_path / "out" / "numbers.json").read_text())
+    aging = next(v for k, v in numbers.items() if k.startswith("Aging"))
+    assert [row[1:3] for row in aging["drift alarms"]["rows"]] == [["DDR_CD", "energy"]]
+    fits = {row[0] for row in next(v for k, v in numbers.items() if k.startswith("Currents"))["currents"]["rows"]}
+    assert fits == {"node", "DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"}

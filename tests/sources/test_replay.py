@@ -151,3 +151,52 @@ def test_daemon_with_a_bad_recording_exits_2_with_one_line(tmp_path):
     assert proc.returncode == 2, proc.stderr
     assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     assert "bad.csv:3: t_ns 18446744073709551616 is out of range" in proc.stderr
+
+
+def test_an_all_nan_channel_has_an_unknown_energy_not_zero(tmp_path, fake_clock):
+    """Issue 28: a recording whose DDR_AB samples are all unknown reported energy_j 0.0 for it; the
+    energy is NaN (null on the wire) until a known sample arrives, and the other channels' energies
+    stay exact."""
+    t = np.arange(100, dtype=np.int64) * 10_000_000 + S
+    path = tmp_path / "nan.csv"
+    write_recording(path, {"DDR_AB": (t, np.full(100, np.nan)), "DDR_CD": (t, np.full(100, 2.0))},
+                    node="n", rate_hz={"DDR_AB": 100.0, "DDR_CD": 100.0})
+    clock = fake_clock()
+    src = ReplaySource(path, clock=clock)
+    src.open()
+    clock.t = 2 * S
+    batch = src.poll()
+    assert np.isnan(batch.energy_j["DDR_AB"]) and batch.gaps["DDR_AB"] == 100
+    assert batch.energy_j["DDR_CD"] == pytest.approx(2.0)
+
+
+def test_replay_loop_is_a_flag_like_every_setting() -> None:
+    """Issue 28: sources.md says every key has a flag; replay_loop had none."""
+    from hdeem_watch.config import load_settings
+
+    settings = load_settings(None, env={}, overrides={"source": "replay", "replay_file": "x.csv", "replay_loop": True})
+    assert settings.source_options()["loop"] is True
+    from hdeem_watch.cli import build_parser
+
+    args = build_parser("daemon").parse_args(["daemon", "--source", "replay", "--replay-file", "x.csv",
+                                              "--replay-loop"])
+    assert args.replay_loop is True
+
+
+def test_a_replay_daemon_does_not_blame_a_missing_sysfs(fake_clock) -> None:
+    """Issue 28: the replay daemon logged "no devices/system/cpu/cpu*/topology (not Linux…)" although
+    it never looks at this host: its node is described by the [node] table alone."""
+    from hdeem_watch.node.setup import configured_only, node_setup
+
+    why = "a replayed recording: describe its node in the [node] table"
+    setup = node_setup(configured_only(why), None, memspec_setting=None)
+    assert "devices/system/cpu" not in setup.topology_note and why in setup.topology_note
+
+
+def test_the_example_recording_is_long_enough_to_watch() -> None:
+    """Issue 28: the documented example was one second (over in 50 ms at --speed 20); the example
+    to watch is 50 s of runs whose DRAM power steps well above idle."""
+    recording = read_recording(Path(__file__).resolve().parents[2] / "examples" / "recording-runs.csv")
+    t, p = recording.channels["DDR_AB"]
+    assert (t[-1] - t[0]) / S >= 30 and sorted(recording.channels) == ["DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"]
+    assert np.nanmax(p) > 10 * np.nanmin(p) > 0

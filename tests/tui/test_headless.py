@@ -150,3 +150,19 @@ def test_hold_out_runs_are_summed_up_in_one_line() -> None:
         printer.lines(_snapshot(model), now_s=float(i))
     assert printer.holdout_line() == ("holdout: 2 runs, median error 3.5 %, worst 5.0 % "
                                       "(datasheet: median 55.0 %, worst 60.0 %)")
+
+
+def test_currents_carry_their_unit_and_the_baselines_are_printed() -> None:
+    """Issue 28: the headless lines gave currents without a unit and never the idle baselines the
+    TUI shows; currents are in mA, and each new set of baselines is one line."""
+    model = NodeModel("ipc:///x")
+    model.apply_calib({"fit": FIT, "truth": TRUTH})
+    printer = ProgressPrinter(width=200)
+    text = " ".join(printer.lines(_snapshot(model), now_s=0.0))
+    assert "idd0 62.2->45.1 mA" in text and not any(line.startswith("idle") for line in text.splitlines())
+    model.apply_status({"channels": {name: {"rate_hz": 100.0, "status": "ok"} for name in DRAM}})
+    model.apply_baselines({"channels": {name: {"power_w": 0.5 + i / 10, "spread_w": 0.01, "origin": "idle-run"}
+                                        for i, name in enumerate(DRAM)}})
+    idle = [line for line in printer.lines(_snapshot(model), now_s=1.0) if line.startswith("idle")]
+    assert idle == ["idle   DDR_AB 0.50 W  DDR_CD 0.60 W  DDR_EF 0.70 W  DDR_GH 0.80 W  (baselines: idle-run)"]
+    assert not [line for line in printer.lines(_snapshot(model), now_s=2.0) if line.startswith("idle")]

@@ -140,3 +140,22 @@ async def test_panels_fit_80x24(frozen_snapshot) -> None:  # type: ignore[no-unt
         assert app.query_one(RunsPanel).plain.startswith("runs (8)")
 
 
+
+
+def test_the_wide_runs_header_keeps_its_columns_apart() -> None:
+    """Issue 28: at 120 columns the runs header read `ds errcal err`; every column name stands
+    apart, right above its numbers."""
+    model = NodeModel("ipc:///x")
+    model.apply_status({"runs": 1, "uptime_s": 10.0, "t_ns": 10**18})
+    model.apply_run_event({"event": "stop", "run": {
+        "run_id": "r1", "kernel": "triad", "threads": 24, "window_s": 2.0, "dram_energy_j": 61.2,
+        "model": {"datasheet_j": 120.0, "calibrated_j": 60.0}}})
+    snap = model.snapshot(now_mono_ns=0, now_wall_ns=10**18, window_s=60, width=None)
+    from hdeem_watch.tui.widgets.runs import runs_text
+
+    lines = runs_text(snap, 120, 10).plain.splitlines()
+    header, row = lines[1], lines[2]
+    assert header.split() == ["kernel", "thr", "dur", "meas", "J", "ds", "J", "cal", "J", "ds", "err", "cal", "err"]
+    for name in ("ds err", "cal err"):  # each right-aligned over its column's last character
+        end = header.index(name) + len(name)
+        assert row[end - 1] != " " and (end == len(row) or row[end] == " ")

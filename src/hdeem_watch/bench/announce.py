@@ -165,6 +165,31 @@ class Announcer:
             self._run_id = None
         return {"daemon": result}
 
+    def abort_open(self) -> str | None:
+        """Abort the run this announcer opened and has not stopped (``run.stop`` with ``abort``:
+        stored, not calibrated), e.g. on Ctrl-C, so the daemon takes the next run at once.
+
+        A run whose ``run.start`` reply never arrived (interrupted while waiting for it) is found
+        in the daemon's status by this process's id. Returns the aborted run's id, or None when
+        none was open (or the daemon did not answer).
+        """
+        run_id = self._run_id
+        try:
+            if run_id is None:
+                status = self.client.call("status")
+                run = status.get("run") if isinstance(status, Mapping) else None
+                metadata = run.get("metadata") if isinstance(run, Mapping) else None
+                if not isinstance(run, Mapping) or not isinstance(metadata, Mapping) \
+                        or metadata.get("pid") != os.getpid() or metadata.get("host") != socket.gethostname():
+                    return None
+                run_id = run.get("run_id")
+            self.client.call("run.stop", {"run_id": run_id, "abort": True})
+        except (DaemonUnreachable, ControlError):
+            return None
+        finally:
+            self._run_id = None
+        return str(run_id)
+
     def _disable(self, message: str) -> None:
         self.enabled = False
         self.warn(f"{message}; further runs are not announced")

@@ -7,9 +7,10 @@ One run (:func:`run_one`) goes through four phases:
 2. prepare: the kernel's libraries load (OpenBLAS for triad), the workers start, each pins itself
    to its own CPU (``os.sched_setaffinity``), and first-touches its contiguous share of every
    array, so its pages are local to it;
-3. measure: ``on_start`` is called (the daemon announcement), the wall-clock window opens, all
-   workers run ``repeat`` passes of the kernel over their shares, the window closes and ``on_stop``
-   is called;
+3. measure: for a run sized by time (``seconds``), the workers first run one timed probe pass and
+   the pass count becomes ``ceil(seconds / probe)``; then ``on_start`` is called (the daemon
+   announcement), the wall-clock window opens, all workers run ``repeat`` passes of the kernel over
+   their shares, the window closes and ``on_stop`` is called;
 4. report: a :class:`RunResult` with the seconds, line rate and DRAM bandwidth the DRAM model's
    traffic count implies.
 
@@ -26,6 +27,8 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import multiprocessing as mp
 import os
 import threading
@@ -45,6 +48,26 @@ from hdeem_watch.errors import InputError
 BACKENDS = ("thread", "process")
 #: Seconds a run may take to prepare or finish before the runner gives up on its workers.
 WORKER_TIMEOUT_S = 3600.0
+#: A run sized by time is probed with up to this many passes, or this many seconds of them.
+PROBE_ROUNDS = 10
+PROBE_S = 0.25
+#: A probe round shorter than this gets four times the passes in the next round.
+PROBE_ROUND_S = 0.01
+#: Most passes a run sized by time may get (what run.start accepts; a probe pass of a few lines
+#: can take microseconds).
+MAX_TIMED_REPEAT = 1_000_000
+
+
+def passes_for(seconds: float, probe_s: float) -> int:
+    """Passes that fill ``seconds`` when one pass took ``probe_s`` (at least 1).
+
+    Example:
+        >>> passes_for(2.0, 0.15), passes_for(2.0, 3.0), passes_for(2.0, 0.0)
+        (14, 1, 1000000)
+    """
+    if probe_s <= 0:
+        return MAX_TIMED_REPEAT
+    return max(1, min(MAX_TIMED_REPEAT, math.ceil(seconds / probe_s)))
 
 
 def pass_traffic(kernel: str, elements: int) -> tuple[int, int, str]:
@@ -184,23 +207,35 @@ def validate(specs: list[RunSpec], allowed: list[int] | None = None, *, oversubs
                             available_bytes)
 
 
-def _worker(kernel: str, arrays: Mapping[str, np.ndarray], lo: int, hi: int, repeat: int, cpu: int,
-            scratch_n: int, ready: Any, go: Any, report: Callable[[tuple[tuple[int, ...], float]], None]) -> None:
+def _worker(kernel: str, arrays: Mapping[str, np.ndarray], lo: int, hi: int, repeat: Any, cpu: int,
+            scratch_n: int, ready: Any, go: Any, report: Callable[[tuple[tuple[int, ...], float]], None],
+            probe: Any = None, probe_more: Any = None) -> None:
+    """One worker: pin, first-touch, [probe passes between pairs of ``probe`` barriers while
+    ``probe_more.value``], then ``repeat.value`` passes between ``go`` and the report (``repeat``
+    is read after the probe)."""
     os.sched_setaffinity(0, {cpu})
     affinity = tuple(sorted(os.sched_getaffinity(0)))
     K.init_arrays(arrays, lo, hi)
     scratch = np.zeros(scratch_n)
     ready.wait()
+    while probe is not None:
+        probe.wait()
+        if not probe_more.value:
+            break
+        for _ in range(probe_more.value):
+            K.run_pass(kernel, arrays, lo, hi, scratch)
+        probe.wait()
     go.wait()
     checksum = 0.0
-    for _ in range(repeat):
+    for _ in range(repeat.value):
         checksum = K.run_pass(kernel, arrays, lo, hi, scratch)
     report((affinity, checksum))
 
 
 def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None = None,
             oversubscribe: bool = False, on_start: Hook | None = None, on_stop: Hook | None = None,
-            keep_arrays: bool = False, available_bytes: int | None = None) -> RunResult:
+            keep_arrays: bool = False, available_bytes: int | None = None,
+            seconds: float | None = None) -> RunResult:
     """Run one benchmark run and measure it (see the module docstring for the phases).
 
     Args:
@@ -215,12 +250,17 @@ def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None
         on_stop: called just after the window closes; its mapping is merged into ``announce``.
         keep_arrays: return the arrays in the result (tests check the arithmetic).
         available_bytes: override the available-memory figure (tests).
+        seconds: size the run by time: ``spec.repeat`` is replaced by the passes that fill this
+            many seconds, after one timed probe pass of all workers (outside the window).
 
     Raises:
-        InputError: unknown backend, too many threads, or arrays that do not fit in memory.
+        InputError: unknown backend, too many threads, arrays that do not fit in memory, or
+            ``seconds`` not a positive number.
     """
     if backend not in BACKENDS:
         raise InputError(f"--backend {backend!r}: unknown; expected one of {', '.join(BACKENDS)}")
+    if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
+        raise InputError(f"--seconds {seconds!r}: expected a positive number of seconds")
     kernel = canonical_kernel(spec.kernel)
     spec = RunSpec(kernel, spec.threads, spec.elements, spec.repeat)
     cpus = choose_cpus(spec.threads, allowed, oversubscribe=oversubscribe)
@@ -242,20 +282,22 @@ def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None
     ranges = K.split_lines(lines, spec.threads)
     runner = _run_threads if backend == "thread" else _run_processes
     announce: dict[str, Any] = {}
-    placed = PlacedRunSpec(kernel, spec.threads, spec.elements, spec.repeat, cpus=tuple(cpus), array_bytes=needed)
+    placed = [PlacedRunSpec(kernel, spec.threads, spec.elements, spec.repeat, cpus=tuple(cpus), array_bytes=needed)]
 
-    def start_hook() -> None:
+    def start_hook(repeat: int) -> None:
+        placed[0] = dataclasses.replace(placed[0], repeat=repeat)
         if on_start is not None:
-            announce.update(on_start(placed) or {})
+            announce.update(on_start(placed[0]) or {})
 
     def stop_hook() -> None:
         if on_stop is not None:
-            announce.update(on_stop(placed) or {})
+            announce.update(on_stop(placed[0]) or {})
 
-    arrays, t0_ns, t1_ns, seconds, reports = runner(kernel, spec, cpus, ranges, start_hook, stop_hook,
-                                                          keep_arrays, scratch_n)
+    arrays, t0_ns, t1_ns, elapsed, reports = runner(kernel, spec, cpus, ranges, start_hook, stop_hook,
+                                                    keep_arrays, scratch_n, seconds)
+    spec = RunSpec(kernel, spec.threads, spec.elements, placed[0].repeat)
     reads, writes, origin = pass_traffic(kernel, spec.elements)
-    seconds = max(seconds, 1e-9)
+    seconds = max(elapsed, 1e-9)
     return RunResult(
         spec=spec, seconds=seconds, t_start_ns=t0_ns, t_end_ns=t1_ns,
         lines_per_s=0.0 if kernel == IDLE_KERNEL else lines * spec.repeat / seconds,
@@ -268,35 +310,73 @@ def run_one(spec: RunSpec, *, backend: str = "thread", allowed: list[int] | None
     )
 
 
-def _start_or_release(start_hook: Callable[[], None], go: Any) -> None:
-    """Call the start hook; if it raises (e.g. the daemon refused the run), release the workers
-    waiting at ``go`` (their barrier breaks and they end) before the error goes up."""
+def _probe_and_start(start_hook: Callable[[int], None], probe: Any, more: Any, repeat: Any,
+                     seconds: float | None, go: Any) -> None:
+    """Time the workers' probe passes (when the run is sized by ``seconds``) and set
+    ``repeat.value`` from the fastest; then call the start hook with the pass count. If anything
+    raises (e.g. the daemon refused the run, or Ctrl-C), release the workers waiting at a barrier
+    (it breaks and they end) before the error goes up."""
     try:
-        start_hook()
+        if probe is not None and seconds is not None:
+            repeat.value = passes_for(seconds, _probe(probe, more))
+        start_hook(int(repeat.value))
     except BaseException:
+        if probe is not None:
+            probe.abort()
         go.abort()
         raise
+
+
+def _probe(probe: Any, more: Any) -> float:
+    """Seconds of the fastest probe pass: up to :data:`PROBE_ROUNDS` rounds or :data:`PROBE_S` in
+    all (a round of short passes runs several, see :data:`PROBE_ROUND_S`). The fastest, because on a shared machine a pass is only ever slowed down (another
+    process's time slice), and a pass count from a slowed pass gives a run too short to measure."""
+    fastest, spent, rounds, passes = math.inf, 0.0, 0, 1
+    while rounds < PROBE_ROUNDS and spent < PROBE_S:
+        more.value = passes
+        probe.wait(WORKER_TIMEOUT_S)
+        m0 = time.perf_counter_ns()
+        probe.wait(WORKER_TIMEOUT_S)
+        took = (time.perf_counter_ns() - m0) / 1e9
+        fastest, spent, rounds = min(fastest, took / passes), spent + took, rounds + 1
+        if took < PROBE_ROUND_S:  # short passes: more per round, so the barriers' latency does not count
+            passes = min(passes * 4, MAX_TIMED_REPEAT)
+    more.value = 0
+    probe.wait(WORKER_TIMEOUT_S)  # the workers see 0 and go on to ``go``
+    return fastest
+
+
+class _Passes:
+    """A number the thread workers read (``.value``, like ``mp.Value``): the pass count, or
+    whether another probe pass follows."""
+
+    def __init__(self, value: int) -> None:
+        self.value = value
 
 
 _Outcome = tuple[dict[str, np.ndarray], int, int, float, list[tuple[tuple[int, ...], float]]]
 
 
 def _run_threads(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple[int, int]],
-                 start_hook: Callable[[], None], stop_hook: Callable[[], None], keep: bool,
-                 scratch_n: int) -> _Outcome:
+                 start_hook: Callable[[int], None], stop_hook: Callable[[], None], keep: bool,
+                 scratch_n: int, seconds: float | None) -> _Outcome:
     arrays = K.make_arrays(kernel, spec.elements)
     n = spec.threads
     ready, go = threading.Barrier(n + 1), threading.Barrier(n + 1)
+    probe = threading.Barrier(n + 1) if seconds is not None else None
+    repeat, more = _Passes(spec.repeat), _Passes(0)
     reports: list[Any] = [None] * n
     errors: list[BaseException] = []
 
     def body(i: int) -> None:
         try:
-            _worker(kernel, arrays, *ranges[i], spec.repeat, cpus[i], scratch_n, ready, go,
-                    lambda r: reports.__setitem__(i, r))
+            _worker(kernel, arrays, *ranges[i], repeat, cpus[i], scratch_n, ready, go,
+                    lambda r: reports.__setitem__(i, r), probe, more)
         except BaseException as error:  # surfaced below; the barriers must not hang
             errors.append(error)
             ready.abort()
+            if probe is not None:
+                probe.abort()
             go.abort()
 
     workers = [threading.Thread(target=body, args=(i,), name=f"bench-{i}", daemon=True) for i in range(n)]
@@ -304,7 +384,7 @@ def _run_threads(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple
         worker.start()
     try:
         ready.wait(WORKER_TIMEOUT_S)
-        _start_or_release(start_hook, go)
+        _probe_and_start(start_hook, probe, more, repeat, seconds, go)
         t0_ns, m0 = time.time_ns(), time.perf_counter_ns()
         go.wait(WORKER_TIMEOUT_S)
         for worker in workers:
@@ -321,8 +401,8 @@ def _run_threads(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple
 
 
 def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tuple[int, int]],
-                   start_hook: Callable[[], None], stop_hook: Callable[[], None], keep: bool,
-                   scratch_n: int) -> _Outcome:
+                   start_hook: Callable[[int], None], stop_hook: Callable[[], None], keep: bool,
+                   scratch_n: int, seconds: float | None) -> _Outcome:
     """Forked workers, each allocating and first-touching only its own share, privately.
 
     Nothing is shared: the parent never reads the arrays during a run, so each worker's share is
@@ -333,6 +413,8 @@ def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tup
     ctx = mp.get_context("fork")
     n = spec.threads
     ready, go = ctx.Barrier(n + 1), ctx.Barrier(n + 1)
+    probe = ctx.Barrier(n + 1) if seconds is not None else None
+    repeat, more = ctx.Value("q", spec.repeat, lock=False), ctx.Value("q", 0, lock=False)
     pipes = [ctx.Pipe(duplex=False) for _ in range(n)]
 
     def body(i: int) -> None:
@@ -340,11 +422,13 @@ def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tup
         lo, hi = ranges[i]
         try:
             local = K.make_arrays(kernel, max(0, min(hi * 8, spec.elements) - lo * 8))
-            _worker(kernel, local, 0, hi - lo, spec.repeat, cpus[i], scratch_n, ready, go, send.send)
+            _worker(kernel, local, 0, hi - lo, repeat, cpus[i], scratch_n, ready, go, send.send, probe, more)
             if keep:
                 send.send(local)
         except BaseException:
             ready.abort()
+            if probe is not None:
+                probe.abort()
             go.abort()
             raise
         finally:
@@ -358,7 +442,7 @@ def _run_processes(kernel: str, spec: RunSpec, cpus: list[int], ranges: list[tup
     out: dict[str, np.ndarray] = {}
     try:
         ready.wait(WORKER_TIMEOUT_S)
-        _start_or_release(start_hook, go)
+        _probe_and_start(start_hook, probe, more, repeat, seconds, go)
         t0_ns, m0 = time.time_ns(), time.perf_counter_ns()
         go.wait(WORKER_TIMEOUT_S)
         reports = [recv.recv() for recv, _ in pipes]

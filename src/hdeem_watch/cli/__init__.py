@@ -13,13 +13,14 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from hdeem_watch import __version__
 from hdeem_watch.errors import InputError
 
 #: Subcommand modules, in the order ``--help`` lists them.
 SUBCOMMAND_MODULES = ("demo", "daemon", "tui", "bench", "model", "calibrate", "calib", "report", "node", "counters",
-                      "metricq_source", "jobs")
+                      "metricq_source", "jobs", "run", "completion")
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -28,28 +29,65 @@ EXIT_INTERRUPTED = 130
 
 #: The top-level help's closing text: one example per subcommand, and the exit codes.
 EPILOG = """examples (COMMAND --help for each command's options and examples):
-  hdeem-watch demo                                   # simulated node + daemon + schedule + TUI
-  hdeem-watch daemon --source sim                    # a node daemon (here on the simulated node)
-  hdeem-watch tui --connect tcp://node7:5591         # watch one or more daemons
-  hdeem-watch bench --kernels triad --threads 1,4    # benchmark sweep (--daemon EP announces runs)
-  hdeem-watch model energy --memspec ddr4-2133-x8-4gb --trace T.csv   # DRAM energy of a trace
-  hdeem-watch calibrate --runs RUNS.json             # fit the memspec currents to measured runs
-  hdeem-watch calib show --json                      # a running daemon's node and per-pair fits
-  hdeem-watch report --runs RUNS.json --out DIR      # the paper's figures as a self-contained HTML page
-  hdeem-watch node --json                            # this node's sockets, channels, DIMMs, memspec, sensors
-  hdeem-watch counters                               # the memory-controller counters this host offers
-  hdeem-watch metricq-source --server amqp://HOST/   # the daemon's stream to a centre's MetricQ
-  hdeem-watch jobs --job $SLURM_JOB_ID               # a SLURM job's DRAM energy on every node
+  hdeem-watch demo                         # simulated node, daemon and live TUI
+  hdeem-watch daemon --source sim          # a node daemon (here the simulated node)
+  hdeem-watch tui --connect tcp://node7:5591          # watch one or more daemons
+  hdeem-watch bench --kernels triad --threads 1,4     # kernels (--daemon EP: runs)
+  hdeem-watch run list                     # a daemon's runs (run stop --abort)
+  hdeem-watch model energy --memspec ddr4-2133-x8-4gb --trace T.csv
+  hdeem-watch calibrate --runs RUNS.json   # fit the currents to measured runs
+  hdeem-watch calib show --json            # a running daemon's node and pair fits
+  hdeem-watch report --runs RUNS.json --out DIR       # the paper's figures, HTML
+  hdeem-watch node --json                  # sockets, channels, DIMMs, memspec
+  hdeem-watch counters                     # this host's memory-controller counters
+  hdeem-watch metricq-source --server amqp://HOST/    # the stream to MetricQ
+  hdeem-watch jobs --job $SLURM_JOB_ID     # a SLURM job's DRAM energy per node
+  hdeem-watch completion bash              # shell completion (bash or zsh)
 
-exit codes: 0 success, 1 failure (one line on stderr), 2 bad input (one line on stderr),
-  130 interrupted (Ctrl-C)"""
+exit codes: 0 success, 1 failure (one line on stderr), 2 bad input (one line on
+  stderr), 130 interrupted (Ctrl-C)"""
+
+
+#: The widest a help text may be (a terminal's default).
+HELP_COLUMNS = 80
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Help in at most 80 columns: descriptions and epilogs keep their line breaks (examples stay
+    one per line) but a line too long is wrapped, its continuation indented under it."""
+
+    def __init__(self, prog: str, **kwargs: Any) -> None:
+        import shutil
+
+        kwargs["width"] = min(HELP_COLUMNS, shutil.get_terminal_size((HELP_COLUMNS, 24)).columns) - 1
+        super().__init__(prog, **kwargs)
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        import textwrap
+
+        lines = []
+        for line in text.splitlines():
+            lead = " " * (len(line) - len(line.lstrip()))
+            if len(indent + line) <= width:
+                lines.append(indent + line)
+                continue
+            more = lead + "    " if lead else ""
+            lines.extend(textwrap.wrap(line, width, initial_indent=indent, subsequent_indent=indent + more,
+                                       break_on_hyphens=False))
+        return "\n".join(lines)
 
 
 class _ArgumentParser(argparse.ArgumentParser):
-    """An argparse parser whose usage errors are one line and exit code 2."""
+    """An argparse parser whose usage errors are one line and exit code 2, and whose help fits 80
+    columns (:class:`HelpFormatter`, whatever formatter a subcommand asks for)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs["formatter_class"] = HelpFormatter
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        raise InputError(f"{self.prog}: {message}")
+        command = self.prog.removeprefix("hdeem-watch").strip()  # main() says "hdeem-watch: error:" once
+        raise InputError(f"{command}: {message}" if command else message)
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:

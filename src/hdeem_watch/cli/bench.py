@@ -3,8 +3,13 @@
 Example::
 
     hdeem-watch bench --kernels read,copy,triad --threads 1,2,4-24:4 --elements 100000000 --repeat 10
-    hdeem-watch bench --kernels all+idle --threads 24 --elements 2e8 --repeat 20 \\
-        --daemon ipc:///run/hdeem-watch/control.sock --json
+    hdeem-watch bench --kernels all+idle --threads 1,2 --daemon ipc:///run/hdeem-watch/control.sock --json
+
+Runs are sized by time: each lasts ``--seconds`` (default 2 s, twice what the daemon's guard rail
+needs to measure a run: 100 samples of a 100 Sa/s sensor), with the pass count derived from one
+timed probe pass; ``--repeat N`` gives exactly N passes instead. Runs the daemon still could not
+calibrate get one summary warning that says how to lengthen them. Ctrl-C aborts the announced run
+(stored, not calibrated) before exiting 130, so the daemon takes the next run at once.
 
 Output: a table (default), or with ``--json`` one JSON object per run and line on stdout with at
 least ``kernel, threads, elements, seconds, lines_per_s, dram_bytes_per_s, stream_bytes_per_s``. A
@@ -20,16 +25,25 @@ import argparse
 import json
 import math
 import sys
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from hdeem_watch import slurm
 from hdeem_watch.bench.announce import WAIT_S, RunRefused
 from hdeem_watch.bench.runner import BACKENDS, RunResult, run_one, validate
 from hdeem_watch.bench.schedule import sweep
 from hdeem_watch.cli.curve_options import add_server_key_argument, client_kwargs, curve_keys
+from hdeem_watch.cli.numbers import counted
 from hdeem_watch.errors import InputError
 
+if TYPE_CHECKING:
+    from hdeem_watch.bench.announce import Announcer
+
 DEFAULT_ELEMENTS = 1 << 25
+#: Fewest seconds a run needs for the daemon's guard rail: 100 samples of a 100 Sa/s sensor
+#: (``hdeem_watch.calibrate.group_rows.DEFAULT_MIN_SAMPLES``, HDEEM's rate).
+MEASURABLE_S = 1.0
+#: Default length of a run: the guard rail's 1 s with a margin of 2 (announce latency, a slower poll).
+DEFAULT_SECONDS = 2.0 * MEASURABLE_S
 
 
 def _elements(text: str) -> int:
@@ -49,6 +63,17 @@ def _elements(text: str) -> int:
     return value
 
 
+def _seconds(text: str) -> float:
+    """Parse ``--seconds``: a positive, finite number."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive number of seconds, e.g. 2")
+    return value
+
+
 def register(subparsers: Any) -> None:
     """Add the ``bench`` subcommand."""
     parser = subparsers.add_parser(
@@ -61,7 +86,12 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--threads", default="1", help="thread counts, e.g. 1,2,4-24:4 (default 1)")
     parser.add_argument("--elements", type=str, default=str(DEFAULT_ELEMENTS),
                         help=f"doubles per array (default {DEFAULT_ELEMENTS}); use >> the LLC")
-    parser.add_argument("--repeat", type=int, default=10, help="passes over the arrays per run (default 10)")
+    parser.add_argument("--seconds", type=_seconds, default=DEFAULT_SECONDS, metavar="S",
+                        help=f"length of each run; the passes are counted from a timed probe pass "
+                             f"(default {DEFAULT_SECONDS:g}: the daemon needs >= {MEASURABLE_S:g} s to "
+                             "measure a run)")
+    parser.add_argument("--repeat", type=int, metavar="N",
+                        help="exactly N passes over the arrays per run, instead of --seconds")
     parser.add_argument("--daemon", metavar="ENDPOINT",
                         help="announce each run (run.start/run.stop) to the daemon's control endpoint")
     add_server_key_argument(parser)
@@ -101,16 +131,16 @@ class _Progress:
 
 
 def _table(results: list[RunResult], out: TextIO) -> None:
-    header = f"{'kernel':<10}{'threads':>8}{'elements':>13}{'repeat':>7}{'seconds':>10}" \
-             f"{'Mlines/s':>11}{'DRAM GB/s':>11}{'STREAM GB/s':>13}  run_id"
-    print(header, file=out)
+    """The result table, 80 columns wide."""
+    print(f"{'kernel':<9}{'threads':>8}{'elements':>11}{'passes':>7}{'seconds':>8}{'Mline/s':>9}"
+          f"{'DRAM GB/s':>10}{'STREAM GB/s':>12}  run", file=out)
     for r in results:
         run_id = r.announce.get("run_id", "")
-        print(f"{r.spec.kernel:<10}{r.spec.threads:>8}{r.spec.elements:>13}{r.spec.repeat:>7}"
-              f"{r.seconds:>10.4f}{r.lines_per_s / 1e6:>11.1f}{r.dram_bytes_per_s / 1e9:>11.2f}"
-              f"{r.stream_bytes_per_s / 1e9:>13.2f}  {run_id}", file=out)
-    print("DRAM GB/s: what moves, write-allocate reads included; STREAM GB/s: STREAM's count "
-          "(copy/scale 2, add/triad 3 words per element)", file=out)
+        print(f"{r.spec.kernel:<9}{r.spec.threads:>8}{r.spec.elements:>11}{r.spec.repeat:>7}"
+              f"{r.seconds:>8.3f}{r.lines_per_s / 1e6:>9.1f}{r.dram_bytes_per_s / 1e9:>10.2f}"
+              f"{r.stream_bytes_per_s / 1e9:>12.2f}  {run_id}", file=out)
+    print("DRAM GB/s: what moves, write-allocate reads included; STREAM GB/s: STREAM's\n"
+          "count (copy/scale 2, add/triad 3 words per element)", file=out)
 
 
 def _not_calibrated(result: RunResult) -> str | None:
@@ -121,13 +151,35 @@ def _not_calibrated(result: RunResult) -> str | None:
     return f"run {record.get('run_id')} ({result.spec.kernel} x{result.spec.threads}): {record['model_error']}"
 
 
+def too_short_summary(results: list[RunResult], seconds: float | None) -> str | None:
+    """One warning for all runs the daemon did not calibrate, with the fix; None when it took them all.
+
+    ``seconds`` is the ``--seconds`` the runs were sized by (None: ``--repeat`` gave exact counts).
+    """
+    refused = [(r, reason) for r in results if (reason := _not_calibrated(r)) is not None]
+    if not refused:
+        return None
+    shortest = min(r.seconds for r, _ in refused)
+    if seconds is not None:
+        factor = max(2.0, 2.0 * MEASURABLE_S / max(shortest, 1e-3))
+        fix = f"--seconds {math.ceil(seconds * factor):g}"
+    else:
+        fix = f"drop --repeat (runs then last --seconds {DEFAULT_SECONDS:g})"
+    runs = "run was" if len(refused) == 1 else "runs were"
+    return (f"{len(refused)} of {len(results)} {runs} not calibrated (shortest {shortest:.2f} s; "
+            f"e.g. {refused[0][1]}); make them longer: {fix}")
+
+
 def _run(args: argparse.Namespace) -> int:
     elements = _elements(args.elements)
-    specs = sweep(args.kernels, args.threads, elements, args.repeat)
+    if args.repeat is not None and args.repeat < 1:
+        raise InputError(f"--repeat {args.repeat}: expected at least 1 pass")
+    by_time = None if args.repeat is not None else args.seconds
+    specs = sweep(args.kernels, args.threads, elements, args.repeat or 1)
     allowed = slurm.allowed_cpus()
     validate(specs, allowed, oversubscribe=args.oversubscribe)
-    announcer = None
     warned: set[str] = set()
+    progress = _Progress(len(specs), sys.stderr)
 
     def warn(message: str) -> None:
         if message not in warned:
@@ -135,21 +187,9 @@ def _run(args: argparse.Namespace) -> int:
             progress.clear()
             print(f"hdeem-watch bench: warning: {message}", file=sys.stderr)
 
-    progress = _Progress(len(specs), sys.stderr)
-    if args.daemon:
-        from hdeem_watch.bench.announce import Announcer
-        from hdeem_watch.daemon.client import ControlClient
-
-        if not (math.isfinite(args.wait) and args.wait >= 0):
-            raise InputError(f"--wait {args.wait:g}: expected a number of seconds >= 0")
-        client = ControlClient(args.daemon, timeout_s=args.timeout, **client_kwargs(curve_keys(args)))
-        announcer = Announcer(args.daemon, timeout_s=args.timeout, metadata=slurm.job_metadata(), warn=warn,
-                              wait_s=args.wait, client=client)
-        announcer.check()
-        if (refusal := _refusal(client)) is not None:
-            announcer.close()
-            print(f"hdeem-watch bench: error: --daemon {args.daemon}: {refusal}", file=sys.stderr)
-            return 1
+    announcer = _announcer(args, warn) if args.daemon else None
+    if isinstance(announcer, int):
+        return announcer
     results: list[RunResult] = []
     refused: RunRefused | None = None
     try:
@@ -158,28 +198,54 @@ def _run(args: argparse.Namespace) -> int:
             try:
                 result = run_one(spec, backend=args.backend, allowed=allowed, oversubscribe=args.oversubscribe,
                                  on_start=announcer.on_start if announcer else None,
-                                 on_stop=announcer.on_stop if announcer else None)
+                                 on_stop=announcer.on_stop if announcer else None, seconds=by_time)
             except RunRefused as error:
                 refused = error
                 break
             for message in result.warnings:
                 warn(message)
-            if (reason := _not_calibrated(result)) is not None:
-                warn(reason)
             results.append(result)
             if args.json:
                 print(json.dumps(_jsonable(result.to_dict())), flush=True)
         progress.show(len(results), "done" if refused is None else "stopped")
         progress.clear()
+    except KeyboardInterrupt:
+        progress.clear()
+        aborted = announcer.abort_open() if announcer is not None else None
+        done = f"{len(results)} of {counted(len(specs), 'run')} done"
+        print(f"hdeem-watch bench: interrupted; {done}" + (f"; run {aborted} aborted" if aborted else ""),
+              file=sys.stderr)
+        return 130
     finally:
         if announcer is not None:
             announcer.close()
     if not args.json:
         _table(results, sys.stdout)
+    if (summary := too_short_summary(results, by_time)) is not None:
+        warn(summary)
     if refused is not None:
-        print(f"hdeem-watch bench: error: {refused}; {len(results)} of {len(specs)} runs done", file=sys.stderr)
+        print(f"hdeem-watch bench: error: {refused}; {len(results)} of {counted(len(specs), 'run')} done", file=sys.stderr)
         return 1
     return 0
+
+
+def _announcer(args: argparse.Namespace, warn: Any) -> Announcer | int:
+    """The announcer for ``--daemon`` after checking the daemon answers and takes this user's
+    runs; exit code 1 (said on stderr) when it would refuse them."""
+    from hdeem_watch.bench.announce import Announcer
+    from hdeem_watch.daemon.client import ControlClient
+
+    if not (math.isfinite(args.wait) and args.wait >= 0):
+        raise InputError(f"--wait {args.wait:g}: expected a number of seconds >= 0")
+    client = ControlClient(args.daemon, timeout_s=args.timeout, **client_kwargs(curve_keys(args)))
+    announcer = Announcer(args.daemon, timeout_s=args.timeout, metadata=slurm.job_metadata(), warn=warn,
+                          wait_s=args.wait, client=client)
+    announcer.check()
+    if (refusal := _refusal(client)) is not None:
+        announcer.close()
+        print(f"hdeem-watch bench: error: --daemon {args.daemon}: {refusal}", file=sys.stderr)
+        return 1
+    return announcer
 
 
 def _refusal(client: Any) -> str | None:

@@ -23,6 +23,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from hdeem_watch.cli.daemon_client import add_connect_arguments, open_client
+from hdeem_watch.cli.numbers import counted
 from hdeem_watch.errors import InputError
 
 NODE = "node"
@@ -41,10 +43,11 @@ def register(subparsers: Any) -> None:
                        ("export", "write the calibration rows as RUNS.json for 'hdeem-watch calibrate'")):
         sub = actions.add_parser(name, help=text, description=text)
         sub.add_argument("--group", metavar="G", help="one sensor group (e.g. DDR_CD, DRAM1) or 'node'")
-        sub.add_argument("--connect", metavar="EP", help="the daemon's control endpoint (default: the local daemon)")
-        sub.add_argument("--timeout", type=float, default=10.0, metavar="S", help="reply timeout in seconds")
+        add_connect_arguments(sub)
         if name == "show":
             sub.add_argument("--json", action="store_true", help="print one JSON object")
+        if name == "reset":
+            sub.add_argument("--yes", action="store_true", help="confirm: the runs cannot be brought back")
         if name == "export":
             sub.add_argument("--out", required=True, metavar="RUNS.json", help="where to write the runs")
         sub.set_defaults(func=_run)
@@ -52,11 +55,9 @@ def register(subparsers: Any) -> None:
 
 
 def _client(args: argparse.Namespace) -> Any:
-    from hdeem_watch.daemon.client import ControlClient, default_endpoints
-
-    if not (args.timeout > 0 and math.isfinite(args.timeout)):
-        raise InputError(f"--timeout: {args.timeout!r}; expected seconds > 0")
-    return ControlClient(args.connect or default_endpoints()[1], timeout_s=args.timeout)
+    """The control client of ``--connect``/``--timeout``/``--server-key``/``--client-key`` (one
+    line, exit 2, for a bad endpoint: hdeem_watch.cli.daemon_client)."""
+    return open_client(args)
 
 
 def fits_of(body: dict[str, Any]) -> dict[str, dict[str, Any]]:
@@ -87,6 +88,10 @@ def _run(args: argparse.Namespace) -> int:
             if args.action == "show":
                 return _show(body, chosen, as_json=args.json)
             if args.action == "reset":
+                if not args.yes:
+                    runs = ", ".join(f"{n} {counted(e.get('runs') or 0, 'run')}" for n, e in chosen.items())
+                    raise InputError(f"calib reset forgets the calibration runs ({runs}) for good; "
+                                     "add --yes to confirm")
                 return _reset(client, body, args.group)
             return _export(client, body, args.group, Path(args.out))
     except DaemonUnreachable as error:
@@ -115,23 +120,29 @@ def _ma(value: Any) -> str:
 
 
 def format_fits(chosen: dict[str, dict[str, Any]], alarms: list[dict[str, Any]], skipped: list[dict[str, Any]]) -> str:
-    """The human-readable ``calib show``: one block per fit, then the alarms and skipped runs."""
+    """The human-readable ``calib show``: one block per fit (each current with its 95 % interval
+    in mA, or "no interval" where the fit gives none), then the alarms and skipped runs."""
     lines = []
+    missing_interval = False
     for name, entry in chosen.items():
         fit = entry.get("fit")
         if not fit:
-            lines.append(f"{name}: no fit yet ({entry.get('runs') or 0} runs)")
+            lines.append(f"{name}: no fit yet ({counted(entry.get('runs') or 0, 'run')})")
             continue
         loo = (fit.get("error") or {}).get("loo")
         loo_text = "—" if loo is None else f"{loo * 100:.2f} %"
-        lines.append(f"{name}: {fit.get('n_runs')} runs, status {fit.get('status')}, leave-one-out {loo_text}")
+        lines.append(f"{name}: {counted(fit.get('n_runs'), 'run')}, status {fit.get('status')}, leave-one-out {loo_text}")
         lines.extend(trust_lines(fit))
         for current, c in (fit.get("currents") or {}).items():
             lo, hi = (c.get("ci95") or [None, None])[:2]
             flags = "" if c.get("identifiable") else "  not determined"
             flags += f"  at {c['at_bound']} bound" if c.get("at_bound") else ""
-            lines.append(f"  {current:<6} {_ma(c.get('calibrated')):>8} mA  [{_ma(lo)}, {_ma(hi)}]  "
+            interval = f"[{_ma(lo)}, {_ma(hi)}]" if "—" not in (_ma(lo), _ma(hi)) else "no interval"
+            missing_interval = missing_interval or interval == "no interval"
+            lines.append(f"  {current:<6} {_ma(c.get('calibrated')):>8} mA  {interval:<17}  "
                          f"datasheet {_ma(c.get('datasheet'))}{flags}")
+    if missing_interval:
+        lines.append("no interval: the fit gives none for that current (too few runs for it to be determined)")
     for a in alarms:
         lines.append(f"ALARM {a.get('group')} {a.get('current')} ({a.get('kind')}, {a.get('direction')}): "
                      f"{a.get('statistic')} > {a.get('threshold')}")
@@ -212,8 +223,8 @@ def _export(client: Any, body: dict[str, Any], group: str | None, out: Path) -> 
                                    "not_fitted": refused}, indent=1) + "\n", encoding="utf-8")
     except OSError as error:
         raise InputError(f"--out {out}: cannot write: {error.strerror or error}") from None
-    print(f"{len(runs)} fitted runs written to {out} (hdeem-watch calibrate --runs {out}); "
-          f"{len(refused)} runs not fitted listed under not_fitted")
+    print(f"{counted(len(runs), 'fitted run')} written to {out} (hdeem-watch calibrate --runs {out}); "
+          f"{counted(len(refused), 'run')} not fitted listed under not_fitted")
     return 0
 
 

@@ -23,6 +23,7 @@ from hdeem_watch.counters.event_tables import PERF_JSON_COMMIT, PERFMON_COMMIT
 from hdeem_watch.counters.host_plan import HostPlan, plan_host
 from hdeem_watch.counters.permissions import probe_access
 from hdeem_watch.counters.pmu_discovery import DEFAULT_SYSFS_ROOT
+from hdeem_watch.errors import InputError
 
 
 def register(subparsers: Any) -> None:
@@ -46,6 +47,10 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Plan the host and print it; 0 whether or not it can count."""
+    given_roots = (("--sysfs-root", args.sysfs_root, DEFAULT_SYSFS_ROOT), ("--proc-root", args.proc_root, "/proc"))
+    for flag, given, default in given_roots:
+        if str(given) != str(default) and not Path(given).is_dir():
+            raise InputError(f"{flag} {given}: not a directory")  # like `node`: a typo, not a host without PMUs
     proc = Path(args.proc_root)
     access = probe_access(proc / "sys/kernel/perf_event_paranoid", proc / "self/status")
     plan = plan_host(sysfs_root=args.sysfs_root, cpuinfo_path=args.cpuinfo, access=access, ranks=args.ranks)

@@ -41,6 +41,8 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--speed", type=float, metavar="X", help="sim/replay speed factor (default 1)")
     parser.add_argument("--seed", type=int, metavar="N", help="sim random seed")
     parser.add_argument("--replay-file", metavar="FILE", help="recording for --source replay")
+    parser.add_argument("--replay-loop", action="store_true", default=None,
+                        help="replay: start the recording again at its end (default: stop there)")
     parser.add_argument("--record", metavar="FILE", help="record every sample to FILE (replayable CSV)")
     parser.add_argument("--curve-secret-key", metavar="FILE", help="CURVE certificate (.key_secret) of the daemon")
     parser.add_argument("--curve-clients", metavar="DIR", help="public keys of the clients allowed under CURVE")
@@ -88,7 +90,7 @@ def _run(args: argparse.Namespace) -> int:
             "source": args.source, "pub": args.pub, "control": args.control,
             "remote_control": args.remote_control, "state_dir": args.state_dir,
             "runtime_dir": args.runtime_dir, "node": args.node, "speed": args.speed, "seed": args.seed,
-            "replay_file": args.replay_file, "record_file": args.record,
+            "replay_file": args.replay_file, "replay_loop": args.replay_loop, "record_file": args.record,
             "curve_secret_key_file": args.curve_secret_key, "curve_clients_dir": args.curve_clients, "prometheus_port": args.prometheus,
             "poll_interval_s": args.poll_interval, "memspec": args.memspec, "log_level": args.log_level,
             "allow_insecure_tcp": args.allow_insecure_tcp, "sim_age": args.sim_age,

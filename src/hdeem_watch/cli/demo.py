@@ -17,6 +17,7 @@ import os
 import signal
 import sys
 import time
+from pathlib import Path
 from types import FrameType
 from typing import Any
 
@@ -36,9 +37,10 @@ def register(subparsers: Any) -> None:
         "watch the DRAM model's currents calibrate. Ctrl-C or q stops everything.",
         epilog="examples:\n"
         "  hdeem-watch demo                             # the TUI until q\n"
-        "  hdeem-watch demo --headless --duration 60    # text lines for 60 s (CI, dumb terminals)\n"
-        "  hdeem-watch demo --state-dir ~/hw-demo       # keep the state and the daemon log\n"
-        "exit codes: 0 done, 1 the daemon did not start, 2 bad input, 130 interrupted (--headless)",
+        "  hdeem-watch demo --headless --duration 60    # text lines for 60 s (CI)\n"
+        "  hdeem-watch demo --state-dir ~/hw-demo       # keep the state and its log\n"
+        "exit codes: 0 done, 1 the daemon did not start, 2 bad input,\n"
+        "  130 interrupted (--headless)",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--headless", action="store_true", help="print progress as text lines instead of the TUI")
@@ -77,16 +79,44 @@ def _check(args: argparse.Namespace) -> None:
     if not args.window > 0:
         raise InputError(f"--window {args.window}: expected a positive number of seconds")
     if args.sim_age is not None:
-        from hdeem_watch.sources.sim_age import parse_sim_age
+        from hdeem_watch.channels import DRAM_CHANNELS
+        from hdeem_watch.sources.sim_age import check_pairs, parse_sim_age
 
-        parse_sim_age(args.sim_age)
+        check_pairs(parse_sim_age(args.sim_age), DRAM_CHANNELS)  # the demo's node: Taurus Haswell-EP
+    for flag, directory in (("--state-dir", args.state_dir), ("--report", args.report)):
+        if directory is not None:
+            _writable_directory(flag, directory)
+
+
+def _writable_directory(flag: str, directory: str) -> None:
+    """Create ``directory`` if needed and check it can be written, before the demo starts (not
+    after a long run).
+
+    Raises:
+        InputError: it cannot be created or written.
+    """
+    path = Path(directory)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise InputError(f"{flag} {directory}: cannot create the directory ({error.strerror or error})") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise InputError(f"{flag} {directory}: not writable by this user; expected a directory to write into")
 
 
 def _run(args: argparse.Namespace) -> int:
     _check(args)
+    if args.report:
+        from hdeem_watch.report.style import MissingPlotting, pyplot
+
+        try:
+            pyplot()
+        except MissingPlotting:
+            print("hdeem-watch demo: error: --report needs matplotlib; pip install 'hdeem-watch[report]'",
+                  file=sys.stderr)
+            return 1
     if not args.headless and not _is_terminal():
-        print("hdeem-watch demo: standard output is not a terminal; printing progress as text (--headless)",
-              file=sys.stderr)
+        print(f"hdeem-watch demo: {why_no_tui()}; printing progress as text (--headless)", file=sys.stderr)
         args.headless = True
     from hdeem_watch.demo.daemon import DaemonFailed, DemoDaemon
     from hdeem_watch.demo.schedule import DemoSchedule
@@ -127,6 +157,15 @@ def _run(args: argparse.Namespace) -> int:
         daemon.stop()
 
 
+def why_no_tui() -> str:
+    """Why the TUI cannot run here: a dumb terminal (``TERM=dumb``), or no terminal at all."""
+    if sys.stdout.isatty() and os.environ.get("TERM", "") == "dumb":
+        return "TERM=dumb: this terminal cannot draw the TUI"
+    if os.environ.get("TERM", "") == "dumb":
+        return "TERM=dumb and standard output is not a terminal"
+    return "standard output is not a terminal"
+
+
 def _is_terminal() -> bool:
     """Whether the TUI can run here (a terminal that is not 'dumb')."""
     return sys.stdout.isatty() and os.environ.get("TERM", "") != "dumb"
@@ -152,14 +191,34 @@ def _headless(control: str, args: argparse.Namespace) -> int:
     from hdeem_watch.tui.feed import FeedHub
     from hdeem_watch.tui.headless import fit_width, print_progress, terminal_width
 
+    ending = False
+
     def on_event(event: ScheduleEvent) -> None:
         if event.event == "error":
             print(f"error  run {event.index} {event.spec.kernel} {event.spec.threads}t: {event.detail}", flush=True)
+        if event.event == "stop" and ending:
+            window = (event.result or {}).get("window_s")
+            length = f" after {window:.2f} s" if isinstance(window, float) else ""
+            note = [f"note   the last run ({event.spec.kernel}-{event.spec.threads}t) was cut short",
+                    f"by the end of the demo{length};", "it is calibrated like the others"]
+            for line in fit_width(note, terminal_width()):
+                print(line, flush=True)
+
+    def at_end() -> None:
+        nonlocal ending
+        ending = True
+        schedule.stop()
 
     intro = [
         f"demo: daemon at {control};",
         f"schedule: rounds of an idle run + 7 kernels at {'/'.join(THREAD_ROUNDS)} threads,",
-        f"runs of {'/'.join(f'{s:g}' for s in RUN_LENGTHS_S)} s; Ctrl-C stops",
+        f"runs of {'/'.join(f'{s:g}' for s in RUN_LENGTHS_S)} s; Ctrl-C stops.",
+        "reading the lines:", "run = measured vs modelled DRAM energy",
+        "(datasheet and calibrated currents, error in %);", "calib = the fit:",
+        "'idd0 107.4->48.2 mA' = datasheet->calibrated current per device,",
+        "'?' = not determined by the runs so far,", "loo = leave-one-out error,",
+        "'sim incl. I/O' = the simulated node's truth the fit should reach", "(core = the DRAM core alone);",
+        "idle = each pair's idle baseline.",
     ]
     for line in fit_width(intro, terminal_width()):
         print(line, flush=True)
@@ -170,12 +229,18 @@ def _headless(control: str, args: argparse.Namespace) -> int:
     schedule.start()
     start = time.monotonic()
     try:
-        print_progress(hub, duration_s=args.duration, at_end=schedule.stop)
+        print_progress(hub, duration_s=args.duration, at_end=at_end)
+    except KeyboardInterrupt:
+        print("demo: interrupted; stopping the run in progress, the feed and the sim daemon (about a second)",
+              file=sys.stderr, flush=True)
+        raise
     finally:
         schedule.stop()
         hub.stop()
     calib = hub.snapshots()[0].calib
-    print(f"demo: done after {time.monotonic() - start:.0f} s, {schedule.completed} runs "
+    from hdeem_watch.cli.numbers import counted
+
+    print(f"demo: done after {time.monotonic() - start:.0f} s, {counted(schedule.completed, 'run')} "
           f"(the calibration holds {calib.n_runs})", flush=True)
     print(alarm_summary(calib.alarms), flush=True)
     return 0

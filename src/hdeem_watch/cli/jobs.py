@@ -14,12 +14,12 @@ Exit codes: 0 every node answered, 1 some node did not answer (or refused), 2 ba
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import math
 import os
 import re
 import socket
 import sys
+import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -29,6 +29,7 @@ from typing import Any
 from hdeem_watch.cli.control_port import CONTROL_PORT, CONTROL_PORT_ENV, control_port
 from hdeem_watch.cli.curve_options import add_server_key_argument, client_kwargs, curve_keys
 from hdeem_watch.errors import InputError
+from hdeem_watch.report.records import is_dram_channel
 
 _AGO = re.compile(r"^(\d+(?:\.\d+)?)\s*(s|min|h|d)$")
 _UNITS = {"s": 1, "min": 60, "h": 3600, "d": 86400}
@@ -136,6 +137,8 @@ def ask(target: Target, op: str, request: dict[str, Any], *, timeout_s: float,
     from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
 
     entry: dict[str, Any] = {"node": target.node, "endpoint": target.endpoint}
+    if (problem := unknown_host(target.endpoint)) is not None:
+        return {**entry, "ok": False, "error": problem}
     try:
         with ControlClient(target.endpoint, timeout_s=timeout_s, **(keys or {})) as client:
             result = client.call(op, request)
@@ -151,10 +154,44 @@ def ask(target: Target, op: str, request: dict[str, Any], *, timeout_s: float,
 
 def query(found: Sequence[Target], op: str, request: dict[str, Any], *, timeout_s: float,
           keys: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
-    """Every daemon's answer, asked in parallel (the whole query takes about one timeout at most)."""
-    with concurrent.futures.ThreadPoolExecutor(max_workers=min(32, max(1, len(found)))) as pool:
-        futures = [pool.submit(ask, t, op, request, timeout_s=timeout_s, keys=keys) for t in found]
-        return [f.result() for f in futures]
+    """Every daemon's answer, asked in parallel (the whole query takes about one timeout at most).
+
+    The askers are daemon threads, so Ctrl-C ends the command at once (a pool would be waited for
+    at exit: up to one timeout after the key)."""
+    answers: list[dict[str, Any] | None] = [None] * len(found)
+
+    def one(i: int, target: Target) -> None:
+        answers[i] = ask(target, op, request, timeout_s=timeout_s, keys=keys)
+
+    threads = [threading.Thread(target=one, args=(i, t), daemon=True, name=f"jobs-{t.node}")
+               for i, t in enumerate(found)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        while thread.is_alive():
+            thread.join(0.1)  # short waits: the main thread takes Ctrl-C between them
+    return [a if a is not None else {"node": t.node, "endpoint": t.endpoint, "ok": False, "error": "no answer"}
+            for a, t in zip(answers, found)]
+
+
+def unknown_host(endpoint: str) -> str | None:
+    """Why a ``tcp://HOST:PORT`` endpoint's host cannot be reached by name (None: it resolves, or
+    another transport). ZeroMQ would only say "no reply" after the timeout.
+
+    Example:
+        >>> unknown_host("tcp://127.0.0.1:5591") is None, unknown_host("ipc:///run/x.sock") is None
+        (True, True)
+    """
+    if not endpoint.startswith("tcp://"):
+        return None
+    host = endpoint[len("tcp://"):].rpartition(":")[0].strip("[]")
+    if host in ("", "*"):
+        return None
+    try:
+        socket.getaddrinfo(host, None)
+    except (socket.gaierror, UnicodeError) as error:
+        return f"unknown host {host!r} ({getattr(error, 'strerror', None) or error})"
+    return None
 
 
 def _fmt(value: Any, digits: int = 1) -> str:
@@ -173,24 +210,33 @@ def _duration(seconds: Any) -> str:
 
 
 def table(answers: Sequence[dict[str, Any]]) -> list[str]:
-    """The human table: one line per job and node; a line per node that did not answer."""
-    lines = [f"{'node':<14} {'job':<12} {'user':<10} {'state':<11} {'started':<19} {'duration':>9} "
-             f"{'DRAM J':>12} {'above idle J':>13} {'mean W':>8}  status"]
+    """The human table, 80 columns: one line per job and node (the job's state and status under it
+    when it is still running or not fully measured); a line per node that did not answer or has no
+    jobs. Peak W is the highest sample of any one DIMM pair (a job's whole-node peak is not known)."""
+    lines = [f"{'node':<10}{'job':<10}{'user':<8}{'started':<12}{'duration':>9}{'DRAM J':>9}"
+             f"{'>idle J':>8}{'mean W':>7}{'peak W':>7}"]
     for answer in answers:
+        node = str(answer["node"])[:9]
         if not answer["ok"]:
-            lines.append(f"{answer['node']:<14} {answer['error']}")
+            lines.append(f"{node:<10}{answer['error']}")
             continue
         if not answer["jobs"]:
-            lines.append(f"{answer['node']:<14} (no such job on this node)")
+            lines.append(f"{node:<10}(no jobs on this node)" if answer.get("op") == "job.list"
+                         else f"{node:<10}(no such job on this node)")
         for job in answer["jobs"]:
-            started = datetime.fromtimestamp(int(job.get("t_start_ns") or 0) / 1e9).strftime("%Y-%m-%d %H:%M:%S")
+            started = datetime.fromtimestamp(int(job.get("t_start_ns") or 0) / 1e9).strftime("%m-%d %H:%M")
             measured = job.get("measured_s")
             mean = job["dram_energy_j"] / measured if isinstance(job.get("dram_energy_j"), int | float) \
                 and isinstance(measured, int | float) and measured > 0 else math.nan
-            lines.append(f"{answer['node']:<14} {job.get('job_id', ''):<12} {(job.get('user') or '–'):<10} "
-                         f"{job.get('state', ''):<11} {started:<19} {_duration(job.get('duration_s')):>9} "
-                         f"{_fmt(job.get('dram_energy_j')):>12} {_fmt(job.get('dram_above_baseline_j')):>13} "
-                         f"{_fmt(mean):>8}  {job.get('status', '')}")
+            peaks = [v for c, v in (job.get("peak_power_w") or {}).items()
+                     if is_dram_channel(str(c)) and isinstance(v, int | float) and math.isfinite(v)]
+            lines.append(f"{node:<10}{str(job.get('job_id', ''))[:9]:<10}{(job.get('user') or '–')[:7]:<8}"
+                         f"{started:<12}{_duration(job.get('duration_s')):>9}{_fmt(job.get('dram_energy_j')):>9}"
+                         f"{_fmt(job.get('dram_above_baseline_j')):>8}{_fmt(mean):>7}"
+                         f"{_fmt(max(peaks) if peaks else None):>7}")
+            status = job.get("status") or "ok"
+            if job.get("state") != "done" or status != "ok":
+                lines.append(f"{'':<10}{job.get('state', '')}: {status}")
     return lines
 
 
@@ -203,7 +249,7 @@ def total_line(answers: Sequence[dict[str, Any]]) -> str | None:
     known = [v for v in values if isinstance(v, int | float) and math.isfinite(v)]
     total = sum(known) if len(known) == len(values) else math.nan
     note = "" if math.isfinite(total) else f"  (unknown: {len(values) - len(known)} of {len(values)} nodes missing)"
-    return f"{'total':<14} {'':<12} {'':<10} {'':<11} {'':<19} {'':>9} {_fmt(total):>12}{note}"
+    return f"{'total':<10}{'':<10}{'':<8}{'':<12}{'':>9}{_fmt(total):>9}{note}"
 
 
 def model_lines(answers: Sequence[dict[str, Any]]) -> list[str]:
@@ -217,18 +263,18 @@ def model_lines(answers: Sequence[dict[str, Any]]) -> list[str]:
             model = job.get("model")
             if not isinstance(model, Mapping):
                 if job.get("state") != "running":  # a running job is modelled when it stops: nothing to say yet
-                    lines.append(f"{answer['node']:<14} model: – ({job.get('model_error') or 'none'})")
+                    lines.append(f"{answer['node']:<10}model: – ({job.get('model_error') or 'none'})")
                 continue
             calibrated = (model.get("split_j") or {}).get("calibrated")
             which, split = ("calibrated", calibrated) if calibrated else ("datasheet", (model.get("split_j") or {})
                                                                          .get("datasheet") or {})
             parts = ", ".join(f"{kind.replace('_', '-')} {_fmt(value)}" for kind, value in split.items())
             counts = model.get("counts") or {}
-            lines.append(f"{answer['node']:<14} model from counters: datasheet {_fmt(model.get('datasheet_j'))} J, "
+            lines.append(f"{answer['node']:<10}model from counters: datasheet {_fmt(model.get('datasheet_j'))} J, "
                          f"calibrated {_fmt(model.get('calibrated_j'))} J over {_fmt(model.get('window_s'))} s "
                          f"({_count(counts.get('act'))} ACT, {_count(counts.get('rd'))} RD, "
                          f"{_count(counts.get('wr'))} WR)")
-            lines.append(f"{'':<14} by component ({which}, J): {parts}")
+            lines.append(f"{'':<10}by component ({which}, J): {parts}")
     return lines
 
 
@@ -253,7 +299,8 @@ def _run(args: argparse.Namespace) -> int:
             request["user"] = args.user
         if args.since:
             request["since_ns"] = parse_since(args.since)
-    answers = query(targets(args), op, request, timeout_s=args.timeout, keys=client_kwargs(curve_keys(args)))
+    answers = [{**a, "op": op} for a in query(targets(args), op, request, timeout_s=args.timeout,
+                                               keys=client_kwargs(curve_keys(args)))]
     if args.json:
         sys.stdout.write(dumps({"nodes": answers}).decode() + "\n")
     else:

@@ -2,7 +2,7 @@
 
 Usage::
 
-    hdeem-watch metricq-source --server amqp://USER:PASSWORD@HOST/ [--token TOKEN] [--connect EP ...]
+    hdeem-watch metricq-source --server amqp://USER:PASSWORD@HOST/ [--token TOKEN] [--stream EP ...]
         [--config FILE] [--prefix PREFIX] [--metrics power,above_baseline,calibrated_currents]
         [--server-file FILE] [--token-file FILE] [--status-file FILE] [--duration S]
 
@@ -21,6 +21,7 @@ import asyncio
 import contextlib
 import logging
 import signal
+import sys
 from typing import Any
 
 from hdeem_watch.errors import InputError
@@ -31,7 +32,7 @@ EXAMPLES = """examples:
   hdeem-watch metricq-source --server amqp://hw:PASSWORD@rabbit.example/ --prefix taurus.hdeem
   hdeem-watch metricq-source --config /etc/hdeem-watch/hdeem-watchd.toml   # reads its [metricq] table
   hdeem-watch metricq-source --server-file /etc/hdeem-watch/metricq-url --token source-hdeem-node7 \\
-      --connect tcp://node7:5590 --status-file /run/hdeem-watch/metricq.json"""
+      --stream tcp://node7:5590 --status-file /run/hdeem-watch/metricq.json"""
 
 
 def register(subparsers: Any) -> None:
@@ -49,9 +50,11 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--prefix", metavar="PREFIX", help="site prefix of every metric name (default: hdeem)")
     parser.add_argument("--metrics", metavar="LIST",
                         help=f"comma-separated metric families (default: all of {','.join(FAMILIES)})")
-    parser.add_argument("--connect", metavar="EP", action="append",
-                        help="a daemon's stream endpoint; repeat for several (default: the local daemon)")
-    parser.add_argument("--curve-server-key", metavar="FILE",
+    parser.add_argument("--stream", metavar="EP", action="append", dest="connect",
+                        help="a daemon's stream endpoint (its pub socket); repeat for several (default: the "
+                             "local daemon)")
+    parser.add_argument("--connect", metavar="EP", action="append", dest="control_given", help=argparse.SUPPRESS)
+    parser.add_argument("--server-key", "--curve-server-key", metavar="FILE", dest="curve_server_key",
                         help="the daemons' public CURVE certificate (server.key) for TCP streams with CURVE")
     parser.add_argument("--curve-client-key", metavar="FILE",
                         help="this source's secret CURVE certificate (.key_secret) for daemons with an allow-list")
@@ -83,6 +86,9 @@ def settings_from(args: argparse.Namespace) -> SourceSettings:
 
 def run(args: argparse.Namespace) -> int:
     """Run the source until signalled (or ``--duration``); 0 on a clean stop."""
+    if args.control_given:  # one meaning per flag: --connect is a control endpoint in every command
+        raise InputError(f"--connect {args.control_given[0]}: metricq-source reads a daemon's stream; give its "
+                         "stream endpoint with --stream EP (e.g. tcp://node7:5590)")
     settings = settings_from(args)
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration {args.duration!r}: expected a positive number of seconds")
@@ -104,6 +110,10 @@ def run(args: argparse.Namespace) -> int:
     runner = SourceRunner(settings, endpoints, flush_interval_s=args.flush_interval)
     asyncio.run(_main(runner, args.duration))
     print(runner.status.line())
+    if runner.status.broker_connects == 0:  # never reached MetricQ: nothing was published
+        print("hdeem-watch metricq-source: error: never reached the MetricQ broker; nothing was published",
+              file=sys.stderr)
+        return 1
     return 0
 
 

@@ -140,10 +140,11 @@ def format_table(data: dict[str, Any], spec: MemSpec | MemSpecDDR5) -> str:
     components = list(data["components"])
     count_fields = list(data["counts"][0]) if data["counts"] else list(COUNT_FIELDS)
     lines = [
-        f"memspec   {data['memory_id']}  ({spec.nbr_of_ranks} ranks x {spec.nbr_of_devices} devices, "
-        f"tCK {spec.tck_s * 1e9:g} ns)",
-        f"trace     {data['trace']}  ({data['commands']:,} commands, T = {data['end_cycle']:,.0f} cycles "
-        f"= {data['duration_s'] * 1e3:.6g} ms)",
+        f"memspec   {data['memory_id']}",
+        f"          {spec.nbr_of_ranks} ranks x {spec.nbr_of_devices} devices, tCK {spec.tck_s * 1e9:g} ns",
+        f"trace     {data['trace']}",
+        f"          {data['commands']:,} commands, T = {data['end_cycle']:,.0f} cycles "
+        f"= {data['duration_s'] * 1e3:.6g} ms",
         "",
         f"{'component':<12}{'energy [J]':>14}{'share':>9}",
     ]
@@ -156,11 +157,11 @@ def format_table(data: dict[str, Any], spec: MemSpec | MemSpecDDR5) -> str:
               f"{'total':<12}{data['total_j']:>14.6e}"]
     if data["average_power_w"] is not None:
         lines.append(f"{'avg power':<12}{data['average_power_w']:>14.6f} W")
-    lines += ["", "rank " + "".join(f"{n:>10}" for n in count_fields) + " | cycles "
-              + "".join(f"{n:>12}" for n in CYCLE_FIELDS)]
-    for r, (counts, cycles) in enumerate(zip(data["counts"], data["cycles"])):
-        lines.append(f"{r:<5}" + "".join(f"{counts[n]:>10.0f}" for n in count_fields) + " |        "
-                     + "".join(f"{cycles[n]:>12.0f}" for n in CYCLE_FIELDS))
+    # per rank: the commands, then the cycles in each state (two tables, 80 columns each)
+    lines += ["", "commands per rank", "rank " + "".join(f"{n:>10}" for n in count_fields)]
+    lines += [f"{r:<5}" + "".join(f"{counts[n]:>10.0f}" for n in count_fields) for r, counts in enumerate(data["counts"])]
+    lines += ["", "cycles per rank", "rank " + "".join(f"{n:>13}" for n in CYCLE_FIELDS)]
+    lines += [f"{r:<5}" + "".join(f"{cycles[n]:>13.0f}" for n in CYCLE_FIELDS) for r, cycles in enumerate(data["cycles"])]
     return "\n".join(lines)
 
 

@@ -68,3 +68,15 @@ def count_at_least(minimum: int, unit: str = "") -> Callable[[str], int]:
 
     parse.__name__ = "count"  # argparse names the type in its own messages
     return parse
+
+
+def counted(n: object, noun: str) -> str:
+    """``n`` and ``noun`` in the right number ("1 run", "3 runs", "0 runs"; unknown: "– runs").
+
+    Example:
+        >>> counted(1, "run"), counted(28, "run"), counted(None, "run")
+        ('1 run', '28 runs', '– runs')
+    """
+    if isinstance(n, bool) or not isinstance(n, int):
+        return f"– {noun}s"
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"

@@ -14,7 +14,7 @@ import sys
 import time
 from typing import Any
 
-EXIT_MISSING_EXTRA = 2
+EXIT_MISSING_EXTRA = 1
 
 
 def register(subparsers: Any) -> None:
@@ -46,7 +46,7 @@ def _run(args: argparse.Namespace) -> int:
     try:
         pyplot()
     except MissingPlotting:
-        print("hdeem-watch report: install hdeem-watch[report] (matplotlib) to draw reports", file=sys.stderr)
+        print("hdeem-watch report: error: matplotlib is not installed; pip install 'hdeem-watch[report]'", file=sys.stderr)
         return EXIT_MISSING_EXTRA
     started = time.monotonic()
     written = write_report(state_dir=args.state_dir, runs=args.runs, since=args.since, group=args.group,
@@ -55,4 +55,7 @@ def _run(args: argparse.Namespace) -> int:
     for key, missing in written.missing.items():
         for what in missing:
             print(f"report: {key}: no data: {what}")
+    for key, notes in written.notes.items():
+        for note in notes:
+            print(f"report: {key}: note: {note}")
     return 0

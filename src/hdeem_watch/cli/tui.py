@@ -34,15 +34,18 @@ def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "tui",
         help="live terminal UI: power per DIMM pair, baselines, runs, calibration",
-        description="Live terminal UI of one or more hdeem-watch daemons (keys: p pause, n node, "
-        "+/- zoom, b baseline, s stop run, ? help, q quit).",
+        description="Live terminal UI of one or more hdeem-watch daemons.\n\n"
+        "keys: p pause, n/N next/previous node, +/- zoom, b measure the idle baseline,\n"
+        "s stop the run, "
+        "g per-pair calibration (g or Esc back), ? help, q quit",
         epilog="examples:\n"
-        "  hdeem-watch tui                                      # the local daemon\n"
-        f"  hdeem-watch tui --connect tcp://node7:{CONTROL_PORT} --fps 2   # a remote node over slow ssh\n"
-        "  hdeem-watch tui --slurm                              # every node of the allocation\n"
-        "  hdeem-watch tui --headless --duration 60             # text lines for 60 s\n"
-        "exit codes: 0 done, 1 a daemon never sent its stream (--headless; the reason on stderr),\n"
-        "  2 bad input (also: a daemon refused the CURVE handshake), 130 interrupted (--headless)",
+        "  hdeem-watch tui                              # the local daemon\n"
+        f"  hdeem-watch tui --connect tcp://node7:{CONTROL_PORT} --fps 2   # over slow ssh\n"
+        "  hdeem-watch tui --slurm                      # every node of the allocation\n"
+        "  hdeem-watch tui --headless --duration 60     # text lines for 60 s\n"
+        "exit codes: 0 done, 1 a daemon never sent its stream (--headless; the reason\n"
+        "  on stderr), 2 bad input (also: a daemon refused the CURVE handshake),\n"
+        "  130 interrupted (--headless)",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
@@ -196,8 +199,9 @@ def _headless(hub: Any, args: argparse.Namespace) -> int:
     from hdeem_watch.tui.headless import print_progress, silent_nodes
 
     if not args.headless:
-        print("hdeem-watch tui: standard output is not a terminal; printing progress as text (--headless)",
-              file=sys.stderr)
+        from hdeem_watch.cli.demo import why_no_tui
+
+        print(f"hdeem-watch tui: {why_no_tui()}; printing progress as text (--headless)", file=sys.stderr)
     hub.set_view(focus=-1, window_s=10.0, width=0)
     hub.start()
     try:

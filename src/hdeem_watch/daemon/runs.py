@@ -125,7 +125,8 @@ def parse_run_args(args: Mapping[str, Any], limits: RunLimits | None = None) -> 
     if not isinstance(kernel, str) or not kernel.strip():
         raise ProtocolError(f"args.kernel = {quoted(kernel)}: expected a kernel name (e.g. 'triad', 'idle')", code="bad-args")
     kernel = _text_arg(kernel, "kernel").strip().lower()
-    name = _text_arg(args.get("name") or kernel, "name")
+    name = args.get("name")
+    name = kernel if name is None or name == "" else _text_arg(name, "name")  # [], {}, 0, false: refused
     metadata = args.get("metadata") or {}
     if not isinstance(metadata, dict):
         raise ProtocolError("args.metadata: expected an object", code="bad-args")

@@ -26,10 +26,11 @@ import contextlib
 import fcntl
 import logging
 import os
+import re
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any
 
@@ -262,7 +263,8 @@ class Daemon:
                 extra_endpoints=(settings.remote_control,) if settings.remote_control else ())
         except (zmq.ZMQError, OSError) as error:
             self._close_sockets()
-            raise InputError(f"cannot bind {self.pub_endpoint} / {self.control_endpoint}: {error}") from None
+            raise InputError(bind_failure(error, {"--pub": self.pub_endpoint, "--control": self.control_endpoint,
+                                                  "--remote-control": settings.remote_control})) from None
         self.pub_endpoint, self.control_endpoint = self.publisher.endpoint, self.control.endpoint
         if settings.prometheus_port is not None:
             self.metrics = DaemonMetrics(NodeCollector(
@@ -586,3 +588,23 @@ class Daemon:
         """Send a deferred control reply."""
         if self.control is not None:
             self.control.complete(pending, result, error=error)
+
+
+def bind_failure(error: BaseException, endpoints: Mapping[str, str | None]) -> str:
+    """The one line for a socket that would not bind, naming the flag of the endpoint that failed
+    (ZeroMQ says which address in its message), or all of them when it does not say.
+
+    Example:
+        >>> bind_failure(OSError("Address already in use (addr='tcp://127.0.0.1:5591')"),
+        ...              {"--pub": "ipc:///r/pub.sock", "--remote-control": "tcp://127.0.0.1:5591"})
+        '--remote-control tcp://127.0.0.1:5591: cannot bind: Address already in use'
+    """
+    text = str(error)
+    failed = re.search(r"\(addr='([^']*)'\)", text)
+    reason = re.sub(r"\s*\(addr='[^']*'\)", "", text)
+    if failed is not None:
+        for flag, endpoint in endpoints.items():
+            if endpoint and endpoint == failed.group(1):
+                return f"{flag} {endpoint}: cannot bind: {reason}"
+    named = " / ".join(e for e in endpoints.values() if e)
+    return f"cannot bind {named}: {reason}"

@@ -17,6 +17,7 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from hdeem_watch.errors import InputError
 from hdeem_watch.node.facts import Fact
 
 SYSFS_ROOT = Path("/sys")
@@ -99,11 +100,11 @@ def read_cpu_topology(root: Path = SYSFS_ROOT) -> CpuTopology:
         pkg, core_id, die = (_read(topo / n) for n in ("physical_package_id", "core_id", "die_id"))
         if pkg is None or core_id is None:
             continue
-        package[cpu] = int(pkg)
+        package[cpu] = _number(topo / "physical_package_id", pkg)
         has_die = has_die or die is not None
-        die_id = int(die) if die is not None else 0
-        dies[int(pkg)].add(die_id)
-        core[cpu] = (int(pkg), die_id, int(core_id))
+        die_id = _number(topo / "die_id", die) if die is not None else 0
+        dies[package[cpu]].add(die_id)
+        core[cpu] = (package[cpu], die_id, _number(topo / "core_id", core_id))
     source = "sysfs: devices/system/cpu/cpu*/topology"
     if not package:
         why = "no devices/system/cpu/cpu*/topology (not Linux, or sysfs not mounted)"
@@ -153,3 +154,15 @@ def _numa(root: Path, package: dict[int, int]) -> tuple[Fact[int], dict[int, lis
             return Fact(1, source), {}, cpus_by_numa
         return Fact.unknown(f"{len(nodes)} NUMA nodes, none mapped to one socket (memory-only nodes?)"), {}, cpus_by_numa
     return _uniform([len(v) for v in by_socket.values()], "NUMA nodes", source), dict(by_socket), cpus_by_numa
+
+
+def _number(path: Path, text: str) -> int:
+    """A sysfs topology number (``core_id`` …).
+
+    Raises:
+        InputError: not a whole number, naming the file (a damaged capture, not a crash).
+    """
+    try:
+        return int(text)
+    except ValueError:
+        raise InputError(f"{path}: {text.strip()!r} is not a number; expected the kernel's topology id") from None

@@ -115,7 +115,7 @@ def choose_memspec(dimms: Sequence[Dimm], *, cpu: CpuModel | None = None) -> Mem
         cpu: the node's CPU, to read a DDR generation dmidecode does not name (``Type: Other``).
     """
     if not dimms:
-        return MemspecChoice(None, "no DIMM detected; set memspec in the [node] table or pass --memspec", "none")
+        return MemspecChoice(None, "no DIMM detected; set memspec in the [node] table (or the daemon's --memspec)", "none")
     kinds = Counter((d.part_number, d.type, d.speed_mts, d.size_bytes, d.ranks, d.device_width) for d in dimms)
     part, mem_type, speed, _size, ranks, width = kinds.most_common(1)[0][0]
     dimm = next(d for d in dimms if (d.part_number, d.type, d.speed_mts) == (part, mem_type, speed))

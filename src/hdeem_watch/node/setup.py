@@ -122,8 +122,15 @@ def counted_node(sockets: int, cores_per_socket: int, channels_per_socket: int, 
 
 
 def configured_only(why: str) -> NodeDescription:
-    """A node of which nothing is detected (``why``): the ``[node]`` table describes it."""
-    return describe_node(Path("/nonexistent"), None, why)
+    """A node of which nothing is detected (``why``): the ``[node]`` table describes it. Every
+    count is unknown for that reason (not for a missing sysfs: nothing was looked up)."""
+    import dataclasses
+
+    described = describe_node(Path("/nonexistent"), None, why)
+    unknown: Fact[int] = Fact.unknown(why)
+    facts: dict[str, Any] = {f.name: unknown for f in dataclasses.fields(described)
+                             if isinstance(getattr(described, f.name), Fact)}
+    return replace(described, notes=(why,), **facts)
 
 
 def dmidecode_text(*, run: Any = subprocess.run, which: Any = shutil.which,

@@ -18,7 +18,7 @@ import io
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -53,6 +53,7 @@ class WrittenReport:
         numbers: ``numbers.json``.
         memspec: ``memspec-calibrated.json`` (None without a calibration).
         missing: per figure key, what it had no data for.
+        notes: per figure key, caveats about what it drew.
     """
 
     page: Path
@@ -60,6 +61,7 @@ class WrittenReport:
     numbers: Path
     memspec: Path | None
     missing: dict[str, tuple[str, ...]]
+    notes: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
 
 def build_report(data: ReportData, out_dir: str | Path, *, fmt: str = "png",
@@ -100,7 +102,7 @@ def build_report(data: ReportData, out_dir: str | Path, *, fmt: str = "png",
             finally:
                 plt.close(drawn.figure)
             figures.append({"key": drawn.key, "title": drawn.title, "how_to_read": drawn.how_to_read,
-                            "svg": svg.getvalue(), "missing": drawn.missing})
+                            "svg": svg.getvalue(), "missing": drawn.missing, "notes": drawn.notes})
             tables[drawn.title] = drawn.tables
         memspec = calibrated_memspec(data)
         generated = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(clock()))
@@ -116,7 +118,8 @@ def build_report(data: ReportData, out_dir: str | Path, *, fmt: str = "png",
     except OSError as error:
         raise InputError(f"--out {out}: cannot write the report: {error.strerror or error}") from None
     return WrittenReport(page=page, figures=tuple(files), numbers=numbers, memspec=memspec_path,
-                         missing={f["key"]: tuple(f["missing"]) for f in figures})
+                         missing={f["key"]: tuple(f["missing"]) for f in figures},
+                         notes={f["key"]: tuple(f["notes"]) for f in figures})
 
 
 def _numbers(tables: dict[str, Any]) -> dict[str, Any]:

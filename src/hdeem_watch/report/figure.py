@@ -44,6 +44,7 @@ class ReportFigure:
         figure: the matplotlib figure.
         tables: the numbers behind it, by caption.
         missing: what has no data (empty = everything was drawn).
+        notes: caveats about what is drawn (e.g. how far a re-modelled split is from the daemon's rows).
     """
 
     key: str
@@ -52,6 +53,7 @@ class ReportFigure:
     figure: Any
     tables: dict[str, Table] = field(default_factory=dict)
     missing: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
 
 
 def fmt(value: Any, digits: int = 4) -> str:

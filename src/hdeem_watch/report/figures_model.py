@@ -14,22 +14,20 @@ import numpy as np
 from hdeem_watch.report import analysis
 from hdeem_watch.report.figure import ReportFigure, Table, rows
 from hdeem_watch.report.records import ReportData, finite
-from hdeem_watch.report.style import SERIES, legend_outside, no_data, percent_axis, pyplot, style
+from hdeem_watch.report.style import SERIES, legend_outside, message_figure, percent_axis, pyplot, style
 
 
 def energy_figure(data: ReportData) -> ReportFigure:
     """Figure 1: measured vs datasheet-model vs calibrated-model energy per kernel and thread count."""
     plt = pyplot()
     groups = analysis.energy_groups(data.runs)
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(max(7.0, 0.42 * len(groups) + 2), 6.4), sharex=True,
-                                      gridspec_kw={"height_ratios": (3, 2)})
     title = "Energy per kernel and thread count: measured, datasheet model, calibrated model"
     how = ("Each group of bars is the mean DRAM energy of a kernel's runs at one thread count; the lower panel "
            "is each model's error against the measurement (0 % = exact).")
     if not groups:
-        no_data(top, "no finished runs")
-        no_data(bottom, "no finished runs")
-        return ReportFigure("fig1-energy", title, how, fig, missing=("runs",))
+        return ReportFigure("fig1-energy", title, how, message_figure(title, "no finished runs"), missing=("runs",))
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(max(7.0, 0.42 * len(groups) + 2), 6.4), sharex=True,
+                                      gridspec_kw={"height_ratios": (3, 2)})
     x = np.arange(len(groups))
     width = 0.27
     for k, (name, values) in enumerate((("measured", [g.measured_j for g in groups]),
@@ -66,7 +64,6 @@ def energy_figure(data: ReportData) -> ReportFigure:
 def currents_figure(data: ReportData) -> ReportFigure:
     """Figure 2: datasheet vs calibrated current per IDD with 95 % intervals (node; pairs when fitted)."""
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8.5, 4.2))
     title = "Currents: datasheet vs calibrated, with 95 % intervals"
     how = ("For each calibrated current the hatched bar is the datasheet value and the solid bar the calibrated "
            "one with its 95 % interval; 'weak' marks a current these runs do not determine.")
@@ -75,8 +72,9 @@ def currents_figure(data: ReportData) -> ReportFigure:
     if not data.pair_fits:
         missing.append("per-DIMM-pair fits (this input has node-level fits only)")
     if not fits:
-        no_data(ax, "no calibration yet: no fit in this state")
+        fig = message_figure(title, "no calibration yet: no fit in this state")
         return ReportFigure("fig2-currents", title, how, fig, missing=("calibration", *missing))
+    fig, ax = plt.subplots(figsize=(8.5, 4.2))
     names = list((next(iter(fits.values())) or {}).get("currents") or {})
     x = np.arange(len(names))
     bars = 1 + len(fits)
@@ -104,7 +102,8 @@ def currents_figure(data: ReportData) -> ReportFigure:
     weak = {n for n in names if not (first["currents"][n].get("identifiable"))}
     ax.set_xticks(x, [n.upper() + (" (weak)" if n in weak else "") for n in names])
     ax.set_ylabel("current per device (mA)")
-    scope = "node-level fit" + ("" if data.pair_fits else "; no per-DIMM-pair fits in this input")
+    scope = ("node-level fit" + (f" and {len(data.pair_fits)} per-DIMM-pair fits" if data.pair_fits
+                                 else "; no per-DIMM-pair fits in this input"))
     ax.set_title(f"{title}\n({scope})")
     legend_outside(ax)
     fig.tight_layout()
@@ -125,15 +124,14 @@ def currents_figure(data: ReportData) -> ReportFigure:
 def components_figure(data: ReportData) -> ReportFigure:
     """Figure 5: the calibrated model's energy by component per kernel (per second of run)."""
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8.5, 4.4))
     title = "Energy by component per kernel (calibrated model)"
     how = ("Each bar is one run per kernel (its latest at its most threads) split into the DRAM model's "
            "components, per second of run so kernels with different run lengths compare.")
     if data.spec is None or data.fit is None or not data.runs:
         reason = "no calibration yet" if data.fit is None else ("the memspec is unknown" if data.spec is None
                                                                   else "no finished runs")
-        no_data(ax, f"no data: {reason}")
-        return ReportFigure("fig5-components", title, how, fig, missing=(reason,))
+        return ReportFigure("fig5-components", title, how, message_figure(title, reason), missing=(reason,))
+    fig, ax = plt.subplots(figsize=(8.5, 4.4))
     chosen = analysis.representative_runs(data.runs)
     energies = [analysis.component_energies(data.spec, data.fit, run) for run in chosen]
     parts = [p for p in (*analysis.COMPONENT_GROUPS, "offset") if any(abs(e[p]) > 0 for e in energies)]
@@ -154,16 +152,16 @@ def components_figure(data: ReportData) -> ReportFigure:
     # the components re-model each run; where that disagrees with the daemon's own row, say by how much
     gaps = [abs(sum(e.values()) - run.calibrated_j) / run.calibrated_j for e, run in zip(energies, chosen)
             if math.isfinite(run.calibrated_j) and run.calibrated_j > 0]
-    missing: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
     if gaps and max(gaps) > 1e-3:
-        missing = (f"an exact split: re-modelling the runs differs from the daemon's calibration rows by up to "
-                   f"{max(gaps) * 100:.2g} % (another node topology or memspec than this report assumes)",)
+        notes = (f"the split re-models the runs, which differs from the daemon's calibration rows by up to "
+                 f"{max(gaps) * 100:.2g} % (another node topology or memspec than this report assumes)",)
     table = Table(("run", "kernel", "threads", "window s", *[f"{p} J" for p in parts], "sum J", "calibrated model J",
                    "measured J"),
                   rows([(run.run_id, run.kernel, run.threads or None, run.window_s, *[e[p] for p in parts],
                          float(sum(e[p] for p in parts)), run.calibrated_j, run.measured_j)
                         for run, e in zip(chosen, energies)]))
-    return ReportFigure("fig5-components", title, how, fig, {"energy by component": table}, missing)
+    return ReportFigure("fig5-components", title, how, fig, {"energy by component": table}, notes=notes)
 
 
 def calibrated_memspec(data: ReportData) -> dict[str, Any] | None:

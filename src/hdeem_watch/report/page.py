@@ -22,7 +22,7 @@ body{font-family:system-ui,-apple-system,"Segoe UI",sans-serif;max-width:1100px;
 color:#111;background:#fff;line-height:1.4}
 h1{font-size:1.5em}h2{font-size:1.2em;margin-top:2em;border-bottom:1px solid #ccc}h3{font-size:1em}
 figure{margin:0}figure img{max-width:100%;height:auto;border:1px solid #ddd}
-.how{color:#333;font-style:italic}.missing{background:#fff4e0;border-left:4px solid #E69F00;padding:.3em .6em}
+.how{color:#333;font-style:italic}.missing{background:#fff4e0;border-left:4px solid #E69F00;padding:.3em .6em}.note{border-left:4px solid #0072B2;padding:.3em .6em}
 table{border-collapse:collapse;font-size:.85em;margin:.5em 0 1em}th,td{border:1px solid #ccc;padding:2px 6px;
 text-align:right}th{background:#f2f2f2}td:first-child,th:first-child{text-align:left}
 pre{background:#f6f6f6;padding:.6em;overflow:auto;font-size:.8em;max-height:30em}.notes li{margin:.2em 0}
@@ -49,7 +49,7 @@ def render_page(title: str, source: str, figures: Sequence[Mapping[str, Any]],
     Args:
         title: the page title.
         source: what the report was drawn from.
-        figures: per figure ``{"key", "title", "how_to_read", "svg" (bytes), "missing" (sequence)}``.
+        figures: per figure ``{"key", "title", "how_to_read", "svg" (bytes), "missing" (sequence), "notes" (sequence)}``.
         tables: per figure title, its tables by caption (section 7).
         memspec: the calibrated memspec (DRAMPower JSON), None if there is none.
         notes: sentences about what the input lacks.
@@ -69,6 +69,8 @@ def render_page(title: str, source: str, figures: Sequence[Mapping[str, Any]],
         parts.append(f'<p class="how">{esc(figure["how_to_read"])}</p>')
         for missing in figure.get("missing", ()):
             parts.append(f'<p class="missing">No data: {esc(missing)}.</p>')
+        for note in figure.get("notes", ()):
+            parts.append(f'<p class="note">Note: {esc(note)}.</p>')
         parts.append(f'<figure><img src="{svg_data_uri(figure["svg"])}" alt="{esc(figure["title"])}"></figure>')
         parts.append("</section>")
     parts.append(f'<section id="numbers"><h2>{len(figures) + 1}. The numbers of every figure, and the '

@@ -150,6 +150,10 @@ class ReportData:
         baselines: idle baselines per channel over time, oldest first.
         jobs: job records (empty when the input has none).
         pair_fits: per DIMM-pair fits by channel (empty when the input has none).
+        pair_history: each DIMM pair's fits over time, oldest first (the daemon's per-group
+            calibrators; empty when the input has none).
+        alarms: the daemon's drift alarms (``DriftAlarm.to_dict()``: ``group``, ``current``,
+            ``kind``, ``time_ns``, ...), oldest first.
         channels: the DRAM channels (DIMM pairs) seen.
         notes: sentences the page shows about what the input lacks.
     """
@@ -163,6 +167,8 @@ class ReportData:
     baselines: tuple[BaselinePoint, ...] = ()
     jobs: tuple[JobRow, ...] = ()
     pair_fits: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    pair_history: Mapping[str, tuple[FitEntry, ...]] = field(default_factory=dict)
+    alarms: tuple[Mapping[str, Any], ...] = ()
     channels: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
 

@@ -104,6 +104,7 @@ def read_state(path: str | Path) -> ReportData:
         stored_baselines = _stored_baselines(db, tables)
         job_records = _job_table(db, tables)
         quarantined = db.execute("SELECT count(*) FROM quarantine").fetchone()[0] if "quarantine" in tables else 0
+        stored_alarms = [a for (a,) in db.execute("SELECT alarm FROM alarms ORDER BY id")] if "alarms" in tables else []
     except sqlite3.DatabaseError as error:
         raise InputError(f"{file}: cannot read the state database ({error})") from None
     finally:
@@ -127,11 +128,43 @@ def read_state(path: str | Path) -> ReportData:
     jobs = job_records if job_records else jobs_from_runs(records, baselines)
     settings = (calibrator or {}).get("settings") or {}
     lag = settings.get("drift_lag_s") or settings.get("half_life_s")
+    groups = (calibrator or {}).get("sensor_groups")
+    pair_history = {**pair_history, **_group_histories(groups)}
     pair_fits = {group: entries[-1].fit for group, entries in pair_history.items() if entries and entries[-1].fit}
     return ReportData(source=f"daemon state {file}", spec=spec, runs=tuple(runs), fit=fit,
                       fit_history=tuple(history), drift_lag_s=float(lag) if lag else None,
                       baselines=tuple(sorted(baselines, key=lambda b: (b.t_ns, b.channel))), jobs=tuple(jobs),
-                      pair_fits=pair_fits, channels=channels, notes=tuple(notes))
+                      pair_fits=pair_fits, pair_history={g: tuple(e) for g, e in pair_history.items()},
+                      alarms=_alarms(groups, stored_alarms), channels=channels, notes=tuple(notes))
+
+
+def _group_histories(groups: Any) -> dict[str, list[FitEntry]]:
+    """Each DIMM pair's fits over time from the per-group calibrators' state (the calibrator row's
+    ``sensor_groups.calibrators[pair].history``: ``{"time_ns", "fit"}`` after every refit); the
+    node-level entry of that state is the node fit's, kept in the ``fits`` table."""
+    calibrators = groups.get("calibrators") if isinstance(groups, Mapping) else None
+    out: dict[str, list[FitEntry]] = {}
+    for name, state in (calibrators or {}).items():
+        history = state.get("history") if isinstance(state, Mapping) else None
+        if str(name) == "node" or not isinstance(history, list):
+            continue
+        entries = [FitEntry(t_ns=int(h.get("time_ns") or 0), run_id=None, fit=h["fit"], row=i)
+                   for i, h in enumerate(history) if isinstance(h, Mapping) and isinstance(h.get("fit"), Mapping)]
+        if entries:
+            out[str(name)] = entries
+    return out
+
+
+def _alarms(groups: Any, stored: Sequence[str]) -> tuple[dict[str, Any], ...]:
+    """The drift alarms: the ``alarms`` table (every alarm ever raised) and those the calibrator
+    state still holds, once each, oldest first."""
+    found: dict[tuple[Any, ...], dict[str, Any]] = {}
+    held = groups.get("alarms") if isinstance(groups, Mapping) else None
+    for alarm in [*(_json(a) for a in stored), *(held if isinstance(held, list) else [])]:
+        if isinstance(alarm, Mapping) and alarm.get("group") and alarm.get("current"):
+            key = (alarm.get("group"), alarm.get("current"), alarm.get("kind"), alarm.get("time_ns"))
+            found.setdefault(key, dict(alarm))
+    return tuple(sorted(found.values(), key=lambda a: int(a.get("time_ns") or 0)))
 
 
 def _fit_history(db: sqlite3.Connection, tables: Mapping[str, list[str]]

@@ -78,6 +78,15 @@ def no_data(ax: Any, message: str) -> None:
             bbox={"boxstyle": "round", "facecolor": "#f2f2f2", "edgecolor": "#999999"})
 
 
+def message_figure(title: str, message: str) -> Any:
+    """A figure that is one short panel saying why there is nothing to draw (never an empty box)."""
+    fig, ax = pyplot().subplots(figsize=(8.5, 1.8))
+    no_data(ax, message)
+    ax.set_title(title)
+    fig.tight_layout()
+    return fig
+
+
 def percent_axis(ax: Any, label: str) -> None:
     """A symmetric-log percent axis (linear within ±1 %) labelled with plain numbers."""
     from matplotlib.ticker import FuncFormatter

@@ -288,7 +288,7 @@ class ReplaySource:
         self._open_mono = int(self._clock())
         self._open_wall = int(self._wall())
         self._cursor = 0
-        self._energy_j = dict.fromkeys(self.recording.channels, 0.0)
+        self._energy_j = dict.fromkeys(self.recording.channels, math.nan)
         self._state = "ok"
 
     def close(self) -> None:
@@ -337,7 +337,10 @@ class ReplaySource:
             base = self._open_wall if self.restamp else self._t0
             samples[name] = (t + base, p)
             finite = p[np.isfinite(p)]
-            self._energy_j[name] += float(finite.sum()) / self.recording.rate_hz[name]
+            if len(finite):  # a channel with no known sample yet has an unknown energy, not 0 J
+                known = self._energy_j[name]
+                self._energy_j[name] = (0.0 if math.isnan(known) else known) + float(finite.sum()) / \
+                    self.recording.rate_hz[name]
             unknown = len(p) - len(finite)   # unknown samples: marked, counted missing, not in the energy
             status[name] = STATUS_STALE if unknown else STATUS_OK
             if unknown:

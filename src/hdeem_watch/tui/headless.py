@@ -97,7 +97,7 @@ def calib_parts(calib: CalibView) -> list[str]:
         f"error before {_pct(calib.error_before)} after {after}" + (f" loo {_pct(calib.error_loo)}" if determined else ""),
     ]
     for c in calib.currents:
-        item = f"{c.name} {c.datasheet_a * 1e3:.1f}->{c.calibrated_a * 1e3:.1f}"
+        item = f"{c.name} {c.datasheet_a * 1e3:.1f}->{c.calibrated_a * 1e3:.1f} mA"
         core = getattr(c, "truth_core_a", math.nan)
         if math.isfinite(c.truth_a) and isinstance(core, float) and math.isfinite(core):
             item += f" (sim incl. I/O {c.truth_a * 1e3:.1f}, core {core * 1e3:.1f})"
@@ -130,6 +130,17 @@ def power_parts(snapshot: NodeSnapshot) -> list[str]:
 def power_line(snapshot: NodeSnapshot) -> str:
     """Live power of the DRAM channels on one line."""
     return "  ".join(power_parts(snapshot))
+
+
+def baseline_parts(snapshot: NodeSnapshot) -> list[str]:
+    """The idle baseline of each DRAM channel (W, and how it was measured), as fields; empty
+    while none is known."""
+    known = [c for c in snapshot.channels if c.kind == "dram" and math.isfinite(c.baseline_w)]
+    if not known:
+        return []
+    values = [f"{c.name} {c.baseline_w:.2f} W" for c in known]
+    origin = sorted({c.baseline_origin for c in known if c.baseline_origin})
+    return [f"idle   {values[0]}", *values[1:], f"(baselines: {', '.join(origin) or 'measured'})"]
 
 
 def _has_power(snapshot: NodeSnapshot) -> bool:
@@ -165,6 +176,7 @@ class ProgressPrinter:
         self._seen_alarms: set[tuple[str, str, str, int]] = set()
         self._state: tuple[str, str] = ("", "")
         self._last_power_s = -math.inf
+        self._baselines: tuple[float, ...] = ()
         #: hold-out runs seen: (calibrated error, datasheet error) of each
         self.holdout: list[tuple[float, float]] = []
 
@@ -211,6 +223,10 @@ class ProgressPrinter:
             if alarm.key not in self._seen_alarms:
                 self._seen_alarms.add(alarm.key)
                 out += fit_width([f"{'drift ' if is_drift(alarm) else 'outlr '} {alarm_text(alarm)}"], self.width)
+        baselines = tuple(round(c.baseline_w, 2) for c in snapshot.channels if c.kind == "dram")
+        if baselines != self._baselines and (parts := baseline_parts(snapshot)):
+            self._baselines = baselines
+            out += fit_width(parts, self.width)
         if _has_power(snapshot) and now_s - self._last_power_s >= self.power_every_s:
             self._last_power_s = now_s
             out += fit_width(power_parts(snapshot), self.width)

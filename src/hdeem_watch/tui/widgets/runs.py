@@ -22,13 +22,13 @@ def _row(run: RunView, wide: bool) -> Text:
     if wide:
         text.append(energy(run.model_datasheet_j, 8), style="dim")
         text.append(energy(run.model_calibrated_j, 8))
-    text.append(percent(run.error_datasheet, 7 if wide else 6), style="red")
-    text.append(percent(run.error_calibrated, 7 if wide else 6), style="green")
+    text.append(percent(run.error_datasheet, 8 if wide else 6), style="red")
+    text.append(percent(run.error_calibrated, 8 if wide else 6), style="green")
     return text
 
 
 HEADER_NARROW = f"{'kernel':<9}{'thr':>3}{'dur':>6}{'meas J':>7}{'ds %':>6}{'cal %':>6}"
-HEADER_WIDE = f"{'kernel':<9}{'thr':>3}{'dur':>6}{'meas J':>7}{'ds J':>8}{'cal J':>8}{'ds err':>7}{'cal err':>7}"
+HEADER_WIDE = f"{'kernel':<9}{'thr':>3}{'dur':>6}{'meas J':>7}{'ds J':>8}{'cal J':>8}{'ds err':>8}{'cal err':>8}"
 
 
 def runs_text(snapshot: NodeSnapshot, width: int, rows: int) -> Text:
