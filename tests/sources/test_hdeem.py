@@ -16,9 +16,10 @@ import math
 import numpy as np
 import pytest
 
-from hdeem_watch.sources.base import CHANNELS, SourceUnavailable, available_sources, make_source
+from hdeem_watch.sources.base import CHANNELS, SourceUnavailable
 from hdeem_watch.sources.hdeem import HdeemSource
 from hdeem_watch.sources.hdeem_lib import BMC_POLLING, VR_OVERFLOW, ShimLib, build_shim
+from hdeem_watch.sources.registry import available_sources, make_source
 
 
 def opened(fake, **kw) -> HdeemSource:
@@ -345,7 +346,7 @@ def test_failures_from_the_environment_in_a_real_process(fake_hdeem):
 
     script = (
         "import json, sys\n"
-        "from hdeem_watch.sources.base import SourceUnavailable, make_source\n"
+        "from hdeem_watch.sources.base import SourceUnavailable\nfrom hdeem_watch.sources.registry import make_source\n"
         f"opts = {fake_hdeem.options(interval_s=0.0)!r}\n"
         "src = make_source('hdeem', **opts)\n"
         "try:\n"

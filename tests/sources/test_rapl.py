@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from hdeem_watch.sources.base import RAPL_DRAM_COVERS, SourceUnavailable, available_sources, make_source
+from hdeem_watch.sources.base import RAPL_DRAM_COVERS, SourceUnavailable
 from hdeem_watch.sources.rapl import RaplSource, probe, wrap_delta_uj
+from hdeem_watch.sources.registry import available_sources, make_source
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures"
 RANGE = 262143328850

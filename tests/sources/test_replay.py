@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hdeem_watch.errors import InputError
-from hdeem_watch.sources.base import make_source
+from hdeem_watch.sources.registry import make_source
 from hdeem_watch.sources.replay import RecordingWriter, ReplaySource, read_recording, write_recording
 from hdeem_watch.sources.sim import SimSource
 

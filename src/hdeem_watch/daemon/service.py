@@ -53,7 +53,8 @@ from hdeem_watch.daemon.reporting import Identity, Reporter
 from hdeem_watch.daemon.runs import RunLimits
 from hdeem_watch.daemon.store import Store, StoreError
 from hdeem_watch.errors import InputError
-from hdeem_watch.sources.base import Source, SourceBatch, SourceUnavailable, make_source, source_speed
+from hdeem_watch.sources.base import Source, SourceBatch, SourceUnavailable, source_speed
+from hdeem_watch.sources.registry import make_source
 
 log = logging.getLogger("hdeem_watch.daemon")
 
