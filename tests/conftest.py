@@ -1,9 +1,18 @@
-"""Fixtures shared by every test package."""
+"""Fixtures shared by every test package, and the guard that keeps the fast loop fast.
+
+The guard: a test not marked ``slow`` fails if it starts a process (any ``subprocess``, ``fork``,
+``posix_spawn``, ``system`` or ``exec``, seen through the interpreter's audit hooks, PEP 578) or
+calls ``time.sleep`` — in its setup, its body or its teardown, on any thread it started — or if it
+carries a mark of an external program (``slurm``, ``tmux``) without ``slow``. So
+``pytest -m "not slow"`` runs no daemon, terminal, broker, browser or timed wait.
+"""
 
 from __future__ import annotations
 
+import sys
 import threading
-from collections.abc import Callable, Iterator
+import time
+from collections.abc import Callable, Generator, Iterator
 from contextlib import AbstractContextManager, contextmanager
 from typing import Any
 
@@ -58,3 +67,87 @@ def _serving(server: Any, poll_ms: int = 10) -> Iterator[None]:
 def serve_control() -> Callable[..., AbstractContextManager[None]]:
     """``with serve_control(server): ...`` answers a ControlServer's requests on a thread meanwhile."""
     return _serving
+
+
+
+#: Audit events (PEP 578) raised when a process is started.
+PROCESS_EVENTS = frozenset({"subprocess.Popen", "os.fork", "os.forkpty", "os.posix_spawn",
+                            "os.spawn", "os.system", "os.exec"})
+#: Marks of an external program under test: such a test is slow by definition.
+EXTERNAL_MARKS = ("slurm", "tmux")
+
+
+class SlowGuard:
+    """What a test not marked ``slow`` did that only slow tests may do (a process, a sleep)."""
+
+    def __init__(self) -> None:
+        self.active = False
+        self.found: list[str] = []
+        self._threads_before: set[threading.Thread] = set()
+        self._sleep = time.sleep
+
+    def audit(self, event: str, args: tuple[Any, ...]) -> None:
+        """The audit hook (installed once, for the session; it acts only while a test is guarded)."""
+        if self.active and event in PROCESS_EVENTS:
+            self.found.append(f"started a process ({event} {str(args[0])[:80] if args else ''})")
+
+    def _guarded_sleep(self, seconds: float) -> None:
+        thread = threading.current_thread()
+        if self.active and (thread is threading.main_thread() or thread not in self._threads_before):
+            self.found.append(f"slept {seconds} s on thread {thread.name!r}")
+        self._sleep(seconds)
+
+    def start(self) -> None:
+        """Watch from now on (threads already running, e.g. left by an earlier test, are not watched)."""
+        self.active, self.found = True, []
+        self._threads_before = set(threading.enumerate()) - {threading.main_thread()}
+        time.sleep = self._guarded_sleep
+
+    def stop(self) -> None:
+        self.active = False
+        time.sleep = self._sleep
+
+    def check(self, item: pytest.Item, phase: str) -> None:
+        """Fail ``item`` if it did anything reserved for slow tests (each kind named once)."""
+        if self.active and self.found:
+            seen = list(dict.fromkeys(self.found))
+            self.found = []
+            pytest.fail(f"{item.nodeid} is not marked slow but in its {phase} it "
+                        + "; ".join(seen[:3]) + ": mark it @pytest.mark.slow (tests/conftest.py)", pytrace=False)
+
+
+_guard = SlowGuard()
+sys.addaudithook(_guard.audit)
+
+
+@pytest.fixture
+def slow_guard() -> SlowGuard:
+    """The session's guard (for the guard's own tests)."""
+    return _guard
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_setup(item: pytest.Item) -> Generator[None, None, None]:
+    if item.get_closest_marker("slow") is None:
+        external = [m for m in EXTERNAL_MARKS if item.get_closest_marker(m) is not None]
+        if external:
+            pytest.fail(f"{item.nodeid} is marked {external[0]} but not slow: mark it @pytest.mark.slow",
+                        pytrace=False)
+        _guard.start()
+    yield
+    _guard.check(item, "setup")
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
+    yield
+    _guard.check(item, "body")
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> Generator[None, None, None]:
+    try:
+        yield
+        _guard.check(item, "teardown")
+    finally:
+        _guard.stop()

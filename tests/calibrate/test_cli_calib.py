@@ -58,6 +58,7 @@ def _runs(control: str) -> None:
             client.call("run.stop", {"run_id": run["run_id"]})
 
 
+@pytest.mark.slow
 def test_show_export_calibrate_round_trip_and_reset(daemon: str, tmp_path: Path, capsys) -> None:
     _runs(daemon)
     assert main(["calib", "show", "--connect", daemon, "--json"]) == 0

@@ -28,6 +28,7 @@ def _second_daemon(tmp_path: Path, env: dict[str, str], *, pub: str, control: st
     return subprocess.run(command, env=env, capture_output=True, text=True, timeout=60)
 
 
+@pytest.mark.slow
 def test_a_second_daemon_on_a_live_endpoint_exits_2_and_leaves_it_alone(daemon_factory: Any, tmp_path: Path) -> None:
     """Another daemon's live ipc endpoint (control, then stream): exit 2 "in use by another daemon"; the first
     stays reachable.

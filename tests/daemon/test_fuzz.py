@@ -143,6 +143,7 @@ def test_a_frame_beyond_the_socket_limit_drops_only_that_peer(shared_daemon: Any
     assert shared_daemon.proc.poll() is None
 
 
+@pytest.mark.slow
 def test_absurd_run_sizes_are_refused(daemon_factory: Any) -> None:
     """run.start with an absurd size is bad-args (was accepted: the sim booked 4e290 J, the fit was poisoned).
 

@@ -131,6 +131,7 @@ def test_quiet_periods_become_baselines(shared_daemon: Any) -> None:
         assert abs(entry["power_w"] - status["channels"][name]["power_w"]) < 2.0
 
 
+@pytest.mark.slow
 def test_polls_slowly_while_nobody_watches_samples(daemon_factory: Any) -> None:
     """Without a samples subscriber the daemon polls every 0.25 s; a subscriber brings the fast period, leaving restores it."""
     import time

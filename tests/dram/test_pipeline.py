@@ -73,6 +73,7 @@ assert threading.active_count() == 1, threading.enumerate()
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("check", sorted(FRESH_PROCESS_CHECKS))
 def test_process_mode_in_a_single_threaded_process(check: str) -> None:
     """In a single-threaded process, "process" mode prepares every chunk in one forked worker, and

@@ -32,6 +32,7 @@ def browser(tmp_path: Path) -> Chromium:
         yield chromium
 
 
+@pytest.mark.slow
 def test_page_opens_without_console_problems_and_every_figure_is_drawn(
         state_dir: Path, tmp_path: Path, browser: Chromium) -> None:
     """Six figures are loaded and laid out; each region of the full-page screenshot holds a drawing
@@ -55,6 +56,7 @@ def test_page_opens_without_console_problems_and_every_figure_is_drawn(
     assert browser.evaluate("document.querySelectorAll('table').length") >= 6
 
 
+@pytest.mark.slow
 def test_the_checks_catch_a_broken_page(tmp_path: Path, browser: Chromium) -> None:
     """Control: a console error, an uncaught exception and an image that does not load are all
     reported, and the broken image's region is blank."""

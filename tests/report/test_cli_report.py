@@ -50,6 +50,7 @@ def test_bad_input_is_one_line_and_exit_2(state_dir: Path, tmp_path: Path, capsy
     assert message in err and len(err.splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_without_matplotlib_one_line_and_exit_2(state_dir: Path, tmp_path: Path) -> None:
     """With matplotlib not importable, ``report`` says to install the extra, in one line, exit 2."""
     done = _python("import sys; sys.modules['matplotlib'] = None\n"
@@ -60,6 +61,7 @@ def test_without_matplotlib_one_line_and_exit_2(state_dir: Path, tmp_path: Path)
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.slow
 def test_daemon_and_report_cli_do_not_import_matplotlib() -> None:
     """The report subcommand's parser and the daemon import no plotting library."""
     done = _python("import sys\nfrom hdeem_watch.cli import build_parser\nbuild_parser()\n"

@@ -63,6 +63,7 @@ def test_kill_9_of_the_demo_takes_its_daemon_along_and_the_next_demo_sweeps_the_
                 pass
 
 
+@pytest.mark.slow
 def test_sweep_leaves_live_and_unclaimed_directories_alone(tmp_path: Path) -> None:
     """Only a directory whose owner.pid names a dead process is removed."""
     live, dead, unclaimed = (tmp_path / f"{RUNTIME_PREFIX}{n}" for n in ("live", "dead", "new"))
