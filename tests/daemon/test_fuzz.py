@@ -130,6 +130,7 @@ def test_fuzzed_requests_to_every_op_get_client_errors_and_the_stream_has_no_gap
         assert client.call("ping")["pong"] is True
 
 
+@pytest.mark.slow
 def test_a_frame_beyond_the_socket_limit_drops_only_that_peer(shared_daemon: Any) -> None:
     """A frame far beyond the request limit (ZMQ_MAXMSGSIZE) disconnects that peer; others are served."""
     sock = zmq.Context.instance().socket(zmq.DEALER)
