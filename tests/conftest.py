@@ -1,11 +1,22 @@
-"""Fixtures shared by every test package."""
+"""Fixtures shared by every test package, and the guard that keeps the fast loop fast.
+
+The guard: a test not marked ``slow`` fails if it starts a process (any ``subprocess``, ``fork``,
+``posix_spawn``, ``system`` or ``exec``, seen through the interpreter's audit hooks, PEP 578) or if
+test code (a file under ``tests/``) calls ``time.sleep`` — in its setup or its body, on its own
+thread or one it started — or if it carries a mark of an external program (``slurm``,
+``tmux``) without ``slow``. So ``pytest -m "not slow"`` runs no daemon, terminal, broker, browser,
+SLURM or timed wait. The only processes it allows are the compilers of :data:`BUILD_FIXTURES`,
+which build the C test doubles once per session.
+"""
 
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
 import threading
-from collections.abc import Callable, Iterator
+import time
+from collections.abc import Callable, Generator, Iterator
 from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import Any
@@ -91,3 +102,123 @@ def powercap_trees(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The powercap and perf ``power`` trees, built by tests/sources/powercap_trees.py (tests that
     write counters copy a tree first, with ``symlinks=True``)."""
     return _build_trees("sources/powercap_trees.py", tmp_path_factory.mktemp("powercap_trees"))
+
+
+#: Audit events (PEP 578) raised when a process is started.
+PROCESS_EVENTS = frozenset({"subprocess.Popen", "os.fork", "os.forkpty", "os.posix_spawn",
+                            "os.spawn", "os.system", "os.exec"})
+#: Marks of an external program under test: such a test is slow by definition.
+EXTERNAL_MARKS = ("slurm", "tmux")
+#: Session fixtures that compile C test doubles (gcc) once: a build step, not a process under test.
+BUILD_FIXTURES = frozenset({"fake_hdeem_build", "standin_build"})
+#: Sleeps called from files under here are the tests' own waits.
+TESTS_DIR = str(Path(__file__).resolve().parent) + os.sep
+
+
+class SlowGuard:
+    """What a test not marked ``slow`` did that only slow tests may do (a process, a sleep)."""
+
+    def __init__(self) -> None:
+        self.active = False
+        self.found: list[str] = []
+        self.processes_started = 0
+        #: Fixtures (of any scope) whose setup started a process: a test using one is slow even
+        #: where the process was started for an earlier test (a session's shared daemon).
+        self.process_fixtures: set[str] = set()
+        self._threads_before: set[threading.Thread] = set()
+        self._sleep = time.sleep
+
+    def audit(self, event: str, args: tuple[Any, ...]) -> None:
+        """The audit hook (installed once, for the session; it records only while a test is guarded)."""
+        if event in PROCESS_EVENTS:
+            self.processes_started += 1
+            if self.active:
+                self.found.append(f"started a process ({event} {str(args[0])[:80] if args else ''})")
+
+    def _guarded_sleep(self, seconds: float) -> None:
+        thread = threading.current_thread()
+        if (self.active and sys._getframe(1).f_code.co_filename.startswith(TESTS_DIR)
+                and (thread is threading.main_thread() or thread not in self._threads_before)):
+            self.found.append(f"slept {seconds} s on thread {thread.name!r}")
+        self._sleep(seconds)
+
+    def start(self) -> None:
+        """Watch from now on (threads already running, e.g. left by an earlier test, are not watched)."""
+        self.active, self.found = True, []
+        self._threads_before = set(threading.enumerate()) - {threading.main_thread()}
+        time.sleep = self._guarded_sleep
+
+    def stop(self) -> None:
+        self.active = False
+        time.sleep = self._sleep
+
+    def check(self, item: pytest.Item, phase: str) -> None:
+        """Fail ``item`` if it did anything reserved for slow tests (each kind named once)."""
+        if self.active and phase == "setup":
+            fixtures = sorted(self.process_fixtures & set(getattr(item, "fixturenames", ())))
+            self.found += [f"uses the fixture {name!r}, which started a process" for name in fixtures]
+        if self.active and self.found:
+            seen = list(dict.fromkeys(self.found))
+            self.found = []
+            pytest.fail(f"{item.nodeid} is not marked slow but in its {phase} it "
+                        + "; ".join(seen[:3]) + ": mark it @pytest.mark.slow (tests/conftest.py)", pytrace=False)
+
+
+_guard = SlowGuard()
+sys.addaudithook(_guard.audit)
+
+
+@pytest.fixture
+def slow_guard() -> SlowGuard:
+    """The session's guard (for the guard's own tests)."""
+    return _guard
+
+
+class _FixtureWatch:
+    """Notes the fixtures that start processes, and sets up :data:`BUILD_FIXTURES` with the guard
+    paused. A plugin of its own: a conftest's hooks see only the nodes below its directory, and a
+    session fixture is set up by the session's node."""
+
+    @pytest.hookimpl(wrapper=True)
+    def pytest_fixture_setup(self, fixturedef: pytest.FixtureDef[Any]) -> Generator[Any, None, Any]:
+        if fixturedef.argname in BUILD_FIXTURES:
+            watching, _guard.active = _guard.active, False
+            try:
+                return (yield)
+            finally:
+                _guard.active = watching
+        before = _guard.processes_started
+        try:
+            return (yield)
+        finally:
+            if _guard.processes_started > before:
+                _guard.process_fixtures.add(fixturedef.argname)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.pluginmanager.register(_FixtureWatch(), "hdeem-watch-fixture-watch")
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_setup(item: pytest.Item) -> Generator[None, None, None]:
+    if item.get_closest_marker("slow") is None:
+        external = [m for m in EXTERNAL_MARKS if item.get_closest_marker(m) is not None]
+        if external:
+            pytest.fail(f"{item.nodeid} is marked {external[0]} but not slow: mark it @pytest.mark.slow",
+                        pytrace=False)
+        _guard.start()
+    yield
+    _guard.check(item, "setup")
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
+    yield
+    _guard.check(item, "body")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> None:
+    """Teardowns are not watched: a wider fixture's teardown (the session's SLURM) runs in the last
+    test's, and a function fixture that starts a process has done so in its setup."""
+    _guard.stop()

@@ -5,6 +5,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 from hdeem_watch.cli import main
 
 
@@ -16,6 +18,7 @@ def test_unknown_subcommand_is_bad_input(capsys) -> None:
     assert "\n" not in err
 
 
+@pytest.mark.slow
 def test_console_script_runs_as_module() -> None:
     """``python -m hdeem_watch --version`` prints the version and exits 0."""
     done = subprocess.run([sys.executable, "-m", "hdeem_watch", "--version"], capture_output=True, text=True)

@@ -51,6 +51,7 @@ def test_targets_inside_an_allocation_ask_every_node() -> None:
         targets(_args(connect=["node7:5591"]), {})
 
 
+@pytest.mark.slow
 def test_a_node_that_does_not_answer_is_a_line_not_a_hang(tmp_path: Path) -> None:
     """Nodes are asked in parallel with a bounded timeout: two dead ones cost one timeout, and each
     is a line saying so; the command exits 1."""

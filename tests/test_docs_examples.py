@@ -69,6 +69,14 @@ def documented_commands() -> list[tuple[str, str]]:
 COMMANDS = documented_commands()
 
 
+def _case(where: str, command: str) -> object:
+    """One documented command as a test case; a demo joins the xdist group of the other demo
+    starts (a demo sweeps /tmp of orphaned demo directories, which tests/tui/test_demo_lifecycle.py
+    counts)."""
+    marks = [pytest.mark.xdist_group("demo")] if command.startswith("hdeem-watch demo") else []
+    return pytest.param(where, command, id=where, marks=marks)
+
+
 def test_the_documents_show_commands() -> None:
     """The collection finds the documented commands (the parametrized test cannot pass empty)."""
     assert len(COMMANDS) >= 15
@@ -131,7 +139,7 @@ def local_daemon(shell_env: dict[str, str], tmp_path: Path) -> Iterator[None]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("where", "command"), COMMANDS, ids=[where for where, _ in COMMANDS])
+@pytest.mark.parametrize(("where", "command"), [_case(where, command) for where, command in COMMANDS])
 def test_documented_command_runs_as_written(where: str, command: str, shell_env: dict[str, str],
                                             tmp_path: Path, request: pytest.FixtureRequest) -> None:
     """The command exits 0 (or, if it runs until stopped, keeps running and stops cleanly on Ctrl-C)."""

@@ -1,10 +1,13 @@
-"""The import graph of ``src/hdeem_watch`` points one way (issue #13).
+"""The import graph of ``src/hdeem_watch`` points one way (issues #13, #26), and its functions stay short.
 
 The packages are layered ``dram ← {calibrate, sources} ← daemon ← {tui, cli}``: a package may
-import only from a lower tier. The graph is read from the source with :mod:`ast`, so it holds
-every import, at module level and inside functions (a function-local import hides a cycle from
-the interpreter, not from this test). Imports under ``if TYPE_CHECKING:`` are left out: they
-never run.
+import only from a lower tier, and no two modules anywhere import each other, directly or around a
+loop. The graph is read from the source with :mod:`ast`, so it holds every import, at module level
+and inside functions (a function-local import hides a cycle from the interpreter, not from this
+test). Imports under ``if TYPE_CHECKING:`` are left out: they never run.
+
+No function in ``src/`` is longer than :data:`MAX_FUNCTION_LINES`; the few that were when the rule
+came are listed in :data:`LONG_FUNCTIONS` with their length then, and may only shrink.
 """
 
 from __future__ import annotations
@@ -45,8 +48,26 @@ TIERS: dict[str, int] = {
     "__main__": 9,
 }
 
-#: Packages inside which no two modules may import each other in a cycle.
-ACYCLIC_PACKAGES = ("dram", "daemon", "calibrate")
+#: Packages whose module cycles get a test of their own (for a clear message; the rule itself,
+#: no circle between any two modules, is :func:`test_no_cycle_between_any_modules`).
+ACYCLIC_PACKAGES = ("dram", "daemon", "calibrate", "sources", "counters")
+
+#: The longest a function (``def`` line to last line, docstring included) may be.
+MAX_FUNCTION_LINES = 80
+
+#: Functions over :data:`MAX_FUNCTION_LINES` when the rule came (issue #26), by
+#: ``path:qualified name`` with their length then. One may shrink (then lower or drop its entry),
+#: never grow; a function not listed may not pass the limit.
+LONG_FUNCTIONS: dict[str, int] = {
+    "hdeem_watch/calibrate/fit.py:fit": 153,
+    "hdeem_watch/dram/timing_model.py:run_timing": 132,
+    "hdeem_watch/daemon/modelling.py:RunModeller.evaluate": 106,
+    "hdeem_watch/daemon/service.py:Daemon._start": 105,
+    "hdeem_watch/dram/memspec.py:parse_memspec": 100,
+    "hdeem_watch/counters/command_mapping.py:channel_stats": 86,
+    "hdeem_watch/report/figures_time.py:aging_figure": 85,
+    "hdeem_watch/dram/command_trace.py:read_command_trace": 85,
+}
 
 
 @dataclass(frozen=True)
@@ -251,6 +272,14 @@ def test_no_cycle_between_packages(edges: list[Edge]) -> None:
     )
 
 
+def test_no_cycle_between_any_modules(edges: list[Edge]) -> None:
+    """No module imports itself back through others, wherever they sit (function-local imports
+    included; a package's ``__init__`` is a module of its own)."""
+    node_of = {m: m for m in module_names()}
+    cycles = find_cycles(edges, node_of)
+    assert not cycles, "module cycles:\n" + "\n".join(describe(c, edges, node_of) for c in cycles)
+
+
 @pytest.mark.parametrize("package", ACYCLIC_PACKAGES)
 def test_no_cycle_between_modules_of(package: str, edges: list[Edge]) -> None:
     """Inside ``package`` the modules form a DAG (function-local imports included)."""
@@ -271,3 +300,59 @@ def test_imports_point_down_the_layers(package: str, edges: list[Edge]) -> None:
         and TIERS[package] <= TIERS.get(area(e.target), 99)
     ]
     assert not upward, f"imports of {package or ROOT} against the layering:\n" + "\n".join(upward)
+
+
+def function_lengths(src: Path = SRC) -> dict[str, int]:
+    """Every function's length in lines (``def`` to its last line) by ``path:qualified name``,
+    ``path`` relative to ``src``; nested functions count on their own and inside their parent."""
+    lengths: dict[str, int] = {}
+
+    def walk(node: ast.AST, prefix: str, where: str) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                name = f"{prefix}{child.name}"
+                if not isinstance(child, ast.ClassDef):
+                    assert child.end_lineno is not None
+                    lengths[f"{where}:{name}"] = child.end_lineno - child.lineno + 1
+                walk(child, f"{name}.", where)
+            else:
+                walk(child, prefix, where)
+
+    for path in sorted((src / ROOT).rglob("*.py")):
+        walk(ast.parse(path.read_text(encoding="utf-8")), "", path.relative_to(src).as_posix())
+    return lengths
+
+
+def test_function_lengths_are_measured_def_to_end_with_qualified_names(tmp_path: Path) -> None:
+    """Methods and nested functions are named through their class and parent; a length runs from
+    the ``def`` line to the last line of the body."""
+    (tmp_path / ROOT).mkdir()
+    (tmp_path / ROOT / "m.py").write_text(
+        "def f():\n    def g():\n        return 1\n    return g\n"
+        'class K:\n    async def h(self):\n        """doc"""\n\n        pass\n'
+    )
+    assert function_lengths(tmp_path) == {
+        f"{ROOT}/m.py:f": 4, f"{ROOT}/m.py:f.g": 2, f"{ROOT}/m.py:K.h": 4,
+    }
+
+
+def test_no_function_passes_the_limit_or_grows_past_its_old_length() -> None:
+    """Every function is at most MAX_FUNCTION_LINES long, except the listed ones, which may not grow."""
+    too_long = [
+        f"{name}: {length} lines (limit {LONG_FUNCTIONS.get(name, MAX_FUNCTION_LINES)})"
+        for name, length in sorted(function_lengths().items())
+        if length > LONG_FUNCTIONS.get(name, MAX_FUNCTION_LINES)
+    ]
+    assert not too_long, "functions too long (split them):\n" + "\n".join(too_long)
+
+
+def test_the_long_function_list_holds_only_what_is_still_long() -> None:
+    """An entry of LONG_FUNCTIONS names a function that still exists at exactly its listed length,
+    so the list ratchets down as functions are split (growing is the test above's failure)."""
+    lengths = function_lengths()
+    stale = [
+        f"{name}: listed {listed}, now {lengths.get(name, 'gone')}"
+        for name, listed in sorted(LONG_FUNCTIONS.items())
+        if lengths.get(name, 0) < listed
+    ]
+    assert not stale, "lower or drop these in LONG_FUNCTIONS (tests/test_layering.py):\n" + "\n".join(stale)

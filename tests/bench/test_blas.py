@@ -75,6 +75,7 @@ def test_openblas_loads_once_exactly_when_the_wheel_is_installed() -> None:
     assert (first is None) == (WHEEL is None)
 
 
+@pytest.mark.slow
 def test_library_loads_single_threaded_and_privately(fused: blas.Blas) -> None:
     """The library reports its OpenBLAS build, runs one thread per call (the bench pins its own
     workers), and is not imported as a package (no RTLD_GLOBAL symbols)."""
@@ -195,6 +196,7 @@ def test_load_time_settings_exist_only_during_the_load(
     assert ctypes.CDLL(standin).scipy_openblas_get_num_threads() == 1  # the calls: one thread anyway
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("users_coretype", [None, "SandyBridge"])
 def test_loaded_kernel_set_follows_the_cpu_and_restores_the_environment(
         library_file: str, users_coretype: str | None) -> None:
@@ -221,6 +223,7 @@ def test_loaded_kernel_set_follows_the_cpu_and_restores_the_environment(
         assert f"coretype={expected or '-'} " in config
 
 
+@pytest.mark.slow
 def test_loading_starts_no_thread_pool(library_file: str) -> None:
     """Loading the library adds no threads to the process (OpenBLAS would otherwise start a pool
     sized to the CPUs, idle but spinning after load); checked in a fresh process."""

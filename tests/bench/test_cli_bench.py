@@ -33,6 +33,7 @@ def bench(*args: str, cpus: set[int] | None = None, timeout: float = 60) -> subp
                           text=True, env=env, timeout=timeout, preexec_fn=restrict)
 
 
+@pytest.mark.slow
 def test_json_lines_one_object_per_run() -> None:
     """--json prints one strict JSON object per run and line, with the contract's keys and values
     consistent with the DRAM model's traffic; nothing else on stdout."""
@@ -62,6 +63,7 @@ def test_json_lines_one_object_per_run() -> None:
     assert records[-1]["dram_bytes_per_s"] == 0
 
 
+@pytest.mark.slow
 def test_table_without_json() -> None:
     """Without --json the runs are printed as a table with a header and one row per run, in 80
     columns (issue 28: it wrapped)."""
@@ -100,6 +102,7 @@ def test_bad_input_exits_2_with_one_line(args: tuple[str, ...], needle: str,
     assert needle in err and "Traceback" not in err
 
 
+@pytest.mark.slow
 def test_impossible_size_exits_2_before_allocating() -> None:
     """An array size beyond the available memory exits 2 with one line (a real process: no OOM
     kill, no traceback)."""
@@ -109,6 +112,7 @@ def test_impossible_size_exits_2_before_allocating() -> None:
     assert "--elements 1000000000000000" in proc.stderr and "GiB" in proc.stderr
 
 
+@pytest.mark.slow
 def test_respects_the_cpus_it_was_given() -> None:
     """Started with an affinity of one CPU, the bench pins there and refuses two threads."""
     cpu = max(os.sched_getaffinity(0))
@@ -186,6 +190,7 @@ def router(tmp_path: Path) -> Iterator[FakeRouter]:
     server.close()
 
 
+@pytest.mark.slow
 def test_announcements_bracket_each_run(router: FakeRouter) -> None:
     """With --daemon, the bench asks status once, then per run sends run.start (name, kernel,
     threads, elements, repeat, metadata) before its window and run.stop {run_id} after it."""
@@ -210,6 +215,7 @@ def test_announcements_bracket_each_run(router: FakeRouter) -> None:
     assert [r["run_id"] for r in records] == ["r1", "r2"]
 
 
+@pytest.mark.slow
 def test_unreachable_daemon_is_bad_input(tmp_path: Path) -> None:
     """--daemon pointing at nothing exits 2 with one line before running anything."""
     proc = bench("--kernels", "read", "--elements", "4096", "--daemon", f"ipc://{tmp_path}/none.sock",
@@ -218,6 +224,7 @@ def test_unreachable_daemon_is_bad_input(tmp_path: Path) -> None:
     assert "--daemon" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_progress_bar_on_a_terminal_only() -> None:
     """On a terminal stderr shows a progress bar (carriage-return updates ending at n/n); stdout
     keeps only the JSON lines. Without a terminal there is no bar."""
@@ -250,6 +257,7 @@ def test_progress_bar_on_a_terminal_only() -> None:
     assert "\r[" not in plain.stderr
 
 
+@pytest.mark.slow
 def test_daemon_failing_mid_sweep_warns_once_and_finishes(tmp_path: Path) -> None:
     """If the daemon refuses a run.start mid-sweep, the bench warns once on stderr, stops
     announcing, and still runs and reports every run (exit 0)."""
@@ -268,6 +276,7 @@ def test_daemon_failing_mid_sweep_warns_once_and_finishes(tmp_path: Path) -> Non
     assert len(warnings) == 1 and "busy" in warnings[0] and "not announced" in warnings[0]
 
 
+@pytest.mark.slow
 def test_not_an_endpoint_is_bad_input() -> None:
     """--daemon with something that is no ZeroMQ endpoint exits 2 with one line naming it (it used
     to end in a ZMQError traceback)."""

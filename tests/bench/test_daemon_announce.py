@@ -56,6 +56,7 @@ def daemon(tmp_path: Path) -> Iterator[str]:
         log.close()
 
 
+@pytest.mark.slow
 def test_runs_are_announced_to_a_real_daemon(daemon: str) -> None:
     """Each bench run becomes a daemon run with the same parameters, whose window encloses the
     bench's measured window, with DRAM energy integrated over it, announced with the CPUs it was

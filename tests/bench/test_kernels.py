@@ -60,6 +60,7 @@ def _filled(kernel: str, elements: int) -> dict[str, np.ndarray]:
     return arrays
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kernel", KERNELS)
 @pytest.mark.parametrize("backend", ["thread", "process"])
 def test_kernel_arithmetic_matches_reference(kernel: str, backend: str) -> None:
@@ -80,6 +81,7 @@ def test_kernel_arithmetic_matches_reference(kernel: str, backend: str) -> None:
         assert math.isnan(result.checksum)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", ["thread", "process"])
 def test_triad_arithmetic_on_both_paths(triad_path: str, backend: str) -> None:
     """Triad computes ``b + 2a`` at every 8th double through OpenBLAS and through numpy alike."""

@@ -16,6 +16,7 @@ from hdeem_watch.errors import InputError
 ALLOWED = sorted(os.sched_getaffinity(0))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", ["thread", "process"])
 def test_workers_are_pinned_to_distinct_allowed_cpus(backend: str) -> None:
     """Each worker runs pinned to exactly one allowed CPU, a different one per worker."""

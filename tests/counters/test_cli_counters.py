@@ -125,6 +125,7 @@ def test_bad_input_is_one_line_exit_2(pmu_trees, capsys, tmp_path):
     assert code == 2 and "ranks = 9" in err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("flag", [[], ["--json"]])
 def test_on_this_machine_as_a_process(flag):
     """The real host, as a real process: exit 0 either way (counting possible or explained)."""

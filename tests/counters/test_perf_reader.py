@@ -37,6 +37,7 @@ def busy_loop() -> int:
     return sum(i * i for i in range(200_000))
 
 
+@pytest.mark.slow
 def test_the_real_syscall_reads_count_and_times() -> None:
     """This process's task clock through the real syscall: the count and both times grow; without
     multiplexing running == enabled; a closed handle is EBADF."""
@@ -56,6 +57,7 @@ def test_the_real_syscall_reads_count_and_times() -> None:
         assert caught.value.errno == errno.EBADF
 
 
+@pytest.mark.slow
 def test_a_session_over_the_real_syscall_gives_window_deltas() -> None:
     """The counting session (open per channel, snapshots, role deltas) on real readings of a software event."""
     channel = PlannedChannel(name="S0.sw", socket=0, box=0, pmu="software", pmu_type=PERF_TYPE_SOFTWARE, cpu=-1)
@@ -70,6 +72,7 @@ def test_a_session_over_the_real_syscall_gives_window_deltas() -> None:
     assert deltas["S0.sw"]["dclk"] > 0 and reader.open_handles == 0
 
 
+@pytest.mark.slow
 def test_an_unknown_pmu_type_is_the_kernels_error() -> None:
     """A PMU type the kernel does not have: the syscall's errno, not a made-up count."""
     with pytest.raises(OSError) as caught:

@@ -144,6 +144,7 @@ def job_daemon(shared_dir: Path) -> Iterator[Daemon]:
     yield from _daemon_in(shared_dir, None)
 
 
+@pytest.mark.slow
 def test_the_owner_of_a_job_opened_by_the_prolog_may_announce_runs_until_it_ends(job_daemon: Daemon) -> None:
     """The job book decides: root's job.start for nobody's job lets nobody start a run on the node;
     after job.stop nobody is refused again."""
@@ -160,6 +161,7 @@ def test_the_owner_of_a_job_opened_by_the_prolog_may_announce_runs_until_it_ends
     assert _call_as(NOBODY, endpoint, "run.start", {"kernel": "idle"})["code"] == "forbidden"
 
 
+@pytest.mark.slow
 def test_ipc_run_start_refused_for_another_user_allowed_for_root_and_the_job_owner(
         in_process_daemon: tuple[Daemon, set[int]], caplog: pytest.LogCaptureFixture) -> None:
     """The issue's rule on a real daemon: nobody gets ``forbidden`` for run.start (and may still
@@ -209,6 +211,7 @@ def _as_user(uid: int, action: Callable[[], int]) -> tuple[int, str]:
     return os.waitstatus_to_exitcode(status), err
 
 
+@pytest.mark.slow
 def test_whoami_and_bench_say_before_any_run_that_the_user_may_not(
         in_process_daemon: tuple[Daemon, set[int]]) -> None:
     """``whoami`` tells a client how the daemon sees it; ``bench --daemon`` stops with exit 1 and

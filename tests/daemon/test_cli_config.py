@@ -78,6 +78,7 @@ def test_bad_flags_exit_2_with_one_line(tmp_path: Path) -> None:
         assert code == 2, args
 
 
+@pytest.mark.slow
 def test_unavailable_source_is_one_line_with_the_reason(tmp_path: Path) -> None:
     """A source that cannot work here exits 2 with exactly one stderr line giving the source's reason."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("HDEEM_WATCH_")}
@@ -89,6 +90,7 @@ def test_unavailable_source_is_one_line_with_the_reason(tmp_path: Path) -> None:
     assert "no-powercap" in lines[0]
 
 
+@pytest.mark.slow
 def test_second_daemon_on_the_same_state_dir_is_refused(daemon_factory: Any) -> None:
     """Two daemons cannot share a state directory: the second exits 2 with one line naming the directory."""
     first = daemon_factory("--speed", "5").start()
@@ -102,6 +104,7 @@ def test_second_daemon_on_the_same_state_dir_is_refused(daemon_factory: Any) -> 
     assert first.proc.wait(timeout=15) == 0, first.stderr()
 
 
+@pytest.mark.slow
 def test_ipc_permissions_and_prometheus_endpoint(shared_daemon: Any) -> None:
     """ipc sockets are 0660; --prometheus serves per-channel power gauges and energy counters."""
     time.sleep(1.2)  # at least one heartbeat, which updates the metrics
@@ -133,6 +136,7 @@ def test_default_ipc_directory_is_private(tmp_path: Path) -> None:
         sock.close(0)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze not installed")
 def test_systemd_unit_verifies_and_is_hardened(tmp_path: Path) -> None:
     """systemd-analyze verify accepts the unit without a warning (a broken copy is caught); exposure ≤ 2.0."""

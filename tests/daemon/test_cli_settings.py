@@ -39,6 +39,7 @@ def env() -> dict[str, str]:
     return environment
 
 
+@pytest.mark.slow
 def test_a_binary_config_file_is_one_line(tmp_path: Path, env: dict[str, str]) -> None:
     """--config on a binary file (old: UnicodeDecodeError traceback, exit 1)."""
     config = tmp_path / "cfg.bin"
@@ -47,12 +48,14 @@ def test_a_binary_config_file_is_one_line(tmp_path: Path, env: dict[str, str]) -
     assert str(config) in line and "not a text file" in line
 
 
+@pytest.mark.slow
 def test_a_negative_seed_is_one_line(tmp_path: Path, env: dict[str, str]) -> None:
     """--seed -1 (old: numpy ValueError traceback, exit 1)."""
     line = _one_line(_daemon(tmp_path, env, "--seed", "-1"))
     assert "--seed" in line and "seed = -1" in line
 
 
+@pytest.mark.slow
 def test_unknown_currents_and_a_missing_memspec_stop_the_start(tmp_path: Path, env: dict[str, str]) -> None:
     """currents = [idd0, idd9] and --memspec nonexistent.json: exit 2 at start (old: ran with a WARNING)."""
     config = tmp_path / "cfg.toml"

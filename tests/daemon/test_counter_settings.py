@@ -25,6 +25,7 @@ def test_counters_from_file_and_environment(tmp_path) -> None:
     assert load_settings(None, env={"HDEEM_WATCH_COUNTERS": "perf"}).counters == "perf"
 
 
+@pytest.mark.slow
 def test_perf_counters_on_this_vm_are_refused_with_the_reason(daemon_factory) -> None:
     """No uncore_imc PMU in a VM: the daemon says so in one line and exits 2."""
     daemon = daemon_factory("--counters", "perf", name="perf")

@@ -11,10 +11,13 @@ from __future__ import annotations
 
 import time
 
+import pytest
+
 from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.counter_record import counters_path, read_counter_recording
 
 
+@pytest.mark.slow
 def test_an_opaque_job_on_the_sim_daemon_is_modelled_from_counters_and_replays(daemon_factory, receive,
                                                                                tmp_path) -> None:
     record = tmp_path / "rec.csv"

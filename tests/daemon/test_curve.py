@@ -50,6 +50,7 @@ def test_curve_daemon_serves_key_holders_only(daemon_factory: Any, receive: Any,
     assert "CURVE: connection refused: DENIED (CURVE)" in d.stderr()  # once logged at DEBUG only (#22.14)
 
 
+@pytest.mark.slow
 def test_gen_keys_writes_a_pair(tmp_path: Path) -> None:
     """--gen-keys writes server.key and server.key_secret and exits 0."""
     done = subprocess.run([sys.executable, "-m", "hdeem_watch", "daemon", "--gen-keys", str(tmp_path)],

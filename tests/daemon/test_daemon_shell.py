@@ -59,6 +59,7 @@ def test_the_lock_is_the_daemons_alone(tmp_path: Path) -> None:
         first.close()
 
 
+@pytest.mark.slow
 def test_a_full_disk_degrades_the_daemon_and_loses_nothing(running: Daemon) -> None:
     """With the database full (SQLite's own 'database or disk is full'), a run still replies with its
     record, the status says the store is degraded, the loop and the stream go on; once there is room

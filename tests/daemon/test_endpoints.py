@@ -28,6 +28,7 @@ def _second_daemon(tmp_path: Path, env: dict[str, str], *, pub: str, control: st
     return subprocess.run(command, env=env, capture_output=True, text=True, timeout=60)
 
 
+@pytest.mark.slow
 def test_a_second_daemon_on_a_live_endpoint_exits_2_and_leaves_it_alone(daemon_factory: Any, tmp_path: Path) -> None:
     """Another daemon's live ipc endpoint (control, then stream): exit 2 "in use by another daemon"; the first
     stays reachable.
@@ -75,6 +76,7 @@ def test_a_stale_socket_file_is_replaced_but_a_regular_file_is_not(tmp_path: Pat
     assert victim.read_text() == "keep me"
 
 
+@pytest.mark.slow
 def test_close_removes_only_the_socket_file_it_created(tmp_path: Path) -> None:
     """When another process has since put its own socket at the path, close() leaves that one alone."""
     path = tmp_path / "c.sock"
@@ -203,6 +205,7 @@ def test_a_client_does_not_talk_to_a_squatted_fallback_dir(tmp_path: Path, monke
         impostor.close()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transport", ["tcp", "ipc"])
 def test_dropping_connections_rebinds_the_same_endpoint(tmp_path: Path, transport: str) -> None:
     """Beyond the bound the publisher unbinds and binds the same endpoint again (the old TCP listener is

@@ -130,6 +130,7 @@ def test_fuzzed_requests_to_every_op_get_client_errors_and_the_stream_has_no_gap
         assert client.call("ping")["pong"] is True
 
 
+@pytest.mark.slow
 def test_a_frame_beyond_the_socket_limit_drops_only_that_peer(shared_daemon: Any) -> None:
     """A frame far beyond the request limit (ZMQ_MAXMSGSIZE) disconnects that peer; others are served."""
     sock = zmq.Context.instance().socket(zmq.DEALER)
@@ -143,6 +144,7 @@ def test_a_frame_beyond_the_socket_limit_drops_only_that_peer(shared_daemon: Any
     assert shared_daemon.proc.poll() is None
 
 
+@pytest.mark.slow
 def test_absurd_run_sizes_are_refused(daemon_factory: Any) -> None:
     """run.start with an absurd size is bad-args (was accepted: the sim booked 4e290 J, the fit was poisoned).
 

@@ -56,6 +56,7 @@ def daemon(tmp_path: Path) -> Iterator[str]:
         proc.wait(timeout=15)
 
 
+@pytest.mark.slow
 def test_calib_get_and_calib_show_have_a_fit_per_pair(daemon: str, tmp_path: Path,
                                                        capsys: pytest.CaptureFixture[str]) -> None:
     context = zmq.Context.instance()
@@ -104,6 +105,7 @@ def test_calib_get_and_calib_show_have_a_fit_per_pair(daemon: str, tmp_path: Pat
     assert set(shown["groups"]["DDR_GH"]["fit"]["currents"]) >= {"idd0", "idd3n", "idd4r", "idd4w"}
 
 
+@pytest.mark.slow
 def test_a_10ms_run_is_recorded_not_fitted_and_says_why(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     proc, control = start_daemon(tmp_path, 1)
     try:

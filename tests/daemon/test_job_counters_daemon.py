@@ -15,6 +15,7 @@ from typing import Any
 import pytest
 
 
+@pytest.mark.slow
 def test_a_job_with_counters_is_modelled_by_component(daemon_factory: Any) -> None:
     d = daemon_factory("--source", "sim", "--counters", "sim", "--speed", "16").start()
     with d.client(timeout_s=60) as client:

@@ -38,6 +38,7 @@ def _malformed(i: int, rng: random.Random) -> bytes:
     return json.dumps({"id": i, "op": "status", "args": {"pad": "x" * (protocol.MAX_REQUEST_BYTES + i)}}).encode()
 
 
+@pytest.mark.slow
 def test_1000_malformed_requests_get_errors_and_the_daemon_stays_healthy(shared_daemon: Any, receive: Any) -> None:
     """Every malformed, unknown or oversized request gets an error reply; samples keep flowing without gaps."""
     sub = shared_daemon.subscriber(protocol.subscription(shared_daemon.node, "samples") + b"DDR_AB")
@@ -72,6 +73,7 @@ def test_1000_malformed_requests_get_errors_and_the_daemon_stays_healthy(shared_
     assert len(seqs) > 5 and seqs == list(range(seqs[0], seqs[0] + len(seqs)))
 
 
+@pytest.mark.slow
 def test_raw_router_junk_is_survived(shared_daemon: Any) -> None:
     """Odd multipart shapes (many frames, empty frames, binary identities) neither crash nor wedge the daemon."""
     sock = zmq.Context.instance().socket(zmq.DEALER)
@@ -92,6 +94,7 @@ def test_raw_router_junk_is_survived(shared_daemon: Any) -> None:
         assert client.call("ping")["pong"] is True
 
 
+@pytest.mark.slow
 def test_plain_req_socket_and_req_client_work(shared_daemon: Any) -> None:
     """A plain REQ socket gets one-frame JSON replies; ControlClient in REQ mode works and raises on errors."""
     sock = zmq.Context.instance().socket(zmq.REQ)

@@ -87,6 +87,7 @@ def test_run_energy_model_and_refit(daemon_factory: Any, receive: Any) -> None:
             assert float(p[inside].sum()) * period_s == pytest.approx(rec["energy_j"][channel], rel=1e-9, abs=1e-9)
 
 
+@pytest.mark.slow
 def test_idle_baseline_measure(daemon_factory: Any) -> None:
     """baseline.measure replies after its window with each channel's idle power, spread and sample count."""
     d = daemon_factory("--speed", str(SPEED), **FAST_MODEL).start()

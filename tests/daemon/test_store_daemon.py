@@ -69,6 +69,7 @@ def test_a_foreign_write_lock_neither_stalls_nor_kills_the_daemon(daemon_factory
     store.close()
 
 
+@pytest.mark.slow
 def test_bad_rows_and_a_damaged_page_at_start_are_quarantined_and_the_daemon_comes_up(daemon_factory: Any) -> None:
     """Bad JSON in each table and a damaged page: the daemon starts, lists the readable runs, logs the findings."""
     d = daemon_factory("--speed", "20", **FAST)

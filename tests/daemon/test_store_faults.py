@@ -52,6 +52,7 @@ print(json.dumps({"during": during, "after": after}))
 """
 
 
+@pytest.mark.slow
 def test_a_full_disk_degrades_and_loses_nothing(tmp_path: Path) -> None:
     """Disk full: saves return at once, reads see them, health says why; once space is back all is written."""
     path = tmp_path / "state.db"
@@ -82,6 +83,7 @@ db.execute("ROLLBACK")
 """
 
 
+@pytest.mark.slow
 def test_another_process_holding_the_write_lock_never_blocks_the_caller(tmp_path: Path) -> None:
     """A write lock held by another process: saves return within the sync wait, reads work, writes follow the lock."""
     path = tmp_path / "state.db"

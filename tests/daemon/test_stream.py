@@ -52,6 +52,7 @@ def test_every_channel_at_its_native_rate_without_gaps(sample_stream: list[proto
         assert len(t) > 0.5 * 10 * NOMINAL[name] * 2.0
 
 
+@pytest.mark.slow
 def test_stream_energy_is_the_sum_of_the_samples(sample_stream: list[protocol.Message]) -> None:
     """The cumulative energy_j in the headers (the source's own totals) grows by exactly Σ power × period."""
     for name, batches in _by_channel(sample_stream).items():
@@ -85,6 +86,7 @@ def test_heartbeat_reports_rates_health_and_process(shared_daemon: Any, receive:
         assert entry["energy_j"] > 0 and entry["power_w"] >= 0
 
 
+@pytest.mark.slow
 def test_late_joiner_gets_calibration_and_baselines_at_once(shared_daemon: Any, receive: Any) -> None:
     """A subscriber that connects late receives calib and baseline within a fraction of the re-publish period."""
     sub = shared_daemon.subscriber(protocol.subscription(shared_daemon.node))
@@ -98,6 +100,7 @@ def test_late_joiner_gets_calibration_and_baselines_at_once(shared_daemon: Any, 
     assert "channels" in next(m for m in got if m.kind == "baseline").header
 
 
+@pytest.mark.slow
 def test_status_op_names_node_endpoints_source_and_channels(shared_daemon: Any, receive: Any) -> None:
     """The status op answers with node, endpoints, source and every channel."""
     with shared_daemon.client() as client:
@@ -109,6 +112,7 @@ def test_status_op_names_node_endpoints_source_and_channels(shared_daemon: Any, 
     assert set(status["channels"]) == set(NOMINAL)
 
 
+@pytest.mark.slow
 def test_quiet_periods_become_baselines(shared_daemon: Any) -> None:
     """An idle node yields a quiet-period baseline per DRAM channel: mean, small spread, enough samples."""
     import time
@@ -131,6 +135,7 @@ def test_quiet_periods_become_baselines(shared_daemon: Any) -> None:
         assert abs(entry["power_w"] - status["channels"][name]["power_w"]) < 2.0
 
 
+@pytest.mark.slow
 def test_polls_slowly_while_nobody_watches_samples(daemon_factory: Any) -> None:
     """Issue 31: unwatched, the sim is polled at half its 60 s sensor buffer (6 s at speed 5); a
     status subscriber brings heartbeat-rate polls, a samples subscriber the fast period; leaving

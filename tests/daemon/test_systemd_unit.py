@@ -11,6 +11,7 @@ import pytest
 UNIT = Path(__file__).resolve().parents[2] / "systemd" / "hdeem-watchd.service"
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze not installed")
 def test_the_unit_closes_what_the_daemon_does_not_need(tmp_path: Path) -> None:
     """Exposure ≤ 1.3 (it was 1.6): /proc subset, no W+X memory, loopback-only IP, umask 077; no private user

@@ -244,6 +244,7 @@ while True:
 """
 
 
+@pytest.mark.slow
 def test_store_survives_kill9_mid_write(tmp_path: Path) -> None:
     """Every run a writer reported as saved is readable after the writer is killed with SIGKILL mid-stream."""
     path = tmp_path / "state.db"

@@ -104,6 +104,7 @@ def test_drampower_trace_gives_the_same_energy(tmp_path: Path, spec, policy: str
         assert (a.act, a.rd, a.wr, a.rda, a.wra, a.ref) == (b.act, b.rd, b.wr, b.rda, b.wra, b.ref)
 
 
+@pytest.mark.slow
 def test_kernel_stats_prefix_scales_to_the_full_run(spec) -> None:  # type: ignore[no-untyped-def]
     """kernel_stats on a prefix agrees with a full simulation within 1 %, and repeat/channels scale linearly."""
     elements = 8 * 300_000

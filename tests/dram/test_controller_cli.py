@@ -66,6 +66,7 @@ def test_bad_input_exits_2_with_one_line(argv: list[str], capsys: pytest.Capture
     assert captured.err.count("\n") == 1 and captured.err.startswith("hdeem-watch: error:")
 
 
+@pytest.mark.slow
 def test_malformed_trace_line_number_through_a_real_process(tmp_path: Path) -> None:
     """The installed CLI as a real process: a malformed line 3 gives exit 2 and names file:3."""
     trace = tmp_path / "bad.lstrace"

@@ -84,6 +84,7 @@ def test_bad_input_is_one_line_exit_2(capsys: pytest.CaptureFixture[str], tmp_pa
     assert message in err
 
 
+@pytest.mark.slow
 def test_subprocess_exit_codes(tmp_path: Path, drampower_ref: Path) -> None:
     """As a real process: success prints JSON (exit 0); a bad trace gives exit 2 and one stderr line."""
     ok = subprocess.run([sys.executable, "-m", "hdeem_watch", "model", "energy", "--memspec", "ddr4-2133-x8-4gb",

@@ -207,6 +207,7 @@ def _on_a_terminal(argv: list[str]) -> tuple[int, bytes, bytes]:
     return process.returncode, out, drawn
 
 
+@pytest.mark.slow
 def test_stats_progress_on_a_terminal(tmp_path: Path) -> None:
     """On a real pseudo-terminal, ``model stats --emit-drampower`` draws a bar for the controller
     model and for writing, and erases it; the JSON on stdout is untouched (was: a blank screen)."""
@@ -220,6 +221,7 @@ def test_stats_progress_on_a_terminal(tmp_path: Path) -> None:
     assert drawn.endswith(b"\r\x1b[K")
 
 
+@pytest.mark.slow
 def test_cpu_trace_progress_covers_reading_and_the_cache(tmp_path: Path) -> None:
     """A lackey trace (read line by line in Python: minutes for a real multi-GB one) reports
     reading, splitting into cache lines and the cache filter, then the controller model."""
@@ -233,6 +235,7 @@ def test_cpu_trace_progress_covers_reading_and_the_cache(tmp_path: Path) -> None
         assert phase in drawn, phase
 
 
+@pytest.mark.slow
 def test_stats_progress_is_silent_when_stderr_is_not_a_terminal(tmp_path: Path) -> None:
     """Piped stderr (a batch job's log) gets no progress bar."""
     trace = _long_trace(tmp_path)

@@ -25,6 +25,7 @@ def _chunk(i: int) -> tuple[Any, ...]:
     return values, None, values.astype(np.int8), _Pair(values[::2].copy(), None if i % 2 else values[:3].copy())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["process", "thread", "inline"])
 @pytest.mark.parametrize("slot_bytes", [1 << 20, 1 << 10])
 def test_every_mode_yields_the_prepared_chunks_in_order(mode: str, slot_bytes: int) -> None:
@@ -73,6 +74,7 @@ assert threading.active_count() == 1, threading.enumerate()
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("check", sorted(FRESH_PROCESS_CHECKS))
 def test_process_mode_in_a_single_threaded_process(check: str) -> None:
     """In a single-threaded process, "process" mode prepares every chunk in one forked worker, and
@@ -91,6 +93,7 @@ def _failing(i: int) -> tuple[object, ...]:
     return (np.zeros(10),)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["process", "thread", "inline"])
 def test_an_error_while_preparing_reaches_the_consumer(mode: str) -> None:
     """An exception in the preparing stage is raised to the consumer (from the worker process too)."""
@@ -112,6 +115,7 @@ def test_process_mode_is_not_used_with_other_threads_running() -> None:
         other.join()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("policy", ["open", "closed"])
 def test_simulation_is_identical_in_every_pipeline_mode(spec, policy: str, monkeypatch: pytest.MonkeyPatch) -> None:  # type: ignore[no-untyped-def]
     """Worker process, thread or none, and row outcomes computed ahead or not: the same statistics."""

@@ -40,6 +40,7 @@ _PATTERNS = {"read": ("read",), "assign": ("assign", "selfscale"), "copy": ("cop
              "add": ("add",), "triad": ("triad",)}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kernel", list(_PATTERNS))
 def test_kernel_statistics_within_the_ramulator_band(kernel: str) -> None:
     """Full-size reference stream: reads/writes exact, ACT/PRE/REF/cycles inside the widened Ramulator band."""

@@ -27,6 +27,7 @@ def _same(a, b) -> bool:  # type: ignore[no-untyped-def]
             and (a.row_hits, a.row_misses, a.row_conflicts) == (b.row_hits, b.row_misses, b.row_conflicts))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt", ["ramulator", "ramulator2"])
 @pytest.mark.parametrize("policy", ["open", "closed"])
 def test_a_trace_file_gives_the_statistics_of_its_requests(tmp_path: Path, small_chunks: None, fmt: str,
@@ -40,6 +41,7 @@ def test_a_trace_file_gives_the_statistics_of_its_requests(tmp_path: Path, small
     assert _same(result, simulate(preset("ddr4-2133-x8-4gb"), addresses, is_write, policy=policy))
 
 
+@pytest.mark.slow
 def test_mixed_line_lengths_take_the_general_reader(tmp_path: Path, small_chunks: None) -> None:
     """A trace whose lines differ in length (even when the file size is a multiple of the first
     line's) gives the same statistics through the general reader."""
@@ -58,6 +60,7 @@ def test_mixed_line_lengths_take_the_general_reader(tmp_path: Path, small_chunks
     assert _same(result, simulate(preset("ddr4-2133-x8-4gb"), ref_addresses, ref_writes))
 
 
+@pytest.mark.slow
 def test_a_malformed_line_deep_in_a_uniform_trace_is_named(tmp_path: Path, small_chunks: None) -> None:
     """A bad line in a later chunk (parsed by the worker) is an InputError with its line number."""
     addresses, is_write = kernel_requests("read", 8 * 40_000)

@@ -148,6 +148,7 @@ def test_default_token_names_the_host_and_a_token_file_is_read(tmp_path: Path) -
     assert s.token == "source-hdeem-node7"
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 async def test_stream_reader_reads_a_curve_daemon_with_its_key(tmp_path: Path, daemon_fixtures: Any) -> None:
     """A daemon with CURVE on TCP: the reader with the daemon's public key gets its stream, one without nothing."""

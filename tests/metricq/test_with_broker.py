@@ -116,6 +116,7 @@ def expected_metrics() -> list[str]:
     return power + above
 
 
+@pytest.mark.slow
 async def test_every_metric_arrives_with_its_metadata_and_the_daemon_values(
         tmp_path: Path, broker: Any, manager: Any, sim_daemon: Any, standin: Any) -> None:
     recorder = StreamRecorder(sim_daemon.pub)
@@ -188,6 +189,7 @@ async def test_every_metric_arrives_with_its_metadata_and_the_daemon_values(
     assert final["points_sent"] == final["points_in"] > 0
 
 
+@pytest.mark.slow
 async def test_broker_down_and_restarted_mid_stream(tmp_path: Path, broker: Any, manager: Any,
                                                     sim_daemon: Any, standin: Any) -> None:
     proc, status_path = start_source(tmp_path, broker.url, sim_daemon.pub)
@@ -227,6 +229,7 @@ async def test_broker_down_and_restarted_mid_stream(tmp_path: Path, broker: Any,
     assert code == 0, (tmp_path / "source.err").read_text()
 
 
+@pytest.mark.slow
 async def test_source_started_before_the_broker_connects_when_it_comes(tmp_path: Path, standin: Any,
                                                                       sim_daemon: Any) -> None:
     broker = standin.Broker(tmp_path / "late-rabbit")
@@ -251,6 +254,7 @@ async def test_source_started_before_the_broker_connects_when_it_comes(tmp_path:
     assert code == 0, (tmp_path / "source.err").read_text()
 
 
+@pytest.mark.slow
 async def test_daemon_restart_is_survived(tmp_path: Path, broker: Any, manager: Any, sim_daemon: Any) -> None:
     proc, status_path = start_source(tmp_path, broker.url, sim_daemon.pub)
     try:

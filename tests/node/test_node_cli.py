@@ -114,6 +114,7 @@ def test_text_output_and_notes(node_trees: Path, capsys: pytest.CaptureFixture[s
     assert "no EDAC driver loaded" in text
 
 
+@pytest.mark.slow
 def test_this_machine_says_what_it_cannot_detect() -> None:
     """On the live machine (here a VM) the command exits 0 and lists what it could not detect, and why."""
     done = subprocess.run([sys.executable, "-m", "hdeem_watch", "node", "--json"], capture_output=True, text=True,

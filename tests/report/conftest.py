@@ -11,14 +11,24 @@ import pytest
 DATA = Path(__file__).parent / "data"
 
 
-@pytest.fixture
-def state_dir(tmp_path: Path) -> Path:
-    """A state directory holding the 60-second demo's ``state.db`` (see data/README.md)."""
-    directory = tmp_path / "state"
+def unpack_demo_state(directory: Path) -> Path:
+    """``directory`` made to hold the 60-second demo's ``state.db`` (see data/README.md)."""
     directory.mkdir()
     with gzip.open(DATA / "state-demo60.db.gz", "rb") as source, open(directory / "state.db", "wb") as target:
         shutil.copyfileobj(source, target)
     return directory
+
+
+@pytest.fixture
+def state_dir(tmp_path: Path) -> Path:
+    """A state directory holding the 60-second demo's ``state.db``, the test's own to change."""
+    return unpack_demo_state(tmp_path / "state")
+
+
+@pytest.fixture(scope="module")
+def shared_state_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The same state directory, once per module, for tests that only read it."""
+    return unpack_demo_state(tmp_path_factory.mktemp("shared") / "state")
 
 
 @pytest.fixture

@@ -36,6 +36,7 @@ def browser(tmp_path: Path) -> Chromium:
 MESSAGE_HEIGHT = 250
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("source", ["aged-state", "examples-runs"])
 def test_page_opens_without_console_problems_and_every_figure_is_drawn(
         source: str, aged_state_dir: Path, tmp_path: Path, browser: Chromium) -> None:
@@ -71,6 +72,7 @@ def test_page_opens_without_console_problems_and_every_figure_is_drawn(
     assert browser.evaluate("document.querySelectorAll('table').length") >= 6
 
 
+@pytest.mark.slow
 def test_the_checks_catch_a_broken_page(tmp_path: Path, browser: Chromium) -> None:
     """Control: a console error, an uncaught exception and an image that does not load are all
     reported, and the broken image's region is blank."""

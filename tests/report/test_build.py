@@ -20,11 +20,13 @@ FIGURES = ("fig1-energy", "fig2-currents", "fig3-residuals", "fig4-aging", "fig5
            "fig7-holdout")
 
 
-@pytest.fixture
-def built(state_dir: Path, tmp_path: Path) -> tuple[ReportData, Path]:
-    data = read_state(state_dir)
-    build_report(data, tmp_path / "out", fmt="png", clock=lambda: 1.8e9)
-    return data, tmp_path / "out"
+@pytest.fixture(scope="module")
+def built(shared_state_dir: Path) -> tuple[ReportData, Path]:
+    """The demo state's report, built once for the tests that only read it."""
+    data = read_state(shared_state_dir)
+    out = shared_state_dir.parent / "out"
+    build_report(data, out, fmt="png", clock=lambda: 1.8e9)
+    return data, out
 
 
 def _table(numbers: dict, figure_prefix: str, caption: str) -> list[dict]:
@@ -65,14 +67,14 @@ def test_page_is_self_contained(built: tuple[ReportData, Path]) -> None:
         assert f'id="{key}"' in page
 
 
-def test_numbers_equal_the_states(built: tuple[ReportData, Path], state_dir: Path) -> None:
+def test_numbers_equal_the_states(built: tuple[ReportData, Path], shared_state_dir: Path) -> None:
     """Checked values of the tables are the state's: a run's measured energy, the mean of the idle
     runs, a calibrated current and its interval, the fit's LOO error and the written memspec."""
     import sqlite3
 
     data, out = built
     numbers = json.loads((out / "numbers.json").read_text())
-    db = sqlite3.connect(state_dir / "state.db")
+    db = sqlite3.connect(shared_state_dir / "state.db")
     records = [json.loads(t) for (t,) in db.execute("SELECT record FROM runs")]
     db.close()
     energy = {(r["kernel"], r["threads"]): r for r in _table(numbers, "Energy per kernel", "mean energy per kernel and thread count")}

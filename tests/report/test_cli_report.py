@@ -50,6 +50,7 @@ def test_bad_input_is_one_line_and_exit_2(state_dir: Path, tmp_path: Path, capsy
     assert message in err and len(err.splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_without_matplotlib_one_line_and_exit_1(state_dir: Path, tmp_path: Path) -> None:
     """With matplotlib not importable, ``report`` says how to install the extra, in one line, exit 1
     (issue 28: it was 2, the bad-input code, although nothing was wrong with the input)."""
@@ -62,6 +63,7 @@ def test_without_matplotlib_one_line_and_exit_1(state_dir: Path, tmp_path: Path)
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.slow
 def test_daemon_and_report_cli_do_not_import_matplotlib() -> None:
     """The report subcommand's parser and the daemon import no plotting library."""
     done = _python("import sys\nfrom hdeem_watch.cli import build_parser\nbuild_parser()\n"
@@ -87,6 +89,7 @@ def test_demo_report_at_end(state_dir: Path, tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("demo")  # a demo: see tests/tui/test_demo_lifecycle.py
 def test_demo_headless_with_report(tmp_path: Path) -> None:
     """The real demo (daemon subprocess, schedule, feed) for 20 s, then its report: runs, a fit and
     every figure file."""

@@ -459,8 +459,13 @@ def two_node_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TwoNo
         _kill_pidfile(root / "slurmctld.pid")
         for daemon in cluster.daemons.values():
             if daemon.process is not None and daemon.process.poll() is None:
-                _stop_pid(daemon.process.pid)
-                daemon.process.wait(10)
+                # our child: wait() reaps it (_stop_pid's kill(pid, 0) would see the zombie 10 s)
+                daemon.process.terminate()
+                try:
+                    daemon.process.wait(10)
+                except subprocess.TimeoutExpired:
+                    daemon.process.kill()
+                    daemon.process.wait(10)
         if munge_pid is not None:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(munge_pid, signal.SIGTERM)

@@ -18,6 +18,9 @@ from pathlib import Path
 
 import pytest
 
+#: Every test runs the hooks as processes.
+pytestmark = pytest.mark.slow
+
 REPO = Path(__file__).resolve().parents[2]
 HOOKS = REPO / "daemon" / "slurm"
 

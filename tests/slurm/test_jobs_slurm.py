@@ -20,7 +20,9 @@ import zmq
 
 from hdeem_watch.daemon import protocol
 
-pytestmark = pytest.mark.slurm
+#: A real SLURM: slow, and on one xdist worker with the other SLURM tests (one munged, one
+#: cluster at a time).
+pytestmark = [pytest.mark.slurm, pytest.mark.slow, pytest.mark.xdist_group("slurm")]
 
 
 class StreamRecorder:

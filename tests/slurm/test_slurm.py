@@ -18,6 +18,10 @@ from hdeem_watch.slurm import (
     job_metadata,
 )
 
+#: The tests on the real SLURM run on one xdist worker with the other SLURM tests (one munged, one
+#: cluster at a time); the hostlist tests beside them take no time there.
+pytestmark = pytest.mark.xdist_group("slurm")
+
 HOSTLISTS = {
     "node[01-03,07],other": ["node01", "node02", "node03", "node07", "other"],
     "n[8-11]": ["n8", "n9", "n10", "n11"],
@@ -67,6 +71,7 @@ def test_allowed_cpus_follows_the_task_share() -> None:
 
 
 # ------------------------------------------------------------------------------------ real SLURM
+@pytest.mark.slow
 @pytest.mark.slurm
 def test_hostlist_matches_scontrol(slurm) -> None:  # type: ignore[no-untyped-def]
     """Our expander gives what SLURM's own `scontrol show hostnames` gives."""
@@ -82,6 +87,7 @@ def test_hostlist_matches_scontrol(slurm) -> None:  # type: ignore[no-untyped-de
         assert ours == theirs == hosts
 
 
+@pytest.mark.slow
 @pytest.mark.slurm
 def test_allocation_nodes_inside_a_real_allocation(slurm) -> None:  # type: ignore[no-untyped-def]
     """Inside srun, allocation_nodes() expands the real SLURM_JOB_NODELIST to this node."""
@@ -95,6 +101,7 @@ def test_allocation_nodes_inside_a_real_allocation(slurm) -> None:  # type: igno
     assert meta["slurm_nodelist"] == slurm.node and meta["slurm_job_id"].isdigit()
 
 
+@pytest.mark.slow
 @pytest.mark.slurm
 def test_bench_under_srun_respects_given_cpus(slurm) -> None:  # type: ignore[no-untyped-def]
     """`srun -n1 -c1 hdeem-watch bench` runs its worker on the one CPU SLURM bound the task to and
@@ -119,6 +126,7 @@ def test_bench_under_srun_respects_given_cpus(slurm) -> None:  # type: ignore[no
         assert len(set(cpus)) == 2 and set(cpus) <= set(json.loads(mask_line))
 
 
+@pytest.mark.slow
 @pytest.mark.slurm
 def test_bench_under_unbound_srun_uses_its_cpu_share(slurm) -> None:  # type: ignore[no-untyped-def]
     """When the task's mask is the whole node (no binding, as under TaskPlugin=task/none; here
@@ -136,6 +144,7 @@ def test_bench_under_unbound_srun_uses_its_cpu_share(slurm) -> None:  # type: ig
     assert proc.returncode == 2 and "only 1 CPUs" in proc.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.slurm
 def test_hooks_without_a_daemon_record_the_job_and_leave_nothing_behind(slurm) -> None:  # type: ignore[no-untyped-def]
     """No daemon runs: the Prolog says so (and does not start one: not asked to), the Epilog sends no
@@ -152,6 +161,7 @@ def test_hooks_without_a_daemon_record_the_job_and_leave_nothing_behind(slurm) -
     assert not list(slurm.hook_dir.glob("stop-*.json")) and oct(slurm.hook_dir.stat().st_mode & 0o777) == "0o700"
 
 
+@pytest.mark.slow
 @pytest.mark.slurm
 def test_prolog_starts_a_daemon_only_when_asked_and_the_last_epilog_stops_it(slurm) -> None:  # type: ignore[no-untyped-def]
     """With HDEEM_WATCH_START_DAEMON=1 the Prolog starts a daemon from the daemon's own config file,

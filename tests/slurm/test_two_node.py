@@ -19,7 +19,9 @@ from typing import Any
 
 import pytest
 
-pytestmark = pytest.mark.slurm
+#: A real SLURM: slow, and on one xdist worker with the other SLURM tests (one munged, one
+#: cluster at a time).
+pytestmark = [pytest.mark.slurm, pytest.mark.slow, pytest.mark.xdist_group("slurm")]
 
 
 def _job(cluster: Any, script: str, timeout: float = 60) -> str:

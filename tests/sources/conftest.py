@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from hdeem_watch.sources.hdeem_lib import build_shim
+
 FAKE_DIR = Path(__file__).resolve().parent / "fake_hdeem"
 
 
@@ -74,7 +76,9 @@ def fake_hdeem_build(tmp_path_factory) -> FakeHdeem:
          f"-I{FAKE_DIR}", "-o", str(lib_dir / "libhdeem.so"), str(FAKE_DIR / "libhdeem.c"), "-lm"])
     (lib_dir / "freeipmi.c").write_text("int hdeem_watch_fake_freeipmi(void) { return 0; }\n")
     _cc([cc, "-shared", "-fPIC", "-o", str(lib_dir / "libfreeipmi.so"), str(lib_dir / "freeipmi.c")])
-    return FakeHdeem(lib_dir, tmp_path_factory.mktemp("shim_cache"))
+    fake = FakeHdeem(lib_dir, tmp_path_factory.mktemp("shim_cache"))
+    build_shim(**fake.options())  # the shim every source on the fake opens, built here once
+    return fake
 
 
 @pytest.fixture

@@ -10,13 +10,12 @@ from hdeem_watch.sources.base import (
     DRAM_CHANNELS,
     RAPL_DRAM_COVERS,
     Source,
-    available_sources,
     hdeem_channel_infos,
-    make_source,
     normalise_channel_name,
 )
 from hdeem_watch.sources.hdeem import HdeemSource
 from hdeem_watch.sources.rapl import RaplSource
+from hdeem_watch.sources.registry import available_sources, make_source
 from hdeem_watch.sources.replay import ReplaySource, write_recording
 
 

@@ -16,9 +16,10 @@ import math
 import numpy as np
 import pytest
 
-from hdeem_watch.sources.base import CHANNELS, SourceUnavailable, available_sources, make_source
+from hdeem_watch.sources.base import CHANNELS, SourceUnavailable
 from hdeem_watch.sources.hdeem import HdeemSource
 from hdeem_watch.sources.hdeem_lib import BMC_POLLING, VR_OVERFLOW, HdeemError, ShimLib, build_shim
+from hdeem_watch.sources.registry import available_sources, make_source
 
 
 def opened(fake, **kw) -> HdeemSource:
@@ -28,6 +29,7 @@ def opened(fake, **kw) -> HdeemSource:
     return src
 
 
+@pytest.mark.slow
 def test_shim_builds_once_and_reads_names(fake_hdeem):
     """The shim compiles against hdeem.h with the documented link line, is cached, and reads the sensors."""
     path = build_shim(**fake_hdeem.options(libs=("hdeem", "freeipmi", "rt")))
@@ -330,6 +332,7 @@ int main(void) {
 """
 
 
+@pytest.mark.slow
 def test_shim_has_no_memory_errors_or_leaks(fake_hdeem, tmp_path):
     """The shim's C (open/names/stats/global/close, three rounds) runs clean under valgrind."""
     import shutil
@@ -351,6 +354,7 @@ def test_shim_has_no_memory_errors_or_leaks(fake_hdeem, tmp_path):
     assert proc.stdout.strip() == "ok 1 6"
 
 
+@pytest.mark.slow
 def test_failures_from_the_environment_in_a_real_process(fake_hdeem):
     """In a separate process, HDEEM_FAKE_NAMES_STYLE / HDEEM_FAKE_DENY set the fake's behaviour."""
     import os
@@ -359,7 +363,7 @@ def test_failures_from_the_environment_in_a_real_process(fake_hdeem):
 
     script = (
         "import json, sys\n"
-        "from hdeem_watch.sources.base import SourceUnavailable, make_source\n"
+        "from hdeem_watch.sources.base import SourceUnavailable\nfrom hdeem_watch.sources.registry import make_source\n"
         f"opts = {fake_hdeem.options(interval_s=0.0)!r}\n"
         "src = make_source('hdeem', **opts)\n"
         "try:\n"
@@ -378,6 +382,7 @@ def test_failures_from_the_environment_in_a_real_process(fake_hdeem):
     assert "privileged collector" in out["denied"]
 
 
+@pytest.mark.slow
 def test_shim_sets_inband_access_fields(fake_hdeem):
     """In-band init needs hasGPIO/hasPCIe set (the fake refuses otherwise); the shim sets them by default."""
     src = opened(fake_hdeem)

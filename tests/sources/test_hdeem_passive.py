@@ -171,6 +171,7 @@ def test_samples_the_buffer_no_longer_holds_are_counted_as_gaps(fake_hdeem):
     assert (t2[0] - t1[-1]) == pytest.approx((lost + 1) * 1e12 / 1003074, abs=2)
 
 
+@pytest.mark.slow
 def test_shim_builds_against_the_legacy_header_without_the_sets_it_breaks(fake_hdeem, tmp_path):
     """The old fake header (first_blade_value a timespec, int hdeem_close, no status times) still
     builds the energy path; the status-times and global sets are left out with the compiler's reason,
@@ -187,6 +188,7 @@ def test_shim_builds_against_the_legacy_header_without_the_sets_it_breaks(fake_h
         legacy_global.open()
 
 
+@pytest.mark.slow
 def test_site_library_named_so_1_is_found_and_linked(fake_hdeem, tmp_path):
     """A site that installs only libhdeem.so.1 (no development symlink) is found and linked (-l:)."""
     lib_dir = tmp_path / "lib"
@@ -229,6 +231,7 @@ def _daemon(tmp_path: Path, fake, extra_env: dict[str, str]) -> tuple[list[str],
     return log.read_text().split(), health
 
 
+@pytest.mark.slow
 def test_the_passive_daemon_makes_no_ownership_call(fake_hdeem, tmp_path):
     """A real `hdeem-watch daemon --source hdeem` process: polls through get_stats_total, never calls
     hdeem_start/clear/stop, and its status says no measurement runs; with

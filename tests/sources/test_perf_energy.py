@@ -52,6 +52,7 @@ class FakeEvent:
         self.closed = True
 
 
+@pytest.mark.slow
 def test_software_event_counts_for_real():
     """perf_event_open of this process's task clock (allowed at perf_event_paranoid <= 2 with
     exclude_kernel): the count grows with CPU time spent, and close releases the descriptor."""
@@ -72,6 +73,7 @@ def test_software_event_counts_for_real():
     assert event.fd == -1
 
 
+@pytest.mark.slow
 def test_refused_event_raises_with_errno():
     """A config no PMU knows fails with an OSError carrying errno (not a crash, not a zero count)."""
     with pytest.raises(PerfEventError) as info:

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from hdeem_watch.sources.base import RAPL_DRAM_COVERS, SourceUnavailable, available_sources, make_source
+from hdeem_watch.sources.base import RAPL_DRAM_COVERS, SourceUnavailable
 from hdeem_watch.sources.rapl import RaplSource, probe, wrap_delta_uj, wrap_modulus_uj
+from hdeem_watch.sources.registry import available_sources, make_source
 
 RANGE = 262143328850
 

@@ -16,9 +16,9 @@ import pytest
 
 from hdeem_watch.config import load_settings
 from hdeem_watch.daemon.channels import ChannelAccount
-from hdeem_watch.sources.base import make_source
 from hdeem_watch.sources.rapl import RaplSource
 from hdeem_watch.sources.rapl_zones import find_dram_zones
+from hdeem_watch.sources.registry import make_source
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures"
 DEVICES = Path("devices/virtual/powercap/intel-rapl")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hdeem_watch.errors import InputError
-from hdeem_watch.sources.base import make_source
+from hdeem_watch.sources.registry import make_source
 from hdeem_watch.sources.replay import RecordingWriter, ReplaySource, read_recording, write_recording
 from hdeem_watch.sources.sim import SimSource
 
@@ -134,6 +134,7 @@ def test_bad_rate_metadata_names_the_value(tmp_path, rate):
         ReplaySource(path)
 
 
+@pytest.mark.slow
 def test_daemon_with_a_bad_recording_exits_2_with_one_line(tmp_path):
     """`hdeem-watch daemon --source replay` on a recording with t_ns = 2**64: exit 2, one line naming
     file, line and value, no traceback."""

@@ -7,7 +7,8 @@ import itertools
 import numpy as np
 import pytest
 
-from hdeem_watch.sources.base import CHANNELS, DRAM_CHANNELS, RunEvent, Source, make_source
+from hdeem_watch.sources.base import CHANNELS, DRAM_CHANNELS, RunEvent, Source
+from hdeem_watch.sources.registry import make_source
 from hdeem_watch.sources.sim import SimSource, modelled_line_rate
 from hdeem_watch.sources.sim_model import DIMM_PAIR, kernel_traffic_lines, run_truth_energy_j, socket_shares
 

@@ -56,6 +56,7 @@ def model_prediction_j(kernel: str, threads: int, window_s: float, currents: np.
     return float(Observation.from_dict(model["observation"]).predicted_j(currents))
 
 
+@pytest.mark.slow
 def test_the_truth_generator_does_not_use_the_calibrator() -> None:
     """Building the sim and planning a run never imports hdeem_watch.calibrate (the daemon's model path)."""
     code = ("import sys\nfrom hdeem_watch.sources.sim import SimSource\nfrom hdeem_watch.sources.base import RunEvent\n"

@@ -19,6 +19,10 @@ from hdeem_watch.daemon.client import ControlClient
 from hdeem_watch.demo.daemon import RUNTIME_PREFIX, sweep_orphaned_runtime_dirs
 from hdeem_watch.demo.schedule import DemoSchedule, ScheduleEvent
 
+#: Starts demos: on one xdist worker with the other demo starts (a demo sweeps /tmp of orphaned
+#: demo directories, and the kill -9 test counts the directories that appear).
+pytestmark = pytest.mark.xdist_group("demo")
+
 
 def _daemon_children(pid: int, timeout_s: float = 30.0) -> list[psutil.Process]:
     deadline = time.monotonic() + timeout_s
@@ -63,6 +67,7 @@ def test_kill_9_of_the_demo_takes_its_daemon_along_and_the_next_demo_sweeps_the_
                 pass
 
 
+@pytest.mark.slow
 def test_sweep_leaves_live_and_unclaimed_directories_alone(tmp_path: Path) -> None:
     """Only a directory whose owner.pid names a dead process is removed."""
     live, dead, unclaimed = (tmp_path / f"{RUNTIME_PREFIX}{n}" for n in ("live", "dead", "new"))

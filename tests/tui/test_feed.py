@@ -30,6 +30,7 @@ def wait_for(feed: NodeFeed, cond: Callable[[NodeSnapshot], bool], timeout_s: fl
     raise AssertionError(f"condition not met within {timeout_s} s; last health: {snap.health}")
 
 
+@pytest.mark.slow
 def test_feed_learns_stream_endpoint_and_values_update(fake_node: FakeNode) -> None:
     """From only the control endpoint the feed finds the stream, and the DRAM values change over time."""
     feed = NodeFeed(fake_node.control_endpoint, view=ViewSettings(window_s=5, width=40))
@@ -88,6 +89,7 @@ def test_feed_goes_stale_then_reconnects_to_a_restarted_daemon(sock_dir: Path) -
         node.stop()
 
 
+@pytest.mark.slow
 def test_control_request_reaches_daemon_and_notice_shows_reply(fake_node: FakeNode) -> None:
     """A UI request (baseline.measure) is sent by the feed's thread; the reply and the new baseline show up."""
     hub = FeedHub([fake_node.control_endpoint])
@@ -120,6 +122,7 @@ def test_a_remote_client_takes_the_advertised_tcp_stream() -> None:
     assert stream_endpoint("tcp://node7:5591", {}, is_local=lambda host: False) == ""
 
 
+@pytest.mark.slow
 def test_a_malformed_message_does_not_end_the_feed(fake_node: FakeNode) -> None:
     """Garbage and protocol-valid but nonsensical messages are counted and skipped; the feed goes on."""
     from hdeem_watch.daemon import protocol
@@ -140,6 +143,7 @@ def test_a_malformed_message_does_not_end_the_feed(fake_node: FakeNode) -> None:
         feed.stop()
 
 
+@pytest.mark.slow
 def test_an_ipc_stream_behind_a_remote_control_endpoint_is_named_unreachable(sock_dir: Path) -> None:
     """A daemon reached over TCP from another host whose stream is ipc: the feed says why within
     seconds instead of waiting at "connecting" forever."""
@@ -165,6 +169,7 @@ def test_unreachable_stream_rules() -> None:
     assert unreachable_stream("tcp://localhost:5591", "ipc:///x/pub.sock") is None
 
 
+@pytest.mark.slow
 def test_request_outcomes_reach_the_model_only_on_the_feed_thread(fake_node: FakeNode) -> None:
     """The notice of a control request is written by the feed thread (the model's owner), from a
     message queued by the request thread; neither the app's thread nor the request thread touch it."""
@@ -204,6 +209,7 @@ def test_view_settings_are_immutable_and_swapped_whole(fake_node: FakeNode) -> N
         hub.view.focus = 0  # type: ignore[misc]
 
 
+@pytest.mark.slow
 def test_a_curve_stream_without_the_key_is_named_refused(sock_dir: Path) -> None:
     """A daemon whose control is local ipc and whose stream is CURVE TCP: a feed without the key
     reaches the control socket, and says the stream refused it (not "nothing arrives ... firewall?");

@@ -111,6 +111,7 @@ def test_an_unreachable_daemon_is_an_error_not_exit_0(tmp_path) -> None:  # type
     assert len(done.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_stats_file_that_cannot_be_written_is_bad_input(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """tui --stats /nonexistent/x.jsonl: one line, exit 2, before anything starts (it was a thread
     traceback over the UI and exit 0)."""

@@ -63,14 +63,8 @@ from hdeem_watch.daemon.store import Store, StoreError
 from hdeem_watch.daemon.store_checks import ROW_CHECKS
 from hdeem_watch.daemon.wire import quoted
 from hdeem_watch.errors import InputError
-from hdeem_watch.sources.base import (
-    QuietPolling,
-    Source,
-    SourceBatch,
-    SourceUnavailable,
-    make_source,
-    source_speed,
-)
+from hdeem_watch.sources.base import QuietPolling, Source, SourceBatch, SourceUnavailable, source_speed
+from hdeem_watch.sources.registry import make_source
 
 log = logging.getLogger("hdeem_watch.daemon")
 

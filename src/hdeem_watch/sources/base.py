@@ -6,16 +6,13 @@ channel's native rate, as a :class:`SourceBatch`), then ``close()``. Unknown val
 status, never a silent 0. Times are integer nanoseconds: monotonic for intervals (the batch's
 ``t_mono_ns``), wall clock for labels (sample timestamps). Clocks are injectable.
 
-:func:`make_source` builds a source by kind and raises :class:`SourceUnavailable` with a reason a
-user can act on; :func:`available_sources` says for every kind whether it can be used here.
+The sources import this module and nothing above it; the factory that builds one by kind
+(raising :class:`SourceUnavailable` with a reason a user can act on) is
+:mod:`hdeem_watch.sources.registry`.
 
 Example:
-    >>> src = make_source("sim", seed=1)
-    >>> src.open()
-    >>> batch = src.poll()
-    >>> sorted(batch.samples) == sorted(CHANNELS)
-    True
-    >>> src.close()
+    >>> [info.name for info in hdeem_channel_infos()][:3]
+    ['BLADE', 'CPU0', 'CPU1']
 """
 
 from __future__ import annotations
@@ -33,9 +30,6 @@ from hdeem_watch.channels import (  # noqa: F401 - re-exported: the sources' cha
     RAPL_DRAM_COVERS,
     normalise_channel_name,
 )
-
-#: Source kinds :func:`make_source` knows.
-SOURCE_KINDS = ("sim", "hdeem", "rapl", "replay")
 
 ChannelKind = Literal["blade", "cpu", "dram"]
 Clock = Callable[[], int]
@@ -221,76 +215,9 @@ def source_speed(source: object) -> float:
     return 1.0
 
 
-
-
 def hdeem_channel_infos() -> list[ChannelInfo]:
     """The HDEEM channel set: BLADE at 1000 Sa/s, CPU0/1 and the DIMM pairs at 100 Sa/s."""
     infos = [ChannelInfo("BLADE", 1000.0, "blade")]
     infos += [ChannelInfo(n, 100.0, "cpu") for n in ("CPU0", "CPU1")]
     infos += [ChannelInfo(n, 100.0, "dram") for n in DRAM_CHANNELS]
     return infos
-
-
-def make_source(kind: str, **options: Any) -> Source:
-    """Build a source by kind.
-
-    Args:
-        kind: ``"sim"``, ``"hdeem"``, ``"rapl"`` or ``"replay"``.
-        **options: passed to the source's constructor (e.g. ``seed``, ``clock``, ``speed`` for the
-            sim; ``root`` for RAPL; ``path``, ``speed``, ``loop`` for replay; ``include_dir``,
-            ``lib_dir``, ``host`` for HDEEM).
-
-    Raises:
-        SourceUnavailable: the source cannot be used here (reason says why and the fix).
-        InputError: ``kind`` is not a known kind, or an option is bad (e.g. a malformed recording).
-    """
-    from hdeem_watch.errors import InputError
-
-    if kind == "sim":
-        from hdeem_watch.sources.sim import SimSource
-
-        return SimSource(**options)
-    if kind == "hdeem":
-        from hdeem_watch.sources.hdeem import HdeemSource
-
-        return HdeemSource(**options)
-    if kind == "rapl":
-        from hdeem_watch.sources.rapl import RaplSource
-
-        return RaplSource(**options)
-    if kind == "replay":
-        from hdeem_watch.sources.replay import ReplaySource
-
-        return ReplaySource(**options)
-    raise InputError(f"source: unknown kind {kind!r}; expected one of {', '.join(SOURCE_KINDS)}")
-
-
-def available_sources(**options: Any) -> dict[str, str | None]:
-    """For each kind, ``None`` if it can be used here, else the reason why not (with the fix).
-
-    Options are passed to the probes (``rapl_root=...``, ``hdeem_include_dir=...``,
-    ``hdeem_lib_dir=...``, ``replay_path=...``).
-    """
-    result: dict[str, str | None] = {"sim": None}
-    try:
-        from hdeem_watch.sources.hdeem import probe as hdeem_probe
-
-        result["hdeem"] = hdeem_probe(
-            include_dir=options.get("hdeem_include_dir"), lib_dir=options.get("hdeem_lib_dir")
-        )
-    except ImportError as exc:  # module not there yet
-        result["hdeem"] = f"hdeem source not installed: {exc}"
-    try:
-        from hdeem_watch.sources.rapl import probe as rapl_probe
-
-        result["rapl"] = rapl_probe(root=options.get("rapl_root"))
-    except ImportError as exc:
-        result["rapl"] = f"rapl source not installed: {exc}"
-    path = options.get("replay_path")
-    if path is None:
-        result["replay"] = None  # available; needs path=RECORDING.csv
-    else:
-        from pathlib import Path
-
-        result["replay"] = None if Path(path).is_file() else f"replay: {path}: no such file"
-    return result

@@ -27,8 +27,7 @@ from typing import Protocol
 from hdeem_watch.perf_event import PerfEvent, PerfEventError, paranoid_level
 from hdeem_watch.sources.base import SourceUnavailable
 from hdeem_watch.sources.cpu_vendor import no_dram_reason, read_cpuinfo
-from hdeem_watch.sources.rapl import EnergyCounter
-from hdeem_watch.sources.rapl_zones import channel_name
+from hdeem_watch.sources.rapl_zones import EnergyCounter, channel_name
 
 PMU_DIR = "/sys/bus/event_source/devices/power"
 CPU_DIR = "/sys/devices/system/cpu"

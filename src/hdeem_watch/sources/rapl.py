@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +43,7 @@ from hdeem_watch.sources.rapl_zones import (
     DEFAULT_ROOT,
     PERMISSION_FIX,
     DramZone,
+    EnergyCounter,
     find_dram_zones,
     read_text,
     wrap_delta_uj,
@@ -56,17 +56,6 @@ __all__ = ["DEFAULT_ROOT", "PERMISSION_FIX", "EnergyCounter", "RaplSource", "pro
 METHODS = ("auto", "powercap", "perf")
 #: A read is due once this fraction of ``interval_s`` has passed since the previous one.
 DUE_FRACTION = 0.9
-
-
-@dataclass(frozen=True)
-class EnergyCounter:
-    """One energy counter: ``read_raw()`` in counter units, ``joules_per_unit``, and where it wraps
-    (``modulus``; None = a 64-bit count that does not wrap in practice)."""
-
-    channel: str
-    read_raw: Callable[[], int]
-    joules_per_unit: float
-    modulus: float | None
 
 
 def powercap_counters(root: str | Path, read: Callable[[Path], str] = read_text,

@@ -64,6 +64,19 @@ class DramZone:
     max_energy_range_uj: int
 
 
+@dataclass(frozen=True)
+class EnergyCounter:
+    """One DRAM energy counter, of a powercap zone (:func:`~hdeem_watch.sources.rapl.powercap_counters`)
+    or of the perf ``power`` PMU (:mod:`~hdeem_watch.sources.perf_energy`): ``read_raw()`` in counter
+    units, ``joules_per_unit``, and where it wraps (``modulus``; None = a 64-bit count that does not
+    wrap in practice)."""
+
+    channel: str
+    read_raw: Callable[[], int]
+    joules_per_unit: float
+    modulus: float | None
+
+
 def read_text(path: Path) -> str:
     """A sysfs file's content (the default reader; tests inject others)."""
     return path.read_text()
