@@ -34,18 +34,18 @@ TIERS: dict[str, int] = {
     "dram": 1,  # the DRAM model: memspecs, statistics, energy, controller
     "calibrate": 2,  # rows and fits on the model
     "sources": 2,  # power sensors (the sim models its DRAM with dram/)
-    "node": 2,  # facts about this machine (topology, DIMMs, sensor map)
+    "node": 3,  # facts about this machine (topology, DIMMs, sensor map, its DRAM energy source: RAPL zones)
     "counters": 2,  # memory-controller counters -> command statistics (uses dram/)
-    "config": 3,  # the daemon's settings (with each source's options)
-    "daemon": 4,
-    "slurm": 5,  # the SLURM adapter (talks to the daemon)
-    "tui": 6,
-    "bench": 6,
-    "report": 6,  # figures from a daemon's state or a RUNS.json
-    "metricq": 6,  # the daemon's stream to a MetricQ broker (a client of the daemon)
-    "demo": 7,  # a demo node: daemon + bench schedule, shown by the TUI
-    "cli": 8,
-    "__main__": 9,
+    "config": 4,  # the daemon's settings (with each source's options)
+    "daemon": 5,
+    "slurm": 6,  # the SLURM adapter (talks to the daemon)
+    "tui": 7,
+    "bench": 7,
+    "report": 7,  # figures from a daemon's state or a RUNS.json
+    "metricq": 7,  # the daemon's stream to a MetricQ broker (a client of the daemon)
+    "demo": 8,  # a demo node: daemon + bench schedule, shown by the TUI
+    "cli": 9,
+    "__main__": 10,
 }
 
 #: Packages whose module cycles get a test of their own (for a clear message; the rule itself,
@@ -63,9 +63,8 @@ LONG_FUNCTIONS: dict[str, int] = {
     "hdeem_watch/dram/timing_model.py:run_timing": 132,
     "hdeem_watch/daemon/modelling.py:RunModeller.evaluate": 106,
     "hdeem_watch/daemon/service.py:Daemon._start": 105,
-    "hdeem_watch/dram/memspec.py:parse_memspec": 100,
+    "hdeem_watch/dram/memspec.py:parse_memspec": 98,
     "hdeem_watch/counters/command_mapping.py:channel_stats": 86,
-    "hdeem_watch/report/figures_time.py:aging_figure": 85,
     "hdeem_watch/dram/command_trace.py:read_command_trace": 85,
 }
 
