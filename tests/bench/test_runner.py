@@ -173,6 +173,7 @@ def test_available_memory_respects_cgroup_limit(tmp_path: Path) -> None:
     assert unlimited > 0 and abs(unlimited - uncapped) < 256 << 20
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", ["thread", "process"])
 def test_a_run_sized_by_seconds_lasts_them_and_announces_its_pass_count(backend: str) -> None:
     """Issue 28: ``seconds`` replaces the repeat by the passes that fill it (from probe passes

@@ -21,14 +21,14 @@ import pytest
 from hdeem_watch.daemon.node_state import NodeState
 from hdeem_watch.daemon.poll_policy import QUIET_MAX_S, PollDemand, PollPolicy
 from hdeem_watch.daemon.runs import RunLimits, parse_run_args
-from hdeem_watch.sources.base import ChannelInfo, QuietLimit, QuietPolling, SourceBatch, make_source
+from hdeem_watch.sources.base import ChannelInfo, QuietLimit, QuietPolling, SourceBatch
 from hdeem_watch.sources.rapl import RaplSource
+from hdeem_watch.sources.registry import make_source
 from hdeem_watch.sources.replay import ReplaySource, write_recording
 
 DRAM = ("DDR_AB", "DDR_CD")
 PERIOD_NS = 10_000_000  # 100 Sa/s, HDEEM's DRAM rate
 FAST_S, IDLE_S = 0.04, 0.25
-FIXTURES = Path(__file__).resolve().parents[1] / "sources" / "fixtures"
 
 
 # -- the policy --------------------------------------------------------------------------------------
@@ -62,12 +62,12 @@ def test_the_policy_examples_hold() -> None:
     assert doctest.testmod(poll_policy).failed == 0
 
 
-def test_each_source_states_what_it_may_go_unpolled(tmp_path: Path) -> None:
+def test_each_source_states_what_it_may_go_unpolled(tmp_path: Path, powercap_trees: Path) -> None:
     """The sim: its 60 s sensor buffer; RAPL: paced, a DRAM zone's range at 500 W; a replay: no limit."""
     sim = make_source("sim", seed=1)
     assert isinstance(sim, QuietPolling) and sim.quiet_limit == QuietLimit(60.0)
     tree = tmp_path / "powercap"
-    shutil.copytree(FIXTURES / "powercap_2s_swapped", tree, symlinks=True)
+    shutil.copytree(powercap_trees / "powercap_2s_swapped", tree, symlinks=True)
     rapl = RaplSource(root=tree / "class" / "powercap")
     rapl.open()
     limit = rapl.quiet_limit

@@ -281,6 +281,7 @@ def _kill_broker(broker: Any) -> None:
     broker.proc.wait(timeout=10)
 
 
+@pytest.mark.slow
 async def test_a_broker_crash_is_survived_and_the_series_is_whole_once_the_sink_is_back(
         tmp_path: Path, broker: Any, manager: Any, sim_daemon: Any, standin: Any) -> None:
     """The broker is killed mid-stream (no clean shutdown) and restarted: the source keeps reading

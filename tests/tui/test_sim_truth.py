@@ -44,5 +44,5 @@ def test_panel_and_headless_label_the_effective_truth() -> None:
     narrow = calib_text(view, 40).plain
     assert "core" not in narrow and "66.1" in narrow
     line = calib_line(view)
-    assert "idd4r 97.2->66.1 (sim incl. I/O 66.1, core 55.6)" in line
+    assert "idd4r 97.2->66.1 mA (sim incl. I/O 66.1, core 55.6)" in line
     assert "?" not in line
