@@ -1,6 +1,6 @@
 """The import graph of ``src/hdeem_watch`` points one way (issue #13).
 
-The packages are layered ``dram ← {calibrate, sources} ← daemon ← {tui, cli}``: a package may
+The packages are layered ``dram ← {calibrate, sources} ← config ← wire ← daemon ← {tui, cli}``: a package may
 import only from a lower tier. The graph is read from the source with :mod:`ast`, so it holds
 every import, at module level and inside functions (a function-local import hides a cycle from
 the interpreter, not from this test). Imports under ``if TYPE_CHECKING:`` are left out: they
@@ -34,19 +34,20 @@ TIERS: dict[str, int] = {
     "node": 2,  # facts about this machine (topology, DIMMs, sensor map)
     "counters": 2,  # memory-controller counters -> command statistics (uses dram/)
     "config": 3,  # the daemon's settings (with each source's options)
-    "daemon": 4,
-    "slurm": 5,  # the SLURM adapter (talks to the daemon)
-    "tui": 6,
-    "bench": 6,
-    "report": 6,  # figures from a daemon's state or a RUNS.json
-    "metricq": 6,  # the daemon's stream to a MetricQ broker (a client of the daemon)
-    "demo": 7,  # a demo node: daemon + bench schedule, shown by the TUI
-    "cli": 8,
-    "__main__": 9,
+    "wire": 4,  # protocol v1, control client, client keys: what daemon and clients share
+    "daemon": 5,
+    "slurm": 6,  # the SLURM adapter (talks to the daemon)
+    "tui": 7,
+    "bench": 7,
+    "report": 7,  # figures from a daemon's state or a RUNS.json
+    "metricq": 7,  # the daemon's stream to a MetricQ broker (a client of the daemon)
+    "demo": 8,  # a demo node: daemon + bench schedule, shown by the TUI
+    "cli": 9,
+    "__main__": 10,
 }
 
 #: Packages inside which no two modules may import each other in a cycle.
-ACYCLIC_PACKAGES = ("dram", "daemon", "calibrate")
+ACYCLIC_PACKAGES = ("dram", "wire", "daemon", "calibrate")
 
 
 @dataclass(frozen=True)
@@ -271,3 +272,22 @@ def test_imports_point_down_the_layers(package: str, edges: list[Edge]) -> None:
         and TIERS[package] <= TIERS.get(area(e.target), 99)
     ]
     assert not upward, f"imports of {package or ROOT} against the layering:\n" + "\n".join(upward)
+
+
+#: The daemon's clients: they speak to a daemon through :mod:`hdeem_watch.wire` only.
+CLIENTS = ("tui", "bench", "slurm", "metricq", "report", "cli", "demo")
+#: Client modules that may import the daemon: the command that runs one. ``demo.sim_runs`` runs
+#: the daemon's run modelling without a daemon; it leaves this list when that pure code moves out
+#: of the daemon into ``calibrate/`` (issue #26).
+RUNS_A_DAEMON = {"hdeem_watch.cli.daemon", "hdeem_watch.demo.sim_runs"}
+
+
+def test_clients_import_nothing_of_the_daemon(edges: list[Edge]) -> None:
+    """Issue #26: TUI, bench, SLURM hooks, MetricQ, report, command line and demo import the wire
+    package, never ``hdeem_watch.daemon`` (the command that runs a daemon aside)."""
+    into_daemon = [
+        str(e) for e in edges
+        if area(e.source) in CLIENTS and area(e.target) == "daemon" and e.source not in RUNS_A_DAEMON
+    ]
+    assert not into_daemon, "clients importing the daemon:\n" + "\n".join(into_daemon)
+    assert any(area(e.source) in CLIENTS and area(e.target) == "wire" for e in edges)

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import time
 
-from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.counter_record import counters_path, read_counter_recording
+from hdeem_watch.wire import protocol
 
 
 def test_an_opaque_job_on_the_sim_daemon_is_modelled_from_counters_and_replays(daemon_factory, receive,

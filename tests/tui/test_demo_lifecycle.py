@@ -15,9 +15,9 @@ from pathlib import Path
 import psutil
 import pytest
 
-from hdeem_watch.daemon.client import ControlClient
 from hdeem_watch.demo.daemon import RUNTIME_PREFIX, sweep_orphaned_runtime_dirs
 from hdeem_watch.demo.schedule import DemoSchedule, ScheduleEvent
+from hdeem_watch.wire.client import ControlClient
 
 
 def _daemon_children(pid: int, timeout_s: float = 30.0) -> list[psutil.Process]:

@@ -122,7 +122,7 @@ def test_a_remote_client_takes_the_advertised_tcp_stream() -> None:
 
 def test_a_malformed_message_does_not_end_the_feed(fake_node: FakeNode) -> None:
     """Garbage and protocol-valid but nonsensical messages are counted and skipped; the feed goes on."""
-    from hdeem_watch.daemon import protocol
+    from hdeem_watch.wire import protocol
 
     feed = NodeFeed(fake_node.control_endpoint)
     feed.start()
@@ -211,9 +211,9 @@ def test_a_curve_stream_without_the_key_is_named_refused(sock_dir: Path) -> None
     import threading as _threading
 
     from hdeem_watch.config import DaemonSettings
-    from hdeem_watch.daemon.security import client_curve, generate_keys
     from hdeem_watch.daemon.service import Daemon
     from hdeem_watch.sources.sim import SimSource
+    from hdeem_watch.wire.keys import client_curve, generate_keys
 
     public, secret = generate_keys(sock_dir / "keys", "server")
     settings = DaemonSettings(pub="tcp://127.0.0.1:*", control=f"ipc://{sock_dir}/c.sock", node="curve1",

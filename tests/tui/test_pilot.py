@@ -8,11 +8,11 @@ from collections.abc import Callable
 
 import pytest
 
-from hdeem_watch.daemon.client import ControlClient
 from hdeem_watch.demo.fakenode import FakeNode
 from hdeem_watch.tui.app import HdeemWatchApp
 from hdeem_watch.tui.feed import FeedHub
 from hdeem_watch.tui.widgets import ChannelTable, HealthBar
+from hdeem_watch.wire.client import ControlClient
 
 
 def shown(app: HdeemWatchApp, widget_type: type) -> str:

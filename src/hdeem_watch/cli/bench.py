@@ -138,7 +138,7 @@ def _run(args: argparse.Namespace) -> int:
     progress = _Progress(len(specs), sys.stderr)
     if args.daemon:
         from hdeem_watch.bench.announce import Announcer
-        from hdeem_watch.daemon.client import ControlClient
+        from hdeem_watch.wire.client import ControlClient
 
         if not (math.isfinite(args.wait) and args.wait >= 0):
             raise InputError(f"--wait {args.wait:g}: expected a number of seconds >= 0")
@@ -185,7 +185,7 @@ def _run(args: argparse.Namespace) -> int:
 def _refusal(client: Any) -> str | None:
     """Why the daemon would refuse this user's runs (``whoami``), before any kernel runs; None when
     it would take them, or when it is too old to tell."""
-    from hdeem_watch.daemon.client import ControlError, DaemonUnreachable
+    from hdeem_watch.wire.client import ControlError, DaemonUnreachable
 
     try:
         me = client.call("whoami")

@@ -52,7 +52,7 @@ def register(subparsers: Any) -> None:
 
 
 def _client(args: argparse.Namespace) -> Any:
-    from hdeem_watch.daemon.client import ControlClient, default_endpoints
+    from hdeem_watch.wire.client import ControlClient, default_endpoints
 
     if not (args.timeout > 0 and math.isfinite(args.timeout)):
         raise InputError(f"--timeout: {args.timeout!r}; expected seconds > 0")
@@ -77,7 +77,7 @@ def _select(fits: dict[str, dict[str, Any]], group: str | None) -> dict[str, dic
 
 
 def _run(args: argparse.Namespace) -> int:
-    from hdeem_watch.daemon.client import ControlError, DaemonUnreachable
+    from hdeem_watch.wire.client import ControlError, DaemonUnreachable
 
     try:
         with _client(args) as client:

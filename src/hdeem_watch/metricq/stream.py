@@ -3,7 +3,7 @@
 It is a plain subscriber: the daemon's PUB socket never waits for it (a slow subscriber loses
 messages at the high-water mark, seen here as sequence gaps), so nothing this process does can
 block the daemon. ZeroMQ reconnects by itself when a daemon restarts; the restart shows as sequence
-numbers going back (:class:`~hdeem_watch.daemon.protocol.GapTracker`).
+numbers going back (:class:`~hdeem_watch.wire.protocol.GapTracker`).
 
 Example::
 
@@ -21,7 +21,7 @@ from typing import Any
 
 import zmq
 
-from hdeem_watch.daemon import protocol
+from hdeem_watch.wire import protocol
 
 log = logging.getLogger("hdeem-watch.metricq")
 
@@ -56,7 +56,7 @@ class StreamReader:
         self._socket.setsockopt(zmq.RCVHWM, RECEIVE_HWM)
         self._socket.setsockopt(zmq.LINGER, 0)
         if curve_server_key is not None:
-            from hdeem_watch.daemon.security import secure_client
+            from hdeem_watch.wire.keys import secure_client
 
             secure_client(self._socket, curve_server_key, curve_client_keys)
         # Kinds sit after the node in the topic, so every message is subscribed to and filtered here

@@ -32,10 +32,6 @@ from typing import Any
 
 import zmq
 
-from hdeem_watch.daemon import protocol
-from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
-from hdeem_watch.daemon.handshake import HandshakeWatch
-from hdeem_watch.daemon.security import ClientCurve, secure_client
 from hdeem_watch.tui.endpoints import is_local_host, stream_endpoint, unreachable_stream
 from hdeem_watch.tui.messages import (
     RequestDone,
@@ -47,6 +43,10 @@ from hdeem_watch.tui.messages import (
 )
 from hdeem_watch.tui.model import NodeModel
 from hdeem_watch.tui.snapshot import NodeSnapshot
+from hdeem_watch.wire import protocol
+from hdeem_watch.wire.client import ControlClient, ControlError, DaemonUnreachable
+from hdeem_watch.wire.handshake import HandshakeWatch
+from hdeem_watch.wire.keys import ClientCurve, secure_client
 
 #: Snapshot period of a node that is not focused (its snapshot only feeds the health bar).
 BACKGROUND_PERIOD_NS = 500_000_000

@@ -7,7 +7,7 @@ the plot's columns with its min/max envelope). It does no I/O and reads no clock
 takes the times it needs, so tests drive it without sockets or an event loop.
 
 Example:
-    >>> from hdeem_watch.daemon import protocol
+    >>> from hdeem_watch.wire import protocol
     >>> import numpy as np
     >>> m = NodeModel(endpoint="ipc:///x")
     >>> frames = protocol.encode_samples("n1", "DDR_AB", seq=0, rate_hz=100.0,
@@ -27,7 +27,6 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.daemon.protocol import Message
 from hdeem_watch.tui.downsample import ColumnCache
 from hdeem_watch.tui.recent_samples import RecentSamples
 from hdeem_watch.tui.records import calib_view, first_num, num, run_view, sensor_command_rates
@@ -40,6 +39,7 @@ from hdeem_watch.tui.snapshot import (
     NodeSnapshot,
     RunView,
 )
+from hdeem_watch.wire.protocol import Message
 
 #: Display order of the HDEEM channels; others follow alphabetically.
 CHANNEL_ORDER = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH", "CPU0", "CPU1", "BLADE")

@@ -40,17 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.daemon.requests import (
-    Reply,
-    Request,
-    decode_reply,
-    decode_request,
-    encode_reply_error,
-    encode_reply_ok,
-    encode_request,
-    request_id_of,
-)
-from hdeem_watch.daemon.wire import (
+from hdeem_watch.wire.json_codec import (
     ERROR_CODES,
     MAX_REQUEST_BYTES,
     MAX_REQUEST_DEPTH,
@@ -59,6 +49,16 @@ from hdeem_watch.daemon.wire import (
     jsonable,
     loads_object,
     quoted,
+)
+from hdeem_watch.wire.requests import (
+    Reply,
+    Request,
+    decode_reply,
+    decode_request,
+    encode_reply_error,
+    encode_reply_ok,
+    encode_request,
+    request_id_of,
 )
 
 __all__ = [
