@@ -11,11 +11,11 @@ from pathlib import Path
 import pytest
 
 from hdeem_watch.demo.fakenode import FakeNode
-from hdeem_watch.tui.endpoints import pub_endpoint_for, stream_endpoint, unreachable_stream
 from hdeem_watch.tui.feed import FeedHub, NodeFeed
 from hdeem_watch.tui.messages import ViewSettings
 from hdeem_watch.tui.model import NodeModel
 from hdeem_watch.tui.snapshot import NodeSnapshot
+from hdeem_watch.wire.discovery import pub_endpoint_for, stream_endpoint, unreachable_stream
 
 
 def wait_for(feed: NodeFeed, cond: Callable[[NodeSnapshot], bool], timeout_s: float = 8.0) -> NodeSnapshot:
