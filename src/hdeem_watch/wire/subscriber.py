@@ -17,6 +17,7 @@ get and the time they read, and do the I/O it asks for.
 
 Example:
     >>> import numpy as np
+    >>> from hdeem_watch.wire.protocol import encode_samples
     >>> follower = StreamFollower("ipc:///run/hw/control.sock")
     >>> follower.probe_due(0, subscribed=False)
     True
@@ -41,7 +42,6 @@ from hdeem_watch.wire.protocol import (
     Message,
     ProtocolError,
     decode,
-    encode_samples,  # noqa: F401  (the example above)
     subscription,
 )
 
