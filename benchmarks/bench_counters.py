@@ -123,7 +123,7 @@ def daemon_cpu_percent(counters: bool, seconds: float) -> float:
     import psutil
     import zmq
 
-    from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+    from hdeem_watch.wire.client import ControlClient, DaemonUnreachable
 
     with tempfile.TemporaryDirectory() as directory:
         pub, control = f"ipc://{directory}/p.sock", f"ipc://{directory}/c.sock"

@@ -45,8 +45,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from hdeem_watch.config import DaemonSettings  # noqa: E402
-from hdeem_watch.daemon import protocol  # noqa: E402
-from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable  # noqa: E402
+from hdeem_watch.wire import protocol  # noqa: E402
+from hdeem_watch.wire.client import ControlClient, DaemonUnreachable  # noqa: E402
 
 
 def _env() -> dict[str, str]:
@@ -460,7 +460,7 @@ def main(argv: list[str] | None = None) -> int:
          f"{cl['requests_per_s']:.0f} / {cl['errors']} / {cl['lost_samples'] + cl['lost_messages']}", "-", None),
     ]
     if args.json:
-        from hdeem_watch.daemon.protocol import dumps
+        from hdeem_watch.wire.protocol import dumps
 
         print(dumps(results).decode())  # strict JSON: NaN as null
         return 0

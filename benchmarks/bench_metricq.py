@@ -40,7 +40,7 @@ REPO = Path(__file__).resolve().parents[1]
 SRC = REPO / "src"
 sys.path.insert(0, str(SRC))
 
-from hdeem_watch.daemon import protocol  # noqa: E402
+from hdeem_watch.wire import protocol  # noqa: E402
 
 CHANNELS = {"BLADE": 1000, "CPU0": 100, "CPU1": 100, "DDR_AB": 100, "DDR_CD": 100, "DDR_EF": 100, "DDR_GH": 100}
 POLL_S = 0.04

@@ -45,7 +45,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "src"))
 
 import bench_daemon  # noqa: E402
-from hdeem_watch.daemon import protocol  # noqa: E402
+from hdeem_watch.wire import protocol  # noqa: E402
 
 FWQ_C = r"""
 #include <stdint.h>

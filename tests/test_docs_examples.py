@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable, default_endpoints
+from hdeem_watch.wire.client import ControlClient, DaemonUnreachable, default_endpoints
 
 REPO = Path(__file__).resolve().parents[1]
 DOCUMENTS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")), REPO / "examples" / "README.md"]

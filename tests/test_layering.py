@@ -1,6 +1,6 @@
 """The import graph of ``src/hdeem_watch`` points one way (issues #13, #26), and its functions stay short.
 
-The packages are layered ``dram ← {calibrate, sources} ← daemon ← {tui, cli}``: a package may
+The packages are layered ``dram ← {calibrate, sources, counters} ← node ← config ← wire ← daemon ← {tui, cli}``: a package may
 import only from a lower tier, and no two modules anywhere import each other, directly or around a
 loop. The graph is read from the source with :mod:`ast`, so it holds every import, at module level
 and inside functions (a function-local import hides a cycle from the interpreter, not from this
@@ -37,20 +37,21 @@ TIERS: dict[str, int] = {
     "node": 3,  # facts about this machine (topology, DIMMs, sensor map, its DRAM energy source: RAPL zones)
     "counters": 2,  # memory-controller counters -> command statistics (uses dram/)
     "config": 4,  # the daemon's settings (with each source's options)
-    "daemon": 5,
-    "slurm": 6,  # the SLURM adapter (talks to the daemon)
-    "tui": 7,
-    "bench": 7,
-    "report": 7,  # figures from a daemon's state or a RUNS.json
-    "metricq": 7,  # the daemon's stream to a MetricQ broker (a client of the daemon)
-    "demo": 8,  # a demo node: daemon + bench schedule, shown by the TUI
-    "cli": 9,
-    "__main__": 10,
+    "wire": 5,  # protocol v1, control client, client keys: what daemon and clients share
+    "daemon": 6,
+    "slurm": 7,  # the SLURM adapter (talks to the daemon)
+    "tui": 8,
+    "bench": 8,
+    "report": 8,  # figures from a daemon's state or a RUNS.json
+    "metricq": 8,  # the daemon's stream to a MetricQ broker (a client of the daemon)
+    "demo": 9,  # a demo node: daemon + bench schedule, shown by the TUI
+    "cli": 10,
+    "__main__": 11,
 }
 
 #: Packages whose module cycles get a test of their own (for a clear message; the rule itself,
 #: no circle between any two modules, is :func:`test_no_cycle_between_any_modules`).
-ACYCLIC_PACKAGES = ("dram", "daemon", "calibrate", "sources", "counters")
+ACYCLIC_PACKAGES = ("dram", "wire", "daemon", "calibrate", "sources", "counters")
 
 #: The longest a function (``def`` line to last line, docstring included) may be.
 MAX_FUNCTION_LINES = 80
@@ -355,3 +356,22 @@ def test_the_long_function_list_holds_only_what_is_still_long() -> None:
         if lengths.get(name, 0) < listed
     ]
     assert not stale, "lower or drop these in LONG_FUNCTIONS (tests/test_layering.py):\n" + "\n".join(stale)
+
+
+#: The daemon's clients: they speak to a daemon through :mod:`hdeem_watch.wire` only.
+CLIENTS = ("tui", "bench", "slurm", "metricq", "report", "cli", "demo")
+#: Client modules that may import the daemon: the command that runs one. ``demo.sim_runs`` runs
+#: the daemon's run modelling without a daemon; it leaves this list when that pure code moves out
+#: of the daemon into ``calibrate/`` (issue #26).
+RUNS_A_DAEMON = {"hdeem_watch.cli.daemon", "hdeem_watch.demo.sim_runs"}
+
+
+def test_clients_import_nothing_of_the_daemon(edges: list[Edge]) -> None:
+    """Issue #26: TUI, bench, SLURM hooks, MetricQ, report, command line and demo import the wire
+    package, never ``hdeem_watch.daemon`` (the command that runs a daemon aside)."""
+    into_daemon = [
+        str(e) for e in edges
+        if area(e.source) in CLIENTS and area(e.target) == "daemon" and e.source not in RUNS_A_DAEMON
+    ]
+    assert not into_daemon, "clients importing the daemon:\n" + "\n".join(into_daemon)
+    assert any(area(e.source) in CLIENTS and area(e.target) == "wire" for e in edges)

@@ -8,7 +8,7 @@ import pytest
 
 from hdeem_watch.bench.announce import Announcer, RunRefused
 from hdeem_watch.bench.schedule import RunSpec
-from hdeem_watch.daemon.client import ControlError
+from hdeem_watch.wire.client import ControlError
 
 SPEC = RunSpec("triad", 4, 1 << 20, 3)
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+from hdeem_watch.wire.client import ControlClient, DaemonUnreachable
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 import zmq
 
-from hdeem_watch.daemon import protocol
-from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+from hdeem_watch.wire import protocol
+from hdeem_watch.wire.client import ControlClient, DaemonUnreachable
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 

@@ -8,9 +8,9 @@ import importlib
 
 import pytest
 
-MODULES = ("hdeem_watch.daemon.authorization", "hdeem_watch.daemon.handshake", "hdeem_watch.daemon.security",
-           "hdeem_watch.addresses", "hdeem_watch.tui.endpoints", "hdeem_watch.daemon.control",
-           "hdeem_watch.daemon.client")
+MODULES = ("hdeem_watch.daemon.authorization", "hdeem_watch.wire.handshake", "hdeem_watch.daemon.security", "hdeem_watch.wire.keys",
+           "hdeem_watch.addresses", "hdeem_watch.wire.discovery", "hdeem_watch.daemon.control",
+           "hdeem_watch.wire.client", "hdeem_watch.wire.subscriber")
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -21,13 +21,14 @@ import pytest
 import zmq
 
 from hdeem_watch.config import DaemonSettings
-from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.authorization import STATE_CHANGING_OPS, Authorizer, Peer, ipc_peer, tcp_peer
-from hdeem_watch.daemon.client import ControlClient, ControlError
 from hdeem_watch.daemon.control import ControlServer
-from hdeem_watch.daemon.security import CurveServer, generate_keys, load_public_key, load_secret_key
+from hdeem_watch.daemon.security import CurveServer
 from hdeem_watch.daemon.service import Daemon
 from hdeem_watch.sources.sim import SimSource
+from hdeem_watch.wire import protocol
+from hdeem_watch.wire.client import ControlClient, ControlError
+from hdeem_watch.wire.keys import generate_keys, load_public_key, load_secret_key
 
 NOBODY = 65534
 

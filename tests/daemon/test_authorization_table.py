@@ -28,10 +28,10 @@ import pytest
 import zmq
 
 from hdeem_watch.config import DaemonSettings
-from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.authorization import OP_CALLERS, OPERATORS, STATE_CHANGING_OPS
 from hdeem_watch.daemon.service import Daemon
 from hdeem_watch.sources.sim import SimSource
+from hdeem_watch.wire import protocol
 
 ROOT, DAEMON_UID, OWNER_UID, OTHER_UID = 0, 40001, 40002, 40003
 #: The owner of the other job on the node (not a caller here).

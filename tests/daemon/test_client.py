@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 import zmq
 
-from hdeem_watch.daemon import protocol
-from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable, default_endpoints
+from hdeem_watch.wire import protocol
+from hdeem_watch.wire.client import ControlClient, ControlError, DaemonUnreachable, default_endpoints
 
 
 class _Router:

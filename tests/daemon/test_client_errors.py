@@ -14,9 +14,9 @@ from pathlib import Path
 import pytest
 
 from hdeem_watch.config import DaemonSettings
-from hdeem_watch.daemon.client import ControlClient, ControlError
 from hdeem_watch.daemon.service import Daemon
 from hdeem_watch.sources.sim import SimSource
+from hdeem_watch.wire.client import ControlClient, ControlError
 
 
 @pytest.fixture

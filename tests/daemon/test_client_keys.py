@@ -14,19 +14,19 @@ import zmq
 from hdeem_watch.addresses import remote_endpoint
 from hdeem_watch.cli import curve_options
 from hdeem_watch.cli import main as cli_main
-from hdeem_watch.daemon import security
-from hdeem_watch.daemon.client import ControlClient, HandshakeFailed
 from hdeem_watch.daemon.control import ControlServer
 from hdeem_watch.daemon.endpoints import advertised_endpoints
-from hdeem_watch.daemon.handshake import MECHANISM_MISMATCH, explain
-from hdeem_watch.daemon.security import (
-    CurveServer,
+from hdeem_watch.daemon.security import CurveServer
+from hdeem_watch.errors import InputError
+from hdeem_watch.wire import keys as security
+from hdeem_watch.wire.client import ControlClient, HandshakeFailed
+from hdeem_watch.wire.handshake import MECHANISM_MISMATCH, explain
+from hdeem_watch.wire.keys import (
     client_curve,
     generate_keys,
     load_public_key,
     load_secret_key,
 )
-from hdeem_watch.errors import InputError
 
 
 def test_gen_keys_refuses_to_replace_a_pair_without_force(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

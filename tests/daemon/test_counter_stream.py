@@ -13,8 +13,8 @@ import time
 
 import pytest
 
-from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.counter_record import counters_path, read_counter_recording
+from hdeem_watch.wire import protocol
 
 
 @pytest.mark.slow

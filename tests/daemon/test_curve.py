@@ -12,9 +12,9 @@ from typing import Any
 import pytest
 import zmq
 
-from hdeem_watch.daemon import protocol
-from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
-from hdeem_watch.daemon.security import generate_keys, load_public_key, load_secret_key, secure_client
+from hdeem_watch.wire import protocol
+from hdeem_watch.wire.client import ControlClient, DaemonUnreachable
+from hdeem_watch.wire.keys import generate_keys, load_public_key, load_secret_key, secure_client
 
 
 @pytest.mark.slow

@@ -12,10 +12,10 @@ from typing import Any
 import pytest
 
 from hdeem_watch.config import DaemonSettings
-from hdeem_watch.daemon.client import ControlClient
 from hdeem_watch.daemon.service import Daemon
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.sim import SimSource
+from hdeem_watch.wire.client import ControlClient
 
 
 def _settings(tmp_path: Path, **extra: Any) -> DaemonSettings:

@@ -16,10 +16,11 @@ import psutil
 import pytest
 import zmq
 
-from hdeem_watch.daemon import endpoints, protocol
+from hdeem_watch.daemon import endpoints
 from hdeem_watch.daemon.control import ControlServer
 from hdeem_watch.daemon.endpoints import bind, is_loopback, private_directory
 from hdeem_watch.errors import InputError
+from hdeem_watch.wire import protocol
 
 
 def _second_daemon(tmp_path: Path, env: dict[str, str], *, pub: str, control: str) -> subprocess.CompletedProcess[str]:
@@ -186,8 +187,8 @@ def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factor
 def test_a_client_does_not_talk_to_a_squatted_fallback_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                            serve_control: Any) -> None:
     """The impostor's side of #22.13: a control socket in someone else's /tmp/hdeem-watch-<uid> is refused."""
-    from hdeem_watch.daemon import client as client_module
-    from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+    from hdeem_watch.wire import client as client_module
+    from hdeem_watch.wire.client import ControlClient, DaemonUnreachable
 
     fallback = tmp_path / "hdeem-watch-fallback"
     fallback.mkdir()

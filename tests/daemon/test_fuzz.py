@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 import zmq
 
-from hdeem_watch.daemon import protocol
+from hdeem_watch.wire import protocol
 
 #: The ops of protocol v1 and the argument names each one reads.
 OPS: dict[str, tuple[str, ...]] = {
@@ -150,7 +150,7 @@ def test_absurd_run_sizes_are_refused(daemon_factory: Any) -> None:
 
     Its own daemon: an accepted absurd run poisons the energies of every later test on the daemon.
     """
-    from hdeem_watch.daemon.client import ControlError
+    from hdeem_watch.wire.client import ControlError
 
     daemon = daemon_factory("--speed", "10", name="absurd").start()
     accepted = []

@@ -16,8 +16,8 @@ import pytest
 import zmq
 
 from hdeem_watch.cli import main
-from hdeem_watch.daemon import protocol
-from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
+from hdeem_watch.wire import protocol
+from hdeem_watch.wire.client import ControlClient, ControlError, DaemonUnreachable
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 PAIRS = {"DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"}

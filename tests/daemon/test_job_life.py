@@ -21,10 +21,10 @@ from hdeem_watch.daemon.job_book import JobBook
 from hdeem_watch.daemon.job_ops import JobOperations, unfinished_jobs
 from hdeem_watch.daemon.node_state import NodeState
 from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.protocol import ProtocolError
 from hdeem_watch.daemon.runs import parse_run_args
 from hdeem_watch.daemon.store import Store
 from hdeem_watch.sources.base import ChannelInfo, SourceBatch
+from hdeem_watch.wire.protocol import ProtocolError
 
 DRAM = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
 PERIOD_NS = 10_000_000  # 100 Sa/s

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdeem_watch.daemon import protocol
+from hdeem_watch.wire import protocol
 
 
 def _integral(stream: list[protocol.Message], channel: str, first: int, last: int) -> float:

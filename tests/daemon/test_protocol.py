@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdeem_watch.daemon import protocol
-from hdeem_watch.daemon.protocol import ProtocolError
+from hdeem_watch.wire import protocol
+from hdeem_watch.wire.protocol import ProtocolError
 
 
 def test_topics_round_trip_and_prefixes() -> None:

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import zmq
 
-from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.publisher import Publisher
+from hdeem_watch.wire import protocol
 
 
 @pytest.mark.parametrize(("channel", "rate_hz", "n", "energy_j", "status"), [

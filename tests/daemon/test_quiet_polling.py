@@ -304,8 +304,8 @@ def test_a_quiet_daemon_wakes_rarely_and_its_run_windows_are_exact(daemon_factor
     second (17/s before issue 31); a run started while it is quiet is exact to the sample (its energy
     per channel is the integral of the recorded samples inside its edges, which begin at the last
     sample before run.start was asked); a subscriber that connects sees live samples at once."""
-    from hdeem_watch.daemon import protocol
     from hdeem_watch.sources.replay import read_recording
+    from hdeem_watch.wire import protocol
 
     recording = tmp_path / "samples.csv"
     d = daemon_factory("--record", str(recording)).start()

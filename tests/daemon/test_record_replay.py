@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdeem_watch.daemon import protocol
 from hdeem_watch.sources.replay import read_recording
+from hdeem_watch.wire import protocol
 
 
 @pytest.mark.slow

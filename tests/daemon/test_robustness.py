@@ -11,7 +11,7 @@ import pytest
 import zmq
 
 from hdeem_watch.config import DaemonSettings
-from hdeem_watch.daemon import protocol
+from hdeem_watch.wire import protocol
 
 
 def _malformed(i: int, rng: random.Random) -> bytes:

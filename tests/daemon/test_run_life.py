@@ -22,11 +22,11 @@ from hdeem_watch.daemon.jobs import Calibration, ModelSettings, Worker, restore_
 from hdeem_watch.daemon.node_state import MAX_BASELINE_S, NodeState
 from hdeem_watch.daemon.operations import Operations, unfinished_runs
 from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.protocol import ProtocolError, decode_reply
 from hdeem_watch.daemon.reporting import Identity, Reporter
 from hdeem_watch.daemon.runs import RunLimits
 from hdeem_watch.daemon.store import Store
 from hdeem_watch.sources.base import ChannelInfo, RunAware, RunEvent, SourceBatch
+from hdeem_watch.wire.protocol import ProtocolError, decode_reply
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"
 DRAM = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")

@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdeem_watch.daemon import protocol
-from hdeem_watch.daemon.client import ControlError
+from hdeem_watch.wire import protocol
+from hdeem_watch.wire.client import ControlError
 
 SPEED = 20.0
 FAST_MODEL = {"HDEEM_WATCH_MODEL_MAX_REQUESTS": "100000"}

@@ -12,8 +12,8 @@ from typing import Any
 
 import pytest
 
-from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.store import Store
+from hdeem_watch.wire import protocol
 
 FAST = {"HDEEM_WATCH_MODEL_MAX_REQUESTS": "100000", "HDEEM_WATCH_REPUBLISH_S": "0.5",
         "HDEEM_WATCH_QUIET_WINDOW_S": "1"}

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from hdeem_watch.config import DaemonSettings
-from hdeem_watch.daemon import protocol
 from hdeem_watch.sources.base import hdeem_channel_infos
+from hdeem_watch.wire import protocol
 
 NOMINAL = {info.name: info.rate_hz for info in hdeem_channel_infos()}
 

@@ -20,11 +20,11 @@ from hdeem_watch.daemon.channels import ChannelAccount, RecentPower, count_missi
 from hdeem_watch.daemon.control import OpError, Pending, dispatch
 from hdeem_watch.daemon.metrics import DaemonMetrics, NodeCollector
 from hdeem_watch.daemon.poller import IntervalTimer, next_deadline, wait_ms
-from hdeem_watch.daemon.protocol import ProtocolError, decode_reply
-from hdeem_watch.daemon.protocol import jsonable as protocol_jsonable
 from hdeem_watch.daemon.runs import RunRecord, parse_run_args, window_energy
 from hdeem_watch.daemon.store import SCHEMA_VERSION, Store, StoreError
 from hdeem_watch.daemon.windows import Window
+from hdeem_watch.wire.protocol import ProtocolError, decode_reply
+from hdeem_watch.wire.protocol import jsonable as protocol_jsonable
 
 
 @given(st.integers(0, 10**12), st.integers(1, 10**9), st.integers(0, 10**12))

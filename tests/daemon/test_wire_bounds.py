@@ -9,10 +9,10 @@ from typing import Any
 
 import pytest
 
-from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.control import Pending, dispatch
-from hdeem_watch.daemon.protocol import ProtocolError
-from hdeem_watch.daemon.wire import MAX_REQUEST_DEPTH, nesting_depth
+from hdeem_watch.wire import protocol
+from hdeem_watch.wire.json_codec import MAX_REQUEST_DEPTH, nesting_depth
+from hdeem_watch.wire.protocol import ProtocolError
 
 
 def _code(data: bytes) -> str:

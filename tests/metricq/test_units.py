@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from hdeem_watch.cli import main
-from hdeem_watch.daemon import protocol
 from hdeem_watch.errors import InputError
 from hdeem_watch.metricq.naming import MetricNames, check_prefix
 from hdeem_watch.metricq.outbox import Outbox
 from hdeem_watch.metricq.settings import load_source_settings, read_secret_file
 from hdeem_watch.metricq.translate import Points, StreamTranslator
+from hdeem_watch.wire import protocol
 
 
 def samples(node: str, channel: str, t: list[int], p: list[float], rate: float = 100.0, seq: int = 0) -> protocol.Message:
@@ -155,10 +155,10 @@ async def test_stream_reader_reads_a_curve_daemon_with_its_key(tmp_path: Path, d
     import asyncio
     import subprocess
 
-    from hdeem_watch.daemon.security import generate_keys, load_public_key
     from hdeem_watch.metricq.settings import SourceSettings
     from hdeem_watch.metricq.source import curve_options
     from hdeem_watch.metricq.stream import StreamReader
+    from hdeem_watch.wire.keys import generate_keys, load_public_key
 
     public, secret = generate_keys(tmp_path / "keys", "server")
     d = daemon_fixtures.make_daemon(tmp_path / "d", "--curve-secret-key", str(secret), tcp=True)

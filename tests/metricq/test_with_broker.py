@@ -23,7 +23,7 @@ import pytest
 import zmq
 import zmq.asyncio
 
-from hdeem_watch.daemon import protocol
+from hdeem_watch.wire import protocol
 
 pytest.importorskip("metricq")
 pytestmark = pytest.mark.timeout(240)

@@ -81,7 +81,7 @@ class Slurm:
 
     def start_daemon(self, timeout_s: float = 30.0) -> subprocess.Popen[bytes]:
         """Start the node daemon with its config file (as systemd would) and wait until it answers."""
-        from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+        from hdeem_watch.wire.client import ControlClient, DaemonUnreachable
 
         env = {k: v for k, v in self.env.items() if not k.startswith("HDEEM_WATCH_")}
         with open(self.root / "daemon.err", "ab") as err:
@@ -383,7 +383,7 @@ def _start_daemon(cluster: TwoNodeCluster, node: str, control_port: int, secret:
 
 
 def _wait_for_daemon(daemon: NodeDaemon) -> None:
-    from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+    from hdeem_watch.wire.client import ControlClient, DaemonUnreachable
 
     def up() -> bool:
         assert daemon.process is not None
@@ -406,7 +406,7 @@ def two_node_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TwoNo
     if missing or os.geteuid() != 0:
         pytest.skip(f"a real two-node SLURM needs root and {', '.join(missing) or 'the SLURM packages'} "
                     "(apt-get install slurmctld slurmd slurm-client munge; .ci/run does)")
-    from hdeem_watch.daemon.security import generate_keys
+    from hdeem_watch.wire.keys import generate_keys
 
     root = tmp_path_factory.mktemp("slurm2")
     os.chmod(root, 0o755)

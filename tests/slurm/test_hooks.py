@@ -128,7 +128,7 @@ def test_a_hung_daemon_gets_no_twin_and_its_missed_stop_comes_later(tmp_path: Pa
     answers again the next hook delivers the stop, and the record says it came late."""
     import signal
 
-    from hdeem_watch.daemon.client import ControlClient
+    from hdeem_watch.wire.client import ControlClient
 
     control, daemon = _start_daemon(tmp_path)
     python = {"HDEEM_WATCH_PYTHON": sys.executable, "HDEEM_WATCH_HOOK_CALL_TIMEOUT_S": "1"}
@@ -158,7 +158,7 @@ def test_a_hung_daemon_gets_no_twin_and_its_missed_stop_comes_later(tmp_path: Pa
 
 def _start_daemon(tmp_path: Path) -> tuple[str, subprocess.Popen[bytes]]:
     """A sim daemon with the config file the hooks read (``tmp_path/daemon.toml``), answering."""
-    from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+    from hdeem_watch.wire.client import ControlClient, DaemonUnreachable
 
     control = f"ipc://{tmp_path}/run/c.sock"
     (tmp_path / "daemon.toml").write_text(f'source = "sim"\ncontrol = "{control}"\npub = "ipc://{tmp_path}/run/p.sock"\n'
@@ -180,7 +180,7 @@ def _start_daemon(tmp_path: Path) -> tuple[str, subprocess.Popen[bytes]]:
 def test_the_prolog_measures_a_baseline_only_when_asked(tmp_path: Path, syslog: Syslog) -> None:
     """HDEEM_WATCH_PROLOG_BASELINE_S=1: the Prolog measures an idle baseline (the job starts that
     much later), then opens the job; the job's above-baseline energy then has a baseline."""
-    from hdeem_watch.daemon.client import ControlClient
+    from hdeem_watch.wire.client import ControlClient
 
     control, daemon = _start_daemon(tmp_path)
     python = {"HDEEM_WATCH_PYTHON": sys.executable}
@@ -230,8 +230,8 @@ def test_an_empty_or_unset_job_id_opens_nothing_and_says_why(tmp_path: Path, sys
     """SLURM_JOB_ID empty (the shell hook, as slurmd runs it), unset, or no job id at all (100 KB):
     the hooks exit 0, open and close nothing in the daemon (once: a job named ``"unknown"`` every
     such hook shared) and log why."""
-    from hdeem_watch.daemon.client import ControlClient
     from hdeem_watch.slurm import hooks
+    from hdeem_watch.wire.client import ControlClient
 
     control, daemon = _start_daemon(tmp_path)
     try:
@@ -259,8 +259,8 @@ def test_a_retried_prolog_and_a_refused_one_return_at_once(tmp_path: Path, syslo
     """A Prolog run twice for one job (slurmd retries) gets the open job's record again in well
     under a second (once: 10 s, the call's timeout); one whose uid is out of range is refused by the
     daemon at once too (once: its error reply had no id, the client waited 10 s)."""
-    from hdeem_watch.daemon.client import ControlClient
     from hdeem_watch.slurm import hooks
+    from hdeem_watch.wire.client import ControlClient
 
     control, daemon = _start_daemon(tmp_path)
     umask = os.umask(0o022)  # slurmd's, usually: the hooks' files are private all the same

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import zmq
 
-from hdeem_watch.daemon import protocol
+from hdeem_watch.wire import protocol
 
 #: A real SLURM: slow, and on one xdist worker with the other SLURM tests (one munged, one
 #: cluster at a time).
@@ -143,7 +143,7 @@ def test_a_job_keeps_its_energy_when_the_daemon_is_killed_mid_job(slurm: Any, da
     """kill -9 of the daemon during a job: the restarted daemon resumes the job; the Epilog's stop
     closes it; the record has both segments, each exact against the streamed samples, and the gap
     between them marked as unmeasured."""
-    from hdeem_watch.daemon.client import ControlClient, ControlError
+    from hdeem_watch.wire.client import ControlClient, ControlError
 
     job_id = _sbatch(slurm, "sleep 7\n")
     deadline = time.monotonic() + 30

@@ -181,7 +181,7 @@ def test_prolog_starts_a_daemon_only_when_asked_and_the_last_epilog_stops_it(slu
         assert prolog["daemon"] == "started" and prolog["job_start"] == "ok"
         assert epilog["job_stop"] == "ok" and epilog["state"] == "done" and epilog["daemon"] == "stopped"
         assert not (slurm.hook_dir / "daemon.json").exists()
-        from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable
+        from hdeem_watch.wire.client import ControlClient, DaemonUnreachable
 
         with ControlClient(slurm.control, timeout_s=0.5) as client, pytest.raises(DaemonUnreachable):
             client.call("ping")

@@ -207,7 +207,7 @@ def test_site_library_named_so_1_is_found_and_linked(fake_hdeem, tmp_path):
 def _daemon(tmp_path: Path, fake, extra_env: dict[str, str]) -> tuple[list[str], str]:
     """Run a real daemon process on the fake for ~2 s; return the libhdeem calls it made and the
     source health its status op reported."""
-    from hdeem_watch.daemon.client import ControlClient
+    from hdeem_watch.wire.client import ControlClient
 
     log = tmp_path / "calls.log"
     env = {**os.environ, "PYTHONPATH": str(SRC), "HDEEM_FAKE_LOG": str(log), "XDG_CACHE_HOME": str(tmp_path / "cache"),

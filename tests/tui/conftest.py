@@ -45,8 +45,8 @@ def build_frozen_snapshot(node: str = "taurusi6001", *, stale: bool = False, plo
     """A deterministic snapshot: 60 s of HDEEM-shaped samples, baselines, runs and a fit, no live data."""
     import numpy as np
 
-    from hdeem_watch.daemon import protocol
     from hdeem_watch.tui.model import NodeModel
+    from hdeem_watch.wire import protocol
 
     model = NodeModel("ipc:///run/hdeem-watch/control.sock")
     seq = 0

@@ -7,9 +7,9 @@ import math
 
 import numpy as np
 
-from hdeem_watch.daemon import protocol
 from hdeem_watch.tui.model import NodeModel
 from hdeem_watch.tui.widgets.channels import channel_table_text
+from hdeem_watch.wire import protocol
 
 SECOND = 1_000_000_000
 

@@ -15,9 +15,9 @@ from pathlib import Path
 import psutil
 import pytest
 
-from hdeem_watch.daemon.client import ControlClient
 from hdeem_watch.demo.daemon import RUNTIME_PREFIX, sweep_orphaned_runtime_dirs
 from hdeem_watch.demo.schedule import DemoSchedule, ScheduleEvent
+from hdeem_watch.wire.client import ControlClient
 
 #: Starts demos: on one xdist worker with the other demo starts (a demo sweeps /tmp of orphaned
 #: demo directories, and the kill -9 test counts the directories that appear).

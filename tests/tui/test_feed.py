@@ -11,11 +11,11 @@ from pathlib import Path
 import pytest
 
 from hdeem_watch.demo.fakenode import FakeNode
-from hdeem_watch.tui.endpoints import pub_endpoint_for, stream_endpoint, unreachable_stream
 from hdeem_watch.tui.feed import FeedHub, NodeFeed
 from hdeem_watch.tui.messages import ViewSettings
 from hdeem_watch.tui.model import NodeModel
 from hdeem_watch.tui.snapshot import NodeSnapshot
+from hdeem_watch.wire.discovery import pub_endpoint_for, stream_endpoint, unreachable_stream
 
 
 def wait_for(feed: NodeFeed, cond: Callable[[NodeSnapshot], bool], timeout_s: float = 8.0) -> NodeSnapshot:
@@ -125,7 +125,7 @@ def test_a_remote_client_takes_the_advertised_tcp_stream() -> None:
 @pytest.mark.slow
 def test_a_malformed_message_does_not_end_the_feed(fake_node: FakeNode) -> None:
     """Garbage and protocol-valid but nonsensical messages are counted and skipped; the feed goes on."""
-    from hdeem_watch.daemon import protocol
+    from hdeem_watch.wire import protocol
 
     feed = NodeFeed(fake_node.control_endpoint)
     feed.start()
@@ -217,9 +217,9 @@ def test_a_curve_stream_without_the_key_is_named_refused(sock_dir: Path) -> None
     import threading as _threading
 
     from hdeem_watch.config import DaemonSettings
-    from hdeem_watch.daemon.security import client_curve, generate_keys
     from hdeem_watch.daemon.service import Daemon
     from hdeem_watch.sources.sim import SimSource
+    from hdeem_watch.wire.keys import client_curve, generate_keys
 
     public, secret = generate_keys(sock_dir / "keys", "server")
     settings = DaemonSettings(pub="tcp://127.0.0.1:*", control=f"ipc://{sock_dir}/c.sock", node="curve1",

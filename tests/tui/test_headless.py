@@ -11,11 +11,11 @@ import time
 import numpy as np
 import pytest
 
-from hdeem_watch.daemon import protocol
 from hdeem_watch.tui.headless import ProgressPrinter, fit_width
 from hdeem_watch.tui.model import NodeModel
 from hdeem_watch.tui.records import calib_view
 from hdeem_watch.tui.snapshot import NodeSnapshot
+from hdeem_watch.wire import protocol
 
 DRAM = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
 TRUTH = {"simulated": True, "mean_currents_a": {n: 0.04 for n in ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")},

@@ -3,11 +3,11 @@ the daemon's ``job`` events; no line (no space taken) when none is open."""
 
 from __future__ import annotations
 
-from hdeem_watch.daemon import protocol
 from hdeem_watch.tui.app import HdeemWatchApp
 from hdeem_watch.tui.model import NodeModel
 from hdeem_watch.tui.provider import StaticProvider
 from hdeem_watch.tui.snapshot import JobView, NodeSnapshot
+from hdeem_watch.wire import protocol
 
 WALL = 1_800_000_000 * 10**9
 

@@ -6,13 +6,13 @@ import math
 
 import numpy as np
 
-from hdeem_watch.daemon import protocol
 from hdeem_watch.tui.braille import braille_envelope, sparkline
 from hdeem_watch.tui.downsample import minmax_columns
 from hdeem_watch.tui.headless import ProgressPrinter
 from hdeem_watch.tui.model import NodeModel
 from hdeem_watch.tui.recent_samples import RecentSamples
 from hdeem_watch.tui.records import calib_view, run_view
+from hdeem_watch.wire import protocol
 
 S = 1_000_000_000
 

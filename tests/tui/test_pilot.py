@@ -8,11 +8,11 @@ from collections.abc import Callable
 
 import pytest
 
-from hdeem_watch.daemon.client import ControlClient
 from hdeem_watch.demo.fakenode import FakeNode
 from hdeem_watch.tui.app import HdeemWatchApp
 from hdeem_watch.tui.feed import FeedHub
 from hdeem_watch.tui.widgets import ChannelTable, HealthBar
+from hdeem_watch.wire.client import ControlClient
 
 #: Its daemons are DemoDaemons (a /tmp/hdeem-watch-demo-* directory each, and a sweep of orphaned
 #: ones at start): on one xdist worker with the demo starts (see tests/tui/test_demo_lifecycle.py).

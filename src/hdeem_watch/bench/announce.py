@@ -29,8 +29,8 @@ from typing import Any
 import zmq
 
 from hdeem_watch.bench.schedule import HOLDOUT_KERNELS, RunSpec
-from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable, HandshakeFailed
 from hdeem_watch.errors import InputError
+from hdeem_watch.wire.client import ControlClient, ControlError, DaemonUnreachable, HandshakeFailed
 
 
 def run_name(spec: RunSpec) -> str:

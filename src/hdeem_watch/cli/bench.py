@@ -233,7 +233,7 @@ def _announcer(args: argparse.Namespace, warn: Any) -> Announcer | int:
     """The announcer for ``--daemon`` after checking the daemon answers and takes this user's
     runs; exit code 1 (said on stderr) when it would refuse them."""
     from hdeem_watch.bench.announce import Announcer
-    from hdeem_watch.daemon.client import ControlClient
+    from hdeem_watch.wire.client import ControlClient
 
     if not (math.isfinite(args.wait) and args.wait >= 0):
         raise InputError(f"--wait {args.wait:g}: expected a number of seconds >= 0")
@@ -251,7 +251,7 @@ def _announcer(args: argparse.Namespace, warn: Any) -> Announcer | int:
 def _refusal(client: Any) -> str | None:
     """Why the daemon would refuse this user's runs (``whoami``), before any kernel runs; None when
     it would take them, or when it is too old to tell."""
-    from hdeem_watch.daemon.client import ControlError, DaemonUnreachable
+    from hdeem_watch.wire.client import ControlError, DaemonUnreachable
 
     try:
         me = client.call("whoami")

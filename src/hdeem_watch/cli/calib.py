@@ -78,7 +78,7 @@ def _select(fits: dict[str, dict[str, Any]], group: str | None) -> dict[str, dic
 
 
 def _run(args: argparse.Namespace) -> int:
-    from hdeem_watch.daemon.client import ControlError, DaemonUnreachable
+    from hdeem_watch.wire.client import ControlError, DaemonUnreachable
 
     try:
         with _client(args) as client:

@@ -15,9 +15,9 @@ import argparse
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from hdeem_watch.daemon.security import ClientCurve
+    from hdeem_watch.wire.keys import ClientCurve
 
-# The names of hdeem_watch.daemon.security's SERVER_KEY_ENV, CLIENT_KEY_ENV and DEFAULT_CONFIG
+# The names of hdeem_watch.wire.keys's SERVER_KEY_ENV, CLIENT_KEY_ENV and DEFAULT_CONFIG
 # (spelt out so that registering the options does not load ZeroMQ; a test keeps them equal).
 SERVER_KEY_ENV = "HDEEM_WATCH_SERVER_KEY"
 CLIENT_KEY_ENV = "HDEEM_WATCH_CLIENT_KEY"
@@ -41,13 +41,13 @@ def curve_keys(args: argparse.Namespace) -> ClientCurve | None:
     Raises:
         InputError: a key named by an option or variable cannot be read.
     """
-    from hdeem_watch.daemon.security import client_curve
+    from hdeem_watch.wire.keys import client_curve
 
     return client_curve(getattr(args, "server_key", None), getattr(args, "client_key", None))
 
 
 def client_kwargs(curve: ClientCurve | None) -> dict[str, Any]:
-    """Keyword arguments of :class:`~hdeem_watch.daemon.client.ControlClient` for ``curve``."""
+    """Keyword arguments of :class:`~hdeem_watch.wire.client.ControlClient` for ``curve``."""
     if curve is None:
         return {}
     return {"curve_server_key": curve.server_key, "curve_client_keys": curve.client_keys}

@@ -71,7 +71,7 @@ def register(subparsers: Any) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     if args.gen_keys:
-        from hdeem_watch.daemon.security import generate_keys
+        from hdeem_watch.wire.keys import generate_keys
 
         if not re.fullmatch(r"[A-Za-z0-9_.@-]+", args.key_name) or args.key_name.startswith("."):
             raise InputError(f"--key-name {args.key_name!r}: expected a file name (letters, digits, _ . @ -)")

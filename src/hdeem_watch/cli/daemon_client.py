@@ -27,7 +27,7 @@ from hdeem_watch.cli.curve_options import add_server_key_argument, client_kwargs
 from hdeem_watch.errors import InputError
 
 if TYPE_CHECKING:
-    from hdeem_watch.daemon.client import ControlClient
+    from hdeem_watch.wire.client import ControlClient
 
 #: ZeroMQ transports a control endpoint may use.
 TRANSPORTS = ("ipc://", "tcp://")
@@ -72,8 +72,8 @@ def open_client(args: argparse.Namespace) -> ControlClient:
     Raises:
         InputError: a bad endpoint, timeout or key.
     """
-    from hdeem_watch.daemon.client import ControlClient
     from hdeem_watch.slurm.hooks import local_control_endpoint
+    from hdeem_watch.wire.client import ControlClient
 
     timeout = args.timeout
     if not (math.isfinite(timeout) and timeout > 0):
@@ -88,7 +88,7 @@ def reported(command: str) -> Iterator[None]:
     with code 1 (no reply, a refusal, a socket error)."""
     import zmq
 
-    from hdeem_watch.daemon.client import ControlError, DaemonUnreachable
+    from hdeem_watch.wire.client import ControlError, DaemonUnreachable
 
     try:
         yield

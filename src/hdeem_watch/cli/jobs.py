@@ -134,7 +134,7 @@ def ask(target: Target, op: str, request: dict[str, Any], *, timeout_s: float,
     with ``"error"``; never raises for a daemon that is down or refuses. ``keys`` are the CURVE
     keyword arguments of the control client (:func:`hdeem_watch.cli.curve_options.client_kwargs`;
     without them the client takes the keys the environment names)."""
-    from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
+    from hdeem_watch.wire.client import ControlClient, ControlError, DaemonUnreachable
 
     entry: dict[str, Any] = {"node": target.node, "endpoint": target.endpoint}
     if (problem := unknown_host(target.endpoint)) is not None:
@@ -283,8 +283,8 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"--timeout {args.timeout!r}: expected seconds > 0")
     if not 1 <= args.limit <= 1000:
         raise InputError(f"--limit {args.limit}: expected 1..1000")
-    from hdeem_watch.daemon.job_records import job_id_arg
-    from hdeem_watch.daemon.protocol import ProtocolError, dumps
+    from hdeem_watch.wire.protocol import ProtocolError, dumps
+    from hdeem_watch.wire.requests import job_id_arg
 
     request: dict[str, Any] = {}
     if args.job is not None:

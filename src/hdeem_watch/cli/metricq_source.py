@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     except ImportError as error:
         raise InputError(f"the metricq package is not installed ({error}); "
                          "pip install 'hdeem-watch[metricq]'") from None
-    from hdeem_watch.daemon.client import default_endpoints
+    from hdeem_watch.wire.client import default_endpoints
 
     curve_options(settings)  # a bad certificate is bad input, before anything starts
     endpoints = [e.strip() for e in settings.connect.split(",") if e.strip()] or [default_endpoints()[0]]

@@ -109,7 +109,7 @@ def resolve_endpoints(args: argparse.Namespace) -> list[str]:
     if args.slurm:
         endpoints += slurm_endpoints(args.port)
     if not endpoints:
-        from hdeem_watch.daemon.client import default_endpoints
+        from hdeem_watch.wire.client import default_endpoints
 
         endpoints = [default_endpoints()[1]]
     return list(dict.fromkeys(endpoints))
@@ -160,7 +160,7 @@ def preflight(endpoints: list[str], curve: Any, timeout_s: float = PREFLIGHT_TIM
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    from hdeem_watch.daemon.client import ControlClient, DaemonUnreachable, HandshakeFailed
+    from hdeem_watch.wire.client import ControlClient, DaemonUnreachable, HandshakeFailed
 
     def check(endpoint: str) -> str | None:
         with ControlClient(endpoint, timeout_s=timeout_s, **client_kwargs(curve)) as client:

@@ -2,7 +2,7 @@
 
 Each request is one frame after the routing envelope (a REQ client's ``[identity, b"", body]``, a
 DEALER's ``[identity, body]`` or ``[identity, b"", body]``); the reply goes back with the same
-envelope. Requests are parsed by :func:`hdeem_watch.daemon.protocol.decode_request`; an oversized,
+envelope. Requests are parsed by :func:`hdeem_watch.wire.protocol.decode_request`; an oversized,
 malformed or unknown request gets an error reply, and an exception inside a handler becomes an
 ``internal`` error reply (logged), never a dead daemon.
 
@@ -36,7 +36,6 @@ from typing import Any
 
 import zmq
 
-from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.authorization import (
     FORBIDDEN,
     RULE,
@@ -48,6 +47,7 @@ from hdeem_watch.daemon.authorization import (
 )
 from hdeem_watch.daemon.endpoints import bind, is_loopback
 from hdeem_watch.errors import InputError
+from hdeem_watch.wire import protocol
 
 log = logging.getLogger(__name__)
 

@@ -43,8 +43,8 @@ from typing import Any
 import zmq
 
 from hdeem_watch.addresses import is_loopback, remote_endpoint
-from hdeem_watch.daemon.client import PRIVATE_DIR_MODE, directory_problem, fallback_runtime_dir, ipc_path
 from hdeem_watch.errors import InputError
+from hdeem_watch.wire.client import PRIVATE_DIR_MODE, directory_problem, fallback_runtime_dir, ipc_path
 
 __all__ = ["Binding", "IpcFile", "advertised_endpoints", "bind", "bind_endpoint", "chmod_socket", "is_loopback",
            "private_directory"]

@@ -28,14 +28,14 @@ from hdeem_watch.daemon.job_records import (
     JOB_STATES,
     JobRecord,
     exit_code_arg,
-    job_id_arg,
     job_summary,
     parse_job_args,
 )
 from hdeem_watch.daemon.node_state import ClosedWindow, Conflict
 from hdeem_watch.daemon.persistence import StoreWorker
 from hdeem_watch.daemon.ports import PublisherPort, Reply, StorePort
-from hdeem_watch.daemon.protocol import quoted
+from hdeem_watch.wire.protocol import quoted
+from hdeem_watch.wire.requests import job_id_arg
 
 log = logging.getLogger("hdeem_watch.daemon")
 

@@ -41,29 +41,14 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from hdeem_watch.daemon.counter_model import sum_counters
-from hdeem_watch.daemon.protocol import ProtocolError, quoted
 from hdeem_watch.daemon.runs import total_energy
+from hdeem_watch.wire.protocol import ProtocolError, quoted
+from hdeem_watch.wire.requests import job_id_arg
 
 JobState = Literal["running", "done", "interrupted"]
 JOB_STATES: tuple[str, ...] = typing.get_args(JobState)
-#: A SLURM job id: digits, with an array or het-job suffix (``123_4``, ``123+1``); any short token.
-_JOB_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}$")
 #: Most node names a ``job.start`` may list.
 MAX_JOB_NODES = 100_000
-
-
-def job_id_arg(value: Any, key: str = "job_id") -> str:
-    """A job id from a request (string or non-negative integer).
-
-    Raises:
-        ProtocolError: code ``bad-args``.
-    """
-    if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
-        value = str(value)
-    if not isinstance(value, str) or not _JOB_ID.match(value):
-        raise ProtocolError(f"args.{key} = {quoted(value)}: expected a SLURM job id such as '4242' or '4242_3'",
-                            code="bad-args")
-    return value
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from hdeem_watch.daemon.group_fits import DEFAULT_MIN_SAMPLES
 from hdeem_watch.daemon.modelling import MAX_HISTORY, RunModeller, compact_fit
-from hdeem_watch.daemon.wire import dumps, quoted
+from hdeem_watch.wire.json_codec import dumps, quoted
 
 if TYPE_CHECKING:
     from hdeem_watch.calibrate.group_rows import SensorGroup

@@ -26,17 +26,17 @@ from typing import Any, Literal
 
 from hdeem_watch import __version__
 from hdeem_watch.daemon import baselines as bl
-from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.control import Handler, OpError, Pending
 from hdeem_watch.daemon.jobs import Calibration
 from hdeem_watch.daemon.node_state import ClosedWindow, Conflict, NodeState
 from hdeem_watch.daemon.persistence import StoreWorker
 from hdeem_watch.daemon.ports import PublisherPort, Reply, StorePort, Submit
-from hdeem_watch.daemon.protocol import quoted
 from hdeem_watch.daemon.reporting import Reporter
 from hdeem_watch.daemon.runs import FINISHED_STATES, OPAQUE_KERNEL, RunRecord, parse_run_args
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import RunAware, RunEvent, Source
+from hdeem_watch.wire import protocol
+from hdeem_watch.wire.protocol import quoted
 
 log = logging.getLogger("hdeem_watch.daemon")
 

@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 import zmq
 
-from hdeem_watch.daemon import protocol
 from hdeem_watch.daemon.endpoints import bind, bind_endpoint, is_loopback
 from hdeem_watch.errors import InputError
+from hdeem_watch.wire import protocol
 
 __all__ = ["CACHED_KINDS", "MAX_SUBSCRIPTIONS", "Publisher", "bind_endpoint"]
 
@@ -130,7 +130,7 @@ class Publisher:
         """The frames of the next samples batch of ``channel`` (takes its sequence number; not sent).
 
         The poll's hot path (positional arguments, header time given), encoded by the channel's
-        :class:`~hdeem_watch.daemon.protocol.SamplesEncoder`. The daemon encodes every channel of a
+        :class:`~hdeem_watch.wire.protocol.SamplesEncoder`. The daemon encodes every channel of a
         poll first and hands them to :meth:`send_all` at once: back-to-back sends wake ZeroMQ's I/O
         thread (and each subscriber) once per poll instead of once per message.
         """

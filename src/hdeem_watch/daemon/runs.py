@@ -29,7 +29,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from hdeem_watch.daemon.protocol import ProtocolError, quoted
+from hdeem_watch.wire.protocol import ProtocolError, quoted
 
 #: Kernels that move no memory traffic: their run pins the standby currents and is an idle baseline.
 NO_TRAFFIC_KERNELS = ("idle", "sleep")

@@ -40,7 +40,6 @@ from hdeem_watch import __version__
 from hdeem_watch.config import DaemonSettings
 from hdeem_watch.daemon import baselines as bl
 from hdeem_watch.daemon.authorization import Authorizer
-from hdeem_watch.daemon.client import default_endpoints
 from hdeem_watch.daemon.control import ControlServer, Pending
 from hdeem_watch.daemon.counter_feed import CounterFeed
 from hdeem_watch.daemon.endpoints import advertised_endpoints
@@ -61,10 +60,11 @@ from hdeem_watch.daemon.reporting import Identity, Reporter
 from hdeem_watch.daemon.runs import RunLimits
 from hdeem_watch.daemon.store import Store, StoreError
 from hdeem_watch.daemon.store_checks import ROW_CHECKS
-from hdeem_watch.daemon.wire import quoted
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import QuietPolling, Source, SourceBatch, SourceUnavailable, source_speed
 from hdeem_watch.sources.registry import make_source
+from hdeem_watch.wire.client import default_endpoints
+from hdeem_watch.wire.json_codec import quoted
 
 log = logging.getLogger("hdeem_watch.daemon")
 

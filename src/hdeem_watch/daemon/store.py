@@ -42,7 +42,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hdeem_watch.daemon.protocol import jsonable
 from hdeem_watch.daemon.run_ids import RunIdMark
 from hdeem_watch.daemon.runs import run_summary
 from hdeem_watch.daemon.store_jobs import INSERT_JOB, JobRow, job_matches, job_query, job_row
@@ -54,6 +53,7 @@ from hdeem_watch.daemon.store_repair import (
     salvage_if_corrupt,
 )
 from hdeem_watch.daemon.store_writer import BackgroundWriter
+from hdeem_watch.wire.protocol import jsonable
 
 log = logging.getLogger("hdeem_watch.daemon.store")
 

@@ -20,7 +20,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from hdeem_watch.daemon.protocol import jsonable
+from hdeem_watch.wire.protocol import jsonable
 
 #: Insert or replace one row (``job_key`` = ``<job id>@<start ns>``: a requeued job starts anew).
 INSERT_JOB = ("INSERT OR REPLACE INTO jobs (job_key, job_id, user, state, t_start_ns, record) "

@@ -30,7 +30,7 @@ from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 
-from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
+from hdeem_watch.wire.client import ControlClient, ControlError, DaemonUnreachable
 
 #: Prefix of the demo's temporary runtime directories.
 RUNTIME_PREFIX = "hdeem-watch-demo-"

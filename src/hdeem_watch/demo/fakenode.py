@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import zmq
 
-from hdeem_watch.daemon import protocol
+from hdeem_watch.wire import protocol
 
 #: HDEEM's channels and native rates.
 HDEEM_RATES_HZ = {

@@ -31,10 +31,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from hdeem_watch.bench.schedule import IDLE_KERNEL, KERNELS, RunSpec, sweep
-from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
 from hdeem_watch.dram.kernels import HOLDOUT_KERNELS, kernel_traffic
 from hdeem_watch.dram.node import HASWELL_EP, NodeTopology
 from hdeem_watch.sources.sim import modelled_line_rate
+from hdeem_watch.wire.client import ControlClient, ControlError, DaemonUnreachable
 
 #: Mean duration of one run, seconds.
 TARGET_RUN_S = 1.5

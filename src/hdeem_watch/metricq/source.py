@@ -308,7 +308,7 @@ def curve_options(settings: SourceSettings) -> dict[str, Any]:
     """
     if not settings.curve_server_key_file:
         return {}
-    from hdeem_watch.daemon.security import load_public_key, load_secret_key
+    from hdeem_watch.wire.keys import load_public_key, load_secret_key
 
     client = load_secret_key(settings.curve_client_key_file) if settings.curve_client_key_file else None
     return {"curve_server_key": load_public_key(settings.curve_server_key_file), "curve_client_keys": client}

@@ -3,7 +3,10 @@
 It is a plain subscriber: the daemon's PUB socket never waits for it (a slow subscriber loses
 messages at the high-water mark, seen here as sequence gaps), so nothing this process does can
 block the daemon. ZeroMQ reconnects by itself when a daemon restarts; the restart shows as sequence
-numbers going back (:class:`~hdeem_watch.daemon.protocol.GapTracker`).
+numbers going back. Which messages are taken, their decoding and the gap tracking are the one
+subscriber core's (:class:`~hdeem_watch.wire.subscriber.StreamFollower`, given the stream
+endpoints directly: a late joiner gets ``calib`` and ``baseline`` from the daemon's last-value
+cache the moment it subscribes).
 
 Example::
 
@@ -16,18 +19,19 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from collections.abc import Sequence
 from typing import Any
 
 import zmq
 
-from hdeem_watch.daemon import protocol
+from hdeem_watch.wire import protocol
+from hdeem_watch.wire.subscriber import StreamFollower
 
 log = logging.getLogger("hdeem-watch.metricq")
 
 #: The kinds the source uses (``status`` and ``run`` are not subscribed to).
 KINDS = ("samples", "baseline", "calib")
-_SKIPPED = ([b"status"], [b"run"])
 #: Messages a slow reader lets ZeroMQ queue before dropping (about 10 s of 8 nodes' samples).
 RECEIVE_HWM = 20_000
 
@@ -56,7 +60,7 @@ class StreamReader:
         self._socket.setsockopt(zmq.RCVHWM, RECEIVE_HWM)
         self._socket.setsockopt(zmq.LINGER, 0)
         if curve_server_key is not None:
-            from hdeem_watch.daemon.security import secure_client
+            from hdeem_watch.wire.keys import secure_client
 
             secure_client(self._socket, curve_server_key, curve_client_keys)
         # Kinds sit after the node in the topic, so every message is subscribed to and filtered here
@@ -64,8 +68,8 @@ class StreamReader:
         self._socket.setsockopt(zmq.SUBSCRIBE, protocol.subscription())
         for endpoint in endpoints:
             self._socket.connect(endpoint)
-        self.gaps = protocol.GapTracker()
-        self.bad_messages = 0
+        self.follower = StreamFollower(None, kinds=KINDS)
+        self.gaps = self.follower.gaps
 
     def drain(self, limit: int = 10_000) -> list[protocol.Message]:
         """Every waiting message of a used kind (at most ``limit`` read), without blocking."""
@@ -75,18 +79,18 @@ class StreamReader:
                 frames = self._socket.recv_multipart(zmq.NOBLOCK)
             except zmq.Again:
                 break
-            if len(frames) == 3 and frames[0].split(b"/")[2:3] in _SKIPPED:
-                continue  # the heartbeat and run events: not decoded at all
-            try:
-                message = protocol.decode(frames)
-            except protocol.ProtocolError as error:
-                self.bad_messages += 1
-                log.warning("ignored a malformed stream message: %s", error)
-                continue
-            self.gaps.observe(message.topic, message.seq)
-            if message.kind in KINDS:
+            bad = self.follower.bad_messages
+            message = self.follower.accept(frames, time.monotonic_ns())
+            if message is not None:
                 out.append(message)
+            elif self.follower.bad_messages != bad:
+                log.warning("ignored a malformed stream message: %s", self.follower.last_error)
         return out
+
+    @property
+    def bad_messages(self) -> int:
+        """Malformed messages ignored so far."""
+        return self.follower.bad_messages
 
     async def receive(self, timeout_s: float) -> list[protocol.Message]:
         """The next messages (a non-empty list), or an empty list when none came within ``timeout_s``."""

@@ -1,6 +1,6 @@
 """The daemon's stream messages as MetricQ data points (pure: no sockets, no clock).
 
-:class:`StreamTranslator` turns each decoded :class:`~hdeem_watch.daemon.protocol.Message` into
+:class:`StreamTranslator` turns each decoded :class:`~hdeem_watch.wire.protocol.Message` into
 :class:`Points` (one metric, many times and values) and tells which metrics are new, with their
 metadata, so that the source declares them before their first value:
 
@@ -17,7 +17,7 @@ out and counted in :attr:`StreamTranslator.out_of_order`.
 
 Example:
     >>> import numpy as np
-    >>> from hdeem_watch.daemon import protocol
+    >>> from hdeem_watch.wire import protocol
     >>> from hdeem_watch.metricq.naming import MetricNames
     >>> tr = StreamTranslator(MetricNames("site"))
     >>> frames = protocol.encode_samples("n1", "DDR_AB", seq=1, rate_hz=100.0, t_wall_ns=np.array([10, 20]),
@@ -38,8 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.daemon.protocol import Message
 from hdeem_watch.metricq.naming import FAMILIES, MetricNames, is_dram
+from hdeem_watch.wire.protocol import Message
 
 #: The rate declared for the calibrated currents: the daemon re-publishes ``calib`` every 10 s.
 CALIB_RATE_HZ = 0.1

@@ -92,7 +92,7 @@ def hook_settings(env: Mapping[str, str]) -> HookSettings:
         InputError: the config file is unreadable or invalid (the daemon would refuse it too).
     """
     from hdeem_watch.config import load_settings, read_config_file
-    from hdeem_watch.daemon.client import default_endpoints
+    from hdeem_watch.wire.client import default_endpoints
 
     config: str | None = hook_setting("config", SYSTEM_CONFIG, env)
     if config and not Path(config).exists():
@@ -114,8 +114,8 @@ def hook_settings(env: Mapping[str, str]) -> HookSettings:
 def local_control_endpoint(env: Mapping[str, str] | None = None) -> str:
     """The control endpoint of this node's daemon for a client: ``$HDEEM_WATCH_CONTROL``, else the
     system daemon's (its config file, as the hooks read it) when that file exists, else the
-    per-user default (``hdeem_watch.daemon.client.default_endpoints``)."""
-    from hdeem_watch.daemon.client import default_endpoints
+    per-user default (``hdeem_watch.wire.client.default_endpoints``)."""
+    from hdeem_watch.wire.client import default_endpoints
 
     env = os.environ if env is None else env
     if env.get("HDEEM_WATCH_CONTROL"):
@@ -176,7 +176,7 @@ def _append_bounded(path: Path, record: Mapping[str, Any]) -> None:
 # --------------------------------------------------------------------------- the daemon
 def _call(control: str, op: str, args: dict[str, Any] | None, timeout_s: float) -> tuple[Any, str | None]:
     """``(result, None)`` or ``(None, why)``; never raises for an absent or refusing daemon."""
-    from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
+    from hdeem_watch.wire.client import ControlClient, ControlError, DaemonUnreachable
 
     with ControlClient(control, timeout_s=timeout_s) as client:
         try:
@@ -287,8 +287,8 @@ def _begin(env: Mapping[str, str] | None) -> tuple[Mapping[str, str], HookSettin
 
 def _job_id(ctx: Mapping[str, str]) -> str | None:
     """The job's id when it is one the daemon takes (a SLURM job id), else None."""
-    from hdeem_watch.daemon.job_records import job_id_arg
-    from hdeem_watch.daemon.protocol import ProtocolError
+    from hdeem_watch.wire.protocol import ProtocolError
+    from hdeem_watch.wire.requests import job_id_arg
 
     try:
         return job_id_arg(ctx.get("job_id", "").strip(), "SLURM_JOB_ID")
@@ -299,7 +299,7 @@ def _job_id(ctx: Mapping[str, str]) -> str | None:
 def _no_job_id(event: str, env: Mapping[str, str], ctx: Mapping[str, str]) -> dict[str, Any]:
     """A hook without a usable job id: nothing is opened or closed (jobs must not share a made-up
     id, nor name files after a 100 KB one); say why."""
-    from hdeem_watch.daemon.protocol import quoted
+    from hdeem_watch.wire.protocol import quoted
 
     raw = ctx.get("job_id", "").strip()
     why = (f"SLURM_JOB_ID = {quoted(raw, 80)} is not a SLURM job id" if raw else "SLURM_JOB_ID is empty or unset")

@@ -1,8 +1,9 @@
 """Background subscribers: one thread per daemon turns the wire stream into snapshots.
 
-Each :class:`NodeFeed` asks the daemon's control endpoint for ``status`` (which names its PUB
-endpoint), subscribes to the node's topics, fetches what a late joiner needs (``runs.list``,
-``calib.get``, ``baseline.get``), and then feeds every message into a
+Each :class:`NodeFeed` drives the one subscriber core (:class:`~hdeem_watch.wire.subscriber.StreamFollower`):
+it asks the daemon's control endpoint for ``status`` (which names its PUB endpoint), subscribes to
+the node's topics, fetches what a late joiner needs (``runs.list``, ``calib.get``,
+``baseline.get``), and then feeds every message into a
 :class:`~hdeem_watch.tui.model.NodeModel`. A few times a second it builds an immutable
 :class:`~hdeem_watch.tui.snapshot.NodeSnapshot` and stores it as :attr:`NodeFeed.latest`
 (replaceable: only the newest matters). The app never touches sockets.
@@ -32,11 +33,6 @@ from typing import Any
 
 import zmq
 
-from hdeem_watch.daemon import protocol
-from hdeem_watch.daemon.client import ControlClient, ControlError, DaemonUnreachable
-from hdeem_watch.daemon.handshake import HandshakeWatch
-from hdeem_watch.daemon.security import ClientCurve, secure_client
-from hdeem_watch.tui.endpoints import is_local_host, stream_endpoint, unreachable_stream
 from hdeem_watch.tui.messages import (
     RequestDone,
     RequestFailed,
@@ -47,6 +43,11 @@ from hdeem_watch.tui.messages import (
 )
 from hdeem_watch.tui.model import NodeModel
 from hdeem_watch.tui.snapshot import NodeSnapshot
+from hdeem_watch.wire.client import ControlClient, ControlError, DaemonUnreachable
+from hdeem_watch.wire.discovery import is_local_host
+from hdeem_watch.wire.handshake import HandshakeWatch
+from hdeem_watch.wire.keys import ClientCurve, secure_client
+from hdeem_watch.wire.subscriber import LATE_JOIN_OPS, StreamFollower, StreamPlan
 
 #: Snapshot period of a node that is not focused (its snapshot only feeds the health bar).
 BACKGROUND_PERIOD_NS = 500_000_000
@@ -97,20 +98,15 @@ class NodeFeed(threading.Thread):
         self._stale_ns = int(stale_after_s * 1e9)
         self._clock = clock
         self._wall = wall_clock
-        self._is_local = is_local
+        self._follower = StreamFollower(endpoint, stale_after_ns=self._stale_ns, is_local=is_local)
         self.model = NodeModel(endpoint, stale_after_s=stale_after_s)
         self.curve = curve
         self._control = self._client(control_timeout_s)
         self._sub: zmq.Socket[Any] | None = None
         self._sub_watch: HandshakeWatch | None = None
-        self._pub_endpoint = ""
         self._halt = threading.Event()
         self._wake = threading.Event()
         self._workers: list[threading.Thread] = []
-        self._last_probe_ns = 0
-        self._subscribed_ns = 0
-        self._reachable = False
-        self._late_joined = False
         self._outcomes: queue.SimpleQueue[RequestOutcome] = queue.SimpleQueue()
         self.latest: NodeSnapshot = self._build(self._clock())
         self.messages = 0
@@ -186,7 +182,7 @@ class NodeFeed(threading.Thread):
         try:
             while not self._halt.is_set():
                 now = self._clock()
-                if self._sub is None or not self._reachable or self._is_quiet(now):
+                if self._follower.probe_due(now, subscribed=self._sub is not None):
                     self._probe(now)
                 wait_s = max(0, next_snapshot - self._clock()) / 1e9
                 if self._wake.wait(wait_s):
@@ -210,10 +206,6 @@ class NodeFeed(threading.Thread):
         """Build the next snapshot now (the view changed)."""
         self._wake.set()
 
-    def _is_quiet(self, now: int) -> bool:
-        last = self.model.last_rx_mono_ns
-        return last is None or now - last > self._stale_ns
-
     def _build(self, now: int) -> NodeSnapshot:
         view = self.view
         return self.model.snapshot(
@@ -231,9 +223,14 @@ class NodeFeed(threading.Thread):
                 frames = sub.recv_multipart(zmq.NOBLOCK, copy=True)
             except zmq.Again:
                 return
+            received = self._clock()
+            msg = self._follower.accept(frames, received)
+            if msg is None:
+                self.decode_errors += 1
+                self.model.detail = f"bad message: {self._follower.last_error}"[:100]
+                continue
             try:
-                msg = protocol.decode(frames)
-                self.model.apply(msg, self._clock())
+                self.model.apply(msg, received)
             except Exception as error:  # a bad message must not end the feed
                 self.decode_errors += 1
                 self.model.detail = f"bad message: {error}"[:100]
@@ -241,60 +238,44 @@ class NodeFeed(threading.Thread):
             self.messages += 1
 
     def _probe(self, now: int) -> None:
-        """Ask the daemon for status (at most every second while quiet); (re)subscribe as needed."""
-        if now - self._last_probe_ns < 1_000_000_000 and self._last_probe_ns:
-            return
-        self._last_probe_ns = now
+        """Ask the daemon for status; (re)subscribe, late-join and show the connection as the
+        subscriber core decides."""
         try:
             status = self._control.call("status")
         except (DaemonUnreachable, ControlError) as error:
-            was = self.model.connection
-            self._reachable = False
-            state = "connecting" if was == "connecting" and self._sub is None else "reconnecting"
-            self.model.set_connection(state, _reason(error, self.endpoint))
+            lost = self._follower.unreachable(_reason(error, self.endpoint), state=self.model.connection,
+                                              subscribed=self._sub is not None)
+            self.model.set_connection(lost.state, lost.detail)
             return
         if not isinstance(status, dict):
             return
-        endpoints = status.get("endpoints") if isinstance(status.get("endpoints"), dict) else {}
-        assert isinstance(endpoints, dict)
-        pub = stream_endpoint(self.endpoint, endpoints, is_local=self._is_local)
-        node = status.get("node")
-        why_not = unreachable_stream(self.endpoint, pub, is_local=self._is_local) if pub else "its status names no stream endpoint"
-        if why_not is not None:
+        plan = self._follower.plan(status, now, subscribed=self._sub is not None)
+        if plan.close:
             self._close_sub()
-        elif self._sub is None or pub != self._pub_endpoint:
-            self._subscribe(pub, node if isinstance(node, str) else None)
+        elif plan.subscribe is not None:
+            self._subscribe(plan)
         self.model.apply_status(status, wall_ns=self._wall())
-        if not self._reachable:
-            self._reachable = True
-            self._late_join()
-        if self.model.connection == "reconnecting":
-            self.model.set_connection("connecting", "daemon back; waiting for its stream")
-        if why_not is not None:
-            self.model.set_connection("connecting", f"control answers, but {why_not}")
-        elif (refused := self._stream_refused()) is not None:
-            self.model.set_connection("connecting", f"control answers, but its stream {pub} refused: {refused}")
-        elif self.model.last_rx_mono_ns is None and now - self._subscribed_ns > self._stale_ns:
-            self.model.set_connection(
-                "connecting", f"control answers, but nothing arrives from its stream {pub} (firewall? another host?)"
-            )
+        if plan.late_join:
+            self._late_join(plan.history)
+        shown = self._follower.connection(plan, now, state=self.model.connection, refused=self._stream_refused())
+        if shown is not None:
+            self.model.set_connection(shown.state, shown.detail)
 
-    def _subscribe(self, pub: str, node: str | None) -> None:
+    def _subscribe(self, plan: StreamPlan) -> None:
         self._close_sub()
+        pub = plan.stream
         sub = self._context.socket(zmq.SUB)
         sub.setsockopt(zmq.LINGER, 0)
         sub.setsockopt(zmq.RCVHWM, 100_000)
         sub.setsockopt(zmq.RECONNECT_IVL, 100)
         sub.setsockopt(zmq.RECONNECT_IVL_MAX, 1000)
-        sub.setsockopt(zmq.SUBSCRIBE, protocol.subscription(node))
+        sub.setsockopt(zmq.SUBSCRIBE, plan.subscription)
         if self.curve is not None and pub.startswith("tcp://"):
             secure_client(sub, self.curve.server_key, self.curve.client_keys)
         if pub.startswith("tcp://"):  # a refused handshake is otherwise retried silently forever
             self._sub_watch = HandshakeWatch(sub, curve=self.curve is not None)
         sub.connect(pub)
         self._sub = sub
-        self._pub_endpoint = pub
-        self._subscribed_ns = self._clock()
 
     def _stream_refused(self) -> str | None:
         """Why the stream's security handshake failed, while nothing arrived (None: it did not)."""
@@ -311,31 +292,32 @@ class NodeFeed(threading.Thread):
             self._sub.close(linger=0)
             self._sub = None
 
-    def _late_join(self) -> None:
+    def _late_join(self, history: bool) -> None:
         """Fetch what the stream only sends on change: runs, calibration, baselines.
 
         The runs found at the first connection are the daemon's history (marked so: a headless
         printer does not report them as new); after a reconnection they are the runs missed.
         """
-        for op, apply in (
-            ("runs.list", self._apply_runs),
-            ("calib.get", self.model.apply_calib),
-            ("baseline.get", self.model.apply_baselines),
-        ):
+        apply: dict[str, Callable[[Any], None]] = {
+            "runs.list": lambda result: self._apply_runs(result, history=history),
+            "calib.get": self.model.apply_calib,
+            "baseline.get": self.model.apply_baselines,
+        }
+        for op in LATE_JOIN_OPS:
             try:
                 result = self._control.call(op)
             except (DaemonUnreachable, ControlError):
                 continue
             if result is not None:
-                apply(result)
-        self._late_joined = True
+                apply[op](result)
 
-    def _apply_runs(self, result: Any) -> None:
+    def _apply_runs(self, result: Any, *, history: bool = False) -> None:
         runs = result.get("runs") if isinstance(result, dict) else result
         if isinstance(runs, list):
             finished = [r for r in runs if isinstance(r, dict) and not _running(r)]
             # runs.list is newest first; the model keeps them oldest first
-            self.model.add_runs(list(reversed(finished)), history=not self._late_joined)
+            self.model.add_runs(list(reversed(finished)), history=history)
+
 
 def _running(run: dict[str, Any]) -> bool:
     stop = run.get("t_stop_ns", run.get("stop_ns", 0))

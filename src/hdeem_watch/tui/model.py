@@ -7,7 +7,7 @@ the plot's columns with its min/max envelope). It does no I/O and reads no clock
 takes the times it needs, so tests drive it without sockets or an event loop.
 
 Example:
-    >>> from hdeem_watch.daemon import protocol
+    >>> from hdeem_watch.wire import protocol
     >>> import numpy as np
     >>> m = NodeModel(endpoint="ipc:///x")
     >>> frames = protocol.encode_samples("n1", "DDR_AB", seq=0, rate_hz=100.0,
@@ -27,7 +27,6 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.daemon.protocol import Message
 from hdeem_watch.tui.downsample import ColumnCache
 from hdeem_watch.tui.recent_samples import RecentSamples
 from hdeem_watch.tui.records import calib_view, first_num, num, run_view, sensor_command_rates
@@ -40,6 +39,7 @@ from hdeem_watch.tui.snapshot import (
     NodeSnapshot,
     RunView,
 )
+from hdeem_watch.wire.protocol import GapTracker, Message
 
 #: Display order of the HDEEM channels; others follow alphabetically.
 CHANNEL_ORDER = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH", "CPU0", "CPU1", "BLADE")
@@ -97,9 +97,7 @@ class NodeModel:
         self.max_window_s = max_window_s
         self.stale_after_s = stale_after_s
         self.node = "?"
-        self.gaps = 0
-        self.restarts = 0
-        self._last_seq: dict[str, int] = {}
+        self._sequences = GapTracker(silence_ns=int(stale_after_s * 1e9))
         self.connection = "connecting"
         self.detail = ""
         self.notice = ""
@@ -132,13 +130,14 @@ class NodeModel:
 
     def apply(self, msg: Message, recv_mono_ns: int) -> None:
         """Take one decoded stream message received at ``recv_mono_ns`` (monotonic)."""
-        if self.last_rx_mono_ns is not None and recv_mono_ns - self.last_rx_mono_ns > self.stale_after_s * 1e9:
-            self._last_seq.clear()  # after a silence a jump is not countable as loss (the silence showed)
         self.last_rx_mono_ns = recv_mono_ns
         if self.connection in ("connecting", "stale", "reconnecting"):
             self.connection = "live"
         self.node = msg.node
-        self._observe_seq(msg.topic, msg.seq)
+        restarts = self._sequences.restarts
+        self._sequences.observe(msg.topic, msg.seq, recv_mono_ns)
+        if self._sequences.restarts != restarts:
+            self._restarted()
         header = msg.header
         if msg.kind == "samples" and msg.channel is not None:
             channel = self._channel(msg.channel, num(header.get("rate_hz")))
@@ -160,23 +159,19 @@ class NodeModel:
         elif msg.kind == "job":
             self.apply_job_event(header)
 
-    def _observe_seq(self, topic: str, seq: int) -> None:
-        """Count missed messages per topic; a sequence going backwards is a daemon restart."""
-        last = self._last_seq.get(topic)
-        self._last_seq[topic] = seq
-        if last is None:
-            return
-        if seq <= last:
-            self._restarted()
-            self._last_seq[topic] = seq
-        else:
-            self.gaps += seq - last - 1
+    @property
+    def gaps(self) -> int:
+        """Stream messages missed (sequence jumps; :class:`~hdeem_watch.wire.protocol.GapTracker`)."""
+        return self._sequences.missed
+
+    @property
+    def restarts(self) -> int:
+        """Daemon restarts seen (a sequence going back, or a new start time in the status)."""
+        return self._sequences.restarts
 
     def _restarted(self) -> None:
-        """A new daemon instance: count it once and start the sequence bookkeeping afresh."""
-        self.restarts += 1
+        """A new daemon instance (counted by the gap tracker): say so and forget its start time."""
         self.detail = "daemon restarted"
-        self._last_seq.clear()
         self._boot_s = math.nan
 
     def apply_status(self, body: Mapping[str, Any], wall_ns: int | None = None) -> None:
@@ -190,6 +185,7 @@ class NodeModel:
         if math.isfinite(uptime) and math.isfinite(t_ns):
             boot_s = t_ns / 1e9 - uptime
             if math.isfinite(self._boot_s) and abs(boot_s - self._boot_s) > BOOT_TOLERANCE_S:
+                self._sequences.restart()
                 self._restarted()
             self._boot_s = boot_s
         if isinstance(body.get("node"), str):

@@ -40,17 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.daemon.requests import (
-    Reply,
-    Request,
-    decode_reply,
-    decode_request,
-    encode_reply_error,
-    encode_reply_ok,
-    encode_request,
-    request_id_of,
-)
-from hdeem_watch.daemon.wire import (
+from hdeem_watch.wire.json_codec import (
     ERROR_CODES,
     MAX_REQUEST_BYTES,
     MAX_REQUEST_DEPTH,
@@ -59,6 +49,16 @@ from hdeem_watch.daemon.wire import (
     jsonable,
     loads_object,
     quoted,
+)
+from hdeem_watch.wire.requests import (
+    Reply,
+    Request,
+    decode_reply,
+    decode_request,
+    encode_reply_error,
+    encode_reply_ok,
+    encode_request,
+    request_id_of,
 )
 
 __all__ = [
@@ -416,34 +416,76 @@ class SequenceCounter:
 
 
 class GapTracker:
-    """Counts messages a subscriber missed, from the per-topic sequence numbers.
+    """Counts messages a subscriber missed, from the per-topic sequence numbers (the one gap
+    tracker: every subscriber and the TUI's model use it).
+
+    A sequence number that does not go up on a topic means its daemon restarted: counted once in
+    :attr:`restarts` (not as a gap), and that node's sequences start afresh. After a silence longer
+    than ``silence_ns`` a node's next jump on each topic is not counted as loss (the silence
+    showed); a sequence gone back is still a restart.
+
+    Args:
+        silence_ns: silence (by the ``now_ns`` given to :meth:`observe`) after which a node's
+            sequences start afresh; None: never.
 
     Example:
         >>> tracker = GapTracker()
-        >>> tracker.observe("t", 0), tracker.observe("t", 1), tracker.observe("t", 4)
+        >>> tracker.observe("hw1/n1/status", 0), tracker.observe("hw1/n1/status", 1), tracker.observe("hw1/n1/status", 4)
         (0, 0, 2)
         >>> tracker.missed
         2
     """
 
-    def __init__(self) -> None:
-        self._last: dict[str, int] = {}
+    def __init__(self, silence_ns: int | None = None) -> None:
+        self.silence_ns = silence_ns
+        self._last: dict[str, dict[str, int]] = {}  # node prefix -> topic -> last seq
+        self._heard: dict[str, int] = {}  # node prefix -> when it was last heard (now_ns)
+        self._after_silence: dict[str, set[str]] = {}  # node prefix -> topics whose next jump is no loss
         self.missed = 0
         self.restarts = 0
 
-    def observe(self, topic: str, seq: int) -> int:
-        """Record ``seq`` on ``topic``; return how many messages were missed just before it.
-
-        A sequence number that goes backwards means the publisher restarted: counted in
-        :attr:`restarts`, not as a gap.
-        """
-        last = self._last.get(topic)
-        self._last[topic] = seq
+    def observe(self, topic: str, seq: int, now_ns: int | None = None) -> int:
+        """Record ``seq`` on ``topic`` (received at ``now_ns``, monotonic, when known); return how
+        many messages were missed just before it."""
+        node = _node_of(topic)
+        if now_ns is not None:
+            heard = self._heard.get(node)
+            self._heard[node] = now_ns
+            if heard is not None and self.silence_ns is not None and now_ns - heard > self.silence_ns:
+                self._after_silence[node] = set(self._last.get(node, ()))
+        seqs = self._last.setdefault(node, {})
+        last = seqs.get(topic)
+        seqs[topic] = seq
+        excused = False
+        silent = self._after_silence.get(node)
+        if silent is not None and topic in silent:
+            silent.discard(topic)
+            excused = True
         if last is None:
             return 0
         if seq <= last:
-            self.restarts += 1
+            self.restart(topic)
+            return 0
+        if excused:
             return 0
         missed = seq - last - 1
         self.missed += missed
         return missed
+
+    def restart(self, topic: str | None = None) -> None:
+        """Count a restart of the daemon of ``topic`` (None: of every node, e.g. told by its start
+        time) and start its sequences afresh from ``topic``'s latest."""
+        self.restarts += 1
+        if topic is None:
+            self._last.clear()
+            self._after_silence.clear()
+            return
+        node = _node_of(topic)
+        seqs = self._last.get(node, {})
+        self._last[node] = {topic: seqs[topic]} if topic in seqs else {}
+        self._after_silence.pop(node, None)
+
+
+def _node_of(topic: str) -> str:
+    """The ``hw1/<node>`` part of a topic (a topic of fewer parts is its own node)."""
+    return "/".join(topic.split("/", 2)[:2])

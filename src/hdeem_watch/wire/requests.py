@@ -2,7 +2,7 @@
 
 A request is one JSON frame ``{"id": ..., "op": "...", "args": {...}}``; a reply
 ``{"id": ..., "ok": true, "result": ...}`` or ``{"id": ..., "ok": false, "error": {"code", "message"}}``.
-Import these names from :mod:`hdeem_watch.daemon.protocol`.
+Import these names from :mod:`hdeem_watch.wire.protocol`.
 
 Example:
     >>> decode_request(encode_request("status", {}, 7)).op
@@ -12,17 +12,19 @@ Example:
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from hdeem_watch.daemon.wire import (
+from hdeem_watch.wire.json_codec import (
     MAX_JSON_INT,
     MAX_REQUEST_BYTES,
     MAX_REQUEST_DEPTH,
     ProtocolError,
     dumps,
     loads_object,
+    quoted,
 )
 
 
@@ -55,7 +57,7 @@ def decode_request(data: bytes, max_bytes: int = MAX_REQUEST_BYTES) -> Request:
     """Parse a control request frame.
 
     The body is bounded before it is parsed: size (``max_bytes``), nesting depth
-    (:data:`~hdeem_watch.daemon.wire.MAX_REQUEST_DEPTH`); numbers must be finite doubles or
+    (:data:`~hdeem_watch.wire.json_codec.MAX_REQUEST_DEPTH`); numbers must be finite doubles or
     64-bit integers and strings valid Unicode. Whatever passes can be stored and encoded again.
 
     Raises:
@@ -159,3 +161,21 @@ def decode_reply(data: bytes) -> Reply:
             message=str(error.get("message", "")),
         )
     raise ProtocolError(f"reply.ok = {ok!r}: expected true or false")
+
+
+#: A SLURM job id: digits, with an array or het-job suffix (``123_4``, ``123+1``); any short token.
+_JOB_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}$")
+
+
+def job_id_arg(value: Any, key: str = "job_id") -> str:
+    """A job id from a request (string or non-negative integer).
+
+    Raises:
+        ProtocolError: code ``bad-args``.
+    """
+    if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
+        value = str(value)
+    if not isinstance(value, str) or not _JOB_ID.match(value):
+        raise ProtocolError(f"args.{key} = {quoted(value)}: expected a SLURM job id such as '4242' or '4242_3'",
+                            code="bad-args")
+    return value

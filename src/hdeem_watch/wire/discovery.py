@@ -1,4 +1,4 @@
-"""Which stream endpoint a UI can reach, given a daemon's control endpoint: pure functions.
+"""Which stream endpoint a client can reach, given a daemon's control endpoint: pure functions.
 
 The UI is given a daemon's *control* endpoint; the daemon's ``status`` names its stream (PUB)
 endpoint. A wildcard bind host (``tcp://*:5590``) means "the daemon's host"; an ``ipc://`` stream

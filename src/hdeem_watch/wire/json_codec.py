@@ -1,7 +1,7 @@
 """Shared base of the wire protocol: the error type, error codes, size limit and strict JSON.
 
-Used by :mod:`hdeem_watch.daemon.protocol` (stream messages) and
-:mod:`hdeem_watch.daemon.requests` (control requests); import them from ``protocol``.
+Used by :mod:`hdeem_watch.wire.protocol` (stream messages) and
+:mod:`hdeem_watch.wire.requests` (control requests); import them from ``protocol``.
 
 Example:
     >>> dumps({"x": float("nan")})

@@ -9,7 +9,7 @@ client drops late replies to earlier requests by their ``id``. An error reply wi
 request in flight: no earlier request can still be answered on this socket, as it is recreated
 after every timeout.
 
-On TCP a socket monitor (:class:`~hdeem_watch.daemon.handshake.HandshakeWatch`) watches the
+On TCP a socket monitor (:class:`~hdeem_watch.wire.handshake.HandshakeWatch`) watches the
 security handshake: a CURVE key the daemon refuses, a wrong server key or CURVE on one side only
 raise :class:`HandshakeFailed` with the reason at once, instead of a silent wait for the timeout.
 CURVE applies to TCP endpoints only (an ipc socket is protected by its file mode, and the daemon
@@ -36,8 +36,8 @@ from typing import Any
 
 import zmq
 
-from hdeem_watch.daemon import protocol
-from hdeem_watch.daemon.handshake import HandshakeWatch
+from hdeem_watch.wire import protocol
+from hdeem_watch.wire.handshake import HandshakeWatch
 
 #: Environment variable that overrides the runtime directory of the default endpoints.
 RUNTIME_DIR_ENV = "HDEEM_WATCH_RUNTIME_DIR"
@@ -142,7 +142,7 @@ class ControlClient:
         context: a ZeroMQ context (default: the process's shared instance).
         curve_server_key: the daemon's CURVE public key (Z85, 40 bytes) when it runs with CURVE;
             default for a TCP endpoint: the one the environment names (``$HDEEM_WATCH_SERVER_KEY``,
-            else the node's daemon config; :func:`hdeem_watch.daemon.security.client_curve`).
+            else the node's daemon config; :func:`hdeem_watch.wire.keys.client_curve`).
         curve_client_keys: ``(public, secret)`` of this client (default: ``$HDEEM_WATCH_CLIENT_KEY``
             or ``~/.config/hdeem-watch/client.key_secret`` with an environment key, else an
             ephemeral pair).
@@ -185,7 +185,7 @@ class ControlClient:
             tcp = self.endpoint.startswith("tcp://")
             server_key, client_keys = self._curve_keys() if tcp else self._curve
             if server_key is not None and tcp:
-                from hdeem_watch.daemon.security import secure_client
+                from hdeem_watch.wire.keys import secure_client
 
                 secure_client(sock, server_key, client_keys)
             if tcp:
@@ -201,7 +201,7 @@ class ControlClient:
             InputError: a key the environment names cannot be read.
         """
         if self._curve_from_environment:
-            from hdeem_watch.daemon.security import client_curve
+            from hdeem_watch.wire.keys import client_curve
 
             self._curve_from_environment = False
             found = client_curve()
