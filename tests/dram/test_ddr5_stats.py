@@ -175,3 +175,16 @@ def test_cli_kernel_ddr5_bad_burst_exits_2(capsys: pytest.CaptureFixture[str]) -
                  "--memspec", str(TOY)]) == 2
     err = capsys.readouterr().err
     assert "64-byte line" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_cli_stats_ddr5_table_names_the_subchannels(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The table labels each rank with its sub-channel; --emit-drampower is refused on one line (exit 2)."""
+    trace = tmp_path / "read.trace"
+    write_requests(trace, *kernel_requests("read", 8 * 4_000))
+    memspec = _write(tmp_path, ddr5_spec())
+    assert main(["model", "stats", "--trace", str(trace), "--format", "ramulator", "--memspec", str(memspec)]) == 0
+    out = capsys.readouterr().out
+    assert "sub-channel 0 rank 0: act" in out and "sub-channel 1 rank 0: act" in out
+    assert main(["model", "stats", "--trace", str(trace), "--format", "ramulator", "--memspec", str(memspec),
+                 "--emit-drampower", str(tmp_path / "out.csv")]) == 2
+    assert "not available for a DDR5 memspec" in capsys.readouterr().err

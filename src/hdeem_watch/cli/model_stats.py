@@ -120,8 +120,10 @@ def _print(data: dict[str, Any], as_json: bool) -> None:
             lines.append(f"{key:<14}{value:>16,.0f}" if isinstance(value, int | float) else f"{key:<14}{value:>16}")
     if data.get("energy"):
         lines.append(f"{'core energy':<14}{data['energy']['core_j']:>16.6e} J")
+    per_sub = len(data["subchannels"][0]["ranks"]) if isinstance(data.get("subchannels"), list) else 0
     for r, rank in enumerate(data["ranks"]):
-        lines.append(f"rank {r}: act {rank['act']:.0f} pre {rank['pre']:.0f} rd {rank['rd'] + rank['rda']:.0f} "
+        label = f"sub-channel {r // per_sub} rank {r % per_sub}" if per_sub else f"rank {r}"
+        lines.append(f"{label}: act {rank['act']:.0f} pre {rank['pre']:.0f} rd {rank['rd'] + rank['rda']:.0f} "
                      f"wr {rank['wr'] + rank['wra']:.0f} ref {rank['ref']:.0f} cycles act/pre "
                      f"{rank['cycles_act']:.0f}/{rank['cycles_pre']:.0f}")
     sys.stdout.write("\n".join(lines) + "\n")
