@@ -113,15 +113,17 @@ def _print(data: dict[str, Any], as_json: bool) -> None:
         sys.stdout.write(json.dumps(data) + "\n")
         return
     lines = []
-    for key in ("trace", "kernel", "requests", "reads", "writes", "act", "pre", "ref", "row_hits",
+    for key in ("trace", "kernel", "requests", "reads", "writes", "act", "pre", "ref", "refsb", "row_hits",
                 "row_misses", "row_conflicts", "cycles"):
         if key in data and data[key] is not None:
             value = data[key]
             lines.append(f"{key:<14}{value:>16,.0f}" if isinstance(value, int | float) else f"{key:<14}{value:>16}")
     if data.get("energy"):
         lines.append(f"{'core energy':<14}{data['energy']['core_j']:>16.6e} J")
+    per_sub = len(data["subchannels"][0]["ranks"]) if isinstance(data.get("subchannels"), list) else 0
     for r, rank in enumerate(data["ranks"]):
-        lines.append(f"rank {r}: act {rank['act']:.0f} pre {rank['pre']:.0f} rd {rank['rd'] + rank['rda']:.0f} "
+        label = f"sub-channel {r // per_sub} rank {r % per_sub}" if per_sub else f"rank {r}"
+        lines.append(f"{label}: act {rank['act']:.0f} pre {rank['pre']:.0f} rd {rank['rd'] + rank['rda']:.0f} "
                      f"wr {rank['wr'] + rank['wra']:.0f} ref {rank['ref']:.0f} cycles act/pre "
                      f"{rank['cycles_act']:.0f}/{rank['cycles_pre']:.0f}")
     sys.stdout.write("\n".join(lines) + "\n")
@@ -129,6 +131,20 @@ def _print(data: dict[str, Any], as_json: bool) -> None:
 
 def run_stats(args: argparse.Namespace) -> int:
     """``model stats``."""
+    from hdeem_watch.cli.model_energy import ddr5_memspec
+
+    ddr5 = ddr5_memspec(args.memspec, allow_unphysical=args.allow_unphysical)
+    if ddr5 is not None:  # DDR5: both sub-channels (cli/model_stats_ddr5.py)
+        from hdeem_watch.cli.model_stats_ddr5 import trace_ddr5
+
+        progress = Progress(sys.stderr)
+        try:
+            data = trace_ddr5(ddr5, args, progress.callback())
+        finally:
+            progress.clear()
+        data["trace"] = str(args.trace)
+        _print(data, args.json)
+        return 0
     spec = _spec(args.memspec, args.allow_unphysical)
     progress = Progress(sys.stderr)
     try:
@@ -188,10 +204,17 @@ def _trace_summary(spec: MemSpec, args: argparse.Namespace, progress: Progress) 
 
 def run_kernel(args: argparse.Namespace) -> int:
     """``model kernel``."""
+    from hdeem_watch.cli.model_energy import ddr5_memspec
     from hdeem_watch.dram.kernels import canonical_kernel, kernel_stats
 
-    spec = _spec(args.memspec, args.allow_unphysical)
+    ddr5 = ddr5_memspec(args.memspec, allow_unphysical=args.allow_unphysical)
     name = canonical_kernel(args.kernel)
+    if ddr5 is not None:  # DDR5: one 32-bit sub-channel (cli/model_stats_ddr5.py)
+        from hdeem_watch.cli.model_stats_ddr5 import kernel_ddr5
+
+        _print(kernel_ddr5(ddr5, name, args), args.json)
+        return 0
+    spec = _spec(args.memspec, args.allow_unphysical)
     model = kernel_stats(spec, name, args.elements, args.threads, repeat=args.repeat, channels=args.channels,
                          mapping=args.mapping, policy=args.policy, xor_bank=args.xor_bank)
     data = summary(model.stats, requests=model.reads + model.writes, reads=model.reads, writes=model.writes,

@@ -25,7 +25,8 @@ from hdeem_watch.errors import InputError
 
 @dataclass(frozen=True)
 class Timing:
-    """The DDR4 timings the model uses, in clock cycles (from ``MemSpec.timings``)."""
+    """The timings the model uses, in clock cycles (from ``MemSpec.timings``; DDR5 through
+    :func:`hdeem_watch.dram.ddr5_channel.subchannel_spec`)."""
 
     ras: int
     rcd: int
@@ -43,6 +44,13 @@ class Timing:
     rfc: int
     refi: int
     burst: int
+    #: write-to-write spacing in one bank group (DDR5's tCCD_L_WR; DDR4: tCCD_L)
+    ccd_l_wr: int = 0
+
+    @property
+    def ccd_l_write(self) -> int:
+        """Spacing of two writes to one bank group: ``ccd_l_wr`` where given, else tCCD_L."""
+        return self.ccd_l_wr or self.ccd_l
 
     @classmethod
     def from_spec(cls, spec: MemSpec) -> Timing:
@@ -62,7 +70,7 @@ class Timing:
         return cls(ras=get("RAS"), rcd=get("RCD"), rp=get("RP"), rl=get("RL"), wl=get("WL"), al=get("AL", 0),
                    rtp=get("RTP"), wr=get("WR"), ccd_s=get("CCD_S"), ccd_l=get("CCD_L"),
                    wtr_s=get("WTR_S"), wtr_l=get("WTR_L"), rtrs=get("RTRS", 1), rfc=rfc, refi=get("REFI"),
-                   burst=max(1, int(spec.burst_length) // int(spec.data_rate)))
+                   burst=max(1, int(spec.burst_length) // int(spec.data_rate)), ccd_l_wr=get("CCD_L_WR", 0))
 
 
 @dataclass(frozen=True)

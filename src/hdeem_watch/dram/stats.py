@@ -27,6 +27,7 @@ from hdeem_watch.errors import InputError
 
 if TYPE_CHECKING:
     from hdeem_watch.dram.memspec import MemSpec
+    from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
 
 #: Command counters of a rank, in the order of the ``counts`` object of ``model energy --json``.
 COUNT_FIELDS = ("act", "pre", "rd", "wr", "rda", "wra", "ref")
@@ -151,16 +152,25 @@ class CommandStats:
         return cls(ranks=tuple(parsed))
 
 
-def stretch_stats(spec: MemSpec, stats: CommandStats, window_s: float, *, name: str = "run") -> CommandStats:
+def refresh_interval(spec: MemSpec | MemSpecDDR5) -> float:
+    """tREFI in cycles: DDR4's ``REFI``; DDR5's ``REFI1``, or ``REFI2`` in refresh mode 2 (0: none given)."""
+    timings = spec.timings
+    if "REFI" in timings:
+        return float(timings["REFI"] or 0)
+    return float(timings.get("REFI2" if spec.ref_mode == 2 else "REFI1", 0) or 0)
+
+
+def stretch_stats(spec: MemSpec | MemSpecDDR5, stats: CommandStats, window_s: float, *, name: str = "run") -> CommandStats:
     """``stats`` with its state residency and refreshes stretched to a window of ``window_s``.
 
     The command counts stay (the run issued them once); the fraction of time in each state is kept
     and applied to the longer (or shorter) window, and refresh is scaled with the window because
     the device refreshes whatever the kernel does. A rank with an empty window (``cycles_total ==
-    0``) becomes precharged standby for the whole window with a refresh every ``REFI``.
+    0``) becomes precharged standby for the whole window with a refresh every tREFI
+    (:func:`refresh_interval`: ``REFI``, or DDR5's ``REFI1``/``REFI2`` by refresh mode).
 
     Args:
-        spec: the memspec (``tck_s``, ``timings["REFI"]``).
+        spec: the memspec, DDR4 or DDR5 (``tck_s``, :func:`refresh_interval`).
         stats: the model's statistics (any window length).
         window_s: the measured window in seconds, > 0.
         name: the run's name, for messages.
@@ -180,7 +190,7 @@ def stretch_stats(spec: MemSpec, stats: CommandStats, window_s: float, *, name: 
             or window_s <= 0:
         raise InputError(f"run {name!r}: window_s = {window_s!r}; expected a duration > 0 s")
     cycles_w = float(window_s) / float(spec.tck_s)
-    refi = float(spec.timings.get("REFI", 0) or 0)
+    refi = refresh_interval(spec)
     ranks = []
     for i, rank in enumerate(stats.ranks):
         if rank.cycles_total <= 0:

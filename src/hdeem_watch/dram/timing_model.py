@@ -72,7 +72,9 @@ def _column_gaps(timing: Timing, rank: np.ndarray, bankgroup: np.ndarray, write:
             write_to_read = max(timing.ccd_s, write_to_read - hidden_turnaround)
             for prev_w in (0, 1):
                 for cur_w in (0, 1):
-                    gap = same_kind if prev_w == cur_w else read_to_write if cur_w else write_to_read
+                    gap = (same_kind if prev_w == cur_w else read_to_write if cur_w else write_to_read)
+                    if same_group and prev_w and cur_w:
+                        gap = timing.ccd_l_write
                     table[((same_rank * 2 + same_group) * 2 + prev_w) * 2 + cur_w] = gap
     w = write.view(np.uint8) if write.dtype == np.bool_ else write.astype(np.uint8)
     # the pair code in bytes (cheap), then one table look-up
