@@ -1,10 +1,12 @@
-"""The state database off the poll loop: every write and every large read on one store thread.
+"""The state database off the poll loop: every store call on one thread, every write on the store's writer.
 
 A full disk or a database another process holds locked must neither block the poll loop nor end
-the daemon. :class:`StoreWorker` runs the store's calls on its own worker thread (in submission
-order, so a run's records are written in the order they were made); a write that fails is kept and
-retried before the next write and at every heartbeat, and the daemon reports itself degraded
-(:meth:`StoreWorker.health`) until the backlog is written.
+the daemon. :class:`StoreWorker` runs the store's calls on a thread of its own (in submission
+order, so a run's records are handed to the store in the order they were made): the large reads,
+and the serialising of each write. It keeps no writes and retries nothing: the store's single
+writer thread (:class:`~hdeem_watch.daemon.store_writer.BackgroundWriter`) owns the write queue,
+its one retry policy (0.2 s … 5 s, never dropping a write for an I/O error) and the one health
+(:meth:`StoreWorker.health` is :meth:`Store.health <hdeem_watch.daemon.store.Store.health>`).
 
 Example:
     >>> class Memory:
@@ -20,7 +22,6 @@ Example:
 
 from __future__ import annotations
 
-import collections
 import logging
 import time
 from collections.abc import Callable
@@ -37,12 +38,10 @@ Action = Callable[[StorePort], Any]
 #: Pause of the store worker after each read: a crowd of ``runs.list`` callers must not keep the
 #: poll loop waiting for the interpreter lock.
 READ_PAUSE_S = 0.002
-#: Failed writes kept for a retry (beyond it the oldest are dropped, with an error in the log).
-MAX_BACKLOG = 10_000
 
 
 class StoreWorker:
-    """Store calls on a worker thread, failed writes retried.
+    """Store calls on a thread of their own; the store's writer writes and retries.
 
     Args:
         store: the state database (used only from the worker thread once the loop runs).
@@ -52,8 +51,6 @@ class StoreWorker:
     def __init__(self, store: StorePort, wake: Callable[[], None] | None = None) -> None:
         self.store = store
         self.jobs = Worker("store", wake)
-        self._backlog: collections.deque[tuple[str, Action]] = collections.deque()
-        self._error: str | None = None  # written on the worker, read in the loop (one str: atomic)
 
     @property
     def pending(self) -> bool:
@@ -70,26 +67,24 @@ class StoreWorker:
         self.jobs.collect(limit)
 
     def health(self) -> str:
-        """``"ok"``, or ``"degraded: <why>"`` while writes wait for the disk (here, or in the
-        store's own writer, which keeps failed writes in memory and retries them)."""
-        if self._error is not None:
-            return f"degraded: {self._error}"
+        """The store's health: ``"ok"``, or ``"degraded: <why>"`` while its writer's writes wait
+        for the disk (kept in memory and retried) or its file system refuses writes."""
         try:
             return str(self.store.health())
         except Exception as error:  # a store without a health report is not a reason to fail
             return f"degraded: store health unknown: {type(error).__name__}"
 
     def write(self, what: str, action: Action, done: Callable[[bool], None] | None = None) -> None:
-        """Run ``action(store)`` on the worker; ``done(written)`` in the loop: False when the write
-        is kept for a retry here, or when ``action`` returned False (the store keeps it in memory
-        and retries it: not on disk yet)."""
+        """Run ``action(store)`` on the worker; ``done(written)`` in the loop: False when ``action``
+        returned False (the store's writer keeps the write in memory and retries it: not on disk
+        yet) or raised (a record that cannot be serialised: a bug, logged, nothing to retry)."""
 
         def job() -> bool:
-            self._drain()
-            if self._backlog:
-                self._keep(what, action)
+            try:
+                return action(self.store) is not False
+            except Exception:
+                log.exception("state database write %s could not be made; skipped", what)
                 return False
-            return self._attempt(what, action)
 
         self.jobs.submit(job, done or _ignore, None)
 
@@ -104,50 +99,9 @@ class StoreWorker:
 
         self.jobs.submit(job, done, failed)
 
-    def retry(self) -> None:
-        """Try the failed writes again (at every heartbeat)."""
-        if self._backlog:
-            self.jobs.submit(self._drain, _ignore, None)
-
     def shutdown(self) -> None:
-        """Finish every queued call (one last retry of the backlog) and run their callbacks."""
-        self.retry()
+        """Finish every queued call and run their callbacks (the store's close writes what waits)."""
         self.jobs.shutdown()
-        if self._backlog:
-            log.error("%d store writes could not be made before exit: %s", len(self._backlog), self._error)
-
-    # -- on the worker ------------------------------------------------------------------------
-
-    def _attempt(self, what: str, action: Action) -> bool:
-        try:
-            written = action(self.store)
-        except Exception as error:
-            self._keep(what, action)
-            reason = f"{what}: {type(error).__name__}: {error}"
-            if self._error is None:
-                log.error("state database write failed (kept for a retry): %s", reason)
-            self._error = reason
-            return False
-        return written is not False
-
-    def _keep(self, what: str, action: Action) -> None:
-        self._backlog.append((what, action))
-        if len(self._backlog) > MAX_BACKLOG:
-            lost, _ = self._backlog.popleft()
-            log.error("state database backlog full: dropped %s", lost)
-
-    def _drain(self) -> None:
-        while self._backlog:
-            what, action = self._backlog[0]
-            try:
-                action(self.store)
-            except Exception as error:
-                self._error = f"{what}: {type(error).__name__}: {error}"
-                return
-            self._backlog.popleft()
-        if self._error is not None:
-            log.warning("state database writable again; backlog written")
-        self._error = None
 
 
 def _ignore(_result: Any) -> None:

@@ -461,7 +461,6 @@ class Daemon:
                 self.publisher.publish("counters", self.counters.rates_body())
             if self.job_ops is not None:
                 self.job_ops.checkpoint()
-            self.store_worker.retry()
             if self.recorder is not None:
                 self.recorder.flush()
             if self.counters is not None:

@@ -22,7 +22,7 @@ Example:
     >>> import tempfile, pathlib
     >>> store = Store(pathlib.Path(tempfile.mkdtemp()) / "state.db")
     >>> run_id = store.next_run_id()
-    >>> store.save_run({"run_id": run_id, "kernel": "triad", "state": "running", "t_start_ns": 1})
+    >>> _ = store.save_run({"run_id": run_id, "kernel": "triad", "state": "running", "t_start_ns": 1})
     >>> [r["kernel"] for r in store.list_runs()], store.health()
     (['triad'], 'ok')
     >>> store.close()
@@ -44,21 +44,26 @@ from typing import Any
 
 from hdeem_watch.daemon.run_ids import RunIdMark
 from hdeem_watch.daemon.runs import run_summary
-from hdeem_watch.daemon.store_jobs import INSERT_JOB, JobRow, job_matches, job_query, job_row
+from hdeem_watch.daemon.store_jobs import JobRow, job_matches, job_query, job_row
 from hdeem_watch.daemon.store_repair import (
-    SCHEMA,
     create_private,
     quarantine_bad_rows,
     quarantine_unusable_rows,
     salvage_if_corrupt,
+)
+from hdeem_watch.daemon.store_schema import (
+    INSERT_JOB,
+    INSERT_RUN,
+    SCHEMA,
+    SCHEMA_VERSION,
+    has_every_table,
+    schema_version,
 )
 from hdeem_watch.daemon.store_writer import BackgroundWriter
 from hdeem_watch.wire.protocol import jsonable
 
 log = logging.getLogger("hdeem_watch.daemon.store")
 
-#: The schema this code writes.
-SCHEMA_VERSION = 1
 #: Fields left out of a run summary (``list_runs(full=False)``): the refit and the model's
 #: calibration row, which grow with the number of runs (tens of KB per record).
 #: A summary read in SQL: the record without the parts that grow with the calibration, and the two
@@ -160,7 +165,7 @@ class Store:
             version = self._schema_version()
             if version is not None and version > SCHEMA_VERSION:
                 raise StoreError(f"{self.path}: schema version {version} is newer than this daemon's {SCHEMA_VERSION}")
-            if version is None or not self._has_tables():
+            if version is None or not has_every_table(self._db):
                 self._db.execute("PRAGMA busy_timeout = 5000")  # creating it: nothing to save otherwise
                 self._db.executescript(SCHEMA)
                 self._db.execute("INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)",
@@ -204,20 +209,11 @@ class Store:
         db.execute("PRAGMA synchronous=FULL")
         return db
 
-    def _has_tables(self) -> bool:
-        names = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
-        return {"meta", "runs", "fits", "calibrator", "baselines", "quarantine", "alarms", "jobs"} <= names
-
     def _schema_version(self) -> int | None:
-        exists = self._db.execute("SELECT name FROM sqlite_master WHERE type='table' AND name='meta'").fetchone()
-        if not exists:
-            return None
-        row = self._db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
         try:
-            return int(row[0]) if row else None
-        except (TypeError, ValueError):
-            raise StoreError(f"{self.path}: meta.schema_version = {row[0]!r} is not a version number; "
-                             "refusing to guess what the file holds") from None
+            return schema_version(self._db)
+        except ValueError as error:
+            raise StoreError(f"{self.path}: {error}; refusing to guess what the file holds") from None
 
     @property
     def schema_version(self) -> int:
@@ -486,8 +482,7 @@ class Store:
             return  # written already by an earlier operation on the same key
         db.execute("BEGIN IMMEDIATE")
         if kind == "run":
-            db.execute("INSERT OR REPLACE INTO runs (run_id, seq, kernel, state, t_start_ns, record) VALUES (?,?,?,?,?,?)",
-                       (key, pending.seq, pending.kernel, pending.state, pending.t_start_ns, pending.record))
+            db.execute(INSERT_RUN, (key, pending.seq, pending.kernel, pending.state, pending.t_start_ns, pending.record))
         elif kind == "baseline":
             db.execute("INSERT OR REPLACE INTO baselines (channel, t_ns, record) VALUES (?, ?, ?)", (key, *pending))
         elif kind == "job":

@@ -2,8 +2,8 @@
 
 :class:`~hdeem_watch.daemon.store.Store` keeps job records like runs (written by its writer thread,
 visible to reads while they wait in memory); this module holds what is particular to jobs: the row
-of a record, the query of :meth:`Store.list_jobs` and the same filters on the records still in
-memory.
+of a record (the table and its insert are :mod:`~hdeem_watch.daemon.store_schema`'s), the query of
+:meth:`Store.list_jobs` and the same filters on the records still in memory.
 
 Example:
     >>> key, row = job_row({"job_id": "42", "user": "alice", "state": "done", "t_start_ns": 5})
@@ -21,10 +21,6 @@ from dataclasses import dataclass
 from typing import Any
 
 from hdeem_watch.wire.protocol import jsonable
-
-#: Insert or replace one row (``job_key`` = ``<job id>@<start ns>``: a requeued job starts anew).
-INSERT_JOB = ("INSERT OR REPLACE INTO jobs (job_key, job_id, user, state, t_start_ns, record) "
-              "VALUES (?,?,?,?,?,?)")
 
 
 @dataclass(frozen=True)

@@ -34,64 +34,9 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from hdeem_watch.daemon.store_schema import SCHEMA, TABLES
+
 log = logging.getLogger("hdeem_watch.daemon.store")
-
-SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS runs (
-    run_id TEXT PRIMARY KEY,
-    seq INTEGER NOT NULL UNIQUE,
-    kernel TEXT NOT NULL,
-    state TEXT NOT NULL,
-    t_start_ns INTEGER NOT NULL,
-    record TEXT NOT NULL
-);
-CREATE TABLE IF NOT EXISTS fits (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    t_ns INTEGER NOT NULL,
-    run_id TEXT,
-    fit TEXT
-);
-CREATE TABLE IF NOT EXISTS calibrator (id INTEGER PRIMARY KEY CHECK (id = 1), t_ns INTEGER NOT NULL, state TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS baselines (channel TEXT PRIMARY KEY, t_ns INTEGER NOT NULL, record TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS alarms (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    t_ns INTEGER NOT NULL,
-    run_id TEXT,
-    grp TEXT NOT NULL,
-    alarm TEXT NOT NULL
-);
-CREATE TABLE IF NOT EXISTS jobs (
-    job_key TEXT PRIMARY KEY,
-    job_id TEXT NOT NULL,
-    user TEXT NOT NULL,
-    state TEXT NOT NULL,
-    t_start_ns INTEGER NOT NULL,
-    record TEXT NOT NULL
-);
-CREATE INDEX IF NOT EXISTS jobs_by_start ON jobs (t_start_ns);
-CREATE INDEX IF NOT EXISTS jobs_by_id ON jobs (job_id);
-CREATE TABLE IF NOT EXISTS quarantine (
-    id INTEGER PRIMARY KEY AUTOINCREMENT,
-    t_ns INTEGER NOT NULL,
-    source TEXT NOT NULL,
-    row_key TEXT,
-    content TEXT,
-    reason TEXT NOT NULL
-);
-"""
-
-#: Per table: its key column, its JSON column and the columns copied by a salvage.
-TABLES = {
-    "meta": ("key", None, ("key", "value")),
-    "runs": ("run_id", "record", ("run_id", "seq", "kernel", "state", "t_start_ns", "record")),
-    "fits": ("id", "fit", ("id", "t_ns", "run_id", "fit")),
-    "calibrator": ("id", "state", ("id", "t_ns", "state")),
-    "baselines": ("channel", "record", ("channel", "t_ns", "record")),
-    "alarms": ("id", "alarm", ("id", "t_ns", "run_id", "grp", "alarm")),
-    "jobs": ("job_key", "record", ("job_key", "job_id", "user", "state", "t_start_ns", "record")),
-    "quarantine": ("id", None, ("id", "t_ns", "source", "row_key", "content", "reason")),
-}
 
 #: Most point look-ups a salvage spends on the rows between two damaged regions of one table.
 MAX_PROBES = 200_000

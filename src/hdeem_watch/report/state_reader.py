@@ -1,8 +1,10 @@
 """Read a daemon's state directory (``state.db``) into :class:`~hdeem_watch.report.records.ReportData`.
 
 The database is opened read-only (``mode=ro``), so a report can be drawn while the daemon runs and
-never changes the state. Only the tables and columns of schema version 1 are required (``runs``,
-``fits``, ``calibrator``, ``baselines``); tables a newer daemon adds are ignored unless they are
+never changes the state. Which tables a state has, and their columns, is asked of the schema's owner
+(:mod:`hdeem_watch.daemon.store_schema`; ``report`` sits above ``daemon`` in the layering). Only the
+tables and columns of schema version 1 are required (``runs``, ``fits``, ``calibrator``,
+``baselines``); tables a newer daemon adds are ignored unless they are
 known here (a ``jobs`` table of JSON job records; a ``group`` column of ``fits`` for per-pair fits;
 further ``baseline*`` tables with ``channel``/``t_ns``/``record`` columns as baseline history).
 
@@ -22,6 +24,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from hdeem_watch.daemon.store_schema import REQUIRED_TABLES, table_columns
 from hdeem_watch.errors import InputError
 from hdeem_watch.report.analysis import fit_runs_by_name, jobs_from_runs, model_currents
 from hdeem_watch.report.records import (
@@ -62,11 +65,6 @@ def _connect(path: Path) -> sqlite3.Connection:
     return db
 
 
-def _tables(db: sqlite3.Connection) -> dict[str, list[str]]:
-    names = [r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")]
-    return {name: [c[1] for c in db.execute(f'PRAGMA table_info("{name}")')] for name in names}
-
-
 def _json(text: Any) -> Any:
     if text is None:
         return None
@@ -88,9 +86,10 @@ def read_state(path: str | Path) -> ReportData:
     file = state_path(path)
     db = _connect(file)
     try:
-        tables = _tables(db)
-        if "runs" not in tables:
-            raise InputError(f"{file}: not a hdeem-watch state (no 'runs' table)")
+        tables = table_columns(db)
+        missing = [name for name in REQUIRED_TABLES if name not in tables]
+        if missing:
+            raise InputError(f"{file}: not a hdeem-watch state (no {missing[0]!r} table)")
         # a run record carries the whole fit after it (its per-run list grows with the runs): leave
         # that to SQLite's JSON functions rather than parse it once per run here
         texts = [t for (t,) in db.execute(f"SELECT {_slim(db, 'record', '$.fit', '$.samples_ns')} FROM runs "
