@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from hdeem_watch.daemon import store_schema
+from hdeem_watch import state_schema as store_schema
 from hdeem_watch.daemon.store import Store
 
 

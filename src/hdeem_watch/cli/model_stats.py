@@ -30,6 +30,7 @@ from typing import Any
 from hdeem_watch.cli.model_energy import add_allow_unphysical
 from hdeem_watch.cli.numbers import SPELLINGS, count_at_least
 from hdeem_watch.cli.progress import Progress
+from hdeem_watch.cli.stats_json import summary
 from hdeem_watch.dram.kernels import KERNELS
 from hdeem_watch.dram.mapping import SCHEMES
 from hdeem_watch.dram.memspec import MemSpec
@@ -94,18 +95,6 @@ def _energy(spec: MemSpec, stats: CommandStats) -> dict[str, Any] | None:
         return None
     energy = core_energy(spec, stats)
     return {"core_j": energy.core_j, "components": dict(energy.components)}
-
-
-def summary(stats: CommandStats, *, requests: float, reads: float, writes: float, row_hits: float | None,
-            row_misses: float | None, row_conflicts: float | None, cycles: float) -> dict[str, Any]:
-    """The ``--json`` keys of DESIGN.md section 7 (pure)."""
-    return {
-        "requests": requests, "reads": reads, "writes": writes,
-        "act": stats.total("act"), "pre": stats.total("pre"), "ref": stats.total("ref"),
-        "rd": stats.total("rd") + stats.total("rda"), "wr": stats.total("wr") + stats.total("wra"),
-        "row_hits": row_hits, "row_misses": row_misses, "row_conflicts": row_conflicts,
-        "cycles": cycles, "ranks": [rank.to_dict() for rank in stats.ranks],
-    }
 
 
 def _print(data: dict[str, Any], as_json: bool) -> None:

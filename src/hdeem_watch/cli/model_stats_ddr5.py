@@ -26,7 +26,7 @@ def energy_ddr5(spec: MemSpecDDR5, stats: CommandStats) -> dict[str, Any]:
 
 def kernel_ddr5(spec: MemSpecDDR5, name: str, args: argparse.Namespace) -> dict[str, Any]:
     """The ``--json`` object of ``model kernel`` on a DDR5 memspec."""
-    from hdeem_watch.cli.model_stats import summary
+    from hdeem_watch.cli.stats_json import summary
     from hdeem_watch.dram.ddr5_channel import SUBCHANNELS, kernel_stats_ddr5
 
     model = kernel_stats_ddr5(spec, name, args.elements, args.threads, repeat=args.repeat, channels=args.channels,
@@ -47,7 +47,7 @@ def trace_ddr5(spec: MemSpecDDR5, args: argparse.Namespace, callback: Any) -> di
     Raises:
         InputError: a bad or empty trace, or ``--emit-drampower`` (not available for DDR5).
     """
-    from hdeem_watch.cli.model_stats import summary
+    from hdeem_watch.cli.stats_json import summary
     from hdeem_watch.errors import InputError
 
     if args.emit_drampower:

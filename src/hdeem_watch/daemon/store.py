@@ -51,7 +51,7 @@ from hdeem_watch.daemon.store_repair import (
     quarantine_unusable_rows,
     salvage_if_corrupt,
 )
-from hdeem_watch.daemon.store_schema import (
+from hdeem_watch.state_schema import (
     INSERT_JOB,
     INSERT_RUN,
     SCHEMA,

@@ -34,7 +34,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from hdeem_watch.daemon.store_schema import SCHEMA, TABLES
+from hdeem_watch.state_schema import SCHEMA, TABLES
 
 log = logging.getLogger("hdeem_watch.daemon.store")
 

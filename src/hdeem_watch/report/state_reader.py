@@ -2,7 +2,7 @@
 
 The database is opened read-only (``mode=ro``), so a report can be drawn while the daemon runs and
 never changes the state. Which tables a state has, and their columns, is asked of the schema's owner
-(:mod:`hdeem_watch.daemon.store_schema`; ``report`` sits above ``daemon`` in the layering). Only the
+(:mod:`hdeem_watch.state_schema`; ``report`` sits above ``daemon`` in the layering). Only the
 tables and columns of schema version 1 are required (``runs``, ``fits``, ``calibrator``,
 ``baselines``); tables a newer daemon adds are ignored unless they are
 known here (a ``jobs`` table of JSON job records; a ``group`` column of ``fits`` for per-pair fits;
@@ -24,7 +24,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from hdeem_watch.daemon.store_schema import REQUIRED_TABLES, table_columns
+from hdeem_watch.state_schema import REQUIRED_TABLES, table_columns
 from hdeem_watch.errors import InputError
 from hdeem_watch.report.analysis import fit_runs_by_name, jobs_from_runs, model_currents
 from hdeem_watch.report.records import (
