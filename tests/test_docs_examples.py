@@ -35,6 +35,8 @@ SKIP = {
     "hdeem-watch daemon --pub tcp://0.0.0.0:": "fixed TCP ports and CURVE keys in /etc",
     "hdeem-watch tui --connect tcp://node7:": "needs the cluster nodes node7 and node8",
     "hdeem-watch tui --slurm": "needs a SLURM allocation",
+    "hdeem-watch bench --kernels all+idle --threads 1,2 --daemon ipc:///run/": "the node's system daemon "
+    "(the same command against a real sim daemon: tests/bench/test_daemon_announce.py)",
 }
 #: Commands that run until stopped: they must survive this long, then stop cleanly on SIGINT.
 RUNS_UNTIL_STOPPED = ("hdeem-watch daemon", "hdeem-watch tui", "hdeem-watch demo")

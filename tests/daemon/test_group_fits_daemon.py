@@ -125,7 +125,8 @@ def test_a_10ms_run_is_recorded_not_fitted_and_says_why(tmp_path: Path, capsys: 
         assert main(["bench", "--kernels", "read", "--threads", "1", "--elements", "4096", "--repeat", "1",
                      "--daemon", control]) == 0
         err = capsys.readouterr().err
-        assert "hdeem-watch bench: warning: run r2 (read x1): not calibrated: " in err and "samples of DDR_" in err
+        assert "hdeem-watch bench: warning: 1 of 1 run was not calibrated" in err and "samples of DDR_" in err
+        assert "make them longer: drop --repeat" in err
     finally:
         proc.terminate()
         proc.wait(timeout=15)

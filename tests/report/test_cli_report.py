@@ -98,5 +98,5 @@ def test_demo_headless_with_report(tmp_path: Path) -> None:
                    "demo", "--headless", "--duration", "20", "--report", str(tmp_path / "r"))
     assert done.returncode == 0, done.stderr[-2000:]
     assert f"demo: report written to {tmp_path / 'r' / 'index.html'}" in done.stdout
-    assert len(list((tmp_path / "r").glob("fig*.png"))) == 6
+    assert len(list((tmp_path / "r").glob("fig*.png"))) == 7
     assert (tmp_path / "r" / "memspec-calibrated.json").exists()

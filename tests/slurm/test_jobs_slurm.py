@@ -133,8 +133,10 @@ def test_an_sbatch_job_has_its_exact_dram_energy(slurm: Any, daemon: dict[str, A
     inside = json.loads(next(line for line in output.splitlines() if line.startswith("{")))
     so_far = inside["nodes"][0]["jobs"][0]
     assert so_far["state"] == "running" and 0 < so_far["dram_energy_j"] < record["dram_energy_j"]
-    summary = output.splitlines()[-1].split()  # dram-energy.sh: the node's line of the job, at the end
-    assert summary[:2] == [slurm.node, job_id] and summary[3] == "running", output
+    # dram-energy.sh ends with the job's table: its node's line, then its state under it
+    lines = output.splitlines()
+    row = max(i for i, line in enumerate(lines) if line.split()[:2] == [slurm.node, job_id])
+    assert lines[row + 1].split()[0] == "running:", output
     listed = _jobs_cli(slurm, "--user", "root", "--since", "10min")["nodes"][0]["jobs"]
     assert job_id in [j["job_id"] for j in listed]
 

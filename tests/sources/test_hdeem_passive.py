@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zmq
 
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import SourceUnavailable
@@ -216,11 +217,19 @@ def _daemon(tmp_path: Path, fake, extra_env: dict[str, str]) -> tuple[list[str],
     cmd = [sys.executable, "-m", "hdeem_watch", "daemon", "--source", "hdeem", "--pub", f"ipc://{tmp_path}/p.sock",
            "--control", f"ipc://{tmp_path}/c.sock", "--state-dir", str(tmp_path / "state"), "--node", "n1"]
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    # a subscriber watches, so the daemon polls at full rate (unwatched it reads HDEEM's buffer rarely)
+    context = zmq.Context.instance()
+    watcher = context.socket(zmq.SUB)
+    watcher.setsockopt(zmq.SUBSCRIBE, b"")
+    watcher.connect(f"ipc://{tmp_path}/p.sock")
     deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and proc.poll() is None:
-        if log.exists() and log.read_text().count("get_stats_total") >= 5:
-            break
-        time.sleep(0.1)
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            if log.exists() and log.read_text().count("get_stats_total") >= 5:
+                break
+            time.sleep(0.1)
+    finally:
+        watcher.close(linger=0)
     health = ""
     if proc.poll() is None:
         with ControlClient(f"ipc://{tmp_path}/c.sock", timeout_s=10.0) as client:

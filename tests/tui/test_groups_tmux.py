@@ -61,13 +61,13 @@ def test_per_pair_view_in_an_80x24_terminal() -> None:
         while time.monotonic() < deadline:
             screen = _tmux("capture-pane", "-p", "-t", session)
             rows = _per_pair_rows(screen)
-            if len(rows) == 5 and all(FIT.match(v) for values in rows.values() for v in values):
+            if len(rows) >= 5 and all(FIT.match(v) for values in rows.values() for v in values):
                 break
             time.sleep(0.5)
         assert "per-pair calibration" in screen and screen.count("\n") <= 24, screen
         header = next(line for line in screen.splitlines() if "DDR_AB" in line)
         assert header.split() == ["datash", *PAIRS], screen
-        assert len(rows) == 5 and all(FIT.match(v) for values in rows.values() for v in values), screen
+        assert len(rows) >= 5 and all(FIT.match(v) for values in rows.values() for v in values), screen
         assert all(len(line) <= 80 for line in screen.splitlines())
         subprocess.run(["tmux", "send-keys", "-t", session, "Escape"], check=True)
         time.sleep(1.5)

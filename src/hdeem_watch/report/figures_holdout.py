@@ -17,7 +17,7 @@ import numpy as np
 from hdeem_watch.dram.kernels import HOLDOUT_KERNELS
 from hdeem_watch.report.figure import ReportFigure, Table, rows
 from hdeem_watch.report.records import ReportData, RunRow
-from hdeem_watch.report.style import SERIES, legend_outside, no_data, percent_axis, pyplot
+from hdeem_watch.report.style import SERIES, legend_outside, message_figure, percent_axis, pyplot
 
 KEY = "fig7-holdout"
 TITLE = "Held-out workloads: measured, datasheet model, calibrated model (fit from before each run)"
@@ -63,9 +63,8 @@ def holdout_figure(data: ReportData) -> ReportFigure:
     how = ("Runs of kernels the calibration never fitted, each predicted with the fit from before it; the lower "
            "panel is each model's error against the measurement (0 % = exact).")
     if not groups:  # one clear panel, not two empty boxes
-        fig, ax = plt.subplots(figsize=(7.0, 2.8))
-        no_data(ax, "No hold-out runs: kernels the fit never saw, predicted from before each run\n"
-                    "(hdeem-watch demo runs them; hdeem-watch bench --kernels holdout --daemon)")
+        fig = message_figure(TITLE, "no hold-out runs: kernels the fit never saw, predicted from before each run\n"
+                                    "(hdeem-watch demo runs them; so does hdeem-watch bench --kernels holdout --daemon)")
         return ReportFigure(KEY, TITLE, how, fig, missing=("hold-out runs",))
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(max(7.0, 0.5 * len(groups) + 2), 6.0), sharex=True,
                                       gridspec_kw={"height_ratios": (3, 2)})

@@ -24,7 +24,6 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from hdeem_watch.state_schema import REQUIRED_TABLES, table_columns
 from hdeem_watch.errors import InputError
 from hdeem_watch.report.analysis import fit_runs_by_name, jobs_from_runs, model_currents
 from hdeem_watch.report.records import (
@@ -36,6 +35,7 @@ from hdeem_watch.report.records import (
     finite,
     is_dram_channel,
 )
+from hdeem_watch.state_schema import REQUIRED_TABLES, table_columns
 
 #: Column names under which a newer schema may keep the sensor group of a fit.
 _GROUP_COLUMNS = ("group", "grp", "sensor_group")
