@@ -64,7 +64,6 @@ LONG_FUNCTIONS: dict[str, int] = {
     "hdeem_watch/daemon/modelling.py:RunModeller.evaluate": 106,
     "hdeem_watch/daemon/service.py:Daemon._start": 105,
     "hdeem_watch/dram/memspec.py:parse_memspec": 98,
-    "hdeem_watch/counters/command_mapping.py:channel_stats": 86,
     "hdeem_watch/dram/command_trace.py:read_command_trace": 85,
 }
 
