@@ -61,12 +61,11 @@ MAX_FUNCTION_LINES = 80
 #: ``path:qualified name`` with their length then. One may shrink (then lower or drop its entry),
 #: never grow; a function not listed may not pass the limit.
 LONG_FUNCTIONS: dict[str, int] = {
-    "hdeem_watch/calibrate/fit.py:fit": 153,
+    "hdeem_watch/calibrate/fit.py:fit": 151,
     "hdeem_watch/dram/timing_model.py:run_timing": 132,
-    "hdeem_watch/daemon/modelling.py:RunModeller.evaluate": 106,
-    "hdeem_watch/daemon/service.py:Daemon._start": 105,
+    "hdeem_watch/daemon/modelling.py:RunModeller.evaluate": 102,
+    "hdeem_watch/daemon/service.py:Daemon._start": 81,
     "hdeem_watch/dram/memspec.py:parse_memspec": 98,
-    "hdeem_watch/counters/command_mapping.py:channel_stats": 86,
     "hdeem_watch/dram/command_trace.py:read_command_trace": 85,
 }
 

@@ -233,11 +233,7 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
             loo_prep = solve.loo_residuals(design, target, lower, upper, sol, exact=exact,
                                            prior_weight=lam, prior_target=x0, ridge=ridge, rules=rules)
             loo_j = np.where(row > 0, measured + loo_prep / np.where(row > 0, row, 1.0), np.nan)
-    status = "ok"
-    if n < p:
-        status = "underdetermined"
-    elif rank < p:
-        status = "rank-deficient"
+    status = "underdetermined" if n < p else "rank-deficient" if rank < p else "ok"
     at_bound = tuple({-1: "lower", 1: "upper"}.get(int(a)) for a in sol.active[:k])
     rules_held = tuple(c.rule for c, held in zip(limits.couplings if limits and rules else (), sol.held) if held)
     if status == "ok" and (any(at_bound) or rules_held):

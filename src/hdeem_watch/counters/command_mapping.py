@@ -128,21 +128,7 @@ def channel_stats(counts: Mapping[str, float], *, ranks: int, window_cycles: flo
     weights = [c / weight_sum for c in cke_on] if weight_sum > 0 else [1.0 / ranks] * ranks
     estimated.append("act/pre/rd/wr/rda/wra/ref per rank: channel counts split by CKE-on share")
 
-    rda, wra = _value(counts, "cas_rd_autopre"), _value(counts, "cas_wr_autopre")
-    explicit = _value(counts, "pre_page_miss") + _value(counts, "pre_page_close")
-    if _known(underfill := _value(counts, "pre_underfill")):
-        explicit += underfill
-    if not _known(explicit):
-        explicit = _value(counts, "pre_all")
-    if _known(rda) and _known(wra):
-        implicit = rda + wra
-        explicit = explicit if _known(explicit) else max(0.0, act - implicit)
-    else:
-        rda = wra = 0.0
-        explicit = explicit if _known(explicit) else act
-        implicit = max(0.0, act - explicit)
-        estimated.append("rda/wra: not separable (counted in rd/wr); their implicit precharges = act − explicit PRE")
-    pre = explicit + implicit
+    rda, wra, pre = _precharges(counts, act, estimated)
 
     refresh = _value(counts, "refresh")
     nominal = ranks * awake / trefi_cycles if trefi_cycles else math.nan
@@ -164,3 +150,31 @@ def channel_stats(counts: Mapping[str, float], *, ranks: int, window_cycles: flo
             cycles_pdna=power_down - pdnp, cycles_pdnp=pdnp, cycles_sref=sref, bank_active_cycles=act_cycles))
     estimated.append("cycles_act/cycles_pre: CKE-on time split by ACT × open_cycles_per_act (no counter)")
     return MappedChannel(CommandStats(ranks=tuple(rank_stats)), STATUS_OK, tuple(estimated))
+
+
+def _precharges(counts: Mapping[str, float], act: float, estimated: list[str]) -> tuple[float, float, float]:
+    """The window's auto-precharge reads, writes and all precharges (explicit + implicit) of :func:`channel_stats`.
+
+    Args:
+        counts: role → counted delta in the window (missing or NaN = not counted).
+        act: the counted activates.
+        estimated: what was estimated so far; a note is appended when RDA/WRA are not separable.
+
+    Returns:
+        ``(rda, wra, pre)``.
+    """
+    rda, wra = _value(counts, "cas_rd_autopre"), _value(counts, "cas_wr_autopre")
+    explicit = _value(counts, "pre_page_miss") + _value(counts, "pre_page_close")
+    if _known(underfill := _value(counts, "pre_underfill")):
+        explicit += underfill
+    if not _known(explicit):
+        explicit = _value(counts, "pre_all")
+    if _known(rda) and _known(wra):
+        implicit = rda + wra
+        explicit = explicit if _known(explicit) else max(0.0, act - implicit)
+    else:
+        rda = wra = 0.0
+        explicit = explicit if _known(explicit) else act
+        implicit = max(0.0, act - explicit)
+        estimated.append("rda/wra: not separable (counted in rd/wr); their implicit precharges = act − explicit PRE")
+    return rda, wra, explicit + implicit

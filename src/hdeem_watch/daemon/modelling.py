@@ -348,15 +348,10 @@ class RunModeller:
         if self.error is not None:
             return None, None, self.error
         name = str(record.get("name") or record.get("run_id"))
-        measured = record.get("dram_energy_j")
-        window_s = record.get("window_s")
-        if not isinstance(measured, int | float) or not math.isfinite(measured) or measured <= 0:
-            return None, None, f"run {name!r}: no measured DRAM energy ({measured!r})"
-        if not isinstance(window_s, int | float) or not math.isfinite(window_s) or not window_s > 0:
-            return None, None, f"run {name!r}: empty window"
-        if measured / window_s > MAX_PLAUSIBLE_DIMM_W * self.dimms:
-            return None, None, (f"run {name!r}: implausible measured DRAM power {measured / window_s:.4g} W "
-                                f"(more than {MAX_PLAUSIBLE_DIMM_W:g} W per DIMM); not calibrated")
+        measured: Any = record.get("dram_energy_j")
+        window_s: Any = record.get("window_s")
+        if (why := self._unmeasured(name, measured, window_s)) is not None:
+            return None, None, why
         from hdeem_watch.calibrate.group_rows import announced_traffic_s
         from hdeem_watch.calibrate.rows import node_observation
         from hdeem_watch.dram.node import node_counts
@@ -433,13 +428,7 @@ class RunModeller:
         except InputError as error:
             return model, None, self._skip(run_name, stop_ns, str(error))
         self._say_source(run_name, model["source"], record)
-        if self.group_fits is not None and kernel_groups is None:
-            model["group_error"] = "a job without a kernel: the sensor groups are fitted on kernel runs only"
-        elif self.group_fits is not None:
-            try:
-                model["group_observations"] = self.group_fits.add(record, kernel_groups or groups)
-            except InputError as error:  # the node fit stands; say why the groups did not take the run
-                model["group_error"] = str(error)
+        self._add_to_groups(model, record, kernel_groups, groups)
         fit = dict(result.to_dict())
         vec, intercept = self._currents_vector(fit)
         model["fitted_j"] = obs.predicted_j(vec, intercept)
@@ -447,6 +436,28 @@ class RunModeller:
         self.history.append(compact_fit(int(result.time_ns or obs.time_ns), fit))
         del self.history[:-MAX_HISTORY]
         return model, fit, None
+
+    def _unmeasured(self, name: str, measured: Any, window_s: Any) -> str | None:
+        """Why run ``name`` with ``measured`` J over ``window_s`` s cannot be calibrated (None: it can)."""
+        if not isinstance(measured, int | float) or not math.isfinite(measured) or measured <= 0:
+            return f"run {name!r}: no measured DRAM energy ({measured!r})"
+        if not isinstance(window_s, int | float) or not math.isfinite(window_s) or not window_s > 0:
+            return f"run {name!r}: empty window"
+        if measured / window_s > MAX_PLAUSIBLE_DIMM_W * self.dimms:
+            return (f"run {name!r}: implausible measured DRAM power {measured / window_s:.4g} W "
+                    f"(more than {MAX_PLAUSIBLE_DIMM_W:g} W per DIMM); not calibrated")
+        return None
+
+    def _add_to_groups(self, model: dict[str, Any], record: Mapping[str, Any],
+                       kernel_groups: list[tuple[Any, int]] | None, groups: list[tuple[Any, int]]) -> None:
+        """Add a fitted run to the sensor-group fits (kernel runs only); say in ``model`` what they took or why not."""
+        if self.group_fits is not None and kernel_groups is None:
+            model["group_error"] = "a job without a kernel: the sensor groups are fitted on kernel runs only"
+        elif self.group_fits is not None:
+            try:
+                model["group_observations"] = self.group_fits.add(record, kernel_groups or groups)
+            except InputError as error:  # the node fit stands; say why the groups did not take the run
+                model["group_error"] = str(error)
 
     def _say_source(self, run_name: str, source: str, record: Mapping[str, Any]) -> None:
         """Log once, and again whenever it changes, where the fitted rows' commands come from."""

@@ -218,12 +218,7 @@ class Daemon:
                                       speed=source_speed(source), heartbeat_s=settings.heartbeat_s,
                                       checkpoint_s=settings.job_checkpoint_s)
         dram_rates = {info.name: float(info.rate_hz) for info in infos if info.kind == "dram"}
-        baselines = {}
-        for channel, data in store.load_baselines().items():
-            try:
-                baselines[channel] = bl.Baseline.from_dict(data)
-            except (ValueError, TypeError):
-                log.warning("ignoring a malformed stored baseline of %s", channel)
+        baselines = self._stored_baselines(store)
         book = self.book = NodeState(
             infos, node=self.node, monotonic=self.clock, wall=self.wall_clock, speed=source_speed(source),
             poll_interval_s=settings.poll_interval_s, history_s=settings.quiet_history_s,
@@ -243,55 +238,30 @@ class Daemon:
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self.store_worker = StoreWorker(store, self._wake)
         self.model_jobs = Worker("model", self._wake)
-        secure = None
-        if settings.curve_secret_key_file:
-            from hdeem_watch.daemon.security import CurveServer
-
-            self.curve = CurveServer(self.context, settings.curve_secret_key_file, settings.curve_clients_dir)
-            secure = self.curve.apply
-        try:
-            self.publisher = Publisher(self.context, self.pub_endpoint, node=self.node, sndhwm=settings.sndhwm,
-                                       secure=None if self.pub_endpoint.startswith("ipc://") else secure)
-            self.control = ControlServer(
-                self.context, self.control_endpoint, {}, secure=secure, authorizer=self.authorizer,
-                extra_endpoints=(settings.remote_control,) if settings.remote_control else ())
-        except (zmq.ZMQError, OSError) as error:
-            self._close_sockets()
-            raise InputError(bind_failure(error, {"--pub": self.pub_endpoint, "--control": self.control_endpoint,
-                                                  "--remote-control": settings.remote_control})) from None
-        self.pub_endpoint, self.control_endpoint = self.publisher.endpoint, self.control.endpoint
-        if settings.prometheus_port is not None:
-            self.metrics = DaemonMetrics(NodeCollector(
-                self.node, accounts=lambda: book.accounts, baselines=lambda: book.baselines,
-                fit=lambda: self.calibration.body.get("fit"), runs_finished=lambda: book.runs_finished,
-                store_health=self.store_worker.health))
-            try:
-                self.metrics_port = self.metrics.serve(settings.prometheus_port, settings.prometheus_addr)
-            except OSError as error:
-                self._close_sockets()
-                raise InputError(f"prometheus port {settings.prometheus_port}: {error.strerror}") from None
+        publisher, control = self._bind_sockets()
+        self._serve_metrics(book, self.store_worker)
         identity = Identity(kind=source.kind,
                             endpoints={"pub": self.pub_endpoint, "control": self.control_endpoint,
-                                       "remote": advertised_endpoints(self.publisher.endpoint, self.control.endpoints)},
+                                       "remote": advertised_endpoints(publisher.endpoint, control.endpoints)},
                             curve_public_key=None if self.curve is None else self.curve.public.decode(),
                             prometheus_port=self.metrics_port)
-        reporter = self.reporter = Reporter(book, self.calibration, source, self.publisher, self.store_worker,
+        reporter = self.reporter = Reporter(book, self.calibration, source, publisher, self.store_worker,
                                             identity, poll_interval_ns=lambda: self.poll_interval_ns, clock=self.clock)
         self.operations = Operations(book, calibration=self.calibration, reporter=reporter, store=self.store_worker,
-                                     publisher=self.publisher, source=source, submit=self.model_jobs.submit,
+                                     publisher=publisher, source=source, submit=self.model_jobs.submit,
                                      reply=self.complete, poll=self._edge_poll)
         if self.counters is not None:
             self.operations.on_window_closed = self.counters.window_closed
         topo = setup.topology
         job_ops = self.job_ops = JobOperations(JobBook(book, counters=self.counters.windows if self.counters is not None else None), store=self.store_worker,
-                                               publisher=self.publisher, reply=self.complete, poll=self._edge_poll,
+                                               publisher=publisher, reply=self.complete, poll=self._edge_poll,
                                                checkpoint_s=settings.job_checkpoint_s, submit=self.model_jobs.submit,
                                                calibration=self.calibration, dispatch=self.operations.window_closed)
         if not self._job_owner_uids_given:
             self.authorizer.job_owner_uids = job_ops.jobs.running_job_uids
         self.operations.on_job_closed = job_ops.window_closed
         self.operations.open_jobs = lambda: [job_summary(r.to_dict()) for r in job_ops.jobs.snapshots()]
-        self.control.handlers = (self.operations.handlers() | job_ops.handlers()
+        control.handlers = (self.operations.handlers() | job_ops.handlers()
                                  | {"node.get": lambda _args: setup.to_json()})
         job_ops.resume(unfinished_jobs(store))
         restore_calibration(
@@ -312,6 +282,53 @@ class Daemon:
             log.info("%s", line)
         log.info("hdeem-watch daemon %s: node %s, source %s, pub %s, control %s", __version__, self.node,
                  settings.source, self.pub_endpoint, self.control_endpoint)
+
+    @staticmethod
+    def _stored_baselines(store: Store) -> dict[str, bl.Baseline]:
+        """The idle baselines kept in ``store`` by channel (a malformed one is skipped with a warning)."""
+        baselines = {}
+        for channel, data in store.load_baselines().items():
+            try:
+                baselines[channel] = bl.Baseline.from_dict(data)
+            except (ValueError, TypeError):
+                log.warning("ignoring a malformed stored baseline of %s", channel)
+        return baselines
+
+    def _bind_sockets(self) -> tuple[Publisher, ControlServer]:
+        """Bind the publisher and the control server (with CURVE if configured); a bind failure is an input error."""
+        settings = self.settings
+        secure = None
+        if settings.curve_secret_key_file:
+            from hdeem_watch.daemon.security import CurveServer
+
+            self.curve = CurveServer(self.context, settings.curve_secret_key_file, settings.curve_clients_dir)
+            secure = self.curve.apply
+        try:
+            self.publisher = Publisher(self.context, self.pub_endpoint, node=self.node, sndhwm=settings.sndhwm,
+                                       secure=None if self.pub_endpoint.startswith("ipc://") else secure)
+            self.control = ControlServer(
+                self.context, self.control_endpoint, {}, secure=secure, authorizer=self.authorizer,
+                extra_endpoints=(settings.remote_control,) if settings.remote_control else ())
+        except (zmq.ZMQError, OSError) as error:
+            self._close_sockets()
+            raise InputError(bind_failure(error, {"--pub": self.pub_endpoint, "--control": self.control_endpoint,
+                                                  "--remote-control": settings.remote_control})) from None
+        self.pub_endpoint, self.control_endpoint = self.publisher.endpoint, self.control.endpoint
+        return self.publisher, self.control
+
+    def _serve_metrics(self, book: NodeState, store_worker: StoreWorker) -> None:
+        """Serve the Prometheus metrics of ``book`` if a port is configured; a port in use is an input error."""
+        settings = self.settings
+        if settings.prometheus_port is not None:
+            self.metrics = DaemonMetrics(NodeCollector(
+                self.node, accounts=lambda: book.accounts, baselines=lambda: book.baselines,
+                fit=lambda: self.calibration.body.get("fit"), runs_finished=lambda: book.runs_finished,
+                store_health=store_worker.health))
+            try:
+                self.metrics_port = self.metrics.serve(settings.prometheus_port, settings.prometheus_addr)
+            except OSError as error:
+                self._close_sockets()
+                raise InputError(f"prometheus port {settings.prometheus_port}: {error.strerror}") from None
 
     def _quarantine_calibrator(self, why: str, restored: str | None) -> None:
         """The stored calibrator state could not be restored: move it to ``quarantine`` and store

@@ -166,29 +166,7 @@ class SimSource:
                                         pairs=self.layout.dimm_sensor, age=age, age_start_s=starts,
                                         ambient_c=ambient_c)
         self._infos = self.layout.channel_infos()
-        peak = dimm_peak_w(self.truth_node.spec)
-        #: per DRAM pair its physical maximum (W); BLADE: the most its DIMMs can add (owed energy is
-        #: deposited within these, never as a one-sample spike)
-        self._peak_w = {info.name: peak * (len(self.layout.sensor_dimms(info.name)) if info.kind == "dram"
-                                           else len(self.layout.dimm_names)) for info in self._infos}
-        rng = np.random.default_rng([self.seed, 104729])
-        self._offset_w = {
-            info.name: (float(rng.uniform(-0.1, 0.3)) if info.kind == "dram" else float(rng.uniform(-1.0, 1.0)))
-            if offsets else 0.0
-            for info in self._infos
-        }
-        gain_rng = np.random.default_rng([self.seed, 104723])
-        self._gain = {info.name: float(1.0 + gain_rng.uniform(-1.0, 1.0) * (0.03 if info.kind == "dram" else 0.02))
-                      if gains else 1.0 for info in self._infos}
-        self._noise = NoiseBank({info.name: np.random.default_rng([self.seed, i + 1]) for i, info in enumerate(self._infos)},
-                                {info.name: NOISE_W[info.kind] for info in self._infos})
-        self._period_ns = {info.name: round(1e9 / info.rate_hz) for info in self._infos}
-        by_period: dict[int, list[ChannelInfo]] = {}
-        for info in self._infos:
-            by_period.setdefault(self._period_ns[info.name], []).append(info)
-        #: Channels on the same sample grid, with their noise σ as a column (the idle fast path).
-        self._groups = [(period, tuple(i.name for i in infos), np.array([[NOISE_W[i.kind]] for i in infos]))
-                        for period, infos in by_period.items()]
+        self._init_sensors(offsets=offsets, gains=gains)
         self._flat: dict[str, float] = {}
         self._flat_at = -1
         self._status_ok = {info.name: STATUS_OK for info in self._infos}
@@ -218,6 +196,37 @@ class SimSource:
         self._generated_ns = 0
         #: (sim s, violations) of the latest memspec check of the truth (it changes only slowly)
         self._checked: tuple[float, dict[int, list[str]]] | None = None
+
+    def _init_sensors(self, *, offsets: bool, gains: bool) -> None:
+        """Each channel's sensor: its peak, offset, gain, noise and sample period, and the sample grids.
+
+        Args:
+            offsets: draw a sensor offset per channel (else 0 W).
+            gains: draw a sensor gain per channel (else 1).
+        """
+        peak = dimm_peak_w(self.truth_node.spec)
+        #: per DRAM pair its physical maximum (W); BLADE: the most its DIMMs can add (owed energy is
+        #: deposited within these, never as a one-sample spike)
+        self._peak_w = {info.name: peak * (len(self.layout.sensor_dimms(info.name)) if info.kind == "dram"
+                                           else len(self.layout.dimm_names)) for info in self._infos}
+        rng = np.random.default_rng([self.seed, 104729])
+        self._offset_w = {
+            info.name: (float(rng.uniform(-0.1, 0.3)) if info.kind == "dram" else float(rng.uniform(-1.0, 1.0)))
+            if offsets else 0.0
+            for info in self._infos
+        }
+        gain_rng = np.random.default_rng([self.seed, 104723])
+        self._gain = {info.name: float(1.0 + gain_rng.uniform(-1.0, 1.0) * (0.03 if info.kind == "dram" else 0.02))
+                      if gains else 1.0 for info in self._infos}
+        self._noise = NoiseBank({info.name: np.random.default_rng([self.seed, i + 1]) for i, info in enumerate(self._infos)},
+                                {info.name: NOISE_W[info.kind] for info in self._infos})
+        self._period_ns = {info.name: round(1e9 / info.rate_hz) for info in self._infos}
+        by_period: dict[int, list[ChannelInfo]] = {}
+        for info in self._infos:
+            by_period.setdefault(self._period_ns[info.name], []).append(info)
+        #: Channels on the same sample grid, with their noise σ as a column (the idle fast path).
+        self._groups = [(period, tuple(i.name for i in infos), np.array([[NOISE_W[i.kind]] for i in infos]))
+                        for period, infos in by_period.items()]
 
     # -- Source protocol -------------------------------------------------------------------------------
     def channels(self) -> list[ChannelInfo]:

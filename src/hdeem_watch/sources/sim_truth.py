@@ -127,22 +127,8 @@ def truth_report(node: TruthNode, parts: PartCurrents, t_s: float, *, t_ns: int,
     def by_name(values: np.ndarray) -> dict[str, float]:
         return {n: float(v) for n, v in zip(names, values)}
 
-    pairs = {}
-    for pair in layout.sensors:
-        dimms = layout.sensor_dimms(pair)
-        pairs[pair] = {
-            "dimms": [f"DIMM_{layout.dimm_names[d]}" for d in dimms],
-            "currents_a": by_name(currents[dimms].mean(axis=0)),
-            "effective_currents_a": by_name(effective[dimms].mean(axis=0)),
-            "counted_currents_a": by_name(counted[dimms].mean(axis=0)),
-            "part_factor": float(parts.part_factor[pair]),
-            "sensor_gain": float(gain[pair]),
-            "sensor_offset_w": float(offset_w[pair]),
-            "temperature_c": float(temps[dimms].mean()),
-            "age_per_h": float(parts.age.get(pair, 0.0)),
-            "age_start_s": float(parts.age_start_s.get(pair, 0.0)),
-            "age_factor": float(ages.get(pair, 1.0)),
-        }
+    pairs = {pair: _pair_truth(node, parts, pair, currents, effective, counted, temps, ages, offset_w, gain)
+             for pair in layout.sensors}
     return {
         "simulated": True,
         "t_ns": t_ns,
@@ -182,4 +168,42 @@ def truth_report(node: TruthNode, parts: PartCurrents, t_s: float, *, t_ns: int,
         "io_write_j": node.physics.io_write_j,
         "io_j_per_line": (node.physics.io_read_j + node.physics.io_write_j) / 2,
         "pd_entry_s": node.physics.pd_entry_s,
+    }
+
+
+def _pair_truth(node: TruthNode, parts: PartCurrents, pair: str, currents: np.ndarray, effective: np.ndarray,
+                counted: np.ndarray, temps: np.ndarray, ages: Mapping[str, float], offset_w: Mapping[str, float],
+                gain: Mapping[str, float]) -> dict[str, Any]:
+    """The truth of one DIMM pair (``pair``) for :func:`truth_report`: its currents averaged over its DIMMs.
+
+    Args:
+        node: the truth generator.
+        parts: the hidden currents over time.
+        pair: the sensor channel of the pair.
+        currents: the true currents (A per device), one row per DIMM.
+        effective: the currents a node-level fit would recover, one row per DIMM.
+        counted: the same for a fit of counted windows, one row per DIMM.
+        temps: the temperature of every DIMM (°C).
+        ages: the aging factor of every aging pair.
+        offset_w: the sensor offset of every channel (W).
+        gain: the sensor gain of every channel.
+    """
+    layout, names = node.layout, node.model.names
+    dimms = layout.sensor_dimms(pair)
+
+    def by_name(values: np.ndarray) -> dict[str, float]:
+        return {n: float(v) for n, v in zip(names, values)}
+
+    return {
+        "dimms": [f"DIMM_{layout.dimm_names[d]}" for d in dimms],
+        "currents_a": by_name(currents[dimms].mean(axis=0)),
+        "effective_currents_a": by_name(effective[dimms].mean(axis=0)),
+        "counted_currents_a": by_name(counted[dimms].mean(axis=0)),
+        "part_factor": float(parts.part_factor[pair]),
+        "sensor_gain": float(gain[pair]),
+        "sensor_offset_w": float(offset_w[pair]),
+        "temperature_c": float(temps[dimms].mean()),
+        "age_per_h": float(parts.age.get(pair, 0.0)),
+        "age_start_s": float(parts.age_start_s.get(pair, 0.0)),
+        "age_factor": float(ages.get(pair, 1.0)),
     }
