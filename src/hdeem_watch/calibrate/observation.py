@@ -27,8 +27,18 @@ from hdeem_watch.errors import InputError
 #: The currents the seed paper calibrates, and the default of :func:`~hdeem_watch.calibrate.fit`.
 DEFAULT_CURRENTS: tuple[str, ...] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
 
-def current_names() -> tuple[str, ...]:
-    """The current order of the energy model's columns (``energy.CURRENT_NAMES``)."""
+def current_names(spec: object = None) -> tuple[str, ...]:
+    """The current order of the energy model's columns for ``spec``'s standard.
+
+    ``energy.CURRENT_NAMES`` (DDR4, also when no spec is given) or ``energy_ddr5.CURRENT_NAMES_DDR5``
+    for a :class:`~hdeem_watch.dram.memspec_ddr5.MemSpecDDR5`.
+    """
+    from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
+
+    if isinstance(spec, MemSpecDDR5):
+        from hdeem_watch.dram.energy_ddr5 import CURRENT_NAMES_DDR5
+
+        return tuple(CURRENT_NAMES_DDR5)
     from hdeem_watch.dram.energy import CURRENT_NAMES
 
     return tuple(CURRENT_NAMES)
