@@ -2,9 +2,18 @@
 
 from __future__ import annotations
 
+import pathlib
+
+import numpy as np
+import pytest
+
+from hdeem_watch.dram.energy_ddr5 import CURRENT_NAMES_DDR5, core_energy_ddr5
+from hdeem_watch.dram.memspec_ddr5 import load_memspec_ddr5
+from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.sources.base import RunEvent
 from hdeem_watch.sources.sim import SimSource
 from hdeem_watch.sources.sim_layout import SAPPHIRE_RAPIDS, SimLayout
+from hdeem_watch.sources.sim_power import PowerPhysics, busy_rank, idle_columns, refresh_per_s, split_columns
 
 S = 1_000_000_000
 
@@ -36,3 +45,16 @@ def test_a_run_on_socket_0_lands_on_dram0_only() -> None:
     assert plan.threads == (56, 0)
     assert above["DRAM0"] > 1e-3, above
     assert abs(above["DRAM1"]) < 1e-9, above
+
+
+def test_sim_power_prices_a_ddr5_rank_with_the_ddr5_model() -> None:
+    """The sim's rank physics on DRAMPower's DDR5 test memspec: columns over the DDR5 currents whose
+    sum at the memspec's currents is the DDR5 core energy; no refresh (the toy gives REFI1 = 0)."""
+    spec = load_memspec_ddr5(pathlib.Path(__file__).parents[2] / "examples" / "ddr5_drampower_test.json")
+    assert refresh_per_s(spec, 40.0) == 0.0
+    stats = CommandStats(ranks=(busy_rank(spec, 1.0, 40.0, 1e7, 5e6, 2e6, 1.5e7, PowerPhysics()),))
+    background, command, constant = split_columns(spec, stats)
+    currents = np.array([spec.currents[n] for n in CURRENT_NAMES_DDR5])
+    assert (background + command) @ currents + constant == pytest.approx(core_energy_ddr5(spec, stats).core_j,
+                                                                         rel=1e-12)
+    assert command @ currents > 0 and idle_columns(spec, False)[0].shape == (len(CURRENT_NAMES_DDR5),)

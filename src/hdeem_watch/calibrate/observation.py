@@ -33,15 +33,9 @@ def current_names(spec: object = None) -> tuple[str, ...]:
     ``energy.CURRENT_NAMES`` (DDR4, also when no spec is given) or ``energy_ddr5.CURRENT_NAMES_DDR5``
     for a :class:`~hdeem_watch.dram.memspec_ddr5.MemSpecDDR5`.
     """
-    from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
+    from hdeem_watch.dram.linear import model_current_names
 
-    if isinstance(spec, MemSpecDDR5):
-        from hdeem_watch.dram.energy_ddr5 import CURRENT_NAMES_DDR5
-
-        return tuple(CURRENT_NAMES_DDR5)
-    from hdeem_watch.dram.energy import CURRENT_NAMES
-
-    return tuple(CURRENT_NAMES)
+    return model_current_names(spec)
 
 
 class SpecLike(Protocol):

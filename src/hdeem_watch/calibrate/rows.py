@@ -12,7 +12,7 @@ covers).
 The energy model's linear decomposition turns the stretched statistics into one column per current
 (:func:`hdeem_watch.dram.energy.energy_columns` over ``CURRENT_NAMES`` for a DDR4 memspec,
 :func:`hdeem_watch.dram.energy_ddr5.energy_columns_ddr5` over ``CURRENT_NAMES_DDR5`` for a DDR5 one:
-:func:`linear_energy` dispatches on the memspec's type); the fit later moves the currents it does not
+:func:`hdeem_watch.dram.linear.linear_energy` dispatches on the memspec's type); the fit later moves the currents it does not
 calibrate into the constant.
 
 :func:`node_observation` sums the rows of a node's channel groups (:mod:`hdeem_watch.dram.node`)
@@ -27,8 +27,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from hdeem_watch.calibrate.observation import Observation, check_measured
-from hdeem_watch.dram.energy import LinearEnergy, energy_columns
-from hdeem_watch.dram.energy_ddr5 import energy_columns_ddr5
+from hdeem_watch.dram.linear import linear_energy
 from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
 from hdeem_watch.dram.stats import CommandStats, RankStats, stretch_stats
@@ -36,13 +35,6 @@ from hdeem_watch.errors import InputError
 
 #: The energy components that scale with the activation count (the ACT and its PRE).
 ACT_COMPONENTS = ("act_j", "pre_j")
-
-
-def linear_energy(spec: MemSpec | MemSpecDDR5, stats: CommandStats) -> LinearEnergy:
-    """The linear energy of ``stats`` under the energy model of the memspec's standard (DDR4 or DDR5)."""
-    if isinstance(spec, MemSpecDDR5):
-        return energy_columns_ddr5(spec, stats)
-    return energy_columns(spec, stats)
 
 
 def model_columns(spec: MemSpec | MemSpecDDR5, stats: CommandStats) -> tuple[np.ndarray, float]:
