@@ -139,7 +139,7 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
     """
     options = options or FitOptions()
     settings, intercept, prior_weight = options.settings, options.intercept, options.prior_weight
-    names = tuple(options.names) if options.names is not None else current_names()
+    names = tuple(options.names) if options.names is not None else current_names(spec)
     chosen = _check_currents(options.currents, names, spec)
     if not observations:
         raise InputError("runs: no runs to calibrate on")

@@ -27,11 +27,15 @@ from hdeem_watch.errors import InputError
 #: The currents the seed paper calibrates, and the default of :func:`~hdeem_watch.calibrate.fit`.
 DEFAULT_CURRENTS: tuple[str, ...] = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
 
-def current_names() -> tuple[str, ...]:
-    """The current order of the energy model's columns (``energy.CURRENT_NAMES``)."""
-    from hdeem_watch.dram.energy import CURRENT_NAMES
+def current_names(spec: object = None) -> tuple[str, ...]:
+    """The current order of the energy model's columns for ``spec``'s standard.
 
-    return tuple(CURRENT_NAMES)
+    ``energy.CURRENT_NAMES`` (DDR4, also when no spec is given) or ``energy_ddr5.CURRENT_NAMES_DDR5``
+    for a :class:`~hdeem_watch.dram.memspec_ddr5.MemSpecDDR5`.
+    """
+    from hdeem_watch.dram.linear import model_current_names
+
+    return model_current_names(spec)
 
 
 class SpecLike(Protocol):

@@ -85,7 +85,7 @@ class OnlineCalibrator:
         self.intercept = intercept
         self.prior_weight = prior_weight
         self.settings = settings or FitSettings()
-        self.names = tuple(names) if names is not None else current_names()
+        self.names = tuple(names) if names is not None else current_names(spec)
         self.min_weight = min_weight
         self.max_runs = max_runs
         self.max_history = max_history

@@ -9,8 +9,10 @@ window with a refresh every ``REFI`` (both done by :func:`hdeem_watch.dram.stats
 ``scale`` multiplies the row (e.g. the number of identical channels or DIMMs the measured energy
 covers).
 
-The energy model's linear decomposition (:func:`hdeem_watch.dram.energy.energy_columns`) turns the
-stretched statistics into one column per current; the fit later moves the currents it does not
+The energy model's linear decomposition turns the stretched statistics into one column per current
+(:func:`hdeem_watch.dram.energy.energy_columns` over ``CURRENT_NAMES`` for a DDR4 memspec,
+:func:`hdeem_watch.dram.energy_ddr5.energy_columns_ddr5` over ``CURRENT_NAMES_DDR5`` for a DDR5 one:
+:func:`hdeem_watch.dram.linear.linear_energy` dispatches on the memspec's type); the fit later moves the currents it does not
 calibrate into the constant.
 
 :func:`node_observation` sums the rows of a node's channel groups (:mod:`hdeem_watch.dram.node`)
@@ -25,8 +27,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from hdeem_watch.calibrate.observation import Observation, check_measured
-from hdeem_watch.dram.energy import energy_columns
+from hdeem_watch.dram.linear import linear_energy
 from hdeem_watch.dram.memspec import MemSpec
+from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
 from hdeem_watch.dram.stats import CommandStats, RankStats, stretch_stats
 from hdeem_watch.errors import InputError
 
@@ -34,25 +37,25 @@ from hdeem_watch.errors import InputError
 ACT_COMPONENTS = ("act_j", "pre_j")
 
 
-def model_columns(spec: MemSpec, stats: CommandStats) -> tuple[np.ndarray, float]:
-    """The energy model's columns (J per A, over ``CURRENT_NAMES``) and constant for ``stats``."""
-    linear = energy_columns(spec, stats)
+def model_columns(spec: MemSpec | MemSpecDDR5, stats: CommandStats) -> tuple[np.ndarray, float]:
+    """The energy model's columns (J per A, over the spec's current names) and constant for ``stats``."""
+    linear = linear_energy(spec, stats)
     return np.asarray(linear.columns, dtype=float), float(linear.constant_j)
 
 
-def act_columns(spec: MemSpec, stats: CommandStats) -> np.ndarray:
+def act_columns(spec: MemSpec | MemSpecDDR5, stats: CommandStats) -> np.ndarray:
     """The part of ``model_columns(spec, stats)`` that the activations and precharges carry."""
-    linear = energy_columns(spec, stats)
+    linear = linear_energy(spec, stats)
     return np.sum([np.asarray(linear.component_columns[c], dtype=float) for c in ACT_COMPONENTS], axis=0)
 
 
-def observation_from_run(spec: MemSpec, model_stats: CommandStats, window_s: float, measured_j: float, *,
+def observation_from_run(spec: MemSpec | MemSpecDDR5, model_stats: CommandStats, window_s: float, measured_j: float, *,
                          scale: float = 1.0, name: str = "run", time_ns: int = 0,
                          weight: float = 1.0, traffic_s: float | None = None, commands: str = "") -> Observation:
     """A calibration row for one measured run.
 
     Args:
-        spec: the memspec of one channel (datasheet currents, timings).
+        spec: the memspec of one channel (datasheet currents, timings), DDR4 or DDR5.
         model_stats: the modelled command statistics of the run (one channel).
         window_s: the measured window (s); residency and refresh are stretched to it.
         measured_j: the energy measured over the window (J, > 0).
@@ -91,13 +94,13 @@ def observation_from_run(spec: MemSpec, model_stats: CommandStats, window_s: flo
                        act_columns=act)
 
 
-def stats_window_s(spec: MemSpec, stats: CommandStats) -> float:
+def stats_window_s(spec: MemSpec | MemSpecDDR5, stats: CommandStats) -> float:
     """The window of ``stats`` in seconds (longest rank window × tCK; NaN if empty)."""
     cycles = max((rank.cycles_total for rank in stats.ranks), default=0.0)
     return cycles * float(spec.tck_s) if cycles > 0 else math.nan
 
 
-def node_observation(spec: MemSpec, groups: Sequence[tuple[CommandStats, int]], window_s: float,
+def node_observation(spec: MemSpec | MemSpecDDR5, groups: Sequence[tuple[CommandStats, int]], window_s: float,
                      measured_j: float, *, name: str = "run", time_ns: int = 0,
                      weight: float = 1.0, traffic_s: float | None = None, commands: str = "",
                      act_factors: Sequence[float] = ()) -> Observation:

@@ -230,7 +230,7 @@ def _act_free(rows: Sequence[Observation], spec: SpecLike, options: FitOptions, 
     activation energy at the datasheet currents, times an unknown factor ``u_kind ≥ 0``. What this
     fit still determines does not rest on the modelled activations.
     """
-    all_names = tuple(options.names) if options.names is not None else tuple(current_names())
+    all_names = tuple(options.names) if options.names is not None else tuple(current_names(spec))
     datasheet = np.array([float(spec.currents.get(n, 0.0)) for n in all_names])
     modelled = [i for i, r in enumerate(rows) if r.commands == "model" and r.act_columns is not None
                 and float(r.act_columns @ datasheet) > 0]

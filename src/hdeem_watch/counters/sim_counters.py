@@ -13,6 +13,9 @@ generation's :class:`~hdeem_watch.counters.event_tables.EventTable`, with the ga
   the time *all* ranks are in precharge power-down (taken as the minimum over ranks: the ranks of
   an idle channel power down together), and ``sref_cycles`` counts only self-refresh with a clock;
   without a clock (``1 − clocked_sref_share`` of self-refresh) ``dclk`` stops as well;
+- on Sapphire Rapids the CASes also per DDR5 pseudo-channel (``cas_pch0``/``cas_pch1``: the
+  ``pch0_share`` of them on pseudo-channel 0, as the node's address hash spreads lines), and the
+  ``underfill_share`` of explicit precharges counted as ``pre_underfill`` instead of a page miss;
 - counts are integers.
 
 A role with several published events (Haswell-EP's ``ACT_COUNT.RD/.WR/.BYP``) gets its total split
@@ -38,7 +41,8 @@ __all__ = ["imc_event_counts", "imc_role_counts", "role_counts_from_events"]
 
 
 def imc_role_counts(stats: CommandStats, table: EventTable, *, clocked_sref_share: float = 1.0,
-                    opportunistic_refresh_share: float = 0.0, page_close_share: float = 0.0) -> dict[str, float]:
+                    opportunistic_refresh_share: float = 0.0, page_close_share: float = 0.0,
+                    pch0_share: float = 0.5, underfill_share: float = 0.0) -> dict[str, float]:
     """Role → count of one channel (before the split over a role's events).
 
     Args:
@@ -48,10 +52,14 @@ def imc_role_counts(stats: CommandStats, table: EventTable, *, clocked_sref_shar
         opportunistic_refresh_share: fraction of refreshes issued opportunistically (invisible where
             the table has no such event).
         page_close_share: fraction of explicit precharges caused by the page-close timer.
+        pch0_share: fraction of the CASes on pseudo-channel 0 (tables with ``cas_pch0``/``cas_pch1``).
+        underfill_share: fraction of the page-miss precharges for underfill reads (tables with
+            ``pre_underfill``; elsewhere they stay page misses).
     """
     for name, share in (("clocked_sref_share", clocked_sref_share),
                         ("opportunistic_refresh_share", opportunistic_refresh_share),
-                        ("page_close_share", page_close_share)):
+                        ("page_close_share", page_close_share), ("pch0_share", pch0_share),
+                        ("underfill_share", underfill_share)):
         if not 0.0 <= share <= 1.0:
             raise ValueError(f"{name} = {share}; expected a fraction in [0, 1]")
     ranks = stats.ranks
@@ -59,6 +67,9 @@ def imc_role_counts(stats: CommandStats, table: EventTable, *, clocked_sref_shar
     sref = max((r.cycles_sref for r in ranks), default=0.0)
     implicit = stats.total("rda") + stats.total("wra")
     explicit = max(0.0, stats.total("pre") - implicit)
+    miss = explicit * (1.0 - page_close_share)
+    underfill = miss * underfill_share if table.events_of("pre_underfill") else 0.0
+    cas = sum(stats.total(c) for c in ("rd", "rda", "wr", "wra"))
     refresh = stats.total("ref")
     if not table.refresh_complete:
         refresh *= 1.0 - opportunistic_refresh_share
@@ -69,11 +80,14 @@ def imc_role_counts(stats: CommandStats, table: EventTable, *, clocked_sref_shar
         "cas_rd_autopre": stats.total("rda"),
         "cas_wr_autopre": stats.total("wra"),
         "act": stats.total("act"),
-        "pre_page_miss": explicit * (1.0 - page_close_share),
+        "pre_page_miss": miss - underfill,
+        "pre_underfill": underfill,
         "pre_page_close": explicit * page_close_share,
         "refresh": refresh,
         "ppd_cycles": min((r.cycles_pdnp for r in ranks), default=0.0),
         "sref_cycles": sref * clocked_sref_share,
+        "cas_pch0": cas * pch0_share,
+        "cas_pch1": cas * (1.0 - pch0_share),
     }
     for n, rank in enumerate(ranks[:MAX_CKE_RANKS]):
         roles[f"cke_on_rank{n}"] = rank.cycles_act + rank.cycles_pre

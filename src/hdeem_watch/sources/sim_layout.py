@@ -7,12 +7,17 @@ socket 1). :func:`layout_for_node` makes the layout of any detected or configure
 stand in for a 2 × 28-core Ice Lake or a 1-socket node: DIMMs are named by the node-wide channel
 letters, one sensor per pair of consecutive channels of a socket (the
 :func:`~hdeem_watch.node.sensors.sensor_map` rule), one ``CPU<n>`` channel per socket.
+:meth:`SimLayout.per_socket` is a node whose DRAM sensor is RAPL's, one ``DRAM<n>`` per socket over
+all of its channels (:mod:`hdeem_watch.sources.rapl`'s names): :data:`SAPPHIRE_RAPIDS`, 2 sockets ×
+56 cores × 8 DDR5 channels.
 
 Example:
     >>> TAURUS.dimm_sensor
     ('DDR_AB', 'DDR_AB', 'DDR_CD', 'DDR_CD', 'DDR_EF', 'DDR_EF', 'DDR_GH', 'DDR_GH')
     >>> SimLayout.regular(1, 8, 6).sensors
     ('DDR_AB', 'DDR_CD', 'DDR_EF')
+    >>> SAPPHIRE_RAPIDS.sensors, len(SAPPHIRE_RAPIDS.sensor_dimms("DRAM1"))
+    (('DRAM0', 'DRAM1'), 8)
 """
 
 from __future__ import annotations
@@ -61,6 +66,14 @@ class SimLayout:
         sensors = tuple(dict.fromkeys(sensor_of))
         return cls(topology, tuple(names), tuple(socket_of), tuple(sensor_of), sensors)
 
+    @classmethod
+    def per_socket(cls, sockets: int, cores_per_socket: int, channels_per_socket: int) -> SimLayout:
+        """``sockets`` × ``channels_per_socket`` DIMMs, one RAPL-like sensor ``DRAM<s>`` per socket."""
+        regular = cls.regular(sockets, cores_per_socket, channels_per_socket)
+        sensor_of = tuple(f"DRAM{s}" for s in regular.dimm_socket)
+        return cls(regular.topology, regular.dimm_names, regular.dimm_socket, sensor_of,
+                   tuple(dict.fromkeys(sensor_of)))
+
     @property
     def sockets(self) -> int:
         """Sockets."""
@@ -88,6 +101,8 @@ class SimLayout:
 
 #: The Taurus Haswell-EP node (the sim's default).
 TAURUS = SimLayout.regular(2, 12, 4)
+#: A Sapphire Rapids-like DDR5 node: 2 sockets × 56 cores × 8 channels, RAPL DRAM per socket.
+SAPPHIRE_RAPIDS = SimLayout.per_socket(2, 56, 8)
 
 
 def layout_for_node(node: NodeDescription) -> SimLayout:

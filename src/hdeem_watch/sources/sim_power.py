@@ -35,8 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.dram.energy import energy_columns
-from hdeem_watch.dram.stats import CommandStats, RankStats
+from hdeem_watch.dram.linear import linear_energy
+from hdeem_watch.dram.stats import CommandStats, RankStats, refresh_interval
 
 #: Above this DIMM temperature (°C) the controller refreshes twice as often.
 HOT_C = 85.0
@@ -80,8 +80,15 @@ def dimm_peak_w(spec: Any, physics: PowerPhysics | None = None) -> float:
 
 
 def refresh_per_s(spec: Any, temp_c: float, hot_c: float = HOT_C) -> float:
-    """All-bank refreshes per second of one rank at ``temp_c`` (doubled above ``hot_c``)."""
-    base = 1.0 / (float(spec.timings["REFI"]) * float(spec.tck_s))
+    """All-bank refreshes per second of one rank at ``temp_c`` (doubled above ``hot_c``; DDR4 or DDR5).
+
+    0 when the memspec gives no refresh interval (DRAMPower's DDR5 test memspec has ``REFI1 = 0``),
+    as :func:`hdeem_watch.dram.stats.stretch_stats` does.
+    """
+    refi = refresh_interval(spec)
+    if refi <= 0:
+        return 0.0
+    base = 1.0 / (refi * float(spec.tck_s))
     return 2.0 * base if temp_c > hot_c else base
 
 
@@ -113,7 +120,7 @@ def busy_rank(spec: Any, window_s: float, temp_c: float, reads: float, writes: f
 
 def split_columns(spec: Any, stats: CommandStats) -> tuple[np.ndarray, np.ndarray, float]:
     """(background columns, command columns, constant J) of ``stats`` (joules per ampere of each current)."""
-    linear = energy_columns(spec, stats)
+    linear = linear_energy(spec, stats)
     command = np.sum([linear.component_columns[c] for c in COMMAND_COMPONENTS], axis=0)
     return np.asarray(linear.columns - command, dtype=float), np.asarray(command, dtype=float), float(linear.constant_j)
 
@@ -122,5 +129,5 @@ def idle_columns(spec: Any, hot: bool) -> tuple[np.ndarray, float]:
     """Joules per ampere per second of an idle DIMM (all ranks), cool or hot; and the constant (W)."""
     temp = HOT_C + 1.0 if hot else HOT_C - 1.0
     rank = idle_rank(spec, 1.0, temp)
-    linear = energy_columns(spec, CommandStats(ranks=(rank,) * int(spec.nbr_of_ranks)))
+    linear = linear_energy(spec, CommandStats(ranks=(rank,) * int(spec.nbr_of_ranks)))
     return np.asarray(linear.columns, dtype=float), float(linear.constant_j)
