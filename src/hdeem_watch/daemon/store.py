@@ -51,6 +51,7 @@ from hdeem_watch.daemon.store_repair import (
     quarantine_unusable_rows,
     salvage_if_corrupt,
 )
+from hdeem_watch.daemon.store_writer import BackgroundWriter
 from hdeem_watch.state_schema import (
     INSERT_JOB,
     INSERT_RUN,
@@ -59,7 +60,6 @@ from hdeem_watch.state_schema import (
     has_every_table,
     schema_version,
 )
-from hdeem_watch.daemon.store_writer import BackgroundWriter
 from hdeem_watch.wire.protocol import jsonable
 
 log = logging.getLogger("hdeem_watch.daemon.store")
