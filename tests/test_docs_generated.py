@@ -42,11 +42,11 @@ def test_every_generated_block_equals_its_rendering() -> None:
 
 
 def test_the_screen_and_the_figures_belong_to_the_facts() -> None:
-    """The drawn screen's datasheet IDD0 is the demo's; the six report figures are there."""
+    """The drawn screen's datasheet IDD0 is the demo's; the seven report figures are there."""
     facts = json.loads((DOCS / "make_docs.json").read_text())
     screen = (DOCS / "tui.md").read_text().split("## The screen", 1)[1].split("```")[1]
     (idd0,) = re.findall(r"idd0 +([\d.]+)", screen)
     assert float(idd0) == facts["code"]["datasheet_ma"]["idd0"]
     figures = sorted(p.name for p in (DOCS / "report").glob("fig*.png"))
     assert figures == [f"fig{i}-{n}.png" for i, n in enumerate(
-        ("energy", "currents", "residuals", "aging", "components", "jobs"), start=1)]
+        ("energy", "currents", "residuals", "aging", "components", "jobs", "holdout"), start=1)]
