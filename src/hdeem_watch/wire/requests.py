@@ -164,7 +164,9 @@ def decode_reply(data: bytes) -> Reply:
 
 
 #: A SLURM job id: digits, with an array or het-job suffix (``123_4``, ``123+1``); any short token.
-_JOB_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}$")
+#: A SLURM job id: a 32-bit job number, optionally with an array task (``4242_3``) or a
+#: heterogeneous-job component (``4242+1``) suffix (issue 28: ``"abc"`` and 34 digits were taken).
+_JOB_ID = re.compile(r"^[0-9]{1,10}(?:[_+][0-9]{1,10})?$")
 
 
 def job_id_arg(value: Any, key: str = "job_id") -> str:
