@@ -438,7 +438,7 @@ class Daemon:
         poller.register(pub_socket, zmq.POLLIN)
         poller.register(wake_fd, zmq.POLLIN)
         self.poll_once()
-        windows = len(book.windows)
+        windows = _window_shape(book)
         # The heartbeat and the re-publication are served at the first poll after their deadline
         # (at most one poll period late) instead of waking the loop once more for them; while
         # nobody listens, always.
@@ -463,8 +463,8 @@ class Daemon:
             self._periodic(now, heartbeat, republish)
             backlog = self._work_slice(clock() + WORK_SLICE_NS,
                                        control_waiting=any(sock in ready for sock in control_sockets))
-            if changed or len(book.windows) != windows:
-                windows = len(book.windows)
+            if changed or _window_shape(book) != windows:  # opened, closed, or asked to close
+                windows = _window_shape(book)
                 demand = self._retune(demand, poll_timer, republish)
 
     def _periodic(self, now: int, heartbeat: IntervalTimer, republish: IntervalTimer) -> None:
@@ -540,8 +540,10 @@ class Daemon:
         assert self.book is not None and self.publisher is not None
         self.stream_samples = self.publisher.watched("samples")
         windows = self.book.windows
+        # a job window that is closing waits for the sample at its stop: full rate until it has it
+        # (else job.stop would answer only at the next checkpoint poll, seconds later)
         return PollDemand(watched=self.stream_samples, listening=bool(self.publisher.prefixes),
-                          window_open=any(w.kind != "job" for w in windows),
+                          window_open=any(w.kind != "job" or w.closing for w in windows),
                           jobs_open=any(w.kind == "job" for w in windows))
 
     # -- polling ---------------------------------------------------------------------------------------
@@ -618,3 +620,10 @@ def bind_failure(error: BaseException, endpoints: Mapping[str, str | None]) -> s
                 return f"{flag} {endpoint}: cannot bind: {reason}"
     named = " / ".join(e for e in endpoints.values() if e)
     return f"cannot bind {named}: {reason}"
+
+
+def _window_shape(book: NodeState) -> tuple[int, int]:
+    """How many windows are open and how many of them are closing: a change of either may change
+    the poll period (a closing window waits for the sample at its end, at full rate)."""
+    windows = book.windows
+    return len(windows), sum(1 for w in windows if w.closing)
