@@ -23,6 +23,7 @@ Example:
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,8 +144,8 @@ def _chain(cycle: np.ndarray, steps: np.ndarray, starts: np.ndarray) -> np.ndarr
     span = int(free.max()) - low + 1
     if span * (int(segment[-1]) + 1) >= 1 << 62:  # offsets would overflow: segment by segment
         out = cycle.copy()
-        bounds = np.flatnonzero(starts).tolist() + [cycle.size]
-        for lo, hi in zip(bounds[:-1], bounds[1:]):
+        bounds = [*np.flatnonzero(starts).tolist(), cycle.size]
+        for lo, hi in itertools.pairwise(bounds):
             out[lo:hi] = reach[lo:hi] + np.maximum.accumulate(free[lo:hi])
         return out
     lifted = free - low + segment * span

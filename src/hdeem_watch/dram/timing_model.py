@@ -345,7 +345,7 @@ def run_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, poli
         plan, acts = _spaced(geometry, timing, config, policy, plan, refresh, acts, prior)
     gbank, row, write, t = plan.gbank, plan.row, plan.write, plan.t
     n = gbank.size
-    last_real = int(refresh.real(t[-1:])[0]) + (np.where(write[-1], timing.wl, timing.rl) + timing.burst) if n else start
+    last_real = int(refresh.real(t[-1:])[0]) + int(np.where(write[-1], timing.wl, timing.rl)) + timing.burst if n else start
     closes = _implicit_precharges(plan, refresh, timing, acts, last_real)
     window_end = closes.end + timing.rp if close_at_end else closes.end
     first_ref = max(1, -(-start // timing.refi))
