@@ -123,3 +123,22 @@ def test_a_window_without_cas_counts_is_refused_by_name() -> None:
                                                                         "cas_wr": 1e6, "dclk": 2.4e9}}}
     with pytest.raises(InputError, match=r"S0\.umc3.*cas_rd"):
         umc_energy(spec, counters)
+
+
+def test_job_record_model_says_which_currents(pmu_trees: Path) -> None:
+    """The daemon's job model (``counters_model``) on a DDR5 memspec books the joules under the
+    currents' basis and says it; ``hdeem-watch job`` prints it."""
+    from hdeem_watch.cli.jobs import model_lines
+    from hdeem_watch.daemon.counter_model import counters_model
+
+    counters, _, _ = counted_window(pmu_trees, genoa_spec())
+    plain = counters_model(genoa_spec(), counters, datasheet_a=None, calibrated_a=None)  # type: ignore[arg-type]
+    assert plain["calibrated_j"] is None and plain["datasheet_j"] == pytest.approx(
+        umc_energy(genoa_spec(), counters)["total_j"], rel=1e-12)
+    imported = genoa_spec({"physical": True, "violations": [], "status": "ok", "n_runs": 9})
+    model = counters_model(imported, counters, datasheet_a=None, calibrated_a=None)  # type: ignore[arg-type]
+    assert model["datasheet_j"] is None and model["calibrated_j"] == pytest.approx(plain["datasheet_j"], rel=1e-12)
+    assert model["currents"]["kind"] == "calibrated"
+    lines = model_lines([{"ok": True, "node": "genoa1", "jobs": [{"state": "completed", "model": model}]}])
+    assert any("by component (calibrated, J)" in line for line in lines)
+    assert any("currents: calibrated currents imported from a node with DRAM sensors" in line for line in lines)

@@ -145,3 +145,22 @@ def umc_energy(spec: MemSpecDDR5, counters: Mapping[str, Any], *, source: str | 
             "window_s": float(counters["window_s"]), "counts": counts, "components_j": components,
             "split_j": {kind: float(sum(components[c] for c in parts)) for kind, parts in KINDS_DDR5.items()},
             "total_j": float(sum(components.values())), "counter_estimates": notes}
+
+
+def job_model_ddr5(spec: MemSpecDDR5, counters: Mapping[str, Any], *, source: str | None = None) -> dict[str, Any]:
+    """:func:`umc_energy` in the shape of a job record's ``model``
+    (:func:`hdeem_watch.daemon.counter_model.counters_model`): the memspec's joules under
+    ``datasheet`` or ``calibrated`` as :func:`currents_basis` says (the other is None; a node
+    without a DRAM sensor has no fit of its own), ``currents`` saying which.
+    """
+    energy = umc_energy(spec, counters, source=source)
+    kind = energy["currents"]["kind"]
+    other = "datasheet" if kind == "calibrated" else "calibrated"
+    return {
+        "source": "counters", "memspec": energy["memspec"], "window_s": energy["window_s"],
+        "counts": energy["counts"], "counter_estimates": energy["counter_estimates"],
+        "components_j": {kind: energy["components_j"], other: None},
+        "split_j": {kind: energy["split_j"], other: None},
+        f"{kind}_j": energy["total_j"], f"{other}_j": None, "intercept_j": None,
+        "currents": energy["currents"], "sensors": {},
+    }

@@ -33,7 +33,9 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.counters.command_mapping import channel_stats
+from hdeem_watch.counters.umc_energy import job_model_ddr5
 from hdeem_watch.dram.energy import COMPONENT_KINDS, component_energy
+from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
 from hdeem_watch.dram.node import node_counts
 from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError
@@ -198,6 +200,9 @@ def counters_model(spec: Any, counters: Mapping[str, Any], *, datasheet_a: np.nd
                    measured_j: Mapping[str, float] | None = None) -> dict[str, Any]:
     """A window's modelled DRAM energy by component from its counters alone (``model.source = "counters"``).
 
+    A DDR5 memspec (AMD Zen 4/5's UMC counters, no DRAM sensor) is modelled by
+    :func:`hdeem_watch.counters.umc_energy.job_model_ddr5` with the memspec's own currents.
+
     Args:
         spec: one DIMM's memspec.
         counters: the window's counters (:func:`sum_counters` of a job's segments).
@@ -216,6 +221,8 @@ def counters_model(spec: Any, counters: Mapping[str, Any], *, datasheet_a: np.nd
     Raises:
         InputError: unusable counters (see :func:`counter_groups`).
     """
+    if isinstance(spec, MemSpecDDR5):  # AMD Zen 4/5: the UMC counts and the memspec's own currents
+        return job_model_ddr5(spec, counters)
     groups, notes = counter_groups(spec, counters)
     window_s = float(counters["window_s"])
     datasheet = component_energy(spec, groups, window_s, datasheet_a)

@@ -33,6 +33,7 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import math
@@ -41,6 +42,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from hdeem_watch.counters.umc_energy import currents_basis
 from hdeem_watch.daemon.counter_model import counter_groups, counters_model, cross_check, node_totals
 from hdeem_watch.daemon.group_fits import DEFAULT_MIN_SAMPLES, GroupFits
 from hdeem_watch.daemon.runs import NO_TRAFFIC_KERNELS, OPAQUE_KERNEL
@@ -198,6 +200,7 @@ class RunModeller:
         self.error: str | None = None
         self.restore_error: str | None = None
         self.spec: Any = None
+        self._said_currents = False
         self.calibrator: Any = None
         self.group_fits: GroupFits | None = None
         self.history: list[dict[str, Any]] = [dict(h) for h in history][-MAX_HISTORY:]
@@ -500,6 +503,10 @@ class RunModeller:
         except InputError as error:
             return None, str(error)
         model["memspec"] = getattr(self.spec, "memory_id", self.memspec)
+        model.setdefault("currents", dataclasses.asdict(currents_basis(self.spec, self.memspec)))
+        if not self._said_currents:  # once: which currents the jobs' counter model rests on
+            self._said_currents = True
+            log.info("jobs' DRAM energy from counters: %s", model["currents"]["text"])
         model["dimms"] = self.dimms
         model["fit_runs"] = None if fit is None else fit.get("n_runs")
         return model, ""
