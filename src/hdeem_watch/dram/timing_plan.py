@@ -133,14 +133,15 @@ def plan_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, pol
     cum_i = cum[idx]
     wait_p = recovery_p + (timing.rp + timing.rcd - config.hidden_bank) - (cum_i - cum[p_safe])
     wait_q = (timing.ras + timing.rp) - (cum_i - cum[q])
-    rules = timing.rrd_s > 0 or timing.rrd_l > 0 or timing.faw > 0
-    if floors is None and extra is None and not rules:
-        lifted = _jacobi_lifts(outcomes, wait_p, wait_q)
+    has = outcomes.p_has.astype(bool)
+    bounds = [(outcomes.rank_p, wait_p, has), (outcomes.rank_q, wait_q, has)]
+    if timing.rrd_s > 0 or timing.rrd_l > 0 or timing.faw > 0:
+        bounds += _activation_bounds(geometry, timing, gbank[idx], cum_i)
+    if floors is None and extra is None:
+        lifted, settled = _jacobi_lifts(bounds, idx.size)
+        if not settled and len(bounds) > 2:  # with the activation rules the answer must be exact
+            lifted = _lifts_one_by_one(bounds, np.zeros(idx.size, dtype=np.int64))
     else:
-        has = outcomes.p_has.astype(bool)
-        bounds = [(outcomes.rank_p, wait_p, has), (outcomes.rank_q, wait_q, has)]
-        if rules:
-            bounds += _activation_bounds(geometry, timing, gbank[idx], cum_i)
         floor = floors - (cum_i + timing.rcd) if floors is not None else np.zeros(idx.size, dtype=np.int64)
         lifted = _exact_lifts(bounds, floor)
     # column times: the spacing plus the lifts so far (request 0 always activates: idx[0] = 0)
@@ -159,25 +160,28 @@ def plan_timing(geometry: Geometry, timing: Timing, config: SchedulerConfig, pol
     return TimingPlan(gbank=gbank, row=row, write=write, outcomes=outcomes, t=t, act_virtual=act_virtual)
 
 
-def _jacobi_lifts(outcomes: Outcomes, wait_p: np.ndarray, wait_q: np.ndarray) -> np.ndarray:
-    """Cumulative lift up to each activating request: a few Jacobi rounds on the lifts' cumulative
-    sums (exact when no other lift lies in between, the common case)."""
-    m = outcomes.idx.size
-    p_has, rank_p, rank_q = outcomes.p_has, outcomes.rank_p, outcomes.rank_q
-    lam = np.maximum(np.maximum(wait_p, wait_q), 0)
-    lam *= p_has
+def _jacobi_lifts(bounds: list[Bound], m: int) -> tuple[np.ndarray, bool]:
+    """Cumulative lift up to each of the ``m`` activating requests, and whether it settled: a few
+    Jacobi rounds on the lifts (each lift the largest shortfall of its bounds, given the lifts in
+    between; exact when no other lift lies in between, the common case). A settled answer is the
+    recurrence's unique solution (:func:`_exact_lifts`)."""
+    lam = np.zeros(m, dtype=np.int64)
+    for _ref, offset, mask in bounds:
+        np.maximum(lam, np.where(mask, offset, 0), out=lam)
+    settled = False
     for _ in range(_MAX_ROUNDS):
         total = np.zeros(m + 1, dtype=np.int64)
         np.cumsum(lam, out=total[1:])
         total_i = total[:-1]  # = total[rank_i]
-        new_lam = np.maximum(wait_p - (total_i - total[rank_p]), wait_q - (total_i - total[rank_q]))
-        np.maximum(new_lam, 0, out=new_lam)
-        new_lam *= p_has
+        new_lam = np.zeros(m, dtype=np.int64)
+        for ref, offset, mask in bounds:
+            np.maximum(new_lam, np.where(mask, offset - (total_i - total[ref]), 0), out=new_lam)
         if np.array_equal(new_lam, lam):
+            settled = True
             break
         lam = new_lam
     np.cumsum(lam, out=lam)
-    return lam
+    return lam, settled
 
 
 #: A lower bound on the cumulative lift of each activating request: ``L_j >= L[ref_j] + offset_j``
