@@ -34,7 +34,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from hdeem_watch.counters.command_mapping import channel_stats
+from hdeem_watch.counters.command_mapping import channel_stats, window_channels
 from hdeem_watch.dram.energy import COMPONENT_KINDS
 from hdeem_watch.dram.energy_ddr5 import COMPONENTS_DDR5, core_energy_ddr5
 from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
@@ -94,12 +94,7 @@ def subchannel_groups(spec: MemSpecDDR5, counters: Mapping[str, Any]) -> tuple[l
     Raises:
         InputError: no channels, a bad window, or a channel without CAS or ACT counts (named).
     """
-    channels = counters.get("channels")
-    window_s = counters.get("window_s")
-    if not isinstance(channels, Mapping) or not channels:
-        raise InputError(f"counters: no channels ({counters.get('status', 'none recorded')})")
-    if not isinstance(window_s, int | float) or not math.isfinite(window_s) or window_s <= 0:
-        raise InputError(f"counters: window_s = {window_s!r}; expected a duration > 0")
+    channels, window_s = window_channels(counters)
     refi = spec.timings["REFI2" if spec.ref_mode == 2 else "REFI1"]
     groups: list[tuple[CommandStats, int]] = []
     notes = {"act/pre: a channel's counts split evenly over its two sub-channels"}

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.counters.command_mapping import channel_stats
+from hdeem_watch.counters.command_mapping import channel_stats, window_channels
 from hdeem_watch.counters.umc_energy import job_model_ddr5
 from hdeem_watch.dram.energy import COMPONENT_KINDS, component_energy
 from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
@@ -70,12 +70,7 @@ def counter_groups(spec: Any, counters: Mapping[str, Any]) -> tuple[list[tuple[C
         InputError: no usable counters (a window without a CAS or ACT count, a rank count the
             memspec cannot make up), naming the channel.
     """
-    channels = counters.get("channels")
-    window_s = counters.get("window_s")
-    if not isinstance(channels, Mapping) or not channels:
-        raise InputError(f"counters: no channels ({counters.get('status', 'none recorded')})")
-    if not isinstance(window_s, int | float) or not math.isfinite(window_s) or window_s <= 0:
-        raise InputError(f"counters: window_s = {window_s!r}; expected a duration > 0")
+    channels, window_s = window_channels(counters)
     ranks = int(counters.get("ranks") or spec.nbr_of_ranks)
     per_dimm = int(spec.nbr_of_ranks)
     if ranks % per_dimm:
