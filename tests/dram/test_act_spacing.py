@@ -9,8 +9,12 @@ from hdeem_watch.dram import controller
 from hdeem_watch.dram.act_spacing import ActRules, RefreshWindows, recent_activations, space_activations
 from hdeem_watch.dram.controller import simulate
 from hdeem_watch.dram.ddr5_channel import subchannel_spec
+from hdeem_watch.dram.scheduler import SchedulerConfig
 
 from .test_ddr5_stats import ddr5_spec
+
+#: the controller with the activation rules on (off by default: SchedulerConfig.activation_rules)
+RULES = SchedulerConfig(activation_rules=True)
 
 
 def reference(earliest: list[int], rank: list[int], group: list[int], rules: ActRules,
@@ -90,7 +94,7 @@ def activation_bound(n: int = 60_000, seed: int = 3) -> tuple[np.ndarray, np.nda
 def schedule_violations(faw: int, *, refi: int = 10**9, **timings: int) -> tuple[int, int, float]:
     """(violations, cycles, ACTs) of the activation-bound stream on a DDR5 sub-channel."""
     spec = subchannel_spec(ddr5_spec(FAW_slr=faw, REFI1=refi, **timings))
-    result = simulate(spec, *activation_bound(), keep_commands=True)
+    result = simulate(spec, *activation_bound(), keep_commands=True, scheduler=RULES)
     commands = result.commands
     assert commands is not None
     groups = commands.act_rank * spec.nbr_of_bankgroups + commands.act_bank // (spec.nbr_of_banks // spec.nbr_of_bankgroups)
@@ -110,11 +114,24 @@ def test_no_four_activations_within_tfaw_in_the_schedule() -> None:
 def test_unspaced_schedule_breaks_the_rules() -> None:
     """The same stream with the rules switched off has ACTs closer than the DDR5-4800 rules allow."""
     spec = subchannel_spec(ddr5_spec(FAW_slr=0, RRD_S_slr=0, RRD_L_slr=0, REFI1=10**9))
-    result = simulate(spec, *activation_bound(), keep_commands=True)
+    result = simulate(spec, *activation_bound(), keep_commands=True, scheduler=RULES)
     commands = result.commands
     assert commands is not None
     groups = commands.act_rank * 8 + commands.act_bank // 4
     assert violations(commands.act_cycle, commands.act_rank, groups, ActRules(8, 12, 32)) > 100
+
+
+def test_the_rules_are_off_by_default() -> None:
+    """Off by default (their cost: SchedulerConfig.activation_rules): the default schedule is the
+    one with the rules zeroed, which breaks them on an activation-bound stream."""
+    spec = subchannel_spec(ddr5_spec(REFI1=10**9))
+    default = simulate(spec, *activation_bound(), keep_commands=True).commands
+    zeroed = simulate(subchannel_spec(ddr5_spec(FAW_slr=0, RRD_S_slr=0, RRD_L_slr=0, REFI1=10**9)),
+                      *activation_bound(), keep_commands=True).commands
+    assert default is not None and zeroed is not None
+    assert np.array_equal(default.act_cycle, zeroed.act_cycle)
+    groups = default.act_rank * 8 + default.act_bank // 4
+    assert violations(default.act_cycle, default.act_rank, groups, ActRules(8, 12, 32)) > 100
 
 
 def test_large_tfaw_slows_an_activation_bound_stream() -> None:
@@ -141,7 +158,7 @@ def test_refresh_keeps_the_counts() -> None:
     addresses, writes = activation_bound()
     counted = []
     for rules in ({}, {"FAW_slr": 0, "RRD_S_slr": 0, "RRD_L_slr": 0}):
-        result = simulate(subchannel_spec(ddr5_spec(**rules)), addresses, writes, keep_commands=True)
+        result = simulate(subchannel_spec(ddr5_spec(**rules)), addresses, writes, keep_commands=True, scheduler=RULES)
         assert result.reads + result.writes == result.requests > 0.4 * addresses.size  # sub-channel 0's half
         assert result.stats.total("rd") + result.stats.total("rda") == result.reads
         commands = result.commands

@@ -135,8 +135,10 @@ def simulate_requests(
     if policy not in POLICIES:
         raise InputError(f"policy {policy!r}: expected one of {', '.join(POLICIES)}")
     geometry = Geometry.from_spec(spec)
-    timing = Timing.from_spec(spec)
     config = scheduler or SchedulerConfig()
+    timing = Timing.from_spec(spec)
+    if not config.activation_rules:  # no tRRD/tFAW rule binds (the timing plan's lifts and the spacing)
+        timing = replace(timing, rrd_s=0, rrd_l=0, faw=0)
     address_mapping = AddressMapping(geometry, mapping, xor_bank=xor_bank)
     pieces = max(1, n // CHUNK_REQUESTS)
     bounds = [n * i // pieces for i in range(pieces + 1)]
