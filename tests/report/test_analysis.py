@@ -50,9 +50,7 @@ def test_components_sum_to_the_calibrated_model_energy(state_dir: Path) -> None:
     assert [r.kernel for r in chosen] == ["idle", "add", "assign", "copy", "read", "scale", "selfscale", "triad"]
     for run in chosen:
         parts = analysis.component_energies(data.spec, data.fit, run)
-        # the stored energy is the kernel model's of the day the state was recorded (before the
-        # controller model spaced activations by tRRD/tFAW: 0.02 % fewer cycles); re-modelled today
-        assert sum(parts.values()) == pytest.approx(run.calibrated_j, rel=1e-3)
+        assert sum(parts.values()) == pytest.approx(run.calibrated_j, rel=1e-9)
         assert parts["refresh"] > 0 and parts["background"] > 0
         if run.kernel == "idle":
             assert parts["RD"] == parts["WR"] == parts["ACT/PRE"] == 0
