@@ -186,7 +186,7 @@ while True:
 SEND_LOOP = """
 import subprocess, sys, time, zmq
 import numpy as np
-from hdeem_watch.daemon.publisher import Publisher
+from hdeem_watch.daemon.shell.publisher import Publisher
 from hdeem_watch.sources.base import hdeem_channel_infos
 endpoint, interval_s, subscribers = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
 ctx = zmq.Context()
@@ -266,7 +266,7 @@ def steady(seconds: float, subscribers: int, poll_interval_s: float) -> dict[str
 
 def publisher_ceiling(seconds: float, batch: int, subscribers: int) -> dict[str, Any]:
     """Flood the daemon's Publisher with large batches; samples/s every subscriber received."""
-    from hdeem_watch.daemon.publisher import Publisher
+    from hdeem_watch.daemon.shell.publisher import Publisher
 
     with tempfile.TemporaryDirectory(prefix="hwc-") as tmp:
         endpoint = f"ipc://{tmp}/flood.sock"

@@ -211,7 +211,7 @@ def test_a_client_does_not_talk_to_a_squatted_fallback_dir(tmp_path: Path, monke
 def test_dropping_connections_rebinds_the_same_endpoint(tmp_path: Path, transport: str) -> None:
     """Beyond the bound the publisher unbinds and binds the same endpoint again (the old TCP listener is
     released asynchronously: an immediate bind met EADDRINUSE and raised out of the loop)."""
-    from hdeem_watch.daemon.publisher import Publisher
+    from hdeem_watch.daemon.shell.publisher import Publisher
 
     context = zmq.Context.instance()
     endpoint = "tcp://127.0.0.1:0" if transport == "tcp" else f"ipc://{tmp_path}/s.sock"

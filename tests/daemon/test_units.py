@@ -19,8 +19,8 @@ from hdeem_watch.daemon import baselines as bl
 from hdeem_watch.daemon.channels import ChannelAccount, RecentPower, count_missing
 from hdeem_watch.daemon.control import OpError, Pending, dispatch
 from hdeem_watch.daemon.metrics import DaemonMetrics, NodeCollector
-from hdeem_watch.daemon.poller import IntervalTimer, next_deadline, wait_ms
 from hdeem_watch.daemon.runs import RunRecord, parse_run_args, window_energy
+from hdeem_watch.daemon.shell.poller import IntervalTimer, next_deadline, wait_ms
 from hdeem_watch.daemon.store import SCHEMA_VERSION, Store, StoreError
 from hdeem_watch.daemon.windows import Window
 from hdeem_watch.wire.protocol import ProtocolError, decode_reply

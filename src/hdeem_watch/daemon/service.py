@@ -4,7 +4,7 @@ The decisions (accounting, run and idle windows, baselines) are the pure
 :class:`~hdeem_watch.daemon.node_state.NodeState`'s; this module wires it to the world. One thread
 runs the ZeroMQ poll loop: it wakes for control requests, subscriptions, finished worker jobs (and
 signals) through their sockets and its wake-up pipe, and for one timer, the next poll. The poll
-period is :class:`~hdeem_watch.daemon.poll_policy.PollPolicy`'s: full rate while a subscriber takes
+period is :class:`~hdeem_watch.daemon.shell.poll_policy.PollPolicy`'s: full rate while a subscriber takes
 samples or a run or baseline window is open, the source's quiet limit while nobody watches. The
 heartbeat and the re-publication (calibration, baselines, quiet periods) are served at the first
 poll after their deadline; they wake the loop on their own only while someone listens and the poll
@@ -53,11 +53,11 @@ from hdeem_watch.daemon.modelling import MAX_HISTORY
 from hdeem_watch.daemon.node_state import NodeState
 from hdeem_watch.daemon.operations import Operations, unfinished_runs
 from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.poll_policy import PollDemand, PollPolicy
-from hdeem_watch.daemon.poller import IntervalTimer
-from hdeem_watch.daemon.publisher import Publisher
 from hdeem_watch.daemon.reporting import Identity, Reporter
 from hdeem_watch.daemon.runs import RunLimits
+from hdeem_watch.daemon.shell.poll_policy import PollDemand, PollPolicy
+from hdeem_watch.daemon.shell.poller import IntervalTimer
+from hdeem_watch.daemon.shell.publisher import Publisher
 from hdeem_watch.daemon.store import Store, StoreError
 from hdeem_watch.daemon.store_checks import ROW_CHECKS
 from hdeem_watch.errors import InputError
