@@ -16,9 +16,9 @@ import psutil
 import pytest
 import zmq
 
-from hdeem_watch.daemon import endpoints
-from hdeem_watch.daemon.control import ControlServer
-from hdeem_watch.daemon.endpoints import bind, is_loopback, private_directory
+from hdeem_watch.daemon.shell import endpoints
+from hdeem_watch.daemon.shell.control import ControlServer
+from hdeem_watch.daemon.shell.endpoints import bind, is_loopback, private_directory
 from hdeem_watch.errors import InputError
 from hdeem_watch.wire import protocol
 
@@ -254,7 +254,7 @@ def test_the_socket_mode_is_never_set_through_a_symlink(tmp_path: Path) -> None:
 
     (Old code: ``os.chmod(path)`` after the bind followed it and made the target 0660.)
     """
-    from hdeem_watch.daemon.endpoints import chmod_socket
+    from hdeem_watch.daemon.shell.endpoints import chmod_socket
 
     victim = tmp_path / "shadow"
     victim.write_text("secret")

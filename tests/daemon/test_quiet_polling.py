@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdeem_watch.daemon.node_state import NodeState
-from hdeem_watch.daemon.runs import RunLimits, parse_run_args
+from hdeem_watch.daemon.book.runs import RunLimits, parse_run_args
+from hdeem_watch.daemon.book.state import NodeState
 from hdeem_watch.daemon.shell.poll_policy import QUIET_MAX_S, PollDemand, PollPolicy
 from hdeem_watch.sources.base import ChannelInfo, QuietLimit, QuietPolling, SourceBatch
 from hdeem_watch.sources.rapl import RaplSource
@@ -355,7 +355,7 @@ def test_the_metrics_endpoint_sleeps_until_scraped() -> None:
     import threading
     import urllib.request
 
-    from hdeem_watch.daemon.metrics import DaemonMetrics, NodeCollector
+    from hdeem_watch.daemon.shell.metrics import DaemonMetrics, NodeCollector
 
     metrics = DaemonMetrics(NodeCollector("n1", accounts=dict, baselines=dict, fit=lambda: None,
                                           runs_finished=lambda: 3))

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import zmq
 
-from hdeem_watch.daemon.endpoints import bind, bind_endpoint, is_loopback
+from hdeem_watch.daemon.shell.endpoints import bind, bind_endpoint, is_loopback
 from hdeem_watch.errors import InputError
 from hdeem_watch.wire import protocol
 
@@ -53,7 +53,7 @@ class Publisher:
         endpoint: where to bind.
         node: node name used in every topic and header.
         sndhwm: per-subscriber queue length in messages.
-        secure: applied to the socket before it binds (CURVE, :mod:`hdeem_watch.daemon.security`).
+        secure: applied to the socket before it binds (CURVE, :mod:`hdeem_watch.daemon.shell.security`).
         max_subscriptions: the bound on distinct subscription prefixes (:data:`MAX_SUBSCRIPTIONS`).
         clock: monotonic seconds (rate limit of the warnings).
 

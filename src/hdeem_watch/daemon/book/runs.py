@@ -29,12 +29,9 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from hdeem_watch.calibrate.run_model import NO_TRAFFIC_KERNELS, OPAQUE_KERNEL
 from hdeem_watch.wire.protocol import ProtocolError, quoted
 
-#: Kernels that move no memory traffic: their run pins the standby currents and is an idle baseline.
-NO_TRAFFIC_KERNELS = ("idle", "sleep")
-#: The kernel of a run started without one (an opaque job): modelled from memory counters alone.
-OPAQUE_KERNEL = "job"
 #: Largest number of samples kept per channel for one run (≈ 3 h at 100 Sa/s).
 MAX_RUN_SAMPLES = 1_000_000
 #: Largest ``repeat`` of a run.
@@ -145,7 +142,7 @@ class RunRecord:
     """One run, from ``run.start`` to its model (see the module docstring for ``state``).
 
     Energies are per channel in J (NaN = unknown); ``model`` and ``fit`` are the calibrator's JSON
-    contracts (:meth:`~hdeem_watch.daemon.modelling.RunModeller.evaluate`).
+    contracts (:meth:`~hdeem_watch.calibrate.run_model.RunModeller.evaluate`).
     """
 
     run_id: str
@@ -168,7 +165,7 @@ class RunRecord:
     fit: dict[str, Any] | None = None
     #: Per channel ``[last sample time before the window, last sample time in it]``.
     samples_ns: dict[str, list[int | None]] | None = field(default=None)
-    #: The memory counters over the window (``hdeem_watch.daemon.counter_windows``), None without.
+    #: The memory counters over the window (``hdeem_watch.daemon.counters.windows``), None without.
     counters: dict[str, Any] | None = field(default=None)
 
     @classmethod

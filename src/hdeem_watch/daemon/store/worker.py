@@ -4,9 +4,9 @@ A full disk or a database another process holds locked must neither block the po
 the daemon. :class:`StoreWorker` runs the store's calls on a thread of its own (in submission
 order, so a run's records are handed to the store in the order they were made): the large reads,
 and the serialising of each write. It keeps no writes and retries nothing: the store's single
-writer thread (:class:`~hdeem_watch.daemon.store_writer.BackgroundWriter`) owns the write queue,
+writer thread (:class:`~hdeem_watch.daemon.store.writer.BackgroundWriter`) owns the write queue,
 its one retry policy (0.2 s … 5 s, never dropping a write for an I/O error) and the one health
-(:meth:`StoreWorker.health` is :meth:`Store.health <hdeem_watch.daemon.store.Store.health>`).
+(:meth:`StoreWorker.health` is :meth:`Store.health <hdeem_watch.daemon.store.database.Store.health>`).
 
 Example:
     >>> class Memory:
@@ -27,8 +27,8 @@ import time
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-from hdeem_watch.daemon.jobs import Worker
-from hdeem_watch.daemon.ports import StorePort
+from hdeem_watch.daemon.ops.ports import StorePort
+from hdeem_watch.daemon.shell.workers import Worker
 
 log = logging.getLogger("hdeem_watch.daemon")
 

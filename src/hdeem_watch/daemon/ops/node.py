@@ -2,9 +2,9 @@
 
 Ops (see ``docs/protocol.md``): ``ping``, ``status``, ``run.start``, ``run.stop``, ``runs.list``,
 ``baseline.get``, ``baseline.measure``, ``baseline.cancel``, ``calib.get``, ``calib.reset`` (the
-``job.*`` ops are :mod:`hdeem_watch.daemon.job_ops`'s; closed job windows go there).
+``job.*`` ops are :mod:`hdeem_watch.daemon.ops.jobs`'s; closed job windows go there).
 
-``run.start`` polls the source, opens the run in the :class:`~hdeem_watch.daemon.node_state.NodeState`
+``run.start`` polls the source, opens the run in the :class:`~hdeem_watch.daemon.book.state.NodeState`
 and tells the source (a :class:`~hdeem_watch.sources.base.RunAware` sim reacts to it); it replies once
 the record is stored. ``run.stop`` polls again, tells the source and asks the window to close; its
 reply comes when the window closed, the model worker modelled the run and refitted the calibrator,
@@ -25,14 +25,14 @@ from collections.abc import Callable
 from typing import Any, Literal
 
 from hdeem_watch import __version__
-from hdeem_watch.daemon import baselines as bl
-from hdeem_watch.daemon.control import Handler, OpError, Pending
-from hdeem_watch.daemon.jobs import Calibration
-from hdeem_watch.daemon.node_state import ClosedWindow, Conflict, NodeState
-from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.ports import PublisherPort, Reply, StorePort, Submit
-from hdeem_watch.daemon.reporting import Reporter
-from hdeem_watch.daemon.runs import FINISHED_STATES, OPAQUE_KERNEL, RunRecord, parse_run_args
+from hdeem_watch.daemon.book import baselines as bl
+from hdeem_watch.daemon.book.runs import FINISHED_STATES, OPAQUE_KERNEL, RunRecord, parse_run_args
+from hdeem_watch.daemon.book.state import ClosedWindow, Conflict, NodeState
+from hdeem_watch.daemon.ops.ports import PublisherPort, Reply, StorePort, Submit
+from hdeem_watch.daemon.ops.reporting import Reporter
+from hdeem_watch.daemon.shell.control import Handler, OpError, Pending
+from hdeem_watch.daemon.shell.workers import Calibration
+from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import RunAware, RunEvent, Source
 from hdeem_watch.wire import protocol

@@ -1,16 +1,16 @@
 """The job book of one node: which SLURM jobs are open, and what their windows measured (pure).
 
-:class:`JobBook` sits beside the run book (:class:`~hdeem_watch.daemon.node_state.NodeState`) and
-uses its window machinery: each open job is one ``"job"`` :class:`~hdeem_watch.daemon.windows.Window`
+:class:`JobBook` sits beside the run book (:class:`~hdeem_watch.daemon.book.state.NodeState`) and
+uses its window machinery: each open job is one ``"job"`` :class:`~hdeem_watch.daemon.book.windows.Window`
 in the run book, fed by every batch like a run window (so whatever a window integrates — energies,
 and counters once they are windowed — a job gets too), but it blocks neither runs nor baselines and
 keeps no samples (only each channel's peak). Several jobs may be open at once (a shared node); each
 names the others it overlapped (``shared_with``): the node's DRAM energy cannot be split between
-them. With counter windows (:class:`~hdeem_watch.daemon.counter_windows.CounterWindows`), each
+them. With counter windows (:class:`~hdeem_watch.daemon.counters.windows.CounterWindows`), each
 segment also carries the memory controller's counts over its window (an open one up to the newest
 counter read).
 
-No I/O and no clock of its own: the shell (:mod:`hdeem_watch.daemon.job_ops`) stores the records
+No I/O and no clock of its own: the shell (:mod:`hdeem_watch.daemon.ops.jobs`) stores the records
 it returns. A job's life: :meth:`JobBook.start` → (batches) → :meth:`JobBook.checkpoint` every few
 seconds (its energy so far, stored so that a crash loses at most that much) → :meth:`JobBook.stop`
 → the window closes after a batch → :meth:`JobBook.finished` gives the record. A daemon that
@@ -18,8 +18,8 @@ restarts :meth:`JobBook.resume`\\ s the jobs stored as running: a new segment, t
 
 Example:
     >>> import numpy as np
-    >>> from hdeem_watch.daemon.node_state import NodeState
-    >>> from hdeem_watch.daemon.job_records import parse_job_args
+    >>> from hdeem_watch.daemon.book.state import NodeState
+    >>> from hdeem_watch.daemon.jobs.records import parse_job_args
     >>> from hdeem_watch.sources.base import ChannelInfo, SourceBatch
     >>> now = [0]
     >>> book = NodeState([ChannelInfo("DDR_AB", 100.0, "dram")], node="n1", monotonic=lambda: now[0],
@@ -48,11 +48,11 @@ import dataclasses
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from hdeem_watch.daemon.counter_windows import CounterWindows, window_key
-from hdeem_watch.daemon.job_records import JobArgs, JobRecord, Segment
-from hdeem_watch.daemon.node_state import ClosedWindow, Conflict, NodeState
-from hdeem_watch.daemon.runs import window_energy
-from hdeem_watch.daemon.windows import Window
+from hdeem_watch.daemon.book.runs import window_energy
+from hdeem_watch.daemon.book.state import ClosedWindow, Conflict, NodeState
+from hdeem_watch.daemon.book.windows import Window
+from hdeem_watch.daemon.counters.windows import CounterWindows, window_key
+from hdeem_watch.daemon.jobs.records import JobArgs, JobRecord, Segment
 
 #: Most jobs open at once on one node (beyond, ``job.start`` is refused: a Prolog storm or stale
 #: jobs whose Epilog never reached the daemon).

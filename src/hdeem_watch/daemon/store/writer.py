@@ -29,7 +29,7 @@ import threading
 import time
 from collections.abc import Callable, Hashable
 
-log = logging.getLogger("hdeem_watch.daemon.store")
+log = logging.getLogger("hdeem_watch.daemon.store.database")
 
 Connect = Callable[[], sqlite3.Connection]
 Apply = Callable[[sqlite3.Connection, Hashable], None]

@@ -12,7 +12,7 @@ samples' axis (the last sample of its DRAM channels) and attaches the per-channe
 the run record (``record.counters``); :meth:`CounterWindows.finish_window` does the same for a job
 segment's window (keyed by :func:`window_key`), and :meth:`CounterWindows.so_far` counts an open
 one up to the newest read. From these counts the model makes the window's ``CommandStats``
-(:func:`hdeem_watch.daemon.modelling.counter_groups`).
+(:func:`hdeem_watch.calibrate.run_model.counter_groups`).
 
 Example:
     >>> from hdeem_watch.counters.source import CounterSnapshot

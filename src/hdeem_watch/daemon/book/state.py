@@ -5,7 +5,7 @@ and idle windows (:meth:`start_run`, :meth:`stop_run`, :meth:`measure_baseline`)
 windows that closed as typed :class:`ClosedWindow` values: the finished :class:`RunRecord` and the
 baselines found. It owns no socket, file or thread and reads time only from its injected monotonic
 and wall clocks, so a run's whole life is testable with a fake clock and fake batches. The daemon
-(:mod:`hdeem_watch.daemon.service`) is the shell that polls the source, publishes, stores and
+(:mod:`hdeem_watch.daemon.shell.service`) is the shell that polls the source, publishes, stores and
 models what this core decides.
 
 Example:
@@ -38,10 +38,10 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from hdeem_watch.daemon import baselines as bl
-from hdeem_watch.daemon.channels import ChannelAccount
-from hdeem_watch.daemon.runs import RunArgs, RunLimits, RunRecord, parse_run_args
-from hdeem_watch.daemon.windows import Window, WindowKind
+from hdeem_watch.daemon.book import baselines as bl
+from hdeem_watch.daemon.book.channels import ChannelAccount
+from hdeem_watch.daemon.book.runs import RunArgs, RunLimits, RunRecord, parse_run_args
+from hdeem_watch.daemon.book.windows import Window, WindowKind
 from hdeem_watch.sources.base import ChannelInfo, SourceBatch
 
 __all__ = ["BatchOutcome", "ClosedWindow", "Conflict", "NodeState", "parse_run_args"]
@@ -284,7 +284,7 @@ class NodeState:
                       dram_channels=self.dram_channels, t_start_mono_ns=now, run=run, job_id=job_id,
                       keep_samples=kind != "job")
 
-    # -- jobs (the bookkeeping of jobs is daemon/job_book.py's) -----------------------------------
+    # -- jobs (the bookkeeping of jobs is daemon/jobs/book.py's) -----------------------------------
 
     def open_job_window(self, job_id: str) -> Window:
         """Open a job's window now (poll the source just before); it blocks no run or baseline."""

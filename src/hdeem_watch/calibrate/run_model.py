@@ -41,9 +41,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from hdeem_watch.daemon.counter_model import counter_groups, counters_model, cross_check, node_totals
-from hdeem_watch.daemon.group_fits import DEFAULT_MIN_SAMPLES, GroupFits
-from hdeem_watch.daemon.runs import NO_TRAFFIC_KERNELS, OPAQUE_KERNEL
+from hdeem_watch.calibrate.counter_model import counter_groups, counters_model, cross_check, node_totals
+from hdeem_watch.calibrate.group_fits import DEFAULT_MIN_SAMPLES, GroupFits
 from hdeem_watch.errors import InputError
 
 if TYPE_CHECKING:
@@ -66,6 +65,11 @@ MAX_CALIBRATION_RUNS = 256
 MAX_CALIBRATOR_HISTORY = 32
 #: Highest plausible mean DRAM power per DIMM (W): DDR4 RDIMMs draw a few watts, ~15 W at most.
 MAX_PLAUSIBLE_DIMM_W = 50.0
+
+#: Kernels that move no memory traffic: their run pins the standby currents and is an idle baseline.
+NO_TRAFFIC_KERNELS = ("idle", "sleep")
+#: The kernel of a run started without one (an opaque job): modelled from memory counters alone.
+OPAQUE_KERNEL = "job"
 
 
 def announced_cpus(record: Mapping[str, Any]) -> tuple[tuple[int, ...] | None, str]:
@@ -161,7 +165,7 @@ class RunModeller:
             ``sensor_groups``) to continue from.
         history: saved compact history entries.
         groups: the node's sensor groups, each fitted on its own
-            (:func:`hdeem_watch.daemon.group_fits.source_groups`; none: the node fit only).
+            (:func:`hdeem_watch.calibrate.group_fits.source_groups`; none: the node fit only).
         dram_rates_hz: sample rate of each DRAM channel, for the guard rail (None: no guard rail;
             the daemon always gives them).
         min_samples: fewest samples per DRAM channel for a run to be fitted.
@@ -484,7 +488,7 @@ class RunModeller:
         a job's window mixes whatever ran), with the datasheet and the latest fit's currents.
 
         Returns:
-            ``(model, "")`` (:func:`~hdeem_watch.daemon.counter_model.counters_model`, plus
+            ``(model, "")`` (:func:`~hdeem_watch.calibrate.counter_model.counters_model`, plus
             ``dimms``), or ``(None, why not)``.
         """
         if self.error is not None:

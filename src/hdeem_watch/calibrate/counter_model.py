@@ -1,13 +1,13 @@
 """A window's counters → the model's per-channel ``CommandStats``, and the kernel-model cross-check (pure).
 
-The run record's ``counters`` (:meth:`hdeem_watch.daemon.counter_windows.CounterWindows.finish`)
+The run record's ``counters`` (:meth:`hdeem_watch.daemon.counters.windows.CounterWindows.finish`)
 hold per channel the role deltas over the window. :func:`counter_groups` maps each channel with
 :func:`~hdeem_watch.counters.command_mapping.channel_stats` (the window in DRAM cycles from the
 counters' own span, tREFI and tRC from the memspec) into one group ``(stats, 1)`` per channel — the
 form :func:`hdeem_watch.calibrate.rows.node_observation` sums into the node's calibration row. A
 channel of ``k`` DIMMs (its ranks a multiple of the memspec's) is ``k`` groups of one DIMM each
 (the split over ranks is energy-neutral). :func:`cross_check` puts the kernel model's node counts
-beside the counted ones. For a SLURM job (:mod:`hdeem_watch.daemon.job_records`),
+beside the counted ones. For a SLURM job (:mod:`hdeem_watch.daemon.jobs.records`),
 :func:`sum_counters` adds its segments' counts and :func:`counters_model` models the energy by
 component from them alone, with the datasheet and the calibrated currents.
 

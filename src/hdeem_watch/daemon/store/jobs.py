@@ -1,6 +1,6 @@
 """The ``jobs`` table of the state database: rows, the filters of ``job.list``, in SQL and in memory.
 
-:class:`~hdeem_watch.daemon.store.Store` keeps job records like runs (written by its writer thread,
+:class:`~hdeem_watch.daemon.store.database.Store` keeps job records like runs (written by its writer thread,
 visible to reads while they wait in memory); this module holds what is particular to jobs: the row
 of a record (the table and its insert are :mod:`~hdeem_watch.state_schema`'s), the query of
 :meth:`Store.list_jobs` and the same filters on the records still in memory.

@@ -24,7 +24,7 @@ import logging
 import os
 from pathlib import Path
 
-log = logging.getLogger("hdeem_watch.daemon.store")
+log = logging.getLogger("hdeem_watch.daemon.store.database")
 
 #: Size of the mark's file (one block, allocated at open).
 FILE_BYTES = 4096

@@ -1,7 +1,7 @@
 """The narrow interfaces the daemon's parts get instead of the daemon object.
 
-:class:`StorePort` is what the daemon uses of :class:`~hdeem_watch.daemon.store.Store` (called only
-from the store worker thread, :class:`~hdeem_watch.daemon.persistence.StoreWorker`);
+:class:`StorePort` is what the daemon uses of :class:`~hdeem_watch.daemon.store.database.Store` (called only
+from the store worker thread, :class:`~hdeem_watch.daemon.store.worker.StoreWorker`);
 :class:`PublisherPort` what it uses of the publisher for everything but samples; :data:`Submit`
 runs a job off the poll loop and calls back in it; :data:`Reply` completes a deferred control reply.
 Tests drive the operations through fakes of these.
@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
-from hdeem_watch.daemon.control import Pending
+from hdeem_watch.daemon.shell.control import Pending
 
 Job = Callable[[], Any]
 Done = Callable[[Any], None]
@@ -24,7 +24,7 @@ Reply = Callable[[Pending, Any, "tuple[str, str] | None"], None]
 
 
 class StorePort(Protocol):
-    """The state database as the daemon uses it (see :class:`~hdeem_watch.daemon.store.Store`)."""
+    """The state database as the daemon uses it (see :class:`~hdeem_watch.daemon.store.database.Store`)."""
 
     def health(self) -> str: ...
 

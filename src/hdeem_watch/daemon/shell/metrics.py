@@ -38,8 +38,8 @@ from typing import Any
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, ProcessCollector, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 
-from hdeem_watch.daemon.baselines import Baseline
-from hdeem_watch.daemon.channels import ChannelAccount
+from hdeem_watch.daemon.book.baselines import Baseline
+from hdeem_watch.daemon.book.channels import ChannelAccount
 
 
 class NodeCollector:

@@ -1,6 +1,6 @@
 """What the daemon tells the world: heartbeat, calibration and baselines.
 
-The :class:`Reporter` reads the run book (:class:`~hdeem_watch.daemon.node_state.NodeState`), the
+The :class:`Reporter` reads the run book (:class:`~hdeem_watch.daemon.book.state.NodeState`), the
 calibration and the source's health through narrow ports, and publishes the ``status``, ``calib``
 and ``baseline`` topics; new baselines are stored through the store worker (never on the loop).
 """
@@ -15,11 +15,11 @@ from typing import Any
 
 import psutil
 
-from hdeem_watch.daemon import baselines as bl
-from hdeem_watch.daemon.jobs import Calibration
-from hdeem_watch.daemon.node_state import NodeState
-from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.ports import PublisherPort, StorePort
+from hdeem_watch.daemon.book import baselines as bl
+from hdeem_watch.daemon.book.state import NodeState
+from hdeem_watch.daemon.ops.ports import PublisherPort, StorePort
+from hdeem_watch.daemon.shell.workers import Calibration
+from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.sources.base import HasTruth, Source
 
 Clock = Callable[[], int]

@@ -1,15 +1,15 @@
 """What a stored row must be for the daemon to use it: the start-up checks of the state database.
 
-:mod:`~hdeem_watch.daemon.store_repair` sets aside rows whose JSON is malformed; a row can also be
+:mod:`~hdeem_watch.daemon.store.repair` sets aside rows whose JSON is malformed; a row can also be
 valid JSON of the wrong shape (a hand edit, a bug of an older version, a bit flip inside a string):
 ``{"currents": [1, 2]}`` as a fit once stopped the daemon at every start. Each check below reads a
 row the way the daemon's start-up reads it (the same functions) and raises when it cannot; the row
 then goes to the ``quarantine`` table and the daemon starts with the rest
-(:func:`~hdeem_watch.daemon.store_repair.quarantine_unusable_rows`).
+(:func:`~hdeem_watch.daemon.store.repair.quarantine_unusable_rows`).
 
 Only the rows the daemon loads at start are read (runs and jobs a crash left open, the newest fits,
 every baseline and alarm); the calibrator's state is checked by restoring it
-(:meth:`~hdeem_watch.daemon.store.Store.quarantine_calibrator` when that fails).
+(:meth:`~hdeem_watch.daemon.store.database.Store.quarantine_calibrator` when that fails).
 
 Example:
     >>> check = ROW_CHECKS["fits"].check
@@ -27,11 +27,11 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from hdeem_watch.daemon.baselines import Baseline
-from hdeem_watch.daemon.job_records import JobRecord, job_summary
-from hdeem_watch.daemon.modelling import MAX_HISTORY, compact_fit
-from hdeem_watch.daemon.runs import RunRecord, run_summary
-from hdeem_watch.daemon.store_jobs import job_row
+from hdeem_watch.calibrate.run_model import MAX_HISTORY, compact_fit
+from hdeem_watch.daemon.book.baselines import Baseline
+from hdeem_watch.daemon.book.runs import RunRecord, run_summary
+from hdeem_watch.daemon.jobs.records import JobRecord, job_summary
+from hdeem_watch.daemon.store.jobs import job_row
 
 _RUN_ID = re.compile(r"^r\d{1,18}$")
 

@@ -39,7 +39,7 @@ from typing import Literal
 
 import numpy as np
 
-from hdeem_watch.daemon.runs import MAX_RUN_SAMPLES, RunRecord, window_energy
+from hdeem_watch.daemon.book.runs import MAX_RUN_SAMPLES, RunRecord, window_energy
 
 WindowKind = Literal["run", "baseline", "job"]
 

@@ -1,7 +1,7 @@
 """The node daemon process: the shell around the run book — sockets, the poll loop, the workers.
 
 The decisions (accounting, run and idle windows, baselines) are the pure
-:class:`~hdeem_watch.daemon.node_state.NodeState`'s; this module wires it to the world. One thread
+:class:`~hdeem_watch.daemon.book.state.NodeState`'s; this module wires it to the world. One thread
 runs the ZeroMQ poll loop: it wakes for control requests, subscriptions, finished worker jobs (and
 signals) through their sockets and its wake-up pipe, and for one timer, the next poll. The poll
 period is :class:`~hdeem_watch.daemon.shell.poll_policy.PollPolicy`'s: full rate while a subscriber takes
@@ -9,10 +9,10 @@ samples or a run or baseline window is open, the source's quiet limit while nobo
 heartbeat and the re-publication (calibration, baselines, quiet periods) are served at the first
 poll after their deadline; they wake the loop on their own only while someone listens and the poll
 period is longer than they are. Two worker threads do the slow work, sleeping on their queues: the
-model worker (kernel model, refit; :mod:`hdeem_watch.daemon.jobs`) and the store worker (every
-database read and write after start; :mod:`hdeem_watch.daemon.persistence`). Their callbacks run in
-the loop. The control operations are in :mod:`hdeem_watch.daemon.operations`, the topics in
-:mod:`hdeem_watch.daemon.reporting`.
+model worker (kernel model, refit; :mod:`hdeem_watch.daemon.shell.workers`) and the store worker (every
+database read and write after start; :mod:`hdeem_watch.daemon.store.worker`). Their callbacks run in
+the loop. The control operations are in :mod:`hdeem_watch.daemon.ops.node`, the topics in
+:mod:`hdeem_watch.daemon.ops.reporting`.
 
 Example:
     >>> from hdeem_watch.config import DaemonSettings
@@ -37,29 +37,29 @@ from typing import IO, Any
 import zmq
 
 from hdeem_watch import __version__
+from hdeem_watch.calibrate.group_fits import source_groups
+from hdeem_watch.calibrate.run_model import MAX_HISTORY
 from hdeem_watch.config import DaemonSettings
-from hdeem_watch.daemon import baselines as bl
-from hdeem_watch.daemon.authorization import Authorizer
-from hdeem_watch.daemon.control import ControlServer, Pending
-from hdeem_watch.daemon.counter_feed import CounterFeed
-from hdeem_watch.daemon.endpoints import advertised_endpoints
-from hdeem_watch.daemon.group_fits import source_groups
-from hdeem_watch.daemon.job_book import JobBook
-from hdeem_watch.daemon.job_ops import JobOperations, unfinished_jobs, unmodelled_jobs
-from hdeem_watch.daemon.job_records import job_summary
-from hdeem_watch.daemon.jobs import Calibration, ModelSettings, Worker, restore_calibration
-from hdeem_watch.daemon.metrics import DaemonMetrics, NodeCollector
-from hdeem_watch.daemon.modelling import MAX_HISTORY
-from hdeem_watch.daemon.node_state import NodeState
-from hdeem_watch.daemon.operations import Operations, unfinished_runs
-from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.reporting import Identity, Reporter
-from hdeem_watch.daemon.runs import RunLimits
+from hdeem_watch.daemon.book import baselines as bl
+from hdeem_watch.daemon.book.runs import RunLimits
+from hdeem_watch.daemon.book.state import NodeState
+from hdeem_watch.daemon.counters.feed import CounterFeed
+from hdeem_watch.daemon.jobs.book import JobBook
+from hdeem_watch.daemon.jobs.records import job_summary
+from hdeem_watch.daemon.ops.jobs import JobOperations, unfinished_jobs, unmodelled_jobs
+from hdeem_watch.daemon.ops.node import Operations, unfinished_runs
+from hdeem_watch.daemon.ops.reporting import Identity, Reporter
+from hdeem_watch.daemon.shell.authorization import Authorizer
+from hdeem_watch.daemon.shell.control import ControlServer, Pending
+from hdeem_watch.daemon.shell.endpoints import advertised_endpoints
+from hdeem_watch.daemon.shell.metrics import DaemonMetrics, NodeCollector
 from hdeem_watch.daemon.shell.poll_policy import PollDemand, PollPolicy
 from hdeem_watch.daemon.shell.poller import IntervalTimer
 from hdeem_watch.daemon.shell.publisher import Publisher
-from hdeem_watch.daemon.store import Store, StoreError
-from hdeem_watch.daemon.store_checks import ROW_CHECKS
+from hdeem_watch.daemon.shell.workers import Calibration, ModelSettings, Worker, restore_calibration
+from hdeem_watch.daemon.store.checks import ROW_CHECKS
+from hdeem_watch.daemon.store.database import Store, StoreError
+from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import QuietPolling, Source, SourceBatch, SourceUnavailable, source_speed
 from hdeem_watch.sources.registry import make_source
@@ -299,7 +299,7 @@ class Daemon:
         settings = self.settings
         secure = None
         if settings.curve_secret_key_file:
-            from hdeem_watch.daemon.security import CurveServer
+            from hdeem_watch.daemon.shell.security import CurveServer
 
             self.curve = CurveServer(self.context, settings.curve_secret_key_file, settings.curve_clients_dir)
             secure = self.curve.apply
@@ -588,7 +588,7 @@ class Daemon:
         """The currents to calibrate: with counters, the power-down currents too (they measure residency)."""
         if self.counters is None:
             return tuple(self.settings.currents)
-        from hdeem_watch.daemon.counter_model import currents_with_counters
+        from hdeem_watch.calibrate.counter_model import currents_with_counters
 
         return currents_with_counters(self.settings.currents)
 

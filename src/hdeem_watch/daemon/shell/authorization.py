@@ -18,7 +18,7 @@ A request's peer is known by the kernel or by its key, never by what it claims:
   Unix-socket connection and appends ``:uid:gid:pid`` to the message property ``Peer-Address``
   (:func:`ipc_peer`);
 * on ``tcp://`` by the CURVE client key: the daemon's ZAP handler maps a registered key to its
-  user name (:mod:`hdeem_watch.daemon.security`), which libzmq hands on as the property
+  user name (:mod:`hdeem_watch.daemon.shell.security`), which libzmq hands on as the property
   ``User-Id`` (:func:`tcp_peer`). A TCP peer without a registered key is anonymous: it may read,
   not change anything.
 

@@ -8,14 +8,14 @@ used for lookups.
 The daemon's loop never waits for the disk and never dies of it:
 
 * Writes return at once. They are serialised on the caller's thread (a snapshot) and written by a
-  :class:`~hdeem_watch.daemon.store_writer.BackgroundWriter` thread in order, each in one committed
+  :class:`~hdeem_watch.daemon.store.writer.BackgroundWriter` thread in order, each in one committed
   transaction. While the disk is full, read-only or locked by another process, the writes wait in
   memory and are retried; :meth:`Store.health` says ``degraded: <reason>`` meanwhile. Whatever was
   saved is visible to every read at once, written or not.
 * Reads merge what is still waiting with what is on disk; a read that fails degrades the health
   and returns what memory holds instead of raising.
 * At start-up a damaged file is salvaged and rows with bad JSON are quarantined
-  (:mod:`~hdeem_watch.daemon.store_repair`), listed in :attr:`Store.quarantined`. Only a file that
+  (:mod:`~hdeem_watch.daemon.store.repair`), listed in :attr:`Store.quarantined`. Only a file that
   cannot be opened or created at all is a :class:`StoreError`.
 
 Example:
@@ -42,16 +42,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hdeem_watch.daemon.run_ids import RunIdMark
-from hdeem_watch.daemon.runs import run_summary
-from hdeem_watch.daemon.store_jobs import JobRow, job_matches, job_query, job_row
-from hdeem_watch.daemon.store_repair import (
+from hdeem_watch.daemon.book.runs import run_summary
+from hdeem_watch.daemon.store.jobs import JobRow, job_matches, job_query, job_row
+from hdeem_watch.daemon.store.repair import (
     create_private,
     quarantine_bad_rows,
     quarantine_unusable_rows,
     salvage_if_corrupt,
 )
-from hdeem_watch.daemon.store_writer import BackgroundWriter
+from hdeem_watch.daemon.store.run_ids import RunIdMark
+from hdeem_watch.daemon.store.writer import BackgroundWriter
 from hdeem_watch.state_schema import (
     INSERT_JOB,
     INSERT_RUN,
@@ -62,12 +62,12 @@ from hdeem_watch.state_schema import (
 )
 from hdeem_watch.wire.protocol import jsonable
 
-log = logging.getLogger("hdeem_watch.daemon.store")
+log = logging.getLogger("hdeem_watch.daemon.store.database")
 
 #: Fields left out of a run summary (``list_runs(full=False)``): the refit and the model's
 #: calibration row, which grow with the number of runs (tens of KB per record).
 #: A summary read in SQL: the record without the parts that grow with the calibration, and the two
-#: figures of the fit a summary keeps (:func:`~hdeem_watch.daemon.runs.run_summary` shapes the rest).
+#: figures of the fit a summary keeps (:func:`~hdeem_watch.daemon.book.runs.run_summary` shapes the rest).
 _SUMMARY_SQL = ("json_remove(record, '$.fit', '$.model.observation'), json_type(record, '$.fit'), "
                 "json_extract(record, '$.fit.n_runs'), json_type(record, '$.fit.error'), "
                 "json_extract(record, '$.fit.error.after')")
@@ -144,7 +144,7 @@ class Store:
         sync_wait_s: how long a save waits for its write while the database is healthy
             (:data:`SYNC_WAIT_S`; 0 = never wait).
         row_checks: per table, how the rows the daemon loads at start are checked beyond their JSON
-            (:data:`hdeem_watch.daemon.store_checks.ROW_CHECKS`); a row that fails is quarantined.
+            (:data:`hdeem_watch.daemon.store.checks.ROW_CHECKS`); a row that fails is quarantined.
 
     Attributes:
         quarantined: one line per damaged page or bad row found at start-up (empty when sound).
@@ -288,7 +288,7 @@ class Store:
     def save_run(self, record: Mapping[str, Any]) -> bool:
         """Insert or replace a run record (``run_id`` of the form ``r<n>``); returns at once, True
         when the record is on disk then (False: it waits in memory, and its id is marked
-        durably as given out: :class:`~hdeem_watch.daemon.run_ids.RunIdMark`)."""
+        durably as given out: :class:`~hdeem_watch.daemon.store.run_ids.RunIdMark`)."""
         run_id = str(record["run_id"])
         row = _RunRow(seq=int(run_id.lstrip("r")), kernel=str(record.get("kernel", "")),
                       state=str(record.get("state", "")), t_start_ns=int(record.get("t_start_ns") or 0),
@@ -314,7 +314,7 @@ class Store:
 
     def list_runs(self, limit: int = 100, kernel: str | None = None, *, full: bool = False,
                   before: str | int | None = None) -> list[dict[str, Any]]:
-        """Run records, newest first: summaries (:func:`~hdeem_watch.daemon.runs.run_summary`) unless ``full``.
+        """Run records, newest first: summaries (:func:`~hdeem_watch.daemon.book.runs.run_summary`) unless ``full``.
 
         Args:
             limit: at most this many.

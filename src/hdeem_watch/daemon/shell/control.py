@@ -7,7 +7,7 @@ malformed or unknown request gets an error reply, and an exception inside a hand
 ``internal`` error reply (logged), never a dead daemon.
 
 State-changing operations are authorized per request
-(:mod:`hdeem_watch.daemon.authorization`): the peer is read from the frame's libzmq properties
+(:mod:`hdeem_watch.daemon.shell.authorization`): the peer is read from the frame's libzmq properties
 (``Peer-Address`` with the ``SO_PEERCRED`` credentials on ipc, ``User-Id`` from the ZAP handler on
 CURVE TCP) only when the op needs it; a refusal is a ``forbidden`` error reply, logged. The server
 may listen on several endpoints (one socket each, so each request's transport is known): the local
@@ -36,7 +36,7 @@ from typing import Any
 
 import zmq
 
-from hdeem_watch.daemon.authorization import (
+from hdeem_watch.daemon.shell.authorization import (
     FORBIDDEN,
     RULE,
     STATE_CHANGING_OPS,
@@ -45,7 +45,7 @@ from hdeem_watch.daemon.authorization import (
     ipc_peer,
     tcp_peer,
 )
-from hdeem_watch.daemon.endpoints import bind, is_loopback
+from hdeem_watch.daemon.shell.endpoints import bind, is_loopback
 from hdeem_watch.errors import InputError
 from hdeem_watch.wire import protocol
 

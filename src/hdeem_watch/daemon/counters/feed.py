@@ -14,11 +14,11 @@ import logging
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from hdeem_watch.daemon.counter_windows import CounterWindows
+from hdeem_watch.daemon.counters.windows import CounterWindows
 from hdeem_watch.errors import InputError
 
 if TYPE_CHECKING:
-    from hdeem_watch.daemon.node_state import NodeState
+    from hdeem_watch.daemon.book.state import NodeState
 
 __all__ = ["CounterFeed"]
 
@@ -65,7 +65,7 @@ class CounterFeed:
 
         ranks = 2
         if kind == "perf":  # ranks per channel: one DIMM of the node's memspec per channel
-            from hdeem_watch.daemon.modelling import load_spec
+            from hdeem_watch.calibrate.run_model import load_spec
 
             ranks = int(load_spec(memspec).nbr_of_ranks)
         counters = make_counter_source(kind, source, sample_time=book.sample_time_of, clock=clock, ranks=ranks,
@@ -74,7 +74,7 @@ class CounterFeed:
             return None
         recorder = None
         if record_file:
-            from hdeem_watch.daemon.counter_record import CounterRecorder, counters_path
+            from hdeem_watch.daemon.counters.record import CounterRecorder, counters_path
 
             path = counters_path(record_file)
             try:

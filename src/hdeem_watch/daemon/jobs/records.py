@@ -2,7 +2,7 @@
 
 A job is opened by ``job.start`` (the Prolog) and closed by ``job.stop`` (the Epilog). The daemon
 integrates every channel over the job exactly as over a run window (the same
-:class:`~hdeem_watch.daemon.windows.Window`: differences of the source's cumulative energies, cut at
+:class:`~hdeem_watch.daemon.book.windows.Window`: differences of the source's cumulative energies, cut at
 the stop to the sample). A job's time is measured in *segments*: one per daemon session that saw it.
 A daemon that stops (``kill -9`` included) keeps the job's energy up to its last checkpoint; the
 restarted daemon opens a new segment, and the time between is an *unmeasured* gap that the record
@@ -14,7 +14,7 @@ kept idle baseline; without a baseline it is NaN and ``baseline_status`` names t
 
 With a counter source on, each segment carries the memory controller's counts over it
 (``counters``), the record their sum over segments
-(:func:`~hdeem_watch.daemon.counter_model.sum_counters`), and a finished job the modelled energy by
+(:func:`~hdeem_watch.calibrate.counter_model.sum_counters`), and a finished job the modelled energy by
 component (``model``, ``source = "counters"``; computed on the model worker). Without counters
 ``model`` is None and ``model_error`` says why, never zeros.
 
@@ -40,8 +40,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from hdeem_watch.daemon.counter_model import sum_counters
-from hdeem_watch.daemon.runs import total_energy
+from hdeem_watch.calibrate.counter_model import sum_counters
+from hdeem_watch.daemon.book.runs import total_energy
 from hdeem_watch.wire.protocol import ProtocolError, quoted
 from hdeem_watch.wire.requests import job_id_arg
 
@@ -121,7 +121,7 @@ class Segment:
         peak_w: per channel, the highest sample in the segment.
         open: the segment was still being measured when it was saved (a checkpoint).
         counters: the memory controller's counts over the segment
-            (:meth:`~hdeem_watch.daemon.counter_windows.CounterWindows.finish_window`; None with
+            (:meth:`~hdeem_watch.daemon.counters.windows.CounterWindows.finish_window`; None with
             counters off or without a counter read at its start).
     """
 

@@ -1,7 +1,7 @@
 """The ``job.*`` control ops: SLURM jobs' windows opened, closed, stored and listed.
 
 ``job.start`` (the Prolog) polls the source, opens the job's window in the
-:class:`~hdeem_watch.daemon.job_book.JobBook` and replies once the record is stored; ``job.stop``
+:class:`~hdeem_watch.daemon.jobs.book.JobBook` and replies once the record is stored; ``job.stop``
 (the Epilog) polls again and asks the window to close; its reply comes when the window closed (the
 stop cut to the sample, as for a run) and the finished record is stored. ``job.get`` and
 ``job.list`` read the store on the store worker and show open jobs with their energy so far. Every
@@ -22,18 +22,18 @@ import logging
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol, cast
 
-from hdeem_watch.daemon.control import Handler, OpError, Pending
-from hdeem_watch.daemon.job_book import JobBook
-from hdeem_watch.daemon.job_records import (
+from hdeem_watch.daemon.book.state import ClosedWindow, Conflict
+from hdeem_watch.daemon.jobs.book import JobBook
+from hdeem_watch.daemon.jobs.records import (
     JOB_STATES,
     JobRecord,
     exit_code_arg,
     job_summary,
     parse_job_args,
 )
-from hdeem_watch.daemon.node_state import ClosedWindow, Conflict
-from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.ports import PublisherPort, Reply, StorePort
+from hdeem_watch.daemon.ops.ports import PublisherPort, Reply, StorePort
+from hdeem_watch.daemon.shell.control import Handler, OpError, Pending
+from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.wire.protocol import quoted
 from hdeem_watch.wire.requests import job_id_arg
 
@@ -52,7 +52,7 @@ MODELLING = "modelling: the energy by component is computed from the counters (t
 
 
 class JobStore(Protocol):
-    """What the job ops use of :class:`~hdeem_watch.daemon.store.Store`."""
+    """What the job ops use of :class:`~hdeem_watch.daemon.store.database.Store`."""
 
     def save_job(self, record: Mapping[str, Any]) -> bool: ...
 
@@ -77,7 +77,7 @@ class JobOperations:
         submit: the model worker's ``submit`` (None: finished jobs are not modelled).
         calibration: holds the run modeller (``.modeller``, set on the model worker), which models a
             finished job's counters by component
-            (:meth:`~hdeem_watch.daemon.modelling.RunModeller.model_counters`).
+            (:meth:`~hdeem_watch.calibrate.run_model.RunModeller.model_counters`).
     """
 
     OPS = ("job.start", "job.stop", "job.get", "job.list")

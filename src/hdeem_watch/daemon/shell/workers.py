@@ -4,7 +4,7 @@ A job runs on the worker's thread; its ``done(result)`` or ``failed(error)`` cal
 the loop* (:meth:`Worker.collect`), so callbacks may touch sockets. Jobs run in submission order.
 The daemon has two workers: the model worker (kernel model, refit; :class:`Calibration` holds its
 modeller and the latest ``calib`` body) and the store worker
-(:class:`~hdeem_watch.daemon.persistence.StoreWorker`).
+(:class:`~hdeem_watch.daemon.store.worker.StoreWorker`).
 
 Example:
     >>> jobs = Worker("example")
@@ -22,8 +22,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from hdeem_watch.daemon.group_fits import DEFAULT_MIN_SAMPLES
-from hdeem_watch.daemon.modelling import MAX_HISTORY, RunModeller, compact_fit
+from hdeem_watch.calibrate.group_fits import DEFAULT_MIN_SAMPLES
+from hdeem_watch.calibrate.run_model import MAX_HISTORY, RunModeller, compact_fit
 from hdeem_watch.wire.json_codec import dumps, quoted
 
 if TYPE_CHECKING:
@@ -115,12 +115,12 @@ class Calibration:
 
 @dataclass(frozen=True)
 class ModelSettings:
-    """What the run modeller is built from (see :class:`~hdeem_watch.daemon.modelling.RunModeller`).
+    """What the run modeller is built from (see :class:`~hdeem_watch.calibrate.run_model.RunModeller`).
 
     ``topology`` is the node's :class:`~hdeem_watch.dram.node.NodeTopology`
     (:func:`hdeem_watch.node.topology.topology_from_node` of the configured/detected node); None =
     the legacy guess from ``dimms`` (the Taurus Haswell-EP blade for 8 DIMMs). ``groups``: the
-    sensor groups fitted on their own (:func:`~hdeem_watch.daemon.group_fits.source_groups`);
+    sensor groups fitted on their own (:func:`~hdeem_watch.calibrate.group_fits.source_groups`);
     ``dram_rates_hz``: each DRAM channel's sample rate, for the guard rail (runs with fewer than
     ``min_samples`` samples of a channel are recorded, not fitted).
     """

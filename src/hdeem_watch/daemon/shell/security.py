@@ -9,7 +9,7 @@ Daemon: ``curve_secret_key_file`` (its ``.key_secret``) makes its TCP sockets CU
 any client that knows the server's public key may). A key file named ``<user>.key`` or
 ``<user>@<label>.key`` registers the key for that local user: the ZAP handler hands the user name
 on as the connection's ``User-Id``, which authorizes state-changing requests
-(:mod:`hdeem_watch.daemon.authorization`). The client's side is :mod:`hdeem_watch.wire.keys`.
+(:mod:`hdeem_watch.daemon.shell.authorization`). The client's side is :mod:`hdeem_watch.wire.keys`.
 
 Example:
     >>> import tempfile, zmq
@@ -37,7 +37,7 @@ from zmq.utils import z85
 from hdeem_watch.errors import InputError
 from hdeem_watch.wire.keys import PUBLIC_KEY_MODE, load_secret_key
 
-log = logging.getLogger("hdeem_watch.daemon.security")
+log = logging.getLogger("hdeem_watch.daemon.shell.security")
 
 
 class RefusalLog(logging.LoggerAdapter):  # type: ignore[type-arg]

@@ -11,7 +11,7 @@ still be read and without guessing at what cannot:
 * :func:`quarantine_bad_rows`: rows whose JSON is malformed or not an object move to the
   ``quarantine`` table (table, key, text, reason), out of the way of the loaders;
   :func:`quarantine_unusable_rows` likewise the rows of valid JSON the daemon cannot use
-  (:mod:`~hdeem_watch.daemon.store_checks`).
+  (:mod:`~hdeem_watch.daemon.store.checks`).
 
 Both return one line per finding for the log and the ``quarantined`` list.
 
@@ -36,7 +36,7 @@ from typing import Any
 
 from hdeem_watch.state_schema import SCHEMA, TABLES
 
-log = logging.getLogger("hdeem_watch.daemon.store")
+log = logging.getLogger("hdeem_watch.daemon.store.database")
 
 #: Most point look-ups a salvage spends on the rows between two damaged regions of one table.
 MAX_PROBES = 200_000
@@ -63,7 +63,7 @@ def quarantine_bad_rows(db: sqlite3.Connection, *, t_ns: int) -> list[str]:
 def quarantine_unusable_rows(db: sqlite3.Connection, checks: Mapping[str, Any], *, t_ns: int) -> list[str]:
     """Move rows of valid JSON that the daemon cannot use to ``quarantine``; one line each.
 
-    ``checks``: per table a :class:`~hdeem_watch.daemon.store_checks.RowCheck` (``check``,
+    ``checks``: per table a :class:`~hdeem_watch.daemon.store.checks.RowCheck` (``check``,
     ``where``, ``newest``); a row whose check raises is moved, the reason naming the error.
     """
     found: list[tuple[str, object, str, str]] = []
