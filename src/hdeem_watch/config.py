@@ -96,7 +96,7 @@ class DaemonSettings:
             more CPU; 40 ms keeps the p99 sensor→subscriber latency ≤ 50 ms at HDEEM's rate).
         idle_poll_interval_s: poll period while nobody watches, for a source that states no quiet
             limit (the built-in ones do, and are polled at half of it:
-            :mod:`hdeem_watch.daemon.poll_policy`). 0 = always ``poll_interval_s``.
+            :mod:`hdeem_watch.daemon.shell.poll_policy`). 0 = always ``poll_interval_s``.
         heartbeat_s: period of the ``status`` heartbeat.
         republish_s: period at which ``calib`` and ``baseline`` are re-published for late joiners.
         speed: time factor of the ``sim`` and ``replay`` sources (1 = real time).

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from hdeem_watch.calibrate.counter_model import counter_groups
 from hdeem_watch.counters.host_plan import PlannedChannel, PlannedEvent, plan_host
 from hdeem_watch.counters.perf_reader import PerfCounterReader
 from hdeem_watch.counters.permissions import check_access
@@ -21,7 +22,6 @@ from hdeem_watch.counters.reader import FakeCounterReader
 from hdeem_watch.counters.session import CounterSession
 from hdeem_watch.counters.sim_counters import imc_event_counts
 from hdeem_watch.counters.source import window_counts
-from hdeem_watch.daemon.counter_model import counter_groups
 from hdeem_watch.daemon.counter_source import PerfCounters
 from hdeem_watch.dram.kernels import kernel_stats
 from hdeem_watch.dram.memspec import preset

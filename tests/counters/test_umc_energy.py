@@ -128,8 +128,8 @@ def test_a_window_without_cas_counts_is_refused_by_name() -> None:
 def test_job_record_model_says_which_currents(pmu_trees: Path) -> None:
     """The daemon's job model (``counters_model``) on a DDR5 memspec books the joules under the
     currents' basis and says it; ``hdeem-watch job`` prints it."""
+    from hdeem_watch.calibrate.counter_model import counters_model
     from hdeem_watch.cli.jobs import model_lines
-    from hdeem_watch.daemon.counter_model import counters_model
 
     counters, _, _ = counted_window(pmu_trees, genoa_spec())
     plain = counters_model(genoa_spec(), counters, datasheet_a=None, calibrated_a=None)  # type: ignore[arg-type]

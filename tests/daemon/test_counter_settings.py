@@ -9,7 +9,7 @@ import pytest
 
 from hdeem_watch.config import DaemonSettings, SettingError, load_settings
 from hdeem_watch.counters.source import auto_counter_kind
-from hdeem_watch.daemon.counter_feed import CounterFeed
+from hdeem_watch.daemon.counters.feed import CounterFeed
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.sim_model import MEMSPEC_PRESET
 

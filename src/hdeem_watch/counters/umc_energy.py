@@ -144,7 +144,7 @@ def umc_energy(spec: MemSpecDDR5, counters: Mapping[str, Any], *, source: str | 
 
 def job_model_ddr5(spec: MemSpecDDR5, counters: Mapping[str, Any], *, source: str | None = None) -> dict[str, Any]:
     """:func:`umc_energy` in the shape of a job record's ``model``
-    (:func:`hdeem_watch.daemon.counter_model.counters_model`): the memspec's joules under
+    (:func:`hdeem_watch.calibrate.counter_model.counters_model`): the memspec's joules under
     ``datasheet`` or ``calibrated`` as :func:`currents_basis` says (the other is None; a node
     without a DRAM sensor has no fit of its own), ``currents`` saying which.
     """
