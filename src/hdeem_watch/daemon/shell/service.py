@@ -60,8 +60,15 @@ from hdeem_watch.daemon.store.checks import ROW_CHECKS
 from hdeem_watch.daemon.store.database import Store, StoreError
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.errors import InputError
-from hdeem_watch.sources.base import QuietPolling, Source, SourceBatch, SourceUnavailable, source_speed
-from hdeem_watch.sources.registry import make_source
+from hdeem_watch.sources.base import (
+    HasLayout,
+    QuietPolling,
+    Source,
+    SourceBatch,
+    SourceUnavailable,
+    source_speed,
+)
+from hdeem_watch.sources.registry import make_source, simulated_memspec
 from hdeem_watch.wire.client import default_endpoints
 from hdeem_watch.wire.json_codec import quoted
 
@@ -187,11 +194,10 @@ class Daemon:
 
         overrides = self.settings.node_overrides()
         default = None
-        topology = getattr(getattr(source, "layout", None), "topology", None)  # the simulated node
-        if topology is not None:
-            from hdeem_watch.sources.sim_model import MEMSPEC_PRESET
-
-            default = (MEMSPEC_PRESET, "the simulated node's DIMMs (its hidden truth is built on this preset)")
+        preset = simulated_memspec(source)
+        if isinstance(source, HasLayout) and preset is not None:  # the simulated node
+            topology = source.layout.topology
+            default = (preset, "the simulated node's DIMMs (its hidden truth is built on this preset)")
             description = counted_node(topology.sockets, topology.cores_per_socket, topology.channels_per_socket,
                                        source="sim: the simulated node")
             if overrides is not None:  # its counts went to the sim itself; memspec and name stay
