@@ -247,7 +247,8 @@ def test_jobs_job_prints_the_split_or_why_there_is_none(record: JobRecord) -> No
 
     model, _ = RunModeller(MEMSPEC, dimms=2).model_counters(record.counters, record.energy_j)
     with_model = model_lines([{"node": "n1", "ok": True, "jobs": [{**record.to_dict(), "model": model}]}])
-    assert len(with_model) == 2 and "datasheet" in with_model[1]
+    assert len(with_model) == 3 and "datasheet" in with_model[1]
+    assert with_model[2].strip() == "currents: datasheet currents of samsung-m393a1g43db0-cpb"
     assert all(kind.replace("_", "-") in with_model[1] for kind in COMPONENT_KINDS)
     bare = _job_through_a_kill(counters=False).to_dict()
     (line,) = model_lines([{"node": "n1", "ok": True, "jobs": [bare]}, {"node": "n2", "ok": False, "error": "x"}])

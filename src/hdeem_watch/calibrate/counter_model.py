@@ -32,8 +32,10 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.counters.command_mapping import channel_stats
+from hdeem_watch.counters.command_mapping import channel_stats, window_channels
+from hdeem_watch.counters.umc_energy import job_model_ddr5
 from hdeem_watch.dram.energy import COMPONENT_KINDS, component_energy
+from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
 from hdeem_watch.dram.node import node_counts
 from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError
@@ -68,12 +70,7 @@ def counter_groups(spec: Any, counters: Mapping[str, Any]) -> tuple[list[tuple[C
         InputError: no usable counters (a window without a CAS or ACT count, a rank count the
             memspec cannot make up), naming the channel.
     """
-    channels = counters.get("channels")
-    window_s = counters.get("window_s")
-    if not isinstance(channels, Mapping) or not channels:
-        raise InputError(f"counters: no channels ({counters.get('status', 'none recorded')})")
-    if not isinstance(window_s, int | float) or not math.isfinite(window_s) or window_s <= 0:
-        raise InputError(f"counters: window_s = {window_s!r}; expected a duration > 0")
+    channels, window_s = window_channels(counters)
     ranks = int(counters.get("ranks") or spec.nbr_of_ranks)
     per_dimm = int(spec.nbr_of_ranks)
     if ranks % per_dimm:
@@ -198,6 +195,9 @@ def counters_model(spec: Any, counters: Mapping[str, Any], *, datasheet_a: np.nd
                    measured_j: Mapping[str, float] | None = None) -> dict[str, Any]:
     """A window's modelled DRAM energy by component from its counters alone (``model.source = "counters"``).
 
+    A DDR5 memspec (AMD Zen 4/5's UMC counters, no DRAM sensor) is modelled by
+    :func:`hdeem_watch.counters.umc_energy.job_model_ddr5` with the memspec's own currents.
+
     Args:
         spec: one DIMM's memspec.
         counters: the window's counters (:func:`sum_counters` of a job's segments).
@@ -216,6 +216,8 @@ def counters_model(spec: Any, counters: Mapping[str, Any], *, datasheet_a: np.nd
     Raises:
         InputError: unusable counters (see :func:`counter_groups`).
     """
+    if isinstance(spec, MemSpecDDR5):  # AMD Zen 4/5: the UMC counts and the memspec's own currents
+        return job_model_ddr5(spec, counters)
     groups, notes = counter_groups(spec, counters)
     window_s = float(counters["window_s"])
     datasheet = component_energy(spec, groups, window_s, datasheet_a)

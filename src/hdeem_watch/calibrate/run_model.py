@@ -44,6 +44,7 @@ import numpy as np
 
 from hdeem_watch.calibrate.counter_model import counter_groups, counters_model, cross_check, node_totals
 from hdeem_watch.calibrate.group_fits import DEFAULT_MIN_SAMPLES, GroupFits
+from hdeem_watch.counters.umc_energy import currents_basis
 from hdeem_watch.errors import InputError
 
 if TYPE_CHECKING:
@@ -232,6 +233,7 @@ class RunModeller:
         self.error: str | None = None
         self.restore_error: str | None = None
         self.spec: Any = None
+        self._said_currents = False
         self.calibrator: Any = None
         self.group_fits: GroupFits | None = None
         self.history: list[dict[str, Any]] = [dict(h) for h in history][-MAX_HISTORY:]
@@ -554,6 +556,10 @@ class RunModeller:
         except InputError as error:
             return None, str(error)
         model["memspec"] = getattr(self.spec, "memory_id", self.memspec)
+        model.setdefault("currents", dataclasses.asdict(currents_basis(self.spec, self.memspec)))
+        if not self._said_currents:  # once: which currents the jobs' counter model rests on
+            self._said_currents = True
+            log.info("jobs' DRAM energy from counters: %s", model["currents"]["text"])
         model["dimms"] = self.dimms
         model["fit_runs"] = None if fit is None else fit.get("n_runs")
         return model, ""

@@ -52,24 +52,33 @@ class CounterFeed:
 
     @classmethod
     def open(cls, kind: str, source: object, book: NodeState, *, memspec: str, clock: Callable[[], int],
-             heartbeat_s: float, record_file: str | None, replay_file: str | None) -> CounterFeed | None:
+             heartbeat_s: float, record_file: str | None, replay_file: str | None,
+             source_kind: str = "", notes: list[str] | None = None) -> CounterFeed | None:
         """The feed of the ``counters`` setting ``kind``, read once; None for ``none`` (or no source).
 
+        ``auto`` tries the counters of the power source ``source_kind``
+        (:func:`~hdeem_watch.counters.source.auto_counter_kind`) and falls back to none when they
+        cannot be opened; either way it says, once, which commands the fits will use: a line
+        appended to ``notes`` for the caller to log once the daemon has started (logged here if None).
+
         Raises:
-            InputError: the counters cannot be opened (the source's reason), or the record file
-                cannot be written.
+            InputError: the memspec is unknown, the counters of an explicit kind cannot be opened
+                (the source's reason), or the record file cannot be written.
         """
         if kind == "none":
             return None
-        from hdeem_watch.daemon.counter_source import make_counter_source
+        from hdeem_watch.calibrate.run_model import load_spec
 
-        ranks = 2
-        if kind == "perf":  # ranks per channel: one DIMM of the node's memspec per channel
-            from hdeem_watch.calibrate.run_model import load_spec
-
-            ranks = int(load_spec(memspec).nbr_of_ranks)
-        counters = make_counter_source(kind, source, sample_time=book.sample_time_of, clock=clock, ranks=ranks,
-                                       replay_file=replay_file)
+        ranks = int(load_spec(memspec).nbr_of_ranks)  # per channel: one DIMM of the node's memspec
+        if kind == "auto":
+            counters, note = _auto_counter_source(source, book, clock=clock, ranks=ranks,
+                                                  replay_file=replay_file, source_kind=source_kind)
+            if notes is None:
+                log.info("%s", note)
+            else:
+                notes.append(note)
+        else:
+            counters = _counter_source(kind, source, book, clock=clock, ranks=ranks, replay_file=replay_file)
         if counters is None:
             return None
         recorder = None
@@ -133,3 +142,32 @@ class CounterFeed:
         if self.recorder is not None:
             self.recorder.close()
             self.recorder = None
+
+
+def _counter_source(kind: str, source: object, book: NodeState, *, clock: Callable[[], int], ranks: int,
+                    replay_file: str | None) -> Any:
+    """The counter source of an explicit ``counters`` kind (None for ``none``); InputError if it cannot open."""
+    from hdeem_watch.daemon.counter_source import make_counter_source
+
+    return make_counter_source(kind, source, sample_time=book.sample_time_of,
+                               clock=clock, ranks=ranks if kind == "perf" else 2, replay_file=replay_file)
+
+
+def _auto_counter_source(source: object, book: NodeState, *, clock: Callable[[], int], ranks: int,
+                         replay_file: str | None, source_kind: str) -> tuple[Any, str]:
+    """``counters = "auto"``: the power source's own counters if they open, else None; and the line
+    that says which commands the fits use."""
+    from hdeem_watch.counters.source import auto_counter_kind
+    from hdeem_watch.daemon.counters.record import counters_path
+
+    has_recorded = replay_file is not None and counters_path(replay_file).is_file()
+    kind = auto_counter_kind(source_kind, replay_has_counters=has_recorded)
+    fallback = "fits use the kernel model's commands (calib show: 'modelled')"
+    if kind == "none":
+        return None, f"counters: none (auto: the {source_kind or 'power'} source has no counters); {fallback}"
+    try:
+        counters = _counter_source(kind, source, book, clock=clock, ranks=ranks, replay_file=replay_file)
+    except InputError as error:
+        return None, f"counters: none (auto: {error}); {fallback}"
+    return counters, (f"counters: {kind} (auto); fits use the commands counted in each window "
+                      "(calib show: 'counted')")

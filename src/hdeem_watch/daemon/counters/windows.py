@@ -158,10 +158,10 @@ class CounterWindows:
         ends = [span[1] for c, span in (samples_ns or {}).items() if c in wanted and span and span[1] is not None]
         end_t = max(ends) if ends else self.history[-1].t_ns
         status = "ok"
-        if end_t > self.history[-1].t_ns:
+        end = exact(end_t) if exact is not None else None  # a source that counts at any time: to the sample
+        if end is None and end_t > self.history[-1].t_ns:
             status = f"short: the counters reach {(end_t - self.history[-1].t_ns) / 1e9:.3f} s less far than the samples"
             end_t = self.history[-1].t_ns
-        end = exact(end_t) if exact is not None else None
         end = end if end is not None else interpolate(self.history, end_t)
         window_s = (end.t_ns - start.t_ns) / 1e9
         if not window_s > 0:

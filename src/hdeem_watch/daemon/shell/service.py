@@ -30,7 +30,7 @@ import re
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -61,6 +61,7 @@ from hdeem_watch.daemon.store.database import Store, StoreError
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import (
+    ChannelInfo,
     HasLayout,
     QuietPolling,
     Source,
@@ -231,17 +232,7 @@ class Daemon:
             poll_interval_s=settings.poll_interval_s, history_s=settings.quiet_history_s,
             next_seq=int(store.next_run_id()[1:]), baselines=baselines, limits=RunLimits.of_this_node(),
             paced=limit is not None and limit.paced)
-        self.counters = CounterFeed.open(settings.counters, source, book, memspec=setup.memspec, clock=self.clock,
-                                         heartbeat_s=settings.heartbeat_s, record_file=settings.record_file,
-                                         replay_file=settings.replay_file)
-        if settings.record_file:
-            from hdeem_watch.sources.replay import RecordingWriter
-
-            try:
-                self.recorder = RecordingWriter(settings.record_file, node=self.node,
-                                                rate_hz={i.name: i.rate_hz for i in infos})
-            except OSError as error:
-                raise InputError(f"record file {settings.record_file}: {error.strerror}") from None
+        start_notes = self._open_counters_and_recorder(source, book, infos, memspec=setup.memspec)
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self.store_worker = StoreWorker(store, self._wake)
         self.model_jobs = Worker("model", self._wake)
@@ -260,7 +251,7 @@ class Daemon:
             on_built=core.reporter.publish_calib, on_unrestorable=self._quarantine_calibrator)
         core.operations.resume_modelling(unfinished_runs(store))
         job_ops.remodel(unmodelled_jobs(store))
-        for line in setup.log_lines():  # once started: a start that fails says one line only
+        for line in (*setup.log_lines(), *start_notes):  # once started: a start that fails says one line only
             log.info("%s", line)
         log.info("hdeem-watch daemon %s: node %s, source %s, pub %s, control %s", __version__, self.node,
                  settings.source, self.pub_endpoint, self.control_endpoint)
@@ -290,6 +281,23 @@ class Daemon:
         return ModelSettings(setup.memspec, dimms=settings.dimms, topology=topo, currents=self._currents(),
                              half_life_s=settings.half_life_s or None, physical_rules=settings.physical_rules,
                              max_requests=settings.model_max_requests, groups=groups, dram_rates_hz=dram_rates)
+
+    def _open_counters_and_recorder(self, source: Source, book: NodeState, infos: Sequence[ChannelInfo], *,
+                                    memspec: str) -> list[str]:
+        """Open the memory-controller counters and the ``--record`` writer; the lines to log once started."""
+        settings, notes = self.settings, list[str]()
+        self.counters = CounterFeed.open(settings.counters, source, book, memspec=memspec, clock=self.clock,
+                                         heartbeat_s=settings.heartbeat_s, record_file=settings.record_file,
+                                         replay_file=settings.replay_file, source_kind=settings.source, notes=notes)
+        if settings.record_file:
+            from hdeem_watch.sources.replay import RecordingWriter
+
+            try:
+                self.recorder = RecordingWriter(settings.record_file, node=self.node,
+                                                rate_hz={i.name: i.rate_hz for i in infos})
+            except OSError as error:
+                raise InputError(f"record file {settings.record_file}: {error.strerror}") from None
+        return notes
 
     @staticmethod
     def _stored_baselines(store: Store) -> dict[str, bl.Baseline]:
