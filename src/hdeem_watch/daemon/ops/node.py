@@ -29,10 +29,11 @@ from hdeem_watch.calibrate.run_model import RunModelResult
 from hdeem_watch.daemon.book import baselines as bl
 from hdeem_watch.daemon.book.runs import FINISHED_STATES, OPAQUE_KERNEL, RunRecord, parse_run_args
 from hdeem_watch.daemon.book.state import ClosedWindow, Conflict, NodeState
-from hdeem_watch.daemon.ops.ports import PublisherPort, Reply, StorePort, Submit
+from hdeem_watch.daemon.ops.ports import PublisherPort, Reply, Submit
 from hdeem_watch.daemon.ops.reporting import Reporter
 from hdeem_watch.daemon.shell.control import Handler, OpError, Pending
 from hdeem_watch.daemon.shell.workers import Calibration
+from hdeem_watch.daemon.store.port import StorePort
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import RunAware, RunEvent, Source
