@@ -147,7 +147,7 @@ def cpu_seconds(proc: psutil.Process) -> float:
 
 def idle_baseline_cpu(seconds: float) -> float:
     """CPU share (% of one core) of an idle Python process holding the daemon's imports."""
-    code = "import time, numpy, scipy, zmq, psutil, hdeem_watch.daemon.shell.service\nprint('up', flush=True)\ntime.sleep(1e6)"
+    code = "import time, numpy, scipy, zmq, psutil, hdeem_watch.daemon.service\nprint('up', flush=True)\ntime.sleep(1e6)"
     return _baseline_cpu([sys.executable, "-c", code], seconds)
 
 

@@ -38,7 +38,7 @@ import functools
 import logging
 import math
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -147,6 +147,35 @@ def compact_fit(t_ns: int, fit: Mapping[str, Any] | None) -> dict[str, Any]:
         "error_after": (fit.get("error") or {}).get("after"),
         "currents": currents,
     }
+
+
+class RunModelResult(NamedTuple):
+    """What modelling one finished run gives (it crosses from the model worker to the poll loop)."""
+
+    #: The run's ``model`` body (None: the run could not be modelled).
+    model: dict[str, Any] | None
+    #: The refit's ``to_dict()`` (None: no refit).
+    fit: dict[str, Any] | None
+    #: Why the run was not modelled or not fitted (None: it was both).
+    error: str | None
+
+
+@dataclasses.dataclass(frozen=True)
+class _Observed:
+    """One run as the calibrator sees it, and what made it: its row, the command statistics per
+    memory domain (counted or from the kernel model), where its CPUs came from."""
+
+    obs: Any
+    groups: list[tuple[Any, int]]
+    kernel_groups: list[tuple[Any, int]] | None
+    counted: bool
+    counter_error: str | None
+    counter_notes: list[str]
+    cpus: tuple[int, ...] | None
+    cpus_source: str
+    run_name: str
+    stop_ns: int
+    traffic_s: float | None
 
 
 class RunModeller:
@@ -341,81 +370,96 @@ class RunModeller:
             intercept = float(value) if isinstance(value, int | float) and math.isfinite(value) else 0.0
         return np.array([values[n] for n in names]), intercept
 
-    def evaluate(self, record: Mapping[str, Any]) -> tuple[dict[str, Any] | None, dict[str, Any] | None, str | None]:
+    def evaluate(self, record: Mapping[str, Any]) -> RunModelResult:
         """Model a finished run, add it to the calibrator and refit.
 
         Returns:
-            ``(model, fit, error)``: ``model`` = ``{"memspec", "dimms", "groups" (DIMMs per memory
-            domain), "placement" (:meth:`placement`: where the CPUs came from, threads and DIMMs per
-            domain, the topology), "datasheet_j", "predicted_j", "calibrated_j" (= predicted_j: the
-            fit before this run), "fitted_j" (after the refit), "counts", "observation"}`` (None
-            when the run cannot be modelled),
-            ``fit`` = the refit's ``to_dict()`` (None without a refit) and ``error`` = why not.
+            :class:`RunModelResult` ``(model, fit, error)``: ``model`` = ``{"memspec", "dimms",
+            "groups" (DIMMs per memory domain), "placement" (:meth:`placement`: where the CPUs came
+            from, threads and DIMMs per domain, the topology), "datasheet_j", "predicted_j",
+            "calibrated_j" (= predicted_j: the fit before this run), "fitted_j" (after the refit),
+            "counts", "observation"}`` (None when the run cannot be modelled), ``fit`` = the refit's
+            ``to_dict()`` (None without a refit) and ``error`` = why not.
         """
         if self.error is not None:
-            return None, None, self.error
+            return RunModelResult(None, None, self.error)
         name = str(record.get("name") or record.get("run_id"))
         measured: Any = record.get("dram_energy_j")
         window_s: Any = record.get("window_s")
         if (why := self._unmeasured(name, measured, window_s)) is not None:
-            return None, None, why
+            return RunModelResult(None, None, why)
+        observed = self._observe(record, name, float(window_s), float(measured))
+        if isinstance(observed, str):
+            return RunModelResult(None, None, observed)
+        model = self._model_body(record, observed, float(window_s), float(measured))
+        return self._refit(record, observed, model)
+
+    def _observe(self, record: Mapping[str, Any], name: str, window_s: float, measured: float) -> _Observed | str:
+        """The run as one calibration row, from its counters or its kernel (a string: why it cannot be)."""
         from hdeem_watch.calibrate.group_rows import announced_traffic_s
         from hdeem_watch.calibrate.rows import node_observation
-        from hdeem_watch.dram.node import node_counts
 
         cpus, cpus_source = announced_cpus(record)
         run_name, stop_ns = f"{record.get('run_id')}:{name}", int(record.get("t_stop_ns") or 0)
         opaque = str(record.get("kernel")) == OPAQUE_KERNEL
         counted, counter_error, counter_notes = self._counted(record)
         if opaque and counted is None:
-            return None, None, f"run {name!r}: a job without a kernel is modelled from counters only: {counter_error}"
+            return f"run {name!r}: a job without a kernel is modelled from counters only: {counter_error}"
         kernel_groups = None
         try:
             if not opaque:
+                kernel = (str(record["kernel"]), int(record["elements"]), int(record["threads"]), int(record["repeat"]))
                 try:
-                    kernel_groups = self.groups_for(str(record["kernel"]), int(record["elements"]),
-                                                    int(record["threads"]), int(record["repeat"]), cpus)
+                    kernel_groups = self.groups_for(*kernel, cpus)
                 except InputError as error:  # an announced CPU this node does not have: say so, model the default
                     if cpus is None:
                         raise
                     cpus, cpus_source = None, f"default: {error}; threads fill socket 0 first"
-                    kernel_groups = self.groups_for(str(record["kernel"]), int(record["elements"]),
-                                                    int(record["threads"]), int(record["repeat"]))
+                    kernel_groups = self.groups_for(*kernel)
             groups = counted if counted is not None else kernel_groups
             assert groups is not None
             # A kernel's traffic lasts what the run announced; the window may run on past it (the stop is
             # seen at the next poll): the rest of the window is standby. Counters measure the window itself.
             traffic_s = announced_traffic_s(record)
-            factors = () if counted is not None or opaque else self.mapping_factors(
-                str(record["kernel"]), int(record["elements"]), int(record["threads"]), int(record["repeat"]), cpus)
-            obs = node_observation(self.spec, groups, float(window_s), float(measured), name=run_name, time_ns=stop_ns,
+            factors = () if counted is not None or opaque else self.mapping_factors(*kernel, cpus)
+            obs = node_observation(self.spec, groups, window_s, measured, name=run_name, time_ns=stop_ns,
                                    traffic_s=traffic_s if counted is None else None,
                                    commands="model" if counted is None else "counters", act_factors=factors)
         except InputError as error:
-            return None, None, str(error)
+            return str(error)
+        return _Observed(obs, groups, kernel_groups, counted is not None, counter_error, counter_notes, cpus,
+                         cpus_source, run_name, stop_ns, traffic_s)
+
+    def _model_body(self, record: Mapping[str, Any], observed: _Observed, window_s: float,
+                    measured: float) -> dict[str, Any]:
+        """The run's ``model`` body: datasheet and calibrated predictions, counts, the kernel cross-check."""
+        from hdeem_watch.calibrate.rows import node_observation
+        from hdeem_watch.dram.node import node_counts
+
+        obs, groups, kernel_groups = observed.obs, observed.groups, observed.kernel_groups
         before = self.latest_fit()
         datasheet_vec, _ = self._currents_vector(None)
         model: dict[str, Any] = {
-            "source": "counters" if counted is not None else "kernel",
+            "source": "counters" if observed.counted else "kernel",
             "memspec": getattr(self.spec, "memory_id", self.memspec),
             "dimms": self.dimms,
             "groups": [n for _stats, n in groups],
-            "placement": self.placement(int(record["threads"]), cpus, cpus_source),
+            "placement": self.placement(int(record["threads"]), observed.cpus, observed.cpus_source),
             "datasheet_j": obs.predicted_j(datasheet_vec),
             "predicted_j": None,
             "calibrated_j": None,
             "fitted_j": None,
-            "counts": node_totals(groups) if counted is not None else node_counts(groups),
+            "counts": node_totals(groups) if observed.counted else node_counts(groups),
             "observation": obs.to_dict(),
         }
-        if counted is not None:
-            model["counter_estimates"] = counter_notes
-        elif counter_error is not None:
-            model["counter_error"] = counter_error
+        if observed.counted:
+            model["counter_estimates"] = observed.counter_notes
+        elif observed.counter_error is not None:
+            model["counter_error"] = observed.counter_error
         kernel_obs = None
-        if counted is not None and kernel_groups is not None:
-            kernel_obs = node_observation(self.spec, kernel_groups, float(window_s), float(measured), name=run_name,
-                                          time_ns=stop_ns, traffic_s=traffic_s)
+        if observed.counted and kernel_groups is not None:
+            kernel_obs = node_observation(self.spec, kernel_groups, window_s, measured, name=observed.run_name,
+                                          time_ns=observed.stop_ns, traffic_s=observed.traffic_s)
             model["kernel_model"] = {**cross_check(model["counts"], node_counts(kernel_groups)),
                                      "datasheet_j": kernel_obs.predicted_j(datasheet_vec), "predicted_j": None}
         if before is not None:
@@ -423,26 +467,31 @@ class RunModeller:
             model["predicted_j"] = model["calibrated_j"] = obs.predicted_j(vec, intercept)
             if kernel_obs is not None:
                 model["kernel_model"]["predicted_j"] = kernel_obs.predicted_j(vec, intercept)
+        return model
+
+    def _refit(self, record: Mapping[str, Any], observed: _Observed, model: dict[str, Any]) -> RunModelResult:
+        """Add the run's row to the calibrator and refit, unless it is a hold-out, guarded or known."""
+        run_name, stop_ns, obs = observed.run_name, observed.stop_ns, observed.obs
         if is_holdout(record):
-            return model, None, self._skip(run_name, stop_ns, "hold-out run: predicted with the fit from before "
-                                                                "it, never fitted")
+            return RunModelResult(model, None, self._skip(run_name, stop_ns, "hold-out run: predicted with the fit "
+                                                                             "from before it, never fitted"))
         if self.group_fits is not None and (reason := self.group_fits.unmeasured(record)) is not None:
-            return model, None, self._skip(run_name, stop_ns, reason)  # the guard rail: recorded, not fitted
+            return RunModelResult(model, None, self._skip(run_name, stop_ns, reason))  # the guard rail
         if self.has_run(str(record.get("run_id"))):  # modelled again after a crash: already in the fit
-            return model, None, "the calibrator already had this run (modelled again after a restart)"
+            return RunModelResult(model, None, "the calibrator already had this run (modelled again after a restart)")
         try:
             result = self.calibrator.add_run(obs)
         except InputError as error:
-            return model, None, self._skip(run_name, stop_ns, str(error))
+            return RunModelResult(model, None, self._skip(run_name, stop_ns, str(error)))
         self._say_source(run_name, model["source"], record)
-        self._add_to_groups(model, record, kernel_groups, groups)
+        self._add_to_groups(model, record, observed.kernel_groups, observed.groups)
         fit = dict(result.to_dict())
         vec, intercept = self._currents_vector(fit)
         model["fitted_j"] = obs.predicted_j(vec, intercept)
         self._remember_candidate(record, obs)
         self.history.append(compact_fit(int(result.time_ns or obs.time_ns), fit))
         del self.history[:-MAX_HISTORY]
-        return model, fit, None
+        return RunModelResult(model, fit, None)
 
     def _unmeasured(self, name: str, measured: Any, window_s: Any) -> str | None:
         """Why run ``name`` with ``measured`` J over ``window_s`` s cannot be calibrated (None: it can)."""

@@ -83,7 +83,7 @@ def _run(args: argparse.Namespace) -> int:
             print(f"public key (register it in the daemon's curve_clients_dir): {public}\n"
                   f"secret key (--client-key): {secret}")
         return 0
-    from hdeem_watch.daemon.shell.service import Daemon
+    from hdeem_watch.daemon.service import Daemon
 
     settings = load_settings(
         args.config,

@@ -4,7 +4,7 @@
 (the store worker, the model worker, the publisher, deferred replies, a poll at a window edge) and
 returns the :class:`NodeCore`: every part is given what it needs when it is made, and the closed
 windows go through one :class:`~hdeem_watch.daemon.ops.router.WindowRouter` keyed by window kind.
-The daemon (:class:`~hdeem_watch.daemon.shell.service.Daemon`), the socket-free test nodes and the
+The daemon (:class:`~hdeem_watch.daemon.service.Daemon`), the socket-free test nodes and the
 counter benchmark's rig build their node here, so they run the same wiring.
 
 Example:

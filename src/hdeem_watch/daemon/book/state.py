@@ -5,7 +5,7 @@ and idle windows (:meth:`start_run`, :meth:`stop_run`, :meth:`measure_baseline`)
 windows that closed as typed :class:`ClosedWindow` values: the finished :class:`RunRecord` and the
 baselines found. It owns no socket, file or thread and reads time only from its injected monotonic
 and wall clocks, so a run's whole life is testable with a fake clock and fake batches. The daemon
-(:mod:`hdeem_watch.daemon.shell.service`) is the shell that polls the source, publishes, stores and
+(:mod:`hdeem_watch.daemon.service`) is the shell that polls the source, publishes, stores and
 models what this core decides.
 
 Example:

@@ -31,8 +31,9 @@ from hdeem_watch.daemon.jobs.records import (
     job_summary,
     parse_job_args,
 )
-from hdeem_watch.daemon.ops.ports import PublisherPort, Reply, StorePort
+from hdeem_watch.daemon.ops.ports import PublisherPort, Reply
 from hdeem_watch.daemon.shell.control import Handler, OpError, Pending
+from hdeem_watch.daemon.store.port import StorePort
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.wire.protocol import quoted
 from hdeem_watch.wire.requests import job_id_arg

@@ -25,13 +25,15 @@ from collections.abc import Callable
 from typing import Any, Literal
 
 from hdeem_watch import __version__
+from hdeem_watch.calibrate.run_model import RunModelResult
 from hdeem_watch.daemon.book import baselines as bl
 from hdeem_watch.daemon.book.runs import FINISHED_STATES, OPAQUE_KERNEL, RunRecord, parse_run_args
 from hdeem_watch.daemon.book.state import ClosedWindow, Conflict, NodeState
-from hdeem_watch.daemon.ops.ports import PublisherPort, Reply, StorePort, Submit
+from hdeem_watch.daemon.ops.ports import PublisherPort, Reply, Submit
 from hdeem_watch.daemon.ops.reporting import Reporter
 from hdeem_watch.daemon.shell.control import Handler, OpError, Pending
 from hdeem_watch.daemon.shell.workers import Calibration
+from hdeem_watch.daemon.store.port import StorePort
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import RunAware, RunEvent, Source
@@ -53,6 +55,20 @@ RESUME_SCAN = 50
 MAX_CACHED_PAGES = 64
 #: Waiters key of the idle measurement.
 BASELINE = "baseline"
+
+
+@dataclasses.dataclass(frozen=True)
+class Modelled:
+    """A run's model as it comes back from the model worker to the poll loop."""
+
+    #: The run's model, fit and error.
+    result: RunModelResult
+    #: The ``calib`` topic's body after it.
+    calib_body: dict[str, Any]
+    #: The calibrator's state to store (serialised on the worker; None: no refit).
+    state: str | None
+    #: Drift alarms of the sensor groups it raised.
+    alarms: list[dict[str, Any]]
 
 
 class Operations:
@@ -360,27 +376,28 @@ class Operations:
         self.waiters.setdefault(record.run_id, [])
         body = record.to_dict()
 
-        def job() -> tuple[Any, ...]:
+        def job() -> Modelled:
             modeller = calibration.modeller  # read on the worker, after the job that built it
             if modeller is None:
                 raise RuntimeError("the model is not available (it failed to build; see the log)")
             try:
-                model, fit, error = modeller.evaluate(body)
+                result = modeller.evaluate(body)
             except Exception as exc:  # a model bug must not lose the run or its reply
                 log.exception("modelling run %s failed", record.run_id)
-                model, fit, error = None, None, f"model failed: {type(exc).__name__}: {exc}"
+                result = RunModelResult(None, None, f"model failed: {type(exc).__name__}: {exc}")
             # The calibrator's state grows with the runs: serialise it here, not in the poll loop.
-            state = protocol.dumps(modeller.state()).decode() if fit is not None else None
+            state = protocol.dumps(modeller.state()).decode() if result.fit is not None else None
             alarms = [alarm.to_dict() for alarm in modeller.take_alarms()]
-            return model, fit, error, modeller.body(), state, alarms
+            return Modelled(result, modeller.body(), state, alarms)
 
         def failed(error: BaseException) -> None:
-            self._modelled(record, (None, None, str(error), calibration.body, None, []))
+            self._modelled(record, Modelled(RunModelResult(None, None, str(error)), calibration.body, None, []))
 
-        self.submit(job, lambda result: self._modelled(record, result), failed)
+        self.submit(job, lambda modelled: self._modelled(record, modelled), failed)
 
-    def _modelled(self, record: RunRecord, result: tuple[Any, ...]) -> None:
-        model, fit, error, calib_body, state, alarms = result
+    def _modelled(self, record: RunRecord, modelled: Modelled) -> None:
+        (model, fit, error), state, alarms = modelled.result, modelled.state, modelled.alarms
+        calib_body = modelled.calib_body
         done = dataclasses.replace(record, state="done", model=model, fit=fit, model_error=error)
         self.calibration.body = calib_body
         for alarm in alarms:  # drift alarms of the sensor groups: an event on the stream

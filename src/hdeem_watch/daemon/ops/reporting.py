@@ -17,8 +17,9 @@ import psutil
 
 from hdeem_watch.daemon.book import baselines as bl
 from hdeem_watch.daemon.book.state import NodeState
-from hdeem_watch.daemon.ops.ports import PublisherPort, StorePort
+from hdeem_watch.daemon.ops.ports import PublisherPort
 from hdeem_watch.daemon.shell.workers import Calibration
+from hdeem_watch.daemon.store.port import StorePort
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.sources.base import HasTruth, Source
 

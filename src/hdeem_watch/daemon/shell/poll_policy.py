@@ -9,7 +9,7 @@ gaps because sources report cumulative energy. A window opened while the daemon 
 too: every window edge polls the source at once (the operations' edge poll), which returns the
 buffered samples up to the edge.
 
-:class:`PollPolicy` is pure: the shell (:mod:`hdeem_watch.daemon.shell.service`) asks it for the period
+:class:`PollPolicy` is pure: the shell (:mod:`hdeem_watch.daemon.service`) asks it for the period
 whenever a subscription, a window or a job changes.
 
 Example:

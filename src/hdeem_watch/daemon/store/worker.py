@@ -27,8 +27,8 @@ import time
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-from hdeem_watch.daemon.ops.ports import StorePort
 from hdeem_watch.daemon.shell.workers import Worker
+from hdeem_watch.daemon.store.port import StorePort
 
 log = logging.getLogger("hdeem_watch.daemon")
 

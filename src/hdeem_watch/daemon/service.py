@@ -256,23 +256,6 @@ class Daemon:
         log.info("hdeem-watch daemon %s: node %s, source %s, pub %s, control %s", __version__, self.node,
                  settings.source, self.pub_endpoint, self.control_endpoint)
 
-    def _open_counters_and_recorder(self, source: Source, book: NodeState, infos: Sequence[ChannelInfo], *,
-                                    memspec: str) -> list[str]:
-        """Open the memory-controller counters and the ``--record`` writer; the lines to log once started."""
-        settings, notes = self.settings, list[str]()
-        self.counters = CounterFeed.open(settings.counters, source, book, memspec=memspec, clock=self.clock,
-                                         heartbeat_s=settings.heartbeat_s, record_file=settings.record_file,
-                                         replay_file=settings.replay_file, source_kind=settings.source, notes=notes)
-        if settings.record_file:
-            from hdeem_watch.sources.replay import RecordingWriter
-
-            try:
-                self.recorder = RecordingWriter(settings.record_file, node=self.node,
-                                                rate_hz={i.name: i.rate_hz for i in infos})
-            except OSError as error:
-                raise InputError(f"record file {settings.record_file}: {error.strerror}") from None
-        return notes
-
     def _build_core(self, book: NodeState, source: Source, publisher: Publisher, control: ControlServer) -> NodeCore:
         """The node's core over ``book`` (:func:`~hdeem_watch.daemon.compose.build_node`)."""
         assert self.store_worker is not None and self.model_jobs is not None
@@ -298,6 +281,23 @@ class Daemon:
         return ModelSettings(setup.memspec, dimms=settings.dimms, topology=topo, currents=self._currents(),
                              half_life_s=settings.half_life_s or None, physical_rules=settings.physical_rules,
                              max_requests=settings.model_max_requests, groups=groups, dram_rates_hz=dram_rates)
+
+    def _open_counters_and_recorder(self, source: Source, book: NodeState, infos: Sequence[ChannelInfo], *,
+                                    memspec: str) -> list[str]:
+        """Open the memory-controller counters and the ``--record`` writer; the lines to log once started."""
+        settings, notes = self.settings, list[str]()
+        self.counters = CounterFeed.open(settings.counters, source, book, memspec=memspec, clock=self.clock,
+                                         heartbeat_s=settings.heartbeat_s, record_file=settings.record_file,
+                                         replay_file=settings.replay_file, source_kind=settings.source, notes=notes)
+        if settings.record_file:
+            from hdeem_watch.sources.replay import RecordingWriter
+
+            try:
+                self.recorder = RecordingWriter(settings.record_file, node=self.node,
+                                                rate_hz={i.name: i.rate_hz for i in infos})
+            except OSError as error:
+                raise InputError(f"record file {settings.record_file}: {error.strerror}") from None
+        return notes
 
     @staticmethod
     def _stored_baselines(store: Store) -> dict[str, bl.Baseline]:
