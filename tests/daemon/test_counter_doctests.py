@@ -9,8 +9,8 @@ import importlib
 
 import pytest
 
-MODULES = ("hdeem_watch.daemon.counter_source", "hdeem_watch.daemon.counter_windows",
-           "hdeem_watch.daemon.counter_model", "hdeem_watch.daemon.counter_record",
+MODULES = ("hdeem_watch.daemon.counter_source", "hdeem_watch.daemon.counters.windows",
+           "hdeem_watch.calibrate.counter_model", "hdeem_watch.daemon.counters.record",
            "hdeem_watch.sources.sim_jobs", "hdeem_watch.sources.sim_commands", "hdeem_watch.tui.records",
            "hdeem_watch.tui.widgets.fmt", "hdeem_watch.perf_event")
 

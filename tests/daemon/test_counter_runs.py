@@ -1,21 +1,35 @@
 """Runs modelled from memory-controller counters (issue 17): opaque jobs, kernel runs with a cross-check.
 
 The daemon's real core (run book, operations, store and model workers) over the simulated node with
-its own IMC counters (``counters = "sim"``), on a fake clock (:mod:`hdeem_watch.daemon.counter_rig`).
+its own IMC counters (``counters = "sim"``), on a fake clock (``benchmarks/counter_rig.py``).
 """
 
 from __future__ import annotations
 
+import importlib.util
 import math
+import sys
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
 from hdeem_watch.counters.source import CounterSnapshot
-from hdeem_watch.daemon.counter_rig import CounterSimNode
-from hdeem_watch.daemon.counter_windows import CounterWindows
-from hdeem_watch.daemon.runs import OPAQUE_KERNEL, parse_run_args
+from hdeem_watch.daemon.book.runs import OPAQUE_KERNEL, parse_run_args
+from hdeem_watch.daemon.counters.windows import CounterWindows
 from hdeem_watch.sources.sim_jobs import JOB_KERNEL
+
+
+def _benchmark_module(name: str) -> ModuleType:
+    """A module of ``benchmarks/`` (the counter rig is the counter benchmark's, and these tests')."""
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[2] / "benchmarks" / f"{name}.py")
+        assert spec is not None and spec.loader is not None
+        sys.modules[name] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules[name])
+    return sys.modules[name]
+
+CounterSimNode = _benchmark_module("counter_rig").CounterSimNode
 
 CURRENTS = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w", "idd2p", "idd3p")
 
@@ -128,6 +142,25 @@ def test_a_window_past_the_newest_read_is_short_not_invented() -> None:
     result = cw.finish(w.run, ["DDR_AB"])
     assert result is not None and result["status"].startswith("short") and result["channels"]["c"]["act"] == 10.0
     assert cw.finish(w.run, ["DDR_AB"]) is None  # the start was used up
+
+
+def test_a_source_that_counts_at_any_time_counts_to_the_last_sample_not_the_last_read() -> None:
+    """The sim counts at any time it knows (``read_at``): a window whose samples reach past the newest
+    read is counted exactly to its last sample, not cut short at the read (which would leave the
+    window's energy with fewer commands than it had)."""
+    cw = CounterWindows("sim", table_key="haswell-ep", ranks=2, refresh_complete=False, sensors={})
+    cw.observe(CounterSnapshot(0, {"c": {"act": 0.0}}), now_mono_ns=0)
+    w = window("r1", 0)
+
+    def exact(t: int) -> CounterSnapshot:
+        return CounterSnapshot(t, {"c": {"act": t / 10}})
+
+    cw.track([w], sample_time=lambda t: t, exact=exact)
+    cw.observe(CounterSnapshot(100, {"c": {"act": 10.0}}), now_mono_ns=1)
+    w.run.samples_ns = {"DDR_AB": [0, 300]}
+    result = cw.finish(w.run, ["DDR_AB"], exact)
+    assert result is not None and result["status"] == "ok" and result["channels"]["c"]["act"] == 30.0
+    assert result["window_s"] == pytest.approx(300e-9)
 
 
 def test_rates_are_per_second_with_the_power_down_share() -> None:

@@ -9,7 +9,7 @@
 - ``perf`` (:class:`PerfCounters`): the host plan's events opened through ``perf_event_open``
   (:class:`~hdeem_watch.counters.perf_reader.PerfCounterReader`); each read's per-event deltas are
   scaled for multiplexing and summed per role (:class:`~hdeem_watch.counters.source.RoleTotals`).
-- ``replay``: the counters recorded beside a recording, played with it (:mod:`hdeem_watch.daemon.counter_record`).
+- ``replay``: the counters recorded beside a recording, played with it (:mod:`hdeem_watch.daemon.counters.record`).
 - ``none``: no counters (runs are modelled from their kernel only).
 
 Example:
@@ -235,7 +235,7 @@ def make_counter_source(kind: str, source: object, *, sample_time: Callable[[int
         return PerfCounters(plan, PerfCounterReader(), sample_time=sample_time, clock=clock, ranks=ranks,
                             sensors=imc_sensors(plan.channels, names))
     if kind == "replay":
-        from hdeem_watch.daemon.counter_record import CounterReplay
+        from hdeem_watch.daemon.counters.record import CounterReplay
 
         if not replay_file:
             raise InputError("counters = 'replay' needs source = 'replay' and its recording (replay_file)")
