@@ -20,6 +20,9 @@ from hdeem_watch.counters.sim_counters import imc_event_counts
 from hdeem_watch.dram.kernels import kernel_stats
 from hdeem_watch.dram.memspec import preset
 
+# One worker runs the module, so its module-scoped fixture is built once, not once per worker.
+pytestmark = pytest.mark.xdist_group("counters-session_pipeline")
+
 FIXTURES = Path(__file__).resolve().parent / "fixtures"
 SPEC = preset("samsung-m393a1g43db0-cpb")
 WINDOW_NS = 1_000_000_000
