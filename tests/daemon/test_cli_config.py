@@ -107,12 +107,17 @@ def test_second_daemon_on_the_same_state_dir_is_refused(daemon_factory: Any) -> 
 @pytest.mark.slow
 def test_ipc_permissions_and_prometheus_endpoint(shared_daemon: Any) -> None:
     """ipc sockets are 0660; --prometheus serves per-channel power gauges and energy counters."""
-    time.sleep(1.2)  # at least one heartbeat, which updates the metrics
     port = shared_daemon.prometheus_port
-    text = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5).read().decode()
     node = shared_daemon.node
-    assert f'hdeem_watch_power_watts{{channel="DDR_AB",node="{node}"}}' in text
     prefix = f'hdeem_watch_energy_joules_total{{channel="BLADE",node="{node}"}}'
+    deadline = time.monotonic() + 10.0
+    while True:  # until a heartbeat has updated the metrics (the shared daemon may be just up)
+        text = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5).read().decode()
+        counted = [line for line in text.splitlines() if line.startswith(prefix) and float(line.split()[-1]) > 0]
+        if counted or time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
+    assert f'hdeem_watch_power_watts{{channel="DDR_AB",node="{node}"}}' in text
     value = next(line for line in text.splitlines() if line.startswith(prefix))
     assert float(value.split()[-1]) > 0
     assert "hdeem_watch_samples_total" in text
