@@ -15,7 +15,7 @@ from hdeem_watch.counters.source import CounterSnapshot
 from hdeem_watch.daemon.counter_rig import CounterSimNode
 from hdeem_watch.daemon.counter_windows import CounterWindows
 from hdeem_watch.daemon.runs import OPAQUE_KERNEL, parse_run_args
-from hdeem_watch.sources.sim_jobs import JOB_KERNEL
+from hdeem_watch.sim.jobs import JOB_KERNEL
 
 CURRENTS = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w", "idd2p", "idd3p")
 

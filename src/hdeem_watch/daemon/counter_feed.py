@@ -29,7 +29,7 @@ class CounterFeed:
     """A counter source read into :class:`CounterWindows` (and a recorder), for one run book.
 
     Args:
-        counters: the counter source (:mod:`hdeem_watch.daemon.counter_source`).
+        counters: the counter source (:mod:`hdeem_watch.counters.setting`).
         book: the run book whose windows get counter starts.
         clock: monotonic ns.
         heartbeat_s: read at least this often.
@@ -61,15 +61,17 @@ class CounterFeed:
         """
         if kind == "none":
             return None
-        from hdeem_watch.daemon.counter_source import make_counter_source
+        from hdeem_watch.counters.setting import make_counter_source
+        from hdeem_watch.daemon.counter_record import CounterReplay
 
         ranks = 2
         if kind == "perf":  # ranks per channel: one DIMM of the node's memspec per channel
             from hdeem_watch.daemon.modelling import load_spec
 
             ranks = int(load_spec(memspec).nbr_of_ranks)
+        replay = (lambda: CounterReplay(replay_file, source)) if replay_file else None
         counters = make_counter_source(kind, source, sample_time=book.sample_time_of, clock=clock, ranks=ranks,
-                                       replay_file=replay_file)
+                                       replay=replay)
         if counters is None:
             return None
         recorder = None

@@ -1,7 +1,7 @@
 """A simulated node with memory counters under the daemon's real core, on a fake clock (a test rig).
 
 The run book, operations, store worker and model worker of the daemon, the sim as the power source
-and :class:`~hdeem_watch.daemon.counter_source.SimCounters` as the counter source, wired as
+and :class:`~hdeem_watch.sim.counters.SimCounters` as the counter source, wired as
 ``Daemon.poll_once`` wires them (counters read at the heartbeat, at window edges and until a closing
 window's end; their deltas attached to the closed run). No sockets, no threads of its own beyond
 the daemon's two workers. Used by the counter tests, the node-topology tests (a sim with a node
@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 from hdeem_watch.daemon.control import Pending
-from hdeem_watch.daemon.counter_source import SimCounters
 from hdeem_watch.daemon.counter_windows import CounterWindows
 from hdeem_watch.daemon.jobs import Calibration, ModelSettings, Worker, restore_calibration
 from hdeem_watch.daemon.node_state import NodeState
@@ -30,6 +29,7 @@ from hdeem_watch.daemon.reporting import Identity, Reporter
 from hdeem_watch.daemon.runs import RunLimits
 from hdeem_watch.daemon.store import Store
 from hdeem_watch.dram.node import NodeTopology
+from hdeem_watch.sim.counters import SimCounters
 from hdeem_watch.sources.sim import SimSource
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"

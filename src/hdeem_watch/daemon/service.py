@@ -188,7 +188,7 @@ class Daemon:
         default = None
         topology = getattr(getattr(source, "layout", None), "topology", None)  # the simulated node
         if topology is not None:
-            from hdeem_watch.sources.sim_model import MEMSPEC_PRESET
+            from hdeem_watch.sim.model import MEMSPEC_PRESET
 
             default = (MEMSPEC_PRESET, "the simulated node's DIMMs (its hidden truth is built on this preset)")
             description = counted_node(topology.sockets, topology.cores_per_socket, topology.channels_per_socket,

@@ -28,7 +28,6 @@ from typing import TYPE_CHECKING
 from hdeem_watch.channels import channel_letter, dimm_pair_channel
 from hdeem_watch.dram.node import NodeTopology
 from hdeem_watch.errors import InputError
-from hdeem_watch.sources.base import ChannelInfo
 
 if TYPE_CHECKING:
     from hdeem_watch.node.description import NodeDescription
@@ -88,11 +87,6 @@ class SimLayout:
     def channels(self) -> tuple[str, ...]:
         """Every channel the sim publishes: BLADE, the CPU packages, the DRAM sensors."""
         return ("BLADE", *self.cpu_channels, *self.sensors)
-
-    def channel_infos(self) -> list[ChannelInfo]:
-        """BLADE at 1000 Sa/s, the CPU and DRAM channels at 100 Sa/s (HDEEM's rates)."""
-        return ([ChannelInfo("BLADE", 1000.0, "blade")] + [ChannelInfo(n, 100.0, "cpu") for n in self.cpu_channels]
-                + [ChannelInfo(n, 100.0, "dram") for n in self.sensors])
 
     def sensor_dimms(self, sensor: str) -> list[int]:
         """Indices of the DIMMs behind ``sensor``."""

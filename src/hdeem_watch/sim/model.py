@@ -1,6 +1,6 @@
 """The daemon's model of the simulated node: bandwidth, the DRAM model, and the model's view of a run.
 
-The sim's truth does NOT come from here (:mod:`hdeem_watch.sources.sim_plan` is its own generator);
+The sim's truth does NOT come from here (:mod:`hdeem_watch.sim.plan` is its own generator);
 this module holds what the sim shares with the daemon's model — the node's bandwidth (how long a
 run's traffic lasts, which the demo's schedule uses to hold runs) and the DRAM model (memspec,
 energy columns) — and :func:`plan_run` / :func:`run_truth_energy_j` / :func:`effective_currents`,
@@ -9,7 +9,7 @@ the model's view of a run at given currents, kept to measure how far the truth i
 The modelled node is a 2-socket Haswell-EP (2 × 12 cores, logical CPUs 0–11 on socket 0, 12–23 on
 socket 1, 24–35 and 36–47 their hyper-threads) with 8 DIMMs of the Samsung M393A1G43DB0-CPB, one
 per memory channel, 4 channels per socket — by default; any node with one DIMM per channel can be
-modelled instead (:class:`~hdeem_watch.sources.sim_layout.SimLayout`, e.g. from a detected
+modelled instead (:class:`~hdeem_watch.sim.layout.SimLayout`, e.g. from a detected
 :class:`~hdeem_watch.node.description.NodeDescription`). HDEEM's DIMM-pair sensors: DDR_AB = DIMMs A, B and
 DDR_CD = C, D on socket 0; DDR_EF = E, F and DDR_GH = G, H on socket 1.
 
@@ -46,11 +46,11 @@ import numpy as np
 
 from hdeem_watch.dram.node import lines_of, node_capacity_lines_s, node_run_stats
 from hdeem_watch.dram.stats import CommandStats, RankStats
-from hdeem_watch.sources.sim_currents import PartCurrents
-from hdeem_watch.sources.sim_layout import TAURUS, SimLayout
+from hdeem_watch.sim.currents import PartCurrents
+from hdeem_watch.sim.layout import TAURUS, SimLayout
 
 #: The default (Taurus) layout's DIMM names, in channel order (A..H), and the HDEEM pair channel
-#: and socket of each; other layouts: :class:`~hdeem_watch.sources.sim_layout.SimLayout`.
+#: and socket of each; other layouts: :class:`~hdeem_watch.sim.layout.SimLayout`.
 DIMMS = TAURUS.dimm_names
 DIMM_PAIR = TAURUS.dimm_sensor
 DIMM_SOCKET = TAURUS.dimm_socket

@@ -11,8 +11,8 @@ IDD0, times the sensor gain, plus the sensor offsets as a shift of every calibra
 The effects marked ``"no"`` are what keeps a fit a few percent off.
 
 Example:
-    >>> from hdeem_watch.sources.sim_currents import PartCurrents
-    >>> from hdeem_watch.sources.sim_plan import TruthNode
+    >>> from hdeem_watch.sim.currents import PartCurrents
+    >>> from hdeem_watch.sim.plan import TruthNode
     >>> node = TruthNode(1)
     >>> parts = PartCurrents(node.model.names, node.model.datasheet, 1, pairs=node.layout.dimm_sensor)
     >>> flat = dict.fromkeys(node.layout.channels, 0.0)
@@ -28,10 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.sources.sim_currents import PartCurrents
-from hdeem_watch.sources.sim_model import CALIBRATED
-from hdeem_watch.sources.sim_plan import TruthNode
-from hdeem_watch.sources.sim_power import refresh_per_s
+from hdeem_watch.sim.currents import PartCurrents
+from hdeem_watch.sim.model import CALIBRATED
+from hdeem_watch.sim.plan import TruthNode
+from hdeem_watch.sim.power import refresh_per_s
 
 #: Each effect the sim has beyond the model, whether a node-level fit absorbs it, and why.
 EFFECTS: tuple[tuple[str, str, str], ...] = (
