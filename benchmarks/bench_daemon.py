@@ -147,7 +147,7 @@ def cpu_seconds(proc: psutil.Process) -> float:
 
 def idle_baseline_cpu(seconds: float) -> float:
     """CPU share (% of one core) of an idle Python process holding the daemon's imports."""
-    code = "import time, numpy, scipy, zmq, psutil, hdeem_watch.daemon.service\nprint('up', flush=True)\ntime.sleep(1e6)"
+    code = "import time, numpy, scipy, zmq, psutil, hdeem_watch.daemon.shell.service\nprint('up', flush=True)\ntime.sleep(1e6)"
     return _baseline_cpu([sys.executable, "-c", code], seconds)
 
 
@@ -186,7 +186,7 @@ while True:
 SEND_LOOP = """
 import subprocess, sys, time, zmq
 import numpy as np
-from hdeem_watch.daemon.publisher import Publisher
+from hdeem_watch.daemon.shell.publisher import Publisher
 from hdeem_watch.sources.base import hdeem_channel_infos
 endpoint, interval_s, subscribers = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
 ctx = zmq.Context()
@@ -266,7 +266,7 @@ def steady(seconds: float, subscribers: int, poll_interval_s: float) -> dict[str
 
 def publisher_ceiling(seconds: float, batch: int, subscribers: int) -> dict[str, Any]:
     """Flood the daemon's Publisher with large batches; samples/s every subscriber received."""
-    from hdeem_watch.daemon.publisher import Publisher
+    from hdeem_watch.daemon.shell.publisher import Publisher
 
     with tempfile.TemporaryDirectory(prefix="hwc-") as tmp:
         endpoint = f"ipc://{tmp}/flood.sock"
@@ -308,7 +308,7 @@ LOAD_OPS: tuple[tuple[str, dict[str, Any]], ...] = (
 
 def _seed_runs(directory: Path, n: int) -> int:
     """Make one real run on a sped-up daemon, then store ``n`` copies of its record; return its size."""
-    from hdeem_watch.daemon.store import Store
+    from hdeem_watch.daemon.store.database import Store
 
     proc, _pub, control = start_daemon(directory, 20.0)
     try:

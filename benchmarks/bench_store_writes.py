@@ -15,8 +15,8 @@ import statistics
 import tempfile
 import time
 
-from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.store import Store
+from hdeem_watch.daemon.store.database import Store
+from hdeem_watch.daemon.store.worker import StoreWorker
 
 
 def one_round(writes: int) -> float:

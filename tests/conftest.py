@@ -50,7 +50,7 @@ def fake_clock() -> Callable[..., FakeClock]:
 
 @contextmanager
 def _serving(server: Any, poll_ms: int = 10) -> Iterator[None]:
-    """Answer ``server``'s requests (a :class:`~hdeem_watch.daemon.control.ControlServer`) on a
+    """Answer ``server``'s requests (a :class:`~hdeem_watch.daemon.shell.control.ControlServer`) on a
     thread while the block runs, as the daemon's loop would."""
     halt = threading.Event()
 

@@ -92,8 +92,8 @@ def test_a_curve_daemon_answers_jobs_given_its_key(tmp_path: Path, monkeypatch: 
     import zmq
 
     from hdeem_watch.cli import main
-    from hdeem_watch.daemon.control import ControlServer
-    from hdeem_watch.daemon.security import CurveServer
+    from hdeem_watch.daemon.shell.control import ControlServer
+    from hdeem_watch.daemon.shell.security import CurveServer
     from hdeem_watch.wire.keys import generate_keys
 
     for name in ("HDEEM_WATCH_SERVER_KEY", "HDEEM_WATCH_CLIENT_KEY", "XDG_CONFIG_HOME"):

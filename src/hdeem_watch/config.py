@@ -96,7 +96,7 @@ class DaemonSettings:
             more CPU; 40 ms keeps the p99 sensor→subscriber latency ≤ 50 ms at HDEEM's rate).
         idle_poll_interval_s: poll period while nobody watches, for a source that states no quiet
             limit (the built-in ones do, and are polled at half of it:
-            :mod:`hdeem_watch.daemon.poll_policy`). 0 = always ``poll_interval_s``.
+            :mod:`hdeem_watch.daemon.shell.poll_policy`). 0 = always ``poll_interval_s``.
         heartbeat_s: period of the ``status`` heartbeat.
         republish_s: period at which ``calib`` and ``baseline`` are re-published for late joiners.
         speed: time factor of the ``sim`` and ``replay`` sources (1 = real time).
@@ -154,7 +154,9 @@ class DaemonSettings:
         log_level: ``debug``, ``info``, ``warning`` or ``error``.
         node_table: the config file's ``[node]`` table as parsed TOML (sockets, channels, DIMMs,
             memspec, sensors: docs/your-node.md); file only (no environment variable or flag).
-        counters: where each window's DRAM commands come from: ``none`` (the kernel model only),
+        counters: where each window's DRAM commands come from: ``auto`` (the default: the power
+            source's own counters when the daemon can open them, else none; the choice is logged
+            once at start), ``none`` (the kernel model only),
             ``sim`` (the simulated node's memory-controller counters; needs ``source = "sim"``),
             ``perf`` (the host's ``uncore_imc`` PMUs through ``perf_event_open``; needs
             ``CAP_PERFMON`` or ``perf_event_paranoid <= 0``) or ``replay`` (docs/counters.md).
@@ -210,7 +212,7 @@ class DaemonSettings:
     quiet_history_s: float = 60.0
     log_level: str = "info"
     node_table: Mapping[str, Any] | None = None
-    counters: str = "none"
+    counters: str = "auto"
     job_checkpoint_s: float = 5.0
 
     def __post_init__(self) -> None:

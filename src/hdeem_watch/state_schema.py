@@ -1,8 +1,8 @@
 """The schema of the state database (``state.db``): its one owner.
 
 Every module that touches the file's tables takes their names and columns from here: the store
-(:mod:`~hdeem_watch.daemon.store`, which creates the tables and writes them), the SLURM jobs table
-(:mod:`~hdeem_watch.daemon.store_jobs`), the start-up repair (:mod:`~hdeem_watch.daemon.store_repair`)
+(:mod:`~hdeem_watch.daemon.store.database`, which creates the tables and writes them), the SLURM jobs table
+(:mod:`~hdeem_watch.daemon.store.jobs`), the start-up repair (:mod:`~hdeem_watch.daemon.store.repair`)
 and the report's reader (:mod:`hdeem_watch.report.state_reader`; ``report`` sits above ``daemon`` in
 the layering, so it may import this module, which imports nothing of the daemon).
 

@@ -8,7 +8,7 @@ from typing import Any
 from hdeem_watch.bench.announce import Announcer
 from hdeem_watch.bench.runner import PlacedRunSpec, run_one
 from hdeem_watch.bench.schedule import RunSpec
-from hdeem_watch.daemon.runs import parse_run_args
+from hdeem_watch.daemon.book.runs import parse_run_args
 
 
 class RecordingClient:

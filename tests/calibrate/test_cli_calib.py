@@ -74,13 +74,13 @@ def test_show_export_calibrate_round_trip_and_reset(daemon: str, tmp_path: Path,
     shown = json.loads(capsys.readouterr().out)
     node_fit = shown["node"]["fit"]
     assert node_fit["n_runs"] == 8
-    assert node_fit["trust"]["commands"] == "modelled"  # the daemon's default: no counters
+    assert node_fit["trust"]["commands"] == "counted"  # the daemon's default on the sim: its counters
     node_skipped = [s for s in shown["skipped"] if s["group"] == "node"]
     assert [s["name"].split(":")[1] for s in node_skipped] == ["read"] and "samples" in node_skipped[0]["reason"]
     assert main(["calib", "show", "--connect", daemon]) == 0
     text = capsys.readouterr().out
     assert text.startswith("node: 8 runs") and "idd3n" in text
-    assert "commands from the kernel model" in text and "not fitted: " in text
+    assert "commands counted in each run's window" in text and "not fitted: " in text
 
     runs_json = tmp_path / "RUNS.json"
     assert main(["calib", "export", "--connect", daemon, "--out", str(runs_json)]) == 0

@@ -8,8 +8,8 @@ import importlib
 
 import pytest
 
-MODULES = ("hdeem_watch.daemon.authorization", "hdeem_watch.wire.handshake", "hdeem_watch.daemon.security", "hdeem_watch.wire.keys",
-           "hdeem_watch.addresses", "hdeem_watch.wire.discovery", "hdeem_watch.daemon.control",
+MODULES = ("hdeem_watch.daemon.shell.authorization", "hdeem_watch.wire.handshake", "hdeem_watch.daemon.shell.security", "hdeem_watch.wire.keys",
+           "hdeem_watch.addresses", "hdeem_watch.wire.discovery", "hdeem_watch.daemon.shell.control",
            "hdeem_watch.wire.client", "hdeem_watch.wire.subscriber")
 
 

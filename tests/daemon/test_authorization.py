@@ -21,10 +21,10 @@ import pytest
 import zmq
 
 from hdeem_watch.config import DaemonSettings
-from hdeem_watch.daemon.authorization import STATE_CHANGING_OPS, Authorizer, Peer, ipc_peer, tcp_peer
-from hdeem_watch.daemon.control import ControlServer
-from hdeem_watch.daemon.security import CurveServer
-from hdeem_watch.daemon.service import Daemon
+from hdeem_watch.daemon.shell.authorization import STATE_CHANGING_OPS, Authorizer, Peer, ipc_peer, tcp_peer
+from hdeem_watch.daemon.shell.control import ControlServer
+from hdeem_watch.daemon.shell.security import CurveServer
+from hdeem_watch.daemon.shell.service import Daemon
 from hdeem_watch.sources.sim import SimSource
 from hdeem_watch.wire import protocol
 from hdeem_watch.wire.client import ControlClient, ControlError

@@ -28,8 +28,8 @@ import pytest
 import zmq
 
 from hdeem_watch.config import DaemonSettings
-from hdeem_watch.daemon.authorization import OP_CALLERS, OPERATORS, STATE_CHANGING_OPS
-from hdeem_watch.daemon.service import Daemon
+from hdeem_watch.daemon.shell.authorization import OP_CALLERS, OPERATORS, STATE_CHANGING_OPS
+from hdeem_watch.daemon.shell.service import Daemon
 from hdeem_watch.sources.sim import SimSource
 from hdeem_watch.wire import protocol
 

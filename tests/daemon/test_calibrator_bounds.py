@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from hdeem_watch.daemon import modelling
-from hdeem_watch.daemon.modelling import RunModeller
+from hdeem_watch.calibrate import run_model as modelling
+from hdeem_watch.calibrate.run_model import RunModeller
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"
 

@@ -124,7 +124,7 @@ def test_default_ipc_directory_is_private(tmp_path: Path) -> None:
     """Endpoints in a missing runtime directory create it 0750 and the sockets 0660."""
     import zmq
 
-    from hdeem_watch.daemon.publisher import bind_endpoint
+    from hdeem_watch.daemon.shell.publisher import bind_endpoint
 
     sock = zmq.Context.instance().socket(zmq.PUB)
     path = tmp_path / "rt" / "p.sock"

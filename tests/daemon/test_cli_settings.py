@@ -91,8 +91,8 @@ def test_insecure_tcp_needs_an_explicit_yes(tmp_path: Path) -> None:
 
 def test_insecure_tcp_is_warned_about_loudly(caplog: Any) -> None:
     """When allowed, each insecure socket logs a WARNING before it binds (here a bind that then fails)."""
-    from hdeem_watch.daemon.control import ControlServer
-    from hdeem_watch.daemon.publisher import Publisher
+    from hdeem_watch.daemon.shell.control import ControlServer
+    from hdeem_watch.daemon.shell.publisher import Publisher
 
     context = zmq.Context.instance()
     with caplog.at_level(logging.WARNING, logger="hdeem_watch.daemon"):

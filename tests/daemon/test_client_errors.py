@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from hdeem_watch.config import DaemonSettings
-from hdeem_watch.daemon.service import Daemon
+from hdeem_watch.daemon.shell.service import Daemon
 from hdeem_watch.sources.sim import SimSource
 from hdeem_watch.wire.client import ControlClient, ControlError
 

@@ -14,9 +14,9 @@ import zmq
 from hdeem_watch.addresses import remote_endpoint
 from hdeem_watch.cli import curve_options
 from hdeem_watch.cli import main as cli_main
-from hdeem_watch.daemon.control import ControlServer
-from hdeem_watch.daemon.endpoints import advertised_endpoints
-from hdeem_watch.daemon.security import CurveServer
+from hdeem_watch.daemon.shell.control import ControlServer
+from hdeem_watch.daemon.shell.endpoints import advertised_endpoints
+from hdeem_watch.daemon.shell.security import CurveServer
 from hdeem_watch.errors import InputError
 from hdeem_watch.wire import keys as security
 from hdeem_watch.wire.client import ControlClient, HandshakeFailed

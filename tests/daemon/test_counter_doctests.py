@@ -1,6 +1,6 @@
 """The examples in the docstrings of the counter modules outside ``hdeem_watch.counters`` run and hold
-(the daemon's counter windows, model and recording; the TUI's rates; the perf_event wrapper; the
-sim's are in ``tests/sim/test_doctests.py``)."""
+(the daemon's counter windows and recording, the counter model; the TUI's rates; the perf_event
+wrapper; the sim's are in ``tests/sim/test_doctests.py``)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ import importlib
 
 import pytest
 
-MODULES = ("hdeem_watch.daemon.counter_windows",
-           "hdeem_watch.daemon.counter_model", "hdeem_watch.daemon.counter_record", "hdeem_watch.tui.records",
+MODULES = ("hdeem_watch.daemon.counters.windows",
+           "hdeem_watch.calibrate.counter_model", "hdeem_watch.daemon.counters.record",
+           "hdeem_watch.tui.records",
            "hdeem_watch.tui.widgets.fmt", "hdeem_watch.perf_event")
 
 

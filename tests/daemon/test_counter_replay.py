@@ -9,7 +9,7 @@ import pytest
 
 from hdeem_watch.counters.event_tables import TABLES
 from hdeem_watch.counters.source import CounterSnapshot, window_counts
-from hdeem_watch.daemon.counter_record import (
+from hdeem_watch.daemon.counters.record import (
     CounterRecorder,
     CounterReplay,
     counters_path,

@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 
 from hdeem_watch.counters.source import CounterSnapshot
+from hdeem_watch.daemon.book.runs import OPAQUE_KERNEL, parse_run_args
 from hdeem_watch.daemon.counter_rig import CounterSimNode
-from hdeem_watch.daemon.counter_windows import CounterWindows
-from hdeem_watch.daemon.runs import OPAQUE_KERNEL, parse_run_args
+from hdeem_watch.daemon.counters.windows import CounterWindows
 from hdeem_watch.sim.jobs import JOB_KERNEL
 
 CURRENTS = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w", "idd2p", "idd3p")
@@ -128,6 +128,25 @@ def test_a_window_past_the_newest_read_is_short_not_invented() -> None:
     result = cw.finish(w.run, ["DDR_AB"])
     assert result is not None and result["status"].startswith("short") and result["channels"]["c"]["act"] == 10.0
     assert cw.finish(w.run, ["DDR_AB"]) is None  # the start was used up
+
+
+def test_a_source_that_counts_at_any_time_counts_to_the_last_sample_not_the_last_read() -> None:
+    """The sim counts at any time it knows (``read_at``): a window whose samples reach past the newest
+    read is counted exactly to its last sample, not cut short at the read (which would leave the
+    window's energy with fewer commands than it had)."""
+    cw = CounterWindows("sim", table_key="haswell-ep", ranks=2, refresh_complete=False, sensors={})
+    cw.observe(CounterSnapshot(0, {"c": {"act": 0.0}}), now_mono_ns=0)
+    w = window("r1", 0)
+
+    def exact(t: int) -> CounterSnapshot:
+        return CounterSnapshot(t, {"c": {"act": t / 10}})
+
+    cw.track([w], sample_time=lambda t: t, exact=exact)
+    cw.observe(CounterSnapshot(100, {"c": {"act": 10.0}}), now_mono_ns=1)
+    w.run.samples_ns = {"DDR_AB": [0, 300]}
+    result = cw.finish(w.run, ["DDR_AB"], exact)
+    assert result is not None and result["status"] == "ok" and result["channels"]["c"]["act"] == 30.0
+    assert result["window_s"] == pytest.approx(300e-9)
 
 
 def test_rates_are_per_second_with_the_power_down_share() -> None:

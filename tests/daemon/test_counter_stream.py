@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from hdeem_watch.daemon.counter_record import counters_path, read_counter_recording
+from hdeem_watch.daemon.counters.record import counters_path, read_counter_recording
 from hdeem_watch.wire import protocol
 
 

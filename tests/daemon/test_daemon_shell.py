@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from hdeem_watch.config import DaemonSettings
-from hdeem_watch.daemon.service import Daemon
+from hdeem_watch.daemon.shell.service import Daemon
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.sim import SimSource
 from hdeem_watch.wire.client import ControlClient

@@ -16,9 +16,9 @@ import psutil
 import pytest
 import zmq
 
-from hdeem_watch.daemon import endpoints
-from hdeem_watch.daemon.control import ControlServer
-from hdeem_watch.daemon.endpoints import bind, is_loopback, private_directory
+from hdeem_watch.daemon.shell import endpoints
+from hdeem_watch.daemon.shell.control import ControlServer
+from hdeem_watch.daemon.shell.endpoints import bind, is_loopback, private_directory
 from hdeem_watch.errors import InputError
 from hdeem_watch.wire import protocol
 
@@ -211,7 +211,7 @@ def test_a_client_does_not_talk_to_a_squatted_fallback_dir(tmp_path: Path, monke
 def test_dropping_connections_rebinds_the_same_endpoint(tmp_path: Path, transport: str) -> None:
     """Beyond the bound the publisher unbinds and binds the same endpoint again (the old TCP listener is
     released asynchronously: an immediate bind met EADDRINUSE and raised out of the loop)."""
-    from hdeem_watch.daemon.publisher import Publisher
+    from hdeem_watch.daemon.shell.publisher import Publisher
 
     context = zmq.Context.instance()
     endpoint = "tcp://127.0.0.1:0" if transport == "tcp" else f"ipc://{tmp_path}/s.sock"
@@ -254,7 +254,7 @@ def test_the_socket_mode_is_never_set_through_a_symlink(tmp_path: Path) -> None:
 
     (Old code: ``os.chmod(path)`` after the bind followed it and made the target 0660.)
     """
-    from hdeem_watch.daemon.endpoints import chmod_socket
+    from hdeem_watch.daemon.shell.endpoints import chmod_socket
 
     victim = tmp_path / "shadow"
     victim.write_text("secret")

@@ -10,10 +10,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from hdeem_watch.calibrate.group_fits import default_groups, source_groups
 from hdeem_watch.calibrate.group_rows import SensorGroup, group_observation
 from hdeem_watch.calibrate.observation import current_names
-from hdeem_watch.daemon.group_fits import default_groups, source_groups
-from hdeem_watch.daemon.modelling import RunModeller
+from hdeem_watch.calibrate.run_model import RunModeller
 from hdeem_watch.errors import InputError
 from hdeem_watch.sim.layout import TAURUS, SimLayout
 
@@ -128,7 +128,7 @@ def test_state_round_trip_and_resetting_one_group() -> None:
 
 
 def test_the_group_state_is_bounded_and_the_detectors_wait_for_four_runs_per_unknown() -> None:
-    from hdeem_watch.daemon.group_fits import DETECT_AFTER_RUNS, MAX_GROUP_RUNS
+    from hdeem_watch.calibrate.group_fits import DETECT_AFTER_RUNS, MAX_GROUP_RUNS
 
     m = _modeller()
     assert m.group_fits is not None and m.group_fits.calibrators is not None

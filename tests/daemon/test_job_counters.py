@@ -1,10 +1,10 @@
 """A SLURM job's memory-controller counts and its modelled DRAM energy by component (issues 17 + 18).
 
-The pure cores on a fake clock: the run book (:class:`~hdeem_watch.daemon.node_state.NodeState`),
+The pure cores on a fake clock: the run book (:class:`~hdeem_watch.daemon.book.state.NodeState`),
 the job book and the counter windows fed fake batches and fake counter snapshots (cumulative counts
 growing at fixed rates, as the IMC's free-running counters do), a daemon "killed" between two
 segments (a new book resumes the checkpointed record), and the run modeller's
-:meth:`~hdeem_watch.daemon.modelling.RunModeller.model_counters` on the job's summed counts.
+:meth:`~hdeem_watch.calibrate.run_model.RunModeller.model_counters` on the job's summed counts.
 """
 
 from __future__ import annotations
@@ -17,16 +17,16 @@ from typing import Any
 import numpy as np
 import pytest
 
+from hdeem_watch.calibrate.counter_model import COMPONENT_KINDS
+from hdeem_watch.calibrate.run_model import RunModeller
 from hdeem_watch.counters.source import CounterSnapshot
-from hdeem_watch.daemon.counter_model import COMPONENT_KINDS
-from hdeem_watch.daemon.counter_windows import CounterWindows
-from hdeem_watch.daemon.job_book import JobBook
-from hdeem_watch.daemon.job_ops import MODELLING, JobOperations, unmodelled_jobs
-from hdeem_watch.daemon.job_records import JobRecord, parse_job_args
-from hdeem_watch.daemon.modelling import RunModeller
-from hdeem_watch.daemon.node_state import NodeState
-from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.store import Store
+from hdeem_watch.daemon.book.state import NodeState
+from hdeem_watch.daemon.counters.windows import CounterWindows
+from hdeem_watch.daemon.jobs.book import JobBook
+from hdeem_watch.daemon.jobs.records import JobRecord, parse_job_args
+from hdeem_watch.daemon.ops.jobs import MODELLING, JobOperations, unmodelled_jobs
+from hdeem_watch.daemon.store.database import Store
+from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.dram.energy import COMPONENTS
 from hdeem_watch.sources.base import ChannelInfo, SourceBatch
 
@@ -247,7 +247,8 @@ def test_jobs_job_prints_the_split_or_why_there_is_none(record: JobRecord) -> No
 
     model, _ = RunModeller(MEMSPEC, dimms=2).model_counters(record.counters, record.energy_j)
     with_model = model_lines([{"node": "n1", "ok": True, "jobs": [{**record.to_dict(), "model": model}]}])
-    assert len(with_model) == 2 and "datasheet" in with_model[1]
+    assert len(with_model) == 3 and "datasheet" in with_model[1]
+    assert with_model[2].strip() == "currents: datasheet currents of samsung-m393a1g43db0-cpb"
     assert all(kind.replace("_", "-") in with_model[1] for kind in COMPONENT_KINDS)
     bare = _job_through_a_kill(counters=False).to_dict()
     (line,) = model_lines([{"node": "n1", "ok": True, "jobs": [bare]}, {"node": "n2", "ok": False, "error": "x"}])

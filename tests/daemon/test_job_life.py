@@ -15,14 +15,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdeem_watch.daemon import baselines as bl
-from hdeem_watch.daemon.control import OpError, Pending
-from hdeem_watch.daemon.job_book import JobBook
-from hdeem_watch.daemon.job_ops import JobOperations, unfinished_jobs
-from hdeem_watch.daemon.node_state import NodeState
-from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.runs import parse_run_args
-from hdeem_watch.daemon.store import Store
+from hdeem_watch.daemon.book import baselines as bl
+from hdeem_watch.daemon.book.runs import parse_run_args
+from hdeem_watch.daemon.book.state import NodeState
+from hdeem_watch.daemon.jobs.book import JobBook
+from hdeem_watch.daemon.ops.jobs import JobOperations, unfinished_jobs
+from hdeem_watch.daemon.shell.control import OpError, Pending
+from hdeem_watch.daemon.store.database import Store
+from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.sources.base import ChannelInfo, SourceBatch
 from hdeem_watch.wire.protocol import ProtocolError
 

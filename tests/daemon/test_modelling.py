@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdeem_watch.daemon.modelling import RunModeller
+from hdeem_watch.calibrate.run_model import RunModeller
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"
 ELEMENTS = 1 << 22

@@ -8,7 +8,8 @@ PACKAGE = Path(__file__).resolve().parents[2] / "src" / "hdeem_watch"
 #: The wire and socket modules: the whole wire package and the daemon's socket side (service.py's
 #: poll loop is checked by its own owner's tests).
 WIRE_MODULES = (*sorted(str(p.relative_to(PACKAGE).with_suffix("")) for p in (PACKAGE / "wire").glob("*.py")),
-                "daemon/publisher", "daemon/control", "daemon/endpoints", "daemon/security", "daemon/store")
+                "daemon/shell/publisher", "daemon/shell/control", "daemon/shell/endpoints", "daemon/shell/security",
+                "daemon/store/database")
 
 
 def test_no_private_pyzmq_api_and_one_samples_encoder() -> None:

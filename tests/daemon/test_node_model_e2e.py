@@ -90,7 +90,7 @@ def test_runs_on_one_socket_are_modelled_there_and_calibrate_as_well_as_on_the_d
     loaded = [r for r in runs if r["kernel"] != "idle"]
     assert all(r["model"]["counts"]["rd"] > 0 for r in loaded)
     if topology.sockets == 2:  # socket 1 idle: the node's reads are socket 0's 8 DIMMs' reads
-        from hdeem_watch.daemon.modelling import RunModeller
+        from hdeem_watch.calibrate.run_model import RunModeller
 
         for run in loaded:
             one = RunModeller(MEMSPEC, topology=NodeTopology(sockets=1, cores_per_socket=28, channels_per_socket=8),

@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 
 from hdeem_watch.calibrate import Observation
-from hdeem_watch.daemon.modelling import RunModeller, announced_cpus
+from hdeem_watch.calibrate.run_model import RunModeller, announced_cpus
 from hdeem_watch.dram.node import NodeTopology, idle_channel_stats
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"

@@ -7,8 +7,8 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.store import Store
+from hdeem_watch.daemon.store.database import Store
+from hdeem_watch.daemon.store.worker import StoreWorker
 
 
 def _record(n: int) -> dict[str, Any]:

@@ -10,11 +10,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from hdeem_watch.calibrate.group_fits import default_groups
 from hdeem_watch.calibrate.group_rows import group_observation
 from hdeem_watch.calibrate.observation import current_names
+from hdeem_watch.calibrate.run_model import RunModeller
 from hdeem_watch.config import load_settings
-from hdeem_watch.daemon.group_fits import default_groups
-from hdeem_watch.daemon.modelling import RunModeller
 from hdeem_watch.dram.memspec_check import physical_violations
 from hdeem_watch.errors import InputError
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import zmq
 
-from hdeem_watch.daemon.publisher import Publisher
+from hdeem_watch.daemon.shell.publisher import Publisher
 from hdeem_watch.wire import protocol
 
 

@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdeem_watch.daemon.node_state import NodeState
-from hdeem_watch.daemon.poll_policy import QUIET_MAX_S, PollDemand, PollPolicy
-from hdeem_watch.daemon.runs import RunLimits, parse_run_args
+from hdeem_watch.daemon.book.runs import RunLimits, parse_run_args
+from hdeem_watch.daemon.book.state import NodeState
+from hdeem_watch.daemon.shell.poll_policy import QUIET_MAX_S, PollDemand, PollPolicy
 from hdeem_watch.sources.base import ChannelInfo, QuietLimit, QuietPolling, SourceBatch
 from hdeem_watch.sources.rapl import RaplSource
 from hdeem_watch.sources.registry import make_source
@@ -57,7 +57,7 @@ def test_the_policy_examples_hold() -> None:
     """The module's examples (its documentation) are run."""
     import doctest
 
-    from hdeem_watch.daemon import poll_policy
+    from hdeem_watch.daemon.shell import poll_policy
 
     assert doctest.testmod(poll_policy).failed == 0
 
@@ -355,7 +355,7 @@ def test_the_metrics_endpoint_sleeps_until_scraped() -> None:
     import threading
     import urllib.request
 
-    from hdeem_watch.daemon.metrics import DaemonMetrics, NodeCollector
+    from hdeem_watch.daemon.shell.metrics import DaemonMetrics, NodeCollector
 
     metrics = DaemonMetrics(NodeCollector("n1", accounts=dict, baselines=dict, fit=lambda: None,
                                           runs_finished=lambda: 3))

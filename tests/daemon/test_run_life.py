@@ -16,15 +16,15 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hdeem_watch.daemon import baselines as bl
-from hdeem_watch.daemon.control import OpError, Pending, dispatch
-from hdeem_watch.daemon.jobs import Calibration, ModelSettings, Worker, restore_calibration
-from hdeem_watch.daemon.node_state import MAX_BASELINE_S, NodeState
-from hdeem_watch.daemon.operations import Operations, unfinished_runs
-from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.reporting import Identity, Reporter
-from hdeem_watch.daemon.runs import RunLimits
-from hdeem_watch.daemon.store import Store
+from hdeem_watch.daemon.book import baselines as bl
+from hdeem_watch.daemon.book.runs import RunLimits
+from hdeem_watch.daemon.book.state import MAX_BASELINE_S, NodeState
+from hdeem_watch.daemon.ops.node import Operations, unfinished_runs
+from hdeem_watch.daemon.ops.reporting import Identity, Reporter
+from hdeem_watch.daemon.shell.control import OpError, Pending, dispatch
+from hdeem_watch.daemon.shell.workers import Calibration, ModelSettings, Worker, restore_calibration
+from hdeem_watch.daemon.store.database import Store
+from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.sources.base import ChannelInfo, RunAware, RunEvent, SourceBatch
 from hdeem_watch.wire.protocol import ProtocolError, decode_reply
 
@@ -386,7 +386,7 @@ def test_source_failures_and_unknown_values_are_reported_not_fatal(node: Node) -
 @pytest.mark.parametrize("failure", ["bad-preset", "crash"])
 def test_a_failing_model_still_answers_run_stop(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, failure: str) -> None:
     """If the model cannot be built (bad memspec, or a crash), run.stop still replies with the energies and why."""
-    from hdeem_watch.daemon import jobs
+    from hdeem_watch.daemon.shell import workers as jobs
 
     if failure == "crash":
         def broken(*args: object, **kwargs: object) -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import sqlite3
 from pathlib import Path
 
-from hdeem_watch.daemon.store import Store
+from hdeem_watch.daemon.store.database import Store
 
 ALARM = {"group": "DDR_CD", "current": "energy", "kind": "residual-cusum", "statistic": 12.4, "threshold": 12.0,
          "time_ns": 7, "direction": "up"}

@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from hdeem_watch.daemon.store import Store, StoreError
+from hdeem_watch.daemon.store.database import Store, StoreError
 
 
 def _run(i: int, pad: int = 0, state: str = "done", kernel: str = "triad") -> dict[str, Any]:
@@ -26,7 +26,7 @@ def _run(i: int, pad: int = 0, state: str = "done", kernel: str = "triad") -> di
 FULL_DISK = r"""
 import json, resource, sys, time
 from pathlib import Path
-from hdeem_watch.daemon.store import Store
+from hdeem_watch.daemon.store.database import Store
 path = Path(sys.argv[1])
 store = Store(path, retry_min_s=0.05, retry_max_s=0.1)
 store.save_run({"run_id": "r1", "kernel": "triad", "state": "done", "t_start_ns": 1})

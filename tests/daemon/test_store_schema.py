@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from hdeem_watch import state_schema as store_schema
-from hdeem_watch.daemon.store import Store
+from hdeem_watch.daemon.store.database import Store
 
 
 def test_the_store_creates_exactly_the_tables_and_columns_the_owner_declares(tmp_path: Path) -> None:

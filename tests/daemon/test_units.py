@@ -15,14 +15,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hdeem_watch.daemon import baselines as bl
-from hdeem_watch.daemon.channels import ChannelAccount, RecentPower, count_missing
-from hdeem_watch.daemon.control import OpError, Pending, dispatch
-from hdeem_watch.daemon.metrics import DaemonMetrics, NodeCollector
-from hdeem_watch.daemon.poller import IntervalTimer, next_deadline, wait_ms
-from hdeem_watch.daemon.runs import RunRecord, parse_run_args, window_energy
-from hdeem_watch.daemon.store import SCHEMA_VERSION, Store, StoreError
-from hdeem_watch.daemon.windows import Window
+from hdeem_watch.daemon.book import baselines as bl
+from hdeem_watch.daemon.book.channels import ChannelAccount, RecentPower, count_missing
+from hdeem_watch.daemon.book.runs import RunRecord, parse_run_args, window_energy
+from hdeem_watch.daemon.book.windows import Window
+from hdeem_watch.daemon.shell.control import OpError, Pending, dispatch
+from hdeem_watch.daemon.shell.metrics import DaemonMetrics, NodeCollector
+from hdeem_watch.daemon.shell.poller import IntervalTimer, next_deadline, wait_ms
+from hdeem_watch.daemon.store.database import SCHEMA_VERSION, Store, StoreError
 from hdeem_watch.wire.protocol import ProtocolError, decode_reply
 from hdeem_watch.wire.protocol import jsonable as protocol_jsonable
 
@@ -234,7 +234,7 @@ def test_store_round_trip_and_schema_guard(tmp_path: Path) -> None:
 
 WRITER = """
 import sys
-from hdeem_watch.daemon.store import Store
+from hdeem_watch.daemon.store.database import Store
 store = Store(sys.argv[1])
 i = 0
 while True:

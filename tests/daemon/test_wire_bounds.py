@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from hdeem_watch.daemon.control import Pending, dispatch
+from hdeem_watch.daemon.shell.control import Pending, dispatch
 from hdeem_watch.wire import protocol
 from hdeem_watch.wire.json_codec import MAX_REQUEST_DEPTH, nesting_depth
 from hdeem_watch.wire.protocol import ProtocolError
@@ -85,7 +85,7 @@ def test_a_pending_reply_that_cannot_be_encoded_is_an_error_reply() -> None:
     """ControlServer.complete turns an unencodable deferred result into an error reply, not an exception."""
     import zmq
 
-    from hdeem_watch.daemon.control import ControlServer
+    from hdeem_watch.daemon.shell.control import ControlServer
 
     context = zmq.Context.instance()
     server = ControlServer(context, "inproc://wire-bounds", {"stop": lambda args: Pending("stop")})

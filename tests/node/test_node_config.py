@@ -76,7 +76,7 @@ def test_the_sim_models_the_node_table(tmp_path: Path) -> None:
 def test_the_daemon_models_the_configured_sim_node(node_trees: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     """Start-up: the memspec and topology are logged with their reasons; node.get answers; the run model
     is built on 2 x 28 cores and 16 DIMMs (not the default 8)."""
-    from hdeem_watch.daemon.service import Daemon
+    from hdeem_watch.daemon.shell.service import Daemon
 
     settings = load_settings(_config(tmp_path, ICE_LAKE), env={},
                              overrides={"state_dir": str(tmp_path / "state"), "runtime_dir": str(tmp_path / "run")})
@@ -122,7 +122,7 @@ def test_a_saved_dmidecode_print_out_stands_in_for_root(node_trees: Path, tmp_pa
 def test_the_daemon_detects_a_real_source_s_node_with_the_saved_print_out(node_trees: Path, tmp_path: Path) -> None:
     """A non-sim source: the daemon describes this machine (sysfs) with the DIMMs of [node] dmidecode, and the
     [node] counts over it; the memspec is the DIMMs' (a replayed recording is described by the table alone)."""
-    from hdeem_watch.daemon.service import Daemon
+    from hdeem_watch.daemon.shell.service import Daemon
 
     fixture = node_trees / "skylake-sp"
     text = (f'source = "sim"\n[node]\ndmidecode = "{fixture / "dmidecode.txt"}"\nsockets = 2\n'

@@ -132,7 +132,7 @@ def test_a_runs_json_report(runs_json: Path, tmp_path: Path) -> None:
 
 def test_an_empty_state_draws_every_figure_saying_no_data(tmp_path: Path) -> None:
     """A fresh daemon state (no runs, no fits) still gives every figure, each saying it has no data."""
-    from hdeem_watch.daemon.store import Store
+    from hdeem_watch.daemon.store.database import Store
 
     Store(tmp_path / "state" / "state.db").close()
     written = build_report(read_state(tmp_path / "state"), tmp_path / "out", fmt="png")

@@ -68,7 +68,7 @@ def test_without_matplotlib_one_line_and_exit_1(state_dir: Path, tmp_path: Path)
 def test_daemon_and_report_cli_do_not_import_matplotlib() -> None:
     """The report subcommand's parser and the daemon import no plotting library."""
     done = _python("import sys\nfrom hdeem_watch.cli import build_parser\nbuild_parser()\n"
-                   "import hdeem_watch.daemon.service, hdeem_watch.report.demo\n"
+                   "import hdeem_watch.daemon.shell.service, hdeem_watch.report.demo\n"
                    "print('matplotlib' in sys.modules)")
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "False"

@@ -7,7 +7,8 @@ import math
 
 import pytest
 
-from hdeem_watch.report.figures_holdout import holdout_figure, holdout_groups
+from hdeem_watch.report.analysis import holdout_groups
+from hdeem_watch.report.figures_holdout import holdout_figure
 from hdeem_watch.report.records import ReportData, RunRow
 
 pytest.importorskip("matplotlib")

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from hdeem_watch.config import load_settings
-from hdeem_watch.daemon.channels import ChannelAccount
+from hdeem_watch.daemon.book.channels import ChannelAccount
 from hdeem_watch.sources.rapl import RaplSource
 from hdeem_watch.sources.rapl_zones import find_dram_zones
 from hdeem_watch.sources.registry import make_source

@@ -47,7 +47,7 @@ def measured_run(sim: SimSource, clock, kernel: str, threads: int) -> tuple[floa
 def model_prediction_j(kernel: str, threads: int, window_s: float, currents: np.ndarray) -> float:
     """The daemon's calibration row of a run, evaluated at ``currents`` (the model's prediction)."""
     from hdeem_watch.calibrate import Observation
-    from hdeem_watch.daemon.modelling import RunModeller
+    from hdeem_watch.calibrate.run_model import RunModeller
 
     model, _fit, error = RunModeller(MEMSPEC, dimms=8).evaluate(
         {"run_id": "r", "kernel": kernel, "threads": threads, "elements": 40_000_000 if kernel != "idle" else 0,

@@ -217,7 +217,7 @@ def test_a_curve_stream_without_the_key_is_named_refused(sock_dir: Path) -> None
     import threading as _threading
 
     from hdeem_watch.config import DaemonSettings
-    from hdeem_watch.daemon.service import Daemon
+    from hdeem_watch.daemon.shell.service import Daemon
     from hdeem_watch.sources.sim import SimSource
     from hdeem_watch.wire.keys import client_curve, generate_keys
 

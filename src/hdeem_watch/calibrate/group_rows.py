@@ -129,7 +129,7 @@ def unmeasured_reason(run: str, sensor: str, energy_j: float | None, samples: in
 
 def measured_run(record: Mapping[str, Any], socket_stats: Sequence[tuple[CommandStats, int]],
                  rates_hz: Mapping[str, float]) -> MeasuredRun:
-    """The :class:`MeasuredRun` of a daemon run record (``hdeem_watch.daemon.runs.RunRecord.to_dict()``
+    """The :class:`MeasuredRun` of a daemon run record (``hdeem_watch.daemon.book.runs.RunRecord.to_dict()``
     form: ``run_id``, ``name``, ``t_stop_ns``, ``window_s``, ``energy_j`` per channel).
 
     Args:

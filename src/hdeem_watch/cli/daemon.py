@@ -61,8 +61,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--sim-age", metavar="PAIR=±X%/h",
                         help="sim: a DIMM pair's currents drift in sim time, e.g. DDR_CD=+30%%/h "
                         "(comma-separated; @600s delays the start)")
-    parser.add_argument("--counters", choices=("none", "sim", "perf", "replay"),
-                        help="memory-controller counters for each window's DRAM commands (default none)")
+    parser.add_argument("--counters", choices=("auto", "none", "sim", "perf", "replay"),
+                        help="memory-controller counters for each window's DRAM commands (default auto: the "
+                             "source's own when they can be opened, else none; logged once)")
     parser.add_argument("--log-level", choices=("debug", "info", "warning", "error"),
                         help="log verbosity on stderr (default: log_level from the config file, else info)")
     add_source_flags(parser)
@@ -82,7 +83,7 @@ def _run(args: argparse.Namespace) -> int:
             print(f"public key (register it in the daemon's curve_clients_dir): {public}\n"
                   f"secret key (--client-key): {secret}")
         return 0
-    from hdeem_watch.daemon.service import Daemon
+    from hdeem_watch.daemon.shell.service import Daemon
 
     settings = load_settings(
         args.config,

@@ -275,6 +275,9 @@ def model_lines(answers: Sequence[dict[str, Any]]) -> list[str]:
                          f"({_count(counts.get('act'))} ACT, {_count(counts.get('rd'))} RD, "
                          f"{_count(counts.get('wr'))} WR)")
             lines.append(f"{'':<10}by component ({which}, J): {parts}")
+            currents = model.get("currents")
+            if isinstance(currents, Mapping) and currents.get("text"):
+                lines.append(f"{'':<10}currents: {currents['text']}")
     return lines
 
 

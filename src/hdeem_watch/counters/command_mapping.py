@@ -42,8 +42,10 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from hdeem_watch.dram.stats import CommandStats, RankStats
+from hdeem_watch.errors import InputError
 
 STATUS_OK = "ok"
 STATUS_NO_CLOCK = "no-clock"
@@ -178,3 +180,18 @@ def _precharges(counts: Mapping[str, float], act: float, estimated: list[str]) -
         implicit = max(0.0, act - explicit)
         estimated.append("rda/wra: not separable (counted in rd/wr); their implicit precharges = act − explicit PRE")
     return rda, wra, explicit + implicit
+
+
+def window_channels(counters: Mapping[str, Any]) -> tuple[Mapping[str, Mapping[str, Any]], float]:
+    """(channel → role → delta, window in seconds) of a recorded window's ``counters``.
+
+    Raises:
+        InputError: no channels (with the record's ``status``), or a window that is not > 0 s.
+    """
+    channels = counters.get("channels")
+    window_s = counters.get("window_s")
+    if not isinstance(channels, Mapping) or not channels:
+        raise InputError(f"counters: no channels ({counters.get('status', 'none recorded')})")
+    if not isinstance(window_s, int | float) or not math.isfinite(window_s) or window_s <= 0:
+        raise InputError(f"counters: window_s = {window_s!r}; expected a duration > 0")
+    return channels, float(window_s)

@@ -29,8 +29,9 @@ from typing import Protocol
 
 from hdeem_watch.counters.event_tables import EventTable
 
-#: ``counters`` settings of the daemon: where a window's DRAM commands come from.
-COUNTER_KINDS = ("none", "sim", "perf", "replay")
+#: ``counters`` settings of the daemon: where a window's DRAM commands come from (``auto``: the
+#: power source's own counters when they can be opened, see :func:`auto_counter_kind`).
+COUNTER_KINDS = ("auto", "none", "sim", "perf", "replay")
 #: channel → role → count.
 Counts = dict[str, dict[str, float]]
 
@@ -89,6 +90,26 @@ class CounterSource(Protocol):
     def close(self) -> None:
         """Release the counters."""
         ...
+
+
+def auto_counter_kind(source_kind: str, *, replay_has_counters: bool) -> str:
+    """The counter kind ``counters = "auto"`` tries for a power source of ``source_kind``.
+
+    The simulated node counts with its own memory controllers, a replay plays back the counters
+    recorded beside it (none if there were none), and a real node (HDEEM, RAPL) tries its IMC PMUs
+    through perf; whether perf may open them is known only when it tries.
+
+    Example:
+        >>> auto_counter_kind("hdeem", replay_has_counters=False)
+        'perf'
+        >>> auto_counter_kind("replay", replay_has_counters=False)
+        'none'
+    """
+    if source_kind == "sim":
+        return "sim"
+    if source_kind == "replay":
+        return "replay" if replay_has_counters else "none"
+    return "perf"
 
 
 def window_counts(start: CounterSnapshot, end: CounterSnapshot) -> Counts:

@@ -19,15 +19,15 @@ import math
 from pathlib import Path
 from typing import Any
 
-from hdeem_watch.daemon.control import Pending
-from hdeem_watch.daemon.counter_windows import CounterWindows
-from hdeem_watch.daemon.jobs import Calibration, ModelSettings, Worker, restore_calibration
-from hdeem_watch.daemon.node_state import NodeState
-from hdeem_watch.daemon.operations import Operations
-from hdeem_watch.daemon.persistence import StoreWorker
-from hdeem_watch.daemon.reporting import Identity, Reporter
-from hdeem_watch.daemon.runs import RunLimits
-from hdeem_watch.daemon.store import Store
+from hdeem_watch.daemon.book.runs import RunLimits
+from hdeem_watch.daemon.book.state import NodeState
+from hdeem_watch.daemon.counters.windows import CounterWindows
+from hdeem_watch.daemon.ops.node import Operations
+from hdeem_watch.daemon.ops.reporting import Identity, Reporter
+from hdeem_watch.daemon.shell.control import Pending
+from hdeem_watch.daemon.shell.workers import Calibration, ModelSettings, Worker, restore_calibration
+from hdeem_watch.daemon.store.database import Store
+from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.dram.node import NodeTopology
 from hdeem_watch.sim.counters import SimCounters
 from hdeem_watch.sources.sim import SimSource

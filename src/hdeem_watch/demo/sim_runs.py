@@ -5,7 +5,7 @@ the demo's schedule (:func:`hdeem_watch.demo.schedule.demo_round`: an idle run a
 round at 24, 4, 12 and 1 threads), measures every run's window the way the daemon does (the
 difference of the sensors' cumulative energies between the polls at its start and its stop), and
 hands the finished run record to the daemon's own run modeller
-(:class:`hdeem_watch.daemon.modelling.RunModeller`: the node fit, the per-pair fits, the guard rail
+(:class:`hdeem_watch.calibrate.run_model.RunModeller`: the node fit, the per-pair fits, the guard rail
 and the drift detectors). So what it measures — residuals, intervals, alarms — is what the daemon of
 ``hdeem-watch demo`` would, on the sim's misspecified truth, only without the sockets.
 
@@ -28,11 +28,11 @@ from typing import Any
 
 import numpy as np
 
+from hdeem_watch.calibrate.counter_model import currents_with_counters
 from hdeem_watch.calibrate.drift import DriftAlarm
+from hdeem_watch.calibrate.group_fits import source_groups
+from hdeem_watch.calibrate.run_model import RunModeller
 from hdeem_watch.counters.source import CounterSnapshot, window_counts
-from hdeem_watch.daemon.counter_model import currents_with_counters
-from hdeem_watch.daemon.group_fits import source_groups
-from hdeem_watch.daemon.modelling import RunModeller
 from hdeem_watch.demo.schedule import ELEMENTS, THREAD_ROUNDS, DemoRun, demo_round
 from hdeem_watch.sim.counters import SimCounters
 from hdeem_watch.sources.base import RunEvent

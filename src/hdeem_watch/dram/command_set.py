@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hdeem_watch.dram.act_spacing import RecentActs
 from hdeem_watch.dram.mapping import Geometry
 from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.dram.stats import CommandStats, RankStats
@@ -46,6 +47,12 @@ class Timing:
     burst: int
     #: write-to-write spacing in one bank group (DDR5's tCCD_L_WR; DDR4: tCCD_L)
     ccd_l_wr: int = 0
+    #: ACT to ACT of one rank, different bank groups (0: no rule)
+    rrd_s: int = 0
+    #: ACT to ACT of one bank group (0: no rule)
+    rrd_l: int = 0
+    #: four-activation window of a rank (0: no rule)
+    faw: int = 0
 
     @property
     def ccd_l_write(self) -> int:
@@ -70,7 +77,8 @@ class Timing:
         return cls(ras=get("RAS"), rcd=get("RCD"), rp=get("RP"), rl=get("RL"), wl=get("WL"), al=get("AL", 0),
                    rtp=get("RTP"), wr=get("WR"), ccd_s=get("CCD_S"), ccd_l=get("CCD_L"),
                    wtr_s=get("WTR_S"), wtr_l=get("WTR_L"), rtrs=get("RTRS", 1), rfc=rfc, refi=get("REFI"),
-                   burst=max(1, int(spec.burst_length) // int(spec.data_rate)), ccd_l_wr=get("CCD_L_WR", 0))
+                   burst=max(1, int(spec.burst_length) // int(spec.data_rate)), ccd_l_wr=get("CCD_L_WR", 0),
+                   rrd_s=get("RRD_S", 0), rrd_l=get("RRD_L", 0), faw=get("FAW", 0))
 
 
 @dataclass(frozen=True)
@@ -120,6 +128,7 @@ class ControllerResult:
         commands: the issued command set (for :func:`hdeem_watch.dram.command_emit.write_drampower_trace`),
             ``None`` unless :func:`simulate` was asked to keep it.
         geometry: the organisation simulated.
+        recent_acts: the last activations (:class:`~hdeem_watch.dram.act_spacing.RecentActs`).
     """
 
     stats: CommandStats
@@ -132,6 +141,8 @@ class ControllerResult:
     cycles: int
     commands: Commands | None
     geometry: Geometry
+    #: the last activations, which tRRD and tFAW still see from the next chunk
+    recent_acts: RecentActs | None = None
 
 
 def stats_from_commands(geometry: Geometry, timing: Timing, commands: Commands,

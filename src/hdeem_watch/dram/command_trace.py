@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from io import FileIO
 from pathlib import Path
 from typing import NoReturn
 
@@ -284,71 +285,87 @@ def read_command_trace(path: str | Path, spec: MemSpec | None = None, *, address
     if spec is not None:
         limits = {"rank": spec.nbr_of_ranks, "bankgroup": spec.nbr_of_bankgroups, "bank": spec.nbr_of_banks,
                   "row": spec.nbr_of_rows, "column": spec.nbr_of_columns}
-    if Path(path).is_dir():
-        raise not_a_file_error(path, "trace file")
-    try:
-        handle = open(path, "rb", buffering=0)  # noqa: SIM115 (closed by the with below)
-    except FileNotFoundError:
-        raise not_a_file_error(path, "trace file") from None
-    except OSError as error:
-        raise InputError(f"{where}: cannot read trace: {error.strerror or error}") from None
-    with handle:
-        size = os.fstat(handle.fileno()).st_size
-        handle.seek(max(0, size - 4096))
-        tail = handle.read()
-        remaining = size - (len(tail) - len(tail.rstrip(b" \t\r\n")))  # trailing blank lines are fine
-        handle.seek(0)
-        # outputs sized for the most lines the file can hold: pages never written stay unused
-        wanted = {**_FIELDS, **(_ADDRESS_FIELDS if addresses else {})}
-        out = {name: np.empty(remaining // _MIN_LINE_BYTES + 2, dtype=dtype) for name, dtype in wanted.items()}
-        count = 0
-        pad = len(_PAD)
-        store = np.empty(pad + CHUNK_BYTES + 1, dtype=np.uint8)  # reused for every chunk
-        store[:pad] = np.frombuffer(_PAD, dtype=np.uint8)
-        view = memoryview(store)  # type: ignore[arg-type]
-        carry = 0  # bytes of an incomplete last line kept for the next chunk
-        while remaining > 0:
-            want = min(CHUNK_BYTES - carry, remaining)
-            if want <= 0:
-                _fail(where, count + 1, f"line longer than {CHUNK_BYTES} bytes")
-            got = handle.readinto(view[pad + carry:pad + carry + want])
-            if not got:
-                break
-            remaining -= got
-            end = pad + carry + got
-            if remaining <= 0:
-                store[end] = 10
-                end += 1
-            cut = _after_last_newline(store, pad, end)
-            if cut > pad:
-                chunk = _parse_chunk(store[:cut], count + 1, where, limits, spec.memory_id if spec else "",
-                                     addresses=addresses)
-                n = chunk["cmd"].size
-                cycle = chunk["cycle"]
-                back = np.flatnonzero(np.diff(cycle) < 0)
-                if count and cycle[0] < out["cycle"][count - 1]:
-                    back = np.array([-1])
-                if back.size:
-                    i = int(back[0]) + 1
-                    before = cycle[i - 1] if i else out["cycle"][count - 1]
-                    _fail(where, count + i + 1, f"cycle {cycle[i]} is before the previous command's cycle "
-                          f"{before}; expected non-decreasing cycles")
-                if count + n > out["cmd"].size:  # only if a line were shorter than _MIN_LINE_BYTES
-                    out = {k: np.resize(v, 2 * (count + n)) for k, v in out.items()}
-                for name in out:
-                    out[name][count:count + n] = chunk[name]
-                count += n
-            carry = end - cut
-            store[pad:pad + carry] = store[cut:end].copy()
-    if not count:
-        raise InputError(f"{where}: empty trace; expected cycle,CMD,rank,bankgroup,bank,row,column lines")
-    arrays = {name: values[:count] for name, values in out.items()}
+    with _open_trace(path, where) as handle:
+        arrays = _parse_file(handle, where, limits, spec.memory_id if spec else "", addresses)
     cmd = arrays["cmd"]
+    if not cmd.size:
+        raise InputError(f"{where}: empty trace; expected cycle,CMD,rank,bankgroup,bank,row,column lines")
     ends = np.flatnonzero(cmd == CODE["END"])
     if ends.size and ends[0] != cmd.size - 1:
         _fail(where, int(ends[0]) + 2, f"{COMMANDS[cmd[ends[0] + 1]]} after END (line {ends[0] + 1}); "
               "expected END to be the last command")
     return CommandTrace(path=where, end_cycle=int(arrays["cycle"][-1]), **arrays)
+
+
+def _open_trace(path: str | Path, where: str) -> FileIO:
+    """The trace file, unbuffered (read in chunks into one reused array)."""
+    if Path(path).is_dir():
+        raise not_a_file_error(path, "trace file")
+    try:
+        return open(path, "rb", buffering=0)
+    except FileNotFoundError:
+        raise not_a_file_error(path, "trace file") from None
+    except OSError as error:
+        raise InputError(f"{where}: cannot read trace: {error.strerror or error}") from None
+
+
+def _parse_file(handle: FileIO, where: str, limits: dict[str, int] | None, memory_id: str,
+                addresses: bool) -> dict[str, np.ndarray]:
+    """Every line of the open trace, parsed chunk by chunk (:func:`_parse_chunk`), as arrays."""
+    size = os.fstat(handle.fileno()).st_size
+    handle.seek(max(0, size - 4096))
+    tail = handle.read()
+    remaining = size - (len(tail) - len(tail.rstrip(b" \t\r\n")))  # trailing blank lines are fine
+    handle.seek(0)
+    # outputs sized for the most lines the file can hold: pages never written stay unused
+    wanted = {**_FIELDS, **(_ADDRESS_FIELDS if addresses else {})}
+    out = {name: np.empty(remaining // _MIN_LINE_BYTES + 2, dtype=dtype) for name, dtype in wanted.items()}
+    count = 0
+    pad = len(_PAD)
+    store = np.empty(pad + CHUNK_BYTES + 1, dtype=np.uint8)  # reused for every chunk
+    store[:pad] = np.frombuffer(_PAD, dtype=np.uint8)
+    view = memoryview(store)  # type: ignore[arg-type]
+    carry = 0  # bytes of an incomplete last line kept for the next chunk
+    while remaining > 0:
+        want = min(CHUNK_BYTES - carry, remaining)
+        if want <= 0:
+            _fail(where, count + 1, f"line longer than {CHUNK_BYTES} bytes")
+        got = handle.readinto(view[pad + carry:pad + carry + want])
+        if not got:
+            break
+        remaining -= got
+        end = pad + carry + got
+        if remaining <= 0:
+            store[end] = 10
+            end += 1
+        cut = _after_last_newline(store, pad, end)
+        if cut > pad:
+            chunk = _parse_chunk(store[:cut], count + 1, where, limits, memory_id, addresses=addresses)
+            out, count = _append(out, count, chunk, where)
+        carry = end - cut
+        store[pad:pad + carry] = store[cut:end].copy()
+    return {name: values[:count] for name, values in out.items()}
+
+
+def _append(out: dict[str, np.ndarray], count: int, chunk: dict[str, np.ndarray],
+            where: str) -> tuple[dict[str, np.ndarray], int]:
+    """``chunk``'s lines after the ``count`` in ``out`` (grown if needed); a cycle smaller than the
+    one before it is an error naming its line."""
+    n = chunk["cmd"].size
+    cycle = chunk["cycle"]
+    back = np.flatnonzero(np.diff(cycle) < 0)
+    if count and cycle[0] < out["cycle"][count - 1]:
+        back = np.array([-1])
+    if back.size:
+        i = int(back[0]) + 1
+        before = cycle[i - 1] if i else out["cycle"][count - 1]
+        _fail(where, count + i + 1, f"cycle {cycle[i]} is before the previous command's cycle "
+              f"{before}; expected non-decreasing cycles")
+    if count + n > out["cmd"].size:  # only if a line were shorter than _MIN_LINE_BYTES
+        out = {k: np.resize(v, 2 * (count + n)) for k, v in out.items()}
+    for name in out:
+        out[name][count:count + n] = chunk[name]
+    return out, count + n
 
 
 def check_ranges(spec: MemSpec, trace: CommandTrace, *, full: bool = False) -> None:

@@ -135,8 +135,10 @@ def simulate_requests(
     if policy not in POLICIES:
         raise InputError(f"policy {policy!r}: expected one of {', '.join(POLICIES)}")
     geometry = Geometry.from_spec(spec)
-    timing = Timing.from_spec(spec)
     config = scheduler or SchedulerConfig()
+    timing = Timing.from_spec(spec)
+    if not config.activation_rules:  # no tRRD/tFAW rule binds (the timing plan's lifts and the spacing)
+        timing = replace(timing, rrd_s=0, rrd_l=0, faw=0)
     address_mapping = AddressMapping(geometry, mapping, xor_bank=xor_bank)
     pieces = max(1, n // CHUNK_REQUESTS)
     bounds = [n * i // pieces for i in range(pieces + 1)]
@@ -164,6 +166,7 @@ def simulate_requests(
 
     parts: list[ControllerResult] = []
     start = 0
+    recent = None
     # chunk i + 1 is prepared (decoded, in service order) in a worker process or thread while
     # chunk i is timed; only the timing depends on the chunk before
     mode = ("inline" if not PIPELINE else
@@ -171,8 +174,9 @@ def simulate_requests(
     slot_bytes = 72 * (bounds[1] - bounds[0] + 1) + 4096
     for i, (gbank, row, column, writes, outcomes) in enumerate(prepared(prepare, pieces, mode, slot_bytes)):
         part = run_timing(geometry, timing, config, policy, gbank=gbank, row=row, column=column, write=writes,
-                          start=start, close_at_end=i < pieces - 1, outcomes=outcomes, keep_commands=keep_commands)
-        start = part.cycles
+                          start=start, close_at_end=i < pieces - 1, outcomes=outcomes, keep_commands=keep_commands,
+                          prior=recent)
+        start, recent = part.cycles, part.recent_acts
         if not keep_commands:
             part = replace(part, commands=None)
         parts.append(part)
@@ -199,5 +203,5 @@ def _merge(parts: list[ControllerResult]) -> ControllerResult:
         reads=sum(p.reads for p in parts), writes=sum(p.writes for p in parts),
         row_hits=sum(p.row_hits for p in parts), row_misses=sum(p.row_misses for p in parts),
         row_conflicts=sum(p.row_conflicts for p in parts), cycles=parts[-1].cycles, commands=commands,
-        geometry=parts[0].geometry,
+        geometry=parts[0].geometry, recent_acts=parts[-1].recent_acts,
     )

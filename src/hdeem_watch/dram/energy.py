@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hdeem_watch.dram.energy_core import CoreTimes, add_domain_columns, add_domain_energy, supply_domains
 from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.dram.stats import CommandStats, RankStats, stretch_stats
 from hdeem_watch.errors import InputError
@@ -113,40 +114,18 @@ def _check_ranks(spec: MemSpec, stats: CommandStats) -> None:
                          f"memspec {spec.memory_id!r} has {spec.nbr_of_ranks}")
 
 
-def _domains(spec: MemSpec) -> tuple[tuple[str, float, str], ...]:
-    """(prefix, voltage, iBeta name) of the VDD and VPP domains."""
-    return (("idd", spec.vdd, "ibeta_vdd"), ("ipp", spec.vpp, "ibeta_vpp"))
+def _times(spec: MemSpec) -> CoreTimes:
+    """The equations' timings of a DDR4 memspec (reads and writes: BL/DR)."""
+    return CoreTimes(ras=spec.timings["RAS"], rp=spec.timings["RP"], rfc=spec.trfc, read_burst=spec.burst_cycles,
+                     write_burst=spec.burst_cycles, banks=spec.nbr_of_banks, rho=spec.fact_rho)
 
 
 def _rank_energy(spec: MemSpec, rank: RankStats) -> dict[str, float]:
     """Joules per component of one rank (both domains, all devices): the DRAMPower v6 formulas."""
     out = dict.fromkeys(COMPONENTS, 0.0)
-    tck = spec.tck_s
-    ras, rp, rfc = spec.timings["RAS"] * tck, spec.timings["RP"] * tck, spec.trfc * tck
-    t_burst = spec.burst_cycles * tck
-    banks, rho, devices = spec.nbr_of_banks, spec.fact_rho, spec.nbr_of_devices
-    ref_vdd, ref_vpp = spec.refresh_currents
-    for prefix, volt, beta_name in _domains(spec):
-        cur = spec.currents
-        i0, i2n, i3n = cur[f"{prefix}0"], cur[f"{prefix}2n"], cur[f"{prefix}3n"]
-        ibeta = cur.get(beta_name, i0)
-        i_rho = rho * (i3n - i2n) + i2n
-        i_theta = (i0 * (rp + ras) - ibeta * rp) / ras
-        i_1 = (i3n + (banks - 1) * i_rho) / banks
-        i5x = cur[ref_vdd if prefix == "idd" else ref_vpp]
-        v = volt * devices
-        out["act_j"] += v * (i_theta - i_1) * ras * rank.act
-        out["pre_j"] += v * (ibeta - i2n) * rp * rank.pre
-        out["rd_j"] += v * (cur[f"{prefix}4r"] - i3n) * t_burst * rank.rd
-        out["rda_j"] += v * (cur[f"{prefix}4r"] - i3n) * t_burst * rank.rda
-        out["wr_j"] += v * (cur[f"{prefix}4w"] - i3n) * t_burst * rank.wr
-        out["wra_j"] += v * (cur[f"{prefix}4w"] - i3n) * t_burst * rank.wra
-        out["ref_j"] += v * (i5x - i3n) * rfc * rank.ref
-        out["bg_act_j"] += v * (i_rho * rank.cycles_act + (i_1 - i_rho) * rank.bank_active_cycles) * tck
-        out["bg_pre_j"] += v * i2n * rank.cycles_pre * tck
-        out["pdna_j"] += v * cur[f"{prefix}3p"] * rank.cycles_pdna * tck
-        out["pdnp_j"] += v * cur[f"{prefix}2p"] * rank.cycles_pdnp * tck
-        out["sref_j"] += v * cur[f"{prefix}6n"] * rank.cycles_sref * tck
+    times = _times(spec)
+    for domain in supply_domains(spec):
+        add_domain_energy(out, rank, spec.currents, domain, times, spec.tck_s)
     return out
 
 
@@ -176,45 +155,13 @@ def energy_columns(spec: MemSpec, stats: CommandStats) -> LinearEnergy:
         InputError: the statistics do not have one entry per rank of the memspec.
     """
     _check_ranks(spec, stats)
-    n = len(CURRENT_NAMES)
-    comp = {name: np.zeros(n) for name in COMPONENTS}
+    comp = {name: np.zeros(len(CURRENT_NAMES)) for name in COMPONENTS}
     const = dict.fromkeys(COMPONENTS, 0.0)
-    tck = spec.tck_s
-    ras, rp, rfc = spec.timings["RAS"], spec.timings["RP"], spec.trfc
-    b, banks, rho = spec.burst_cycles, spec.nbr_of_banks, spec.fact_rho
-    d1_d3n = (1 + (banks - 1) * rho) / banks  # ∂I1/∂I3N
-    d1_d2n = (banks - 1) * (1 - rho) / banks  # ∂I1/∂I2N
-    ref_vdd, ref_vpp = spec.refresh_currents
-    for prefix, volt, beta_name in _domains(spec):
-        k = volt * tck * spec.nbr_of_devices  # J per (A·cycle)
-        i0, i2n, i3n = _INDEX[f"{prefix}0"], _INDEX[f"{prefix}2n"], _INDEX[f"{prefix}3n"]
-        i5x = _INDEX[ref_vdd if prefix == "idd" else ref_vpp]
-        explicit_beta = beta_name in spec.currents
-        for r in stats.ranks:
-            comp["act_j"][i0] += k * (rp + ras) * r.act
-            comp["act_j"][i3n] -= k * ras * d1_d3n * r.act
-            comp["act_j"][i2n] -= k * ras * d1_d2n * r.act
-            comp["pre_j"][i2n] -= k * rp * r.pre
-            # Iβ: −RP per activation (inside Iθ), +RP per precharge
-            if explicit_beta:
-                beta = spec.currents[beta_name]
-                const["act_j"] -= k * rp * r.act * beta
-                const["pre_j"] += k * rp * r.pre * beta
-            else:
-                comp["act_j"][i0] -= k * rp * r.act
-                comp["pre_j"][i0] += k * rp * r.pre
-            for name, count, cur in (("rd_j", r.rd, "4r"), ("rda_j", r.rda, "4r"),
-                                     ("wr_j", r.wr, "4w"), ("wra_j", r.wra, "4w")):
-                comp[name][_INDEX[f"{prefix}{cur}"]] += k * b * count
-                comp[name][i3n] -= k * b * count
-            comp["ref_j"][i5x] += k * rfc * r.ref
-            comp["ref_j"][i3n] -= k * rfc * r.ref
-            comp["bg_act_j"][i3n] += k * (rho * r.cycles_act + (d1_d3n - rho) * r.bank_active_cycles)
-            comp["bg_act_j"][i2n] += k * ((1 - rho) * r.cycles_act + (d1_d2n - (1 - rho)) * r.bank_active_cycles)
-            comp["bg_pre_j"][i2n] += k * r.cycles_pre
-            comp["pdna_j"][_INDEX[f"{prefix}3p"]] += k * r.cycles_pdna
-            comp["pdnp_j"][_INDEX[f"{prefix}2p"]] += k * r.cycles_pdnp
-            comp["sref_j"][_INDEX[f"{prefix}6n"]] += k * r.cycles_sref
+    times = _times(spec)
+    for domain in supply_domains(spec):
+        k = domain.volts * spec.tck_s  # J per (A·cycle), all devices
+        for rank in stats.ranks:
+            add_domain_columns(comp, const, rank, spec.currents, domain, times, k, _INDEX)
     columns = np.sum([comp[name] for name in COMPONENTS], axis=0)
     return LinearEnergy(names=CURRENT_NAMES, columns=columns, constant_j=float(sum(const.values())),
                         component_columns=comp, component_constants_j=const)

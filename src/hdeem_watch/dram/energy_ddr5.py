@@ -38,6 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from hdeem_watch.dram.energy import COMPONENTS, EnergyBreakdown, LinearEnergy
+from hdeem_watch.dram.energy_core import CoreTimes, add_domain_columns, add_domain_energy, supply_domains
 from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
 from hdeem_watch.dram.stats import CommandStats, RankStats
 from hdeem_watch.errors import InputError
@@ -59,42 +60,23 @@ def _check_ranks(spec: MemSpecDDR5, stats: CommandStats) -> None:
                          f"memspec {spec.memory_id!r} has {spec.nbr_of_ranks}")
 
 
-def _domains(spec: MemSpecDDR5) -> tuple[tuple[str, float, str, str], ...]:
-    """(prefix, voltage, iBeta name, all-bank refresh current) of the VDD and VPP domains."""
-    ref_vdd, ref_vpp = spec.refresh_currents
-    return (("idd", spec.vdd, "ibeta_vdd", ref_vdd), ("ipp", spec.vpp, "ibeta_vpp", ref_vpp))
+def _times(spec: MemSpecDDR5) -> CoreTimes:
+    """The equations' timings of a DDR5 memspec (reads BL/DR, writes DRAMPower's integer ⌊BL/DR⌋)."""
+    return CoreTimes(ras=spec.timings["RAS"], rp=spec.timings["RP"], rfc=spec.trfc,
+                     read_burst=spec.burst_length / spec.data_rate, write_burst=spec.burst_length // spec.data_rate,
+                     banks=spec.nbr_of_banks, rho=spec.fact_rho)
 
 
 def _rank_energy(spec: MemSpecDDR5, rank: RankStats) -> dict[str, float]:
-    """Joules per component of one rank (both domains, all devices): DRAMPower v6.2's DDR5 formulas."""
+    """Joules per component of one rank (both domains, all devices): DRAMPower v6.2's DDR5 formulas
+    (the shared core, plus same-bank refresh against I_BG = Iρ + G·(I1 − Iρ))."""
     out = dict.fromkeys(COMPONENTS_DDR5, 0.0)
-    tck = spec.tck_s
-    ras, rp = spec.timings["RAS"] * tck, spec.timings["RP"] * tck
-    rfc, rfcsb = spec.trfc * tck, spec.trfcsb * tck
-    t_read, t_write = spec.burst_length / spec.data_rate * tck, (spec.burst_length // spec.data_rate) * tck
-    banks, groups, rho = spec.nbr_of_banks, spec.nbr_of_bankgroups, spec.fact_rho
-    cur = spec.currents
-    for prefix, volt, beta_name, ref_name in _domains(spec):
-        i0, i2n, i3n = cur[f"{prefix}0"], cur[f"{prefix}2n"], cur[f"{prefix}3n"]
-        ibeta = cur.get(beta_name, i0)
-        i_rho = rho * (i3n - i2n) + i2n
-        i_theta = (i0 * (rp + ras) - ibeta * rp) / ras
-        i_1 = (i3n + (banks - 1) * i_rho) / banks
+    times, tck, groups = _times(spec), spec.tck_s, spec.nbr_of_bankgroups
+    rfcsb = spec.trfcsb * tck
+    for domain in supply_domains(spec):
+        i_rho, i_1 = add_domain_energy(out, rank, spec.currents, domain, times, tck)
         i_bg = i_rho + (i_1 - i_rho) * groups
-        v = volt * spec.nbr_of_devices
-        out["act_j"] += v * (i_theta - i_1) * ras * rank.act
-        out["pre_j"] += v * (ibeta - i2n) * rp * rank.pre
-        out["rd_j"] += v * (cur[f"{prefix}4r"] - i3n) * t_read * rank.rd
-        out["rda_j"] += v * (cur[f"{prefix}4r"] - i3n) * t_read * rank.rda
-        out["wr_j"] += v * (cur[f"{prefix}4w"] - i3n) * t_write * rank.wr
-        out["wra_j"] += v * (cur[f"{prefix}4w"] - i3n) * t_write * rank.wra
-        out["ref_j"] += v * (cur[ref_name] - i3n) * rfc * rank.ref
-        out["refsb_j"] += v * (cur[f"{prefix}5c"] - i_bg) * rfcsb * rank.refsb
-        out["bg_act_j"] += v * (i_rho * rank.cycles_act + (i_1 - i_rho) * rank.bank_active_cycles) * tck
-        out["bg_pre_j"] += v * i2n * rank.cycles_pre * tck
-        out["pdna_j"] += v * cur[f"{prefix}3p"] * rank.cycles_pdna * tck
-        out["pdnp_j"] += v * cur[f"{prefix}2p"] * rank.cycles_pdnp * tck
-        out["sref_j"] += v * cur[f"{prefix}6n"] * rank.cycles_sref * tck
+        out["refsb_j"] += domain.volts * (spec.currents[f"{domain.prefix}5c"] - i_bg) * rfcsb * rank.refsb
     return out
 
 
@@ -112,42 +94,16 @@ def core_energy_ddr5(spec: MemSpecDDR5, stats: CommandStats) -> EnergyBreakdown:
 
 def _rank_columns(spec: MemSpecDDR5, r: RankStats, comp: dict[str, np.ndarray], const: dict[str, float]) -> None:
     """Add one rank's joules per ampere (and explicit-Iβ constants) to ``comp``/``const``."""
-    ras, rp, rfc, rfcsb = spec.timings["RAS"], spec.timings["RP"], spec.trfc, spec.trfcsb
-    b_read, b_write = spec.burst_length / spec.data_rate, spec.burst_length // spec.data_rate
-    banks, groups, rho = spec.nbr_of_banks, spec.nbr_of_bankgroups, spec.fact_rho
-    d1_d3n = (1 + (banks - 1) * rho) / banks  # ∂I1/∂I3N
-    d1_d2n = (banks - 1) * (1 - rho) / banks  # ∂I1/∂I2N
-    dbg_d3n = rho + groups * (d1_d3n - rho)  # ∂I_BG/∂I3N
-    dbg_d2n = (1 - rho) + groups * (d1_d2n - (1 - rho))  # ∂I_BG/∂I2N
-    for prefix, volt, beta_name, ref_name in _domains(spec):
-        k = volt * spec.tck_s * spec.nbr_of_devices  # J per (A·cycle)
-        i0, i2n, i3n = _INDEX[f"{prefix}0"], _INDEX[f"{prefix}2n"], _INDEX[f"{prefix}3n"]
-        comp["act_j"][i0] += k * (rp + ras) * r.act
-        comp["act_j"][i3n] -= k * ras * d1_d3n * r.act
-        comp["act_j"][i2n] -= k * ras * d1_d2n * r.act
-        comp["pre_j"][i2n] -= k * rp * r.pre
-        if beta_name in spec.currents:  # an explicit Iβ is held: −RP per activation, +RP per precharge
-            beta = spec.currents[beta_name]
-            const["act_j"] -= k * rp * r.act * beta
-            const["pre_j"] += k * rp * r.pre * beta
-        else:
-            comp["act_j"][i0] -= k * rp * r.act
-            comp["pre_j"][i0] += k * rp * r.pre
-        for name, count, key, burst in (("rd_j", r.rd, "4r", b_read), ("rda_j", r.rda, "4r", b_read),
-                                        ("wr_j", r.wr, "4w", b_write), ("wra_j", r.wra, "4w", b_write)):
-            comp[name][_INDEX[f"{prefix}{key}"]] += k * burst * count
-            comp[name][i3n] -= k * burst * count
-        comp["ref_j"][_INDEX[ref_name]] += k * rfc * r.ref
-        comp["ref_j"][i3n] -= k * rfc * r.ref
-        comp["refsb_j"][_INDEX[f"{prefix}5c"]] += k * rfcsb * r.refsb
-        comp["refsb_j"][i3n] -= k * rfcsb * dbg_d3n * r.refsb
-        comp["refsb_j"][i2n] -= k * rfcsb * dbg_d2n * r.refsb
-        comp["bg_act_j"][i3n] += k * (rho * r.cycles_act + (d1_d3n - rho) * r.bank_active_cycles)
-        comp["bg_act_j"][i2n] += k * ((1 - rho) * r.cycles_act + (d1_d2n - (1 - rho)) * r.bank_active_cycles)
-        comp["bg_pre_j"][i2n] += k * r.cycles_pre
-        comp["pdna_j"][_INDEX[f"{prefix}3p"]] += k * r.cycles_pdna
-        comp["pdnp_j"][_INDEX[f"{prefix}2p"]] += k * r.cycles_pdnp
-        comp["sref_j"][_INDEX[f"{prefix}6n"]] += k * r.cycles_sref
+    times, groups, rho, rfcsb = _times(spec), spec.nbr_of_bankgroups, spec.fact_rho, spec.trfcsb
+    for domain in supply_domains(spec):
+        k = domain.volts * spec.tck_s  # J per (A·cycle), all devices
+        d1_d3n, d1_d2n = add_domain_columns(comp, const, r, spec.currents, domain, times, k, _INDEX)
+        dbg_d3n = rho + groups * (d1_d3n - rho)  # ∂I_BG/∂I3N
+        dbg_d2n = (1 - rho) + groups * (d1_d2n - (1 - rho))  # ∂I_BG/∂I2N
+        p = domain.prefix
+        comp["refsb_j"][_INDEX[f"{p}5c"]] += k * rfcsb * r.refsb
+        comp["refsb_j"][_INDEX[f"{p}3n"]] -= k * rfcsb * dbg_d3n * r.refsb
+        comp["refsb_j"][_INDEX[f"{p}2n"]] -= k * rfcsb * dbg_d2n * r.refsb
 
 
 def energy_columns_ddr5(spec: MemSpecDDR5, stats: CommandStats) -> LinearEnergy:

@@ -21,13 +21,14 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from hdeem_watch.dram import memspec_fields as fields
 from hdeem_watch.dram.memspec_check import check_physical
+from hdeem_watch.dram.memspec_fields import MAX_DEVICE_CURRENT_A as MAX_DEVICE_CURRENT_A  # re-exported
 from hdeem_watch.errors import InputError
 
 #: memarchitecturespec: JSON key -> attribute (all positive integers).
@@ -63,18 +64,6 @@ REFRESH_MODE_CURRENTS: tuple[str, ...] = ("idd5F2", "ipp5F2", "idd5F4", "ipp5F4"
 #: Optional bank-wise model currents (default: Iβ = IDD0 resp. IPP0, as in DRAMPower).
 BETA_CURRENTS: tuple[str, ...] = ("iBeta_vdd", "iBeta_vpp")
 VOLTAGES: tuple[str, ...] = ("vdd", "vpp", "vddq")
-
-#: A per-device DDR4 current above this is almost surely milliamperes typed as amperes.
-MAX_DEVICE_CURRENT_A = 1.0
-#: A supply voltage above this is almost surely millivolts.
-MAX_VOLTAGE_V = 5.0
-#: A clock period above this is almost surely nanoseconds typed as seconds.
-MAX_TCK_S = 1e-6
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
-
 
 @dataclass(frozen=True)
 class MemSpec:
@@ -157,7 +146,7 @@ class MemSpec:
             lower = name.lower()
             if lower not in known:
                 raise InputError(f"with_currents: unknown current {name!r}; expected one of {sorted(known)}")
-            merged[lower] = _check_current(f"with_currents: {lower}", value)
+            merged[lower] = fields.check_current(f"with_currents: {lower}", value)
             keys.setdefault(lower, known[lower])
         return replace(self, currents=merged, _current_keys=keys)
 
@@ -187,36 +176,6 @@ class MemSpec:
         return tree
 
 
-def _check_current(where: str, value: Any) -> float:
-    if not _is_number(value) or not math.isfinite(value):
-        raise InputError(f"{where} = {value!r}: not a number; expected a current in amperes")
-    if value < 0:
-        raise InputError(f"{where} = {value!r}: negative; expected a current >= 0 A")
-    if value > MAX_DEVICE_CURRENT_A:
-        raise InputError(f"{where} = {value!r} looks like mA; expected amperes per device ({value / 1000:g})")
-    return float(value)
-
-
-def _section(spec: Mapping[str, Any], name: str, where: str) -> Mapping[str, Any]:
-    section = spec.get(name)
-    if section is None:
-        raise InputError(f"{where}: memspec.{name}: missing section")
-    if not isinstance(section, Mapping):
-        raise InputError(f"{where}: memspec.{name}: expected an object, got {type(section).__name__}")
-    return section
-
-
-def _int_field(section: Mapping[str, Any], key: str, where: str, *, positive: bool) -> int:
-    if key not in section:
-        raise InputError(f"{where}: missing field {key}")
-    value = section[key]
-    if not _is_number(value) or not math.isfinite(value) or value != int(value):
-        raise InputError(f"{where}.{key} = {value!r}: expected an integer")
-    if value < 0 or (positive and value == 0):
-        raise InputError(f"{where}.{key} = {value!r}: expected a {'positive' if positive else 'non-negative'} integer")
-    return int(value)
-
-
 def parse_memspec(data: Any, where: str = "memspec", *, allow_unphysical: bool = False) -> MemSpec:
     """Validate a parsed DRAMPower DDR4 memspec JSON tree.
 
@@ -236,85 +195,57 @@ def parse_memspec(data: Any, where: str = "memspec", *, allow_unphysical: bool =
     else:
         spec = data
         raw = {"memspec": copy.deepcopy(dict(data))} if isinstance(data, Mapping) else {}
-    if not isinstance(spec, Mapping):
-        raise InputError(f"{where}: expected a JSON object with a 'memspec' object")
-    memory_type = spec.get("memoryType")
-    if not isinstance(memory_type, str) or memory_type.upper() != "DDR4":
-        raise InputError(f"{where}: memspec.memoryType = {memory_type!r}; expected 'DDR4'")
-    memory_id = spec.get("memoryId", "")
-    if not isinstance(memory_id, str):
-        raise InputError(f"{where}: memspec.memoryId = {memory_id!r}: expected a string")
-
-    arch = _section(spec, "memarchitecturespec", where)
-    at = f"{where}: memspec.memarchitecturespec"
-    values: dict[str, Any] = {attr: _int_field(arch, key, at, positive=True) for key, attr in ARCH_FIELDS.items()}
-    for key, (attr, default) in ARCH_OPTIONAL.items():
-        values[attr] = _int_field(arch, key, at, positive=True) if key in arch else default
-    if values["ref_mode"] not in (1, 2, 4):
-        raise InputError(f"{at}.RefMode = {values['ref_mode']!r}: expected 1, 2 or 4")
-    if values["nbr_of_banks"] % values["nbr_of_bankgroups"]:
-        raise InputError(f"{at}: nbrOfBanks = {values['nbr_of_banks']} is not a multiple of "
-                         f"nbrOfBankGroups = {values['nbr_of_bankgroups']}")
-
-    timing = _section(spec, "memtimingspec", where)
-    tt = f"{where}: memspec.memtimingspec"
-    tck: Any = timing.get("tCK")
-    if "tCK" not in timing:
-        raise InputError(f"{tt}: missing field tCK")
-    if not _is_number(tck) or not math.isfinite(tck) or tck <= 0:
-        raise InputError(f"{tt}.tCK = {tck!r}: expected a positive clock period in seconds")
-    if tck > MAX_TCK_S:
-        raise InputError(f"{tt}.tCK = {tck!r} looks like ns; expected seconds ({tck * 1e-9:g})")
-    timings = {key: _int_field(timing, key, tt, positive=False) for key in TIMING_FIELDS}
-    for key in timing:  # extra integer timings are kept, non-numbers are errors
-        if key != "tCK" and key not in timings:
-            timings[key] = _int_field(timing, key, tt, positive=False)
-
-    power = _section(spec, "mempowerspec", where)
-    pt = f"{where}: memspec.mempowerspec"
-    volts: dict[str, Any] = {}
-    for key in VOLTAGES:
-        if key not in power:
-            raise InputError(f"{pt}: missing field {key}")
-        value = power[key]
-        if not _is_number(value) or not math.isfinite(value) or value <= 0:
-            raise InputError(f"{pt}.{key} = {value!r}: expected a positive voltage in volts")
-        if value > MAX_VOLTAGE_V:
-            raise InputError(f"{pt}.{key} = {value!r} looks like mV; expected volts ({value / 1000:g})")
-        volts[key] = float(value)
-    currents: dict[str, float] = {}
-    current_keys: dict[str, str] = {}
-    mode_currents = {2: ("idd5F2", "ipp5F2"), 4: ("idd5F4", "ipp5F4")}.get(values["ref_mode"], ())
-    for key in (*REQUIRED_CURRENTS, *REFRESH_MODE_CURRENTS, *BETA_CURRENTS):
-        # accept any capitalisation in the file, remember the file's spelling for writing back
-        found = next((k for k in power if k.lower() == key.lower()), None)
-        if found is None:
-            if key in REQUIRED_CURRENTS or key in mode_currents:
-                raise InputError(f"{pt}: missing field {key}")
-            if key in REFRESH_MODE_CURRENTS:
-                currents[key.lower()] = 0.0  # not used by this RefMode; not written back
-            continue
-        currents[key.lower()] = _check_current(f"{pt}.{found}", power[found])
-        current_keys[key.lower()] = found
-
-    fact_rho = 1.0
-    if "bankwisespec" in spec:
-        bankwise = _section(spec, "bankwisespec", where)
-        if "factRho" in bankwise:
-            rho = bankwise["factRho"]
-            if not _is_number(rho) or not 0.0 <= rho <= 1.0:
-                raise InputError(f"{where}: memspec.bankwisespec.factRho = {rho!r}: expected a number in [0, 1]")
-            fact_rho = float(rho)
+    memory_type, memory_id = fields.header(spec, where, "DDR4")
+    values = _architecture(spec, where)
+    tck, timings = fields.timings(spec, where, TIMING_FIELDS)
+    power = fields.section(spec, "mempowerspec", where)
+    volts: dict[str, Any] = fields.voltages(power, f"{where}: memspec.mempowerspec", VOLTAGES)
+    currents, current_keys = _currents(power, f"{where}: memspec.mempowerspec", values["ref_mode"])
+    fact_rho = fields.fact_rho(spec, where)
     for name in ("memimpedancespec", "prepostamble"):
         if name in spec and not isinstance(spec[name], Mapping):
             raise InputError(f"{where}: memspec.{name}: expected an object")
-
-    spec_out = MemSpec(memory_id=memory_id, memory_type=memory_type, tck_s=float(tck), timings=timings,
+    spec_out = MemSpec(memory_id=memory_id, memory_type=memory_type, tck_s=tck, timings=timings,
                        currents=currents, fact_rho=fact_rho, _raw=raw, _current_keys=current_keys,
                        **volts, **values)
     if not allow_unphysical:
         check_physical(spec_out, where)
     return spec_out
+
+
+def _architecture(spec: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """memarchitecturespec as :class:`MemSpec` attributes (RefMode 1, 2 or 4; banks a multiple of groups)."""
+    arch = fields.section(spec, "memarchitecturespec", where)
+    at = f"{where}: memspec.memarchitecturespec"
+    values: dict[str, Any] = {attr: fields.int_field(arch, key, at, positive=True) for key, attr in ARCH_FIELDS.items()}
+    for key, (attr, default) in ARCH_OPTIONAL.items():
+        values[attr] = fields.int_field(arch, key, at, positive=True) if key in arch else default
+    if values["ref_mode"] not in (1, 2, 4):
+        raise InputError(f"{at}.RefMode = {values['ref_mode']!r}: expected 1, 2 or 4")
+    if values["nbr_of_banks"] % values["nbr_of_bankgroups"]:
+        raise InputError(f"{at}: nbrOfBanks = {values['nbr_of_banks']} is not a multiple of "
+                         f"nbrOfBankGroups = {values['nbr_of_bankgroups']}")
+    return values
+
+
+def _currents(power: Mapping[str, Any], where: str, ref_mode: int) -> tuple[dict[str, float], dict[str, str]]:
+    """(amperes by lower-case name, the file's spelling of each): the required currents, those of
+    the refresh mode (the other modes' are 0 A and not written back) and the optional Iβ."""
+    currents: dict[str, float] = {}
+    current_keys: dict[str, str] = {}
+    mode_currents = {2: ("idd5F2", "ipp5F2"), 4: ("idd5F4", "ipp5F4")}.get(ref_mode, ())
+    for key in (*REQUIRED_CURRENTS, *REFRESH_MODE_CURRENTS, *BETA_CURRENTS):
+        # accept any capitalisation in the file, remember the file's spelling for writing back
+        found = next((k for k in power if k.lower() == key.lower()), None)
+        if found is None:
+            if key in REQUIRED_CURRENTS or key in mode_currents:
+                raise InputError(f"{where}: missing field {key}")
+            if key in REFRESH_MODE_CURRENTS:
+                currents[key.lower()] = 0.0
+            continue
+        currents[key.lower()] = fields.check_current(f"{where}.{found}", power[found])
+        current_keys[key.lower()] = found
+    return currents, current_keys
 
 
 def load_memspec(path: str | Path, *, allow_unphysical: bool = False) -> MemSpec:

@@ -32,12 +32,12 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from hdeem_watch.dram import memspec_fields as fields
 from hdeem_watch.errors import InputError, not_a_file_error
 
 #: memarchitecturespec: JSON key -> attribute (non-negative integers; DRAMUtils requires them all).
@@ -74,16 +74,6 @@ CURRENT_FIELDS: tuple[str, ...] = (
 #: Optional bank-wise model currents (default: Iβ = IDD0 resp. IPP0).
 BETA_CURRENTS: tuple[str, ...] = ("iBeta_vdd", "iBeta_vpp")
 VOLTAGES: tuple[str, ...] = ("vdd", "vpp", "vddq")
-
-#: Plausibility limits: above them a value was almost surely typed in mA, mV or ns.
-MAX_DEVICE_CURRENT_A = 1.0
-MAX_VOLTAGE_V = 5.0
-MAX_TCK_S = 1e-6
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
-
 
 @dataclass(frozen=True)
 class MemSpecDDR5:
@@ -169,7 +159,7 @@ class MemSpecDDR5:
             lower = name.lower()
             if lower not in known:
                 raise InputError(f"with_currents: unknown current {name!r}; expected one of {sorted(known)}")
-            merged[lower] = _check_current(f"with_currents: {lower}", value)
+            merged[lower] = fields.check_current(f"with_currents: {lower}", value)
             keys.setdefault(lower, known[lower])
         return replace(self, currents=merged, _current_keys=keys)
 
@@ -182,42 +172,12 @@ class MemSpecDDR5:
         return tree
 
 
-def _check_current(where: str, value: Any) -> float:
-    if not _is_number(value) or not math.isfinite(value):
-        raise InputError(f"{where} = {value!r}: not a number; expected a current in amperes")
-    if value < 0:
-        raise InputError(f"{where} = {value!r}: negative; expected a current >= 0 A")
-    if value > MAX_DEVICE_CURRENT_A:
-        raise InputError(f"{where} = {value!r} looks like mA; expected amperes per device ({value / 1000:g})")
-    return float(value)
-
-
-def _section(spec: Mapping[str, Any], name: str, where: str) -> Mapping[str, Any]:
-    section = spec.get(name)
-    if section is None:
-        raise InputError(f"{where}: memspec.{name}: missing section")
-    if not isinstance(section, Mapping):
-        raise InputError(f"{where}: memspec.{name}: expected an object, got {type(section).__name__}")
-    return section
-
-
-def _int_field(section: Mapping[str, Any], key: str, where: str, *, positive: bool) -> int:
-    if key not in section:
-        raise InputError(f"{where}: missing field {key}")
-    value = section[key]
-    if not _is_number(value) or not math.isfinite(value) or value != int(value):
-        raise InputError(f"{where}.{key} = {value!r}: expected an integer")
-    if value < 0 or (positive and value == 0):
-        raise InputError(f"{where}.{key} = {value!r}: expected a {'positive' if positive else 'non-negative'} integer")
-    return int(value)
-
-
 def _architecture(spec: Mapping[str, Any], where: str) -> dict[str, int]:
-    arch = _section(spec, "memarchitecturespec", where)
+    arch = fields.section(spec, "memarchitecturespec", where)
     at = f"{where}: memspec.memarchitecturespec"
-    values = {key: _int_field(arch, key, at, positive=key in POSITIVE_ARCH) for key in ARCH_FIELDS}
+    values = {key: fields.int_field(arch, key, at, positive=key in POSITIVE_ARCH) for key in ARCH_FIELDS}
     if "maxBurstLength" in arch:
-        values["maxBurstLength"] = _int_field(arch, "maxBurstLength", at, positive=False)
+        values["maxBurstLength"] = fields.int_field(arch, "maxBurstLength", at, positive=False)
     if values["RefMode"] not in (1, 2):
         raise InputError(f"{at}.RefMode = {values['RefMode']!r}: expected 1 or 2")
     if values["nbrOfBanks"] % values["nbrOfBankGroups"]:
@@ -226,36 +186,10 @@ def _architecture(spec: Mapping[str, Any], where: str) -> dict[str, int]:
     return values
 
 
-def _timing(spec: Mapping[str, Any], where: str) -> tuple[float, dict[str, int]]:
-    timing = _section(spec, "memtimingspec", where)
-    tt = f"{where}: memspec.memtimingspec"
-    if "tCK" not in timing:
-        raise InputError(f"{tt}: missing field tCK")
-    tck = timing["tCK"]
-    if not _is_number(tck) or not math.isfinite(tck) or tck <= 0:
-        raise InputError(f"{tt}.tCK = {tck!r}: expected a positive clock period in seconds")
-    if tck > MAX_TCK_S:
-        raise InputError(f"{tt}.tCK = {tck!r} looks like ns; expected seconds ({tck * 1e-9:g})")
-    timings = {key: _int_field(timing, key, tt, positive=key in POSITIVE_TIMINGS) for key in TIMING_FIELDS}
-    for key in timing:  # extra integer timings are kept (DRAMPower ignores them), non-integers are errors
-        if key != "tCK" and key not in timings:
-            timings[key] = _int_field(timing, key, tt, positive=False)
-    return float(tck), timings
-
-
 def _power(spec: Mapping[str, Any], where: str) -> tuple[dict[str, float], dict[str, float], dict[str, str]]:
-    power = _section(spec, "mempowerspec", where)
+    power = fields.section(spec, "mempowerspec", where)
     pt = f"{where}: memspec.mempowerspec"
-    volts: dict[str, float] = {}
-    for key in VOLTAGES:
-        if key not in power:
-            raise InputError(f"{pt}: missing field {key}")
-        value = power[key]
-        if not _is_number(value) or not math.isfinite(value) or value <= 0:
-            raise InputError(f"{pt}.{key} = {value!r}: expected a positive voltage in volts")
-        if value > MAX_VOLTAGE_V:
-            raise InputError(f"{pt}.{key} = {value!r} looks like mV; expected volts ({value / 1000:g})")
-        volts[key] = float(value)
+    volts = fields.voltages(power, pt, VOLTAGES)
     currents: dict[str, float] = {}
     keys: dict[str, str] = {}
     for key in (*CURRENT_FIELDS, *BETA_CURRENTS):
@@ -263,7 +197,7 @@ def _power(spec: Mapping[str, Any], where: str) -> tuple[dict[str, float], dict[
             if key in CURRENT_FIELDS:
                 raise InputError(f"{pt}: missing field {key}")
             continue
-        currents[key.lower()] = _check_current(f"{pt}.{key}", power[key])
+        currents[key.lower()] = fields.check_current(f"{pt}.{key}", power[key])
         keys[key.lower()] = key
     return volts, currents, keys
 
@@ -287,28 +221,15 @@ def parse_memspec_ddr5(data: Any, where: str = "memspec", *, allow_unphysical: b
         InputError: one line naming ``where``, the field and what was expected.
     """
     spec = data.get("memspec") if isinstance(data, Mapping) else None
-    if not isinstance(spec, Mapping):
-        raise InputError(f"{where}: expected a JSON object with a 'memspec' object")
-    memory_type = spec.get("memoryType")
-    if not isinstance(memory_type, str) or memory_type.upper() != "DDR5":
-        raise InputError(f"{where}: memspec.memoryType = {memory_type!r}; expected 'DDR5'")
-    memory_id = spec.get("memoryId", "")
-    if not isinstance(memory_id, str):
-        raise InputError(f"{where}: memspec.memoryId = {memory_id!r}: expected a string")
+    memory_type, memory_id = fields.header(spec, where, "DDR5")
+    assert isinstance(spec, Mapping)
     arch = _architecture(spec, where)
-    tck, timings = _timing(spec, where)
+    tck, timings = fields.timings(spec, where, TIMING_FIELDS, POSITIVE_TIMINGS)
     volts, currents, keys = _power(spec, where)
-    fact_rho = 1.0
-    if "bankwisespec" in spec:
-        bankwise = _section(spec, "bankwisespec", where)
-        if "factRho" in bankwise:
-            rho = bankwise["factRho"]
-            if not _is_number(rho) or not 0.0 <= rho <= 1.0:
-                raise InputError(f"{where}: memspec.bankwisespec.factRho = {rho!r}: expected a number in [0, 1]")
-            fact_rho = float(rho)
-    _section(spec, "memimpedancespec", where)
+    fact_rho = fields.fact_rho(spec, where)
+    fields.section(spec, "memimpedancespec", where)
     if "dataratespec" in spec:
-        _section(spec, "dataratespec", where)
+        fields.section(spec, "dataratespec", where)
     out = MemSpecDDR5(
         memory_id=memory_id, memory_type=memory_type, nbr_of_devices=max(1, arch["nbrOfDevices"]),
         nbr_of_ranks=arch["nbrOfRanks"], nbr_of_banks=arch["nbrOfBanks"], nbr_of_bankgroups=arch["nbrOfBankGroups"],

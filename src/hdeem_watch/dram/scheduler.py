@@ -45,6 +45,10 @@ class SchedulerConfig:
         low: write-drain low watermark.
         hit_cap: most row hits served in a row before the oldest request; ``None`` = no cap.
         window: longest stretch of reads regrouped at once (the reordering horizon).
+        activation_rules: space the activations by tRRD_S/L and tFAW (:mod:`~hdeem_watch.dram.act_spacing`).
+            Off by default: on activation-dense streams it makes the model about 10× slower (random
+            lines, triad at 24 threads: docs/dram-stats.md "Activation rules"), too slow for the sim
+            and the daemon's per-run model, while it moves a DDR4 kernel's cycles by < 0.1 %.
     """
 
     read_queue: int = 32
@@ -55,6 +59,7 @@ class SchedulerConfig:
     window: int = 64
     hidden_turnaround: int = 3
     hidden_bank: int = 13
+    activation_rules: bool = False
 
     def __post_init__(self) -> None:
         if self.read_queue < 1 or self.write_queue < 2 or self.window < 1:

@@ -1,6 +1,6 @@
 """The node the daemon models: its description, the memspec for its DIMMs, its topology and sensors.
 
-At start-up the daemon (:mod:`hdeem_watch.daemon.service`) asks :func:`node_setup` what to model:
+At start-up the daemon (:mod:`hdeem_watch.daemon.shell.service`) asks :func:`node_setup` what to model:
 
 - the **description**: detected from this machine (:func:`detect_live_node`: sysfs, EDAC and, as
   root, ``dmidecode -t 17``), or the simulated node's (:func:`counted_node` of the sim's layout),

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.dram.energy import COMPONENT_KINDS, component_energy
+from hdeem_watch.dram.kernels import HOLDOUT_KERNELS
 from hdeem_watch.errors import InputError
 from hdeem_watch.report.records import BaselinePoint, FitEntry, JobRow, ReportData, RunRow, finite
 
@@ -89,6 +90,23 @@ def energy_groups(runs: Iterable[RunRow]) -> list[EnergyGroup]:
                                datasheet_j=float(np.mean([r.datasheet_j for r in rows])),
                                calibrated_j=float(np.mean([r.calibrated_j for r in rows]))))
     return out
+
+
+def holdout_groups(runs: Iterable[RunRow]) -> list[EnergyGroup]:
+    """Hold-out runs (:data:`~hdeem_watch.dram.kernels.HOLDOUT_KERNELS`, never fitted) with a
+    measurement and a prediction from before each run, grouped by kernel (in that list's order) and
+    thread count; ``calibrated_j`` is the mean prediction."""
+    buckets: dict[tuple[str, int], list[RunRow]] = {}
+    for run in runs:
+        if run.kernel in HOLDOUT_KERNELS and run.measured_j > 0 and math.isfinite(run.predicted_j) \
+                and math.isfinite(run.datasheet_j):
+            buckets.setdefault((run.kernel, run.threads), []).append(run)
+    order = {k: i for i, k in enumerate(HOLDOUT_KERNELS)}
+    return [EnergyGroup(label=f"{kernel}-{threads}t", kernel=kernel, threads=threads, n=len(rows),
+                        measured_j=float(np.mean([r.measured_j for r in rows])),
+                        datasheet_j=float(np.mean([r.datasheet_j for r in rows])),
+                        calibrated_j=float(np.mean([r.predicted_j for r in rows])))
+            for (kernel, threads), rows in sorted(buckets.items(), key=lambda kv: (order[kv[0][0]], kv[0][1]))]
 
 
 def drift_flags(history: Sequence[FitEntry], lag_s: float | None) -> list[dict[str, bool]]:

@@ -7,6 +7,7 @@ Each builder takes :class:`~hdeem_watch.report.records.ReportData` and returns a
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -19,13 +20,21 @@ from hdeem_watch.report.style import SERIES, legend_outside, message_figure, per
 
 def energy_figure(data: ReportData) -> ReportFigure:
     """Figure 1: measured vs datasheet-model vs calibrated-model energy per kernel and thread count."""
-    plt = pyplot()
     groups = analysis.energy_groups(data.runs)
     title = "Energy per kernel and thread count: measured, datasheet model, calibrated model"
     how = ("Each group of bars is the mean DRAM energy of a kernel's runs at one thread count; the lower panel "
            "is each model's error against the measurement (0 % = exact).")
     if not groups:
         return ReportFigure("fig1-energy", title, how, message_figure(title, "no finished runs"), missing=("runs",))
+    fig, table = measured_vs_models(groups, title)
+    missing = () if data.fit is not None else ("calibration (no fit yet)",)
+    return ReportFigure("fig1-energy", title, how, fig, {"mean energy per kernel and thread count": table}, missing)
+
+
+def measured_vs_models(groups: Sequence[analysis.EnergyGroup], title: str) -> tuple[Any, Table]:
+    """The measured-vs-models figure of ``groups`` (at least one): mean energies as bars above, each
+    model's error against the measurement below; and its table."""
+    plt = pyplot()
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(max(7.0, 0.42 * len(groups) + 2), 6.4), sharex=True,
                                       gridspec_kw={"height_ratios": (3, 2)})
     x = np.arange(len(groups))
@@ -57,8 +66,7 @@ def energy_figure(data: ReportData) -> ReportFigure:
                    "calibrated error %"),
                   rows([(g.kernel, g.threads or None, g.n, g.measured_j, g.datasheet_j, g.calibrated_j,
                          g.datasheet_error_pct, g.calibrated_error_pct) for g in groups]))
-    missing = () if data.fit is not None else ("calibration (no fit yet)",)
-    return ReportFigure("fig1-energy", title, how, fig, {"mean energy per kernel and thread count": table}, missing)
+    return fig, table
 
 
 def currents_figure(data: ReportData) -> ReportFigure:

@@ -83,6 +83,7 @@ def imc_role_counts(stats: CommandStats, table: EventTable, *, clocked_sref_shar
         "pre_page_miss": miss - underfill,
         "pre_underfill": underfill,
         "pre_page_close": explicit * page_close_share,
+        "pre_all": explicit,  # AMD's umc_pchg_cmd.all: every PRECHARGE command (RDA/WRA send none)
         "refresh": refresh,
         "ppd_cycles": min((r.cycles_pdnp for r in ranks), default=0.0),
         "sref_cycles": sref * clocked_sref_share,

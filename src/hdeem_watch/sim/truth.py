@@ -53,7 +53,7 @@ EFFECTS: tuple[tuple[str, str, str], ...] = (
 
 
 #: The currents a fit of counted windows calibrates besides :data:`CALIBRATED`: the counters measure
-#: power-down residency (``hdeem_watch.daemon.counter_model.POWERDOWN_CURRENTS``).
+#: power-down residency (``hdeem_watch.calibrate.counter_model.POWERDOWN_CURRENTS``).
 COUNTED_EXTRA = ("idd2p", "idd3p")
 
 

@@ -92,7 +92,7 @@ def fallback_runtime_dir() -> Path:
     """``/tmp/hdeem-watch-<uid>``: the runtime directory when nothing names one.
 
     It sits in a world-writable directory, so the daemon adopts it only when it is its own
-    (:func:`hdeem_watch.daemon.endpoints.private_directory`).
+    (:func:`hdeem_watch.daemon.shell.endpoints.private_directory`).
     """
     return Path(f"/tmp/hdeem-watch-{os.getuid()}")
 

@@ -39,7 +39,7 @@ ERROR_CODES = (
     "bad-args",  # arguments missing or invalid for the operation
     "not-found",  # e.g. run.stop with an unknown run_id
     "conflict",  # e.g. run.start while a run is in progress
-    "forbidden",  # the peer may not run a state-changing op (daemon/authorization.py says who may)
+    "forbidden",  # the peer may not run a state-changing op (daemon/shell/authorization.py says who may)
     "unavailable",  # the operation cannot be served now (e.g. no model for this kernel)
     "internal",  # a bug in the daemon; the message says what
 )

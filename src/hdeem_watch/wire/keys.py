@@ -5,7 +5,7 @@ Keys are ZeroMQ certificate files (``zmq.auth`` format): :func:`generate_keys` w
 A client makes any socket (SUB, DEALER, REQ) a CURVE client of the daemon with
 :func:`secure_client`; :func:`client_curve` finds the keys a command-line client uses (flags,
 environment, the node's daemon config). The daemon's side (CURVE server, registered client keys)
-is :mod:`hdeem_watch.daemon.security`.
+is :mod:`hdeem_watch.daemon.shell.security`.
 
 Example:
     >>> import tempfile, zmq

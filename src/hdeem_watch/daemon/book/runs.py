@@ -1,0 +1,264 @@
+"""Runs: what a benchmark run announced, and the energy each channel used during it.
+
+A run is opened by ``run.start`` and closed by ``run.stop``. At both ends the daemon polls the
+source once more and takes its *cumulative* energies, so the window's energy per channel is an
+exact difference of the source's own totals: nothing is lost between polls, whatever the poll rate
+or the sample losses. The window's duration is measured on the source's clock (the source's time
+for a sped-up sim or replay).
+
+A run is a typed :class:`RunRecord` inside the daemon; it becomes a JSON-ready dict only at the
+edge (:meth:`RunRecord.to_dict` for the ``run`` topic, the store and ``run.stop``;
+:func:`run_summary` for ``runs.list``). Its ``state`` goes ``running`` → ``modelling`` (the window
+closed; the model and the refit are pending) → ``done``, or ``aborted``.
+
+Example:
+    >>> args = parse_run_args({"kernel": "triad", "threads": 24, "elements": 1000})
+    >>> rec = RunRecord.start("r1", args, t_wall_ns=5, node="n1")
+    >>> rec.state, rec.kernel
+    ('running', 'triad')
+    >>> window_energy({"DDR_AB": 10.0, "CPU0": 1.0}, {"DDR_AB": 12.5, "CPU0": float("nan")})
+    {'DDR_AB': 2.5, 'CPU0': nan}
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from hdeem_watch.calibrate.run_model import NO_TRAFFIC_KERNELS, OPAQUE_KERNEL
+from hdeem_watch.wire.protocol import ProtocolError, quoted
+
+#: Largest number of samples kept per channel for one run (≈ 3 h at 100 Sa/s).
+MAX_RUN_SAMPLES = 1_000_000
+#: Largest ``repeat`` of a run.
+MAX_REPEAT = 1_000_000
+#: Threads allowed per logical CPU of the node (oversubscribed runs are legitimate, absurd ones not).
+THREADS_PER_CPU = 4
+#: Arrays of doubles a STREAM-like kernel touches at most (triad: a, b, c).
+KERNEL_ARRAYS = 3
+#: The limits assume at least this many logical CPUs and bytes of memory, so that a simulated node
+#: (2 × 12 Haswell cores, 48 logical CPUs, 64 GiB) can be driven from a small machine.
+MIN_CPUS = 64
+MIN_MEMORY_BYTES = 128 << 30
+
+RunState = Literal["running", "modelling", "done", "aborted"]
+FINISHED_STATES = ("done", "aborted")
+
+
+@dataclass(frozen=True)
+class RunLimits:
+    """Bounds of the numbers ``run.start`` accepts.
+
+    Attributes:
+        max_threads: threads (logical CPUs × :data:`THREADS_PER_CPU`; see :data:`MIN_CPUS`).
+        max_elements: elements per array (all of the node's memory in :data:`KERNEL_ARRAYS` arrays;
+            see :data:`MIN_MEMORY_BYTES`).
+        max_repeat: passes over the arrays.
+    """
+
+    max_threads: int
+    max_elements: int
+    max_repeat: int = MAX_REPEAT
+
+    @classmethod
+    def of_this_node(cls) -> RunLimits:
+        """The limits of the machine this process runs on."""
+        import psutil
+
+        cpus = max(os.cpu_count() or 1, MIN_CPUS)
+        memory = max(int(psutil.virtual_memory().total), MIN_MEMORY_BYTES)
+        return cls(max_threads=cpus * THREADS_PER_CPU, max_elements=max(1, memory // (8 * KERNEL_ARRAYS)))
+
+
+@dataclass(frozen=True)
+class RunArgs:
+    """Validated arguments of ``run.start``."""
+
+    kernel: str
+    name: str
+    threads: int
+    elements: int
+    repeat: int
+    metadata: dict[str, Any]
+
+    @property
+    def moves_no_traffic(self) -> bool:
+        """Whether this is an idle run (no memory traffic)."""
+        return self.kernel in NO_TRAFFIC_KERNELS
+
+
+def _int_arg(args: Mapping[str, Any], key: str, default: int, minimum: int, maximum: int) -> int:
+    value = args.get(key, default)
+    if value is None:
+        value = default
+    if isinstance(value, bool) or not isinstance(value, int) or not minimum <= value <= maximum:
+        raise ProtocolError(f"args.{key} = {quoted(value)}: expected an integer in [{minimum}, {maximum}]", code="bad-args")
+    return int(value)
+
+
+def _text_arg(value: Any, key: str) -> str:
+    if not isinstance(value, str):
+        raise ProtocolError(f"args.{key} = {quoted(value)}: expected a string", code="bad-args")
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        raise ProtocolError(f"args.{key}: not valid text (a lone surrogate?)", code="bad-args") from None
+    return value
+
+
+def parse_run_args(args: Mapping[str, Any], limits: RunLimits | None = None) -> RunArgs:
+    """Validate ``run.start`` arguments: integers only where integers are meant, within ``limits``.
+
+    Raises:
+        ProtocolError: code ``bad-args`` naming the argument.
+    """
+    limits = limits or RunLimits(max_threads=1 << 20, max_elements=1 << 50)
+    kernel = args.get("kernel", OPAQUE_KERNEL)
+    kernel = OPAQUE_KERNEL if kernel is None else kernel
+    if not isinstance(kernel, str) or not kernel.strip():
+        raise ProtocolError(f"args.kernel = {quoted(kernel)}: expected a kernel name (e.g. 'triad', 'idle')", code="bad-args")
+    kernel = _text_arg(kernel, "kernel").strip().lower()
+    name = args.get("name")
+    name = kernel if name is None or name == "" else _text_arg(name, "name")  # [], {}, 0, false: refused
+    metadata = args.get("metadata") or {}
+    if not isinstance(metadata, dict):
+        raise ProtocolError("args.metadata: expected an object", code="bad-args")
+    return RunArgs(
+        kernel=kernel,
+        name=name[:200],
+        threads=_int_arg(args, "threads", 1, 1, limits.max_threads),
+        elements=_int_arg(args, "elements", 0, 0, limits.max_elements),
+        repeat=_int_arg(args, "repeat", 1, 1, limits.max_repeat),
+        metadata=metadata,
+    )
+
+
+@dataclass
+class RunRecord:
+    """One run, from ``run.start`` to its model (see the module docstring for ``state``).
+
+    Energies are per channel in J (NaN = unknown); ``model`` and ``fit`` are the calibrator's JSON
+    contracts (:meth:`~hdeem_watch.calibrate.run_model.RunModeller.evaluate`).
+    """
+
+    run_id: str
+    node: str
+    name: str
+    kernel: str
+    threads: int
+    elements: int
+    repeat: int
+    metadata: dict[str, Any]
+    t_start_ns: int
+    state: RunState = "running"
+    t_stop_ns: int | None = None
+    window_s: float | None = None
+    energy_j: dict[str, float] | None = None
+    mean_power_w: dict[str, float] | None = None
+    dram_energy_j: float | None = None
+    model: dict[str, Any] | None = None
+    model_error: str | None = None
+    fit: dict[str, Any] | None = None
+    #: Per channel ``[last sample time before the window, last sample time in it]``.
+    samples_ns: dict[str, list[int | None]] | None = field(default=None)
+    #: The memory counters over the window (``hdeem_watch.daemon.counters.windows``), None without.
+    counters: dict[str, Any] | None = field(default=None)
+
+    @classmethod
+    def start(cls, run_id: str, args: RunArgs, *, t_wall_ns: int, node: str) -> RunRecord:
+        """The record of a run that just started."""
+        return cls(run_id=run_id, node=node, name=args.name, kernel=args.kernel, threads=args.threads,
+                   elements=args.elements, repeat=args.repeat, metadata=args.metadata, t_start_ns=int(t_wall_ns))
+
+    @property
+    def moves_no_traffic(self) -> bool:
+        """Whether the run is an idle run."""
+        return self.kernel in NO_TRAFFIC_KERNELS
+
+    def finish(self, *, energy_j: Mapping[str, float], window_s: float, dram_channels: Iterable[str],
+               t_wall_ns: int, spans_s: Mapping[str, float] | None = None, aborted: bool = False) -> RunRecord:
+        """A copy closed with its measured energies (``modelling``, or ``aborted``).
+
+        ``spans_s`` gives each channel's own duration for its mean power (default ``window_s``).
+        """
+        spans = spans_s or {}
+        power = {c: (e / spans.get(c, window_s) if spans.get(c, window_s) > 0 else math.nan)
+                 for c, e in energy_j.items()}
+        return dataclasses.replace(
+            self, state="aborted" if aborted else "modelling", t_stop_ns=int(t_wall_ns), window_s=float(window_s),
+            energy_j=dict(energy_j), mean_power_w=power, dram_energy_j=total_energy(energy_j, dram_channels))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON-ready record (NaN stays NaN; the protocol encoder sends null)."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> RunRecord:
+        """A record from its stored form (unknown keys ignored; null energies → NaN).
+
+        Raises:
+            KeyError, TypeError, ValueError: not a run record.
+        """
+        names = {f.name for f in dataclasses.fields(cls)}
+        values = {k: v for k, v in data.items() if k in names}
+        for key in ("energy_j", "mean_power_w"):
+            if isinstance(values.get(key), Mapping):
+                values[key] = {c: math.nan if v is None else float(v) for c, v in values[key].items()}
+        if values.get("dram_energy_j") is None and values.get("state") in ("modelling", "done"):
+            values["dram_energy_j"] = math.nan
+        record = cls(**values)
+        if not isinstance(record.run_id, str) or record.state not in ("running", "modelling", "done", "aborted"):
+            raise ValueError(f"not a run record: run_id {record.run_id!r}, state {record.state!r}")
+        return record
+
+
+#: The fields of a record that ``runs.list`` sends (the model and fit reduced to their figures).
+SUMMARY_FIELDS = ("run_id", "node", "name", "kernel", "threads", "elements", "repeat", "metadata", "state",
+                  "t_start_ns", "t_stop_ns", "window_s", "energy_j", "mean_power_w", "dram_energy_j", "model_error")
+SUMMARY_MODEL_FIELDS = ("datasheet_j", "predicted_j", "calibrated_j", "fitted_j")
+
+
+def run_summary(record: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``runs.list`` entry of a stored record: everything but the model's row and the full fit.
+
+    Idempotent (a summary's summary is itself), a few hundred bytes instead of ~46 KB.
+
+    >>> run_summary({"run_id": "r1", "model": {"datasheet_j": 3.0, "observation": {"x": 1}},
+    ...              "fit": {"n_runs": 2, "error": {"after": 0.1}, "currents": {}}})["model"]
+    {'datasheet_j': 3.0}
+    """
+    summary = {key: record[key] for key in SUMMARY_FIELDS if key in record}
+    model = record.get("model")
+    if isinstance(model, Mapping):
+        summary["model"] = {k: model[k] for k in SUMMARY_MODEL_FIELDS if k in model}
+    elif "model" in record:
+        summary["model"] = None
+    fit = record.get("fit")
+    if isinstance(fit, Mapping):
+        error = fit.get("error")
+        summary["fit"] = {"n_runs": fit.get("n_runs"),
+                          "error": {"after": error.get("after")} if isinstance(error, Mapping) else None}
+    elif "fit" in record:
+        summary["fit"] = None
+    return summary
+
+
+def window_energy(start_j: Mapping[str, float], stop_j: Mapping[str, float]) -> dict[str, float]:
+    """Per-channel energy of a window from cumulative energies at its ends (NaN if either is unknown)."""
+    result = {}
+    for name, stop in stop_j.items():
+        start = start_j.get(name, math.nan)
+        result[name] = float(stop) - float(start) if math.isfinite(start) and math.isfinite(stop) else math.nan
+    return result
+
+
+def total_energy(energy_j: Mapping[str, float], channels: Iterable[str]) -> float:
+    """Sum over ``channels`` (NaN when any of them is unknown or none is present)."""
+    values = [energy_j.get(c, math.nan) for c in channels]
+    if not values:
+        return math.nan
+    return float(sum(values))

@@ -1,0 +1,143 @@
+"""What the daemon tells the world: heartbeat, calibration and baselines.
+
+The :class:`Reporter` reads the run book (:class:`~hdeem_watch.daemon.book.state.NodeState`), the
+calibration and the source's health through narrow ports, and publishes the ``status``, ``calib``
+and ``baseline`` topics; new baselines are stored through the store worker (never on the loop).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import psutil
+
+from hdeem_watch.daemon.book import baselines as bl
+from hdeem_watch.daemon.book.state import NodeState
+from hdeem_watch.daemon.ops.ports import PublisherPort, StorePort
+from hdeem_watch.daemon.shell.workers import Calibration
+from hdeem_watch.daemon.store.worker import StoreWorker
+from hdeem_watch.sources.base import HasTruth, Source
+
+Clock = Callable[[], int]
+
+
+@dataclass(frozen=True)
+class Identity:
+    """What does not change while the daemon runs (in every status body)."""
+
+    kind: str
+    endpoints: Mapping[str, Any]
+    curve_public_key: str | None = None
+    prometheus_port: int | None = None
+
+
+class Reporter:
+    """Heartbeat, calibration and baseline publishing of one node.
+
+    Args:
+        book: the node's run book.
+        calibration: the calibration (its ``calib`` body).
+        source: the source (health; truth when it :class:`~hdeem_watch.sources.base.HasTruth`).
+        publisher: where the topics go.
+        store: the store worker (baselines written there; its health in the status).
+        identity: the static part of the status.
+        poll_interval_ns: the current poll period.
+        clock: the monotonic clock (uptime).
+    """
+
+    def __init__(self, book: NodeState, calibration: Calibration, source: Source, publisher: PublisherPort,
+                 store: StoreWorker, identity: Identity, *, poll_interval_ns: Callable[[], int],
+                 clock: Clock) -> None:
+        self.book = book
+        self.calibration = calibration
+        self.source = source
+        self.publisher = publisher
+        self.store = store
+        self.identity = identity
+        self._poll_interval_ns = poll_interval_ns
+        self._clock = clock
+        self._t_open_ns = clock()
+        self._process = psutil.Process()
+        self._process.cpu_percent(None)
+        self._cpu_percent = math.nan
+
+    def source_health(self) -> str:
+        """The source's own health, or the last poll failure while polls fail."""
+        try:
+            health = str(self.source.health())
+        except Exception as error:
+            health = f"error: {error}"
+        failure = self.book.poll_error
+        return failure if failure is not None and health == "ok" else health
+
+    def status_body(self) -> dict[str, Any]:
+        """The heartbeat body (also the base of the ``status`` op)."""
+        run = self.book.running()
+        return {
+            "source": {"kind": self.identity.kind, "health": self.source_health()},
+            "store": {"health": self.store.health()},
+            "channels": {name: a.status_entry() for name, a in self.book.accounts.items()},
+            "process": {"cpu_percent": self._cpu_percent, "rss_bytes": int(self._process.memory_info().rss),
+                        "pid": os.getpid()},
+            "run": None if run is None else run.to_dict(),
+            "uptime_s": (self._clock() - self._t_open_ns) / 1e9,
+            "endpoints": dict(self.identity.endpoints),
+            "curve_public_key": self.identity.curve_public_key,
+            "speed": self.book.speed,
+            "poll_interval_s": self._poll_interval_ns() / 1e9,
+            "prometheus_port": self.identity.prometheus_port,
+        }
+
+    def publish_status(self) -> None:
+        """Publish the heartbeat (rates over the last heartbeat period, CPU share since the last)."""
+        self._cpu_percent = float(self._process.cpu_percent(None))
+        self.book.heartbeat()
+        self.publisher.publish("status", self.status_body())
+
+    def truth(self) -> dict[str, Any] | None:
+        """The simulated source's hidden truth, or None for real sensors."""
+        if not isinstance(self.source, HasTruth):
+            return None
+        try:
+            return dict(self.source.truth())
+        except Exception:
+            return None
+
+    def calib_with_truth(self) -> dict[str, Any]:
+        """The latest ``calib`` body with the sim's truth now."""
+        body = dict(self.calibration.body)
+        body["truth"] = self.truth()
+        return body
+
+    def publish_calib(self) -> None:
+        """Publish the ``calib`` body (cached by the publisher for late joiners)."""
+        self.publisher.publish("calib", self.calib_with_truth())
+
+    def publish_baselines(self) -> None:
+        """Publish the ``baseline`` body (cached for late joiners)."""
+        self.publisher.publish("baseline", bl.baselines_body(self.book.baselines))
+
+    def baselines_kept(self, kept: Mapping[str, bl.Baseline]) -> None:
+        """Store and publish baselines that replaced the kept ones (nothing when empty)."""
+        if not kept:
+            return
+        # One store call for all of them: one wake-up of the store threads, not one per channel.
+        records = {channel: baseline.to_dict() for channel, baseline in kept.items()}
+        self.store.write(f"baselines {', '.join(records)}", _save_baselines(records))
+        self.publish_baselines()
+
+    def look_for_quiet_periods(self, *, window_s: float, max_spread_w: float) -> None:
+        """Baselines from quiet periods of the recent samples (only while no window is open)."""
+        self.baselines_kept(self.book.quiet_baselines(window_s=window_s, max_spread_w=max_spread_w))
+
+
+def _save_baselines(records: Mapping[str, dict[str, Any]]) -> Callable[[StorePort], None]:
+    def save(store: StorePort) -> None:
+        for channel, record in records.items():
+            store.save_baseline(channel, record)
+
+    return save

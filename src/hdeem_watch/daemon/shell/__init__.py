@@ -1,0 +1,1 @@
+"""The daemon's shell: the service loop and the threads and sockets around the pure run book."""
