@@ -22,7 +22,7 @@ Example:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 from hdeem_watch.channels import channel_letter, dimm_pair_channel
@@ -43,6 +43,7 @@ class SimLayout:
         dimm_socket: the socket of each DIMM.
         dimm_sensor: the DRAM sensor channel that measures each DIMM.
         sensors: the DRAM sensor channels, in order.
+        memspec: the DIMMs' memspec: a preset name or a memspec file of the sim package.
     """
 
     topology: NodeTopology
@@ -50,6 +51,7 @@ class SimLayout:
     dimm_socket: tuple[int, ...]
     dimm_sensor: tuple[str, ...]
     sensors: tuple[str, ...] = field(default=())
+    memspec: str = "samsung-m393a1g43db0-cpb"
 
     @classmethod
     def regular(cls, sockets: int, cores_per_socket: int, channels_per_socket: int) -> SimLayout:
@@ -97,6 +99,11 @@ class SimLayout:
 TAURUS = SimLayout.regular(2, 12, 4)
 #: A Sapphire Rapids-like DDR5 node: 2 sockets × 56 cores × 8 channels, RAPL DRAM per socket.
 SAPPHIRE_RAPIDS = SimLayout.per_socket(2, 56, 8)
+#: The DDR5 node's memspec (``sim/ddr5_node.json``): DRAMPower v6.2's DDR5 test memspec as one 32-bit
+#: BL16 DDR5-4800 sub-channel (docs/sources.md says which number comes from where).
+DDR5_MEMSPEC = "ddr5_node.json"
+#: The simulated DDR5 node: :data:`SAPPHIRE_RAPIDS` with DDR5 DIMMs of :data:`DDR5_MEMSPEC`.
+DDR5_NODE = replace(SAPPHIRE_RAPIDS, memspec=DDR5_MEMSPEC)
 
 
 def layout_for_node(node: NodeDescription) -> SimLayout:

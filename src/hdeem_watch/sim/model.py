@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.dram.node import lines_of, node_capacity_lines_s, node_run_stats
-from hdeem_watch.dram.stats import CommandStats, RankStats
+from hdeem_watch.dram.stats import CommandStats, RankStats, refresh_interval
 from hdeem_watch.sim.currents import PartCurrents
 from hdeem_watch.sim.layout import TAURUS, SimLayout
 
@@ -147,6 +147,20 @@ def _cached_rate(kernel: str, threads: int, elements: int, layout: SimLayout = T
     return line_rate_of(model, kernel, threads, model.node_stats(kernel, elements, threads, 1))
 
 
+def sim_memspec(name: str) -> Any:
+    """The memspec of the sim's DIMMs: a preset by name, or a ``.json`` file of this package
+    (:data:`~hdeem_watch.sim.layout.DDR5_MEMSPEC`, the DDR5 node's)."""
+    from pathlib import Path
+
+    from hdeem_watch.dram.memspec import preset
+
+    if name.endswith(".json"):
+        from hdeem_watch.dram.memspec_ddr5 import load_memspec_ddr5
+
+        return load_memspec_ddr5(Path(__file__).with_name(name))
+    return preset(name)
+
+
 class DramModel:
     """The DRAM model (memspec, energy columns, node statistics) of the sim's DIMMs.
 
@@ -157,12 +171,11 @@ class DramModel:
     backend = "dram"
 
     def __init__(self, layout: SimLayout = TAURUS) -> None:
-        from hdeem_watch.dram.energy import CURRENT_NAMES
-        from hdeem_watch.dram.memspec import preset
+        from hdeem_watch.dram.linear import model_current_names
 
         self.layout = layout
-        self.spec: Any = preset(MEMSPEC_PRESET)
-        self.names: tuple[str, ...] = tuple(CURRENT_NAMES)
+        self.spec: Any = sim_memspec(layout.memspec)
+        self.names: tuple[str, ...] = model_current_names(self.spec)
         self.datasheet = np.array([float(self.spec.currents.get(n, 0.0)) for n in self.names])
         self.tck_s = float(self.spec.tck_s)
         self._node_stats = functools.lru_cache(maxsize=256)(self._compute_node_stats)
@@ -180,7 +193,8 @@ class DramModel:
         """No commands: all banks precharged, a refresh every REFI — the form the calibrator gives an
         idle run (``calibrate.rows.stretch_stats`` of empty statistics), so idle energy matches it."""
         total = window_s / self.tck_s
-        rank = RankStats(ref=total / float(self.spec.timings["REFI"]), cycles_total=total, cycles_pre=total)
+        refi = refresh_interval(self.spec)
+        rank = RankStats(ref=total / refi if refi > 0 else 0.0, cycles_total=total, cycles_pre=total)
         return CommandStats(ranks=(rank,) * self.spec.nbr_of_ranks)
 
     def stretched(self, stats: CommandStats, window_s: float) -> CommandStats:
@@ -191,9 +205,9 @@ class DramModel:
 
     def linear(self, stats: CommandStats) -> tuple[np.ndarray, float]:
         """``energy_columns(spec, stats)`` as (columns, constant_j)."""
-        from hdeem_watch.dram.energy import energy_columns
+        from hdeem_watch.dram.linear import linear_energy
 
-        lin = energy_columns(self.spec, stats)
+        lin = linear_energy(self.spec, stats)
         return np.asarray(lin.columns, dtype=float), float(lin.constant_j)
 
     def burst_j_per_a(self) -> float:
@@ -256,7 +270,7 @@ def effective_currents(model: Model, currents: np.ndarray, io_j_per_line: float,
     out = np.broadcast_to(model.datasheet, truth.shape).copy()
     idx = [names.index(n) for n in calibrated if n in names]
     out[..., idx] = truth[..., idx]
-    f_ref = float(spec.trfc) / float(spec.timings["REFI"])
+    f_ref = float(spec.trfc) / refresh_interval(spec)
     per_dimm_w = offsets_w / len(model.layout.dimm_names)
     i5b = names.index("idd5b")
     refresh_w = (truth[..., i5b] - model.datasheet[i5b]) * model.standby_w_per_a() * f_ref

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from hdeem_watch.dram.stats import refresh_interval
 from hdeem_watch.sim.currents import PartCurrents
 from hdeem_watch.sim.model import CALIBRATED
 from hdeem_watch.sim.plan import TruthNode
@@ -85,7 +86,7 @@ def absorbable_currents(node: TruthNode, currents: np.ndarray, temps_c: np.ndarr
         idle_cols, idle_const = node.model_idle_columns()
         model_idle_w = out @ idle_cols + idle_const
         out[:, index["idd2n"]] += (node.idle_power_w(currents, temps_c) - model_idle_w) / idle_cols[index["idd2n"]]
-    f_ref = float(spec.trfc) / float(spec.timings["REFI"])
+    f_ref = float(spec.trfc) / refresh_interval(spec)
     if counted:  # the fit holds IDD5B at its datasheet value: the refresh power's deviation is a constant power
         i5b = index["idd5b"]
         refresh = (currents[:, i5b] - model.datasheet[i5b]) * f_ref / (1.0 - f_ref)
