@@ -1,6 +1,6 @@
 """The import graph of ``src/hdeem_watch`` points one way (issues #13, #26), and its functions stay short.
 
-The packages are layered ``dram ← counters ← {calibrate, sim} ← sources ← node ← config ← wire ← daemon ← {tui, cli}``: a package may
+The packages are layered ``dram ← counters ← sim ← sources ← {calibrate, node} ← config ← wire ← daemon ← {tui, cli}``: a package may
 import only from a lower tier, and no two modules anywhere import each other, directly or around a
 loop. The graph is read from the source with :mod:`ast`, so it holds every import, at module level
 and inside functions (a function-local import hides a cycle from the interpreter, not from this
@@ -34,9 +34,9 @@ TIERS: dict[str, int] = {
     "perf_event": 0,  # perf_event_open through ctypes (sources: RAPL energy; counters: the IMC PMUs)
     "dram": 1,  # the DRAM model: memspecs, statistics, energy, controller
     "counters": 2,  # memory-controller counters -> command statistics (uses dram/)
-    "calibrate": 3,  # rows and fits on the model; a run's model, per-group fits, the counter model (uses counters/)
     "sim": 3,  # the simulated node: its truth (dram/), its IMC counters (counters/)
     "sources": 4,  # power sensors (the sim source adapts sim/)
+    "calibrate": 5,  # rows and fits on the model; a run's model, per-group fits (a source's layout), the counter model
     "node": 5,  # facts about this machine (topology, DIMMs, sensor map, its DRAM energy source: RAPL zones)
     "config": 6,  # the daemon's settings (with each source's options)
     "wire": 7,  # protocol v1, control client, client keys: what daemon and clients share
@@ -289,7 +289,7 @@ def test_no_cycle_between_modules_of(package: str, edges: list[Edge]) -> None:
 
 @pytest.mark.parametrize("package", sorted(TIERS), ids=lambda name: name or ROOT)
 def test_imports_point_down_the_layers(package: str, edges: list[Edge]) -> None:
-    """dram ← {sources, counters} ← calibrate ← daemon ← {tui, cli}: ``package`` imports only lower tiers."""
+    """dram ← counters ← sim ← sources ← calibrate ← daemon ← {tui, cli}: ``package`` imports only lower tiers."""
     upward = [
         f"{e}  [tier {TIERS[package]} -> tier {TIERS.get(area(e.target))}]"
         for e in edges
@@ -370,3 +370,74 @@ def test_clients_import_nothing_of_the_daemon(edges: list[Edge]) -> None:
     ]
     assert not into_daemon, "clients importing the daemon:\n" + "\n".join(into_daemon)
     assert any(area(e.source) in CLIENTS and area(e.target) == "wire" for e in edges)
+
+
+#: The most modules ``daemon/`` may hold at its top level (issue #26: it held 37); the rest live in
+#: its sub-packages by concept (book, ops, jobs, store, shell, counters).
+MAX_DAEMON_TOP_LEVEL = 20
+#: Smallest number of modules of one directory sharing a name prefix that makes a family (a
+#: sub-package waiting to be cut: ``counter_*``, ``store*``, ``job_*``).
+FAMILY_SIZE = 3
+#: Families there when the rule came, by directory and prefix with their size then; they may only
+#: shrink. ``sources/sim*`` leaves when the simulated node becomes its own package (issue #26).
+OLD_FAMILIES: dict[str, int] = {
+    "cli/model": 4,
+    "dram/command": 3,
+    "dram/memspec": 4,
+    "dram/trace": 4,
+    "report/figures": 3,
+    "sources/hdeem": 4,
+    "sources/sim": 14,
+}
+
+
+def name_families(src: Path = SRC) -> dict[str, list[str]]:
+    """Modules of one directory whose names share the prefix before their first ``_``, by
+    ``directory/prefix`` (a module named the prefix itself joins its family), families of
+    :data:`FAMILY_SIZE` or more only."""
+    families: dict[str, list[str]] = {}
+    for directory in sorted({p.parent for p in (src / ROOT).rglob("*.py")}):
+        stems = sorted(p.stem for p in directory.glob("*.py") if p.stem != "__init__")
+        where = directory.relative_to(src / ROOT).as_posix()
+        for prefix in sorted({s.split("_")[0] for s in stems if "_" in s}):
+            members = [s for s in stems if s == prefix or s.startswith(prefix + "_")]
+            if len(members) >= FAMILY_SIZE:
+                families[f"{where}/{prefix}"] = members
+    return families
+
+
+def test_name_families_are_found_per_directory(tmp_path: Path) -> None:
+    """``store.py``, ``store_jobs.py`` and ``store_writer.py`` are a family; ``groups.py`` is not
+    ``group_*``'s, and two of a prefix are no family."""
+    for name in ("store", "store_jobs", "store_writer", "groups", "group_rows", "group_fits", "x_a", "x_b"):
+        (tmp_path / ROOT / "pkg").mkdir(parents=True, exist_ok=True)
+        (tmp_path / ROOT / "pkg" / f"{name}.py").write_text("")
+    assert name_families(tmp_path) == {"pkg/store": ["store", "store_jobs", "store_writer"]}
+
+
+def test_the_daemon_top_level_stays_small() -> None:
+    """Issue #26: ``daemon/`` holds at most MAX_DAEMON_TOP_LEVEL modules at its top level."""
+    top = sorted(p.name for p in (SRC / ROOT / "daemon").glob("*.py"))
+    assert len(top) <= MAX_DAEMON_TOP_LEVEL, f"daemon/ has {len(top)} top-level modules: {top}"
+
+
+def test_no_new_family_of_modules_by_name_prefix() -> None:
+    """Issue #26: no FAMILY_SIZE modules of one directory share a name prefix (cut a sub-package
+    instead); the families there when the rule came may only shrink."""
+    grown = [
+        f"{where}: {members}"
+        for where, members in name_families().items()
+        if len(members) > OLD_FAMILIES.get(where, FAMILY_SIZE - 1)
+    ]
+    assert not grown, "families of modules by name prefix (make a sub-package):\n" + "\n".join(grown)
+
+
+def test_modules_do_not_repeat_their_package_name() -> None:
+    """In a sub-package of the daemon a module's name does not repeat the package's:
+    ``store/writer.py``, not ``store/store_writer.py``."""
+    repeated = [
+        p.relative_to(SRC).as_posix()
+        for p in (SRC / ROOT / "daemon").glob("*/*.py")
+        if p.stem != "__init__" and p.stem.split("_")[0] in {p.parent.name, p.parent.name.rstrip("s")}
+    ]
+    assert not repeated, "modules repeating their package's name:\n" + "\n".join(repeated)

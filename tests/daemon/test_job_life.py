@@ -18,9 +18,11 @@ import pytest
 from hdeem_watch.daemon.book import baselines as bl
 from hdeem_watch.daemon.book.runs import parse_run_args
 from hdeem_watch.daemon.book.state import NodeState
-from hdeem_watch.daemon.jobs.book import JobBook
-from hdeem_watch.daemon.ops.jobs import JobOperations, unfinished_jobs
+from hdeem_watch.daemon.compose import NodePorts, build_node
+from hdeem_watch.daemon.ops.jobs import unfinished_jobs
+from hdeem_watch.daemon.ops.reporting import Identity
 from hdeem_watch.daemon.shell.control import OpError, Pending
+from hdeem_watch.daemon.shell.workers import Worker
 from hdeem_watch.daemon.store.database import Store
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.sources.base import ChannelInfo, SourceBatch
@@ -86,8 +88,13 @@ class JobNode:
         self.writer = StoreWorker(self.store)
         self.publisher = Recorder()
         self.replies: dict[int, tuple[Any, tuple[str, str] | None]] = {}
-        self.ops = JobOperations(JobBook(self.book), store=self.writer, publisher=self.publisher, reply=self.reply,
-                                 poll=self.poll, checkpoint_s=checkpoint_s)
+        self.models = Worker("model")  # models a job from its counters; these jobs have none
+        ports = NodePorts(store=self.writer, submit=self.models.submit, publisher=self.publisher, reply=self.reply,
+                          poll=self.poll)
+        self.core = build_node(self.book, self.source, lambda: self.now, ports,
+                               identity=Identity(kind="fake", endpoints={}), poll_interval_ns=lambda: POLL_NS,
+                               checkpoint_s=checkpoint_s)
+        self.ops = self.core.job_ops
         self.poll()
         self.ops.resume(unfinished_jobs(self.store))
 
@@ -100,8 +107,7 @@ class JobNode:
     def poll(self) -> None:
         _fresh, closed = self.book.on_batch(self.source.poll())
         for window in closed:
-            if window.kind == "job":
-                self.ops.window_closed(window)
+            self.core.window_closed(window)
 
     def advance(self, seconds: float) -> None:
         for _ in range(round(seconds * 1e9 / POLL_NS)):
@@ -138,6 +144,7 @@ class JobNode:
         self.writer.jobs.worker.shutdown(wait=True)
 
     def close(self) -> None:
+        self.models.shutdown(cancel_queued=True)
         self.writer.shutdown()
         self.store.close()
 

@@ -5,7 +5,7 @@ by the daemon's real core (run book, operations, store worker, model worker) on 
 The simulated node is :class:`~hdeem_watch.sources.sim.SimSource` with a node description
 (``SimSource(node=...)``); the sim models one DIMM per channel, so the Ice Lake is the 2 × 8-channel
 1 DPC population (16 DIMMs; the 2-DPC fixture is 32 DIMMs, which the sim refuses). The daemon is
-:class:`~hdeem_watch.daemon.counter_rig.CounterSimNode` without counters (no sockets, a fake clock, a
+``CounterSimNode`` (``benchmarks/counter_rig.py``) without counters (no sockets, a fake clock, a
 real SQLite store on its worker thread, the real model and refit on the model worker). The same
 schedule runs on the default Taurus node; calibration must recover the sim's effective truth on the
 other nodes as well as there.
@@ -13,16 +13,31 @@ other nodes as well as there.
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import pytest
 
-from hdeem_watch.daemon.counter_rig import MEMSPEC, CounterSimNode
 from hdeem_watch.dram.node import NodeTopology
 from hdeem_watch.node.description import describe_node
 from hdeem_watch.node.overrides import apply_overrides, parse_node_table
 from hdeem_watch.node.topology import topology_from_node
+
+
+def _benchmark_module(name: str) -> ModuleType:
+    """A module of ``benchmarks/`` (the counter rig is the counter benchmark's, and these tests')."""
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[2] / "benchmarks" / f"{name}.py")
+        assert spec is not None and spec.loader is not None
+        sys.modules[name] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules[name])
+    return sys.modules[name]
+
+MEMSPEC = _benchmark_module("counter_rig").MEMSPEC
+CounterSimNode = _benchmark_module("counter_rig").CounterSimNode
 
 CURRENTS = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
 #: (kernel, threads, elements, repeat): idle runs and kernels at several thread counts, all fitting on

@@ -19,10 +19,11 @@ import pytest
 from hdeem_watch.daemon.book import baselines as bl
 from hdeem_watch.daemon.book.runs import RunLimits
 from hdeem_watch.daemon.book.state import MAX_BASELINE_S, NodeState
-from hdeem_watch.daemon.ops.node import Operations, unfinished_runs
-from hdeem_watch.daemon.ops.reporting import Identity, Reporter
+from hdeem_watch.daemon.compose import NodePorts, build_node
+from hdeem_watch.daemon.ops.node import unfinished_runs
+from hdeem_watch.daemon.ops.reporting import Identity
 from hdeem_watch.daemon.shell.control import OpError, Pending, dispatch
-from hdeem_watch.daemon.shell.workers import Calibration, ModelSettings, Worker, restore_calibration
+from hdeem_watch.daemon.shell.workers import ModelSettings, Worker, restore_calibration
 from hdeem_watch.daemon.store.database import Store
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.sources.base import ChannelInfo, RunAware, RunEvent, SourceBatch
@@ -122,16 +123,13 @@ class Node:
         self.source.k = self.now // PERIOD_NS
         self.writer = StoreWorker(self.store)
         self.models = Worker("model")
-        self.calibration = Calibration()
         self.publisher = Recorder()
         self.replies: dict[int, tuple[Any, tuple[str, str] | None]] = {}
-        self.reporter = Reporter(self.book, self.calibration, self.source, self.publisher, self.writer,
-                                 Identity(kind="fake", endpoints={}), poll_interval_ns=lambda: POLL_NS,
-                                 clock=lambda: self.now)
         submit = self.models.submit if run_models else (lambda job, done, failed=None: None)
-        self.ops = Operations(self.book, calibration=self.calibration, reporter=self.reporter, store=self.writer,
-                              publisher=self.publisher, source=self.source, submit=submit, reply=self.reply,
-                              poll=self.poll)
+        ports = NodePorts(store=self.writer, submit=submit, publisher=self.publisher, reply=self.reply, poll=self.poll)
+        self.core = build_node(self.book, self.source, lambda: self.now, ports, identity=Identity(kind="fake", endpoints={}),
+                               poll_interval_ns=lambda: POLL_NS)
+        self.calibration, self.reporter, self.ops = self.core.calibration, self.core.reporter, self.core.operations
         restore_calibration(self.calibration, settings=ModelSettings(memspec, max_requests=100_000),
                             state=self.store.load_calibrator(), fits=self.store.fit_history(200),
                             submit=self.models.submit, on_built=self.reporter.publish_calib)
@@ -153,7 +151,7 @@ class Node:
         else:
             _fresh, closed = self.book.on_batch(batch)
         for window in closed:
-            self.ops.window_closed(window)
+            self.core.window_closed(window)
 
     def advance(self, seconds: float) -> None:
         for _ in range(round(seconds * 1e9 / POLL_NS)):

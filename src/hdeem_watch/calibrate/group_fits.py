@@ -34,6 +34,7 @@ from hdeem_watch.calibrate.group_rows import (
 )
 from hdeem_watch.channels import DRAM_SOCKET
 from hdeem_watch.errors import InputError
+from hdeem_watch.sources.base import HasLayout
 
 __all__ = ["DEFAULT_MIN_SAMPLES", "MAX_GROUP_RUNS", "GroupFits", "default_groups", "source_groups"]
 
@@ -66,12 +67,12 @@ def default_groups(dram_rates_hz: Mapping[str, float], sockets: int, dimms_per_s
     return out
 
 
-def source_groups(source: Any, dram_rates_hz: Mapping[str, float], sockets: int,
+def source_groups(source: object, dram_rates_hz: Mapping[str, float], sockets: int,
                   dimms_per_socket: int) -> tuple[SensorGroup, ...]:
-    """The sensor groups of ``source``: from its ``layout`` (the simulated node) when it has one,
-    else :func:`default_groups`."""
-    layout = getattr(source, "layout", None)
-    if layout is not None and hasattr(layout, "sensor_dimms"):
+    """The sensor groups of ``source``: from its layout when it simulates a node
+    (:class:`~hdeem_watch.sources.base.HasLayout`), else :func:`default_groups`."""
+    if isinstance(source, HasLayout):
+        layout = source.layout
         return tuple(SensorGroup(s, tuple(sum(1 for d in layout.sensor_dimms(s) if layout.dimm_socket[d] == k)
                                           for k in range(layout.sockets)))
                      for s in layout.sensors)

@@ -17,7 +17,7 @@ Example:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol, runtime_checkable
 
@@ -157,6 +157,44 @@ class HasTruth(Protocol):
 
     def truth(self) -> Mapping[str, Any]:
         """The hidden truth as a JSON-ready mapping."""
+        ...
+
+
+class SensorLayout(Protocol):
+    """Which DIMMs each DRAM sensor of a simulated node sums, on which socket, and the node's topology."""
+
+    @property
+    def topology(self) -> Any:
+        """The simulated node's :class:`~hdeem_watch.dram.node.NodeTopology`."""
+        ...
+
+    @property
+    def sensors(self) -> Sequence[str]:
+        """The DRAM sensors."""
+        ...
+
+    @property
+    def sockets(self) -> int:
+        """Number of sockets."""
+        ...
+
+    @property
+    def dimm_socket(self) -> Sequence[int]:
+        """The socket of each DIMM."""
+        ...
+
+    def sensor_dimms(self, sensor: str) -> Sequence[int]:
+        """The DIMMs ``sensor`` sums."""
+        ...
+
+
+@runtime_checkable
+class HasLayout(Protocol):
+    """A source that simulates a node: it knows its topology and which DIMMs each sensor sums."""
+
+    @property
+    def layout(self) -> SensorLayout:
+        """The simulated node's layout."""
         ...
 
 

@@ -58,6 +58,16 @@ def make_source(kind: str, **options: Any) -> Source:
     raise InputError(f"source: unknown kind {kind!r}; expected one of {', '.join(SOURCE_KINDS)}")
 
 
+def simulated_memspec(source: Source) -> str | None:
+    """The memspec preset the hidden truth of a simulated node is built on (None: ``source``
+    measures a real node, whose DIMMs choose its memspec)."""
+    if source.kind != "sim":
+        return None
+    from hdeem_watch.sim.model import MEMSPEC_PRESET
+
+    return MEMSPEC_PRESET
+
+
 def available_sources(**options: Any) -> dict[str, str | None]:
     """For each kind, ``None`` if it can be used here, else the reason why not (with the fix).
 

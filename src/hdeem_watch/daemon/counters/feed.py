@@ -14,7 +14,7 @@ import logging
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from hdeem_watch.daemon.counters.windows import CounterWindows
+from hdeem_watch.daemon.counters.windows import CounterWindows, ExactCounters
 from hdeem_watch.errors import InputError
 
 if TYPE_CHECKING:
@@ -42,8 +42,8 @@ class CounterFeed:
         self.book = book
         self.clock = clock
         self.recorder = recorder
-        #: counts at an exact time, where the source can (the sim's ``read_at``); None: interpolated
-        self.exact = getattr(counters, "read_at", None)
+        #: counts at an exact time, where the source can (:class:`ExactCounters`: the sim's); None: interpolated
+        self.exact = counters.read_at if isinstance(counters, ExactCounters) else None
         self.windows = CounterWindows(
             counters.kind, table_key=counters.table.generation, ranks=counters.ranks,
             refresh_complete=counters.table.refresh_complete,

@@ -28,7 +28,7 @@ import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 from hdeem_watch.counters.event_tables import TABLES, EventTable
 from hdeem_watch.counters.source import CounterChannel, CounterSnapshot, interpolate
@@ -36,6 +36,13 @@ from hdeem_watch.errors import InputError
 
 FORMAT = "hdeem-watch counters v1"
 SUFFIX = ".counters.jsonl"
+
+
+@runtime_checkable
+class Looping(Protocol):
+    """A power source that may start again at its end (a looping replay): its counters cannot follow."""
+
+    loop: bool
 
 
 def counters_path(recording: str | Path) -> Path:
@@ -118,7 +125,7 @@ class CounterReplay:
     kind = "replay"
 
     def __init__(self, recording: str | Path, source: Any) -> None:
-        if getattr(source, "loop", False):
+        if isinstance(source, Looping) and source.loop:
             raise InputError("counters = 'replay' cannot follow a looping replay (the counts would go back)")
         header, self._snapshots = read_counter_recording(counters_path(recording))
         if not self._snapshots:

@@ -29,12 +29,22 @@ from __future__ import annotations
 import collections
 import math
 from collections.abc import Callable, Iterable, Mapping
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 from hdeem_watch.counters.source import CounterSnapshot, interpolate, window_counts
 
 #: Snapshots kept to interpolate window ends (a few heartbeats and edge reads).
 HISTORY = 16
+
+
+@runtime_checkable
+class ExactCounters(Protocol):
+    """A counter source that knows its counts at an exact time on the samples' axis (the sim's):
+    a window's edges are read there instead of interpolated between two reads."""
+
+    def read_at(self, t_ns: int) -> CounterSnapshot | None:
+        """The counts at exactly ``t_ns``, or None when not known (yet or any more)."""
+        ...
 
 
 def window_key(window: Any) -> str | None:

@@ -68,6 +68,9 @@ class Operations:
         submit: the model worker's ``submit``.
         reply: sends a deferred control reply.
         poll: polls the source once now (a tight window edge).
+        dispatch: where a window this op closes itself goes (``baseline.cancel``): the node's
+            :class:`~hdeem_watch.daemon.ops.router.WindowRouter` (None: :meth:`window_closed`).
+        open_jobs: the open jobs the ``status`` reply lists (None: none).
     """
 
     OPS = ("ping", "status", "run.start", "run.stop", "runs.list", "baseline.get", "baseline.measure",
@@ -75,7 +78,8 @@ class Operations:
 
     def __init__(self, book: NodeState, *, calibration: Calibration, reporter: Reporter, store: StoreWorker,
                  publisher: PublisherPort, source: Source, submit: Submit, reply: Reply,
-                 poll: Callable[[], object]) -> None:
+                 poll: Callable[[], object], dispatch: Callable[[ClosedWindow], None] | None = None,
+                 open_jobs: Callable[[], list[dict[str, Any]]] | None = None) -> None:
         self.book = book
         self.calibration = calibration
         self.reporter = reporter
@@ -87,14 +91,11 @@ class Operations:
         self.poll = poll
         #: Deferred replies by run id (or :data:`BASELINE`), answered when that work is done.
         self.waiters: dict[str, list[Pending]] = {}
-        #: Called first with every closed window (the counter windows attach their counts to the run).
-        self.on_window_closed: Callable[[ClosedWindow], None] | None = None
+        self.dispatch = dispatch or self.window_closed
         #: ``runs.list`` pages already read, valid until a run is written (``_runs_generation``).
         self._pages: dict[tuple[Any, ...], dict[str, Any]] = {}
         self._runs_generation = 0
-        #: Where closed job windows go (:meth:`JobOperations.window_closed`); the status's open jobs.
-        self.on_job_closed: Callable[[ClosedWindow], None] | None = None
-        self.open_jobs: Callable[[], list[dict[str, Any]]] = list
+        self.open_jobs: Callable[[], list[dict[str, Any]]] = open_jobs or list
 
     def handlers(self) -> dict[str, Handler]:
         """op name → handler."""
@@ -293,7 +294,7 @@ class Operations:
         assert window is not None
         self._notify_source("stop", running, self.book.monotonic())
         for closed in self.book.close_ready():
-            self.window_closed(closed)
+            self.dispatch(closed)
         return pending
 
     def _stopped_before(self, pending: Pending, run_id: str, stored: dict[str, Any] | None) -> None:
@@ -324,19 +325,14 @@ class Operations:
         closed = self.book.cancel_baseline()
         if closed is None:
             return {"cancelled": False}
-        self.window_closed(closed)
+        self.dispatch(closed)
         return {"cancelled": True, "window_s": closed.window_s}
 
     # -- closing windows -------------------------------------------------------------------------------
 
     def window_closed(self, closed: ClosedWindow) -> None:
-        """Answer, store and model what a closed window measured (called after every batch)."""
-        if self.on_window_closed is not None:
-            self.on_window_closed(closed)
-        if closed.kind == "job":
-            if self.on_job_closed is not None:
-                self.on_job_closed(closed)
-            return
+        """Answer, store and model what a closed run or baseline window measured (the router's owner of
+        both kinds)."""
         self.reporter.baselines_kept(closed.kept)
         if closed.run is None:
             waiters = self.waiters.pop(BASELINE, [])

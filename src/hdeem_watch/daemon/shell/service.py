@@ -43,9 +43,8 @@ from hdeem_watch.config import DaemonSettings
 from hdeem_watch.daemon.book import baselines as bl
 from hdeem_watch.daemon.book.runs import RunLimits
 from hdeem_watch.daemon.book.state import NodeState
+from hdeem_watch.daemon.compose import NodeCore, NodePorts, build_node
 from hdeem_watch.daemon.counters.feed import CounterFeed
-from hdeem_watch.daemon.jobs.book import JobBook
-from hdeem_watch.daemon.jobs.records import job_summary
 from hdeem_watch.daemon.ops.jobs import JobOperations, unfinished_jobs, unmodelled_jobs
 from hdeem_watch.daemon.ops.node import Operations, unfinished_runs
 from hdeem_watch.daemon.ops.reporting import Identity, Reporter
@@ -63,13 +62,14 @@ from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.base import (
     ChannelInfo,
+    HasLayout,
     QuietPolling,
     Source,
     SourceBatch,
     SourceUnavailable,
     source_speed,
 )
-from hdeem_watch.sources.registry import make_source
+from hdeem_watch.sources.registry import make_source, simulated_memspec
 from hdeem_watch.wire.client import default_endpoints
 from hdeem_watch.wire.json_codec import quoted
 
@@ -119,6 +119,8 @@ class Daemon:
         self.operations: Operations | None = None
         self.job_ops: JobOperations | None = None
         self.reporter: Reporter | None = None
+        #: The node's core (run book, reporter, ops, window router), wired by :func:`build_node`.
+        self.core: NodeCore | None = None
         self.metrics: DaemonMetrics | None = None
         self.metrics_port: int | None = None
         self.recorder: Any = None
@@ -193,11 +195,10 @@ class Daemon:
 
         overrides = self.settings.node_overrides()
         default = None
-        topology = getattr(getattr(source, "layout", None), "topology", None)  # the simulated node
-        if topology is not None:
-            from hdeem_watch.sim.model import MEMSPEC_PRESET
-
-            default = (MEMSPEC_PRESET, "the simulated node's DIMMs (its hidden truth is built on this preset)")
+        preset = simulated_memspec(source)
+        if isinstance(source, HasLayout) and preset is not None:  # the simulated node
+            topology = source.layout.topology
+            default = (preset, "the simulated node's DIMMs (its hidden truth is built on this preset)")
             description = counted_node(topology.sockets, topology.cores_per_socket, topology.channels_per_socket,
                                        source="sim: the simulated node")
             if overrides is not None:  # its counts went to the sim itself; memspec and name stay
@@ -237,43 +238,18 @@ class Daemon:
         self.model_jobs = Worker("model", self._wake)
         publisher, control = self._bind_sockets()
         self._serve_metrics(book, self.store_worker)
-        identity = Identity(kind=source.kind,
-                            endpoints={"pub": self.pub_endpoint, "control": self.control_endpoint,
-                                       "remote": advertised_endpoints(publisher.endpoint, control.endpoints)},
-                            curve_public_key=None if self.curve is None else self.curve.public.decode(),
-                            prometheus_port=self.metrics_port)
-        reporter = self.reporter = Reporter(book, self.calibration, source, publisher, self.store_worker,
-                                            identity, poll_interval_ns=lambda: self.poll_interval_ns, clock=self.clock)
-        self.operations = Operations(book, calibration=self.calibration, reporter=reporter, store=self.store_worker,
-                                     publisher=publisher, source=source, submit=self.model_jobs.submit,
-                                     reply=self.complete, poll=self._edge_poll)
-        if self.counters is not None:
-            self.operations.on_window_closed = self.counters.window_closed
-        topo = setup.topology
-        job_ops = self.job_ops = JobOperations(JobBook(book, counters=self.counters.windows if self.counters is not None else None), store=self.store_worker,
-                                               publisher=publisher, reply=self.complete, poll=self._edge_poll,
-                                               checkpoint_s=settings.job_checkpoint_s, submit=self.model_jobs.submit,
-                                               calibration=self.calibration, dispatch=self.operations.window_closed)
+        core = self.core = self._build_core(book, source, publisher, control)
+        self.reporter, self.operations, job_ops = core.reporter, core.operations, core.job_ops
+        self.job_ops = job_ops
         if not self._job_owner_uids_given:
             self.authorizer.job_owner_uids = job_ops.jobs.running_job_uids
-        self.operations.on_job_closed = job_ops.window_closed
-        self.operations.open_jobs = lambda: [job_summary(r.to_dict()) for r in job_ops.jobs.snapshots()]
-        control.handlers = (self.operations.handlers() | job_ops.handlers()
-                                 | {"node.get": lambda _args: setup.to_json()})
+        control.handlers = core.handlers() | {"node.get": lambda _args: setup.to_json()}
         job_ops.resume(unfinished_jobs(store))
         restore_calibration(
-            self.calibration,
-            settings=ModelSettings(setup.memspec, dimms=settings.dimms, topology=setup.topology,
-                                   currents=self._currents(),
-                                   half_life_s=settings.half_life_s or None, physical_rules=settings.physical_rules,
-                                   max_requests=settings.model_max_requests,
-                                   groups=source_groups(source, dram_rates, sockets=topo.sockets if topo else 2,
-                                                        dimms_per_socket=(topo.dimms // topo.sockets if topo
-                                                                          else max(1, settings.dimms // 2))),
-                                   dram_rates_hz=dram_rates),
+            self.calibration, settings=self._model_settings(source, setup, dram_rates),
             state=store.load_calibrator(), fits=store.fit_history(MAX_HISTORY), submit=self.model_jobs.submit,
-            on_built=reporter.publish_calib, on_unrestorable=self._quarantine_calibrator)
-        self.operations.resume_modelling(unfinished_runs(store))
+            on_built=core.reporter.publish_calib, on_unrestorable=self._quarantine_calibrator)
+        core.operations.resume_modelling(unfinished_runs(store))
         job_ops.remodel(unmodelled_jobs(store))
         for line in (*setup.log_lines(), *start_notes):  # once started: a start that fails says one line only
             log.info("%s", line)
@@ -296,6 +272,32 @@ class Daemon:
             except OSError as error:
                 raise InputError(f"record file {settings.record_file}: {error.strerror}") from None
         return notes
+
+    def _build_core(self, book: NodeState, source: Source, publisher: Publisher, control: ControlServer) -> NodeCore:
+        """The node's core over ``book`` (:func:`~hdeem_watch.daemon.compose.build_node`)."""
+        assert self.store_worker is not None and self.model_jobs is not None
+        identity = Identity(kind=source.kind,
+                            endpoints={"pub": self.pub_endpoint, "control": self.control_endpoint,
+                                       "remote": advertised_endpoints(publisher.endpoint, control.endpoints)},
+                            curve_public_key=None if self.curve is None else self.curve.public.decode(),
+                            prometheus_port=self.metrics_port)
+        ports = NodePorts(store=self.store_worker, submit=self.model_jobs.submit, publisher=publisher,
+                          reply=self.complete, poll=self._edge_poll)
+        counters = self.counters
+        return build_node(book, source, self.clock, ports, identity=identity, calibration=self.calibration,
+                          poll_interval_ns=lambda: self.poll_interval_ns,
+                          counter_windows=counters.windows if counters is not None else None,
+                          observers=[counters.window_closed] if counters is not None else [],
+                          checkpoint_s=self.settings.job_checkpoint_s)
+
+    def _model_settings(self, source: Source, setup: Any, dram_rates: dict[str, float]) -> ModelSettings:
+        """What the model worker models runs with: memspec, topology, currents, sensor groups."""
+        settings, topo = self.settings, setup.topology
+        groups = source_groups(source, dram_rates, sockets=topo.sockets if topo else 2,
+                               dimms_per_socket=topo.dimms // topo.sockets if topo else max(1, settings.dimms // 2))
+        return ModelSettings(setup.memspec, dimms=settings.dimms, topology=topo, currents=self._currents(),
+                             half_life_s=settings.half_life_s or None, physical_rules=settings.physical_rules,
+                             max_requests=settings.model_max_requests, groups=groups, dram_rates_hz=dram_rates)
 
     @staticmethod
     def _stored_baselines(store: Store) -> dict[str, bl.Baseline]:
@@ -566,7 +568,7 @@ class Daemon:
         """Poll the source; account, publish and window the batch; return it (None if the poll failed).
         The counters are read when due, when a window closed, or when ``force_counters``."""
         assert self.publisher is not None and self.book is not None and self.source is not None
-        book, operations = self.book, self.operations
+        book = self.book
         batch: SourceBatch | None = None
         try:
             batch = self.source.poll()
@@ -593,9 +595,9 @@ class Daemon:
                 self.recorder.write_batch(batch)
         if self.counters is not None:
             self.counters.read(force=force_counters or bool(closed))
-        if closed and operations is not None:
+        if closed and self.core is not None:
             for window in closed:
-                operations.window_closed(window)
+                self.core.window_closed(window)
         return batch
 
     def _currents(self) -> tuple[str, ...]:

@@ -4,7 +4,8 @@ The run book, operations, store worker and model worker of the daemon, the sim a
 and :class:`~hdeem_watch.sim.counters.SimCounters` as the counter source, wired as
 ``Daemon.poll_once`` wires them (counters read at the heartbeat, at window edges and until a closing
 window's end; their deltas attached to the closed run). No sockets, no threads of its own beyond
-the daemon's two workers. Used by the counter tests, the node-topology tests (a sim with a node
+the daemon's two workers; the core is wired by
+:func:`~hdeem_watch.daemon.compose.build_node`, as the daemon's is. Used by the counter tests, the node-topology tests (a sim with a node
 description, without counters) and by ``benchmarks/bench_counters.py``.
 
 Example:
@@ -21,11 +22,11 @@ from typing import Any
 
 from hdeem_watch.daemon.book.runs import RunLimits
 from hdeem_watch.daemon.book.state import NodeState
+from hdeem_watch.daemon.compose import NodePorts, build_node
 from hdeem_watch.daemon.counters.windows import CounterWindows
-from hdeem_watch.daemon.ops.node import Operations
-from hdeem_watch.daemon.ops.reporting import Identity, Reporter
+from hdeem_watch.daemon.ops.reporting import Identity
 from hdeem_watch.daemon.shell.control import Pending
-from hdeem_watch.daemon.shell.workers import Calibration, ModelSettings, Worker, restore_calibration
+from hdeem_watch.daemon.shell.workers import ModelSettings, Worker, restore_calibration
 from hdeem_watch.daemon.store.database import Store
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.dram.node import NodeTopology
@@ -76,23 +77,21 @@ class CounterSimNode:
                               next_seq=1, limits=RunLimits(256, 1 << 34), baselines={})
         self.writer = StoreWorker(self.store)
         self.models = Worker("model")
-        self.calibration = Calibration()
         self.replies: dict[int, tuple[Any, Any]] = {}
         self.published: list[tuple[str, Any]] = []
-        publisher = _ListPublisher(self.published)
-        self.reporter = Reporter(self.book, self.calibration, self.sim, publisher, self.writer,
-                                 Identity(kind="sim", endpoints={}), poll_interval_ns=lambda: POLL_NS,
-                                 clock=lambda: self.now)
-        self.ops = Operations(self.book, calibration=self.calibration, reporter=self.reporter, store=self.writer,
-                              publisher=publisher, source=self.sim, submit=self.models.submit, reply=self.reply,
-                              poll=self.edge_poll)
         self.counters = SimCounters(self.sim) if counters else None
         self.windows = None
         if self.counters is not None:
             self.windows = CounterWindows("sim", table_key="haswell-ep", ranks=self.counters.ranks,
                                           refresh_complete=self.counters.table.refresh_complete,
                                           sensors={c.name: c.sensor for c in self.counters.channels()})
-            self.ops.on_window_closed = self.attach
+        ports = NodePorts(store=self.writer, submit=self.models.submit, publisher=_ListPublisher(self.published),
+                          reply=self.reply, poll=self.edge_poll)
+        self.core = build_node(self.book, self.sim, lambda: self.now, ports, identity=Identity(kind="sim", endpoints={}),
+                               poll_interval_ns=lambda: POLL_NS,
+                               observers=[self.attach] if self.windows is not None else [])
+        self.calibration, self.reporter, self.ops = self.core.calibration, self.core.reporter, self.core.operations
+        if self.windows is not None:
             self.read_counters(force=True)
         restore_calibration(self.calibration, settings=ModelSettings(MEMSPEC, topology=topology, max_requests=100_000,
                                                                      currents=currents),
@@ -121,7 +120,7 @@ class CounterSimNode:
         if self.windows is not None:
             self.read_counters(force=force_counters or bool(closed))
         for window in closed:
-            self.ops.window_closed(window)
+            self.core.window_closed(window)
 
     def edge_poll(self) -> None:
         self.poll(force_counters=True)
