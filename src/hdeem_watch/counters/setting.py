@@ -28,6 +28,13 @@ class OffersSimCounters(Protocol):
 
 
 @runtime_checkable
+class HasKind(Protocol):
+    """A power source that says its kind (``"sim"``, ``"hdeem"``, ...)."""
+
+    kind: str
+
+
+@runtime_checkable
 class HasPowerChannels(Protocol):
     """A power source that names its channels (each with a ``name``)."""
 
@@ -57,7 +64,8 @@ def make_counter_source(kind: str, source: object, *, sample_time: Callable[[int
         return None
     if kind == "sim":
         if not isinstance(source, OffersSimCounters):
-            raise InputError(f"counters = 'sim' needs source = 'sim' (the {getattr(source, 'kind', '?')} source "
+            named = source.kind if isinstance(source, HasKind) else "?"
+            raise InputError(f"counters = 'sim' needs source = 'sim' (the {named} source "
                              "has no simulated memory controller); use counters = 'perf' on a real node")
         return source.sim_counters()
     if kind == "perf":

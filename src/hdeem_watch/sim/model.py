@@ -179,6 +179,7 @@ class DramModel:
         self.datasheet = np.array([float(self.spec.currents.get(n, 0.0)) for n in self.names])
         self.tck_s = float(self.spec.tck_s)
         self._node_stats = functools.lru_cache(maxsize=256)(self._compute_node_stats)
+        self._idle_per_s: tuple[np.ndarray, float] | None = None
 
     def _compute_node_stats(self, kernel: str, elements: int, threads: int, repeat: int) -> tuple[tuple[CommandStats, int], ...]:
         return tuple(node_run_stats(self.spec, kernel, elements, threads, repeat, self.layout.topology))
@@ -196,6 +197,12 @@ class DramModel:
         refi = refresh_interval(self.spec)
         rank = RankStats(ref=total / refi if refi > 0 else 0.0, cycles_total=total, cycles_pre=total)
         return CommandStats(ranks=(rank,) * self.spec.nbr_of_ranks)
+
+    def idle_columns_per_s(self) -> tuple[np.ndarray, float]:
+        """The model's idle DIMM per second (:meth:`idle_stats` of 1 s, :meth:`linear`), computed once."""
+        if self._idle_per_s is None:
+            self._idle_per_s = self.linear(self.idle_stats(1.0))
+        return self._idle_per_s
 
     def stretched(self, stats: CommandStats, window_s: float) -> CommandStats:
         """``stats`` stretched to ``window_s`` exactly as the calibrator does."""
@@ -343,11 +350,7 @@ class RunPlan:
 
 def idle_power_w(model: Model, currents: np.ndarray) -> np.ndarray:
     """Idle power (W) per DIMM for per-DIMM ``currents`` (DIMMs × names)."""
-    cached = getattr(model, "_idle_per_s", None)
-    if cached is None:
-        cached = model.linear(model.idle_stats(1.0))
-        model._idle_per_s = cached  # type: ignore[attr-defined]
-    cols, const = cached
+    cols, const = model.idle_columns_per_s()
     return np.asarray(currents @ cols + const, dtype=float)
 
 
