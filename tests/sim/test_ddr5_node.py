@@ -59,7 +59,7 @@ def test_the_sim_models_the_ddr5_node_with_the_ddr5_energy() -> None:
 
 
 def test_the_idle_ddr5_node_publishes_rapl_like_sockets_whose_energy_is_the_integral(fake_clock) -> None:
-    """Channels BLADE, CPU0/1, DRAM0/1 (8 DIMMs each); each DRAM channel's energy is the integral of its
+    """Channels BLADE, CPU0/1, DRAM0/1 (16 sub-channels each); each DRAM channel's energy is the integral of its
     samples and near the truth's idle power of its DIMMs (sensor gain ±3 %, offset ≤ 0.3 W)."""
     clock = fake_clock()
     sim = SimSource(seed=3, clock=clock, wall_clock=lambda: 0, layout=DDR5_NODE, background_plans=False)
@@ -73,8 +73,46 @@ def test_the_idle_ddr5_node_publishes_rapl_like_sockets_whose_energy_is_the_inte
     idle_w = sim.truth_node.idle_power_w(currents, sim.truth_model.temperature_c(10.0))
     for socket in (0, 1):
         name = f"DRAM{socket}"
-        assert len(DDR5_NODE.sensor_dimms(name)) == 8
+        assert len(DDR5_NODE.sensor_dimms(name)) == 16  # 8 DIMMs × 2 sub-channels
         _, power = batch.samples[name]
         assert batch.energy_j[name] == pytest.approx(power.sum() * 0.01)
         expected = float(idle_w[DDR5_NODE.sensor_dimms(name)].sum())
         assert abs(float(np.mean(power)) - expected) <= 0.03 * expected + 0.3 + 0.125
+
+
+def test_a_run_on_the_ddr5_node_is_the_integral_of_its_samples_and_its_counters_its_commands() -> None:
+    """56 threads of triad on socket 0: DRAM0 rises above idle by the run plan's energy (no noise, gain or
+    offset), DRAM1 stays idle, each channel's energy is the integral of its samples, and the sim's IMC
+    counters over the run count exactly the reads and writes of the hidden commands (one 64-byte burst
+    per line of the kernel on its sub-channels)."""
+    from hdeem_watch.dram.kernels import kernel_traffic
+    from hdeem_watch.sim.counters import SimCounters
+    from hdeem_watch.sources.base import RunEvent
+
+    t = [0]
+    sim = SimSource(seed=5, clock=lambda: t[0], wall_clock=lambda: 0, noise=False, quantum_w=0.0, offsets=False,
+                    gains=False, aging_per_h=0.0, temp_amp_c=0.0, layout=DDR5_NODE, background_plans=False)
+    sim.open()
+    counters = SimCounters(sim)
+    t[0] = S // 10
+    idle = sim.poll()
+    idle_w = {ch: float(idle.samples[ch][1].mean()) for ch in ("DRAM0", "DRAM1")}
+    before = counters.read()
+    elements, repeat = 2_000_000, 5
+    sim.on_run(RunEvent("start", "r", "triad", 56, elements, repeat, t[0]))
+    plan = sim.run_plan("r")
+    t[0] = S // 10 + plan.duration_ns + S // 2
+    busy = sim.poll()
+    after = counters.read()
+    for ch in ("DRAM0", "DRAM1"):
+        assert busy.energy_j[ch] - idle.energy_j[ch] == pytest.approx(busy.samples[ch][1].sum() * 0.01)  # cumulative
+    above = {ch: float(busy.samples[ch][1].sum()) * 0.01 - idle_w[ch] * len(busy.samples[ch][1]) * 0.01
+             for ch in ("DRAM0", "DRAM1")}
+    assert plan.threads == (56, 0)
+    assert above["DRAM0"] > 1e-3 and abs(above["DRAM1"]) < 1e-9, above
+    traffic = kernel_traffic("triad", elements)
+    names = [c.name for c in counters.channels()]
+    reads = sum(after.counts[n]["cas_rd"] - before.counts[n]["cas_rd"] for n in names)
+    writes = sum(after.counts[n]["cas_wr"] - before.counts[n]["cas_wr"] for n in names)
+    assert reads == pytest.approx(traffic.lines_read * repeat, rel=0.02)
+    assert writes == pytest.approx(traffic.lines_written * repeat, rel=0.02)

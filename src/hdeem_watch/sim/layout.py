@@ -102,8 +102,9 @@ SAPPHIRE_RAPIDS = SimLayout.per_socket(2, 56, 8)
 #: The DDR5 node's memspec (``sim/ddr5_node.json``): DRAMPower v6.2's DDR5 test memspec as one 32-bit
 #: BL16 DDR5-4800 sub-channel (docs/sources.md says which number comes from where).
 DDR5_MEMSPEC = "ddr5_node.json"
-#: The simulated DDR5 node: :data:`SAPPHIRE_RAPIDS` with DDR5 DIMMs of :data:`DDR5_MEMSPEC`.
-DDR5_NODE = replace(SAPPHIRE_RAPIDS, memspec=DDR5_MEMSPEC)
+#: The simulated DDR5 node: :data:`SAPPHIRE_RAPIDS`'s sockets with DDR5 DIMMs of :data:`DDR5_MEMSPEC`;
+#: its units are the 2 × 8 sub-channels of each socket's 8 DIMMs (the memspec describes one).
+DDR5_NODE = replace(SimLayout.per_socket(2, 56, 16), memspec=DDR5_MEMSPEC)
 
 
 def layout_for_node(node: NodeDescription) -> SimLayout:

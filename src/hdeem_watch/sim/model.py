@@ -182,7 +182,17 @@ class DramModel:
         self._idle_per_s: tuple[np.ndarray, float] | None = None
 
     def _compute_node_stats(self, kernel: str, elements: int, threads: int, repeat: int) -> tuple[tuple[CommandStats, int], ...]:
-        return tuple(node_run_stats(self.spec, kernel, elements, threads, repeat, self.layout.topology))
+        return tuple(node_run_stats(self.channel_spec, kernel, elements, threads, repeat, self.layout.topology))
+
+    @property
+    def channel_spec(self) -> Any:
+        """The memspec of one of the layout's channels as the controller model spells it: DDR4's as it
+        is, a DDR5 sub-channel (:func:`~hdeem_watch.dram.ddr5_channel.subchannel_spec`) for DDR5,
+        whose layouts count sub-channels as channels."""
+        from hdeem_watch.dram.ddr5_channel import subchannel_spec
+        from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
+
+        return subchannel_spec(self.spec) if isinstance(self.spec, MemSpecDDR5) else self.spec
 
     def node_stats(self, kernel: str, elements: int, threads: int, repeat: int) -> list[tuple[CommandStats, int]]:
         """``node_run_stats(spec, ..., layout.topology)`` (cached): per socket, one channel's stats and count."""
