@@ -116,3 +116,27 @@ def test_a_run_on_the_ddr5_node_is_the_integral_of_its_samples_and_its_counters_
     writes = sum(after.counts[n]["cas_wr"] - before.counts[n]["cas_wr"] for n in names)
     assert reads == pytest.approx(traffic.lines_read * repeat, rel=0.02)
     assert writes == pytest.approx(traffic.lines_written * repeat, rel=0.02)
+
+
+def test_the_ddr5_nodes_counters_are_sapphire_rapids_with_a_pseudo_channel_per_sub_channel() -> None:
+    """Two sub-channel units make one IMC channel (8 per socket, SPR's table); each pseudo-channel's
+    CASes are exactly its own sub-channel's hidden reads and writes."""
+    from hdeem_watch.sim.counters import SimCounters
+    from hdeem_watch.sources.base import RunEvent
+
+    t = [0]
+    sim = SimSource(seed=2, clock=lambda: t[0], wall_clock=lambda: 0, layout=DDR5_NODE, background_plans=False)
+    sim.open()
+    counters = SimCounters(sim)
+    assert counters.table.generation == "sapphire-rapids"
+    assert [c.name for c in counters.channels()] == [f"S{s}.imc{i}" for s in (0, 1) for i in range(8)]
+    sim.on_run(RunEvent("start", "r", "copy", 30, 2_000_000, 3, t[0]))
+    t[0] = sim.run_plan("r").duration_ns + S // 2
+    snap = counters.read()
+    _, hidden = sim.hidden_commands()
+    cas = [sum(h.total(f) for f in ("rd", "rda", "wr", "wra")) for h in hidden]
+    for n, channel in enumerate(counters.channels()):
+        got = snap.counts[channel.name]
+        assert got["cas_pch0"] == pytest.approx(cas[2 * n], abs=1.0)
+        assert got["cas_pch1"] == pytest.approx(cas[2 * n + 1], abs=1.0)
+    assert sum(snap.counts["S0.imc0"][k] for k in ("cas_pch0", "cas_pch1")) > 1000

@@ -56,31 +56,48 @@ def haswell_box(channel: int) -> int:
     return 4 * (channel // 2) + channel % 2
 
 
+def _cas(stats: CommandStats) -> float:
+    return sum(stats.total(f) for f in ("rd", "rda", "wr", "wra"))
+
+
 class SimCounters:
     """The simulated node's memory-controller counters (see the module docstring).
 
+    On a DDR5 node (its memspec a :class:`~hdeem_watch.dram.memspec_ddr5.MemSpecDDR5`, its units
+    sub-channels) two consecutive units are one IMC channel, counted as Sapphire Rapids counts it by
+    default: the channel's ranks are both sub-channels' ranks, and the CASes of each pseudo-channel
+    (``cas_pch0``/``cas_pch1``) are its own sub-channel's. Channel ``S<socket>.imc<n>`` is then the
+    socket's n-th channel.
+
     Args:
         sim: the simulated node (opened).
-        generation: the event table to imitate (default Haswell-EP, the HDEEM nodes' CPU).
+        generation: the event table to imitate (default Haswell-EP, the HDEEM nodes' CPU; Sapphire
+            Rapids on a DDR5 node).
     """
 
     kind = "sim"
 
-    def __init__(self, sim: HiddenCommandSource, generation: str = "haswell-ep") -> None:
+    def __init__(self, sim: HiddenCommandSource, generation: str | None = None) -> None:
+        from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
+
         self.sim = sim
-        self.table: EventTable = TABLES[generation]
+        ddr5 = isinstance(sim.truth_node.spec, MemSpecDDR5)
+        self.table: EventTable = TABLES[generation or ("sapphire-rapids" if ddr5 else "haswell-ep")]
+        self._units = 2 if ddr5 else 1
         layout = sim.layout
         self.ranks = int(sim.truth_node.spec.nbr_of_ranks)
         per_socket: dict[int, int] = {}
         channels = []
-        for d, socket in enumerate(layout.dimm_socket):
+        for d in range(0, len(layout.dimm_socket), self._units):
+            socket = layout.dimm_socket[d]
             index = per_socket.get(socket, 0)
             per_socket[socket] = index + 1
-            channels.append(CounterChannel(f"S{socket}.imc{haswell_box(index)}", socket, layout.dimm_sensor[d]))
+            box = index if ddr5 else haswell_box(index)
+            channels.append(CounterChannel(f"S{socket}.imc{box}", socket, layout.dimm_sensor[d]))
         self._channels = tuple(channels)
 
     def channels(self) -> tuple[CounterChannel, ...]:
-        """One channel per DIMM of the sim (one DIMM per channel)."""
+        """One channel per DIMM of the sim (one DIMM per channel; a DDR5 DIMM's two sub-channels are one)."""
         return self._channels
 
     def read(self) -> CounterSnapshot:
@@ -98,9 +115,13 @@ class SimCounters:
 
     def _snapshot(self, t_ns: int, stats: list[CommandStats]) -> CounterSnapshot:
         counts = {}
-        for channel, dimm_stats in zip(self._channels, stats, strict=True):
-            events = imc_event_counts(dimm_stats, self.table, opportunistic_refresh_share=SIM_OPPORTUNISTIC_REFRESH,
-                                      page_close_share=SIM_PAGE_CLOSE)
+        for n, channel in enumerate(self._channels):
+            units = stats[n * self._units:(n + 1) * self._units]
+            merged = CommandStats(ranks=tuple(rank for unit in units for rank in unit.ranks))
+            cas = _cas(merged)
+            pch0 = _cas(units[0]) / cas if cas > 0 and self._units == 2 else 0.5
+            events = imc_event_counts(merged, self.table, opportunistic_refresh_share=SIM_OPPORTUNISTIC_REFRESH,
+                                      page_close_share=SIM_PAGE_CLOSE, pch0_share=pch0)
             counts[channel.name] = role_counts_from_events(self.table, events)
         return CounterSnapshot(t_ns, counts)
 
