@@ -6,7 +6,8 @@ quantisation or RAPL energy units, aging; opaque jobs; the memory-controller cou
 commands. The power :class:`~hdeem_watch.sources.base.Source` over it is
 :class:`hdeem_watch.sources.sim.SimSource`; the modules here know nothing of sources.
 
-- :mod:`~hdeem_watch.sim.layout`: sockets, channels, DIMMs and sensors of the simulated node.
+- :mod:`~hdeem_watch.sim.layout`: sockets, channels, DIMMs, sensors and memspec of the simulated node
+  (the DDR5 node's memspec: ``ddr5_node.json``, docs/sources.md).
 - :mod:`~hdeem_watch.sim.plan`: the truth generator (:class:`~hdeem_watch.sim.plan.TruthNode`).
 - :mod:`~hdeem_watch.sim.traffic`, :mod:`~hdeem_watch.sim.power`: its controller view and DIMM states.
 - :mod:`~hdeem_watch.sim.currents`, :mod:`~hdeem_watch.sim.age`: hidden currents and aging.
