@@ -383,8 +383,7 @@ FAMILY_SIZE = 3
 OLD_FAMILIES: dict[str, int] = {
     "cli/model": 4,
     "dram/command": 3,
-    "dram/energy": 3,
-    "dram/memspec": 5,
+    "dram/memspec": 4,
     "dram/trace": 4,
     "report/figures": 3,
     "sources/hdeem": 4,

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hdeem_watch.dram.energy_core import CoreTimes, add_domain_columns, add_domain_energy, supply_domains
+from hdeem_watch.dram.domain_energy import CoreTimes, add_domain_columns, add_domain_energy, supply_domains
 from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.dram.stats import CommandStats, RankStats, stretch_stats
 from hdeem_watch.errors import InputError

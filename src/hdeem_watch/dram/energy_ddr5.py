@@ -37,8 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from hdeem_watch.dram.domain_energy import CoreTimes, add_domain_columns, add_domain_energy, supply_domains
 from hdeem_watch.dram.energy import COMPONENTS, EnergyBreakdown, LinearEnergy
-from hdeem_watch.dram.energy_core import CoreTimes, add_domain_columns, add_domain_energy, supply_domains
 from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
 from hdeem_watch.dram.stats import CommandStats, RankStats
 from hdeem_watch.errors import InputError

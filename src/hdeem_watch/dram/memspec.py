@@ -26,9 +26,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from hdeem_watch.dram import memspec_fields as fields
+from hdeem_watch.dram import spec_fields as fields
 from hdeem_watch.dram.memspec_check import check_physical
-from hdeem_watch.dram.memspec_fields import MAX_DEVICE_CURRENT_A as MAX_DEVICE_CURRENT_A  # re-exported
+from hdeem_watch.dram.spec_fields import MAX_DEVICE_CURRENT_A as MAX_DEVICE_CURRENT_A  # re-exported
 from hdeem_watch.errors import InputError
 
 #: memarchitecturespec: JSON key -> attribute (all positive integers).

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from hdeem_watch.dram import memspec_fields as fields
+from hdeem_watch.dram import spec_fields as fields
 from hdeem_watch.errors import InputError, not_a_file_error
 
 #: memarchitecturespec: JSON key -> attribute (non-negative integers; DRAMUtils requires them all).
