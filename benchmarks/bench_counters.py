@@ -36,11 +36,12 @@ from typing import Any
 
 from counter_rig import CounterSimNode  # benchmarks/counter_rig.py, beside this script
 from hdeem_watch.counters.host_plan import plan_host
+from hdeem_watch.counters.perf_counters import PerfCounters
 from hdeem_watch.counters.perf_reader import PerfCounterReader
 from hdeem_watch.counters.permissions import check_access
-from hdeem_watch.daemon.counter_source import PerfCounters, SimCounters
 from hdeem_watch.daemon.counters.windows import CounterWindows
 from hdeem_watch.perf_event import PERF_COUNT_SW_TASK_CLOCK, PERF_TYPE_SOFTWARE
+from hdeem_watch.sim.counters import SimCounters
 from hdeem_watch.sources.base import RunEvent
 from hdeem_watch.sources.sim import SimSource
 

@@ -1,7 +1,7 @@
 """A simulated node with memory counters under the daemon's real core, on a fake clock (a test rig).
 
 The run book, operations, store worker and model worker of the daemon, the sim as the power source
-and :class:`~hdeem_watch.daemon.counter_source.SimCounters` as the counter source, wired as
+and :class:`~hdeem_watch.sim.counters.SimCounters` as the counter source, wired as
 ``Daemon.poll_once`` wires them (counters read at the heartbeat, at window edges and until a closing
 window's end; their deltas attached to the closed run). No sockets, no threads of its own beyond
 the daemon's two workers; the core is wired by
@@ -23,7 +23,6 @@ from typing import Any
 from hdeem_watch.daemon.book.runs import RunLimits
 from hdeem_watch.daemon.book.state import NodeState
 from hdeem_watch.daemon.compose import NodePorts, build_node
-from hdeem_watch.daemon.counter_source import SimCounters
 from hdeem_watch.daemon.counters.windows import CounterWindows
 from hdeem_watch.daemon.ops.reporting import Identity
 from hdeem_watch.daemon.shell.control import Pending
@@ -31,6 +30,7 @@ from hdeem_watch.daemon.shell.workers import ModelSettings, Worker, restore_cali
 from hdeem_watch.daemon.store.database import Store
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.dram.node import NodeTopology
+from hdeem_watch.sim.counters import SimCounters
 from hdeem_watch.sources.sim import SimSource
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"

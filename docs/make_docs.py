@@ -36,7 +36,7 @@ def code_facts() -> dict[str, Any]:
     sys.path.insert(0, str(ROOT / "src"))
     from hdeem_watch.demo.schedule import RUN_LENGTHS_S, THREAD_ROUNDS
     from hdeem_watch.dram.memspec import preset
-    from hdeem_watch.sources.sim_model import MEMSPEC_PRESET
+    from hdeem_watch.sim.model import MEMSPEC_PRESET
 
     spec = preset(MEMSPEC_PRESET)
     currents = {name: round(float(value) * 1e3, 1) for name, value in spec.currents.items()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 import shlex
+import tomllib
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -29,3 +30,14 @@ def test_the_test_command_groups_tests_that_share_a_machine_wide_resource() -> N
     tests marked ``xdist_group("slurm")`` (one munged, one cluster at a time) share one worker."""
     words = shlex.split(readme_test_command())
     assert "-n" in words and words[words.index("--dist") + 1] == "loadgroup", words
+
+
+def test_a_plain_pytest_runs_on_the_workers_of_the_test_command() -> None:
+    """pyproject's ``addopts`` carry the README command's ``-n`` and ``--dist``, so the inner loop's plain
+    ``python3 -m pytest -q -m "not slow"`` is spread over the same workers as CI's run."""
+    words = shlex.split(readme_test_command())
+    pyproject = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))
+    addopts = shlex.split(pyproject["tool"]["pytest"]["ini_options"]["addopts"])
+    for option in ("-n", "--dist"):
+        assert option in addopts, addopts
+        assert addopts[addopts.index(option) + 1] == words[words.index(option) + 1], (option, addopts, words)

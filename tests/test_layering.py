@@ -1,6 +1,6 @@
 """The import graph of ``src/hdeem_watch`` points one way (issues #13, #26), and its functions stay short.
 
-The packages are layered ``dram ← {sources, counters} ← {calibrate, node} ← config ← wire ← daemon ← {tui, cli}``: a package may
+The packages are layered ``dram ← counters ← sim ← sources ← {calibrate, node} ← config ← wire ← daemon ← {tui, cli}``: a package may
 import only from a lower tier, and no two modules anywhere import each other, directly or around a
 loop. The graph is read from the source with :mod:`ast`, so it holds every import, at module level
 and inside functions (a function-local import hides a cycle from the interpreter, not from this
@@ -33,26 +33,27 @@ TIERS: dict[str, int] = {
     "state_schema": 0,  # the SQLite state file's tables (the daemon writes them, the report reads them)
     "perf_event": 0,  # perf_event_open through ctypes (sources: RAPL energy; counters: the IMC PMUs)
     "dram": 1,  # the DRAM model: memspecs, statistics, energy, controller
-    "calibrate": 3,  # rows and fits on the model; a run's model, per-group fits, the counter model (uses counters/)
-    "sources": 2,  # power sensors (the sim models its DRAM with dram/)
-    "node": 3,  # facts about this machine (topology, DIMMs, sensor map, its DRAM energy source: RAPL zones)
     "counters": 2,  # memory-controller counters -> command statistics (uses dram/)
-    "config": 4,  # the daemon's settings (with each source's options)
-    "wire": 5,  # protocol v1, control client, client keys: what daemon and clients share
-    "daemon": 6,
-    "slurm": 7,  # the SLURM adapter (talks to the daemon)
-    "tui": 8,
-    "bench": 8,
-    "report": 8,  # figures from a daemon's state or a RUNS.json
-    "metricq": 8,  # the daemon's stream to a MetricQ broker (a client of the daemon)
-    "demo": 9,  # a demo node: daemon + bench schedule, shown by the TUI
-    "cli": 10,
-    "__main__": 11,
+    "sim": 3,  # the simulated node: its truth (dram/), its IMC counters (counters/)
+    "sources": 4,  # power sensors (the sim source adapts sim/)
+    "calibrate": 5,  # rows and fits on the model; a run's model, per-group fits (a source's layout), the counter model
+    "node": 5,  # facts about this machine (topology, DIMMs, sensor map, its DRAM energy source: RAPL zones)
+    "config": 6,  # the daemon's settings (with each source's options)
+    "wire": 7,  # protocol v1, control client, client keys: what daemon and clients share
+    "daemon": 8,
+    "slurm": 9,  # the SLURM adapter (talks to the daemon)
+    "tui": 10,
+    "bench": 10,
+    "report": 10,  # figures from a daemon's state or a RUNS.json
+    "metricq": 10,  # the daemon's stream to a MetricQ broker (a client of the daemon)
+    "demo": 11,  # a demo node: daemon + bench schedule, shown by the TUI
+    "cli": 12,
+    "__main__": 13,
 }
 
 #: Packages whose module cycles get a test of their own (for a clear message; the rule itself,
 #: no circle between any two modules, is :func:`test_no_cycle_between_any_modules`).
-ACYCLIC_PACKAGES = ("dram", "wire", "daemon", "calibrate", "sources", "counters")
+ACYCLIC_PACKAGES = ("dram", "wire", "daemon", "calibrate", "sources", "counters", "sim")
 
 #: The longest a function (``def`` line to last line, docstring included) may be.
 MAX_FUNCTION_LINES = 80
@@ -287,7 +288,7 @@ def test_no_cycle_between_modules_of(package: str, edges: list[Edge]) -> None:
 
 @pytest.mark.parametrize("package", sorted(TIERS), ids=lambda name: name or ROOT)
 def test_imports_point_down_the_layers(package: str, edges: list[Edge]) -> None:
-    """dram ← {sources, counters} ← calibrate ← daemon ← {tui, cli}: ``package`` imports only lower tiers."""
+    """dram ← counters ← sim ← sources ← calibrate ← daemon ← {tui, cli}: ``package`` imports only lower tiers."""
     upward = [
         f"{e}  [tier {TIERS[package]} -> tier {TIERS.get(area(e.target))}]"
         for e in edges
@@ -355,10 +356,8 @@ def test_the_long_function_list_holds_only_what_is_still_long() -> None:
 
 #: The daemon's clients: they speak to a daemon through :mod:`hdeem_watch.wire` only.
 CLIENTS = ("tui", "bench", "slurm", "metricq", "report", "cli", "demo")
-#: Client modules that may import the daemon: the command that runs one. ``demo.sim_runs`` takes
-#: the sim's counters from ``daemon.counter_source``; it leaves this list when they move into the
-#: ``sim/`` package (issue #26).
-RUNS_A_DAEMON = {"hdeem_watch.cli.daemon", "hdeem_watch.demo.sim_runs"}
+#: Client modules that may import the daemon: the command that runs one.
+RUNS_A_DAEMON = {"hdeem_watch.cli.daemon"}
 
 
 def test_clients_import_nothing_of_the_daemon(edges: list[Edge]) -> None:

@@ -263,7 +263,7 @@ class DaemonSettings:
                                    "open to anyone who can reach it; set curve_secret_key_file (see --gen-keys), "
                                    "or allow_insecure_tcp = true to accept that")
         if self.sim_age:
-            from hdeem_watch.sources.sim_age import parse_sim_age
+            from hdeem_watch.sim.age import parse_sim_age
 
             try:
                 parse_sim_age(self.sim_age)
@@ -293,7 +293,7 @@ class DaemonSettings:
             if self.seed is not None:
                 options["seed"] = self.seed
             if self.sim_age:
-                from hdeem_watch.sources.sim_age import sim_age_options
+                from hdeem_watch.sim.age import sim_age_options
 
                 options.update(sim_age_options(self.sim_age))
             overrides = self.node_overrides()

@@ -16,6 +16,9 @@ from hdeem_watch.errors import InputError
 
 from .conftest import _load
 
+# One worker runs the module, so its module-scoped fixture is built once, not once per worker.
+pytestmark = pytest.mark.xdist_group("calibrate-groups")
+
 NODE_SIM: ModuleType = _load("calib_node")
 
 

@@ -13,6 +13,9 @@ import pytest
 
 from hdeem_watch.calibrate import FitOptions, FitSettings, fit, posterior_relative_sd
 
+# One worker runs the module, so its module-scoped fixture is built once, not once per worker.
+pytestmark = pytest.mark.xdist_group("calibrate-realistic")
+
 #: "Determined" at the tolerance asked for: the 95 % half-width is at most 3 % of the value.
 WITHIN_3 = FitSettings(max_rel_ci=0.03)
 SEEDS = range(10)

@@ -13,11 +13,11 @@ import pytest
 
 from hdeem_watch.counters.command_mapping import STATUS_NO_CLOCK, STATUS_OK, channel_stats
 from hdeem_watch.counters.event_tables import TABLES
-from hdeem_watch.counters.sim_counters import imc_event_counts, imc_role_counts, role_counts_from_events
 from hdeem_watch.dram.energy import core_energy
 from hdeem_watch.dram.kernels import kernel_stats
 from hdeem_watch.dram.memspec import preset
 from hdeem_watch.dram.stats import CommandStats, RankStats
+from hdeem_watch.sim.imc_events import imc_event_counts, imc_role_counts, role_counts_from_events
 
 SPEC = preset("samsung-m393a1g43db0-cpb")
 

@@ -16,17 +16,17 @@ import pytest
 
 from hdeem_watch.calibrate.counter_model import counter_groups
 from hdeem_watch.counters.host_plan import PlannedChannel, PlannedEvent, plan_host
+from hdeem_watch.counters.perf_counters import PerfCounters
 from hdeem_watch.counters.perf_reader import PerfCounterReader
 from hdeem_watch.counters.permissions import check_access
 from hdeem_watch.counters.reader import FakeCounterReader
 from hdeem_watch.counters.session import CounterSession
-from hdeem_watch.counters.sim_counters import imc_event_counts
 from hdeem_watch.counters.source import window_counts
-from hdeem_watch.daemon.counter_source import PerfCounters
 from hdeem_watch.dram.kernels import kernel_stats
 from hdeem_watch.dram.memspec import preset
 from hdeem_watch.errors import InputError
 from hdeem_watch.perf_event import PERF_COUNT_SW_TASK_CLOCK, PERF_TYPE_SOFTWARE
+from hdeem_watch.sim.imc_events import imc_event_counts
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures"
 SPEC = preset("samsung-m393a1g43db0-cpb")

@@ -16,9 +16,12 @@ from hdeem_watch.counters.host_plan import plan_host
 from hdeem_watch.counters.permissions import check_access
 from hdeem_watch.counters.reader import FakeCounterReader
 from hdeem_watch.counters.session import CounterSession
-from hdeem_watch.counters.sim_counters import imc_event_counts
 from hdeem_watch.dram.kernels import kernel_stats
 from hdeem_watch.dram.memspec import preset
+from hdeem_watch.sim.imc_events import imc_event_counts
+
+# One worker runs the module, so its module-scoped fixture is built once, not once per worker.
+pytestmark = pytest.mark.xdist_group("counters-session_pipeline")
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures"
 SPEC = preset("samsung-m393a1g43db0-cpb")

@@ -6,8 +6,8 @@ import pytest
 
 from hdeem_watch.counters.command_mapping import channel_stats
 from hdeem_watch.counters.event_tables import TABLES
-from hdeem_watch.counters.sim_counters import imc_event_counts, imc_role_counts, role_counts_from_events
 from hdeem_watch.dram.stats import CommandStats, RankStats
+from hdeem_watch.sim.imc_events import imc_event_counts, imc_role_counts, role_counts_from_events
 
 RANK = RankStats(act=400, pre=400, rd=3000, wr=1000, rda=200, ref=8, cycles_total=100_000, cycles_act=60_000,
                  cycles_pre=40_000)

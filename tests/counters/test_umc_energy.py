@@ -19,12 +19,12 @@ from hdeem_watch.counters.host_plan import plan_host
 from hdeem_watch.counters.permissions import check_access
 from hdeem_watch.counters.reader import FakeCounterReader
 from hdeem_watch.counters.session import CounterSession
-from hdeem_watch.counters.sim_counters import imc_event_counts
 from hdeem_watch.counters.umc_energy import SUBCHANNELS, currents_basis, umc_energy
 from hdeem_watch.dram.ddr5_channel import kernel_stats_ddr5
 from hdeem_watch.dram.energy_ddr5 import core_energy_ddr5
 from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5, parse_memspec_ddr5
 from hdeem_watch.errors import InputError
+from hdeem_watch.sim.imc_events import imc_event_counts
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURES = Path(__file__).resolve().parent / "fixtures"

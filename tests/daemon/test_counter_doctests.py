@@ -1,6 +1,6 @@
 """The examples in the docstrings of the counter modules outside ``hdeem_watch.counters`` run and hold
-(the daemon's counter source, windows, model and recording; the sim's jobs and hidden commands; the
-TUI's rates; the perf_event wrapper)."""
+(the daemon's counter windows and recording, the counter model; the TUI's rates; the perf_event
+wrapper; the sim's are in ``tests/sim/test_doctests.py``)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import importlib
 
 import pytest
 
-MODULES = ("hdeem_watch.daemon.counter_source", "hdeem_watch.daemon.counters.windows",
+MODULES = ("hdeem_watch.daemon.counters.windows",
            "hdeem_watch.calibrate.counter_model", "hdeem_watch.daemon.counters.record",
-           "hdeem_watch.sources.sim_jobs", "hdeem_watch.sources.sim_commands", "hdeem_watch.tui.records",
+           "hdeem_watch.tui.records",
            "hdeem_watch.tui.widgets.fmt", "hdeem_watch.perf_event")
 
 

@@ -17,7 +17,10 @@ import pytest
 from hdeem_watch.counters.source import CounterSnapshot
 from hdeem_watch.daemon.book.runs import OPAQUE_KERNEL, parse_run_args
 from hdeem_watch.daemon.counters.windows import CounterWindows
-from hdeem_watch.sources.sim_jobs import JOB_KERNEL
+from hdeem_watch.sim.jobs import JOB_KERNEL
+
+# One worker runs the module, so its module-scoped fixture is built once, not once per worker.
+pytestmark = pytest.mark.xdist_group("daemon-counter_runs")
 
 
 def _benchmark_module(name: str) -> ModuleType:

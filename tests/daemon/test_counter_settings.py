@@ -11,7 +11,7 @@ from hdeem_watch.config import DaemonSettings, SettingError, load_settings
 from hdeem_watch.counters.source import auto_counter_kind
 from hdeem_watch.daemon.counters.feed import CounterFeed
 from hdeem_watch.errors import InputError
-from hdeem_watch.sources.sim_model import MEMSPEC_PRESET
+from hdeem_watch.sim.model import MEMSPEC_PRESET
 
 
 def test_counters_default_auto_and_validated(tmp_path) -> None:

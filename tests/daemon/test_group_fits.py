@@ -15,7 +15,7 @@ from hdeem_watch.calibrate.group_rows import SensorGroup, group_observation
 from hdeem_watch.calibrate.observation import current_names
 from hdeem_watch.calibrate.run_model import RunModeller
 from hdeem_watch.errors import InputError
-from hdeem_watch.sources.sim_layout import TAURUS, SimLayout
+from hdeem_watch.sim.layout import TAURUS, SimLayout
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"
 RATES = {"DDR_AB": 100.0, "DDR_CD": 100.0, "DDR_EF": 100.0, "DDR_GH": 100.0}

@@ -30,6 +30,9 @@ from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.dram.energy import COMPONENTS
 from hdeem_watch.sources.base import ChannelInfo, SourceBatch
 
+# One worker runs the module, so its module-scoped fixture is built once, not once per worker.
+pytestmark = pytest.mark.xdist_group("daemon-job_counters")
+
 MEMSPEC = "samsung-m393a1g43db0-cpb"
 PERIOD_NS = 10_000_000  # one batch (one 2 W sample per channel) every 10 ms
 SENSORS = {"S0.imc0": "DDR_AB", "S0.imc1": "DDR_CD"}

@@ -13,6 +13,9 @@ from hdeem_watch.config import DaemonSettings
 from hdeem_watch.sources.base import hdeem_channel_infos
 from hdeem_watch.wire import protocol
 
+# One worker runs the module, so its module-scoped fixture is built once, not once per worker.
+pytestmark = pytest.mark.xdist_group("daemon-stream")
+
 NOMINAL = {info.name: info.rate_hz for info in hdeem_channel_infos()}
 
 

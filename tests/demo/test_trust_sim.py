@@ -15,6 +15,9 @@ from hdeem_watch.calibrate import FitOptions, fit
 from hdeem_watch.calibrate.trust import TrustOptions
 from hdeem_watch.demo.sim_runs import DEMO_TAIL_S, SimRuns
 
+# One worker runs the module, so its module-scoped fixture is built once, not once per worker.
+pytestmark = pytest.mark.xdist_group("demo-trust_sim")
+
 RUNS = 110
 
 

@@ -17,6 +17,9 @@ from hdeem_watch.dram.memspec import load_memspec
 from hdeem_watch.dram.trace_state import trace_stats
 from hdeem_watch.errors import InputError
 
+# One worker runs the module, so its module-scoped fixture is built once, not once per worker.
+pytestmark = pytest.mark.xdist_group("dram-controller")
+
 REFERENCE = Path(__file__).resolve().parents[1] / "data" / "ramulator"
 
 

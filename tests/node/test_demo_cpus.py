@@ -9,7 +9,7 @@ import pytest
 
 from hdeem_watch.demo.schedule import DemoRun, DemoSchedule, node_topology, sim_cpus
 from hdeem_watch.dram.node import HASWELL_EP, NodeTopology
-from hdeem_watch.sources.sim_layout import SimLayout
+from hdeem_watch.sim.layout import SimLayout
 from hdeem_watch.wire.client import ControlError
 
 NODES = [HASWELL_EP, SimLayout.regular(2, 28, 8).topology, SimLayout.regular(1, 12, 6).topology]

@@ -16,6 +16,9 @@ from hdeem_watch.report.records import ReportData
 from hdeem_watch.report.runs_reader import read_runs
 from hdeem_watch.report.state_reader import read_state
 
+# One worker runs the module, so its module-scoped fixture is built once, not once per worker.
+pytestmark = pytest.mark.xdist_group("report-build")
+
 FIGURES = ("fig1-energy", "fig2-currents", "fig3-residuals", "fig4-aging", "fig5-components", "fig6-jobs",
            "fig7-holdout")
 

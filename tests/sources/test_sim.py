@@ -7,10 +7,10 @@ import itertools
 import numpy as np
 import pytest
 
+from hdeem_watch.sim.model import DIMM_PAIR, kernel_traffic_lines, run_truth_energy_j, socket_shares
 from hdeem_watch.sources.base import CHANNELS, DRAM_CHANNELS, RunEvent, Source
 from hdeem_watch.sources.registry import make_source
 from hdeem_watch.sources.sim import SimSource, modelled_line_rate
-from hdeem_watch.sources.sim_model import DIMM_PAIR, kernel_traffic_lines, run_truth_energy_j, socket_shares
 
 S = 1_000_000_000
 
@@ -133,7 +133,7 @@ def test_line_rate_saturates():
 def test_line_rate_within_the_controller_capacity(kernel, threads):
     """A run never moves more lines/s on a socket than the controller model of its channels can serve."""
     from hdeem_watch.dram.node import cycles_per_line, lines_of
-    from hdeem_watch.sources.sim_model import TOPOLOGY, default_model
+    from hdeem_watch.sim.model import TOPOLOGY, default_model
 
     model = default_model()
     elements = 1 << 22
@@ -287,8 +287,8 @@ def test_background_plan_holds_samples_back_without_loss(monkeypatch, fake_clock
 
 def test_datasheet_model_overestimates_the_sim_node():
     """On kernel runs the datasheet model overestimates the sim's DRAM energy 1.3–2.5× (field: ~2×)."""
-    from hdeem_watch.sources.sim_currents import PartCurrents
-    from hdeem_watch.sources.sim_plan import TruthNode
+    from hdeem_watch.sim.currents import PartCurrents
+    from hdeem_watch.sim.plan import TruthNode
 
     ratios = []
     for seed in (0, 1, 2):
@@ -327,7 +327,7 @@ def test_a_stopped_run_owes_no_spike(fake_clock):
     """Stopped at a quarter of its traffic, the rest of a run's energy comes within what a pair can
     draw: no sample of a DIMM pair above its physical maximum or below 0 W, BLADE's rise no larger than
     all DIMMs' maximum, and every joule still arrives (issue #28: 133 W on DDR_AB before)."""
-    from hdeem_watch.sources.sim_power import dimm_peak_w
+    from hdeem_watch.sim.power import dimm_peak_w
 
     clock = fake_clock()
     sim = quiet_sim(clock)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from hdeem_watch.errors import InputError
+from hdeem_watch.sim.age import age_factor, check_pairs, parse_sim_age, parse_sim_age_start
 from hdeem_watch.sources.sim import SimSource
-from hdeem_watch.sources.sim_age import age_factor, check_pairs, parse_sim_age, parse_sim_age_start
 
 S = 1_000_000_000
 PAIRS = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
@@ -110,7 +110,7 @@ def test_aging_starts_when_told(fake_clock) -> None:
 
 def test_sim_age_options_build_an_aging_sim() -> None:
     """The options of a --sim-age value go straight into SimSource; none for an unset value."""
-    from hdeem_watch.sources.sim_age import sim_age_options
+    from hdeem_watch.sim.age import sim_age_options
 
     assert sim_age_options(None) == {} and sim_age_options("  ") == {}
     sim = SimSource(seed=1, **sim_age_options("DDR_CD=+30%/h@10min"))

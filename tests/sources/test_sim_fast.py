@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hdeem_watch.sim.fast import NoiseBank
 from hdeem_watch.sources.base import RunEvent
 from hdeem_watch.sources.sim import SimSource
-from hdeem_watch.sources.sim_fast import NoiseBank
 
 S = 1_000_000_000
 

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from hdeem_watch.dram.energy import energy_columns
+from hdeem_watch.sim.commands import array_stats
+from hdeem_watch.sim.jobs import JOB_KERNEL, job_plan
 from hdeem_watch.sources.base import RunEvent
 from hdeem_watch.sources.sim import SimSource
-from hdeem_watch.sources.sim_commands import array_stats
-from hdeem_watch.sources.sim_jobs import JOB_KERNEL, job_plan
 
 SECOND = 1_000_000_000
 
@@ -27,7 +27,7 @@ def exact_sim(now: list[int]) -> SimSource:
 
 
 def hidden_array(sim: SimSource) -> np.ndarray:
-    from hdeem_watch.sources.sim_commands import stats_array
+    from hdeem_watch.sim.commands import stats_array
 
     _t, stats = sim.hidden_commands()
     return np.stack([stats_array(s) for s in stats])

@@ -9,10 +9,10 @@ import pytest
 
 from hdeem_watch.errors import InputError
 from hdeem_watch.node.description import describe_node
+from hdeem_watch.sim.layout import TAURUS, SimLayout, layout_for_node
+from hdeem_watch.sim.model import kernel_traffic_lines, modelled_line_rate
 from hdeem_watch.sources.base import CHANNELS, RunEvent, hdeem_channel_infos
-from hdeem_watch.sources.sim import SimSource
-from hdeem_watch.sources.sim_layout import TAURUS, SimLayout, layout_for_node
-from hdeem_watch.sources.sim_model import kernel_traffic_lines, modelled_line_rate
+from hdeem_watch.sources.sim import SimSource, channel_infos
 
 S = 1_000_000_000
 ICE_LAKE_1DPC = SimLayout.regular(2, 28, 8)      # 2 x Xeon Gold 6330, 16 DIMMs
@@ -38,7 +38,7 @@ def quiet_sim(clock: Clock, layout: SimLayout) -> SimSource:
 def test_taurus_is_the_default_and_hdeems_channel_set() -> None:
     """The default layout is HDEEM's Haswell-EP blade: its channels are base.CHANNELS, in that order."""
     assert TAURUS.channels == CHANNELS
-    assert TAURUS.channel_infos() == hdeem_channel_infos()
+    assert channel_infos(TAURUS) == hdeem_channel_infos()
     assert SimSource(seed=1).layout is TAURUS
 
 

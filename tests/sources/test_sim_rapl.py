@@ -1,11 +1,11 @@
-"""RAPL's energy-unit quantisation of the sim's samples (sources/sim_rapl.py)."""
+"""RAPL's energy-unit quantisation of the sim's samples (sim/rapl.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from hdeem_watch.sources.sim_rapl import SPR_DRAM_UNIT_J, rapl_samples
+from hdeem_watch.sim.rapl import SPR_DRAM_UNIT_J, rapl_samples
 
 
 def test_rapl_samples_keep_every_joule_and_stay_within_one_unit() -> None:

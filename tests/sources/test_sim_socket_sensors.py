@@ -10,10 +10,10 @@ import pytest
 from hdeem_watch.dram.energy_ddr5 import CURRENT_NAMES_DDR5, core_energy_ddr5
 from hdeem_watch.dram.memspec_ddr5 import load_memspec_ddr5
 from hdeem_watch.dram.stats import CommandStats
+from hdeem_watch.sim.layout import SAPPHIRE_RAPIDS, SimLayout
+from hdeem_watch.sim.power import PowerPhysics, busy_rank, idle_columns, refresh_per_s, split_columns
 from hdeem_watch.sources.base import RunEvent
 from hdeem_watch.sources.sim import SimSource
-from hdeem_watch.sources.sim_layout import SAPPHIRE_RAPIDS, SimLayout
-from hdeem_watch.sources.sim_power import PowerPhysics, busy_rank, idle_columns, refresh_per_s, split_columns
 
 S = 1_000_000_000
 

@@ -9,11 +9,11 @@ import sys
 import numpy as np
 import pytest
 
+from hdeem_watch.sim.plan import TruthNode
+from hdeem_watch.sim.power import PowerPhysics, busy_rank, idle_rank, refresh_per_s
+from hdeem_watch.sim.traffic import socket_row_outcomes
 from hdeem_watch.sources.base import DRAM_CHANNELS, RunEvent
 from hdeem_watch.sources.sim import SimSource
-from hdeem_watch.sources.sim_plan import TruthNode
-from hdeem_watch.sources.sim_power import PowerPhysics, busy_rank, idle_rank, refresh_per_s
-from hdeem_watch.sources.sim_traffic import socket_row_outcomes
 
 S = 1_000_000_000
 MEMSPEC = "samsung-m393a1g43db0-cpb"

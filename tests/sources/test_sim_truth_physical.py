@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from hdeem_watch.dram.memspec_check import physical_violations
-from hdeem_watch.sources.sim_currents import truth_parts
-from hdeem_watch.sources.sim_model import DIMMS, TruthModel, default_model
-from hdeem_watch.sources.sim_plan import TruthNode
+from hdeem_watch.sim.currents import truth_parts
+from hdeem_watch.sim.model import DIMMS, TruthModel, default_model
+from hdeem_watch.sim.plan import TruthNode
 
 
 @pytest.mark.parametrize("seed", range(12))

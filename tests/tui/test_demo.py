@@ -153,7 +153,7 @@ def test_demo_design_determines_the_currents_near_the_effective_truth() -> None:
     """The first 30 runs of the demo's design, measured on the sim's truth with 0.3 % noise, make all five currents
     identifiable and within 8 % of the sim's effective truth; the datasheet model overestimates ≥ 1.3×."""
     from hdeem_watch.calibrate.run_model import RunModeller
-    from hdeem_watch.sources.sim_model import (
+    from hdeem_watch.sim.model import (
         TruthModel,
         default_model,
         effective_currents,

@@ -56,7 +56,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats as scipy_stats
 
 from hdeem_watch.calibrate.fit import FitOptions, fit
 from hdeem_watch.calibrate.observation import Observation, SpecLike, current_names
@@ -306,7 +305,10 @@ def trusted_fit(rows: Sequence[Observation], spec: SpecLike, options: FitOptions
                   dtype=float).reshape(len(names), 2)
     sd_kind, kinds = (_jackknife_sd(rows, spec, options, weights, held, names) if trust.jackknife
                       else (np.zeros(len(names)), 0))
-    t = float(scipy_stats.t.ppf(0.975, max(1, kinds - 1))) if kinds >= MIN_KINDS else 0.0
+    # scipy.special on first use (importing scipy.stats cost every process ~1 s of start-up CPU)
+    from scipy.special import stdtrit
+
+    t = float(stdtrit(max(1, kinds - 1), 0.975)) if kinds >= MIN_KINDS else 0.0  # the Student t quantile
     half = np.sqrt(np.nan_to_num(np.maximum(value - ci[:, 0], ci[:, 1] - value)) ** 2 + (t * sd_kind) ** 2)
     low, high = value - half, value + half
     commands = _command_range(rows, spec, options, weights, held, names, trust)

@@ -80,7 +80,7 @@ def _check(args: argparse.Namespace) -> None:
         raise InputError(f"--window {args.window}: expected a positive number of seconds")
     if args.sim_age is not None:
         from hdeem_watch.channels import DRAM_CHANNELS
-        from hdeem_watch.sources.sim_age import check_pairs, parse_sim_age
+        from hdeem_watch.sim.age import check_pairs, parse_sim_age
 
         check_pairs(parse_sim_age(args.sim_age), DRAM_CHANNELS)  # the demo's node: Taurus Haswell-EP
     for flag, directory in (("--state-dir", args.state_dir), ("--report", args.report)):

@@ -15,8 +15,8 @@ Modules, one concept each:
   protocol and a fake for tests.
 - :mod:`~hdeem_watch.counters.arithmetic`: multiplexing scaling, counter-width wrap, window deltas.
 - :mod:`~hdeem_watch.counters.command_mapping`: per-channel counter deltas → ``CommandStats``.
-- :mod:`~hdeem_watch.counters.sim_counters`: the counters a real IMC would show for given hidden
-  command statistics (for the simulated node).
+- :mod:`~hdeem_watch.counters.perf_counters`: the host's counters as a counter source.
+- :mod:`~hdeem_watch.counters.setting`: the counter source of the daemon's ``counters`` setting.
 - :mod:`~hdeem_watch.counters.perf_reader`: the real ``perf_event_open`` reader (ctypes).
 - :mod:`~hdeem_watch.counters.source`: the counter-source port the daemon reads (cumulative role
   counts on the power samples' axis), window differences and interpolation.

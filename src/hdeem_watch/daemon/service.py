@@ -531,11 +531,13 @@ class Daemon:
         while True:
             if control_waiting:
                 control.handle(max_messages=1)
+                # Only an answered request can hide another one (one that arrives later wakes the
+                # next poll): asking every socket at every poll was a tenth of the watched loop.
+                control_waiting = control.waiting()
             if models.pending and models.ready:
                 models.collect(1)
             if store.pending and store.ready:
                 store.collect(1)
-            control_waiting = control.waiting()
             left = control_waiting or (models.pending and models.ready) or (store.pending and store.ready)
             if not left or clock() >= end_ns:
                 return bool(left)

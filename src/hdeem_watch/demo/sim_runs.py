@@ -33,8 +33,8 @@ from hdeem_watch.calibrate.drift import DriftAlarm
 from hdeem_watch.calibrate.group_fits import source_groups
 from hdeem_watch.calibrate.run_model import RunModeller
 from hdeem_watch.counters.source import CounterSnapshot, window_counts
-from hdeem_watch.daemon.counter_source import SimCounters
 from hdeem_watch.demo.schedule import ELEMENTS, THREAD_ROUNDS, DemoRun, demo_round
+from hdeem_watch.sim.counters import SimCounters
 from hdeem_watch.sources.base import RunEvent
 from hdeem_watch.sources.sim import SimSource
 

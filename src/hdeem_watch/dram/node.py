@@ -1,6 +1,6 @@
 """A whole node's DRAM traffic: which channels a run's threads load, and their command statistics.
 
-The simulated node (:mod:`hdeem_watch.sources.sim_model`) and the daemon's calibration row
+The simulated node (:mod:`hdeem_watch.sim.model`) and the daemon's calibration row
 (:mod:`hdeem_watch.calibrate.run_model`) must model a run the same way, so both call
 :func:`node_run_stats`. The node (:class:`NodeTopology`, default :data:`HASWELL_EP`: the Taurus
 blade, 2 sockets × 12 cores, 4 memory channels per socket, one DIMM each; any other node from its

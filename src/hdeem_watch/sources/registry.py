@@ -63,7 +63,7 @@ def simulated_memspec(source: Source) -> str | None:
     measures a real node, whose DIMMs choose its memspec)."""
     if source.kind != "sim":
         return None
-    from hdeem_watch.sources.sim_model import MEMSPEC_PRESET
+    from hdeem_watch.sim.model import MEMSPEC_PRESET
 
     return MEMSPEC_PRESET
 

@@ -1,6 +1,6 @@
 """The simulated node: the embedded default source (HDEEM's channels on a modelled Haswell-EP node).
 
-The node and its model are described in :mod:`hdeem_watch.sources.sim_model`. This module is the
+The node and its model are described in :mod:`hdeem_watch.sim.model`. This module is the
 time shell: it turns the model into HDEEM-like samples — BLADE at 1000 Sa/s, CPU0/CPU1 and the four
 DIMM pairs at 100 Sa/s, in steps of 0.125 W — and reacts to the runs the daemon announces
 (:meth:`SimSource.on_run`).
@@ -15,13 +15,13 @@ late by more than ``buffer_s`` (the sensor buffer), the older samples are lost (
 (like HDEEM's energy totals). ``energy_j`` is the integral of the published (quantised) samples
 plus that of lost ones.
 
-The hidden truth comes from the sim's own generator (:mod:`hdeem_watch.sources.sim_plan`), not
+The hidden truth comes from the sim's own generator (:mod:`hdeem_watch.sim.plan`), not
 from the daemon's model path, and has what real DIMMs do that the model leaves out: its own page
 placement, channel and bank hash (other row-hit rates), power-down after idle time, refresh twice as
 often above 85 °C, I/O energy per burst, a part per DIMM pair (±10 % currents), a gain and offset
 per sensor, Gaussian noise, 0.125 W quantisation, and optionally aging of a pair
 (``age={"DDR_CD": 0.30}`` = +30 %/h of sim time; the CLI form ``DDR_CD=+30%/h`` is parsed by
-:func:`~hdeem_watch.sources.sim_age.parse_sim_age`). :meth:`SimSource.truth` reports it all.
+:func:`~hdeem_watch.sim.age.parse_sim_age`). :meth:`SimSource.truth` reports it all.
 
 Example:
     >>> t = [0]
@@ -47,17 +47,17 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hdeem_watch.dram.stats import CommandStats
-from hdeem_watch.sources.base import STATUS_GAP, STATUS_OK, ChannelInfo, QuietLimit, RunEvent, SourceBatch
-from hdeem_watch.sources.sim_age import check_pairs
-from hdeem_watch.sources.sim_commands import HiddenCommands, array_stats, plan_end_ns
-from hdeem_watch.sources.sim_currents import PartCurrents
-from hdeem_watch.sources.sim_fast import IdleBlocks, NoiseBank
-from hdeem_watch.sources.sim_jobs import JOB_KERNEL, JobPlan, job_plan
-from hdeem_watch.sources.sim_layout import TAURUS, SimLayout, layout_for_node
-from hdeem_watch.sources.sim_model import modelled_line_rate, socket_shares, threads_per_socket
-from hdeem_watch.sources.sim_plan import TruthNode
-from hdeem_watch.sources.sim_power import PowerPhysics, dimm_peak_w
-from hdeem_watch.sources.sim_signal import (
+from hdeem_watch.sim.age import check_pairs
+from hdeem_watch.sim.commands import HiddenCommands, array_stats, plan_end_ns
+from hdeem_watch.sim.counters import SimCounters
+from hdeem_watch.sim.currents import PartCurrents
+from hdeem_watch.sim.fast import IdleBlocks, NoiseBank
+from hdeem_watch.sim.jobs import JOB_KERNEL, JobPlan, job_plan
+from hdeem_watch.sim.layout import TAURUS, SimLayout, layout_for_node
+from hdeem_watch.sim.model import modelled_line_rate, socket_shares, threads_per_socket
+from hdeem_watch.sim.plan import TruthNode
+from hdeem_watch.sim.power import PowerPhysics, dimm_peak_w
+from hdeem_watch.sim.signal import (
     NOISE_W,
     Plan,
     channel_power_w,
@@ -65,7 +65,8 @@ from hdeem_watch.sources.sim_signal import (
     flat_power_w,
     mean_power_w,
 )
-from hdeem_watch.sources.sim_truth import truth_report
+from hdeem_watch.sim.truth import truth_report
+from hdeem_watch.sources.base import STATUS_GAP, STATUS_OK, ChannelInfo, QuietLimit, RunEvent, SourceBatch
 
 if TYPE_CHECKING:
     from hdeem_watch.node.description import NodeDescription
@@ -114,7 +115,7 @@ class SimSource:
         block_s: while the node is idle, its samples are generated this far (sim s) ahead of the
             polls, in one computation per block (the hidden currents' drift is evaluated once per
             block); a run drops the unpublished rest at once. 0 = one block per poll.
-        layout: the node modelled (default :data:`~hdeem_watch.sources.sim_layout.TAURUS`): its
+        layout: the node modelled (default :data:`~hdeem_watch.sim.layout.TAURUS`): its
             sockets, cores and channels; channels ``BLADE``, ``CPU<n>`` per socket and one
             ``DDR_<letters>`` sensor per pair of channels.
         node: a node description to model instead (one DIMM per channel); overrides ``layout``.
@@ -165,14 +166,14 @@ class SimSource:
                                         temp_amp_c=temp_amp_c, dimm_spread=dimm_spread, part_spread=part_spread,
                                         pairs=self.layout.dimm_sensor, age=age, age_start_s=starts,
                                         ambient_c=ambient_c)
-        self._infos = self.layout.channel_infos()
+        self._infos = channel_infos(self.layout)
         self._init_sensors(offsets=offsets, gains=gains)
         self._flat: dict[str, float] = {}
         self._flat_at = -1
         self._status_ok = {info.name: STATUS_OK for info in self._infos}
         #: Samples per channel that fit in the sensor buffer.
         self._buffer_k = {name: self.buffer_ns // period for name, period in self._period_ns.items()}
-        #: The idle node's samples generated ahead (:mod:`hdeem_watch.sources.sim_fast`).
+        #: The idle node's samples generated ahead (:mod:`hdeem_watch.sim.fast`).
         self._idle = IdleBlocks(self._groups, self._noise if noise else None, self.quantum_w, self.block_ns,
                                 self._buffer_k)
         self._open = False
@@ -441,12 +442,16 @@ class SimSource:
     def truth(self) -> dict:
         """The hidden truth now — currents (A per device) per DIMM, per pair and averaged, the aging
         state, and which effects a node-level fit cannot absorb; simulation only
-        (:func:`~hdeem_watch.sources.sim_truth.truth_report`)."""
+        (:func:`~hdeem_watch.sim.truth.truth_report`)."""
         t_s = self._sim_ns * 1e-9
         if self._checked is None or abs(t_s - self._checked[0]) > CHECK_EVERY_S:
             self._checked = (t_s, self.truth_node.physical_violations(self.truth_model.currents(t_s)))
         return truth_report(self.truth_node, self.truth_model, t_s, t_ns=self._t0_wall + self._sim_ns,
                             offset_w=self._offset_w, gain=self._gain, violations=self._checked[1])
+
+    def sim_counters(self) -> SimCounters:
+        """The memory-controller counters of this node (``counters = "sim"``)."""
+        return SimCounters(self)
 
     # -- hidden commands (the ground truth of the memory-controller counters) ----------------------------
     def hidden_commands(self) -> tuple[int, list[CommandStats]]:
@@ -498,3 +503,9 @@ class SimSource:
                     self._forgotten_until_ns = max(self._forgotten_until_ns, plan_end_ns(self._retired[0]))
                 self._retired.append(plan)
                 del self._plans[run_id]
+
+
+def channel_infos(layout: SimLayout) -> list[ChannelInfo]:
+    """The sim's channels: BLADE at 1000 Sa/s, the CPU and DRAM channels at 100 Sa/s (HDEEM's rates)."""
+    return ([ChannelInfo("BLADE", 1000.0, "blade")] + [ChannelInfo(n, 100.0, "cpu") for n in layout.cpu_channels]
+            + [ChannelInfo(n, 100.0, "dram") for n in layout.sensors])

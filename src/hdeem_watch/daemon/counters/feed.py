@@ -29,7 +29,7 @@ class CounterFeed:
     """A counter source read into :class:`CounterWindows` (and a recorder), for one run book.
 
     Args:
-        counters: the counter source (:mod:`hdeem_watch.daemon.counter_source`).
+        counters: the counter source (:mod:`hdeem_watch.counters.setting`).
         book: the run book whose windows get counter starts.
         clock: monotonic ns.
         heartbeat_s: read at least this often.
@@ -147,10 +147,12 @@ class CounterFeed:
 def _counter_source(kind: str, source: object, book: NodeState, *, clock: Callable[[], int], ranks: int,
                     replay_file: str | None) -> Any:
     """The counter source of an explicit ``counters`` kind (None for ``none``); InputError if it cannot open."""
-    from hdeem_watch.daemon.counter_source import make_counter_source
+    from hdeem_watch.counters.setting import make_counter_source
+    from hdeem_watch.daemon.counters.record import CounterReplay
 
+    replay = (lambda: CounterReplay(replay_file, source)) if replay_file else None
     return make_counter_source(kind, source, sample_time=book.sample_time_of,
-                               clock=clock, ranks=ranks if kind == "perf" else 2, replay_file=replay_file)
+                               clock=clock, ranks=ranks if kind == "perf" else 2, replay=replay)
 
 
 def _auto_counter_source(source: object, book: NodeState, *, clock: Callable[[], int], ranks: int,

@@ -22,13 +22,12 @@ Example:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 from hdeem_watch.channels import channel_letter, dimm_pair_channel
 from hdeem_watch.dram.node import NodeTopology
 from hdeem_watch.errors import InputError
-from hdeem_watch.sources.base import ChannelInfo
 
 if TYPE_CHECKING:
     from hdeem_watch.node.description import NodeDescription
@@ -44,6 +43,7 @@ class SimLayout:
         dimm_socket: the socket of each DIMM.
         dimm_sensor: the DRAM sensor channel that measures each DIMM.
         sensors: the DRAM sensor channels, in order.
+        memspec: the DIMMs' memspec: a preset name or a memspec file of the sim package.
     """
 
     topology: NodeTopology
@@ -51,6 +51,7 @@ class SimLayout:
     dimm_socket: tuple[int, ...]
     dimm_sensor: tuple[str, ...]
     sensors: tuple[str, ...] = field(default=())
+    memspec: str = "samsung-m393a1g43db0-cpb"
 
     @classmethod
     def regular(cls, sockets: int, cores_per_socket: int, channels_per_socket: int) -> SimLayout:
@@ -89,11 +90,6 @@ class SimLayout:
         """Every channel the sim publishes: BLADE, the CPU packages, the DRAM sensors."""
         return ("BLADE", *self.cpu_channels, *self.sensors)
 
-    def channel_infos(self) -> list[ChannelInfo]:
-        """BLADE at 1000 Sa/s, the CPU and DRAM channels at 100 Sa/s (HDEEM's rates)."""
-        return ([ChannelInfo("BLADE", 1000.0, "blade")] + [ChannelInfo(n, 100.0, "cpu") for n in self.cpu_channels]
-                + [ChannelInfo(n, 100.0, "dram") for n in self.sensors])
-
     def sensor_dimms(self, sensor: str) -> list[int]:
         """Indices of the DIMMs behind ``sensor``."""
         return [d for d, s in enumerate(self.dimm_sensor) if s == sensor]
@@ -103,6 +99,12 @@ class SimLayout:
 TAURUS = SimLayout.regular(2, 12, 4)
 #: A Sapphire Rapids-like DDR5 node: 2 sockets × 56 cores × 8 channels, RAPL DRAM per socket.
 SAPPHIRE_RAPIDS = SimLayout.per_socket(2, 56, 8)
+#: The DDR5 node's memspec (``sim/ddr5_node.json``): DRAMPower v6.2's DDR5 test memspec as one 32-bit
+#: BL16 DDR5-4800 sub-channel (docs/sources.md says which number comes from where).
+DDR5_MEMSPEC = "ddr5_node.json"
+#: The simulated DDR5 node: :data:`SAPPHIRE_RAPIDS`'s sockets with DDR5 DIMMs of :data:`DDR5_MEMSPEC`;
+#: its units are the 2 × 8 sub-channels of each socket's 8 DIMMs (the memspec describes one).
+DDR5_NODE = replace(SimLayout.per_socket(2, 56, 16), memspec=DDR5_MEMSPEC)
 
 
 def layout_for_node(node: NodeDescription) -> SimLayout:

@@ -2,15 +2,15 @@
 
 The chain is the sim's own, not the daemon's model path (:mod:`hdeem_watch.dram.node` and the
 calibration rows): traffic → page placement, channel and bank hash, batching open-page controller
-(:mod:`hdeem_watch.sources.sim_traffic`) → per-rank commands, power-down, temperature-dependent
-refresh (:mod:`hdeem_watch.sources.sim_power`) → DRAMPower's per-command energies at each DIMM's
+(:mod:`hdeem_watch.sim.traffic`) → per-rank commands, power-down, temperature-dependent
+refresh (:mod:`hdeem_watch.sim.power`) → DRAMPower's per-command energies at each DIMM's
 own hidden currents, plus I/O per burst. Only the node's bandwidth (how long a run's traffic lasts,
-:func:`~hdeem_watch.sources.sim_model.modelled_line_rate`) is shared with the demo's schedule, which
+:func:`~hdeem_watch.sim.model.modelled_line_rate`) is shared with the demo's schedule, which
 holds each run for that time.
 
 Example:
     >>> import numpy as np
-    >>> from hdeem_watch.sources.sim_currents import PartCurrents
+    >>> from hdeem_watch.sim.currents import PartCurrents
     >>> node = TruthNode(seed=1)
     >>> parts = PartCurrents(node.model.names, node.model.datasheet, 1)
     >>> plan = node.plan(parts.currents(0.0), parts.temperature_c(0.0), "r", 0, "read", 1 << 22, 12, 5)
@@ -24,10 +24,10 @@ import numpy as np
 
 from hdeem_watch.dram.kernels import access_pattern, kernel_iterations
 from hdeem_watch.dram.stats import CommandStats
-from hdeem_watch.sources.sim_layout import TAURUS, SimLayout
-from hdeem_watch.sources.sim_model import RunPlan, kernel_traffic_lines, load_model, modelled_line_rate
-from hdeem_watch.sources.sim_power import PowerPhysics, busy_rank, idle_columns, split_columns
-from hdeem_watch.sources.sim_traffic import socket_row_outcomes
+from hdeem_watch.sim.layout import TAURUS, SimLayout
+from hdeem_watch.sim.model import RunPlan, kernel_traffic_lines, load_model, modelled_line_rate
+from hdeem_watch.sim.power import PowerPhysics, busy_rank, idle_columns, split_columns
+from hdeem_watch.sim.traffic import socket_row_outcomes
 
 
 class TruthNode:

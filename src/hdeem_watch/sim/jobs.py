@@ -5,20 +5,20 @@ daemon knows nothing of its traffic. The sim plays a hidden mix of phases, seede
 and the run id, and repeats it until the job is stopped:
 
 - **stream**: a STREAM-like kernel (read, copy, scale, add, triad) with a random thread count,
-  through the sim's own controller (:mod:`hdeem_watch.sources.sim_traffic`: page placement, hashes,
+  through the sim's own controller (:mod:`hdeem_watch.sim.traffic`: page placement, hashes,
   row hits) at the node's bandwidth for those threads;
 - **random**: random accesses (row misses: an activation per request but a few percent), a random
   share of the socket's bandwidth and of writes, on the sockets the job's threads occupy;
-- **idle**: no traffic (the ranks drop into precharge power-down, :func:`~hdeem_watch.sources.sim_power.idle_rank`).
+- **idle**: no traffic (the ranks drop into precharge power-down, :func:`~hdeem_watch.sim.power.idle_rank`).
 
 Each phase has per-DIMM hidden :class:`~hdeem_watch.dram.stats.CommandStats` and is priced like a
-kernel run (:func:`~hdeem_watch.sources.sim_power.split_columns` at each DIMM's hidden currents, plus
+kernel run (:func:`~hdeem_watch.sim.power.split_columns` at each DIMM's hidden currents, plus
 I/O per burst). A stopped job owes nothing: its traffic simply ends (unlike a kernel run, whose
 whole traffic is booked by the stop).
 
 Example:
-    >>> from hdeem_watch.sources.sim_currents import PartCurrents
-    >>> from hdeem_watch.sources.sim_plan import TruthNode
+    >>> from hdeem_watch.sim.currents import PartCurrents
+    >>> from hdeem_watch.sim.plan import TruthNode
     >>> node = TruthNode(seed=1)
     >>> parts = PartCurrents(node.model.names, node.model.datasheet, 1)
     >>> job = job_plan(node, parts.currents(0.0), parts.temperature_c(0.0), "r7", 0, threads=12)
@@ -35,11 +35,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hdeem_watch.dram.stats import CommandStats
-from hdeem_watch.sources.sim_model import kernel_traffic_lines, modelled_line_rate
-from hdeem_watch.sources.sim_power import busy_rank, idle_rank, split_columns
+from hdeem_watch.sim.model import kernel_traffic_lines, modelled_line_rate
+from hdeem_watch.sim.power import busy_rank, idle_rank, split_columns
 
 if TYPE_CHECKING:
-    from hdeem_watch.sources.sim_plan import TruthNode
+    from hdeem_watch.sim.plan import TruthNode
 
 #: The kernel name of an opaque job (``run.start`` without a kernel).
 JOB_KERNEL = "job"
@@ -80,7 +80,7 @@ class JobPhase:
 class JobPlan:
     """An opaque job's load: its phases repeated from ``t0_ns`` until the stop.
 
-    Has the attributes of :class:`~hdeem_watch.sources.sim_model.RunPlan` the sim's signal and time
+    Has the attributes of :class:`~hdeem_watch.sim.model.RunPlan` the sim's signal and time
     shell read (``t0_ns``, ``threads``, ``traffic_end_ns``, ``cpu_end_ns``, ``idle_w``).
     """
 

@@ -26,7 +26,7 @@ Example:
 :class:`PartCurrents` holds the node's hidden per-DIMM currents over sim time: each DIMM *pair* is
 a part of its own (a factor in ``1 ± part_spread`` on its ratios), each DIMM varies a little more
 (``1 ± dimm_spread`` per current), temperature scales floor and increment differently, and a pair
-can age (:mod:`hdeem_watch.sources.sim_age`).
+can age (:mod:`hdeem_watch.sim.age`).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from hdeem_watch.sources.sim_age import age_factor
+from hdeem_watch.sim.age import age_factor
 
 #: Command currents, which sit on the active standby current of their supply.
 _ON_ACTIVE_STANDBY = ("0", "4r", "4w", "5b", "5f2", "5f4")

@@ -1,6 +1,6 @@
 """The daemon's model of the simulated node: bandwidth, the DRAM model, and the model's view of a run.
 
-The sim's truth does NOT come from here (:mod:`hdeem_watch.sources.sim_plan` is its own generator);
+The sim's truth does NOT come from here (:mod:`hdeem_watch.sim.plan` is its own generator);
 this module holds what the sim shares with the daemon's model — the node's bandwidth (how long a
 run's traffic lasts, which the demo's schedule uses to hold runs) and the DRAM model (memspec,
 energy columns) — and :func:`plan_run` / :func:`run_truth_energy_j` / :func:`effective_currents`,
@@ -9,7 +9,7 @@ the model's view of a run at given currents, kept to measure how far the truth i
 The modelled node is a 2-socket Haswell-EP (2 × 12 cores, logical CPUs 0–11 on socket 0, 12–23 on
 socket 1, 24–35 and 36–47 their hyper-threads) with 8 DIMMs of the Samsung M393A1G43DB0-CPB, one
 per memory channel, 4 channels per socket — by default; any node with one DIMM per channel can be
-modelled instead (:class:`~hdeem_watch.sources.sim_layout.SimLayout`, e.g. from a detected
+modelled instead (:class:`~hdeem_watch.sim.layout.SimLayout`, e.g. from a detected
 :class:`~hdeem_watch.node.description.NodeDescription`). HDEEM's DIMM-pair sensors: DDR_AB = DIMMs A, B and
 DDR_CD = C, D on socket 0; DDR_EF = E, F and DDR_GH = G, H on socket 1.
 
@@ -45,12 +45,12 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.dram.node import lines_of, node_capacity_lines_s, node_run_stats
-from hdeem_watch.dram.stats import CommandStats, RankStats
-from hdeem_watch.sources.sim_currents import PartCurrents
-from hdeem_watch.sources.sim_layout import TAURUS, SimLayout
+from hdeem_watch.dram.stats import CommandStats, RankStats, refresh_interval
+from hdeem_watch.sim.currents import PartCurrents
+from hdeem_watch.sim.layout import TAURUS, SimLayout
 
 #: The default (Taurus) layout's DIMM names, in channel order (A..H), and the HDEEM pair channel
-#: and socket of each; other layouts: :class:`~hdeem_watch.sources.sim_layout.SimLayout`.
+#: and socket of each; other layouts: :class:`~hdeem_watch.sim.layout.SimLayout`.
 DIMMS = TAURUS.dimm_names
 DIMM_PAIR = TAURUS.dimm_sensor
 DIMM_SOCKET = TAURUS.dimm_socket
@@ -147,6 +147,20 @@ def _cached_rate(kernel: str, threads: int, elements: int, layout: SimLayout = T
     return line_rate_of(model, kernel, threads, model.node_stats(kernel, elements, threads, 1))
 
 
+def sim_memspec(name: str) -> Any:
+    """The memspec of the sim's DIMMs: a preset by name, or a ``.json`` file of this package
+    (:data:`~hdeem_watch.sim.layout.DDR5_MEMSPEC`, the DDR5 node's)."""
+    from pathlib import Path
+
+    from hdeem_watch.dram.memspec import preset
+
+    if name.endswith(".json"):
+        from hdeem_watch.dram.memspec_ddr5 import load_memspec_ddr5
+
+        return load_memspec_ddr5(Path(__file__).with_name(name))
+    return preset(name)
+
+
 class DramModel:
     """The DRAM model (memspec, energy columns, node statistics) of the sim's DIMMs.
 
@@ -157,18 +171,28 @@ class DramModel:
     backend = "dram"
 
     def __init__(self, layout: SimLayout = TAURUS) -> None:
-        from hdeem_watch.dram.energy import CURRENT_NAMES
-        from hdeem_watch.dram.memspec import preset
+        from hdeem_watch.dram.linear import model_current_names
 
         self.layout = layout
-        self.spec: Any = preset(MEMSPEC_PRESET)
-        self.names: tuple[str, ...] = tuple(CURRENT_NAMES)
+        self.spec: Any = sim_memspec(layout.memspec)
+        self.names: tuple[str, ...] = model_current_names(self.spec)
         self.datasheet = np.array([float(self.spec.currents.get(n, 0.0)) for n in self.names])
         self.tck_s = float(self.spec.tck_s)
         self._node_stats = functools.lru_cache(maxsize=256)(self._compute_node_stats)
+        self._idle_per_s: tuple[np.ndarray, float] | None = None
 
     def _compute_node_stats(self, kernel: str, elements: int, threads: int, repeat: int) -> tuple[tuple[CommandStats, int], ...]:
-        return tuple(node_run_stats(self.spec, kernel, elements, threads, repeat, self.layout.topology))
+        return tuple(node_run_stats(self.channel_spec, kernel, elements, threads, repeat, self.layout.topology))
+
+    @property
+    def channel_spec(self) -> Any:
+        """The memspec of one of the layout's channels as the controller model spells it: DDR4's as it
+        is, a DDR5 sub-channel (:func:`~hdeem_watch.dram.ddr5_channel.subchannel_spec`) for DDR5,
+        whose layouts count sub-channels as channels."""
+        from hdeem_watch.dram.ddr5_channel import subchannel_spec
+        from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
+
+        return subchannel_spec(self.spec) if isinstance(self.spec, MemSpecDDR5) else self.spec
 
     def node_stats(self, kernel: str, elements: int, threads: int, repeat: int) -> list[tuple[CommandStats, int]]:
         """``node_run_stats(spec, ..., layout.topology)`` (cached): per socket, one channel's stats and count."""
@@ -180,8 +204,15 @@ class DramModel:
         """No commands: all banks precharged, a refresh every REFI — the form the calibrator gives an
         idle run (``calibrate.rows.stretch_stats`` of empty statistics), so idle energy matches it."""
         total = window_s / self.tck_s
-        rank = RankStats(ref=total / float(self.spec.timings["REFI"]), cycles_total=total, cycles_pre=total)
+        refi = refresh_interval(self.spec)
+        rank = RankStats(ref=total / refi if refi > 0 else 0.0, cycles_total=total, cycles_pre=total)
         return CommandStats(ranks=(rank,) * self.spec.nbr_of_ranks)
+
+    def idle_columns_per_s(self) -> tuple[np.ndarray, float]:
+        """The model's idle DIMM per second (:meth:`idle_stats` of 1 s, :meth:`linear`), computed once."""
+        if self._idle_per_s is None:
+            self._idle_per_s = self.linear(self.idle_stats(1.0))
+        return self._idle_per_s
 
     def stretched(self, stats: CommandStats, window_s: float) -> CommandStats:
         """``stats`` stretched to ``window_s`` exactly as the calibrator does."""
@@ -191,9 +222,9 @@ class DramModel:
 
     def linear(self, stats: CommandStats) -> tuple[np.ndarray, float]:
         """``energy_columns(spec, stats)`` as (columns, constant_j)."""
-        from hdeem_watch.dram.energy import energy_columns
+        from hdeem_watch.dram.linear import linear_energy
 
-        lin = energy_columns(self.spec, stats)
+        lin = linear_energy(self.spec, stats)
         return np.asarray(lin.columns, dtype=float), float(lin.constant_j)
 
     def burst_j_per_a(self) -> float:
@@ -256,7 +287,7 @@ def effective_currents(model: Model, currents: np.ndarray, io_j_per_line: float,
     out = np.broadcast_to(model.datasheet, truth.shape).copy()
     idx = [names.index(n) for n in calibrated if n in names]
     out[..., idx] = truth[..., idx]
-    f_ref = float(spec.trfc) / float(spec.timings["REFI"])
+    f_ref = float(spec.trfc) / refresh_interval(spec)
     per_dimm_w = offsets_w / len(model.layout.dimm_names)
     i5b = names.index("idd5b")
     refresh_w = (truth[..., i5b] - model.datasheet[i5b]) * model.standby_w_per_a() * f_ref
@@ -329,11 +360,7 @@ class RunPlan:
 
 def idle_power_w(model: Model, currents: np.ndarray) -> np.ndarray:
     """Idle power (W) per DIMM for per-DIMM ``currents`` (DIMMs × names)."""
-    cached = getattr(model, "_idle_per_s", None)
-    if cached is None:
-        cached = model.linear(model.idle_stats(1.0))
-        model._idle_per_s = cached  # type: ignore[attr-defined]
-    cols, const = cached
+    cols, const = model.idle_columns_per_s()
     return np.asarray(currents @ cols + const, dtype=float)
 
 

@@ -11,8 +11,8 @@ IDD0, times the sensor gain, plus the sensor offsets as a shift of every calibra
 The effects marked ``"no"`` are what keeps a fit a few percent off.
 
 Example:
-    >>> from hdeem_watch.sources.sim_currents import PartCurrents
-    >>> from hdeem_watch.sources.sim_plan import TruthNode
+    >>> from hdeem_watch.sim.currents import PartCurrents
+    >>> from hdeem_watch.sim.plan import TruthNode
     >>> node = TruthNode(1)
     >>> parts = PartCurrents(node.model.names, node.model.datasheet, 1, pairs=node.layout.dimm_sensor)
     >>> flat = dict.fromkeys(node.layout.channels, 0.0)
@@ -28,10 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from hdeem_watch.sources.sim_currents import PartCurrents
-from hdeem_watch.sources.sim_model import CALIBRATED
-from hdeem_watch.sources.sim_plan import TruthNode
-from hdeem_watch.sources.sim_power import refresh_per_s
+from hdeem_watch.dram.stats import refresh_interval
+from hdeem_watch.sim.currents import PartCurrents
+from hdeem_watch.sim.model import CALIBRATED
+from hdeem_watch.sim.plan import TruthNode
+from hdeem_watch.sim.power import refresh_per_s
 
 #: Each effect the sim has beyond the model, whether a node-level fit absorbs it, and why.
 EFFECTS: tuple[tuple[str, str, str], ...] = (
@@ -85,7 +86,7 @@ def absorbable_currents(node: TruthNode, currents: np.ndarray, temps_c: np.ndarr
         idle_cols, idle_const = node.model_idle_columns()
         model_idle_w = out @ idle_cols + idle_const
         out[:, index["idd2n"]] += (node.idle_power_w(currents, temps_c) - model_idle_w) / idle_cols[index["idd2n"]]
-    f_ref = float(spec.trfc) / float(spec.timings["REFI"])
+    f_ref = float(spec.trfc) / refresh_interval(spec)
     if counted:  # the fit holds IDD5B at its datasheet value: the refresh power's deviation is a constant power
         i5b = index["idd5b"]
         refresh = (currents[:, i5b] - model.datasheet[i5b]) * f_ref / (1.0 - f_ref)

@@ -1,11 +1,11 @@
 """The simulated node's hidden DRAM commands, cumulative since open: what its memory controllers issue.
 
-The sim's truth generator gives each run (:class:`~hdeem_watch.sources.sim_model.RunPlan`) and
-each opaque job (:class:`~hdeem_watch.sources.sim_jobs.JobPlan`) per-DIMM statistics; between them
-every DIMM is idle (precharge power-down, woken to refresh: :func:`~hdeem_watch.sources.sim_power.idle_rank`).
+The sim's truth generator gives each run (:class:`~hdeem_watch.sim.model.RunPlan`) and
+each opaque job (:class:`~hdeem_watch.sim.jobs.JobPlan`) per-DIMM statistics; between them
+every DIMM is idle (precharge power-down, woken to refresh: :func:`~hdeem_watch.sim.power.idle_rank`).
 :class:`HiddenCommands` adds them up over sim time, per DIMM and rank, as an array of the
 :class:`~hdeem_watch.dram.stats.RankStats` fields — the ground truth from which the memory-controller
-counters of the sim are made (``hdeem_watch.counters.sim_counters``, in the daemon's counter source).
+counters of the sim are made (``hdeem_watch.sim.imc_events``, in the daemon's counter source).
 
 A kernel run's statistics accrue linearly over its traffic; a run stopped before its traffic ended
 books the rest at the stop (as its energy is booked: the sim's ``owed`` energy). A job's phases accrue
@@ -28,9 +28,9 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.dram.stats import CommandStats, RankStats
-from hdeem_watch.sources.sim_jobs import JobPlan
-from hdeem_watch.sources.sim_model import RunPlan
-from hdeem_watch.sources.sim_power import idle_rank
+from hdeem_watch.sim.jobs import JobPlan
+from hdeem_watch.sim.model import RunPlan
+from hdeem_watch.sim.power import idle_rank
 
 #: The RankStats fields, in array order.
 FIELDS = tuple(f.name for f in fields(RankStats))

@@ -1,6 +1,6 @@
 """The simulated node's noise-free signal: each channel's mean power over its sample intervals.
 
-Pure functions of the idle power per DIMM, the active :class:`~hdeem_watch.sources.sim_model.RunPlan`
+Pure functions of the idle power per DIMM, the active :class:`~hdeem_watch.sim.model.RunPlan`
 objects and the channel's board offset. A sample ending at ``t`` is the mean power over
 ``(t − period, t]``; a run adds its DRAM excess over the overlap of that interval with its traffic
 and its cores' power over the overlap with its CPU load (threads fill socket 0 first). A sensor
@@ -22,9 +22,9 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-from hdeem_watch.sources.sim_jobs import JobPlan
-from hdeem_watch.sources.sim_layout import TAURUS, SimLayout
-from hdeem_watch.sources.sim_model import RunPlan
+from hdeem_watch.sim.jobs import JobPlan
+from hdeem_watch.sim.layout import TAURUS, SimLayout
+from hdeem_watch.sim.model import RunPlan
 
 #: A run's plan or an opaque job's.
 Plan = RunPlan | JobPlan
