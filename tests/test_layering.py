@@ -442,15 +442,10 @@ def test_modules_do_not_repeat_their_package_name() -> None:
     assert not repeated, "modules repeating their package's name:\n" + "\n".join(repeated)
 
 
-#: Daemon modules left out of the sub-package check: ``counter_source`` (the sim's counters and the
-#: perf and replay counter sources) leaves ``daemon/`` when the simulated node becomes its own package.
-DAEMON_IN_TRANSIT = {"hdeem_watch.daemon.counter_source"}
-
-
 def daemon_part(module: str) -> str | None:
     """The sub-package (or top-level module) of ``daemon/`` that ``module`` belongs to."""
     parts = module.split(".")
-    if len(parts) < 3 or parts[1] != "daemon" or module in DAEMON_IN_TRANSIT:
+    if len(parts) < 3 or parts[1] != "daemon":
         return None
     return ".".join(parts[:3])
 
