@@ -382,8 +382,7 @@ FAMILY_SIZE = 3
 OLD_FAMILIES: dict[str, int] = {
     "cli/model": 4,
     "dram/command": 3,
-    "dram/energy": 3,
-    "dram/memspec": 5,
+    "dram/memspec": 4,
     "dram/trace": 4,
     "report/figures": 3,
     "sources/hdeem": 4,
@@ -443,15 +442,10 @@ def test_modules_do_not_repeat_their_package_name() -> None:
     assert not repeated, "modules repeating their package's name:\n" + "\n".join(repeated)
 
 
-#: Daemon modules left out of the sub-package check: ``counter_source`` (the sim's counters and the
-#: perf and replay counter sources) leaves ``daemon/`` when the simulated node becomes its own package.
-DAEMON_IN_TRANSIT = {"hdeem_watch.daemon.counter_source"}
-
-
 def daemon_part(module: str) -> str | None:
     """The sub-package (or top-level module) of ``daemon/`` that ``module`` belongs to."""
     parts = module.split(".")
-    if len(parts) < 3 or parts[1] != "daemon" or module in DAEMON_IN_TRANSIT:
+    if len(parts) < 3 or parts[1] != "daemon":
         return None
     return ".".join(parts[:3])
 
