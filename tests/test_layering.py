@@ -62,7 +62,7 @@ MAX_FUNCTION_LINES = 80
 #: ``path:qualified name`` with their length then. One may shrink (then lower or drop its entry),
 #: never grow; a function not listed may not pass the limit.
 LONG_FUNCTIONS: dict[str, int] = {
-    "hdeem_watch/calibrate/fit.py:fit": 151,
+    "hdeem_watch/calibrate/fit.py:fit": 134,
 }
 
 

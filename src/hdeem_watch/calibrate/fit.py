@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -205,22 +206,9 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
     params = sol.x * param_scale
     ci_units = ci * param_scale[:, None]
 
-    # Observability of the prepared design (relative rows, datasheet-scaled columns).
-    sv = np.concatenate([sv, np.zeros(max(0, p - sv.size))])
-    rank = int(np.count_nonzero(sv > settings.rank_tol * (sv.max() if sv.size else 0.0)))
-    cond = float(sv.max() / sv.min()) if sv.size and sv.min() > 0 else math.inf
-    norms = np.linalg.norm(design, axis=0)
-    safe = np.where(norms > 0, norms, 1.0)
-    correlation = (design.T @ design) / np.outer(safe, safe)
-    correlation[norms == 0, :] = np.nan
-    correlation[:, norms == 0] = np.nan
-    rel_cols = raw[:, :k] / measured[:, None]
-    sensitivity = np.sqrt(np.mean(rel_cols ** 2, axis=0))
-    sigma = max(math.sqrt(s2) if not math.isnan(s2) else 0.0, settings.noise_floor)
-    unit_cov = np.linalg.inv(solve.information(design, penalty))
-    reference = np.maximum(np.abs(sol.x[:k]), 0.05)  # relative to the calibrated value (≥ 5 % of scale)
-    half_rel = 1.96 * sigma * np.sqrt(np.diag(unit_cov)[:k]) / reference
-    identifiable = (sensitivity >= settings.min_sensitivity) & (half_rel <= settings.max_rel_ci)
+    sv, rank, cond, correlation = _observability(design, sv, p, settings.rank_tol)
+    sensitivity, identifiable = _identifiable(design, raw[:, :k] / measured[:, None], sol.x[:k], s2, penalty,
+                                              settings)
 
     # Errors: datasheet model, calibrated model, leave-one-out.
     before_j = cols @ all_a + const
@@ -233,16 +221,12 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
             loo_prep = solve.loo_residuals(design, target, lower, upper, sol, exact=exact,
                                            prior_weight=lam, prior_target=x0, ridge=ridge, rules=rules)
             loo_j = np.where(row > 0, measured + loo_prep / np.where(row > 0, row, 1.0), np.nan)
-    status = "underdetermined" if n < p else "rank-deficient" if rank < p else "ok"
     at_bound = tuple({-1: "lower", 1: "upper"}.get(int(a)) for a in sol.active[:k])
     rules_held = tuple(c.rule for c, held in zip(limits.couplings if limits and rules else (), sol.held) if held)
+    status = "underdetermined" if n < p else "rank-deficient" if rank < p else "ok"
     if status == "ok" and (any(at_bound) or rules_held):
         status = "at-bound"
-    loo_list = [v if v == v and abs(v) != math.inf else None for v in loo_j.tolist()]
-    runs = tuple(
-        {"name": obs.name, "measured_j": m, "before_j": b, "after_j": a, "loo_j": lo, "weight": w}
-        for obs, m, b, a, lo, w in zip(observations, measured.tolist(), before_j.tolist(), after_j.tolist(),
-                                       loo_list, weight.tolist()))
+    runs = _run_rows(observations, measured, before_j, after_j, loo_j, weight)
     return FitResult(
         currents=chosen,
         datasheet_a=datasheet,
@@ -272,6 +256,47 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
         model=FitModel(spec=spec, names=names, index=index, scales_a=scales, intercept_scale_j=b_scale,
                        info=solve.information(design, penalty), params=params),
     )
+
+
+def _observability(design: np.ndarray, sv: np.ndarray, p: int,
+                   rank_tol: float) -> tuple[np.ndarray, int, float, np.ndarray]:
+    """Observability of the prepared design (relative rows, datasheet-scaled columns): its ``p``
+    singular values (zero-padded), rank, condition number and column correlation (NaN for a column
+    that is all zero)."""
+    sv = np.concatenate([sv, np.zeros(max(0, p - sv.size))])
+    rank = int(np.count_nonzero(sv > rank_tol * (sv.max() if sv.size else 0.0)))
+    cond = float(sv.max() / sv.min()) if sv.size and sv.min() > 0 else math.inf
+    norms = np.linalg.norm(design, axis=0)
+    safe = np.where(norms > 0, norms, 1.0)
+    correlation = (design.T @ design) / np.outer(safe, safe)
+    correlation[norms == 0, :] = np.nan
+    correlation[:, norms == 0] = np.nan
+    return sv, rank, cond, correlation
+
+
+def _identifiable(design: np.ndarray, rel_cols: np.ndarray, x: np.ndarray, s2: float, penalty: np.ndarray,
+                  settings: FitSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Each current's sensitivity (RMS of its relative columns ``rel_cols``) and whether it is
+    identifiable: sensitive enough and its 95 % half-width, relative to its prepared value ``x``
+    (at least 5 % of its scale), within ``settings.max_rel_ci``."""
+    k = rel_cols.shape[1]
+    sensitivity = np.sqrt(np.mean(rel_cols ** 2, axis=0))
+    sigma = max(math.sqrt(s2) if not math.isnan(s2) else 0.0, settings.noise_floor)
+    unit_cov = np.linalg.inv(solve.information(design, penalty))
+    reference = np.maximum(np.abs(x), 0.05)
+    half_rel = 1.96 * sigma * np.sqrt(np.diag(unit_cov)[:k]) / reference
+    return sensitivity, (sensitivity >= settings.min_sensitivity) & (half_rel <= settings.max_rel_ci)
+
+
+def _run_rows(observations: Sequence[Observation], measured: np.ndarray, before_j: np.ndarray,
+              after_j: np.ndarray, loo_j: np.ndarray, weight: np.ndarray) -> tuple[dict[str, Any], ...]:
+    """Per run: name, measured, datasheet-model, calibrated-model and leave-one-out energies (None
+    where there is no leave-one-out value) and weight."""
+    loo_list = [v if v == v and abs(v) != math.inf else None for v in loo_j.tolist()]
+    return tuple(
+        {"name": obs.name, "measured_j": m, "before_j": b, "after_j": a, "loo_j": lo, "weight": w}
+        for obs, m, b, a, lo, w in zip(observations, measured.tolist(), before_j.tolist(), after_j.tolist(),
+                                       loo_list, weight.tolist()))
 
 
 def _rules(limits: PhysicalLimits | None, scales: np.ndarray, n_extra: int) -> tuple[np.ndarray, np.ndarray] | None:
