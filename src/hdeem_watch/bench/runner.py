@@ -334,8 +334,10 @@ def _probe(probe: Any, more: Any) -> float:
     fastest, spent, rounds, passes = math.inf, 0.0, 0, 1
     while rounds < PROBE_ROUNDS and spent < PROBE_S:
         more.value = passes
-        probe.wait(WORKER_TIMEOUT_S)
+        # timed from before the start barrier: a parent descheduled just after it would otherwise
+        # start its clock late and time the passes too short (a pass count 60x too high under load)
         m0 = time.perf_counter_ns()
+        probe.wait(WORKER_TIMEOUT_S)
         probe.wait(WORKER_TIMEOUT_S)
         took = (time.perf_counter_ns() - m0) / 1e9
         fastest, spent, rounds = min(fastest, took / passes), spent + took, rounds + 1
