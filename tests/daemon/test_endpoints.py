@@ -155,7 +155,8 @@ sys.stdin.readline()
 @pytest.mark.slow
 def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factory: Any, receive: Any) -> None:
     """A subscription flood costs the daemon a bounded amount of memory; other subscribers come back."""
-    daemon = daemon_factory("--speed", "10").start()
+    # without counters: the memory measured is the flood's, not the sim counters' first allocations
+    daemon = daemon_factory("--speed", "10", "--counters", "none").start()
     process = psutil.Process(daemon.proc.pid)
     legit = daemon.subscriber(protocol.subscription(daemon.node, "samples"))  # connected before the flood
     assert receive(legit, 5.0, until=lambda m: len(m) >= 1)
