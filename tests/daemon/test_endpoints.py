@@ -155,8 +155,7 @@ sys.stdin.readline()
 @pytest.mark.slow
 def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factory: Any, receive: Any) -> None:
     """A subscription flood costs the daemon a bounded amount of memory; other subscribers come back."""
-    # without counters: the memory measured is the flood's, not the sim counters' first allocations
-    daemon = daemon_factory("--speed", "10", "--counters", "none").start()
+    daemon = daemon_factory("--speed", "10").start()
     process = psutil.Process(daemon.proc.pid)
     legit = daemon.subscriber(protocol.subscription(daemon.node, "samples"))  # connected before the flood
     assert receive(legit, 5.0, until=lambda m: len(m) >= 1)
@@ -168,14 +167,21 @@ def test_200000_subscriptions_do_not_grow_the_daemon_without_bound(daemon_factor
         deadline = time.monotonic() + 30.0  # the daemon reads the flood until it drops the connections
         while "distinct subscriptions" not in daemon.stderr() and time.monotonic() < deadline:
             time.sleep(0.05)
-        time.sleep(1.0)  # the flood's socket reconnects and floods again: the bound must hold through that too
-        growth_mib = (process.memory_info().rss - rss_before) / 2**20
+        # the flood's socket reconnects and floods again: the bound must hold through that too
+        growth_mib = []
+        for _ in range(6):
+            time.sleep(0.5)
+            growth_mib.append((process.memory_info().rss - rss_before) / 2**20)
     finally:
         assert flood.stdin is not None
         flood.stdin.close()
         flood.wait(timeout=20)
     assert daemon.proc.poll() is None
-    assert growth_mib < 60, f"RSS grew {growth_mib:.0f} MiB (libzmq alone holds ~160 MiB for 200,000 prefixes)"
+    # Bounded: the daemon once kept every prefix itself (520 MiB for 200,000); libzmq's own trie of one
+    # flood (~160 MiB) may still be held, or kept by the allocator, when RSS is read (16-169 MiB seen
+    # over six runs of this test, stop 34); and the re-floods do not add up.
+    assert max(growth_mib) < 250, f"RSS grew {max(growth_mib):.0f} MiB"
+    assert growth_mib[-1] - growth_mib[1] < 60, f"RSS kept growing through the re-floods: {growth_mib}"
     assert "distinct subscriptions" in daemon.stderr()
     sub = daemon.subscriber(protocol.subscription(daemon.node, "samples"))
     assert receive(sub, 5.0, until=lambda m: len(m) >= 3)
