@@ -6,14 +6,12 @@ its own IMC counters (``counters = "sim"``), on a fake clock (``benchmarks/count
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
 from pathlib import Path
-from types import ModuleType
 
 import pytest
 
+from counter_rig import CounterSimNode
 from hdeem_watch.counters.source import CounterSnapshot
 from hdeem_watch.daemon.book.runs import OPAQUE_KERNEL, parse_run_args
 from hdeem_watch.daemon.counters.windows import CounterWindows
@@ -21,18 +19,6 @@ from hdeem_watch.sim.jobs import JOB_KERNEL
 
 # One worker runs the module, so its module-scoped fixture is built once, not once per worker.
 pytestmark = pytest.mark.xdist_group("daemon-counter_runs")
-
-
-def _benchmark_module(name: str) -> ModuleType:
-    """A module of ``benchmarks/`` (the counter rig is the counter benchmark's, and these tests')."""
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[2] / "benchmarks" / f"{name}.py")
-        assert spec is not None and spec.loader is not None
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
-    return sys.modules[name]
-
-CounterSimNode = _benchmark_module("counter_rig").CounterSimNode
 
 CURRENTS = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w", "idd2p", "idd3p")
 

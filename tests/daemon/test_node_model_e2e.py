@@ -13,31 +13,16 @@ other nodes as well as there.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import pytest
 
+from counter_rig import MEMSPEC, CounterSimNode
 from hdeem_watch.dram.node import NodeTopology
 from hdeem_watch.node.description import describe_node
 from hdeem_watch.node.overrides import apply_overrides, parse_node_table
 from hdeem_watch.node.topology import topology_from_node
-
-
-def _benchmark_module(name: str) -> ModuleType:
-    """A module of ``benchmarks/`` (the counter rig is the counter benchmark's, and these tests')."""
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[2] / "benchmarks" / f"{name}.py")
-        assert spec is not None and spec.loader is not None
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
-    return sys.modules[name]
-
-MEMSPEC = _benchmark_module("counter_rig").MEMSPEC
-CounterSimNode = _benchmark_module("counter_rig").CounterSimNode
 
 CURRENTS = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
 #: (kernel, threads, elements, repeat): idle runs and kernels at several thread counts, all fitting on
