@@ -34,6 +34,7 @@ from hdeem_watch.calibrate.group_fits import source_groups
 from hdeem_watch.calibrate.run_model import RunModeller
 from hdeem_watch.counters.source import CounterSnapshot, window_counts
 from hdeem_watch.demo.schedule import ELEMENTS, THREAD_ROUNDS, DemoRun, demo_round
+from hdeem_watch.run_record import RunRecord
 from hdeem_watch.sim.counters import SimCounters
 from hdeem_watch.sources.base import RunEvent
 from hdeem_watch.sources.sim import SimSource
@@ -160,7 +161,7 @@ class SimRuns:
         counted = None if count_start is None else self._window_counters(count_start)
         energy = {c: stop[c] - start[c] for c in stop}
         window_s = (self._mono_ns - t_start) * 1e-9
-        record = {"run_id": run_id, "name": f"{spec.kernel}-{spec.threads}t", "kernel": spec.kernel,
+        record = {"run_id": run_id, "state": "modelling", "name": f"{spec.kernel}-{spec.threads}t", "kernel": spec.kernel,
                   "threads": spec.threads, "elements": elements, "repeat": spec.repeat, "window_s": window_s,
                   "t_start_ns": _T0_WALL_NS + t_start, "t_stop_ns": _T0_WALL_NS + self._mono_ns,
                   "energy_j": energy, "dram_energy_j": sum(energy[c] for c in self.dram),
@@ -168,7 +169,7 @@ class SimRuns:
                                **({"holdout": True} if run.holdout else {})}}
         if counted is not None:
             record["counters"] = counted
-        model, _fit, error = self.modeller.evaluate(record)
+        model, _fit, error = self.modeller.evaluate(RunRecord.from_dict(record))
         return FinishedRun(self.index, self.t_s, record, model, error, tuple(self.modeller.take_alarms()))
 
     def _window_counters(self, start: CounterSnapshot) -> dict[str, Any]:

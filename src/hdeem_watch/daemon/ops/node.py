@@ -376,14 +376,14 @@ class Operations:
         """Model the run and refit on the model worker; store the result; then publish and reply."""
         calibration = self.calibration
         self.waiters.setdefault(record.run_id, [])
-        body = record.to_dict()
+        snapshot = dataclasses.replace(record)  # the worker's own copy of the record
 
         def job() -> Modelled:
             modeller = calibration.modeller  # read on the worker, after the job that built it
             if modeller is None:
                 raise RuntimeError("the model is not available (it failed to build; see the log)")
             try:
-                result = modeller.evaluate(body)
+                result = modeller.evaluate(snapshot)
             except Exception as exc:  # a model bug must not lose the run or its reply
                 log.exception("modelling run %s failed", record.run_id)
                 result = RunModelResult(None, None, f"model failed: {type(exc).__name__}: {exc}")
