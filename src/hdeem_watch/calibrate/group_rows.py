@@ -176,7 +176,7 @@ class MeasuredRun:
         samples: sensor samples inside the window per sensor (None: ``window_s × nominal rate``).
         kind: runs of one kind (:func:`run_kind`) are compared by the drift detector (None: the
             part of ``name`` after its first ``:``).
-        traffic_s: how long the run's traffic lasted, when announced (:func:`announced_traffic_s`):
+        traffic_s: how long the run's traffic lasted, when announced (``RunRecord.traffic_s``):
             the rest of the window is modelled as standby.
     """
 
