@@ -139,14 +139,146 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
         InputError: an unknown current, bad bounds, no runs, or fewer runs than unknowns.
     """
     options = options or FitOptions()
-    settings, intercept, prior_weight = options.settings, options.intercept, options.prior_weight
+    problem = _prepare(observations, spec, options, weights)
+    sol = solve.solve_bounded(problem.design, problem.target, problem.lower, problem.upper, **problem.solver)
+    k, p, n, intercept = problem.k, problem.p, problem.n, problem.intercept
+    dof = int(np.count_nonzero(problem.weight > 0)) - sol.free_dimension
+    s2 = sol.rss / dof if dof > 0 else math.nan
+    ci, method = _uncertainty(problem, sol, options, s2, dof)
+    param_scale = np.concatenate([problem.scales, [problem.b_scale] if intercept else []])
+    params = sol.x * param_scale
+    ci_units = ci * param_scale[:, None]
+
+    sv, rank, cond, correlation = _observability(problem.design, problem.singular_values, p,
+                                                 options.settings.rank_tol)
+    sensitivity, identifiable = _identifiable(problem.design, problem.raw[:, :k] / problem.measured[:, None],
+                                              sol.x[:k], s2, problem.penalty, options.settings)
+
+    # Errors: datasheet model, calibrated model, leave-one-out.
+    measured = problem.measured
+    before_j = problem.cols @ problem.all_a + problem.const
+    after_j = problem.x_a @ params[:k] + problem.const_eff + (params[k] if intercept else 0.0)
+    loo_j = _loo_energies(problem, sol, options.loo)
+    at_bound = tuple({-1: "lower", 1: "upper"}.get(int(a)) for a in sol.active[:k])
+    couplings = problem.limits.couplings if problem.limits and problem.rules else ()
+    rules_held = tuple(c.rule for c, held in zip(couplings, sol.held) if held)
+    status = "underdetermined" if n < p else "rank-deficient" if rank < p else "ok"
+    if status == "ok" and (any(at_bound) or rules_held):
+        status = "at-bound"
+    return FitResult(
+        currents=problem.chosen,
+        datasheet_a=problem.datasheet,
+        calibrated_a=params[:k],
+        ci95_a=ci_units[:k],
+        identifiable=identifiable,
+        at_bound=at_bound,
+        rules_held=rules_held,
+        sensitivity=sensitivity,
+        intercept_fitted=intercept,
+        intercept_j=float(params[k]) if intercept else 0.0,
+        intercept_ci95_j=(float(ci_units[k, 0]), float(ci_units[k, 1])) if intercept else (0.0, 0.0),
+        error_before=_mare(before_j, measured),
+        error_after=_mare(after_j, measured),
+        error_loo=_mare(loo_j, measured),
+        singular_values=sv,
+        condition_number=cond,
+        rank=rank,
+        correlation=correlation,
+        n_runs=n,
+        dof=dof,
+        noise_rel=math.sqrt(s2) if not math.isnan(s2) else math.nan,
+        status=status,
+        uncertainty=method,
+        runs=_run_rows(observations, measured, before_j, after_j, loo_j, problem.weight),
+        time_ns=time_ns,
+        model=FitModel(spec=spec, names=problem.names, index=problem.index, scales_a=problem.scales,
+                       intercept_scale_j=problem.b_scale, info=solve.information(problem.design, problem.penalty),
+                       params=params),
+    )
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """The bounded least-squares problem :func:`fit` solves, prepared: relative rows (each run's
+    residual divided by its measured energy, times the square root of its weight), columns scaled
+    by the datasheet value (unknowns are fractions of it), the intercept scaled by the median run."""
+
+    names: tuple[str, ...]
+    chosen: tuple[str, ...]
+    index: np.ndarray  # the chosen currents' columns among ``names``
+    all_a: np.ndarray  # the memspec's value of every current
+    limits: PhysicalLimits | None
+    rules: tuple[np.ndarray, np.ndarray] | None  # the couplings as solver rules (None: not kept)
+    cols: np.ndarray  # per run and current: the energy per ampere
+    const: np.ndarray  # per run: the energy no current covers
+    const_eff: np.ndarray  # ... plus the currents not fitted, at their memspec values
+    measured: np.ndarray
+    weight: np.ndarray  # normalised to a mean of 1 over the weighted runs
+    raw: np.ndarray  # the scaled columns before the row factors
+    design: np.ndarray
+    target: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    prior_target: np.ndarray
+    prior_weight: np.ndarray
+    ridge: float
+    singular_values: np.ndarray
+    scales: np.ndarray
+    b_scale: float
+    intercept: bool
+
+    @property
+    def k(self) -> int:
+        """The number of fitted currents."""
+        return len(self.chosen)
+
+    @property
+    def p(self) -> int:
+        """The number of unknowns (currents and the intercept)."""
+        return self.k + int(self.intercept)
+
+    @property
+    def n(self) -> int:
+        """The number of runs."""
+        return int(self.measured.size)
+
+    @property
+    def datasheet(self) -> np.ndarray:
+        """The fitted currents' memspec values."""
+        return self.all_a[self.index]
+
+    @property
+    def x_a(self) -> np.ndarray:
+        """The fitted currents' columns."""
+        return self.cols[:, self.index]
+
+    @property
+    def penalty(self) -> np.ndarray:
+        """The diagonal the prior and the ridge add to the information."""
+        return self.prior_weight + self.ridge
+
+    @property
+    def row(self) -> np.ndarray:
+        """Each run's row factor (its weight's root over its measured energy)."""
+        return np.sqrt(self.weight) / self.measured
+
+    @property
+    def solver(self) -> dict[str, Any]:
+        """The prior, ridge and rules, as the solver's keyword arguments."""
+        return {"prior_weight": self.prior_weight, "prior_target": self.prior_target, "ridge": self.ridge,
+                "rules": self.rules}
+
+
+def _prepare(observations: Sequence[Observation], spec: SpecLike, options: FitOptions,
+             weights: np.ndarray | None) -> _Problem:
+    """Check the request and build the prepared problem (see :class:`_Problem`)."""
+    intercept = options.intercept
     names = tuple(options.names) if options.names is not None else current_names(spec)
     chosen = _check_currents(options.currents, names, spec)
     if not observations:
         raise InputError("runs: no runs to calibrate on")
-    k = len(chosen)
+    k, n = len(chosen), len(observations)
     p = k + int(intercept)
-    n = len(observations)
     if options.require_overdetermined and n < p:
         raise InputError(f"runs: {n} runs for {p} unknowns ({', '.join(chosen)}"
                          f"{', intercept' if intercept else ''}); need at least {p}")
@@ -169,93 +301,48 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
     fixed = np.ones(len(names), dtype=bool)
     fixed[index] = False
     const_eff = const + cols[:, fixed] @ all_a[fixed]
-    x_a = cols[:, index]
-    y = measured - const_eff
     b_scale = float(np.median(measured)) if intercept else 0.0
 
     row = np.sqrt(weight) / measured
-    raw = np.hstack([x_a * scales, np.ones((n, 1)) * b_scale]) if intercept else x_a * scales
+    raw = np.hstack([cols[:, index] * scales, np.ones((n, 1)) * b_scale]) if intercept else cols[:, index] * scales
     design = raw * row[:, None]
-    target = y * row
     lower = np.concatenate([lower_a / scales, [0.0] if intercept else []])
     upper = np.concatenate([upper_a / scales, [np.inf] if intercept else []])
     x0 = np.concatenate([datasheet / scales, [0.0] if intercept else []])
-    lam = np.concatenate([np.full(k, float(prior_weight)), [0.0] if intercept else []])
-    x0 = np.clip(x0, lower, upper)
+    sv = np.linalg.svd(design, compute_uv=False)
+    return _Problem(
+        names=names, chosen=chosen, index=index, all_a=all_a, limits=limits,
+        rules=_rules(limits, scales, int(intercept)) if options.rules else None,
+        cols=cols, const=const, const_eff=const_eff, measured=measured, weight=weight, raw=raw, design=design,
+        target=(measured - const_eff) * row, lower=lower, upper=upper, prior_target=np.clip(x0, lower, upper),
+        prior_weight=np.concatenate([np.full(k, float(options.prior_weight)), [0.0] if intercept else []]),
+        ridge=solve.RIDGE_RELATIVE * max(float(sv.max()) ** 2 if sv.size else 0.0, 1e-300),
+        singular_values=sv, scales=scales, b_scale=b_scale, intercept=intercept)
 
-    sv = np.linalg.svd(design, compute_uv=False) if n else np.zeros(0)
-    ridge = solve.RIDGE_RELATIVE * max(float(sv.max()) ** 2 if sv.size else 0.0, 1e-300)
-    rules = _rules(limits, scales, int(intercept)) if options.rules else None
-    sol = solve.solve_bounded(design, target, lower, upper, prior_weight=lam, prior_target=x0, ridge=ridge,
-                              rules=rules)
-    penalty = lam + ridge
-    free = sol.active == 0
-    n_eff = int(np.count_nonzero(weight > 0))
-    dof = n_eff - sol.free_dimension
-    s2 = sol.rss / dof if dof > 0 else math.nan
-    cov_active, cov_full = solve.active_set_covariance(design, free, 1.0 if math.isnan(s2) else s2, penalty,
-                                                       sol.held_rows)
-    ci = _intervals(sol, lower, upper, cov_active, cov_full, s2, dof)
-    method = "analytic-active-set"
+
+def _uncertainty(problem: _Problem, sol: solve.BoundedSolution, options: FitOptions, s2: float,
+                 dof: int) -> tuple[np.ndarray, str]:
+    """The 95 % intervals of the prepared parameters (``p × 2``) and the method's name."""
     if options.uncertainty == "bootstrap" and dof > 0:
-        ci = solve.bootstrap(design, target, lower, upper, sol, samples=options.bootstrap_samples,
-                             seed=options.seed, dof=dof, prior_weight=lam, prior_target=x0, ridge=ridge,
-                             rules=rules)
-        method = f"residual-bootstrap-{options.bootstrap_samples}"
-    param_scale = np.concatenate([scales, [b_scale] if intercept else []])
-    params = sol.x * param_scale
-    ci_units = ci * param_scale[:, None]
+        ci = solve.bootstrap(problem.design, problem.target, problem.lower, problem.upper, sol,
+                             samples=options.bootstrap_samples, seed=options.seed, dof=dof, **problem.solver)
+        return ci, f"residual-bootstrap-{options.bootstrap_samples}"
+    cov_active, cov_full = solve.active_set_covariance(problem.design, sol.active == 0, 1.0 if math.isnan(s2) else s2,
+                                                       problem.penalty, sol.held_rows)
+    return _intervals(sol, problem.lower, problem.upper, cov_active, cov_full, s2, dof), "analytic-active-set"
 
-    sv, rank, cond, correlation = _observability(design, sv, p, settings.rank_tol)
-    sensitivity, identifiable = _identifiable(design, raw[:, :k] / measured[:, None], sol.x[:k], s2, penalty,
-                                              settings)
 
-    # Errors: datasheet model, calibrated model, leave-one-out.
-    before_j = cols @ all_a + const
-    after_j = x_a @ params[:k] + const_eff + (params[k] if intercept else 0.0)
-    if options.loo == "none" or n < 2:
-        loo_j = np.full(n, np.nan)
-    else:
-        exact = options.loo == "exact" or (options.loo == "auto" and n <= LOO_EXACT_MAX_RUNS)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            loo_prep = solve.loo_residuals(design, target, lower, upper, sol, exact=exact,
-                                           prior_weight=lam, prior_target=x0, ridge=ridge, rules=rules)
-            loo_j = np.where(row > 0, measured + loo_prep / np.where(row > 0, row, 1.0), np.nan)
-    at_bound = tuple({-1: "lower", 1: "upper"}.get(int(a)) for a in sol.active[:k])
-    rules_held = tuple(c.rule for c, held in zip(limits.couplings if limits and rules else (), sol.held) if held)
-    status = "underdetermined" if n < p else "rank-deficient" if rank < p else "ok"
-    if status == "ok" and (any(at_bound) or rules_held):
-        status = "at-bound"
-    runs = _run_rows(observations, measured, before_j, after_j, loo_j, weight)
-    return FitResult(
-        currents=chosen,
-        datasheet_a=datasheet,
-        calibrated_a=params[:k],
-        ci95_a=ci_units[:k],
-        identifiable=identifiable,
-        at_bound=at_bound,
-        rules_held=rules_held,
-        sensitivity=sensitivity,
-        intercept_fitted=intercept,
-        intercept_j=float(params[k]) if intercept else 0.0,
-        intercept_ci95_j=(float(ci_units[k, 0]), float(ci_units[k, 1])) if intercept else (0.0, 0.0),
-        error_before=_mare(before_j, measured),
-        error_after=_mare(after_j, measured),
-        error_loo=_mare(loo_j, measured),
-        singular_values=sv,
-        condition_number=cond,
-        rank=rank,
-        correlation=correlation,
-        n_runs=n,
-        dof=dof,
-        noise_rel=math.sqrt(s2) if not math.isnan(s2) else math.nan,
-        status=status,
-        uncertainty=method,
-        runs=runs,
-        time_ns=time_ns,
-        model=FitModel(spec=spec, names=names, index=index, scales_a=scales, intercept_scale_j=b_scale,
-                       info=solve.information(design, penalty), params=params),
-    )
+def _loo_energies(problem: _Problem, sol: solve.BoundedSolution, loo: str) -> np.ndarray:
+    """Each run's energy predicted by the fit without it (NaN where there is none)."""
+    n = problem.n
+    if loo == "none" or n < 2:
+        return np.full(n, np.nan)
+    exact = loo == "exact" or (loo == "auto" and n <= LOO_EXACT_MAX_RUNS)
+    row = problem.row
+    with np.errstate(divide="ignore", invalid="ignore"):
+        residuals = solve.loo_residuals(problem.design, problem.target, problem.lower, problem.upper, sol,
+                                        exact=exact, **problem.solver)
+        return np.where(row > 0, problem.measured + residuals / np.where(row > 0, row, 1.0), np.nan)
 
 
 def _observability(design: np.ndarray, sv: np.ndarray, p: int,

@@ -65,20 +65,20 @@ def imc_role_counts(stats: CommandStats, table: EventTable, *, clocked_sref_shar
     ranks = stats.ranks
     total = ranks[0].cycles_total if ranks else 0.0
     sref = max((r.cycles_sref for r in ranks), default=0.0)
-    implicit = stats.total("rda") + stats.total("wra")
-    explicit = max(0.0, stats.total("pre") - implicit)
+    rd, rda, wr, wra = (stats.total(c) for c in ("rd", "rda", "wr", "wra"))
+    explicit = max(0.0, stats.total("pre") - (rda + wra))
     miss = explicit * (1.0 - page_close_share)
     underfill = miss * underfill_share if table.events_of("pre_underfill") else 0.0
-    cas = sum(stats.total(c) for c in ("rd", "rda", "wr", "wra"))
+    cas = rd + rda + wr + wra
     refresh = stats.total("ref")
     if not table.refresh_complete:
         refresh *= 1.0 - opportunistic_refresh_share
     roles = {
         "dclk": total - sref * (1.0 - clocked_sref_share),
-        "cas_rd": stats.total("rd") + stats.total("rda"),
-        "cas_wr": stats.total("wr") + stats.total("wra"),
-        "cas_rd_autopre": stats.total("rda"),
-        "cas_wr_autopre": stats.total("wra"),
+        "cas_rd": rd + rda,
+        "cas_wr": wr + wra,
+        "cas_rd_autopre": rda,
+        "cas_wr_autopre": wra,
         "act": stats.total("act"),
         "pre_page_miss": miss - underfill,
         "pre_underfill": underfill,
@@ -92,7 +92,8 @@ def imc_role_counts(stats: CommandStats, table: EventTable, *, clocked_sref_shar
     }
     for n, rank in enumerate(ranks[:MAX_CKE_RANKS]):
         roles[f"cke_on_rank{n}"] = rank.cycles_act + rank.cycles_pre
-    return {role: value for role, value in roles.items() if table.events_of(role)}
+    counted = table.roles
+    return {role: value for role, value in roles.items() if counted.get(role)}
 
 
 def _shares(role: str, n_events: int, read_share: float) -> list[float]:
