@@ -38,6 +38,7 @@ import functools
 import logging
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -95,14 +96,34 @@ def announced_cpus(record: RunRecord) -> tuple[tuple[int, ...] | None, str]:
 
 
 def load_spec(memspec: str) -> Any:
-    """A preset by name, or a DRAMPower JSON file.
+    """A preset by name, or a DRAMPower JSON file: DDR4 (``MemSpec``) or DDR5 (``MemSpecDDR5``, one
+    sub-channel; the ``memoryType`` of the file decides).
 
     Raises:
         InputError: unknown preset / unreadable file.
     """
     from hdeem_watch.dram.memspec import memspec_from
+    from hdeem_watch.dram.memspec_ddr5 import is_ddr5, parse_memspec_ddr5, read_memspec_json
 
+    path = Path(str(memspec))
+    if not str(memspec).startswith("preset:") and path.is_file():
+        data = read_memspec_json(path)
+        if is_ddr5(data):
+            return parse_memspec_ddr5(data, where=str(path))
     return memspec_from(memspec)
+
+
+def channel_spec(spec: Any) -> Any:
+    """The memspec the controller model (``node_run_stats``) runs on: a DDR5 memspec's sub-channel
+    (:func:`~hdeem_watch.dram.ddr5_channel.subchannel_spec`; the node's channels are its sub-channels),
+    a DDR4 memspec as it is. Energies are priced with ``spec`` itself."""
+    from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
+
+    if isinstance(spec, MemSpecDDR5):
+        from hdeem_watch.dram.ddr5_channel import subchannel_spec
+
+        return subchannel_spec(spec)
+    return spec
 
 
 def with_ranks(spec: Any, ranks: int | None) -> Any:
@@ -218,6 +239,8 @@ class RunModeller:
         self.error: str | None = None
         self.restore_error: str | None = None
         self.spec: Any = None
+        #: the memspec of one channel as the controller model spells it (:func:`channel_spec`)
+        self.channel_spec: Any = None
         self._said_currents = False
         self.calibrator: Any = None
         self.group_fits: GroupFits | None = None
@@ -227,6 +250,7 @@ class RunModeller:
         self._source_said: str | None = None
         try:
             self.spec = with_ranks(load_spec(memspec), getattr(topology, "ranks_per_dimm", None))
+            self.channel_spec = channel_spec(self.spec)
             from hdeem_watch.calibrate import OnlineCalibrator
 
             if state:
@@ -274,7 +298,7 @@ class RunModeller:
                       cpus: tuple[int, ...] | None) -> Any:
         from hdeem_watch.dram.node import node_run_stats
 
-        return tuple(node_run_stats(self.spec, kernel, elements, threads, repeat, self.topology, cpus=cpus,
+        return tuple(node_run_stats(self.channel_spec, kernel, elements, threads, repeat, self.topology, cpus=cpus,
                                     max_requests=self.max_requests))
 
     def _family_factors(self, kernel: str, elements: int, threads: int, repeat: int,
@@ -284,7 +308,7 @@ class RunModeller:
         own = node_counts(self._stats_cache(kernel, elements, threads, repeat, cpus))["act"]
         out = []
         for scheme, xor in MAPPING_FAMILIES[1:]:
-            groups = node_run_stats(self.spec, kernel, elements, threads, repeat, self.topology, cpus=cpus,
+            groups = node_run_stats(self.channel_spec, kernel, elements, threads, repeat, self.topology, cpus=cpus,
                                     max_requests=self.max_requests, mapping=scheme, xor_bank=xor)
             out.append(node_counts(groups)["act"] / own if own > 0 else 1.0)
         return tuple(out)
@@ -313,7 +337,7 @@ class RunModeller:
         if kernel in NO_TRAFFIC_KERNELS or elements == 0:
             from hdeem_watch.dram.node import idle_channel_stats
 
-            idle = idle_channel_stats(self.spec)
+            idle = idle_channel_stats(self.channel_spec)
             return [(idle, self.topology.dimms_per_domain)] * self.topology.domains
         return list(self._stats_cache(kernel, int(elements), int(threads), int(repeat),
                                       None if cpus is None else tuple(int(c) for c in cpus)))
