@@ -144,7 +144,7 @@ def _run(args: argparse.Namespace) -> int:
     try:
         if args.headless:
             kept = f" (daemon log: {daemon.log_path})" if daemon.log_kept else ""
-            print(f"demo: starting a simulated node: {node.title}{kept}", flush=True)
+            print(f"demo: simulated node: {node.title}{kept}", flush=True)
         try:
             daemon.start()
         except DaemonFailed as error:

@@ -44,9 +44,9 @@ class DemoNode:
 
 #: The demo's nodes by ``--node`` name (the first is the default).
 DEMO_NODES: dict[str, DemoNode] = {
-    "haswell": DemoNode("haswell", "a Haswell-EP node (2 x 12 cores, 8 DDR4 DIMMs, HDEEM's DIMM pairs)",
+    "haswell": DemoNode("haswell", "Haswell-EP, 2 x 12 cores, 8 DDR4 DIMMs in HDEEM pairs",
                         TAURUS, ("24", "4", "12", "1")),
-    "ddr5": DemoNode("ddr5", "a DDR5 node (2 x 56 cores, 2 x 8 DDR5 DIMMs, RAPL DRAM per socket)",
+    "ddr5": DemoNode("ddr5", "DDR5, 2 x 56 cores, 2 x 8 DIMMs, RAPL DRAM per socket",
                      DDR5_NODE, ("112", "16", "84", "4")),
 }
 
