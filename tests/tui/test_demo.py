@@ -23,10 +23,6 @@ from hdeem_watch.demo.schedule import (
     run_seconds,
 )
 
-#: Starts demos: on one xdist worker with the other demo starts (a demo sweeps /tmp of orphaned
-#: demo directories, and the kill -9 test counts the directories that appear).
-pytestmark = pytest.mark.xdist_group("demo")
-
 DRAM = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
 NUMBER = re.compile(r"^-?\d+\.\d+$")
 
