@@ -103,6 +103,8 @@ class DaemonSettings:
         seed: random seed of the ``sim`` source (None = fixed default of the sim).
         sim_age: aging of DIMM pairs of the ``sim`` source, ``PAIR=±X%/h`` comma-separated, with an
             optional start ``@<n>s|min|h`` in sim time (None = no aging).
+        sim_node: the node the ``sim`` source simulates: ``haswell`` (Taurus' Haswell-EP, HDEEM's
+            DIMM pairs) or ``ddr5`` (2 sockets × 8 DDR5 channels, RAPL DRAM per socket).
         replay_file: recording played by the ``replay`` source.
         replay_loop: start the recording again at its end.
         record_file: append every sample the daemon receives to this recording (the replay
@@ -178,6 +180,7 @@ class DaemonSettings:
     speed: float = 1.0
     seed: int | None = None
     sim_age: str | None = None
+    sim_node: str = "haswell"
     replay_file: str | None = None
     replay_loop: bool = False
     record_file: str | None = None
@@ -262,6 +265,12 @@ class DaemonSettings:
                 raise SettingError(name, f"{name} = {endpoint!r}: TCP on a non-loopback address without CURVE is "
                                    "open to anyone who can reach it; set curve_secret_key_file (see --gen-keys), "
                                    "or allow_insecure_tcp = true to accept that")
+        from hdeem_watch.sim.layout import sim_node
+
+        try:
+            sim_node(self.sim_node)
+        except InputError as error:
+            raise SettingError("sim_node", str(error)) from None
         if self.sim_age:
             from hdeem_watch.sim.age import parse_sim_age
 
@@ -289,7 +298,9 @@ class DaemonSettings:
     def source_options(self) -> dict[str, Any]:
         """Keyword options for ``make_source(self.source, ...)``."""
         if self.source == "sim":
-            options: dict[str, Any] = {"speed": self.speed}
+            from hdeem_watch.sim.layout import sim_node
+
+            options: dict[str, Any] = {"speed": self.speed, "layout": sim_node(self.sim_node)}
             if self.seed is not None:
                 options["seed"] = self.seed
             if self.sim_age:

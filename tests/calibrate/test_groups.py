@@ -13,6 +13,7 @@ import pytest
 
 from hdeem_watch.calibrate.groups import NODE, GroupCalibrators, SensorGroup, group_observation, sensor_groups
 from hdeem_watch.errors import InputError
+from hdeem_watch.run_record import RunRecord
 
 from .conftest import _load
 
@@ -190,7 +191,7 @@ def test_a_daemon_record_becomes_a_measured_run(spec: Any, planned: list[Any]) -
         record = {"run_id": "r1", "name": "triad", "t_stop_ns": 5, "window_s": window,
                   "energy_j": {"BLADE": 900.0 * window, "DDR_AB": 5.0 * window, "DDR_CD": 5.1 * window,
                                "DDR_EF": 4.0 * window, "DDR_GH": None}}
-        run = measured_run(record, planned[2].socket_stats, rates)
+        run = measured_run(RunRecord.from_dict({"state": "modelling", **record}), planned[2].socket_stats, rates)
         assert run.name == "r1:triad" and run.samples is not None and run.samples["DDR_AB"] == int(window * 100)
         update = calib.add_run(run)
         assert ("DDR_AB" in update.fits) is fitted

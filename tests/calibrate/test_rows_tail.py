@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
-from hdeem_watch.calibrate.group_rows import SensorGroup, announced_traffic_s, group_observation, run_kind
+from hdeem_watch.calibrate.group_rows import SensorGroup, group_observation, run_kind
 from hdeem_watch.calibrate.rows import observation_from_run
 from hdeem_watch.dram.memspec import preset
 from hdeem_watch.dram.node import HASWELL_EP, idle_channel_stats, node_run_stats
+from hdeem_watch.run_record import RunRecord
 
 
 def test_a_window_longer_than_the_traffic_is_the_traffic_then_standby() -> None:
@@ -34,10 +37,12 @@ def test_a_window_longer_than_the_traffic_is_the_traffic_then_standby() -> None:
 def test_run_kind_and_announced_traffic() -> None:
     """Runs of one kind share kernel, threads and announced CPUs; the traffic time is read from the
     run's metadata (``traffic_s`` before the demo's ``modelled_s``), never a bad value."""
-    assert run_kind({"kernel": "read", "threads": 4, "elements": 10}) == "read/4"
-    assert run_kind({"kernel": "read", "threads": 4, "elements": 10, "metadata": {"cpus": [0, 1, 2, 3]}}) \
-        == "read/4@0,1,2,3"
-    assert run_kind({"kernel": "triad", "threads": 4, "elements": 0}) == "idle"
-    assert announced_traffic_s({"metadata": {"traffic_s": 2.0, "modelled_s": 1.0}}) == 2.0
+    def run(**fields: Any) -> RunRecord:
+        return RunRecord.from_dict({"run_id": "r1", "state": "modelling", **fields})
+
+    assert run_kind(run(kernel="read", threads=4, elements=10)) == "read/4"
+    assert run_kind(run(kernel="read", threads=4, elements=10, metadata={"cpus": [0, 1, 2, 3]})) == "read/4@0,1,2,3"
+    assert run_kind(run(kernel="triad", threads=4, elements=0)) == "idle"
+    assert run(metadata={"traffic_s": 2.0, "modelled_s": 1.0}).traffic_s == 2.0
     for bad in (None, -1.0, float("nan"), True, "1.5"):
-        assert announced_traffic_s({"metadata": {"modelled_s": bad}}) is None
+        assert run(metadata={"modelled_s": bad}).traffic_s is None

@@ -6,13 +6,14 @@ import pytest
 
 from hdeem_watch.calibrate import run_model as modelling
 from hdeem_watch.calibrate.run_model import RunModeller
+from hdeem_watch.run_record import RunRecord
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"
 
 
-def _idle(i: int) -> dict[str, object]:
-    return {"run_id": f"r{i}", "kernel": "idle", "threads": 1, "elements": 0, "repeat": 1, "window_s": 1.0 + i,
-            "dram_energy_j": 16.0 * (1.0 + i), "t_stop_ns": i}
+def _idle(i: int) -> RunRecord:
+    return RunRecord.from_dict({"run_id": f"r{i}", "state": "modelling", "kernel": "idle", "threads": 1, "elements": 0, "repeat": 1, "window_s": 1.0 + i,
+            "dram_energy_j": 16.0 * (1.0 + i), "t_stop_ns": i})
 
 
 def test_the_calibrator_keeps_a_bounded_number_of_runs(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -15,6 +15,7 @@ from hdeem_watch.calibrate.group_rows import SensorGroup, group_observation
 from hdeem_watch.calibrate.observation import current_names
 from hdeem_watch.calibrate.run_model import RunModeller
 from hdeem_watch.errors import InputError
+from hdeem_watch.run_record import RunRecord
 from hdeem_watch.sim.layout import TAURUS, SimLayout
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"
@@ -64,7 +65,7 @@ def _record(m: RunModeller, i: int, kernel: str, threads: int, window_s: float =
                               "t_stop_ns": (i + 1) * 10**9}
     record["energy_j"] = _energies(m, record)
     record["dram_energy_j"] = sum(record["energy_j"].values())
-    return record
+    return RunRecord.from_dict({"state": "modelling", **record})
 
 
 def _modeller(**kwargs: Any) -> RunModeller:

@@ -2,20 +2,19 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import pytest
 
 from hdeem_watch.calibrate.run_model import RunModeller
+from hdeem_watch.run_record import RunRecord
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"
 ELEMENTS = 1 << 22
 
 
-def _record(i: int, kernel: str, threads: int, window_s: float, energy_j: float) -> dict[str, Any]:
-    return {"run_id": f"r{i}", "kernel": kernel, "threads": threads, "elements": 0 if kernel == "idle" else ELEMENTS,
-            "repeat": 4, "window_s": window_s, "dram_energy_j": energy_j, "t_stop_ns": i}
+def _record(i: int, kernel: str, threads: int, window_s: float, energy_j: float) -> RunRecord:
+    return RunRecord.from_dict({"run_id": f"r{i}", "state": "modelling", "kernel": kernel, "threads": threads, "elements": 0 if kernel == "idle" else ELEMENTS,
+            "repeat": 4, "window_s": window_s, "dram_energy_j": energy_j, "t_stop_ns": i})
 
 
 def test_row_is_the_sum_of_the_socket_groups() -> None:

@@ -11,15 +11,16 @@ import pytest
 from hdeem_watch.calibrate import Observation
 from hdeem_watch.calibrate.run_model import RunModeller, announced_cpus
 from hdeem_watch.dram.node import NodeTopology, idle_channel_stats
+from hdeem_watch.run_record import RunRecord
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"
 ICE_LAKE = NodeTopology(sockets=2, cores_per_socket=28, channels_per_socket=8, threads_per_core=2)
 
 
-def _record(threads: int, cpus: Any = None, kernel: str = "read") -> dict[str, Any]:
+def _record(threads: int, cpus: Any = None, kernel: str = "read") -> RunRecord:
     metadata = {} if cpus is None else {"cpus": cpus}
-    return {"run_id": "r1", "kernel": kernel, "threads": threads, "elements": 1 << 22, "repeat": 2,
-            "window_s": 1.0, "dram_energy_j": 40.0, "t_stop_ns": 1, "metadata": metadata}
+    return RunRecord.from_dict({"run_id": "r1", "state": "modelling", "kernel": kernel, "threads": threads, "elements": 1 << 22, "repeat": 2,
+            "window_s": 1.0, "dram_energy_j": 40.0, "t_stop_ns": 1, "metadata": metadata})
 
 
 def test_a_run_announced_on_socket_1_is_modelled_there() -> None:
@@ -62,9 +63,9 @@ def test_without_a_usable_cpu_list_threads_fill_socket_0(cpus: Any, why: str) ->
 
 
 def test_announced_cpus_validation() -> None:
-    assert announced_cpus({"threads": 2, "metadata": {"cpus": [3, 3]}}) == ((3, 3), "announced cpus")
-    assert announced_cpus({"threads": 1, "metadata": {"cpus": [True]}})[0] is None
-    assert announced_cpus({"threads": 1, "metadata": "x"})[0] is None
+    assert announced_cpus(_record(2, [3, 3])) == ((3, 3), "announced cpus")
+    assert announced_cpus(_record(1, [True]))[0] is None
+    assert announced_cpus(_record(1, "x"))[0] is None
 
 
 def test_the_nodes_ranks_reshape_the_memspec() -> None:

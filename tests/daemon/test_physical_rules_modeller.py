@@ -17,6 +17,7 @@ from hdeem_watch.calibrate.run_model import RunModeller
 from hdeem_watch.config import load_settings
 from hdeem_watch.dram.memspec_check import physical_violations
 from hdeem_watch.errors import InputError
+from hdeem_watch.run_record import RunRecord
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"
 RATES = {"DDR_AB": 100.0, "DDR_CD": 100.0, "DDR_EF": 100.0, "DDR_GH": 100.0}
@@ -39,7 +40,7 @@ def _record(m: RunModeller, i: int, kernel: str, threads: int) -> dict[str, Any]
     vec = np.array([float(truth.currents.get(n, 0.0)) for n in current_names()])
     record["energy_j"] = {g.name: group_observation(m.spec, stats, g, window_s, 1.0).predicted_j(vec) for g in GROUPS}
     record["dram_energy_j"] = sum(record["energy_j"].values())
-    return record
+    return RunRecord.from_dict({"state": "modelling", **record})
 
 
 def _modeller(**kwargs: Any) -> RunModeller:

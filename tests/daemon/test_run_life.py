@@ -26,6 +26,7 @@ from hdeem_watch.daemon.shell.control import OpError, Pending, dispatch
 from hdeem_watch.daemon.shell.workers import ModelSettings, Worker, restore_calibration
 from hdeem_watch.daemon.store.database import Store
 from hdeem_watch.daemon.store.worker import StoreWorker
+from hdeem_watch.run_record import RunRecord
 from hdeem_watch.sources.base import ChannelInfo, RunAware, RunEvent, SourceBatch
 from hdeem_watch.wire.protocol import ProtocolError, decode_reply
 
@@ -289,7 +290,8 @@ def test_implausible_energy_never_enters_the_fit(node: Node) -> None:
     assert modeller is not None
     base = {"kernel": "triad", "threads": 24, "elements": 1 << 22, "repeat": 4, "window_s": 1.0, "t_stop_ns": 1}
     for i, energy in enumerate((4e290, math.inf, math.nan, 1e6)):
-        _model, fit, error = modeller.evaluate({**base, "run_id": f"r{i}", "dram_energy_j": energy})
+        _model, fit, error = modeller.evaluate(RunRecord.from_dict({**base, "run_id": f"r{i}", "state": "modelling",
+                                                                    "dram_energy_j": energy}))
         assert fit is None and error, energy
     assert modeller.calibrator.observations == []
 

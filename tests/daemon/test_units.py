@@ -17,12 +17,13 @@ from hypothesis import strategies as st
 
 from hdeem_watch.daemon.book import baselines as bl
 from hdeem_watch.daemon.book.channels import ChannelAccount, RecentPower, count_missing
-from hdeem_watch.daemon.book.runs import RunRecord, parse_run_args, window_energy
+from hdeem_watch.daemon.book.runs import parse_run_args, started_run, window_energy
 from hdeem_watch.daemon.book.windows import Window
 from hdeem_watch.daemon.shell.control import OpError, Pending, dispatch
 from hdeem_watch.daemon.shell.metrics import DaemonMetrics, NodeCollector
 from hdeem_watch.daemon.shell.poller import IntervalTimer, next_deadline, wait_ms
 from hdeem_watch.daemon.store.database import SCHEMA_VERSION, Store, StoreError
+from hdeem_watch.run_record import RunRecord
 from hdeem_watch.wire.protocol import ProtocolError, decode_reply
 from hdeem_watch.wire.protocol import jsonable as protocol_jsonable
 
@@ -164,7 +165,7 @@ def test_run_records() -> None:
         with pytest.raises(ProtocolError) as info:
             parse_run_args(bad)
         assert info.value.code == "bad-args"
-    record = RunRecord.start("r3", args, t_wall_ns=1, node="n")
+    record = started_run("r3", args, t_wall_ns=1, node="n")
     energy = window_energy({"DDR_AB": 1.0, "DDR_CD": 1.0, "CPU0": math.nan}, {"DDR_AB": 3.0, "DDR_CD": 5.0, "CPU0": 9.0})
     done = record.finish(energy_j=energy, window_s=2.0, dram_channels=("DDR_AB", "DDR_CD"), t_wall_ns=9)
     assert done.dram_energy_j == 6.0 and done.mean_power_w is not None and done.mean_power_w["DDR_CD"] == 2.0

@@ -9,6 +9,7 @@ import sys
 import numpy as np
 import pytest
 
+from hdeem_watch.run_record import RunRecord
 from hdeem_watch.sim.plan import TruthNode
 from hdeem_watch.sim.power import PowerPhysics, busy_rank, idle_rank, refresh_per_s
 from hdeem_watch.sim.traffic import socket_row_outcomes
@@ -50,8 +51,8 @@ def model_prediction_j(kernel: str, threads: int, window_s: float, currents: np.
     from hdeem_watch.calibrate.run_model import RunModeller
 
     model, _fit, error = RunModeller(MEMSPEC, dimms=8).evaluate(
-        {"run_id": "r", "kernel": kernel, "threads": threads, "elements": 40_000_000 if kernel != "idle" else 0,
-         "repeat": 8, "window_s": window_s, "dram_energy_j": 1.0})
+        RunRecord.from_dict({"run_id": "r", "state": "modelling", "kernel": kernel, "threads": threads, "elements": 40_000_000 if kernel != "idle" else 0,
+         "repeat": 8, "window_s": window_s, "dram_energy_j": 1.0}))
     assert error is None and model is not None
     return float(Observation.from_dict(model["observation"]).predicted_j(currents))
 

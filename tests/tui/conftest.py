@@ -78,7 +78,7 @@ def build_frozen_snapshot(node: str = "taurusi6001", *, stale: bool = False, plo
     for k, kernel in enumerate(kernels):
         measured = 7.7 if kernel == "idle" else 18.0 + k
         put("run", {"event": "stop", "run": {
-            "run_id": f"r{k}", "name": f"{kernel}-24t", "kernel": kernel, "threads": 24, "window_s": 1.5,
+            "run_id": f"r{k}", "state": "done", "name": f"{kernel}-24t", "kernel": kernel, "threads": 24, "window_s": 1.5,
             "dram_energy_j": measured, "metadata": {"simulated": True},
             "model": {"datasheet_j": measured * 2.02, "calibrated_j": measured * (1.0 + 0.01 * (k - 3))}}})
     put("run", {"event": "start", "run": {"run_id": "r9", "name": "read-12t", "kernel": "read", "threads": 12,

@@ -22,6 +22,7 @@ from hdeem_watch.demo.schedule import (
     demo_round,
     run_seconds,
 )
+from hdeem_watch.run_record import RunRecord
 
 DRAM = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
 NUMBER = re.compile(r"^-?\d+\.\d+$")
@@ -168,9 +169,9 @@ def test_demo_design_determines_the_currents_near_the_effective_truth() -> None:
     for i, run in enumerate(demo_plan(4)[:30]):
         s = run.spec
         energy = run_truth_energy_j(model, currents, s.kernel, s.elements, s.threads, s.repeat, run.seconds)
-        _m, fit, error = modeller.evaluate({"run_id": f"r{i}", "kernel": s.kernel, "threads": s.threads,
+        _m, fit, error = modeller.evaluate(RunRecord.from_dict({"run_id": f"r{i}", "state": "modelling", "kernel": s.kernel, "threads": s.threads,
                                             "elements": s.elements, "repeat": s.repeat, "window_s": run.seconds,
-                                            "dram_energy_j": energy * (1 + rng.normal(0, 0.003)), "t_stop_ns": i})
+                                            "dram_energy_j": energy * (1 + rng.normal(0, 0.003)), "t_stop_ns": i}))
         assert error is None
     assert fit["error"]["before"] > 0.3 and fit["error"]["after"] < 0.02 and fit["error"]["loo"] < 0.03
     for name, entry in fit["currents"].items():

@@ -33,7 +33,7 @@ def test_every_line_fits_the_terminal_width() -> None:
     columns every line fits and no field is lost."""
     model = NodeModel("ipc:///x")
     model.apply_calib({"fit": FIT, "truth": TRUTH, "suggest": [["copy-1t", 0.4]]})
-    model.add_runs([{"run_id": "r1", "name": "read-1t", "kernel": "read", "threads": 1, "window_s": 1.02,
+    model.add_runs([{"run_id": "r1", "state": "done", "name": "read-1t", "kernel": "read", "threads": 1, "window_s": 1.02,
                      "dram_energy_j": 6.82, "model": {"datasheet_j": 12.83, "calibrated_j": 6.99}}])
     lines = ProgressPrinter(width=80).lines(_snapshot(model), now_s=0.0)
     assert lines and max(len(line) for line in lines) <= 80
@@ -63,14 +63,14 @@ def test_stored_runs_are_summed_up_not_replayed_as_new() -> None:
     """Runs the daemon had stored (a reused --state-dir) are one line, not 50 run lines newest first;
     runs that finish afterwards are printed."""
     model = NodeModel("ipc:///x")
-    old = [{"run_id": f"r{i}", "name": f"copy-{i}", "kernel": "copy", "threads": 1, "window_s": 1.0,
+    old = [{"run_id": f"r{i}", "state": "done", "name": f"copy-{i}", "kernel": "copy", "threads": 1, "window_s": 1.0,
             "dram_energy_j": 1.0} for i in range(50)]
     model.add_runs(old, history=True)
     printer = ProgressPrinter()
     lines = printer.lines(_snapshot(model), now_s=0.0)
     assert [line for line in lines if line.startswith("run ")] == []
     assert any(line.startswith("runs   50 earlier runs") and "copy-49" in line for line in lines)
-    model.apply_run_event({"event": "stop", "run": {"run_id": "r50", "name": "triad-4t", "kernel": "triad",
+    model.apply_run_event({"event": "stop", "run": {"run_id": "r50", "state": "done", "name": "triad-4t", "kernel": "triad",
                                                     "threads": 4, "window_s": 1.0, "dram_energy_j": 2.0}})
     new = [line for line in printer.lines(_snapshot(model), now_s=1.0) if line.startswith("run")]
     assert len(new) == 1 and "triad-4t" in new[0]
@@ -81,7 +81,7 @@ def test_runs_list_order_is_oldest_first_in_the_model() -> None:
     from hdeem_watch.tui.feed import NodeFeed
 
     feed = NodeFeed("ipc:///nonexistent/control.sock")
-    feed._apply_runs({"runs": [{"run_id": f"r{i}", "kernel": "copy", "t_stop_ns": i} for i in (3, 2, 1)]})
+    feed._apply_runs({"runs": [{"run_id": f"r{i}", "state": "done", "kernel": "copy", "t_stop_ns": i} for i in (3, 2, 1)]})
     assert [r.run_id for r in _snapshot(feed.model).runs] == ["r1", "r2", "r3"]
 
 
@@ -146,7 +146,7 @@ def test_hold_out_runs_are_summed_up_in_one_line() -> None:
             ("gups", 10.0, 16.0, 10.2), ("read", 10.0, 16.0, 13.0), ("stride4", 8.0, 12.0, 7.6),
             ("chase", 5.0, 8.0, None))):
         model.apply_run_event({"event": "stop", "run": {
-            "run_id": f"r{i}", "name": f"{kernel}-4t", "kernel": kernel, "threads": 4, "window_s": 1.5,
+            "run_id": f"r{i}", "state": "done", "name": f"{kernel}-4t", "kernel": kernel, "threads": 4, "window_s": 1.5,
             "dram_energy_j": measured, "model": {"datasheet_j": datasheet, "calibrated_j": calibrated}}})
         printer.lines(_snapshot(model), now_s=float(i))
     assert printer.holdout_line() == ("holdout: 2 runs, median error 3.5 %, worst 5.0 % "

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from hdeem_watch.run_record import RunRecord
 from hdeem_watch.tui.braille import braille_envelope, sparkline
 from hdeem_watch.tui.downsample import minmax_columns
 from hdeem_watch.tui.headless import ProgressPrinter
@@ -125,10 +126,10 @@ def test_runs_in_progress_and_finished() -> None:
 
 def test_run_record_measured_from_channels() -> None:
     """Without a total, the measured DRAM energy is the sum of the four DIMM-pair channels; a NaN one makes it unknown."""
-    rec = {"run_id": "a", "kernel": "read", "energy_j": {"DDR_AB": 1.0, "DDR_CD": 2.0, "DDR_EF": 3.0, "DDR_GH": 4.0, "CPU0": 50.0}}
-    assert run_view(rec).measured_j == 10.0
+    rec = {"run_id": "a", "state": "done", "kernel": "read", "energy_j": {"DDR_AB": 1.0, "DDR_CD": 2.0, "DDR_EF": 3.0, "DDR_GH": 4.0, "CPU0": 50.0}}
+    assert run_view(RunRecord.from_dict(rec)).measured_j == 10.0
     rec["energy_j"]["DDR_GH"] = None
-    assert math.isnan(run_view(rec).measured_j)
+    assert math.isnan(run_view(RunRecord.from_dict(rec)).measured_j)
 
 
 def test_calib_view_with_sim_truth_and_history() -> None:
@@ -161,7 +162,7 @@ def test_braille_envelope_fills_min_to_max() -> None:
 def test_headless_printer_reports_new_runs_and_calibration_once() -> None:
     """The text progress prints each finished run and each new calibration once."""
     model = NodeModel("ipc:///x")
-    model.apply(_msg("run", 0, {"event": "stop", "run": {"run_id": "r1", "kernel": "copy", "threads": 24,
+    model.apply(_msg("run", 0, {"event": "stop", "run": {"run_id": "r1", "state": "done", "kernel": "copy", "threads": 24,
                                                           "window_s": 1.5, "dram_energy_j": 10.0}}), 0)
     model.apply(_msg("calib", 0, {"fit": {"currents": {"idd0": {"datasheet": 0.05, "calibrated": 0.03}},
                                           "error": {"before": 1.0, "after": 0.02}, "n_runs": 3, "dof": 2}}), 0)

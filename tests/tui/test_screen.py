@@ -68,10 +68,10 @@ def test_runs_title_counts_every_run_not_the_50_shown() -> None:
     """With 57 runs finished, the panel says 57 although the snapshot carries the newest 50."""
     model = NodeModel("ipc:///x")
     model.apply_status({"runs": 55, "uptime_s": 10.0, "t_ns": 10**18})
-    model.add_runs([{"run_id": f"r{i}", "kernel": "copy", "threads": 1, "window_s": 1.0, "dram_energy_j": 1.0}
+    model.add_runs([{"run_id": f"r{i}", "state": "done", "kernel": "copy", "threads": 1, "window_s": 1.0, "dram_energy_j": 1.0}
                     for i in range(55)], history=True)
     for i in (55, 56):
-        model.apply_run_event({"event": "stop", "run": {"run_id": f"r{i}", "kernel": "read", "dram_energy_j": 1.0}})
+        model.apply_run_event({"event": "stop", "run": {"run_id": f"r{i}", "state": "done", "kernel": "read", "dram_energy_j": 1.0}})
     snap = model.snapshot(now_mono_ns=0, now_wall_ns=10**18, window_s=60, width=None)
     assert len(snap.runs) == 50 and snap.runs_total == 57
     from hdeem_watch.tui.widgets.runs import runs_text
@@ -148,7 +148,7 @@ def test_the_wide_runs_header_keeps_its_columns_apart() -> None:
     model = NodeModel("ipc:///x")
     model.apply_status({"runs": 1, "uptime_s": 10.0, "t_ns": 10**18})
     model.apply_run_event({"event": "stop", "run": {
-        "run_id": "r1", "kernel": "triad", "threads": 24, "window_s": 2.0, "dram_energy_j": 61.2,
+        "run_id": "r1", "state": "done", "kernel": "triad", "threads": 24, "window_s": 2.0, "dram_energy_j": 61.2,
         "model": {"datasheet_j": 120.0, "calibrated_j": 60.0}}})
     snap = model.snapshot(now_mono_ns=0, now_wall_ns=10**18, window_s=60, width=None)
     from hdeem_watch.tui.widgets.runs import runs_text

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.counters.command_mapping import channel_stats, window_channels
-from hdeem_watch.counters.umc_energy import job_model_ddr5
+from hdeem_watch.counters.umc_energy import job_model_ddr5, subchannel_groups
 from hdeem_watch.dram.energy import COMPONENT_KINDS, component_energy
 from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
 from hdeem_watch.dram.node import node_counts
@@ -70,6 +70,10 @@ def counter_groups(spec: Any, counters: Mapping[str, Any]) -> tuple[list[tuple[C
         InputError: no usable counters (a window without a CAS or ACT count, a rank count the
             memspec cannot make up), naming the channel.
     """
+    if isinstance(spec, MemSpecDDR5):  # a channel's counts are its two sub-channels' (pseudo-channels on SPR)
+        sub_groups, sub_notes = subchannel_groups(spec, counters)
+        return ([(open_page_split(spec, stats), n) for stats, n in sub_groups],
+                sorted({*(n for n in sub_notes if not n.startswith("cycles_act/cycles_pre")), OPEN_PAGE_NOTE}))
     channels, window_s = window_channels(counters)
     ranks = int(counters.get("ranks") or spec.nbr_of_ranks)
     per_dimm = int(spec.nbr_of_ranks)

@@ -34,6 +34,7 @@ from hdeem_watch.calibrate.group_rows import (
 )
 from hdeem_watch.channels import DRAM_SOCKET
 from hdeem_watch.errors import InputError
+from hdeem_watch.run_record import RunRecord
 from hdeem_watch.sources.base import HasLayout
 
 __all__ = ["DEFAULT_MIN_SAMPLES", "MAX_GROUP_RUNS", "GroupFits", "default_groups", "source_groups"]
@@ -128,20 +129,19 @@ class GroupFits:
             calib.max_history = min(calib.max_history, MAX_GROUP_HISTORY)
             del calib.observations[:-calib.max_runs]
 
-    def unmeasured(self, record: Mapping[str, Any]) -> str | None:
+    def unmeasured(self, record: RunRecord) -> str | None:
         """Why the run cannot be fitted (too few samples of a DRAM channel, a channel without
         energy), or None."""
-        window = record.get("window_s")
-        window_s = float(window) if isinstance(window, int | float) and math.isfinite(window) else 0.0
-        energies = record.get("energy_j") or {}
+        window = record.window_s
+        window_s = window if window is not None and math.isfinite(window) else 0.0
+        energies = record.energy_j or {}
         rates = self.dram_rates_hz
         if rates is None:
             return None
-        name = f"{record.get('run_id')}:{record.get('name') or record.get('kernel')}"
+        name = f"{record.run_id}:{record.name or record.kernel}"
         reasons = []
         for channel, rate in rates.items():
             energy = energies.get(channel)
-            energy = float(energy) if isinstance(energy, int | float) else None
             samples = math.floor(window_s * rate + 1e-9)
             reason = unmeasured_reason(name, channel, energy, samples,
                                        window_s, self.min_samples)
@@ -152,7 +152,7 @@ class GroupFits:
         more = f" (and {len(reasons) - 1} more channels)" if len(reasons) > 1 else ""
         return f"not calibrated: {reasons[0]}{more}"
 
-    def add(self, record: Mapping[str, Any], socket_stats: Sequence[tuple[Any, int]]) -> dict[str, Any]:
+    def add(self, record: RunRecord, socket_stats: Sequence[tuple[Any, int]]) -> dict[str, Any]:
         """Fit the run into every group (and their node fit); keep the new alarms for :meth:`take_alarms`.
 
         Returns:

@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -24,6 +23,7 @@ from hdeem_watch.calibrate.rows import observation_from_run
 from hdeem_watch.dram.memspec import MemSpec
 from hdeem_watch.dram.stats import CommandStats
 from hdeem_watch.errors import InputError
+from hdeem_watch.run_record import RunRecord
 
 #: Default fewest sensor samples per channel for a run to be fitted: 1 s at 100 Sa/s.
 DEFAULT_MIN_SAMPLES = 100
@@ -127,60 +127,39 @@ def unmeasured_reason(run: str, sensor: str, energy_j: float | None, samples: in
     return None
 
 
-def measured_run(record: Mapping[str, Any], socket_stats: Sequence[tuple[CommandStats, int]],
+def measured_run(record: RunRecord, socket_stats: Sequence[tuple[CommandStats, int]],
                  rates_hz: Mapping[str, float]) -> MeasuredRun:
-    """The :class:`MeasuredRun` of a daemon run record (``hdeem_watch.daemon.book.runs.RunRecord.to_dict()``
-    form: ``run_id``, ``name``, ``t_stop_ns``, ``window_s``, ``energy_j`` per channel).
+    """The :class:`MeasuredRun` of a daemon run record (:class:`~hdeem_watch.run_record.RunRecord`).
 
     Args:
         record: the finished run's record.
         socket_stats: the run's model (:func:`hdeem_watch.dram.node.node_run_stats`).
         rates_hz: each sensor's sample rate; the samples in the window are ``window_s × rate``.
     """
-    window = float(record.get("window_s") or 0.0)
-    energies = {str(k): (math.nan if v is None else float(v)) for k, v in (record.get("energy_j") or {}).items()}
-    return MeasuredRun(name=f"{record.get('run_id')}:{record.get('name') or record.get('kernel')}",
-                       time_ns=int(record.get("t_stop_ns") or 0), window_s=window, socket_stats=tuple(socket_stats),
-                       energy_j=energies,
+    window = record.window_s if record.window_s is not None and math.isfinite(record.window_s) else 0.0
+    return MeasuredRun(name=f"{record.run_id}:{record.name or record.kernel}",
+                       time_ns=record.t_stop_ns or 0, window_s=window, socket_stats=tuple(socket_stats),
+                       energy_j=dict(record.energy_j or {}),
                        samples={c: math.floor(window * float(r) + 1e-9) for c, r in rates_hz.items()},
-                       kind=run_kind(record), traffic_s=announced_traffic_s(record))
+                       kind=run_kind(record), traffic_s=record.traffic_s)
 
 
-def announced_traffic_s(record: Mapping[str, Any]) -> float | None:
-    """How long the run's traffic lasted, as announced in ``metadata.modelled_s`` (the demo's
-    schedule) or ``metadata.traffic_s``; None when not announced or not a positive number.
-
-    Example:
-        >>> announced_traffic_s({"metadata": {"modelled_s": 1.5}}), announced_traffic_s({})
-        (1.5, None)
-    """
-    metadata = record.get("metadata")
-    if not isinstance(metadata, Mapping):
-        return None
-    for key in ("traffic_s", "modelled_s"):
-        value = metadata.get(key)
-        if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and value > 0:
-            return float(value)
-    return None
-
-
-def run_kind(record: Mapping[str, Any]) -> str:
+def run_kind(record: RunRecord) -> str:
     """What makes two runs "the same kind" for the drift detector: kernel, threads and announced
     CPUs (any run without traffic is ``idle``).
 
     Example:
-        >>> run_kind({"kernel": "triad", "threads": 24, "elements": 1 << 24})
+        >>> run = {"run_id": "r1", "state": "modelling", "threads": 24}
+        >>> run_kind(RunRecord.from_dict({**run, "kernel": "triad", "elements": 1 << 24}))
         'triad/24'
-        >>> run_kind({"kernel": "sleep", "threads": 24, "elements": 0})
+        >>> run_kind(RunRecord.from_dict({**run, "kernel": "sleep", "elements": 0}))
         'idle'
     """
-    kernel = str(record.get("kernel") or "")
-    if kernel in ("idle", "sleep") or not record.get("elements"):
+    if record.moves_no_traffic or not record.elements:
         return "idle"
-    metadata = record.get("metadata")
-    cpus = metadata.get("cpus") if isinstance(metadata, Mapping) else None
+    cpus = record.metadata.get("cpus")
     where = f"@{','.join(str(c) for c in cpus)}" if isinstance(cpus, list | tuple) and cpus else ""
-    return f"{kernel}/{record.get('threads')}{where}"
+    return f"{record.kernel}/{record.threads}{where}"
 
 
 @dataclass(frozen=True)
@@ -197,7 +176,7 @@ class MeasuredRun:
         samples: sensor samples inside the window per sensor (None: ``window_s × nominal rate``).
         kind: runs of one kind (:func:`run_kind`) are compared by the drift detector (None: the
             part of ``name`` after its first ``:``).
-        traffic_s: how long the run's traffic lasted, when announced (:func:`announced_traffic_s`):
+        traffic_s: how long the run's traffic lasted, when announced (``RunRecord.traffic_s``):
             the rest of the window is modelled as standby.
     """
 

@@ -26,9 +26,9 @@ model can take tens of milliseconds; the poll loop must not wait for them).
 
 Example:
     >>> m = RunModeller("samsung-m393a1g43db0-cpb", dimms=8)   # doctest: +SKIP
-    >>> model, fit, _ = m.evaluate({"run_id": "r1", "kernel": "idle", "threads": 1, "elements": 0,
-    ...                             "repeat": 1, "window_s": 10.0, "dram_energy_j": 200.0,
-    ...                             "t_stop_ns": 0})              # doctest: +SKIP
+    >>> model, fit, _ = m.evaluate(RunRecord.from_dict({
+    ...     "run_id": "r1", "state": "modelling", "kernel": "idle", "threads": 1, "elements": 0, "repeat": 1,
+    ...     "window_s": 10.0, "dram_energy_j": 200.0, "t_stop_ns": 0}))    # doctest: +SKIP
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ import functools
 import logging
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -46,6 +47,7 @@ from hdeem_watch.calibrate.counter_model import counter_groups, counters_model, 
 from hdeem_watch.calibrate.group_fits import DEFAULT_MIN_SAMPLES, GroupFits
 from hdeem_watch.counters.umc_energy import currents_basis
 from hdeem_watch.errors import InputError
+from hdeem_watch.run_record import NO_TRAFFIC_KERNELS, OPAQUE_KERNEL, RunRecord
 
 if TYPE_CHECKING:
     from hdeem_watch.calibrate.drift import DriftAlarm
@@ -68,29 +70,23 @@ MAX_CALIBRATOR_HISTORY = 32
 #: Highest plausible mean DRAM power per DIMM (W): DDR4 RDIMMs draw a few watts, ~15 W at most.
 MAX_PLAUSIBLE_DIMM_W = 50.0
 
-#: Kernels that move no memory traffic: their run pins the standby currents and is an idle baseline.
-NO_TRAFFIC_KERNELS = ("idle", "sleep")
-#: The kernel of a run started without one (an opaque job): modelled from memory counters alone.
-OPAQUE_KERNEL = "job"
-
-
-def announced_cpus(record: Mapping[str, Any]) -> tuple[tuple[int, ...] | None, str]:
+def announced_cpus(record: RunRecord) -> tuple[tuple[int, ...] | None, str]:
     """The CPU list a run announced (``metadata.cpus``), and where the placement comes from.
 
     A list that is not one non-negative integer per thread is ignored (with the reason), so a run
     is never modelled on a made-up placement.
 
     Example:
-        >>> announced_cpus({"threads": 2, "metadata": {"cpus": [28, 29]}})
+        >>> run = {"run_id": "r1", "state": "modelling", "threads": 2}
+        >>> announced_cpus(RunRecord.from_dict({**run, "metadata": {"cpus": [28, 29]}}))
         ((28, 29), 'announced cpus')
-        >>> announced_cpus({"threads": 2, "metadata": {}})[1]
+        >>> announced_cpus(RunRecord.from_dict(run))[1]
         'default: no cpus announced; threads fill socket 0 first'
     """
-    metadata = record.get("metadata")
-    cpus = metadata.get("cpus") if isinstance(metadata, Mapping) else None
+    cpus = record.metadata.get("cpus")
     if cpus is None:
         return None, "default: no cpus announced; threads fill socket 0 first"
-    threads = record.get("threads")
+    threads = record.threads
     ok = (isinstance(cpus, list | tuple) and all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in cpus)
           and len(cpus) == threads)
     if not ok:
@@ -99,25 +95,35 @@ def announced_cpus(record: Mapping[str, Any]) -> tuple[tuple[int, ...] | None, s
     return tuple(int(c) for c in cpus), "announced cpus"
 
 
-def is_holdout(record: Mapping[str, Any]) -> bool:
-    """Whether a run was announced as a hold-out run (``metadata.holdout = true``): predicted, never fitted.
-
-    >>> is_holdout({"metadata": {"holdout": True}}), is_holdout({"metadata": {}})
-    (True, False)
-    """
-    metadata = record.get("metadata")
-    return isinstance(metadata, Mapping) and metadata.get("holdout") is True
-
-
 def load_spec(memspec: str) -> Any:
-    """A preset by name, or a DRAMPower JSON file.
+    """A preset by name, or a DRAMPower JSON file: DDR4 (``MemSpec``) or DDR5 (``MemSpecDDR5``, one
+    sub-channel; the ``memoryType`` of the file decides).
 
     Raises:
         InputError: unknown preset / unreadable file.
     """
     from hdeem_watch.dram.memspec import memspec_from
+    from hdeem_watch.dram.memspec_ddr5 import is_ddr5, parse_memspec_ddr5, read_memspec_json
 
+    path = Path(str(memspec))
+    if not str(memspec).startswith("preset:") and path.is_file():
+        data = read_memspec_json(path)
+        if is_ddr5(data):
+            return parse_memspec_ddr5(data, where=str(path))
     return memspec_from(memspec)
+
+
+def channel_spec(spec: Any) -> Any:
+    """The memspec the controller model (``node_run_stats``) runs on: a DDR5 memspec's sub-channel
+    (:func:`~hdeem_watch.dram.ddr5_channel.subchannel_spec`; the node's channels are its sub-channels),
+    a DDR4 memspec as it is. Energies are priced with ``spec`` itself."""
+    from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
+
+    if isinstance(spec, MemSpecDDR5):
+        from hdeem_watch.dram.ddr5_channel import subchannel_spec
+
+        return subchannel_spec(spec)
+    return spec
 
 
 def with_ranks(spec: Any, ranks: int | None) -> Any:
@@ -233,6 +239,8 @@ class RunModeller:
         self.error: str | None = None
         self.restore_error: str | None = None
         self.spec: Any = None
+        #: the memspec of one channel as the controller model spells it (:func:`channel_spec`)
+        self.channel_spec: Any = None
         self._said_currents = False
         self.calibrator: Any = None
         self.group_fits: GroupFits | None = None
@@ -242,6 +250,7 @@ class RunModeller:
         self._source_said: str | None = None
         try:
             self.spec = with_ranks(load_spec(memspec), getattr(topology, "ranks_per_dimm", None))
+            self.channel_spec = channel_spec(self.spec)
             from hdeem_watch.calibrate import OnlineCalibrator
 
             if state:
@@ -289,7 +298,7 @@ class RunModeller:
                       cpus: tuple[int, ...] | None) -> Any:
         from hdeem_watch.dram.node import node_run_stats
 
-        return tuple(node_run_stats(self.spec, kernel, elements, threads, repeat, self.topology, cpus=cpus,
+        return tuple(node_run_stats(self.channel_spec, kernel, elements, threads, repeat, self.topology, cpus=cpus,
                                     max_requests=self.max_requests))
 
     def _family_factors(self, kernel: str, elements: int, threads: int, repeat: int,
@@ -299,7 +308,7 @@ class RunModeller:
         own = node_counts(self._stats_cache(kernel, elements, threads, repeat, cpus))["act"]
         out = []
         for scheme, xor in MAPPING_FAMILIES[1:]:
-            groups = node_run_stats(self.spec, kernel, elements, threads, repeat, self.topology, cpus=cpus,
+            groups = node_run_stats(self.channel_spec, kernel, elements, threads, repeat, self.topology, cpus=cpus,
                                     max_requests=self.max_requests, mapping=scheme, xor_bank=xor)
             out.append(node_counts(groups)["act"] / own if own > 0 else 1.0)
         return tuple(out)
@@ -328,7 +337,7 @@ class RunModeller:
         if kernel in NO_TRAFFIC_KERNELS or elements == 0:
             from hdeem_watch.dram.node import idle_channel_stats
 
-            idle = idle_channel_stats(self.spec)
+            idle = idle_channel_stats(self.channel_spec)
             return [(idle, self.topology.dimms_per_domain)] * self.topology.domains
         return list(self._stats_cache(kernel, int(elements), int(threads), int(repeat),
                                       None if cpus is None else tuple(int(c) for c in cpus)))
@@ -370,7 +379,7 @@ class RunModeller:
             intercept = float(value) if isinstance(value, int | float) and math.isfinite(value) else 0.0
         return np.array([values[n] for n in names]), intercept
 
-    def evaluate(self, record: Mapping[str, Any]) -> RunModelResult:
+    def evaluate(self, record: RunRecord) -> RunModelResult:
         """Model a finished run, add it to the calibrator and refit.
 
         Returns:
@@ -383,32 +392,33 @@ class RunModeller:
         """
         if self.error is not None:
             return RunModelResult(None, None, self.error)
-        name = str(record.get("name") or record.get("run_id"))
-        measured: Any = record.get("dram_energy_j")
-        window_s: Any = record.get("window_s")
+        name = record.name or record.run_id
+        measured, window_s = record.dram_energy_j, record.window_s
         if (why := self._unmeasured(name, measured, window_s)) is not None:
             return RunModelResult(None, None, why)
-        observed = self._observe(record, name, float(window_s), float(measured))
+        assert measured is not None and window_s is not None  # (_unmeasured said so)
+        observed = self._observe(record, name, window_s, measured)
         if isinstance(observed, str):
             return RunModelResult(None, None, observed)
-        model = self._model_body(record, observed, float(window_s), float(measured))
+        model = self._model_body(record, observed, window_s, measured)
         return self._refit(record, observed, model)
 
-    def _observe(self, record: Mapping[str, Any], name: str, window_s: float, measured: float) -> _Observed | str:
+    def _observe(self, record: RunRecord, name: str, window_s: float, measured: float) -> _Observed | str:
         """The run as one calibration row, from its counters or its kernel (a string: why it cannot be)."""
-        from hdeem_watch.calibrate.group_rows import announced_traffic_s
         from hdeem_watch.calibrate.rows import node_observation
 
         cpus, cpus_source = announced_cpus(record)
-        run_name, stop_ns = f"{record.get('run_id')}:{name}", int(record.get("t_stop_ns") or 0)
-        opaque = str(record.get("kernel")) == OPAQUE_KERNEL
+        run_name, stop_ns = f"{record.run_id}:{name}", record.t_stop_ns or 0
+        opaque = record.kernel == OPAQUE_KERNEL
         counted, counter_error, counter_notes = self._counted(record)
         if opaque and counted is None:
             return f"run {name!r}: a job without a kernel is modelled from counters only: {counter_error}"
         kernel_groups = None
+        if not opaque and None in (record.elements, record.threads, record.repeat):
+            return f"run {name!r}: its threads, elements or repeat are unknown ({'; '.join(record.problems)})"
         try:
             if not opaque:
-                kernel = (str(record["kernel"]), int(record["elements"]), int(record["threads"]), int(record["repeat"]))
+                kernel = (record.kernel, int(record.elements or 0), int(record.threads or 0), int(record.repeat or 0))
                 try:
                     kernel_groups = self.groups_for(*kernel, cpus)
                 except InputError as error:  # an announced CPU this node does not have: say so, model the default
@@ -420,7 +430,7 @@ class RunModeller:
             assert groups is not None
             # A kernel's traffic lasts what the run announced; the window may run on past it (the stop is
             # seen at the next poll): the rest of the window is standby. Counters measure the window itself.
-            traffic_s = announced_traffic_s(record)
+            traffic_s = record.traffic_s
             factors = () if counted is not None or opaque else self.mapping_factors(*kernel, cpus)
             obs = node_observation(self.spec, groups, window_s, measured, name=run_name, time_ns=stop_ns,
                                    traffic_s=traffic_s if counted is None else None,
@@ -430,7 +440,7 @@ class RunModeller:
         return _Observed(obs, groups, kernel_groups, counted is not None, counter_error, counter_notes, cpus,
                          cpus_source, run_name, stop_ns, traffic_s)
 
-    def _model_body(self, record: Mapping[str, Any], observed: _Observed, window_s: float,
+    def _model_body(self, record: RunRecord, observed: _Observed, window_s: float,
                     measured: float) -> dict[str, Any]:
         """The run's ``model`` body: datasheet and calibrated predictions, counts, the kernel cross-check."""
         from hdeem_watch.calibrate.rows import node_observation
@@ -444,7 +454,7 @@ class RunModeller:
             "memspec": getattr(self.spec, "memory_id", self.memspec),
             "dimms": self.dimms,
             "groups": [n for _stats, n in groups],
-            "placement": self.placement(int(record["threads"]), observed.cpus, observed.cpus_source),
+            "placement": self.placement(record.threads or 0, observed.cpus, observed.cpus_source),
             "datasheet_j": obs.predicted_j(datasheet_vec),
             "predicted_j": None,
             "calibrated_j": None,
@@ -469,15 +479,15 @@ class RunModeller:
                 model["kernel_model"]["predicted_j"] = kernel_obs.predicted_j(vec, intercept)
         return model
 
-    def _refit(self, record: Mapping[str, Any], observed: _Observed, model: dict[str, Any]) -> RunModelResult:
+    def _refit(self, record: RunRecord, observed: _Observed, model: dict[str, Any]) -> RunModelResult:
         """Add the run's row to the calibrator and refit, unless it is a hold-out, guarded or known."""
         run_name, stop_ns, obs = observed.run_name, observed.stop_ns, observed.obs
-        if is_holdout(record):
+        if record.holdout:
             return RunModelResult(model, None, self._skip(run_name, stop_ns, "hold-out run: predicted with the fit "
                                                                              "from before it, never fitted"))
         if self.group_fits is not None and (reason := self.group_fits.unmeasured(record)) is not None:
             return RunModelResult(model, None, self._skip(run_name, stop_ns, reason))  # the guard rail
-        if self.has_run(str(record.get("run_id"))):  # modelled again after a crash: already in the fit
+        if self.has_run(record.run_id):  # modelled again after a crash: already in the fit
             return RunModelResult(model, None, "the calibrator already had this run (modelled again after a restart)")
         try:
             result = self.calibrator.add_run(obs)
@@ -504,7 +514,7 @@ class RunModeller:
                     f"(more than {MAX_PLAUSIBLE_DIMM_W:g} W per DIMM); not calibrated")
         return None
 
-    def _add_to_groups(self, model: dict[str, Any], record: Mapping[str, Any],
+    def _add_to_groups(self, model: dict[str, Any], record: RunRecord,
                        kernel_groups: list[tuple[Any, int]] | None, groups: list[tuple[Any, int]]) -> None:
         """Add a fitted run to the sensor-group fits (kernel runs only); say in ``model`` what they took or why not."""
         if self.group_fits is not None and kernel_groups is None:
@@ -515,13 +525,13 @@ class RunModeller:
             except InputError as error:  # the node fit stands; say why the groups did not take the run
                 model["group_error"] = str(error)
 
-    def _say_source(self, run_name: str, source: str, record: Mapping[str, Any]) -> None:
+    def _say_source(self, run_name: str, source: str, record: RunRecord) -> None:
         """Log once, and again whenever it changes, where the fitted rows' commands come from."""
         if source == self._source_said:
             return
         self._source_said = source
         if source == "counters":
-            where = (record.get("counters") or {}).get("source", "?")
+            where = (record.counters or {}).get("source", "?")
             log.info("calibration: rows from the commands counted in each run's window (counters = %s) from run "
                      "%s on; the kernel model is the cross-check", where, run_name)
         else:
@@ -564,9 +574,9 @@ class RunModeller:
         model["fit_runs"] = None if fit is None else fit.get("n_runs")
         return model, ""
 
-    def _counted(self, record: Mapping[str, Any]) -> tuple[list[tuple[Any, int]] | None, str | None, list[str]]:
+    def _counted(self, record: RunRecord) -> tuple[list[tuple[Any, int]] | None, str | None, list[str]]:
         """The window's per-channel statistics from its counters (None and why when it has none)."""
-        counters = record.get("counters")
+        counters = record.counters
         if not isinstance(counters, Mapping):
             return None, "no counters recorded (counters = 'none', or the window has no counter start)", []
         try:
@@ -582,10 +592,10 @@ class RunModeller:
         prefix = f"{run_id}:"
         return any(str(o.name).startswith(prefix) for o in self.calibrator.observations)
 
-    def _remember_candidate(self, record: Mapping[str, Any], obs: Any) -> None:
+    def _remember_candidate(self, record: RunRecord, obs: Any) -> None:
         """Keep the row of each kind of run (kernel × threads) as a candidate for :meth:`suggest`."""
-        kernel = str(record.get("kernel"))
-        key = "idle" if kernel in NO_TRAFFIC_KERNELS or not record.get("elements") else f"{kernel}-{record.get('threads')}t"
+        kernel = record.kernel
+        key = "idle" if kernel in NO_TRAFFIC_KERNELS or not record.elements else f"{kernel}-{record.threads}t"
         self._candidates[key] = obs
         while len(self._candidates) > MAX_CANDIDATES:
             self._candidates.pop(next(iter(self._candidates)))

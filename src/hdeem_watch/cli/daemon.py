@@ -61,6 +61,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument("--sim-age", metavar="PAIR=±X%/h",
                         help="sim: a DIMM pair's currents drift in sim time, e.g. DDR_CD=+30%%/h "
                         "(comma-separated; @600s delays the start)")
+    parser.add_argument("--sim-node", choices=("haswell", "ddr5"),
+                        help="sim: the simulated node (default haswell: Taurus' Haswell-EP with HDEEM's DIMM pairs; "
+                        "ddr5: 2 sockets x 8 DDR5 channels, RAPL DRAM per socket)")
     parser.add_argument("--counters", choices=("auto", "none", "sim", "perf", "replay"),
                         help="memory-controller counters for each window's DRAM commands (default auto: the "
                              "source's own when they can be opened, else none; logged once)")
@@ -95,6 +98,7 @@ def _run(args: argparse.Namespace) -> int:
             "curve_secret_key_file": args.curve_secret_key, "curve_clients_dir": args.curve_clients, "prometheus_port": args.prometheus,
             "poll_interval_s": args.poll_interval, "memspec": args.memspec, "log_level": args.log_level,
             "allow_insecure_tcp": args.allow_insecure_tcp, "sim_age": args.sim_age,
+            "sim_node": args.sim_node,
             "counters": args.counters,
             **source_flag_overrides(args),
         },

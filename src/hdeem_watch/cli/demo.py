@@ -43,6 +43,9 @@ def register(subparsers: Any) -> None:
         "  130 interrupted (--headless)",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--node", default="haswell", metavar="NAME",
+                        help="the simulated node: haswell (default; 2 x 12 cores, 8 DDR4 DIMMs, HDEEM's DIMM pairs) or "
+                        "ddr5 (2 x 56 cores, 2 x 8 DDR5 DIMMs, RAPL DRAM per socket, Sapphire Rapids' IMC counters)")
     parser.add_argument("--headless", action="store_true", help="print progress as text lines instead of the TUI")
     parser.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: until q or Ctrl-C)")
     parser.add_argument("--state-dir", default=None, metavar="DIR",
@@ -78,11 +81,13 @@ def _check(args: argparse.Namespace) -> None:
         raise InputError(f"--fps {args.fps}: expected a positive number of frames per second")
     if not args.window > 0:
         raise InputError(f"--window {args.window}: expected a positive number of seconds")
+    from hdeem_watch.demo.nodes import demo_node
+
+    node = demo_node(args.node)
     if args.sim_age is not None:
-        from hdeem_watch.channels import DRAM_CHANNELS
         from hdeem_watch.sim.age import check_pairs, parse_sim_age
 
-        check_pairs(parse_sim_age(args.sim_age), DRAM_CHANNELS)  # the demo's node: Taurus Haswell-EP
+        check_pairs(parse_sim_age(args.sim_age), node.layout.sensors)
     for flag, directory in (("--state-dir", args.state_dir), ("--report", args.report)):
         if directory is not None:
             _writable_directory(flag, directory)
@@ -119,9 +124,12 @@ def _run(args: argparse.Namespace) -> int:
         print(f"hdeem-watch demo: {why_no_tui()}; printing progress as text (--headless)", file=sys.stderr)
         args.headless = True
     from hdeem_watch.demo.daemon import DaemonFailed, DemoDaemon
+    from hdeem_watch.demo.nodes import demo_node
     from hdeem_watch.demo.schedule import DemoSchedule
 
-    extra = ("--counters", args.counters, *(("--sim-age", args.sim_age) if args.sim_age else ()))
+    node = demo_node(args.node)
+    extra = ("--counters", args.counters, "--sim-node", node.name,
+             *(("--sim-age", args.sim_age) if args.sim_age else ()))
     daemon = DemoDaemon(state_dir=args.state_dir, speed=args.speed, extra_args=extra)
     handled = (signal.SIGTERM, signal.SIGHUP)
     previous = {sig: signal.getsignal(sig) for sig in handled}
@@ -136,15 +144,15 @@ def _run(args: argparse.Namespace) -> int:
     try:
         if args.headless:
             kept = f" (daemon log: {daemon.log_path})" if daemon.log_kept else ""
-            print(f"demo: starting a simulated node{kept}", flush=True)
+            print(f"demo: starting a simulated node: {node.title}{kept}", flush=True)
         try:
             daemon.start()
         except DaemonFailed as error:
             print(f"hdeem-watch demo: {error}", file=sys.stderr)
             return 1
         if args.headless:
-            return _headless(daemon.control_endpoint, args)
-        return _tui(daemon.control_endpoint, args, DemoSchedule)
+            return _headless(daemon.control_endpoint, args, node)
+        return _tui(daemon.control_endpoint, args, DemoSchedule, node)
     except KeyboardInterrupt:
         return 130 if args.headless else 0
     finally:
@@ -171,11 +179,11 @@ def _is_terminal() -> bool:
     return sys.stdout.isatty() and os.environ.get("TERM", "") != "dumb"
 
 
-def _tui(control: str, args: argparse.Namespace, schedule_cls: Any) -> int:
+def _tui(control: str, args: argparse.Namespace, schedule_cls: Any, node: Any) -> int:
     from hdeem_watch.tui.app import HdeemWatchApp
     from hdeem_watch.tui.feed import FeedHub
 
-    schedule = schedule_cls(control, speed=args.speed)
+    schedule = schedule_cls(control, speed=args.speed, node=node)
     hub = FeedHub([control], snapshot_hz=min(10.0, max(1.0, args.fps)))
     app = HdeemWatchApp(hub, fps=args.fps, window_s=args.window, exit_after_s=args.duration)
     schedule.start()
@@ -186,8 +194,8 @@ def _tui(control: str, args: argparse.Namespace, schedule_cls: Any) -> int:
     return 0
 
 
-def _headless(control: str, args: argparse.Namespace) -> int:
-    from hdeem_watch.demo.schedule import RUN_LENGTHS_S, THREAD_ROUNDS, DemoSchedule, ScheduleEvent
+def _headless(control: str, args: argparse.Namespace, node: Any) -> int:
+    from hdeem_watch.demo.schedule import RUN_LENGTHS_S, DemoSchedule, ScheduleEvent
     from hdeem_watch.tui.feed import FeedHub
     from hdeem_watch.tui.headless import fit_width, print_progress, terminal_width
 
@@ -211,7 +219,7 @@ def _headless(control: str, args: argparse.Namespace) -> int:
 
     intro = [
         f"demo: daemon at {control};",
-        f"schedule: rounds of an idle run + 7 kernels at {'/'.join(THREAD_ROUNDS)} threads,",
+        f"schedule: rounds of an idle run + 7 kernels at {'/'.join(node.thread_rounds)} threads,",
         f"runs of {'/'.join(f'{s:g}' for s in RUN_LENGTHS_S)} s; Ctrl-C stops.",
         "reading the lines:", "run = measured vs modelled DRAM energy",
         "(datasheet and calibrated currents, error in %);", "calib = the fit:",
@@ -224,7 +232,7 @@ def _headless(control: str, args: argparse.Namespace) -> int:
         print(line, flush=True)
     hub = FeedHub([control], snapshot_hz=4.0)
     hub.set_view(focus=-1, window_s=10.0, width=0)
-    schedule = DemoSchedule(control, speed=args.speed, on_event=on_event, holdout=args.holdout)
+    schedule = DemoSchedule(control, speed=args.speed, on_event=on_event, holdout=args.holdout, node=node)
     hub.start()
     schedule.start()
     start = time.monotonic()

@@ -99,17 +99,37 @@ def subchannel_groups(spec: MemSpecDDR5, counters: Mapping[str, Any]) -> tuple[l
     groups: list[tuple[CommandStats, int]] = []
     notes = {"act/pre: a channel's counts split evenly over its two sub-channels"}
     for name, counts in sorted(channels.items()):
-        half = {role: (math.nan if value is None else float(value) / SUBCHANNELS if role in _COUNT_ROLES
-                       else float(value)) for role, value in counts.items()}
-        mapped = channel_stats(half, ranks=int(spec.nbr_of_ranks), window_cycles=float(window_s) / spec.tck_s,
-                               open_cycles_per_act=float(spec.timings["RAS"] + spec.timings["RP"]),
-                               refresh_complete=bool(counters.get("refresh_complete")),
-                               trefi_cycles=float(refi) if refi > 0 else None)
-        if mapped.stats is None:
-            raise InputError(f"counters: channel {name}: {mapped.status}")
-        notes.update(mapped.estimated)
-        groups.append((mapped.stats, SUBCHANNELS))
+        shares = _pseudo_channel_shares(counts)
+        if shares is not None:
+            notes.add("cas_rd/cas_wr: split over the sub-channels by the pseudo-channels' CAS counts")
+        for share in shares or (1.0 / SUBCHANNELS,):
+            part = {role: (math.nan if value is None else float(value) * _share(role, share) if role in _COUNT_ROLES
+                           else float(value)) for role, value in counts.items()}
+            mapped = channel_stats(part, ranks=int(spec.nbr_of_ranks), window_cycles=float(window_s) / spec.tck_s,
+                                   open_cycles_per_act=float(spec.timings["RAS"] + spec.timings["RP"]),
+                                   refresh_complete=bool(counters.get("refresh_complete")),
+                                   trefi_cycles=float(refi) if refi > 0 else None)
+            if mapped.stats is None:
+                raise InputError(f"counters: channel {name}: {mapped.status}")
+            notes.update(mapped.estimated)
+            groups.append((mapped.stats, 1 if shares is not None else SUBCHANNELS))
     return groups, sorted(notes)
+
+
+def _pseudo_channel_shares(counts: Mapping[str, Any]) -> tuple[float, float] | None:
+    """Each pseudo-channel's share of the channel's CASes where both are counted (Sapphire Rapids'
+    ``CAS_COUNT.PCH0``/``.PCH1``: a DDR5 DIMM's two sub-channels), else None (an even split)."""
+    values = [counts.get(f"cas_pch{p}") for p in range(SUBCHANNELS)]
+    known = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    if len(known) != SUBCHANNELS or sum(known) <= 0:
+        return None
+    return known[0] / sum(known), known[1] / sum(known)
+
+
+def _share(role: str, share: float) -> float:
+    """A sub-channel's part of a counted role: its CAS share of CASes, half of the rest (ACT, PRE and
+    refresh are counted per channel)."""
+    return share if role.startswith("cas_") else 1.0 / SUBCHANNELS
 
 
 def umc_energy(spec: MemSpecDDR5, counters: Mapping[str, Any], *, source: str | None = None) -> dict[str, Any]:

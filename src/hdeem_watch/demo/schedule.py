@@ -9,7 +9,8 @@ about its target length with :func:`hdeem_watch.sources.sim.modelled_line_rate`.
 
 The design is what makes the five currents identifiable within a minute (about 30 runs):
 
-- thread counts 24, 4, 12, 1 (:data:`THREAD_ROUNDS`): the share of row misses per line (IDD0)
+- thread counts 24, 4, 12, 1 (:data:`THREAD_ROUNDS`; on the DDR5 node 112, 16, 72, 1:
+  :mod:`hdeem_watch.demo.nodes`): the share of row misses per line (IDD0)
   and the split between the sockets change with the threads;
 - run lengths that vary (:data:`RUN_LENGTHS_S`, 1.25–1.75 s, the mean :data:`TARGET_RUN_S`): with
   every run equally long the standby power × window and the fit's intercept (a fixed energy per
@@ -31,8 +32,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from hdeem_watch.bench.schedule import IDLE_KERNEL, KERNELS, RunSpec, sweep
+from hdeem_watch.demo.nodes import DEMO_NODES, DemoNode
 from hdeem_watch.dram.kernels import HOLDOUT_KERNELS, kernel_traffic
 from hdeem_watch.dram.node import HASWELL_EP, NodeTopology
+from hdeem_watch.sim.layout import TAURUS, SimLayout
 from hdeem_watch.sources.sim import modelled_line_rate
 from hdeem_watch.wire.client import ControlClient, ControlError, DaemonUnreachable
 
@@ -59,9 +62,10 @@ PAUSE_AFTER_ABORT_S = 15.0
 RETRY_S = 1.0
 
 
-def repeat_for(kernel: str, threads: int, elements: int = ELEMENTS, target_s: float = TARGET_RUN_S) -> int:
-    """Passes that make a run last about ``target_s`` on the modelled node (1 for idle)."""
-    rate = modelled_line_rate(kernel, threads)
+def repeat_for(kernel: str, threads: int, elements: int = ELEMENTS, target_s: float = TARGET_RUN_S,
+               layout: SimLayout = TAURUS) -> int:
+    """Passes that make a run last about ``target_s`` on the modelled node ``layout`` (1 for idle)."""
+    rate = modelled_line_rate(kernel, threads, layout=layout)
     if kernel == IDLE_KERNEL or rate <= 0:
         return 1
     traffic = kernel_traffic(kernel, elements)
@@ -69,9 +73,9 @@ def repeat_for(kernel: str, threads: int, elements: int = ELEMENTS, target_s: fl
     return max(1, round(target_s * rate / lines))
 
 
-def run_seconds(spec: RunSpec) -> float:
-    """How long the modelled node needs for ``spec`` (``TARGET_RUN_S`` for an idle run)."""
-    rate = modelled_line_rate(spec.kernel, spec.threads, spec.elements or ELEMENTS)
+def run_seconds(spec: RunSpec, layout: SimLayout = TAURUS) -> float:
+    """How long the modelled node ``layout`` needs for ``spec`` (``TARGET_RUN_S`` for an idle run)."""
+    rate = modelled_line_rate(spec.kernel, spec.threads, spec.elements or ELEMENTS, layout)
     if spec.kernel == IDLE_KERNEL or rate <= 0:
         return TARGET_RUN_S
     traffic = kernel_traffic(spec.kernel, spec.elements)
@@ -119,9 +123,11 @@ class DemoRun:
     holdout: bool = False
 
 
-def demo_round(threads_spec: str, round_no: int = 0, *, holdout: bool = True) -> list[DemoRun]:
+def demo_round(threads_spec: str, round_no: int = 0, *, holdout: bool = True,
+               layout: SimLayout = TAURUS) -> list[DemoRun]:
     """Round ``round_no``: an idle run, then every kernel at each thread count of ``threads_spec``,
-    then (``holdout``, from round :data:`HOLDOUT_FROM_ROUND`) one hold-out run (module docstring).
+    then (``holdout``, from round :data:`HOLDOUT_FROM_ROUND`) one hold-out run (module docstring),
+    sized for the simulated node ``layout``.
 
     The idle run lasts ``IDLE_SECONDS[round_no]`` (cycled); the kernel runs cycle through
     :data:`RUN_LENGTHS_S`, shifted by the round so each kernel gets different lengths.
@@ -130,14 +136,15 @@ def demo_round(threads_spec: str, round_no: int = 0, *, holdout: bool = True) ->
     runs = [DemoRun(idle, IDLE_SECONDS[round_no % len(IDLE_SECONDS)])]
     for i, spec in enumerate(sweep(list(KERNELS), threads_spec, ELEMENTS, 1)):
         target = RUN_LENGTHS_S[(i + round_no) % len(RUN_LENGTHS_S)]
-        sized = RunSpec(spec.kernel, spec.threads, spec.elements, repeat_for(spec.kernel, spec.threads, target_s=target))
-        runs.append(DemoRun(sized, run_seconds(sized)))
+        sized = RunSpec(spec.kernel, spec.threads, spec.elements,
+                        repeat_for(spec.kernel, spec.threads, target_s=target, layout=layout))
+        runs.append(DemoRun(sized, run_seconds(sized, layout)))
     if holdout and round_no >= HOLDOUT_FROM_ROUND:
         kernel = HOLDOUT_KERNELS[(round_no - HOLDOUT_FROM_ROUND) % len(HOLDOUT_KERNELS)]
         threads = int(str(threads_spec).split(",")[0])
         target = RUN_LENGTHS_S[round_no % len(RUN_LENGTHS_S)]
-        sized = RunSpec(kernel, threads, ELEMENTS, repeat_for(kernel, threads, target_s=target))
-        runs.append(DemoRun(sized, run_seconds(sized), holdout=True))
+        sized = RunSpec(kernel, threads, ELEMENTS, repeat_for(kernel, threads, target_s=target, layout=layout))
+        runs.append(DemoRun(sized, run_seconds(sized, layout), holdout=True))
     return runs
 
 
@@ -179,6 +186,8 @@ class DemoSchedule(threading.Thread):
         on_event: called (in this thread) for each start/stop/error.
         max_runs: stop after this many runs (None: go on until :meth:`stop`).
         holdout: add the hold-out runs (:func:`demo_round`).
+        node: the simulated node the daemon runs (its runs' sizes and the rounds' thread counts;
+            default the Haswell node).
     """
 
     def __init__(
@@ -189,8 +198,10 @@ class DemoSchedule(threading.Thread):
         on_event: Callable[[ScheduleEvent], None] | None = None,
         max_runs: int | None = None,
         holdout: bool = True,
+        node: DemoNode | None = None,
     ) -> None:
         super().__init__(name="hdeem-watch-demo-schedule", daemon=True)
+        self.node = node or DEMO_NODES["haswell"]
         self.control_endpoint = control_endpoint
         self.speed = speed if speed > 0 else 1.0
         self.on_event = on_event or (lambda _event: None)
@@ -213,7 +224,9 @@ class DemoSchedule(threading.Thread):
         try:
             self.topology = node_topology(client)
             while not self._halt.is_set():
-                for run in demo_round(THREAD_ROUNDS[round_no % len(THREAD_ROUNDS)], round_no, holdout=self.holdout):
+                rounds = self.node.thread_rounds
+                for run in demo_round(rounds[round_no % len(rounds)], round_no, holdout=self.holdout,
+                                      layout=self.node.layout):
                     if self._halt.is_set() or (self.max_runs is not None and index >= self.max_runs):
                         return
                     index += 1

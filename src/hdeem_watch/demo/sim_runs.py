@@ -33,8 +33,11 @@ from hdeem_watch.calibrate.drift import DriftAlarm
 from hdeem_watch.calibrate.group_fits import source_groups
 from hdeem_watch.calibrate.run_model import RunModeller
 from hdeem_watch.counters.source import CounterSnapshot, window_counts
-from hdeem_watch.demo.schedule import ELEMENTS, THREAD_ROUNDS, DemoRun, demo_round
+from hdeem_watch.demo.nodes import DEMO_NODES, DemoNode
+from hdeem_watch.demo.schedule import ELEMENTS, DemoRun, demo_round
+from hdeem_watch.run_record import RunRecord
 from hdeem_watch.sim.counters import SimCounters
+from hdeem_watch.sim.model import memspec_setting
 from hdeem_watch.sources.base import RunEvent
 from hdeem_watch.sources.sim import SimSource
 
@@ -43,8 +46,6 @@ DEMO_GAP_S = 5.5
 #: The demo's window tails at ``--speed 60`` (see :class:`SimRuns`): mostly 0.1–0.6 sim-s, one run in
 #: ten 1–3 s.
 DEMO_TAIL_S = (0.1, 0.6, 0.1, 1.0, 3.0)
-#: The daemon's default memspec (the sim's DIMMs' datasheet).
-MEMSPEC = "samsung-m393a1g43db0-cpb"
 _T0_WALL_NS = 1_700_000_000 * 10**9
 
 
@@ -77,7 +78,7 @@ class SimRuns:
         age: ``{pair: relative growth per sim hour}`` (``--sim-age``).
         age_start_s: ``{pair: sim s}`` when each pair starts to age.
         gap_s: sim seconds between runs.
-        memspec: the model's memspec.
+        memspec: the model's memspec (None: the simulated node's own, as the daemon takes it).
         half_life_s: the calibrators' forgetting half-life (None: the daemon's default, never).
         sim_options: further :class:`SimSource` keyword arguments.
         tail_s: how much longer than its traffic a run's window is, drawn per run: ``(low, high,
@@ -91,20 +92,25 @@ class SimRuns:
             daemon's ``counters = "sim"``; its rows then come from them).
         holdout: add the demo's hold-out runs (predicted, never fitted).
         groups: fit the sensor groups too (False: the node fit only, faster).
+        node: the simulated node and its rounds' thread counts (default: the Haswell node).
     """
 
     def __init__(self, seed: int, *, age: Mapping[str, float] | None = None,
-                 age_start_s: Mapping[str, float] | None = None, gap_s: float = DEMO_GAP_S, memspec: str = MEMSPEC,
-                 half_life_s: float | None = None, sim_options: Mapping[str, Any] | None = None,
+                 age_start_s: Mapping[str, float] | None = None, gap_s: float = DEMO_GAP_S,
+                 memspec: str | None = None, half_life_s: float | None = None,
+                 sim_options: Mapping[str, Any] | None = None,
                  tail_s: tuple[float, float, float, float, float] | None = None, seed_tail: int = 0,
-                 counters: bool = False, holdout: bool = False, groups: bool = True) -> None:
+                 counters: bool = False, holdout: bool = False, groups: bool = True,
+                 node: DemoNode | None = None) -> None:
+        self.node = node or DEMO_NODES["haswell"]
+        layout = self.node.layout
         self._mono_ns = 0
         self.holdout = holdout
         self.tail_s = tail_s
         self._tail_rng = np.random.default_rng([int(seed), int(seed_tail), 9973])
         self.sim = SimSource(seed=seed, clock=lambda: self._mono_ns, wall_clock=lambda: _T0_WALL_NS,
                              background_plans=False, age=dict(age or {}), age_start_s=dict(age_start_s or {}),
-                             **dict(sim_options or {}))
+                             layout=layout, **dict(sim_options or {}))
         self.sim.open()
         self.gap_ns = round(gap_s * 1e9)
         infos = self.sim.channels()
@@ -112,7 +118,8 @@ class SimRuns:
         rates = {i.name: float(i.rate_hz) for i in infos if i.kind == "dram"}
         self.counters = SimCounters(self.sim) if counters else None
         currents = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
-        self.modeller = RunModeller(memspec, currents=currents_with_counters(currents) if counters else currents,
+        self.modeller = RunModeller(memspec or memspec_setting(layout), topology=layout.topology,
+                                    currents=currents_with_counters(currents) if counters else currents,
                                     half_life_s=half_life_s, groups=source_groups(self.sim, rates, 2, 4) if groups else (),
                                     dram_rates_hz=rates)
         if self.modeller.error is not None:
@@ -129,7 +136,9 @@ class SimRuns:
     def _demo_runs(self) -> Iterator[DemoRun]:
         round_no = 0
         while True:
-            yield from demo_round(THREAD_ROUNDS[round_no % len(THREAD_ROUNDS)], round_no, holdout=self.holdout)
+            rounds = self.node.thread_rounds
+            yield from demo_round(rounds[round_no % len(rounds)], round_no, holdout=self.holdout,
+                                  layout=self.node.layout)
             round_no += 1
 
     def _advance(self, seconds: float) -> dict[str, float]:
@@ -160,7 +169,7 @@ class SimRuns:
         counted = None if count_start is None else self._window_counters(count_start)
         energy = {c: stop[c] - start[c] for c in stop}
         window_s = (self._mono_ns - t_start) * 1e-9
-        record = {"run_id": run_id, "name": f"{spec.kernel}-{spec.threads}t", "kernel": spec.kernel,
+        record = {"run_id": run_id, "state": "modelling", "name": f"{spec.kernel}-{spec.threads}t", "kernel": spec.kernel,
                   "threads": spec.threads, "elements": elements, "repeat": spec.repeat, "window_s": window_s,
                   "t_start_ns": _T0_WALL_NS + t_start, "t_stop_ns": _T0_WALL_NS + self._mono_ns,
                   "energy_j": energy, "dram_energy_j": sum(energy[c] for c in self.dram),
@@ -168,7 +177,7 @@ class SimRuns:
                                **({"holdout": True} if run.holdout else {})}}
         if counted is not None:
             record["counters"] = counted
-        model, _fit, error = self.modeller.evaluate(record)
+        model, _fit, error = self.modeller.evaluate(RunRecord.from_dict(record))
         return FinishedRun(self.index, self.t_s, record, model, error, tuple(self.modeller.take_alarms()))
 
     def _window_counters(self, start: CounterSnapshot) -> dict[str, Any]:
@@ -176,7 +185,7 @@ class SimRuns:
         assert self.counters is not None
         end = self.counters.read()
         table = self.counters.table
-        return {"source": "sim", "generation": "haswell-ep", "status": "ok", "ranks": self.counters.ranks,
+        return {"source": "sim", "generation": table.generation, "status": "ok", "ranks": self.counters.ranks,
                 "refresh_complete": table.refresh_complete, "t_start_ns": start.t_ns, "t_end_ns": end.t_ns,
                 "window_s": (end.t_ns - start.t_ns) / 1e9,
                 "sensors": {c.name: c.sensor for c in self.counters.channels()},

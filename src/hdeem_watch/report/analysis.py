@@ -23,6 +23,7 @@ from hdeem_watch.dram.energy import COMPONENT_KINDS, component_energy
 from hdeem_watch.dram.kernels import HOLDOUT_KERNELS
 from hdeem_watch.errors import InputError
 from hdeem_watch.report.records import BaselinePoint, FitEntry, JobRow, ReportData, RunRow, finite
+from hdeem_watch.run_record import RunRecord
 
 #: Energy components of the figure "energy by component": :data:`hdeem_watch.dram.energy.COMPONENT_KINDS`
 #: under the figure's labels, in its order.
@@ -174,20 +175,20 @@ def representative_runs(runs: Sequence[RunRow]) -> list[RunRow]:
     return [best[k] for k in sorted(best, key=lambda k: (k != "idle", k))]
 
 
-def jobs_from_runs(records: Sequence[Mapping[str, Any]], baselines: Sequence[BaselinePoint]) -> list[JobRow]:
+def jobs_from_runs(records: Sequence[RunRecord], baselines: Sequence[BaselinePoint]) -> list[JobRow]:
     """Jobs from the runs' SLURM metadata (``slurm_job_id``): summed DRAM energy, and the energy the
     idle baseline (each channel's latest before the run) would have drawn over the same windows."""
     jobs: dict[tuple[str, str], list[float]] = {}
     for record in records:
-        job = (record.get("metadata") or {}).get("slurm_job_id")
-        energy, window = finite(record.get("dram_energy_j")), finite(record.get("window_s"))
-        if not job or record.get("state") != "done" or not math.isfinite(energy) or not math.isfinite(window):
+        job = record.metadata.get("slurm_job_id")
+        energy, window = finite(record.dram_energy_j), finite(record.window_s)
+        if not job or record.state != "done" or not math.isfinite(energy) or not math.isfinite(window):
             continue
-        t_ns = int(record.get("t_start_ns") or 0)
-        channels = [c for c in record.get("energy_j") or {} if c.lower().startswith(("ddr", "dram"))]
+        t_ns = record.t_start_ns or 0
+        channels = [c for c in record.energy_j or {} if c.lower().startswith(("ddr", "dram"))]
         powers = [_baseline_before(baselines, c, t_ns) for c in channels]
         baseline = sum(powers) * window if powers else math.nan
-        node = str(record.get("node") or (record.get("metadata") or {}).get("slurm_node") or "")
+        node = str(record.node or record.metadata.get("slurm_node") or "")
         entry = jobs.setdefault((str(job), node), [0.0, 0.0, 0.0, 0.0])
         entry[0] += energy
         entry[1] += baseline

@@ -35,6 +35,7 @@ from hdeem_watch.report.records import (
     finite,
     is_dram_channel,
 )
+from hdeem_watch.run_record import RunRecord
 from hdeem_watch.state_schema import REQUIRED_TABLES, table_columns
 
 #: Column names under which a newer schema may keep the sensor group of a fit.
@@ -94,7 +95,7 @@ def read_state(path: str | Path) -> ReportData:
         # that to SQLite's JSON functions rather than parse it once per run here
         texts = [t for (t,) in db.execute(f"SELECT {_slim(db, 'record', '$.fit', '$.samples_ns')} FROM runs "
                                           "ORDER BY seq")]
-        records = [r for r in (_json(t) for t in texts) if isinstance(r, dict)]
+        records = [r for r in (_run_record(_json(t)) for t in texts) if r is not None]
         damaged = len(texts) - len(records)
         history, pair_history = _fit_history(db, tables)
         history = _with_full_latest(db, history)
@@ -110,7 +111,7 @@ def read_state(path: str | Path) -> ReportData:
         db.close()
     notes: list[str] = []
     if damaged:
-        notes.append(f"{damaged} run record(s) of the state are not readable JSON and are left out")
+        notes.append(f"{damaged} run record(s) of the state are not readable run records and are left out")
     if quarantined:
         notes.append(f"the daemon set {quarantined} damaged row(s) of its state aside (table quarantine); "
                      "they are not shown")
@@ -249,12 +250,20 @@ def _job_table(db: sqlite3.Connection, tables: Mapping[str, list[str]]) -> list[
     return jobs
 
 
-def _spec_of(records: Sequence[Mapping[str, Any]], notes: list[str]) -> Any:
+def _run_record(value: Any) -> RunRecord | None:
+    """A stored run (None: not readable as one)."""
+    try:
+        return RunRecord.from_dict(value)
+    except ValueError:
+        return None
+
+
+def _spec_of(records: Sequence[RunRecord], notes: list[str]) -> Any:
     """The datasheet memspec the daemon modelled the runs with (found by its memoryId among the presets)."""
     from hdeem_watch.dram.memspec import memspec_from, preset
     from hdeem_watch.dram.presets import PRESETS
 
-    names = {str((r.get("model") or {}).get("memspec")) for r in records if r.get("model")}
+    names = {str(r.model.get("memspec")) for r in records if r.model}
     names.discard("None")
     if not names:
         notes.append("no run was modelled: the memspec is unknown")
@@ -272,19 +281,19 @@ def _spec_of(records: Sequence[Mapping[str, Any]], notes: list[str]) -> Any:
         return None
 
 
-def _runs(records: Sequence[Mapping[str, Any]], spec: Any, fit: Mapping[str, Any] | None) -> list[RunRow]:
+def _runs(records: Sequence[RunRecord], spec: Any, fit: Mapping[str, Any] | None) -> list[RunRow]:
     import numpy as np
 
     currents = model_currents(spec, fit) if spec is not None and fit is not None else None
     by_name = fit_runs_by_name(fit)
     out = []
     for record in records:
-        measured = finite(record.get("dram_energy_j"))
-        if record.get("state") != "done" or not measured > 0:
+        measured = finite(record.dram_energy_j)
+        if record.state != "done" or not measured > 0:
             continue
-        model = record.get("model") or {}
+        model = record.model or {}
         observation = model.get("observation") or {}
-        key = observation.get("name") or f"{record.get('run_id')}:{record.get('name')}"
+        key = observation.get("name") or f"{record.run_id}:{record.name}"
         in_fit = by_name.get(str(key), {})
         calibrated = finite(in_fit.get("after_j"))
         if currents is not None and observation.get("columns"):
@@ -292,29 +301,29 @@ def _runs(records: Sequence[Mapping[str, Any]], spec: Any, fit: Mapping[str, Any
             columns = np.asarray(observation["columns"], dtype=float)
             if columns.shape == vector.shape:
                 calibrated = float(columns @ vector + finite(observation.get("constant_j")) + intercept)
-        energies = {str(c): finite(e) for c, e in (record.get("energy_j") or {}).items() if is_dram_channel(str(c))}
-        kernel = str(record.get("kernel", "?"))
+        energies = {c: finite(e) for c, e in (record.energy_j or {}).items() if is_dram_channel(c)}
+        figures = record.figures
         out.append(RunRow(
-            run_id=str(record.get("run_id")), name=str(record.get("name") or record.get("run_id")), kernel=kernel,
-            threads=int(record.get("threads") or 0), t_ns=int(record.get("t_stop_ns") or 0),
-            window_s=finite(record.get("window_s")), measured_j=measured,
-            datasheet_j=finite(model.get("datasheet_j")), calibrated_j=calibrated,
-            predicted_j=finite(model.get("predicted_j")), loo_j=finite(in_fit.get("loo_j")),
-            elements=int(record.get("elements") or 0), repeat=int(record.get("repeat") or 1),
+            run_id=record.run_id, name=record.name or record.run_id, kernel=record.kernel,
+            threads=record.threads or 0, t_ns=record.t_stop_ns or 0,
+            window_s=finite(record.window_s), measured_j=measured,
+            datasheet_j=figures.datasheet_j, calibrated_j=calibrated,
+            predicted_j=figures.predicted_j, loo_j=finite(in_fit.get("loo_j")),
+            elements=record.elements or 0, repeat=record.repeat or 1,
             dimms=int(model.get("dimms") or 0), channel_energy_j=energies))
     return out
 
 
-def _idle_run_baselines(records: Sequence[Mapping[str, Any]]) -> list[BaselinePoint]:
+def _idle_run_baselines(records: Sequence[RunRecord]) -> list[BaselinePoint]:
     """Each finished idle run's mean power per DRAM channel: the baseline at that time."""
     out = []
     for record in records:
-        if record.get("state") != "done" or str(record.get("kernel")) not in ("idle", "sleep"):
+        if record.state != "done" or not record.moves_no_traffic:
             continue
-        for channel, power in (record.get("mean_power_w") or {}).items():
+        for channel, power in (record.mean_power_w or {}).items():
             value = finite(power)
-            if is_dram_channel(str(channel)) and math.isfinite(value):
-                out.append(BaselinePoint(channel=str(channel), t_ns=int(record.get("t_stop_ns") or 0),
+            if is_dram_channel(channel) and math.isfinite(value):
+                out.append(BaselinePoint(channel=channel, t_ns=record.t_stop_ns or 0,
                                          power_w=value, spread_w=math.nan, origin="idle-run"))
     return out
 

@@ -107,6 +107,26 @@ DDR5_MEMSPEC = "ddr5_node.json"
 DDR5_NODE = replace(SimLayout.per_socket(2, 56, 16), memspec=DDR5_MEMSPEC)
 
 
+#: The simulated nodes by name (``hdeem-watch demo --node``, the daemon's ``sim_node`` setting).
+SIM_NODES: dict[str, SimLayout] = {"haswell": TAURUS, "ddr5": DDR5_NODE}
+
+
+def sim_node(name: str) -> SimLayout:
+    """The simulated node called ``name`` (:data:`SIM_NODES`).
+
+    Raises:
+        InputError: an unknown name (one line with the known ones).
+
+    Example:
+        >>> sim_node("ddr5").sensors
+        ('DRAM0', 'DRAM1')
+    """
+    layout = SIM_NODES.get(str(name).strip().lower())
+    if layout is None:
+        raise InputError(f"sim node {name!r}: unknown; expected one of {', '.join(SIM_NODES)}")
+    return layout
+
+
 def layout_for_node(node: NodeDescription) -> SimLayout:
     """The sim layout of a node description (sockets, cores and channels must be known).
 

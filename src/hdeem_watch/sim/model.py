@@ -161,6 +161,21 @@ def sim_memspec(name: str) -> Any:
     return preset(name)
 
 
+def memspec_setting(layout: SimLayout = TAURUS) -> str:
+    """The layout's memspec as the daemon's ``memspec`` setting names one: a preset name, or the
+    absolute path of this package's memspec file (the DDR5 node's ``ddr5_node.json``).
+
+    Example:
+        >>> memspec_setting(), memspec_setting(SimLayout.per_socket(1, 4, 2))
+        ('samsung-m393a1g43db0-cpb', 'samsung-m393a1g43db0-cpb')
+    """
+    from pathlib import Path
+
+    if layout.memspec.endswith(".json"):
+        return str(Path(__file__).with_name(layout.memspec))
+    return layout.memspec
+
+
 class DramModel:
     """The DRAM model (memspec, energy columns, node statistics) of the sim's DIMMs.
 

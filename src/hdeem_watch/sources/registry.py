@@ -59,13 +59,16 @@ def make_source(kind: str, **options: Any) -> Source:
 
 
 def simulated_memspec(source: Source) -> str | None:
-    """The memspec preset the hidden truth of a simulated node is built on (None: ``source``
-    measures a real node, whose DIMMs choose its memspec)."""
+    """The memspec the hidden truth of a simulated node is built on: a preset name (the Haswell
+    node's DDR4 DIMMs) or the path of the sim's memspec file (the DDR5 node's sub-channel,
+    ``sim/ddr5_node.json``); None: ``source`` measures a real node, whose DIMMs choose its memspec."""
     if source.kind != "sim":
         return None
-    from hdeem_watch.sim.model import MEMSPEC_PRESET
+    from hdeem_watch.sim.layout import SimLayout
+    from hdeem_watch.sim.model import memspec_setting
 
-    return MEMSPEC_PRESET
+    layout = getattr(source, "layout", None)
+    return memspec_setting(layout) if isinstance(layout, SimLayout) else memspec_setting()
 
 
 def available_sources(**options: Any) -> dict[str, str | None]:

@@ -27,9 +27,10 @@ from typing import Any
 
 import numpy as np
 
+from hdeem_watch.run_record import RunRecord
 from hdeem_watch.tui.downsample import ColumnCache
 from hdeem_watch.tui.recent_samples import RecentSamples
-from hdeem_watch.tui.records import calib_view, first_num, num, run_view, sensor_command_rates
+from hdeem_watch.tui.records import calib_view, num, run_record, run_view, sensor_command_rates
 from hdeem_watch.tui.snapshot import (
     CalibView,
     ChannelView,
@@ -105,11 +106,11 @@ class NodeModel:
         self._channels: dict[str, _Channel] = {}
         self._status: Mapping[str, Any] = {}
         self._baselines: dict[str, Mapping[str, Any]] = {}
-        self._runs: dict[str, Mapping[str, Any]] = {}
+        self._runs: dict[str, RunRecord] = {}
         self._history_ids: set[str] = set()
         self._stored_runs: int | None = None  # the daemon's count at the last status reply
         self._runs_since_status = 0
-        self._current_run: Mapping[str, Any] | None = None
+        self._current_run: RunRecord | None = None
         self._jobs: dict[str, Mapping[str, Any]] = {}  # open SLURM jobs by id
         self._calib_body: Mapping[str, Any] = {}
         self._calib_cache: tuple[int, CalibView] | None = None
@@ -201,9 +202,8 @@ class NodeModel:
                 channel.source_gaps = int(gaps) if math.isfinite(gaps) else channel.source_gaps
                 channel.status = str(info.get("status", channel.status))
                 channel.status_power_w = num(info.get("power_w"))
-        run = body.get("run")
         if "run" in body:
-            self._current_run = run if isinstance(run, Mapping) else None
+            self._current_run = run_record(body.get("run"))
         jobs = body.get("jobs")  # the status reply lists the open jobs (the heartbeat does not)
         if isinstance(jobs, list):
             self._jobs = {str(j.get("job_id")): j for j in jobs if isinstance(j, Mapping)}
@@ -224,16 +224,16 @@ class NodeModel:
 
     def apply_run_event(self, body: Mapping[str, Any]) -> None:
         """Take a ``run`` message: ``{"event": "start"|"stop", "run": {...}}``."""
-        run = body.get("run")
-        if not isinstance(run, Mapping):
+        run = run_record(body.get("run"))
+        if run is None:
             return
         if body.get("event") == "start":
             self._current_run = run
         else:
-            if str(run.get("run_id", run.get("id", ""))) not in self._runs:
+            if run.run_id not in self._runs:
                 self._runs_since_status += 1
-            self.add_runs([run])
-            if self._current_run is not None and self._current_run.get("run_id") == run.get("run_id"):
+            self._add_run(run, history=False)
+            if self._current_run is not None and self._current_run.run_id == run.run_id:
                 self._current_run = None
 
     def add_runs(self, runs: list[Any], *, history: bool = False) -> None:
@@ -241,12 +241,15 @@ class NodeModel:
 
         ``history``: runs the daemon had stored before this UI connected (not new to the user).
         """
-        for run in runs:
-            if isinstance(run, Mapping):
-                key = str(run.get("run_id", run.get("id", len(self._runs))))
-                if key not in self._runs and history:
-                    self._history_ids.add(key)
-                self._runs[key] = run
+        for value in runs:
+            run = run_record(value)
+            if run is not None:
+                self._add_run(run, history=history)
+
+    def _add_run(self, run: RunRecord, *, history: bool) -> None:
+        if run.run_id not in self._runs and history:
+            self._history_ids.add(run.run_id)
+        self._runs[run.run_id] = run
         while len(self._runs) > MAX_RUNS:
             self._history_ids.discard(next(iter(self._runs)))
             self._runs.pop(next(iter(self._runs)))
@@ -369,8 +372,8 @@ class NodeModel:
         )
         current: RunView | None = None
         if self._current_run is not None:
-            started = first_num(self._current_run, "t_start_ns", "start_ns", "t_ns", "started_ns")
-            elapsed = (now_wall_ns - started) / 1e9 if math.isfinite(started) else math.nan
+            started = self._current_run.t_start_ns
+            elapsed = (now_wall_ns - started) / 1e9 if started is not None else math.nan
             current = run_view(self._current_run, running=True, elapsed_s=elapsed)
         jobs = tuple(JobView(job_id=key, user=str(job.get("user") or ""),
                              elapsed_s=(now_wall_ns - num(job.get("t_start_ns"))) / 1e9)

@@ -1,8 +1,10 @@
 """Reading the daemon's JSON records (runs, fits, baselines) into the UI's snapshot views.
 
-The wire protocol carries runs, fits and baselines as JSON objects (docs/protocol.md). These
-functions turn them into :mod:`hdeem_watch.tui.snapshot` views, tolerating missing fields (shown as
-unknown) so that a newer daemon with more fields, or an older one with fewer, still displays.
+The wire protocol carries runs, fits and baselines as JSON objects (docs/protocol.md). Runs are
+read by the one parser of run records (:meth:`hdeem_watch.run_record.RunRecord.from_dict`); fits
+and baselines here. These functions turn them into :mod:`hdeem_watch.tui.snapshot` views,
+tolerating missing fields (shown as unknown) so that a newer daemon with more fields, or an older
+one with fewer, still displays.
 Pure functions; no I/O.
 """
 
@@ -14,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hdeem_watch.channels import DRAM_CHANNELS
+from hdeem_watch.run_record import RunRecord
 from hdeem_watch.tui.group_views import group_views
 from hdeem_watch.tui.snapshot import CalibView, CommandRates, CurrentView, RunView
 
@@ -45,47 +48,47 @@ def first_num(record: Mapping[str, Any], *keys: str) -> float:
     return math.nan
 
 
-def measured_dram_j(record: Mapping[str, Any]) -> float:
-    """The run's measured DRAM energy: an explicit total, else the sum over the DIMM-pair channels."""
-    total = first_num(record, "measured_j", "dram_energy_j", "measured.dram_j", "energy.dram_j")
-    if math.isfinite(total):
+def measured_dram_j(record: RunRecord) -> float:
+    """The run's measured DRAM energy: its total, else the sum over the DIMM-pair channels."""
+    total = record.dram_energy_j
+    if total is not None and math.isfinite(total):
         return total
-    per_channel = record.get("energy_j")
-    if isinstance(per_channel, Mapping):
-        values = [num(per_channel.get(name)) for name in DRAM_CHANNELS if name in per_channel]
-        if values and all(math.isfinite(v) for v in values):
-            return float(sum(values))
+    per_channel = record.energy_j or {}
+    values = [per_channel[name] for name in DRAM_CHANNELS if name in per_channel]
+    if values and all(math.isfinite(v) for v in values):
+        return float(sum(values))
     return math.nan
 
 
-def run_view(
-    record: Mapping[str, Any], *, running: bool = False, elapsed_s: float = math.nan, history: bool = False
-) -> RunView:
-    """A :class:`RunView` from a run record of the ``run`` topic or ``runs.list`` (``history``: stored
+def run_view(record: RunRecord, *, running: bool = False, elapsed_s: float = math.nan,
+             history: bool = False) -> RunView:
+    """A :class:`RunView` of a run record (of the ``run`` topic or ``runs.list``; ``history``: stored
     before the UI connected)."""
-    metadata = record.get("metadata") if isinstance(record.get("metadata"), Mapping) else {}
-    assert isinstance(metadata, Mapping)
-    duration = first_num(record, "duration_s", "window_s", "seconds")
+    duration = math.nan if record.window_s is None else record.window_s
     if running and math.isfinite(elapsed_s):
         duration = elapsed_s
-    threads = first_num(record, "threads")
+    figures = record.figures
     return RunView(
-        run_id=str(record.get("run_id", record.get("id", "?"))),
-        name=str(record.get("name") or record.get("kernel") or "?"),
-        kernel=str(record.get("kernel") or "?"),
-        threads=int(threads) if math.isfinite(threads) else 0,
+        run_id=record.run_id,
+        name=record.name or record.kernel,
+        kernel=record.kernel,
+        threads=record.threads or 0,
         duration_s=duration,
         measured_j=math.nan if running else measured_dram_j(record),
-        model_datasheet_j=first_num(
-            record, "model_datasheet_j", "model.datasheet_j", "model_j.datasheet", "model.datasheet"
-        ),
-        model_calibrated_j=first_num(
-            record, "model_calibrated_j", "model.calibrated_j", "model_j.calibrated", "model.calibrated"
-        ),
+        model_datasheet_j=figures.datasheet_j,
+        model_calibrated_j=figures.calibrated_j,
         running=running,
-        simulated=bool(metadata.get("simulated", False) or record.get("simulated", False)),
+        simulated=record.simulated,
         history=history,
     )
+
+
+def run_record(value: Any) -> RunRecord | None:
+    """The run record a message carries (None: not one, e.g. from a daemon this UI cannot read)."""
+    try:
+        return RunRecord.from_dict(value)
+    except ValueError:
+        return None
 
 
 def _current_values(obj: Any) -> dict[str, float]:

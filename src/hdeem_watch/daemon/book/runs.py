@@ -6,14 +6,15 @@ exact difference of the source's own totals: nothing is lost between polls, what
 or the sample losses. The window's duration is measured on the source's clock (the source's time
 for a sped-up sim or replay).
 
-A run is a typed :class:`RunRecord` inside the daemon; it becomes a JSON-ready dict only at the
-edge (:meth:`RunRecord.to_dict` for the ``run`` topic, the store and ``run.stop``;
-:func:`run_summary` for ``runs.list``). Its ``state`` goes ``running`` → ``modelling`` (the window
-closed; the model and the refit are pending) → ``done``, or ``aborted``.
+A run is a typed :class:`~hdeem_watch.run_record.RunRecord` (shared with the report, the TUI and
+the calibrator); it becomes a JSON-ready dict only at the edge (``RunRecord.to_dict`` for the
+``run`` topic, the store and ``run.stop``; :func:`run_summary` for ``runs.list``). Its ``state``
+goes ``running`` → ``modelling`` (the window closed; the model and the refit are pending) →
+``done``, or ``aborted``.
 
 Example:
     >>> args = parse_run_args({"kernel": "triad", "threads": 24, "elements": 1000})
-    >>> rec = RunRecord.start("r1", args, t_wall_ns=5, node="n1")
+    >>> rec = started_run("r1", args, t_wall_ns=5, node="n1")
     >>> rec.state, rec.kernel
     ('running', 'triad')
     >>> window_energy({"DDR_AB": 10.0, "CPU0": 1.0}, {"DDR_AB": 12.5, "CPU0": float("nan")})
@@ -22,14 +23,13 @@ Example:
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
-from typing import Any, Literal
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
 
-from hdeem_watch.calibrate.run_model import NO_TRAFFIC_KERNELS, OPAQUE_KERNEL
+from hdeem_watch.run_record import NO_TRAFFIC_KERNELS, OPAQUE_KERNEL, RunRecord
 from hdeem_watch.wire.protocol import ProtocolError, quoted
 
 #: Largest number of samples kept per channel for one run (≈ 3 h at 100 Sa/s).
@@ -44,10 +44,6 @@ KERNEL_ARRAYS = 3
 #: (2 × 12 Haswell cores, 48 logical CPUs, 64 GiB) can be driven from a small machine.
 MIN_CPUS = 64
 MIN_MEMORY_BYTES = 128 << 30
-
-RunState = Literal["running", "modelling", "done", "aborted"]
-FINISHED_STATES = ("done", "aborted")
-
 
 @dataclass(frozen=True)
 class RunLimits:
@@ -137,83 +133,10 @@ def parse_run_args(args: Mapping[str, Any], limits: RunLimits | None = None) -> 
     )
 
 
-@dataclass
-class RunRecord:
-    """One run, from ``run.start`` to its model (see the module docstring for ``state``).
-
-    Energies are per channel in J (NaN = unknown); ``model`` and ``fit`` are the calibrator's JSON
-    contracts (:meth:`~hdeem_watch.calibrate.run_model.RunModeller.evaluate`).
-    """
-
-    run_id: str
-    node: str
-    name: str
-    kernel: str
-    threads: int
-    elements: int
-    repeat: int
-    metadata: dict[str, Any]
-    t_start_ns: int
-    state: RunState = "running"
-    t_stop_ns: int | None = None
-    window_s: float | None = None
-    energy_j: dict[str, float] | None = None
-    mean_power_w: dict[str, float] | None = None
-    dram_energy_j: float | None = None
-    model: dict[str, Any] | None = None
-    model_error: str | None = None
-    fit: dict[str, Any] | None = None
-    #: Per channel ``[last sample time before the window, last sample time in it]``.
-    samples_ns: dict[str, list[int | None]] | None = field(default=None)
-    #: The memory counters over the window (``hdeem_watch.daemon.counters.windows``), None without.
-    counters: dict[str, Any] | None = field(default=None)
-
-    @classmethod
-    def start(cls, run_id: str, args: RunArgs, *, t_wall_ns: int, node: str) -> RunRecord:
-        """The record of a run that just started."""
-        return cls(run_id=run_id, node=node, name=args.name, kernel=args.kernel, threads=args.threads,
-                   elements=args.elements, repeat=args.repeat, metadata=args.metadata, t_start_ns=int(t_wall_ns))
-
-    @property
-    def moves_no_traffic(self) -> bool:
-        """Whether the run is an idle run."""
-        return self.kernel in NO_TRAFFIC_KERNELS
-
-    def finish(self, *, energy_j: Mapping[str, float], window_s: float, dram_channels: Iterable[str],
-               t_wall_ns: int, spans_s: Mapping[str, float] | None = None, aborted: bool = False) -> RunRecord:
-        """A copy closed with its measured energies (``modelling``, or ``aborted``).
-
-        ``spans_s`` gives each channel's own duration for its mean power (default ``window_s``).
-        """
-        spans = spans_s or {}
-        power = {c: (e / spans.get(c, window_s) if spans.get(c, window_s) > 0 else math.nan)
-                 for c, e in energy_j.items()}
-        return dataclasses.replace(
-            self, state="aborted" if aborted else "modelling", t_stop_ns=int(t_wall_ns), window_s=float(window_s),
-            energy_j=dict(energy_j), mean_power_w=power, dram_energy_j=total_energy(energy_j, dram_channels))
-
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON-ready record (NaN stays NaN; the protocol encoder sends null)."""
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> RunRecord:
-        """A record from its stored form (unknown keys ignored; null energies → NaN).
-
-        Raises:
-            KeyError, TypeError, ValueError: not a run record.
-        """
-        names = {f.name for f in dataclasses.fields(cls)}
-        values = {k: v for k, v in data.items() if k in names}
-        for key in ("energy_j", "mean_power_w"):
-            if isinstance(values.get(key), Mapping):
-                values[key] = {c: math.nan if v is None else float(v) for c, v in values[key].items()}
-        if values.get("dram_energy_j") is None and values.get("state") in ("modelling", "done"):
-            values["dram_energy_j"] = math.nan
-        record = cls(**values)
-        if not isinstance(record.run_id, str) or record.state not in ("running", "modelling", "done", "aborted"):
-            raise ValueError(f"not a run record: run_id {record.run_id!r}, state {record.state!r}")
-        return record
+def started_run(run_id: str, args: RunArgs, *, t_wall_ns: int, node: str) -> RunRecord:
+    """The record of a run that just started."""
+    return RunRecord(run_id=run_id, node=node, name=args.name, kernel=args.kernel, threads=args.threads,
+                     elements=args.elements, repeat=args.repeat, metadata=args.metadata, t_start_ns=int(t_wall_ns))
 
 
 #: The fields of a record that ``runs.list`` sends (the model and fit reduced to their figures).
@@ -254,11 +177,3 @@ def window_energy(start_j: Mapping[str, float], stop_j: Mapping[str, float]) -> 
         start = start_j.get(name, math.nan)
         result[name] = float(stop) - float(start) if math.isfinite(start) and math.isfinite(stop) else math.nan
     return result
-
-
-def total_energy(energy_j: Mapping[str, float], channels: Iterable[str]) -> float:
-    """Sum over ``channels`` (NaN when any of them is unknown or none is present)."""
-    values = [energy_j.get(c, math.nan) for c in channels]
-    if not values:
-        return math.nan
-    return float(sum(values))

@@ -40,8 +40,9 @@ from typing import NamedTuple
 
 from hdeem_watch.daemon.book import baselines as bl
 from hdeem_watch.daemon.book.channels import ChannelAccount
-from hdeem_watch.daemon.book.runs import RunArgs, RunLimits, RunRecord, parse_run_args
+from hdeem_watch.daemon.book.runs import RunArgs, RunLimits, parse_run_args, started_run
 from hdeem_watch.daemon.book.windows import Window, WindowKind
+from hdeem_watch.run_record import RunRecord
 from hdeem_watch.sources.base import ChannelInfo, SourceBatch
 
 __all__ = ["BatchOutcome", "ClosedWindow", "Conflict", "NodeState", "parse_run_args"]
@@ -227,7 +228,7 @@ class NodeState:
         """
         self.ensure_free()
         now = self.monotonic()
-        record = RunRecord.start(f"r{self.next_seq}", args, t_wall_ns=self.wall(), node=self.node)
+        record = started_run(f"r{self.next_seq}", args, t_wall_ns=self.wall(), node=self.node)
         self.next_seq += 1
         self.windows.append(self._open("run", now, run=record))
         for account in self.accounts.values():

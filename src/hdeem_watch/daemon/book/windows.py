@@ -39,7 +39,8 @@ from typing import Literal
 
 import numpy as np
 
-from hdeem_watch.daemon.book.runs import MAX_RUN_SAMPLES, RunRecord, window_energy
+from hdeem_watch.daemon.book.runs import MAX_RUN_SAMPLES, window_energy
+from hdeem_watch.run_record import RunRecord
 
 WindowKind = Literal["run", "baseline", "job"]
 

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from hdeem_watch.calibrate.counter_model import sum_counters
-from hdeem_watch.daemon.book.runs import total_energy
+from hdeem_watch.run_record import total_energy
 from hdeem_watch.wire.protocol import ProtocolError, quoted
 from hdeem_watch.wire.requests import job_id_arg
 

@@ -27,7 +27,7 @@ from typing import Any, Literal
 from hdeem_watch import __version__
 from hdeem_watch.calibrate.run_model import RunModelResult
 from hdeem_watch.daemon.book import baselines as bl
-from hdeem_watch.daemon.book.runs import FINISHED_STATES, OPAQUE_KERNEL, RunRecord, parse_run_args
+from hdeem_watch.daemon.book.runs import parse_run_args
 from hdeem_watch.daemon.book.state import ClosedWindow, Conflict, NodeState
 from hdeem_watch.daemon.ops.ports import PublisherPort, Reply, Submit
 from hdeem_watch.daemon.ops.reporting import Reporter
@@ -36,6 +36,7 @@ from hdeem_watch.daemon.shell.workers import Calibration
 from hdeem_watch.daemon.store.port import StorePort
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.errors import InputError
+from hdeem_watch.run_record import FINISHED_STATES, OPAQUE_KERNEL, RunRecord
 from hdeem_watch.sources.base import RunAware, RunEvent, Source
 from hdeem_watch.wire import protocol
 from hdeem_watch.wire.protocol import quoted
@@ -248,11 +249,12 @@ class Operations:
     # -- runs ------------------------------------------------------------------------------------------
 
     def _notify_source(self, kind: Literal["start", "stop"], record: RunRecord, t_mono_ns: int) -> None:
-        if not isinstance(self.source, RunAware):
-            return
+        threads, elements, repeat = record.threads, record.elements, record.repeat
+        if not isinstance(self.source, RunAware) or threads is None or elements is None or repeat is None:
+            return  # (a record the book started always knows them)
         try:
-            self.source.on_run(RunEvent(kind=kind, run_id=record.run_id, kernel=record.kernel, threads=record.threads,
-                                        elements=record.elements, repeat=record.repeat, t_mono_ns=t_mono_ns))
+            self.source.on_run(RunEvent(kind=kind, run_id=record.run_id, kernel=record.kernel, threads=threads,
+                                        elements=elements, repeat=repeat, t_mono_ns=t_mono_ns))
         except Exception as error:
             log.warning("source on_run(%s) failed: %s", kind, error)
 
@@ -374,14 +376,14 @@ class Operations:
         """Model the run and refit on the model worker; store the result; then publish and reply."""
         calibration = self.calibration
         self.waiters.setdefault(record.run_id, [])
-        body = record.to_dict()
+        snapshot = dataclasses.replace(record)  # the worker's own copy of the record
 
         def job() -> Modelled:
             modeller = calibration.modeller  # read on the worker, after the job that built it
             if modeller is None:
                 raise RuntimeError("the model is not available (it failed to build; see the log)")
             try:
-                result = modeller.evaluate(body)
+                result = modeller.evaluate(snapshot)
             except Exception as exc:  # a model bug must not lose the run or its reply
                 log.exception("modelling run %s failed", record.run_id)
                 result = RunModelResult(None, None, f"model failed: {type(exc).__name__}: {exc}")
@@ -422,8 +424,8 @@ class Operations:
         count = 0
         for data in sorted(stored, key=lambda r: int(str(r.get("run_id", "r0"))[1:] or 0)):
             try:
-                record = RunRecord.from_dict(data)
-            except (KeyError, TypeError, ValueError) as error:
+                record = RunRecord.from_dict(data, strict=True)
+            except ValueError as error:
                 log.warning("stored run %s cannot be modelled again: %s", data.get("run_id"), error)
                 continue
             log.info("run %s: modelling again (the daemon stopped while modelling it)", record.run_id)

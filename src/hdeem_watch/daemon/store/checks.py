@@ -29,9 +29,10 @@ from typing import Any
 
 from hdeem_watch.calibrate.run_model import MAX_HISTORY, compact_fit
 from hdeem_watch.daemon.book.baselines import Baseline
-from hdeem_watch.daemon.book.runs import RunRecord, run_summary
+from hdeem_watch.daemon.book.runs import run_summary
 from hdeem_watch.daemon.jobs.records import JobRecord, job_summary
 from hdeem_watch.daemon.store.jobs import job_row
+from hdeem_watch.run_record import RunRecord
 
 _RUN_ID = re.compile(r"^r\d{1,18}$")
 
@@ -60,7 +61,7 @@ def check_open_run(record: Mapping[str, Any]) -> None:
     str(record.get("kernel", ""))
     run_summary(record)
     if record.get("state") == "modelling":
-        RunRecord.from_dict(record)
+        RunRecord.from_dict(record, strict=True)
 
 
 def check_open_job(record: Mapping[str, Any]) -> None:
