@@ -72,11 +72,8 @@ COMMANDS = documented_commands()
 
 
 def _case(where: str, command: str) -> object:
-    """One documented command as a test case; a demo joins the xdist group of the other demo
-    starts (a demo sweeps /tmp of orphaned demo directories, which tests/tui/test_demo_lifecycle.py
-    counts)."""
-    marks = [pytest.mark.xdist_group("demo")] if command.startswith("hdeem-watch demo") else []
-    return pytest.param(where, command, id=where, marks=marks)
+    """One documented command as a test case."""
+    return pytest.param(where, command, id=where)
 
 
 def test_the_documents_show_commands() -> None:

@@ -115,6 +115,7 @@ def test_each_group_gets_its_own_currents(spec: Any, planned: list[Any]) -> None
     assert np.mean(own) < 0.75 * np.mean(shared), (np.mean(own), np.mean(shared))
 
 
+@pytest.mark.slow  # a long end-to-end detection check (two sim-hours through the group fits, ~5 s of CPU)
 def test_aging_pair_raises_an_alarm_naming_it_and_no_other(spec: Any, planned: list[Any]) -> None:
     """+30 %/h on DDR_CD's currents from sim minute 40 on: the residual CUSUM raises an alarm for
     DDR_CD within 10 sim-minutes, and none for the other pairs; the same node without aging raises

@@ -4,9 +4,14 @@ nothing. The many-seed figures are ``benchmarks/bench_calibration.py``'s."""
 
 from __future__ import annotations
 
+import pytest
+
 from hdeem_watch.demo.sim_runs import SimRuns
 
 
+#: Long end-to-end accuracy checks (10-12 sim-minutes through the real calibrator: 10-20 s of CPU
+#: each, nearly all of it the calibrator's own fits), so in the full run, not the quick one.
+@pytest.mark.slow
 def test_an_aging_pair_is_named_within_ten_sim_minutes() -> None:
     """``--sim-age DDR_CD=+30%/h`` (from sim time 0): the first alarm names DDR_CD, drifting up,
     before sim minute 10, and no other pair alarms."""
@@ -18,6 +23,7 @@ def test_an_aging_pair_is_named_within_ten_sim_minutes() -> None:
     assert {a.group for _t, a in alarms} == {"DDR_CD"}, alarms
 
 
+@pytest.mark.slow
 def test_a_healthy_node_raises_no_alarm_and_its_runs_are_fitted() -> None:
     """Without aging, 12 sim-minutes of the demo (past the detectors' warm-up) raise no alarm; every
     run is long enough to be fitted (the schedule's shortest run is 1.25 s: 100 samples at 100 Sa/s

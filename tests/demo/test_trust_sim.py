@@ -16,7 +16,8 @@ from hdeem_watch.calibrate.trust import TrustOptions
 from hdeem_watch.demo.sim_runs import DEMO_TAIL_S, SimRuns
 
 # One worker runs the module, so its module-scoped fixture is built once, not once per worker.
-pytestmark = pytest.mark.xdist_group("demo-trust_sim")
+#: A long end-to-end accuracy check (two fits of 110 sim runs, ~16 s of CPU): in the full run only.
+pytestmark = [pytest.mark.xdist_group("demo-trust_sim"), pytest.mark.slow]
 
 RUNS = 110
 

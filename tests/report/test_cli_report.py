@@ -90,7 +90,6 @@ def test_demo_report_at_end(state_dir: Path, tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("demo")  # a demo: see tests/tui/test_demo_lifecycle.py
 def test_demo_headless_with_report(tmp_path: Path) -> None:
     """The real demo (daemon subprocess, schedule, feed) for 20 s, then its report: runs, a fit and
     every figure file."""

@@ -24,10 +24,6 @@ from hdeem_watch.demo.schedule import (
 )
 from hdeem_watch.run_record import RunRecord
 
-#: Starts demos: on one xdist worker with the other demo starts (a demo sweeps /tmp of orphaned
-#: demo directories, and the kill -9 test counts the directories that appear).
-pytestmark = pytest.mark.xdist_group("demo")
-
 DRAM = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
 NUMBER = re.compile(r"^-?\d+\.\d+$")
 
@@ -150,6 +146,7 @@ def test_demo_design_varies_threads_and_lengths() -> None:
     assert windows.std() / windows.mean() > 0.2
 
 
+@pytest.mark.slow  # a long end-to-end accuracy check (30 refits on the sim's truth, ~5 s of CPU)
 def test_demo_design_determines_the_currents_near_the_effective_truth() -> None:
     """The first 30 runs of the demo's design, measured on the sim's truth with 0.3 % noise, make all five currents
     identifiable and within 8 % of the sim's effective truth; the datasheet model overestimates ≥ 1.3×."""

@@ -8,10 +8,6 @@ import sys
 
 import pytest
 
-#: Starts demos: on one xdist worker with the other demo starts (a demo sweeps /tmp of orphaned
-#: demo directories, and the kill -9 test counts the directories that appear).
-pytestmark = pytest.mark.xdist_group("demo")
-
 
 @pytest.mark.slow
 def test_headless_demo_prints_a_drift_alarm_naming_the_aging_pair() -> None:

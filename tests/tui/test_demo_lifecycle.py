@@ -4,6 +4,7 @@ run counts of this session, and the schedule making room for the TUI's ``s`` and
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -18,10 +19,6 @@ import pytest
 from hdeem_watch.demo.daemon import RUNTIME_PREFIX, sweep_orphaned_runtime_dirs
 from hdeem_watch.demo.schedule import DemoSchedule, ScheduleEvent
 from hdeem_watch.wire.client import ControlClient
-
-#: Starts demos: on one xdist worker with the other demo starts (a demo sweeps /tmp of orphaned
-#: demo directories, and the kill -9 test counts the directories that appear).
-pytestmark = pytest.mark.xdist_group("demo")
 
 
 def _daemon_children(pid: int, timeout_s: float = 30.0) -> list[psutil.Process]:
@@ -38,33 +35,38 @@ def _daemon_children(pid: int, timeout_s: float = 30.0) -> list[psutil.Process]:
 def test_kill_9_of_the_demo_takes_its_daemon_along_and_the_next_demo_sweeps_the_directory() -> None:
     """kill -9 of ``hdeem-watch demo`` left the daemon running (orphaned) and its temporary directory
     behind; now the daemon gets SIGTERM from the kernel (PR_SET_PDEATHSIG) and exits, and the
-    directory, whose owner is gone, is removed by the next demo's sweep."""
-    before = set(Path(tempfile.gettempdir()).glob(RUNTIME_PREFIX + "*"))
+    directory, whose owner is gone, is removed by the next demo's sweep.
+
+    The demo gets a private temporary directory (``TMPDIR``, short enough for its ipc sockets), so
+    the directories counted here are its own while other demos run beside it on other workers."""
+    root = Path(tempfile.mkdtemp(prefix="hw-k9-"))
     demo = subprocess.Popen([sys.executable, "-m", "hdeem_watch", "demo", "--headless"],
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                            env={**os.environ, "TMPDIR": str(root)})
     try:
         daemons = _daemon_children(demo.pid)
         assert demo.stdout is not None
         for line in demo.stdout:  # the daemon answers: the demo is past its start-up
             if line.startswith("demo: daemon at"):
                 break
-        runtime = set(Path(tempfile.gettempdir()).glob(RUNTIME_PREFIX + "*")) - before
+        runtime = set(root.glob(RUNTIME_PREFIX + "*"))
         demo.send_signal(signal.SIGKILL)
         demo.wait(10)
         _, alive = psutil.wait_procs(daemons, timeout=15)
         assert not alive, f"daemon pids {[p.pid for p in alive]} outlived the demo"
         assert runtime and all(path.exists() for path in runtime)
-        removed = sweep_orphaned_runtime_dirs()
+        removed = sweep_orphaned_runtime_dirs(root)
         assert runtime <= set(removed) and not any(path.exists() for path in runtime)
     finally:
         if demo.poll() is None:
             demo.kill()
         for p in psutil.process_iter():
             try:
-                if p.ppid() == 1 and "hdeem-watch-demo-" in " ".join(p.cmdline()):
+                if p.ppid() == 1 and str(root) in " ".join(p.cmdline()):
                     p.kill()
             except psutil.Error:
                 pass
+        shutil.rmtree(root, ignore_errors=True)
 
 
 @pytest.mark.slow

@@ -14,10 +14,6 @@ import uuid
 import psutil
 import pytest
 
-#: Starts demos: on one xdist worker with the other demo starts (a demo sweeps /tmp of orphaned
-#: demo directories, and the kill -9 test counts the directories that appear).
-pytestmark = pytest.mark.xdist_group("demo")
-
 PAIRS = ["DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH", "node"]
 FIT = re.compile(r"^\s*\d+\.\d(±\d+(\.\d)?)?$")
 

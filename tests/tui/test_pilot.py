@@ -14,10 +14,6 @@ from hdeem_watch.tui.feed import FeedHub
 from hdeem_watch.tui.widgets import ChannelTable, HealthBar
 from hdeem_watch.wire.client import ControlClient
 
-#: Its daemons are DemoDaemons (a /tmp/hdeem-watch-demo-* directory each, and a sweep of orphaned
-#: ones at start): on one xdist worker with the demo starts (see tests/tui/test_demo_lifecycle.py).
-pytestmark = pytest.mark.xdist_group("demo")
-
 
 def shown(app: HdeemWatchApp, widget_type: type) -> str:
     """The text a widget currently shows."""
