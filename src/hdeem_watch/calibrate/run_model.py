@@ -38,7 +38,6 @@ import functools
 import logging
 import math
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -46,6 +45,7 @@ import numpy as np
 from hdeem_watch.calibrate.counter_model import counter_groups, counters_model, cross_check, node_totals
 from hdeem_watch.calibrate.group_fits import DEFAULT_MIN_SAMPLES, GroupFits
 from hdeem_watch.counters.umc_energy import currents_basis
+from hdeem_watch.dram.ddr5_channel import controller_spec
 from hdeem_watch.errors import InputError
 from hdeem_watch.run_record import NO_TRAFFIC_KERNELS, OPAQUE_KERNEL, RunRecord
 
@@ -103,27 +103,10 @@ def load_spec(memspec: str) -> Any:
         InputError: unknown preset / unreadable file.
     """
     from hdeem_watch.dram.memspec import memspec_from
-    from hdeem_watch.dram.memspec_ddr5 import is_ddr5, parse_memspec_ddr5, read_memspec_json
+    from hdeem_watch.dram.memspec_ddr5 import ddr5_memspec
 
-    path = Path(str(memspec))
-    if not str(memspec).startswith("preset:") and path.is_file():
-        data = read_memspec_json(path)
-        if is_ddr5(data):
-            return parse_memspec_ddr5(data, where=str(path))
-    return memspec_from(memspec)
-
-
-def channel_spec(spec: Any) -> Any:
-    """The memspec the controller model (``node_run_stats``) runs on: a DDR5 memspec's sub-channel
-    (:func:`~hdeem_watch.dram.ddr5_channel.subchannel_spec`; the node's channels are its sub-channels),
-    a DDR4 memspec as it is. Energies are priced with ``spec`` itself."""
-    from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
-
-    if isinstance(spec, MemSpecDDR5):
-        from hdeem_watch.dram.ddr5_channel import subchannel_spec
-
-        return subchannel_spec(spec)
-    return spec
+    ddr5 = ddr5_memspec(memspec)
+    return ddr5 if ddr5 is not None else memspec_from(memspec)
 
 
 def with_ranks(spec: Any, ranks: int | None) -> Any:
@@ -239,7 +222,7 @@ class RunModeller:
         self.error: str | None = None
         self.restore_error: str | None = None
         self.spec: Any = None
-        #: the memspec of one channel as the controller model spells it (:func:`channel_spec`)
+        #: the memspec of one channel as the controller model spells it (``dram.ddr5_channel.controller_spec``)
         self.channel_spec: Any = None
         self._said_currents = False
         self.calibrator: Any = None
@@ -250,7 +233,7 @@ class RunModeller:
         self._source_said: str | None = None
         try:
             self.spec = with_ranks(load_spec(memspec), getattr(topology, "ranks_per_dimm", None))
-            self.channel_spec = channel_spec(self.spec)
+            self.channel_spec = controller_spec(self.spec)
             from hdeem_watch.calibrate import OnlineCalibrator
 
             if state:

@@ -89,23 +89,6 @@ def resolve_memspec(value: str, *, allow_unphysical: bool = False) -> MemSpec:
     return memspec_from(text, allow_unphysical=allow_unphysical)
 
 
-def ddr5_memspec(value: str, *, allow_unphysical: bool = False) -> MemSpecDDR5 | None:
-    """The DDR5 memspec ``value`` names, or None when it names a preset or a non-DDR5 file.
-
-    Raises:
-        InputError: a DDR5 file that is malformed or (without ``allow_unphysical``) unphysical.
-    """
-    path = Path(str(value))
-    if str(value).startswith("preset:") or not path.is_file():
-        return None
-    from hdeem_watch.dram.memspec_ddr5 import is_ddr5, parse_memspec_ddr5, read_memspec_json
-
-    data = read_memspec_json(path)
-    if not is_ddr5(data):
-        return None
-    return parse_memspec_ddr5(data, where=str(path), allow_unphysical=allow_unphysical)
-
-
 def report(spec: MemSpec | MemSpecDDR5, stats: CommandStats, energy: EnergyBreakdown, *, trace_path: str,
            commands: int, memspec: str) -> dict[str, Any]:
     """The ``--json`` object (pure: no I/O)."""
@@ -169,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
     """Compute and print; InputError propagates to the CLI (one line, exit code 2)."""
     from hdeem_watch.dram.command_trace import read_command_trace
     from hdeem_watch.dram.energy import core_energy
+    from hdeem_watch.dram.memspec_ddr5 import ddr5_memspec
     from hdeem_watch.dram.trace_state import trace_stats
 
     ddr5 = ddr5_memspec(args.memspec, allow_unphysical=args.allow_unphysical)

@@ -120,7 +120,7 @@ def _print(data: dict[str, Any], as_json: bool) -> None:
 
 def run_stats(args: argparse.Namespace) -> int:
     """``model stats``."""
-    from hdeem_watch.cli.model_energy import ddr5_memspec
+    from hdeem_watch.dram.memspec_ddr5 import ddr5_memspec
 
     ddr5 = ddr5_memspec(args.memspec, allow_unphysical=args.allow_unphysical)
     if ddr5 is not None:  # DDR5: both sub-channels (cli/model_stats_ddr5.py)
@@ -193,8 +193,8 @@ def _trace_summary(spec: MemSpec, args: argparse.Namespace, progress: Progress) 
 
 def run_kernel(args: argparse.Namespace) -> int:
     """``model kernel``."""
-    from hdeem_watch.cli.model_energy import ddr5_memspec
     from hdeem_watch.dram.kernels import canonical_kernel, kernel_stats
+    from hdeem_watch.dram.memspec_ddr5 import ddr5_memspec
 
     ddr5 = ddr5_memspec(args.memspec, allow_unphysical=args.allow_unphysical)
     name = canonical_kernel(args.kernel)

@@ -58,6 +58,12 @@ def refresh_interval(spec: MemSpecDDR5) -> int:
     return int(spec.timings["REFI2" if spec.ref_mode == 2 else "REFI1"])
 
 
+def controller_spec(spec: MemSpec | MemSpecDDR5) -> MemSpec:
+    """The memspec of one channel as the controller model spells it: a DDR4 memspec as it is, a DDR5
+    memspec's sub-channel (:func:`subchannel_spec`; a DDR5 node's channels are its sub-channels)."""
+    return subchannel_spec(spec) if isinstance(spec, MemSpecDDR5) else spec
+
+
 def subchannel_spec(spec: MemSpecDDR5) -> MemSpec:
     """One sub-channel of ``spec`` as the controller model's channel (two per DIMM).
 

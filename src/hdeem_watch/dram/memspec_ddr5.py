@@ -272,3 +272,18 @@ def load_memspec_ddr5(path: str | Path, *, allow_unphysical: bool = False) -> Me
         InputError: unreadable file, invalid JSON, or an invalid field (named, one line).
     """
     return parse_memspec_ddr5(read_memspec_json(path), where=str(path), allow_unphysical=allow_unphysical)
+
+
+def ddr5_memspec(value: str, *, allow_unphysical: bool = False) -> MemSpecDDR5 | None:
+    """The DDR5 memspec ``value`` names, or None when it names a preset or a non-DDR5 file.
+
+    Raises:
+        InputError: a DDR5 file that is malformed or (without ``allow_unphysical``) unphysical.
+    """
+    path = Path(str(value))
+    if str(value).startswith("preset:") or not path.is_file():
+        return None
+    data = read_memspec_json(path)
+    if not is_ddr5(data):
+        return None
+    return parse_memspec_ddr5(data, where=str(path), allow_unphysical=allow_unphysical)

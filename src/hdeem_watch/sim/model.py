@@ -204,10 +204,9 @@ class DramModel:
         """The memspec of one of the layout's channels as the controller model spells it: DDR4's as it
         is, a DDR5 sub-channel (:func:`~hdeem_watch.dram.ddr5_channel.subchannel_spec`) for DDR5,
         whose layouts count sub-channels as channels."""
-        from hdeem_watch.dram.ddr5_channel import subchannel_spec
-        from hdeem_watch.dram.memspec_ddr5 import MemSpecDDR5
+        from hdeem_watch.dram.ddr5_channel import controller_spec
 
-        return subchannel_spec(self.spec) if isinstance(self.spec, MemSpecDDR5) else self.spec
+        return controller_spec(self.spec)
 
     def node_stats(self, kernel: str, elements: int, threads: int, repeat: int) -> list[tuple[CommandStats, int]]:
         """``node_run_stats(spec, ..., layout.topology)`` (cached): per socket, one channel's stats and count."""

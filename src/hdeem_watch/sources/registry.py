@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from hdeem_watch.errors import InputError
-from hdeem_watch.sources.base import Source
+from hdeem_watch.sources.base import HasLayout, Source
 
 #: Source kinds :func:`make_source` knows.
 SOURCE_KINDS = ("sim", "hdeem", "rapl", "replay")
@@ -67,7 +67,7 @@ def simulated_memspec(source: Source) -> str | None:
     from hdeem_watch.sim.layout import SimLayout
     from hdeem_watch.sim.model import memspec_setting
 
-    layout = getattr(source, "layout", None)
+    layout = source.layout if isinstance(source, HasLayout) else None
     return memspec_setting(layout) if isinstance(layout, SimLayout) else memspec_setting()
 
 
