@@ -190,11 +190,12 @@ class FitRecord:
         return _ordered(self.keys, known, self.extra)
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> FitRecord:
+    def from_dict(cls, data: Mapping[str, Any], *, strict: bool = False) -> FitRecord:
         """A record from any form of a fit (see the module docstring).
 
         Raises:
-            ValueError: not a JSON object at all.
+            ValueError: not a JSON object at all, or with ``strict`` any field unreadable or
+                ``n_runs``/``error`` missing (the message names each).
         """
         if not isinstance(data, Mapping):
             raise ValueError(f"not a fit record: {type(data).__name__}")
@@ -207,7 +208,7 @@ class FitRecord:
         runs = reader.array("runs") or []
         if not all(isinstance(run, Mapping) for run in runs):
             reader.problems.append("runs: expected a list of objects (the others left out)")
-        return cls(
+        record = cls(
             currents=currents, intercept_j=reader.real("intercept_j"),
             intercept_ci95_j=reader.pair("intercept_ci95_j"), intercept_fitted=reader.flag("intercept_fitted"),
             error=_error(reader), observability=reader.mapping("observability"), n_runs=reader.integer("n_runs"),
@@ -216,6 +217,9 @@ class FitRecord:
             time_ns=reader.integer("time_ns"), runs=tuple(r for r in runs if isinstance(r, Mapping)), trust=trust,
             keys=tuple(data), extra={k: v for k, v in data.items() if k not in FIT_FIELDS},
             problems=tuple(reader.problems))  # last: after every field was read
+        if strict and record.problems:
+            raise ValueError("fit: " + "; ".join(record.problems))
+        return record
 
 
 def _current(reader: _Reader, name: str, entry: Any, held: bool) -> CurrentFit:
