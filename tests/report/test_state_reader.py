@@ -156,7 +156,7 @@ def test_per_pair_fits_and_alarms_come_from_the_daemons_state(aged_state_dir: Pa
     data = read_state(aged_state_dir)
     assert sorted(data.pair_fits) == ["DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"]
     assert all(len(history) > 10 for history in data.pair_history.values())
-    assert all(fit["currents"]["idd0"]["calibrated"] > 0 for fit in data.pair_fits.values())
+    assert all(fit.currents["idd0"].calibrated_a > 0 for fit in data.pair_fits.values())
     assert [(a["group"], a["current"], a["direction"]) for a in data.alarms] == [("DDR_CD", "energy", "up")]
     written = build_report(data, tmp_path / "out", fmt="html")
     page = written.page.read_text()

@@ -25,7 +25,8 @@ from pathlib import Path
 from typing import Any
 
 from hdeem_watch.errors import InputError
-from hdeem_watch.report.analysis import fit_runs_by_name, jobs_from_runs, model_currents
+from hdeem_watch.fit_record import FitRecord
+from hdeem_watch.report.analysis import jobs_from_runs, model_currents
 from hdeem_watch.report.records import (
     BaselinePoint,
     FitEntry,
@@ -148,7 +149,7 @@ def _group_histories(groups: Any) -> dict[str, list[FitEntry]]:
         history = state.get("history") if isinstance(state, Mapping) else None
         if str(name) == "node" or not isinstance(history, list):
             continue
-        entries = [FitEntry(t_ns=int(h.get("time_ns") or 0), run_id=None, fit=h["fit"], row=i)
+        entries = [FitEntry(t_ns=int(h.get("time_ns") or 0), run_id=None, fit=_fit(h["fit"]), row=i)
                    for i, h in enumerate(history) if isinstance(h, Mapping) and isinstance(h.get("fit"), Mapping)]
         if entries:
             out[str(name)] = entries
@@ -179,7 +180,7 @@ def _fit_history(db: sqlite3.Connection, tables: Mapping[str, list[str]]
     node: list[FitEntry] = []
     groups: dict[str, list[FitEntry]] = {}
     for t_ns, run_id, text, group, row in db.execute(select):
-        entry = FitEntry(t_ns=int(t_ns or 0), run_id=run_id, fit=_json(text), row=int(row))
+        entry = FitEntry(t_ns=int(t_ns or 0), run_id=run_id, fit=_fit(_json(text)), row=int(row))
         if group in (None, "", "node"):
             node.append(entry)
         else:
@@ -210,7 +211,8 @@ def _with_full_latest(db: sqlite3.Connection, history: list[FitEntry]) -> list[F
     for i in range(len(history) - 1, -1, -1):
         if history[i].fit is not None:
             (text,) = db.execute("SELECT fit FROM fits WHERE id = ?", (history[i].row,)).fetchone()
-            history[i] = FitEntry(t_ns=history[i].t_ns, run_id=history[i].run_id, fit=_json(text), row=history[i].row)
+            history[i] = FitEntry(t_ns=history[i].t_ns, run_id=history[i].run_id, fit=_fit(_json(text)),
+                                  row=history[i].row)
             break
     return history
 
@@ -281,11 +283,16 @@ def _spec_of(records: Sequence[RunRecord], notes: list[str]) -> Any:
         return None
 
 
-def _runs(records: Sequence[RunRecord], spec: Any, fit: Mapping[str, Any] | None) -> list[RunRow]:
+def _fit(value: Any) -> FitRecord | None:
+    """A stored fit read by the one parser (None for none, or for JSON that is no object)."""
+    return FitRecord.from_dict(value) if isinstance(value, Mapping) else None
+
+
+def _runs(records: Sequence[RunRecord], spec: Any, fit: FitRecord | None) -> list[RunRow]:
     import numpy as np
 
     currents = model_currents(spec, fit) if spec is not None and fit is not None else None
-    by_name = fit_runs_by_name(fit)
+    by_name = fit.runs_by_name() if fit is not None else {}
     out = []
     for record in records:
         measured = finite(record.dram_energy_j)

@@ -30,9 +30,10 @@ from typing import Any
 from hdeem_watch.calibrate.run_model import MAX_HISTORY
 from hdeem_watch.daemon.book.baselines import Baseline
 from hdeem_watch.daemon.book.runs import run_summary
-from hdeem_watch.daemon.jobs.records import JobRecord, job_summary
+from hdeem_watch.daemon.jobs.records import job_summary
 from hdeem_watch.daemon.store.jobs import job_row
 from hdeem_watch.fit_record import FitRecord
+from hdeem_watch.job_record import JobRecord
 from hdeem_watch.run_record import RunRecord
 
 _RUN_ID = re.compile(r"^r\d{1,18}$")
@@ -67,7 +68,7 @@ def check_open_run(record: Mapping[str, Any]) -> None:
 
 def check_open_job(record: Mapping[str, Any]) -> None:
     """A job a previous daemon left running (resumed at start, listed in every ``status``)."""
-    JobRecord.from_dict(record)
+    JobRecord.from_dict(record, strict=True)
     job_row(record)
     job_summary(record)
 
