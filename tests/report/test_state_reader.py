@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from hdeem_watch.errors import InputError
+from hdeem_watch.job_record import JobRecord
 from hdeem_watch.report.state_reader import read_state
 
 
@@ -50,7 +51,7 @@ def test_calibrated_energy_is_the_latest_fits_in_sample_prediction(state_dir: Pa
     fit = _last_fit(state_dir)
     by_name = {r["name"]: r for r in fit["runs"]}
     data = read_state(state_dir)
-    assert data.fit == fit
+    assert data.fit is not None and data.fit.to_dict() == fit
     for run in data.runs:
         entry = by_name[f"{run.run_id}:{run.name}"]
         assert run.calibrated_j == pytest.approx(entry["after_j"], rel=1e-9)
@@ -83,18 +84,20 @@ def test_a_newer_schemas_tables_are_tolerated_and_jobs_and_pair_fits_are_used(st
     db = sqlite3.connect(state_dir / "state.db")
     db.execute("CREATE TABLE something_new (x INTEGER)")
     db.execute("CREATE TABLE jobs (job_id TEXT PRIMARY KEY, record TEXT NOT NULL)")
-    db.execute("INSERT INTO jobs VALUES ('4711', ?)", (json.dumps(
-        {"job_id": "4711", "node": "taurusi1234", "dram_energy_j": 900.0, "baseline_j": 600.0, "window_s": 60,
-         "runs": 3}),))
+    job = JobRecord(job_id="4711", node="taurusi1234", user="alice", uid=1000, nodes=("taurusi1234",), cpus=None,
+                    t_start_ns=1, state="done", t_stop_ns=60 * 10**9, dram_energy_j=900.0,
+                    dram_above_baseline_j=300.0, measured_s=60.0)
+    db.execute("INSERT INTO jobs VALUES ('4711', ?)", (json.dumps(job.to_dict()),))
+    db.execute("INSERT INTO jobs VALUES ('x', ?)", (json.dumps({"job_id": "x", "dram_energy_j": 5.0}),))
     db.execute('ALTER TABLE fits ADD COLUMN "group" TEXT')
     db.execute('INSERT INTO fits (t_ns, run_id, fit, "group") VALUES (?, ?, ?, ?)',
                (fit["time_ns"] + 1, "r29", json.dumps(fit), "DDR_CD"))
     db.commit()
     db.close()
     data = read_state(state_dir)
-    assert [(j.job_id, j.above_baseline_j) for j in data.jobs] == [("4711", 300.0)]
+    assert [(j.job_id, j.above_baseline_j, j.window_s) for j in data.jobs] == [("4711", 300.0, 60.0)]
     assert list(data.pair_fits) == ["DDR_CD"]
-    assert data.fit == fit  # the node fit stays the node's
+    assert data.fit is not None and data.fit.to_dict() == fit  # the node fit stays the node's
 
 
 def test_jobs_are_built_from_runs_with_a_slurm_job_id(state_dir: Path) -> None:

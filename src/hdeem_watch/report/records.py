@@ -121,8 +121,8 @@ class JobRow:
         node: the node.
         dram_energy_j: measured DRAM energy over the job's runs (J).
         baseline_j: the idle baseline's energy over the same windows (J; NaN = no baseline).
-        window_s: summed run windows (s).
-        runs: number of runs.
+        window_s: summed run windows, or a SLURM job's measured time (s).
+        runs: number of runs (None for a SLURM job's record: it counts none).
     """
 
     job_id: str
@@ -130,7 +130,7 @@ class JobRow:
     dram_energy_j: float
     baseline_j: float
     window_s: float
-    runs: int
+    runs: int | None
 
     @property
     def above_baseline_j(self) -> float:

@@ -26,6 +26,7 @@ from typing import Any
 
 from hdeem_watch.errors import InputError
 from hdeem_watch.fit_record import FitRecord
+from hdeem_watch.job_record import JobRecord
 from hdeem_watch.report.analysis import jobs_from_runs, model_currents
 from hdeem_watch.report.records import (
     BaselinePoint,
@@ -239,16 +240,15 @@ def _job_table(db: sqlite3.Connection, tables: Mapping[str, list[str]]) -> list[
         return []
     jobs = []
     for (text,) in db.execute("SELECT record FROM jobs"):
-        record = _json(text) or {}
-        energy = finite(record.get("dram_energy_j"))
-        if not math.isfinite(energy):
+        try:
+            job = JobRecord.from_dict(_json(text))
+        except ValueError:  # not a job record: left out
             continue
-        baseline = finite(record.get("baseline_j"))
-        if not math.isfinite(baseline) and math.isfinite(finite(record.get("above_baseline_j"))):
-            baseline = energy - finite(record.get("above_baseline_j"))
-        jobs.append(JobRow(job_id=str(record.get("job_id", "?")), node=str(record.get("node", "")),
-                           dram_energy_j=energy, baseline_j=baseline, window_s=finite(record.get("window_s")),
-                           runs=int(record.get("runs") or 0)))
+        if not math.isfinite(job.dram_energy_j):
+            continue
+        jobs.append(JobRow(job_id=job.job_id, node=job.node, dram_energy_j=job.dram_energy_j,
+                           baseline_j=job.dram_energy_j - job.dram_above_baseline_j, window_s=job.measured_s,
+                           runs=None))
     return jobs
 
 
