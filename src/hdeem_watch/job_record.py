@@ -193,7 +193,7 @@ class JobRecord:
             raise ValueError(f"not a job record: {type(data).__name__}")
         job_id, state = data.get("job_id"), data.get("state")
         if not isinstance(job_id, str) or state not in JOB_STATES:
-            raise ValueError(f"not a job record: job_id {str(job_id)[:40]!r}, state {str(state)[:40]!r}")
+            raise ValueError(f"not a job record: job_id {repr(job_id)[:40]}, state {repr(state)[:40]}")
         r = _Reader(data)
         values: dict[str, Any] = {key: r.energies(key) for key in _CHANNEL_VALUES}
         record = cls(
