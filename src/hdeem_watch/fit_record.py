@@ -101,6 +101,29 @@ class CurrentFit:
 
 
 @dataclass(frozen=True, slots=True)
+class HeldCurrent:
+    """A current held at its datasheet value scaled like ``anchor`` (no run shows its state).
+
+    Attributes:
+        value_a: the held value (A; NaN = unknown).
+        anchor: the current it is scaled like (None: not said).
+        range_a: the plausible range carried into the other currents' intervals.
+    """
+
+    value_a: float = math.nan
+    anchor: str | None = None
+    range_a: tuple[float, float] = (math.nan, math.nan)
+
+    @classmethod
+    def from_dict(cls, data: Any) -> HeldCurrent:
+        """An entry of ``trust.held`` (unreadable fields unknown; it is the calibrator's detail)."""
+        if not isinstance(data, Mapping):
+            return cls()
+        reader = _Reader(data, prefix="trust.held.")
+        return cls(value_a=reader.real("value"), anchor=reader.text("anchor"), range_a=reader.pair("range"))
+
+
+@dataclass(frozen=True, slots=True)
 class FitError:
     """The fit's mean |relative error| over its runs (fractions; NaN = unknown).
 
@@ -156,6 +179,19 @@ class FitRecord:
         """Where the runs' command counts came from (``trust.commands``), None when not said."""
         value = (self.trust or {}).get("commands")
         return value if value in COMMAND_SOURCES else None
+
+    @property
+    def held(self) -> dict[str, HeldCurrent]:
+        """The currents held at a value the runs cannot see (``trust.held``), by name."""
+        held = (self.trust or {}).get("held")
+        return {str(name): HeldCurrent.from_dict(entry) for name, entry in held.items()} \
+            if isinstance(held, Mapping) else {}
+
+    @property
+    def unconfirmed(self) -> tuple[str, ...]:
+        """Currents that rest on modelled activations nothing confirms (``trust.unconfirmed``)."""
+        names = (self.trust or {}).get("unconfirmed")
+        return tuple(str(n) for n in names) if isinstance(names, list) else ()
 
     @property
     def calibrated_a(self) -> dict[str, float]:
