@@ -17,6 +17,7 @@ from typing import Any
 
 from hdeem_watch.channels import DRAM_CHANNELS
 from hdeem_watch.fit_record import FitRecord
+from hdeem_watch.job_record import JobRecord
 from hdeem_watch.run_record import RunRecord
 from hdeem_watch.tui.group_views import group_views
 from hdeem_watch.tui.snapshot import CalibView, CommandRates, CurrentView, RunView
@@ -77,6 +78,14 @@ def run_record(value: Any) -> RunRecord | None:
     """The run record a message carries (None: not one, e.g. from a daemon this UI cannot read)."""
     try:
         return RunRecord.from_dict(value)
+    except ValueError:
+        return None
+
+
+def job_record(value: Any) -> JobRecord | None:
+    """A job record (or summary) from a message, None when it is no job record."""
+    try:
+        return JobRecord.from_dict(value)
     except ValueError:
         return None
 
