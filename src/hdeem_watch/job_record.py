@@ -46,7 +46,7 @@ _REQUIRED = ("node", "t_start_ns", "dram_energy_j", "measured_s", "status")
 _CHANNEL_VALUES = ("energy_j", "above_baseline_j", "baseline_w", "mean_power_w", "peak_power_w")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class JobArgs:
     """Validated arguments of ``job.start`` (``hdeem_watch.daemon.jobs.records.parse_job_args``)."""
 
@@ -57,7 +57,7 @@ class JobArgs:
     cpus: int | None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Segment:
     """What one daemon session measured of a job.
 
@@ -105,7 +105,7 @@ class Segment:
                    counters=dict(data["counters"]) if isinstance(data.get("counters"), Mapping) else None)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class JobRecord:
     """One job on this node, from ``job.start`` to ``job.stop`` (or its interruption).
 
