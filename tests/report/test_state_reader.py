@@ -171,3 +171,16 @@ def test_per_pair_fits_and_alarms_come_from_the_daemons_state(aged_state_dir: Pa
     assert [row[1:3] for row in aging["drift alarms"]["rows"]] == [["DDR_CD", "energy"]]
     fits = {row[0] for row in next(v for k, v in numbers.items() if k.startswith("Currents"))["currents"]["rows"]}
     assert fits == {"node", "DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"}
+
+
+def test_a_fits_row_that_is_no_fit_is_left_out_not_read_as_a_reset(state_dir: Path) -> None:
+    """A fits row of valid JSON that is no object (a damaged row) is left out: the latest fit stays
+    the latest, and the page does not say the calibrator was reset."""
+    fit = _last_fit(state_dir)
+    db = sqlite3.connect(state_dir / "state.db")
+    db.execute("INSERT INTO fits (t_ns, run_id, fit) VALUES (?, ?, ?)", (fit["time_ns"] + 1, "r99", "[1, 2]"))
+    db.commit()
+    db.close()
+    data = read_state(state_dir)
+    assert data.fit is not None and data.fit.to_dict() == fit
+    assert not any("reset" in note for note in data.notes)

@@ -181,7 +181,10 @@ def _fit_history(db: sqlite3.Connection, tables: Mapping[str, list[str]]
     node: list[FitEntry] = []
     groups: dict[str, list[FitEntry]] = {}
     for t_ns, run_id, text, group, row in db.execute(select):
-        entry = FitEntry(t_ns=int(t_ns or 0), run_id=run_id, fit=_fit(_json(text)), row=int(row))
+        value = _json(text)
+        if value is not None and not isinstance(value, Mapping):
+            continue  # a damaged row (no fit, nor a reset's null): the daemon sets it aside at its next start
+        entry = FitEntry(t_ns=int(t_ns or 0), run_id=run_id, fit=_fit(value), row=int(row))
         if group in (None, "", "node"):
             node.append(entry)
         else:
