@@ -12,6 +12,17 @@ module puts into the reported interval and the verdict "determined":
   plausible range (its lower bound or the calibrated IDD2P, up to the anchor: IDD2P ≤ IDD2N ≤ IDD3N),
   and the currents it trades with are refitted at both ends of that range: their interval spans the
   two answers.
+- **Mixed standby.** DDR5's active standby is ``ρ·IDD3N + (1 − ρ)·IDD2N`` (DRAMPower's DDR5 test
+  memspec: ρ = 0.5), and a counted busy window is almost all active standby: both currents appear
+  in every row in one fixed mix, so the base fit determines neither and the anchor rule above
+  cannot hold IDD2N. The current is then **tied** to its anchor at their datasheet ratio (its column
+  folded into the anchor's); where that fit determines the anchor, the current is held at the
+  ratio times the anchor (the hold's fixed point), and its range is the part of
+  ``[IDD2P, IDD3N]`` the rows do not reject: a refit at each of :data:`PROFILE_STEPS` values, kept
+  while its residual sum of squares stays within ``1 + F₀.₉₅(1, G − k)/(G − k)`` of the best
+  (``G`` kinds of run, ``k`` unknowns: the kinds are the independent data). The other currents are
+  refitted at both ends of that range, as above; the anchor, whose split from the current the rows
+  do not see, is then rarely determined.
 - **Systematic misfit per kind of run.** The residuals of one kind of run (kernel × threads) share a
   model error, so runs are not independent draws. A delete-one-kind jackknife over the kinds
   (``kind`` = the run name after ``"r<n>:"``) gives each current's spread when one kind is left out;
@@ -43,7 +54,7 @@ Example:
     ...         for i, x in enumerate(rng.uniform(1, 3, 30))]
     >>> result = trusted_fit(rows, Spec(), FitOptions(currents=("a", "b"), names=("a", "b"), intercept=False),
     ...                      trust=TrustOptions())
-    >>> [round(v, 2) for v in result.calibrated_a], result.trust["kinds"]
+    >>> [round(float(v), 2) for v in result.calibrated_a], result.trust["kinds"]
     ([0.5, 0.8], 6)
 """
 
