@@ -25,19 +25,20 @@ class Spec:
     currents = DATASHEET
 
 
-def _rows(seed: int = 4, runs: int = 60) -> list[Observation]:
+def _rows(seed: int = 4, runs: int = 120) -> list[Observation]:
     """Busy windows (active standby = 0.48·IDD2N + 0.52·IDD3N, the ACT energy with its −IDD2N·(tRC −
-    tRAS) share, bursts) and idle ones (precharge power-down), 12 kinds, 0.3 % noise."""
+    tRAS) share, bursts) and idle ones (precharge power-down), 30 kinds, 1.5 % noise (above the fit's
+    1 % noise floor, so the F test decides the range)."""
     rng = np.random.default_rng(seed)
     rows = []
     for i in range(runs):
-        kind = i % 12
+        kind = i % 30
         if kind == 0:
             columns = np.array([0.0, 0.0, 0.0, 0.0, rng.uniform(60, 120)])
         else:
             standby, acts, bursts = rng.uniform(40, 80), rng.uniform(1, 30) * (1 + kind % 3), rng.uniform(5, 40)
             columns = np.array([acts, 0.48 * standby - 0.4 * acts, 0.52 * standby, bursts, rng.uniform(0, 3)])
-        measured = float(columns @ TRUTH) * (1 + 0.003 * rng.normal())
+        measured = float(columns @ TRUTH) * (1 + 0.015 * rng.normal())
         rows.append(Observation(f"r{i}:k{kind}", columns, 0.0, measured))
     return rows
 
@@ -54,7 +55,7 @@ def test_idd2n_is_tied_to_idd3n_at_the_datasheet_ratio_and_not_called_determined
     assert held["anchor"] == "idd3n" and held["tied"] is True
     assert value["idd2n"] == pytest.approx(value["idd3n"] * DATASHEET["idd2n"] / DATASHEET["idd3n"], rel=1e-6)
     mix = 0.48 * value["idd2n"] + 0.52 * value["idd3n"]  # what the rows see
-    assert mix == pytest.approx(0.48 * TRUTH[1] + 0.52 * TRUTH[2], rel=0.02)
+    assert mix == pytest.approx(0.48 * TRUTH[1] + 0.52 * TRUTH[2], rel=0.05)
     j = tied.currents.index("idd2n")
     assert not tied.identifiable[j]
     low, high = held["range"]

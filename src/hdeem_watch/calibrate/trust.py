@@ -195,7 +195,8 @@ def _unrejected(rows: Sequence[Observation], spec: SpecLike, options: FitOptions
     """The part of ``span`` whose values of the held ``current`` the rows do not reject: a refit with
     the current fixed at each of ``steps`` values over the span, kept while its residual sum of
     squares stays within the F test's 95 % bound of the best (``F(1, kinds − unknowns)``: the runs of
-    one kind share their model error, so the kinds are the independent data)."""
+    one kind share their model error, so the kinds are the independent data), the best taken at no
+    less than the fit's noise floor."""
     from scipy.special import fdtri
 
     values = np.linspace(span[0], span[1], steps)
@@ -205,7 +206,9 @@ def _unrejected(rows: Sequence[Observation], spec: SpecLike, options: FitOptions
             rss.append(_rss(_fit_held(rows, spec, _quiet(options), weights, {**held, current: float(v)}, 0)))
         except InputError:
             rss.append(math.inf)
-    best = float(min([*rss, _rss(_fit_held(rows, spec, _quiet(options), weights, held, 0))]))
+    central = _fit_held(rows, spec, _quiet(options), weights, held, 0)
+    # at least the noise the fit assumes of any sensor (FitSettings.noise_floor): an exact fit rejects nothing
+    best = max(float(min([*rss, _rss(central)])), options.settings.noise_floor ** 2 * max(int(central.dof), 1))
     dof = max(1, kinds - len(options.currents))
     limit = best * (1.0 + float(fdtri(1, dof, 0.95)) / dof)
     kept = [float(v) for v, r in zip(values, rss, strict=True) if r <= limit] + [float(held[current])]
