@@ -138,7 +138,7 @@ class SimSource:
                  wall_clock: Callable[[], int] = time.time_ns, *, noise: bool = True, quantum_w: float = 0.125,
                  io_j_per_line: float = 0.5e-9, offsets: bool = True, aging_per_h: float = 0.0,
                  temp_amp_c: float = 1.0, dimm_spread: float = 0.03, buffer_s: float = 60.0,
-                 background_plans: bool = True, block_s: float = 1.0, layout: SimLayout = TAURUS,
+                 background_plans: bool = True, block_s: float = 4.0, layout: SimLayout = TAURUS,
                  node: NodeDescription | None = None, age: Mapping[str, float] | None = None,
                  age_start_s: Mapping[str, float] | None = None, part_spread: float = 0.10, gains: bool = True,
                  ambient_c: float = 40.0, pd_entry_s: float = PowerPhysics.pd_entry_s) -> None:
