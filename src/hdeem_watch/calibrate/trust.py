@@ -369,17 +369,7 @@ def trusted_fit(rows: Sequence[Observation], spec: SpecLike, options: FitOptions
     base = fit(rows, spec, options, weights=weights, time_ns=time_ns)
     names = base.currents
     lower = {n: float(lo) for n, (lo, _hi) in (options.bounds or {}).items()}
-    held: dict[str, float] = {}
-    central = base
-    for _ in range(2):  # the anchor moves a little once the held current is fixed
-        held = _held_values(base if not held else _merge(central, base, held), spec, trust.anchors, lower)
-        if not held:
-            break
-        central = _fit_held(rows, spec, options, weights, held, time_ns)
-    tied = _tied_values(base, rows, spec, options, weights, trust.anchors, lower) if not held else {}
-    if tied:  # the tied fit's answer is the hold's fixed point: one refit with it held
-        held = tied
-        central = _fit_held(rows, spec, options, weights, held, time_ns)
+    held, tied, central = _hold(base, rows, spec, options, weights, trust.anchors, lower, time_ns)
     value = _values(central, names, held)
     ci = np.array([central.interval(n) if n not in held else (math.nan, math.nan) for n in names],
                   dtype=float).reshape(len(names), 2)
@@ -437,6 +427,24 @@ def trusted_fit(rows: Sequence[Observation], spec: SpecLike, options: FitOptions
                                condition_number=base.condition_number, rank=base.rank,
                                correlation=base.correlation, trust=info,
                                uncertainty=f"{central.uncertainty}+kinds+commands")
+
+
+def _hold(base: FitResult, rows: Sequence[Observation], spec: SpecLike, options: FitOptions,
+          weights: np.ndarray | None, anchors: Mapping[str, str], lower: Mapping[str, float],
+          time_ns: int) -> tuple[dict[str, float], dict[str, float], FitResult]:
+    """The held currents (module docstring), the tied ones among them, and the fit with them held."""
+    held: dict[str, float] = {}
+    central = base
+    for _ in range(2):  # the anchor moves a little once the held current is fixed
+        held = _held_values(base if not held else _merge(central, base, held), spec, anchors, lower)
+        if not held:
+            break
+        central = _fit_held(rows, spec, options, weights, held, time_ns)
+    tied = _tied_values(base, rows, spec, options, weights, anchors, lower) if not held else {}
+    if tied:  # the tied fit's answer is the hold's fixed point: one refit with it held
+        held = dict(tied)
+        central = _fit_held(rows, spec, options, weights, held, time_ns)
+    return held, tied, central
 
 
 def _merge(central: FitResult, base: FitResult, held: Mapping[str, float]) -> FitResult:
