@@ -60,9 +60,9 @@ def one(seed: int, source: str, runs: int, node: str = "haswell") -> dict[str, A
     """One seed, one command source, on the demo node ``node``."""
     counted = source == "counters"
     sim = SimRuns(seed, counters=counted, holdout=True, groups=False, tail_s=DEMO_TAIL_S, node=DEMO_NODES[node])
-    calibrator = sim.modeller.calibrator
+    modeller = sim.modeller
     cheap, full = TrustOptions(jackknife=False, draws=0), TrustOptions()
-    calibrator.trust = cheap
+    modeller.set_trust(cheap)
     truth_key = "counted_currents_a" if counted else "effective_currents_a"
     holdout: list[tuple[float, float]] = []
     needed = None
@@ -78,13 +78,13 @@ def one(seed: int, source: str, runs: int, node: str = "haswell") -> dict[str, A
         if done.error is None:
             fitted += 1
         if needed is None and fitted in CHECKPOINTS:
-            calibrator.trust = full
-            verdict = judge(calibrator.refit().to_dict(), sim.sim.truth()[truth_key], LIMIT[source])
-            calibrator.trust = cheap
+            modeller.set_trust(full)
+            verdict = judge(modeller.refit() or {}, sim.sim.truth()[truth_key], LIMIT[source])
+            modeller.set_trust(cheap)
             if verdict["ok"] and (verdict["key_determined"] or not counted):
                 needed = fitted
-    calibrator.trust = full
-    final = calibrator.refit().to_dict()
+    modeller.set_trust(full)
+    final = modeller.refit() or {}
     verdict = judge(final, sim.sim.truth()[truth_key], LIMIT[source])
     cal = [abs(c) for c, _ in holdout]
     ds = [abs(d) for _, d in holdout]

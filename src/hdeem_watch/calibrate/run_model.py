@@ -44,6 +44,7 @@ import numpy as np
 
 from hdeem_watch.calibrate.counter_model import counter_groups, counters_model, cross_check, node_totals
 from hdeem_watch.calibrate.group_fits import DEFAULT_MIN_SAMPLES, GroupFits
+from hdeem_watch.calibrate.socket_fits import SocketFits, socket_rows, socket_sensors
 from hdeem_watch.counters.umc_energy import currents_basis
 from hdeem_watch.dram.ddr5_channel import controller_spec
 from hdeem_watch.errors import InputError
@@ -165,6 +166,8 @@ class _Observed:
     run_name: str
     stop_ns: int
     traffic_s: float | None
+    #: the run's counted rows per socket sensor (None: not counted, or no sensor per socket)
+    socket_rows: Mapping[str, Any] | None = None
 
 
 class RunModeller:
@@ -191,10 +194,14 @@ class RunModeller:
         min_samples: fewest samples per DRAM channel for a run to be fitted.
         trust: widen the node fit's intervals by what its rows do not know and hold currents
             without a state of their own (:mod:`hdeem_watch.calibrate.trust`).
+        sockets: the sensor groups to look for one sensor per whole socket in (None: ``groups``);
+            where they are, counted runs are fitted per socket and the node's currents are the
+            sockets' DIMM mean (:mod:`hdeem_watch.calibrate.socket_fits`).
 
     Attributes:
         error: why runs cannot be modelled (None = they can).
         group_fits: the per-group fits and the guard rail (None when the model is not available).
+        socket_fits: the counted per-socket fits (None: the node has no sensor per socket).
     """
 
     def __init__(
@@ -213,6 +220,7 @@ class RunModeller:
         dram_rates_hz: Mapping[str, float] | None = None,
         min_samples: int = DEFAULT_MIN_SAMPLES,
         trust: bool = True,
+        sockets: Sequence[SensorGroup] | None = None,
     ) -> None:
         self.memspec = memspec
         self.dimms = int(topology.dimms) if topology is not None else int(dimms)
@@ -227,6 +235,7 @@ class RunModeller:
         self._said_currents = False
         self.calibrator: Any = None
         self.group_fits: GroupFits | None = None
+        self.socket_fits: SocketFits | None = None
         self.history: list[dict[str, Any]] = [dict(h) for h in history][-MAX_HISTORY:]
         #: runs the node fit did not take, and why (newest last)
         self.skipped: list[dict[str, Any]] = []
@@ -264,6 +273,7 @@ class RunModeller:
                                         state=(state or {}).get("sensor_groups"))
             if self.group_fits.restore_error and not self.restore_error:
                 self.restore_error = self.group_fits.restore_error
+            self._start_socket_fits(groups if sockets is None else sockets, (state or {}).get("socket_fits"))
         except ImportError as error:  # a model module not installed yet
             self.error = f"model not available: {error}"
         except InputError as error:
@@ -276,6 +286,42 @@ class RunModeller:
             self.topology = topology_for(self.dimms)
         self._stats_cache = functools.lru_cache(maxsize=64)(self._kernel_stats)
         self._family_cache = functools.lru_cache(maxsize=64)(self._family_factors)
+
+    def _start_socket_fits(self, groups: Sequence[SensorGroup], state: Mapping[str, Any] | None) -> None:
+        """One counted calibrator per socket sensor, with the node calibrator's settings (none
+        without a sensor per socket); continue from ``state`` when it is theirs."""
+        sensors = socket_sensors(groups)
+        if not sensors:
+            return
+        node = self.calibrator
+
+        def make() -> Any:
+            from hdeem_watch.calibrate import OnlineCalibrator
+
+            calibrator = OnlineCalibrator(self.spec, currents=node.currents, half_life_s=node.half_life_s,
+                                          max_runs=MAX_CALIBRATION_RUNS, max_history=MAX_CALIBRATOR_HISTORY)
+            calibrator.rules, calibrator.trust = node.rules, node.trust
+            return calibrator
+
+        self.socket_fits = SocketFits(self.spec, sensors, make)
+        if state:
+            try:
+                self.socket_fits.restore(state)
+            except InputError as error:
+                self.restore_error = self.restore_error or f"socket fits not restored: {error}"
+
+    def set_trust(self, trust: Any) -> None:
+        """The trust options of the node fit's refits (and the sockets')."""
+        self.calibrator.trust = trust
+        if self.socket_fits is not None:
+            self.socket_fits.set_trust(trust)
+
+    def refit(self) -> dict[str, Any] | None:
+        """Refit the node (and every socket) in full; the fit shown (:meth:`latest_fit`)."""
+        self.calibrator.refit()
+        if self.socket_fits is not None:
+            self.socket_fits.refit()
+        return self.latest_fit()
 
     def _kernel_stats(self, kernel: str, elements: int, threads: int, repeat: int,
                       cpus: tuple[int, ...] | None) -> Any:
@@ -342,10 +388,12 @@ class RunModeller:
                          "dimms_per_channel": topo.dimms_per_channel, "ranks_per_dimm": int(self.spec.nbr_of_ranks)}}
 
     def latest_fit(self) -> dict[str, Any] | None:
-        """``FitResult.to_dict()`` of the latest fit, or None."""
+        """``FitResult.to_dict()`` of the latest fit, or None: the sockets' combined fit where the node
+        has one counted fit per socket (:mod:`~hdeem_watch.calibrate.socket_fits`), else the node's."""
         if self.calibrator is None or self.calibrator.latest is None:
             return None
-        return dict(self.calibrator.latest.to_dict())
+        combined = None if self.socket_fits is None else self.socket_fits.combined(self.calibrator.latest)
+        return dict((combined or self.calibrator.latest).to_dict())
 
     def _currents_vector(self, fit: Mapping[str, Any] | None) -> tuple[np.ndarray, float]:
         from hdeem_watch.calibrate.observation import current_names
@@ -420,8 +468,12 @@ class RunModeller:
                                    commands="model" if counted is None else "counters", act_factors=factors)
         except InputError as error:
             return str(error)
+        per_socket = None
+        if counted is not None and self.socket_fits is not None:
+            per_socket = socket_rows(self.spec, record.counters, record.energy_j or {}, tuple(self.socket_fits.dimms),
+                                     window_s, name=run_name, time_ns=stop_ns)
         return _Observed(obs, groups, kernel_groups, counted is not None, counter_error, counter_notes, cpus,
-                         cpus_source, run_name, stop_ns, traffic_s)
+                         cpus_source, run_name, stop_ns, traffic_s, per_socket)
 
     def _model_body(self, record: RunRecord, observed: _Observed, window_s: float,
                     measured: float) -> dict[str, Any]:
@@ -457,7 +509,7 @@ class RunModeller:
                                      "datasheet_j": kernel_obs.predicted_j(datasheet_vec), "predicted_j": None}
         if before is not None:
             vec, intercept = self._currents_vector(before)
-            model["predicted_j"] = model["calibrated_j"] = obs.predicted_j(vec, intercept)
+            model["predicted_j"] = model["calibrated_j"] = self._predicted_j(observed, vec, intercept)
             if kernel_obs is not None:
                 model["kernel_model"]["predicted_j"] = kernel_obs.predicted_j(vec, intercept)
         return model
@@ -476,15 +528,26 @@ class RunModeller:
             result = self.calibrator.add_run(obs)
         except InputError as error:
             return RunModelResult(model, None, self._skip(run_name, stop_ns, str(error)))
+        if observed.socket_rows is not None and self.socket_fits is not None:
+            self.socket_fits.add(observed.socket_rows)
         self._say_source(run_name, model["source"], record)
         self._add_to_groups(model, record, observed.kernel_groups, observed.groups)
-        fit = dict(result.to_dict())
+        fit = self.latest_fit() or dict(result.to_dict())
         vec, intercept = self._currents_vector(fit)
-        model["fitted_j"] = obs.predicted_j(vec, intercept)
+        model["fitted_j"] = self._predicted_j(observed, vec, intercept)
         self._remember_candidate(record, obs)
         self.history.append(compact_fit(int(result.time_ns or obs.time_ns), fit))
         del self.history[:-MAX_HISTORY]
         return RunModelResult(model, fit, None)
+
+    def _predicted_j(self, observed: _Observed, vec: np.ndarray, intercept: float) -> float:
+        """The run's energy with the latest fit: per socket with each socket's own fit where the
+        run has socket rows and every socket a fit, else the node row with ``vec``/``intercept``."""
+        if observed.socket_rows is not None and self.socket_fits is not None:
+            per_socket = self.socket_fits.predicted_j(observed.socket_rows)
+            if per_socket is not None:
+                return per_socket
+        return float(observed.obs.predicted_j(vec, intercept))
 
     def _unmeasured(self, name: str, measured: Any, window_s: Any) -> str | None:
         """Why run ``name`` with ``measured`` J over ``window_s`` s cannot be calibrated (None: it can)."""
@@ -605,6 +668,8 @@ class RunModeller:
         if group == "node":  # the node fit (what ``calib show`` shows as node)
             if self.calibrator is not None:
                 self.calibrator.reset()
+            if self.socket_fits is not None:
+                self.socket_fits.reset()
             self.history.clear()
             return
         if group is not None:
@@ -616,6 +681,8 @@ class RunModeller:
             self.calibrator.reset()
         if self.group_fits is not None:
             self.group_fits.reset()
+        if self.socket_fits is not None:
+            self.socket_fits.reset()
         self.history.clear()
 
     def take_alarms(self) -> list[DriftAlarm]:
@@ -631,6 +698,8 @@ class RunModeller:
         groups = None if self.group_fits is None else self.group_fits.state()
         if groups is not None:
             state["sensor_groups"] = groups
+        if self.socket_fits is not None:
+            state["socket_fits"] = self.socket_fits.to_dict()
         return state
 
     def body(self, truth: Mapping[str, Any] | None = None) -> dict[str, Any]:

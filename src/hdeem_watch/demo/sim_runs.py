@@ -121,7 +121,7 @@ class SimRuns:
         self.modeller = RunModeller(memspec or memspec_setting(layout), topology=layout.topology,
                                     currents=currents_with_counters(currents) if counters else currents,
                                     half_life_s=half_life_s, groups=source_groups(self.sim, rates, 2, 4) if groups else (),
-                                    dram_rates_hz=rates)
+                                    dram_rates_hz=rates, sockets=source_groups(self.sim, rates, 2, 4))
         if self.modeller.error is not None:
             raise RuntimeError(self.modeller.error)
         self._energy = dict(self.sim.poll().energy_j)
