@@ -219,8 +219,7 @@ class RunModeller:
         groups: Sequence[SensorGroup] = (),
         dram_rates_hz: Mapping[str, float] | None = None,
         min_samples: int = DEFAULT_MIN_SAMPLES,
-        trust: bool = True,
-        sockets: Sequence[SensorGroup] | None = None,
+        trust: bool = True, sockets: Sequence[SensorGroup] | None = None,
     ) -> None:
         self.memspec = memspec
         self.dimms = int(topology.dimms) if topology is not None else int(dimms)
@@ -271,8 +270,7 @@ class RunModeller:
                                         calibrator={"currents": self.currents, "half_life_s": self.half_life_s,
                                                     "rules": bool(physical_rules)},
                                         state=(state or {}).get("sensor_groups"))
-            if self.group_fits.restore_error and not self.restore_error:
-                self.restore_error = self.group_fits.restore_error
+            self.restore_error = self.restore_error or self.group_fits.restore_error
             self._start_socket_fits(groups if sockets is None else sockets, (state or {}).get("socket_fits"))
         except ImportError as error:  # a model module not installed yet
             self.error = f"model not available: {error}"
