@@ -166,7 +166,11 @@ def test_combine_holds_what_a_socket_holds_and_adds_widths_in_quadrature(fitted)
     j = base.currents.index("idd4w")
     held = {s: dataclasses.replace(f, trust={"held": {"idd4w": {}}}, identifiable=np.zeros(len(f.currents), bool))
             for s, f in fits.items()}
-    assert not combine(held, {"DRAM0": 8, "DRAM1": 8}, base).identifiable[j]
+    shown_held = combine(held, {"DRAM0": 8, "DRAM1": 8}, base)
+    assert not shown_held.identifiable[j]
+    # undetermined: the plain sum of the weighted half-widths (bounds, not noise)
+    halves_held = [f.ci95_a[j, 1] - f.calibrated_a[j] for f in held.values()]
+    assert shown_held.ci95_a[j, 1] - shown_held.calibrated_a[j] == pytest.approx(sum(halves_held) / 2, rel=1e-9)
     shown = combine(fits, {"DRAM0": 8, "DRAM1": 8}, base)
     halves = [f.ci95_a[j, 1] - f.calibrated_a[j] for f in fits.values()]
     assert shown.ci95_a[j, 1] - shown.calibrated_a[j] == pytest.approx(np.hypot(*halves) / 2, rel=1e-9)

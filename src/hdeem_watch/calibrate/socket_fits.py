@@ -95,16 +95,18 @@ def combine(fits: Mapping[str, FitResult], dimms: Mapping[str, int], base: FitRe
     """The node's currents from the sockets' fits: their mean over the DIMMs (pure).
 
     A current's interval adds the sockets' weighted half-widths (each side) in quadrature: the
-    sockets' fits are independent (other sensors, other rows). It is determined when every socket determines it,
-    or when no socket holds it (held, tied or unconfirmed) and the mean's 95 % half-width is within
-    ``max_rel_ci`` of its value (the fit's setting). ``base`` (the node fit of the summed rows) gives
-    everything else: residual errors, runs, observability. ``trust.per_socket`` lists each
-    socket's value and verdict.
+    sockets' fits are independent (other sensors, other rows). It is determined when every socket
+    determines it, or when no socket holds it (held, tied or unconfirmed) and that half-width is
+    within ``max_rel_ci`` of its value (the fit's setting). A current left undetermined gets the
+    plain sum of the weighted half-widths instead (its bounds are the fits' bounds, not noise that
+    averages out). ``base`` (the node fit of the summed rows) gives everything else: residual
+    errors, runs, observability. ``trust.per_socket`` lists each socket's value and verdict.
     """
     total = float(sum(dimms[s] for s in fits))
     weights = {s: dimms[s] / total for s in fits}
     value = np.zeros(len(base.currents))
     spread = np.zeros((len(base.currents), 2))  # squared weighted distances to each socket's low and high bound
+    linear = np.zeros((len(base.currents), 2))  # the same distances, summed
     determined = []
     per_socket: dict[str, dict[str, Any]] = {}
     for j, current in enumerate(base.currents):
@@ -114,14 +116,17 @@ def combine(fits: Mapping[str, FitResult], dimms: Mapping[str, int], base: FitRe
             central = float(result.calibrated_a[k])
             value[j] += weights[sensor] * central
             low, high = np.nan_to_num(result.ci95_a[k], nan=central)
-            spread[j] += (weights[sensor] * np.array([central - low, high - central])) ** 2
+            distance = weights[sensor] * np.array([central - low, high - central])
+            spread[j] += distance ** 2
+            linear[j] += distance
             every &= bool(result.identifiable[k])
             trust = result.trust or {}
             held |= current in (trust.get("held") or {}) or current in (trust.get("unconfirmed") or ())
             per_socket.setdefault(sensor, {})[current] = {"calibrated": float(result.calibrated_a[k]),
                                                           "identifiable": bool(result.identifiable[k])}
         determined.append(every or (not held and float(np.sqrt(spread[j].max())) <= max_rel_ci * value[j]))
-    ci = np.column_stack([value - np.sqrt(spread[:, 0]), value + np.sqrt(spread[:, 1])])
+    half = np.where(np.array(determined)[:, None], np.sqrt(spread), linear)
+    ci = np.column_stack([value - half[:, 0], value + half[:, 1]])
     trust = {**dict(base.trust or {}), PER_SOCKET: per_socket,
              "per_socket_note": "node currents = the sockets' counted fits averaged over the DIMMs"}
     intercept = float(sum(r.intercept_j for r in fits.values()))
