@@ -172,5 +172,8 @@ def test_combine_holds_what_a_socket_holds_and_adds_widths_in_quadrature(fitted)
     halves_held = [f.ci95_a[j, 1] - f.calibrated_a[j] for f in held.values()]
     assert shown_held.ci95_a[j, 1] - shown_held.calibrated_a[j] == pytest.approx(sum(halves_held) / 2, rel=1e-9)
     shown = combine(fits, {"DRAM0": 8, "DRAM1": 8}, base)
-    halves = [f.ci95_a[j, 1] - f.calibrated_a[j] for f in fits.values()]
-    assert shown.ci95_a[j, 1] - shown.calibrated_a[j] == pytest.approx(np.hypot(*halves) / 2, rel=1e-9)
+    for k, name in enumerate(shown.currents):  # determined: in quadrature; not: summed
+        halves = [f.ci95_a[k, 1] - f.calibrated_a[k] for f in fits.values()]
+        expected = np.hypot(*halves) / 2 if shown.identifiable[k] else sum(halves) / 2
+        assert shown.ci95_a[k, 1] - shown.calibrated_a[k] == pytest.approx(expected, rel=1e-9), name
+    assert shown.identifiable.any() and not shown.identifiable.all()
