@@ -171,9 +171,11 @@ def test_combine_holds_what_a_socket_holds_and_adds_widths_in_quadrature(fitted)
     # undetermined: the plain sum of the weighted half-widths (bounds, not noise)
     halves_held = [f.ci95_a[j, 1] - f.calibrated_a[j] for f in held.values()]
     assert shown_held.ci95_a[j, 1] - shown_held.calibrated_a[j] == pytest.approx(sum(halves_held) / 2, rel=1e-9)
-    shown = combine(fits, {"DRAM0": 8, "DRAM1": 8}, base)
-    for k, name in enumerate(shown.currents):  # determined: in quadrature; not: summed
-        halves = [f.ci95_a[k, 1] - f.calibrated_a[k] for f in fits.values()]
-        expected = np.hypot(*halves) / 2 if shown.identifiable[k] else sum(halves) / 2
-        assert shown.ci95_a[k, 1] - shown.calibrated_a[k] == pytest.approx(expected, rel=1e-9), name
-    assert shown.identifiable.any() and not shown.identifiable.all()
+    sure = {s: dataclasses.replace(f, identifiable=np.ones(len(f.currents), bool)) for s, f in fits.items()}
+    for chosen in (fits, sure):
+        shown = combine(chosen, {"DRAM0": 8, "DRAM1": 8}, base)
+        for k, name in enumerate(shown.currents):  # determined: in quadrature; not: summed
+            halves = [f.ci95_a[k, 1] - f.calibrated_a[k] for f in chosen.values()]
+            expected = np.hypot(*halves) / 2 if shown.identifiable[k] else sum(halves) / 2
+            assert shown.ci95_a[k, 1] - shown.calibrated_a[k] == pytest.approx(expected, rel=1e-9), name
+    assert shown.identifiable.all()  # every socket determines every current: so does the node
