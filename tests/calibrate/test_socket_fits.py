@@ -179,3 +179,14 @@ def test_combine_holds_what_a_socket_holds_and_adds_widths_in_quadrature(fitted)
             expected = np.hypot(*halves) / 2 if shown.identifiable[k] else sum(halves) / 2
             assert shown.ci95_a[k, 1] - shown.calibrated_a[k] == pytest.approx(expected, rel=1e-9), name
     assert shown.identifiable.all()  # every socket determines every current: so does the node
+
+
+def test_with_socket_fits_the_summed_node_fit_keeps_only_its_holds() -> None:
+    """Its intervals are not shown: no jackknife, no draws (the sockets' fits keep theirs)."""
+    modeller = RunModeller(str(MEMSPEC), dimms=16, currents=CURRENTS, groups=SOCKETS)
+    assert modeller.calibrator.trust.jackknife is False and modeller.calibrator.trust.draws == 0
+    assert modeller.calibrator.trust.anchors  # it still holds IDD2N
+    assert all(c.trust.jackknife for c in modeller.socket_fits.calibrators.values())
+    pairs = RunModeller(str(MEMSPEC), dimms=16, currents=CURRENTS,
+                        groups=(SensorGroup("DDR_AB", (8, 0)), SensorGroup("DDR_CD", (8, 0))))
+    assert pairs.socket_fits is None and pairs.calibrator.trust.jackknife is True

@@ -302,6 +302,7 @@ class RunModeller:
             return calibrator
 
         self.socket_fits = SocketFits(self.spec, sensors, make)
+        node.trust = self._node_trust(node.trust)
         if state:
             try:
                 self.socket_fits.restore(state)
@@ -310,9 +311,17 @@ class RunModeller:
 
     def set_trust(self, trust: Any) -> None:
         """The trust options of the node fit's refits (and the sockets')."""
-        self.calibrator.trust = trust
+        self.calibrator.trust = self._node_trust(trust)
         if self.socket_fits is not None:
             self.socket_fits.set_trust(trust)
+
+    def _node_trust(self, trust: Any) -> Any:
+        """Where the sockets' fits make the figure, the node fit of the summed rows keeps only its
+        holds (its intervals are not shown): no jackknife, no mapping draws — a third of the work
+        of a refit, which the daemon's model worker does after every run."""
+        if trust is None or self.socket_fits is None:
+            return trust
+        return dataclasses.replace(trust, jackknife=False, draws=0)
 
     def refit(self) -> dict[str, Any] | None:
         """Refit the node (and every socket) in full; the fit shown (:meth:`latest_fit`)."""
