@@ -40,9 +40,11 @@ def test_the_wheel_installs_into_a_fresh_venv_and_runs_the_demo(tmp_path: Path) 
     examples = [n for n in names if "/share/hdeem-watch/examples/" in n]
     assert {Path(n).name for n in examples} >= {"RUNS.json", "recording-runs.csv", "memspec.json", "README.md"}
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True, timeout=120)
-    subprocess.run([str(venv / "bin" / "pip"), "install", "-q", str(wheel)], check=True, capture_output=True,
-                   timeout=300, env=env)
+    # no pip of its own (ensurepip took 3-6 s): this interpreter's pip installs into it (--python)
+    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", "--without-pip", str(venv)], check=True,
+                   timeout=120)
+    subprocess.run([sys.executable, "-m", "pip", "--python", str(venv / "bin" / "python"), "install", "-q",
+                    "--disable-pip-version-check", str(wheel)], check=True, capture_output=True, timeout=300, env=env)
     where = subprocess.run([str(venv / "bin" / "python"), "-c", "import hdeem_watch; print(hdeem_watch.__file__)"],
                            check=True, capture_output=True, text=True, cwd=tmp_path, env=env).stdout
     assert where.startswith(str(venv))
