@@ -18,7 +18,7 @@ During the runs the fit holds currents without a state of their own but skips th
 parts (jackknife, mapping families); every checkpoint and the end refit with all of them, as the
 daemon does after each run.
 
-Usage: ``python3 benchmarks/bench_trust.py [--seeds 20] [--runs 300] [--only counters|model]``
+Usage: ``python3 benchmarks/bench_trust.py [--seeds 20] [--runs 300] [--only counters|model] [--node ddr5]``
 (one core: ≈ 25 s per seed and source).
 """
 
@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from hdeem_watch.calibrate.trust import TrustOptions
+from hdeem_watch.demo.nodes import DEMO_NODES
 from hdeem_watch.demo.sim_runs import DEMO_TAIL_S, SimRuns
 
 CURRENTS = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w", "idd2p", "idd3p")
@@ -55,10 +56,10 @@ def judge(fit: dict[str, Any], truth: dict[str, float], limit: float) -> dict[st
             "key_determined": key_ok}
 
 
-def one(seed: int, source: str, runs: int) -> dict[str, Any]:
-    """One seed, one command source."""
+def one(seed: int, source: str, runs: int, node: str = "haswell") -> dict[str, Any]:
+    """One seed, one command source, on the demo node ``node``."""
     counted = source == "counters"
-    sim = SimRuns(seed, counters=counted, holdout=True, groups=False, tail_s=DEMO_TAIL_S)
+    sim = SimRuns(seed, counters=counted, holdout=True, groups=False, tail_s=DEMO_TAIL_S, node=DEMO_NODES[node])
     calibrator = sim.modeller.calibrator
     cheap, full = TrustOptions(jackknife=False, draws=0), TrustOptions()
     calibrator.trust = cheap
@@ -131,6 +132,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--first-seed", type=int, default=1)
     parser.add_argument("--runs", type=int, default=300, help="fitted runs per seed (the calibrator keeps 256)")
     parser.add_argument("--only", choices=("counters", "model"))
+    parser.add_argument("--node", choices=tuple(DEMO_NODES), default="haswell",
+                        help="the demo node (default: haswell; ddr5: the Sapphire Rapids-like DDR5 node)")
     parser.add_argument("--json", metavar="FILE", help="write every seed's result")
     args = parser.parse_args(argv)
     sources = [args.only] if args.only else ["counters", "model"]
@@ -138,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     start = time.monotonic()
     for source in sources:
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            result = one(seed, source, args.runs)
+            result = one(seed, source, args.runs, args.node)
             results.append(result)
             cur = " ".join(f"{n}:{100 * c['error']:+.0f}{'' if c['determined'] else '?'}{'' if c['covered'] else '!'}"
                            for n, c in result["currents"].items())

@@ -77,7 +77,7 @@ def test_one_job_over_several_nodes_has_a_total_only_when_every_node_answered() 
     def node(name: str, energy: float | None) -> dict[str, object]:
         if energy is None:
             return {"node": name, "ok": False, "error": "unreachable: no reply within 3 s"}
-        return {"node": name, "ok": True, "jobs": [{"job_id": "9", "dram_energy_j": energy}]}
+        return {"node": name, "ok": True, "jobs": [{"job_id": "9", "state": "done", "dram_energy_j": energy}]}
 
     assert total_line([node("a", 1.5)]) is None
     assert total_line([node("a", 1.5), node("b", 2.25)]).split()[:2] == ["total", "3.8"]  # type: ignore[union-attr]

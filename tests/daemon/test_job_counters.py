@@ -23,11 +23,12 @@ from hdeem_watch.counters.source import CounterSnapshot
 from hdeem_watch.daemon.book.state import NodeState
 from hdeem_watch.daemon.counters.windows import CounterWindows
 from hdeem_watch.daemon.jobs.book import JobBook
-from hdeem_watch.daemon.jobs.records import JobRecord, parse_job_args
+from hdeem_watch.daemon.jobs.records import parse_job_args
 from hdeem_watch.daemon.ops.jobs import MODELLING, JobOperations, unmodelled_jobs
 from hdeem_watch.daemon.store.database import Store
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.dram.energy import COMPONENTS
+from hdeem_watch.job_record import JobRecord
 from hdeem_watch.sources.base import ChannelInfo, SourceBatch
 
 # One worker runs the module, so its module-scoped fixture is built once, not once per worker.

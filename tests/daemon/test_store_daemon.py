@@ -108,7 +108,8 @@ def test_bad_rows_and_a_damaged_page_at_start_are_quarantined_and_the_daemon_com
 
 def _seed_every_table(path: Any) -> None:
     """A state database with a usable row and a row of valid JSON the daemon cannot use in each table."""
-    from hdeem_watch.daemon.jobs.records import JobRecord, parse_job_args
+    from hdeem_watch.daemon.jobs.records import parse_job_args
+    from hdeem_watch.job_record import JobRecord
 
     store = Store(path)
     store.save_run({"run_id": "r1", "kernel": "triad", "state": "done", "t_start_ns": 1})

@@ -94,3 +94,18 @@ def test_counted_ddr5_rows_at_the_sims_currents_give_the_measured_energy(ddr5_ru
             lin = linear_energy(spec, stretch_stats(spec, stats, run.record["window_s"]))
             energy += n * (float(np.asarray(lin.columns) @ truth) + lin.constant_j)
         assert energy == pytest.approx(run.record["dram_energy_j"], rel=0.015), run.record["name"]
+
+
+def test_a_ddr5_runs_calibrated_prediction_prices_each_current_in_its_own_column() -> None:
+    """The calibrated vector is built in DDR5's current order (DDR5 has IDD5C, DDR4 IDD5F2/F4 in
+    other places): a fit that changes only IDD2P moves only the IDD2P column's share of a
+    prediction. (It was built in DDR4's order: IDD2P's column got IDD3P's value.)"""
+    from hdeem_watch.calibrate.observation import current_names
+
+    modeller = RunModeller(memspec_setting(DDR5_NODE), topology=DDR5_NODE.topology)
+    names = current_names(modeller.spec)
+    datasheet, _ = modeller._currents_vector(None)
+    assert list(datasheet) == [float(modeller.spec.currents.get(n, 0.0)) for n in names]
+    fitted, intercept = modeller._currents_vector({"currents": {"idd2p": {"calibrated": 0.001}}, "intercept_j": 0.5})
+    changed = [n for n, a, b in zip(names, datasheet, fitted, strict=True) if a != b]
+    assert changed == ["idd2p"] and fitted[names.index("idd2p")] == 0.001 and intercept == 0.5

@@ -8,13 +8,15 @@ from pathlib import Path
 import pytest
 
 from hdeem_watch.errors import InputError
+from hdeem_watch.fit_record import FitRecord
 from hdeem_watch.report import analysis
 from hdeem_watch.report.records import FitEntry, RunRow
 from hdeem_watch.report.state_reader import read_state
 
 
-def _fit(value_a: float, low_a: float, high_a: float, identifiable: bool = True) -> dict:
-    return {"currents": {"idd3n": {"calibrated": value_a, "ci95": [low_a, high_a], "identifiable": identifiable}}}
+def _fit(value_a: float, low_a: float, high_a: float, identifiable: bool = True) -> FitRecord:
+    return FitRecord.from_dict({"currents": {"idd3n": {"calibrated": value_a, "ci95": [low_a, high_a],
+                                                       "identifiable": identifiable}}})
 
 
 def test_drift_flags_follow_the_calibrators_rule() -> None:
@@ -93,6 +95,6 @@ def test_model_currents_take_the_datasheet_where_the_fit_has_nothing(state_dir: 
     data = read_state(state_dir)
     vector, intercept = analysis.model_currents(data.spec, data.fit)
     values = dict(zip(CURRENT_NAMES, vector))
-    assert values["idd3n"] == data.fit["currents"]["idd3n"]["calibrated"]
+    assert values["idd3n"] == data.fit.currents["idd3n"].calibrated_a
     assert values["ipp3n"] == data.spec.currents["ipp3n"]
-    assert intercept == data.fit["intercept_j"] and math.isfinite(intercept)
+    assert intercept == data.fit.intercept_j and math.isfinite(intercept)

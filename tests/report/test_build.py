@@ -89,11 +89,11 @@ def test_numbers_equal_the_states(built: tuple[ReportData, Path], shared_state_d
     assert energy[("idle", None)]["measured J"] == pytest.approx(np.mean(idle), rel=1e-12)
     currents = {r["current"]: r for r in _table(numbers, "Currents", "currents")}
     assert data.fit is not None
-    idd4r = data.fit["currents"]["idd4r"]
+    idd4r = data.fit.to_dict()["currents"]["idd4r"]
     assert currents["idd4r"]["calibrated mA"] == pytest.approx(idd4r["calibrated"] * 1e3, rel=1e-12)
     assert currents["idd4r"]["95 % high mA"] == pytest.approx(idd4r["ci95"][1] * 1e3, rel=1e-12)
     (summary,) = _table(numbers, "Currents", "fit summary")
-    assert summary["leave-one-out error %"] == pytest.approx(data.fit["error"]["loo"] * 100, rel=1e-12)
+    assert summary["leave-one-out error %"] == pytest.approx(data.fit.error.loo * 100, rel=1e-12)
     memspec = json.loads((out / "memspec-calibrated.json").read_text())["memspec"]["mempowerspec"]
     assert memspec["idd4r"] == pytest.approx(idd4r["calibrated"], rel=1e-12)
     page = (out / "index.html").read_text()
@@ -208,5 +208,5 @@ def test_the_error_history_leaves_out_fits_with_fewer_runs_than_unknowns(state_d
     data = read_state(state_dir)
     kept, left_out = determined(list(data.fit_history))
     assert left_out >= 1 and len(kept) >= 2
-    errors = [100 * (h.fit or {})["error"][k] for h in kept for k in ("after", "loo", "before")]
+    errors = [100 * e for h in kept if h.fit is not None for e in (h.fit.error.after, h.fit.error.loo, h.fit.error.before)]
     assert min(errors) > 1e-3 and max(errors) < 1e3

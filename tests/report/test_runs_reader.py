@@ -20,8 +20,8 @@ def test_the_fit_is_calibrates(runs_json: Path, capsys: pytest.CaptureFixture[st
     data = read_runs(runs_json)
     assert data.fit is not None
     for name, entry in printed["currents"].items():
-        assert data.fit["currents"][name]["calibrated"] == pytest.approx(entry["calibrated"], rel=1e-12)
-    assert data.fit["error"] == pytest.approx(printed["error"])
+        assert data.fit.currents[name].calibrated_a == pytest.approx(entry["calibrated"], rel=1e-12)
+    assert data.fit.error.to_dict() == pytest.approx(printed["error"])
 
 
 def test_runs_keep_names_energies_and_statistics(runs_json: Path) -> None:

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from hdeem_watch.errors import InputError
+from hdeem_watch.job_record import JobRecord
 from hdeem_watch.report.state_reader import read_state
 
 
@@ -50,7 +51,7 @@ def test_calibrated_energy_is_the_latest_fits_in_sample_prediction(state_dir: Pa
     fit = _last_fit(state_dir)
     by_name = {r["name"]: r for r in fit["runs"]}
     data = read_state(state_dir)
-    assert data.fit == fit
+    assert data.fit is not None and data.fit.to_dict() == fit
     for run in data.runs:
         entry = by_name[f"{run.run_id}:{run.name}"]
         assert run.calibrated_j == pytest.approx(entry["after_j"], rel=1e-9)
@@ -83,18 +84,20 @@ def test_a_newer_schemas_tables_are_tolerated_and_jobs_and_pair_fits_are_used(st
     db = sqlite3.connect(state_dir / "state.db")
     db.execute("CREATE TABLE something_new (x INTEGER)")
     db.execute("CREATE TABLE jobs (job_id TEXT PRIMARY KEY, record TEXT NOT NULL)")
-    db.execute("INSERT INTO jobs VALUES ('4711', ?)", (json.dumps(
-        {"job_id": "4711", "node": "taurusi1234", "dram_energy_j": 900.0, "baseline_j": 600.0, "window_s": 60,
-         "runs": 3}),))
+    job = JobRecord(job_id="4711", node="taurusi1234", user="alice", uid=1000, nodes=("taurusi1234",), cpus=None,
+                    t_start_ns=1, state="done", t_stop_ns=60 * 10**9, dram_energy_j=900.0,
+                    dram_above_baseline_j=300.0, measured_s=60.0)
+    db.execute("INSERT INTO jobs VALUES ('4711', ?)", (json.dumps(job.to_dict()),))
+    db.execute("INSERT INTO jobs VALUES ('x', ?)", (json.dumps({"job_id": "x", "dram_energy_j": 5.0}),))
     db.execute('ALTER TABLE fits ADD COLUMN "group" TEXT')
     db.execute('INSERT INTO fits (t_ns, run_id, fit, "group") VALUES (?, ?, ?, ?)',
                (fit["time_ns"] + 1, "r29", json.dumps(fit), "DDR_CD"))
     db.commit()
     db.close()
     data = read_state(state_dir)
-    assert [(j.job_id, j.above_baseline_j) for j in data.jobs] == [("4711", 300.0)]
+    assert [(j.job_id, j.above_baseline_j, j.window_s) for j in data.jobs] == [("4711", 300.0, 60.0)]
     assert list(data.pair_fits) == ["DDR_CD"]
-    assert data.fit == fit  # the node fit stays the node's
+    assert data.fit is not None and data.fit.to_dict() == fit  # the node fit stays the node's
 
 
 def test_jobs_are_built_from_runs_with_a_slurm_job_id(state_dir: Path) -> None:
@@ -156,7 +159,7 @@ def test_per_pair_fits_and_alarms_come_from_the_daemons_state(aged_state_dir: Pa
     data = read_state(aged_state_dir)
     assert sorted(data.pair_fits) == ["DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"]
     assert all(len(history) > 10 for history in data.pair_history.values())
-    assert all(fit["currents"]["idd0"]["calibrated"] > 0 for fit in data.pair_fits.values())
+    assert all(fit.currents["idd0"].calibrated_a > 0 for fit in data.pair_fits.values())
     assert [(a["group"], a["current"], a["direction"]) for a in data.alarms] == [("DDR_CD", "energy", "up")]
     written = build_report(data, tmp_path / "out", fmt="html")
     page = written.page.read_text()
@@ -168,3 +171,16 @@ def test_per_pair_fits_and_alarms_come_from_the_daemons_state(aged_state_dir: Pa
     assert [row[1:3] for row in aging["drift alarms"]["rows"]] == [["DDR_CD", "energy"]]
     fits = {row[0] for row in next(v for k, v in numbers.items() if k.startswith("Currents"))["currents"]["rows"]}
     assert fits == {"node", "DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH"}
+
+
+def test_a_fits_row_that_is_no_fit_is_left_out_not_read_as_a_reset(state_dir: Path) -> None:
+    """A fits row of valid JSON that is no object (a damaged row) is left out: the latest fit stays
+    the latest, and the page does not say the calibrator was reset."""
+    fit = _last_fit(state_dir)
+    db = sqlite3.connect(state_dir / "state.db")
+    db.execute("INSERT INTO fits (t_ns, run_id, fit) VALUES (?, ?, ?)", (fit["time_ns"] + 1, "r99", "[1, 2]"))
+    db.commit()
+    db.close()
+    data = read_state(state_dir)
+    assert data.fit is not None and data.fit.to_dict() == fit
+    assert not any("reset" in note for note in data.notes)

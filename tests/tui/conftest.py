@@ -85,7 +85,8 @@ def build_frozen_snapshot(node: str = "taurusi6001", *, stale: bool = False, plo
                                          "t_start_ns": FROZEN_WALL_NS - 700_000_000, "state": "running"}})
     names = {"idd0": (0.0622, 0.0471), "idd2n": (0.0578, 0.0279), "idd3n": (0.0856, 0.0182),
              "idd4r": (0.0972, 0.0965), "idd4w": (0.0883, 0.0664)}
-    fit = {"currents": {n: {"datasheet": d, "calibrated": t * 1.03, "ci95": 0.0015, "identifiable": n != "idd3n"}
+    fit = {"currents": {n: {"datasheet": d, "calibrated": t * 1.03,
+                            "ci95": [t * 1.03 - 0.0015, t * 1.03 + 0.0015], "identifiable": n != "idd3n"}
                         for n, (d, t) in names.items()},
            "error": {"before": 1.02, "after": 0.031, "loo": 0.048}, "n_runs": 8}
     history = [{"t_ns": i, "currents": {n: d - (d - t) * (1 - 0.7**i) for n, (d, t) in names.items()}} for i in range(12)]

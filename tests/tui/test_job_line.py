@@ -14,14 +14,16 @@ WALL = 1_800_000_000 * 10**9
 
 def _job_event(seq: int, event: str, job_id: str, user: str) -> protocol.Message:
     body = {"seq": seq, "node": "n1", "t_ns": 0, "event": event,
-            "job": {"job_id": job_id, "user": user, "t_start_ns": WALL - 65 * 10**9}}
+            "job": {"job_id": job_id, "user": user, "t_start_ns": WALL - 65 * 10**9,
+                    "state": "running" if event == "start" else "done"}}
     return protocol.decode(protocol.encode(protocol.topic("n1", "job"), body))
 
 
 def test_open_jobs_come_from_the_status_reply_and_the_job_events() -> None:
     """The status reply lists the open jobs; a start event adds one, a stop event removes it."""
     model = NodeModel("ipc:///x")
-    model.apply_status({"uptime_s": 1.0, "jobs": [{"job_id": "7", "user": "alice", "t_start_ns": WALL - 10**9}]},
+    model.apply_status({"uptime_s": 1.0, "jobs": [{"job_id": "7", "user": "alice", "t_start_ns": WALL - 10**9,
+                                                            "state": "running"}]},
                        wall_ns=WALL)
     model.apply(_job_event(1, "start", "8", "bob"), recv_mono_ns=1)
     snap = model.snapshot(now_mono_ns=2, now_wall_ns=WALL, window_s=60.0, width=None)

@@ -136,7 +136,7 @@ def test_calib_view_with_sim_truth_and_history() -> None:
     """Calibration: datasheet/calibrated/ci95/identifiable per current, errors, history, and the sim truth (marked)."""
     fit = {
         "currents": {
-            "idd0": {"datasheet": 0.058, "calibrated": 0.031, "ci95": 0.002, "identifiable": True},
+            "idd0": {"datasheet": 0.058, "calibrated": 0.031, "ci95": [0.029, 0.033], "identifiable": True},
             "idd5b": {"datasheet": 0.25, "calibrated": 0.24, "ci95": [0.1, 0.3], "identifiable": False},
         },
         "error": {"before": 0.98, "after": 0.03, "loo": 0.045},
@@ -145,7 +145,8 @@ def test_calib_view_with_sim_truth_and_history() -> None:
     history = [[1, {"currents": {"idd0": {"calibrated": 0.05}}}], [2, fit]]
     view = calib_view({"fit": fit, "history": history, "truth": truth, "suggest": [["read-24t", 0.7]]})
     idd0, idd5b = view.currents
-    assert (idd0.datasheet_a, idd0.calibrated_a, idd0.ci95_a, idd0.identifiable) == (0.058, 0.031, 0.002, True)
+    assert (idd0.datasheet_a, idd0.calibrated_a, idd0.identifiable) == (0.058, 0.031, True)
+    assert math.isclose(idd0.ci95_a, 0.002)
     assert idd0.truth_a == 0.030 and idd0.history_a == (0.05, 0.031)
     assert math.isclose(idd5b.ci95_a, 0.1) and not idd5b.identifiable
     assert view.simulated and view.error_loo == 0.045 and view.suggested_next == "read-24t"

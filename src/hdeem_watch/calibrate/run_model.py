@@ -350,7 +350,7 @@ class RunModeller:
     def _currents_vector(self, fit: Mapping[str, Any] | None) -> tuple[np.ndarray, float]:
         from hdeem_watch.calibrate.observation import current_names
 
-        names = current_names()
+        names = current_names(self.spec)
         values = {n: float(self.spec.currents.get(n, 0.0)) for n in names}
         intercept = 0.0
         if fit is not None:

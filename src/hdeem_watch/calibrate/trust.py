@@ -12,6 +12,17 @@ module puts into the reported interval and the verdict "determined":
   plausible range (its lower bound or the calibrated IDD2P, up to the anchor: IDD2P ≤ IDD2N ≤ IDD3N),
   and the currents it trades with are refitted at both ends of that range: their interval spans the
   two answers.
+- **Mixed standby.** DDR5's active standby is ``ρ·IDD3N + (1 − ρ)·IDD2N`` (DRAMPower's DDR5 test
+  memspec: ρ = 0.5), and a counted busy window is almost all active standby: both currents appear
+  in every row in one fixed mix, so the base fit determines neither and the anchor rule above
+  cannot hold IDD2N. The current is then **tied** to its anchor at their datasheet ratio (its column
+  folded into the anchor's); where that fit determines the anchor, the current is held at the
+  ratio times the anchor (the hold's fixed point), and its range is the part of
+  ``[IDD2P, IDD3N]`` the rows do not reject: a refit at each of :data:`PROFILE_STEPS` values, kept
+  while its residual sum of squares stays within ``1 + F₀.₉₅(1, G − k)/(G − k)`` of the best
+  (``G`` kinds of run, ``k`` unknowns: the kinds are the independent data). The other currents are
+  refitted at both ends of that range, as above; the anchor, whose split from the current the rows
+  do not see, is then rarely determined.
 - **Systematic misfit per kind of run.** The residuals of one kind of run (kernel × threads) share a
   model error, so runs are not independent draws. A delete-one-kind jackknife over the kinds
   (``kind`` = the run name after ``"r<n>:"``) gives each current's spread when one kind is left out;
@@ -43,7 +54,7 @@ Example:
     ...         for i, x in enumerate(rng.uniform(1, 3, 30))]
     >>> result = trusted_fit(rows, Spec(), FitOptions(currents=("a", "b"), names=("a", "b"), intercept=False),
     ...                      trust=TrustOptions())
-    >>> [round(v, 2) for v in result.calibrated_a], result.trust["kinds"]
+    >>> [round(float(v), 2) for v in result.calibrated_a], result.trust["kinds"]
     ([0.5, 0.8], 6)
 """
 
@@ -71,6 +82,8 @@ RANGE_FLOOR: Mapping[str, str] = {"idd2n": "idd2p", "idd3n": "idd3p"}
 _UNIT = 0.01
 #: Fewest kinds of run for the jackknife (fewer: the analytic interval only).
 MIN_KINDS = 5
+#: Values of a tied current over its plausible range at which the rows' rejection is tested.
+PROFILE_STEPS = 9
 
 
 @dataclass(frozen=True)
@@ -137,6 +150,69 @@ def _held_values(base: FitResult, spec: SpecLike, anchors: Mapping[str, str],
         value = float(spec.currents.get(current, 0.0)) * float(base.calibrated_a[a]) / float(base.datasheet_a[a])
         out[current] = max(value, lower.get(current, 0.0))
     return out
+
+
+def _tied_values(base: FitResult, rows: Sequence[Observation], spec: SpecLike, options: FitOptions,
+                 weights: np.ndarray | None, anchors: Mapping[str, str],
+                 lower: Mapping[str, float]) -> dict[str, float]:
+    """Held current → its value when the base fit determines neither it nor its anchor (module
+    docstring, *mixed standby*): the fit with the current tied to its anchor at their datasheet ratio
+    (its column folded into the anchor's), kept where that fit determines the anchor."""
+    out: dict[str, float] = {}
+    names = tuple(options.names) if options.names is not None else tuple(current_names(spec))
+    for current, anchor in anchors.items():
+        if current not in base.currents or anchor not in base.currents or current in out:
+            continue
+        j, a = base.currents.index(current), base.currents.index(anchor)
+        ratio = float(spec.currents.get(current, 0.0)) / float(base.datasheet_a[a]) if base.datasheet_a[a] > 0 else 0.0
+        if base.identifiable[j] or base.identifiable[a] or not ratio > 0:
+            continue
+        jc, ja = names.index(current), names.index(anchor)
+        tied = []
+        for row in rows:
+            columns = row.columns.copy()
+            columns[ja] += ratio * columns[jc]
+            columns[jc] = 0.0
+            tied.append(dataclasses.replace(row, columns=columns))
+        currents = tuple(c for c in options.currents if c.lower() != current)
+        try:
+            result = fit(tied, spec, dataclasses.replace(_quiet(options), currents=currents), weights=weights)
+        except InputError:
+            continue
+        if result.determined(anchor):
+            out[current] = max(ratio * float(result.calibrated[anchor]), lower.get(current, 0.0))
+    return out
+
+
+def _rss(result: FitResult) -> float:
+    """The fit's weighted sum of squared relative residuals."""
+    return float(result.noise_rel) ** 2 * max(int(result.dof), 1)
+
+
+def _unrejected(rows: Sequence[Observation], spec: SpecLike, options: FitOptions, weights: np.ndarray | None,
+                held: Mapping[str, float], current: str, span: tuple[float, float], kinds: int,
+                steps: int = PROFILE_STEPS) -> tuple[float, float]:
+    """The part of ``span`` whose values of the held ``current`` the rows do not reject: a refit with
+    the current fixed at each of ``steps`` values over the span, kept while its residual sum of
+    squares stays within the F test's 95 % bound of the best (``F(1, kinds − unknowns)``: the runs of
+    one kind share their model error, so the kinds are the independent data), the best taken at no
+    less than the fit's noise floor."""
+    from scipy.special import fdtri
+
+    values = np.linspace(span[0], span[1], steps)
+    rss = []
+    for v in values:
+        try:
+            rss.append(_rss(_fit_held(rows, spec, _quiet(options), weights, {**held, current: float(v)}, 0)))
+        except InputError:
+            rss.append(math.inf)
+    central = _fit_held(rows, spec, _quiet(options), weights, held, 0)
+    # at least the noise the fit assumes of any sensor (FitSettings.noise_floor): an exact fit rejects nothing
+    best = max(float(min([*rss, _rss(central)])), options.settings.noise_floor ** 2 * max(int(central.dof), 1))
+    dof = max(1, kinds - len(options.currents))
+    limit = best * (1.0 + float(fdtri(1, dof, 0.95)) / dof)
+    kept = [float(v) for v, r in zip(values, rss, strict=True) if r <= limit] + [float(held[current])]
+    return min(kept), max(kept)
 
 
 def _fit_held(rows: Sequence[Observation], spec: SpecLike, options: FitOptions, weights: np.ndarray | None,
@@ -293,13 +369,7 @@ def trusted_fit(rows: Sequence[Observation], spec: SpecLike, options: FitOptions
     base = fit(rows, spec, options, weights=weights, time_ns=time_ns)
     names = base.currents
     lower = {n: float(lo) for n, (lo, _hi) in (options.bounds or {}).items()}
-    held: dict[str, float] = {}
-    central = base
-    for _ in range(2):  # the anchor moves a little once the held current is fixed
-        held = _held_values(base if not held else _merge(central, base, held), spec, trust.anchors, lower)
-        if not held:
-            break
-        central = _fit_held(rows, spec, options, weights, held, time_ns)
+    held, tied, central = _hold(base, rows, spec, options, weights, trust.anchors, lower, time_ns)
     value = _values(central, names, held)
     ci = np.array([central.interval(n) if n not in held else (math.nan, math.nan) for n in names],
                   dtype=float).reshape(len(names), 2)
@@ -331,12 +401,15 @@ def trusted_fit(rows: Sequence[Observation], spec: SpecLike, options: FitOptions
     for current, v in held.items():
         anchor = trust.anchors[current]
         lo_h, hi_h = _held_range(central, current, anchor, lower)
+        if current in tied:
+            lo_h, hi_h = _unrejected(rows, spec, options, weights, held, current, (lo_h, hi_h),
+                                     kinds or len({run_kind(r.name) for r in rows}))
         for end in (lo_h, hi_h):
             other = _values(_fit_held(rows, spec, _quiet(options), weights, {**held, current: end}, 0), names, held)
             low, high = np.fmin(low, other), np.fmax(high, other)
         j = names.index(current)
         low[j], high[j] = lo_h, hi_h
-        held_info[current] = {"value": v, "anchor": anchor, "range": [lo_h, hi_h]}
+        held_info[current] = {"value": v, "anchor": anchor, "range": [lo_h, hi_h], "tied": current in tied}
     ci_out = np.column_stack([np.maximum(low, 0.0), high])
     reference = np.maximum(np.abs(value), 0.05 * base.datasheet_a)
     narrow = (ci_out[:, 1] - ci_out[:, 0]) / 2 <= options.settings.max_rel_ci * reference
@@ -354,6 +427,24 @@ def trusted_fit(rows: Sequence[Observation], spec: SpecLike, options: FitOptions
                                condition_number=base.condition_number, rank=base.rank,
                                correlation=base.correlation, trust=info,
                                uncertainty=f"{central.uncertainty}+kinds+commands")
+
+
+def _hold(base: FitResult, rows: Sequence[Observation], spec: SpecLike, options: FitOptions,
+          weights: np.ndarray | None, anchors: Mapping[str, str], lower: Mapping[str, float],
+          time_ns: int) -> tuple[dict[str, float], dict[str, float], FitResult]:
+    """The held currents (module docstring), the tied ones among them, and the fit with them held."""
+    held: dict[str, float] = {}
+    central = base
+    for _ in range(2):  # the anchor moves a little once the held current is fixed
+        held = _held_values(base if not held else _merge(central, base, held), spec, anchors, lower)
+        if not held:
+            break
+        central = _fit_held(rows, spec, options, weights, held, time_ns)
+    tied = _tied_values(base, rows, spec, options, weights, anchors, lower) if not held else {}
+    if tied:  # the tied fit's answer is the hold's fixed point: one refit with it held
+        held = dict(tied)
+        central = _fit_held(rows, spec, options, weights, held, time_ns)
+    return held, tied, central
 
 
 def _merge(central: FitResult, base: FitResult, held: Mapping[str, float]) -> FitResult:

@@ -26,6 +26,7 @@ from typing import Any
 from hdeem_watch.cli.daemon_client import add_connect_arguments, open_client
 from hdeem_watch.cli.numbers import counted
 from hdeem_watch.errors import InputError
+from hdeem_watch.fit_record import FitRecord
 
 NODE = "node"
 #: The fit of the sensor groups' sum (kernel runs only), beside the node fit.
@@ -125,22 +126,21 @@ def format_fits(chosen: dict[str, dict[str, Any]], alarms: list[dict[str, Any]],
     lines = []
     missing_interval = False
     for name, entry in chosen.items():
-        fit = entry.get("fit")
-        if not fit:
+        if not entry.get("fit"):
             lines.append(f"{name}: no fit yet ({counted(entry.get('runs') or 0, 'run')})")
             continue
-        loo = (fit.get("error") or {}).get("loo")
-        loo_text = "—" if loo is None else f"{loo * 100:.2f} %"
-        lines.append(f"{name}: {counted(fit.get('n_runs'), 'run')}, status {fit.get('status')}, leave-one-out {loo_text}")
+        fit = FitRecord.from_dict(entry["fit"])
+        loo_text = "—" if math.isnan(fit.error.loo) else f"{fit.error.loo * 100:.2f} %"
+        lines.append(f"{name}: {counted(fit.n_runs, 'run')}, status {fit.status}, leave-one-out {loo_text}")
         lines.extend(trust_lines(fit))
-        for current, c in (fit.get("currents") or {}).items():
-            lo, hi = (c.get("ci95") or [None, None])[:2]
-            flags = "" if c.get("identifiable") else "  not determined"
-            flags += f"  at {c['at_bound']} bound" if c.get("at_bound") else ""
+        for current, c in fit.currents.items():
+            lo, hi = c.ci95_a
+            flags = "" if c.identifiable else "  not determined"
+            flags += f"  at {c.at_bound} bound" if c.at_bound else ""
             interval = f"[{_ma(lo)}, {_ma(hi)}]" if "—" not in (_ma(lo), _ma(hi)) else "no interval"
             missing_interval = missing_interval or interval == "no interval"
-            lines.append(f"  {current:<6} {_ma(c.get('calibrated')):>8} mA  {interval:<17}  "
-                         f"datasheet {_ma(c.get('datasheet'))}{flags}")
+            lines.append(f"  {current:<6} {_ma(c.calibrated_a):>8} mA  {interval:<17}  "
+                         f"datasheet {_ma(c.datasheet_a)}{flags}")
     if missing_interval:
         lines.append("no interval: the fit gives none for that current (too few runs for it to be determined)")
     for a in alarms:
@@ -156,18 +156,17 @@ COMMAND_SOURCES = {"counted": "commands counted in each run's window (memory-con
                    "mixed": "commands counted where the runs had counters, else modelled"}
 
 
-def trust_lines(fit: dict[str, Any]) -> list[str]:
+def trust_lines(fit: FitRecord) -> list[str]:
     """What a fit rests on: its command source, held currents, currents the modelled commands leave open."""
-    trust = fit.get("trust")
-    if not isinstance(trust, dict):
+    if fit.trust is None:
         return []
-    lines = [f"  commands: {COMMAND_SOURCES.get(str(trust.get('commands')), str(trust.get('commands')))}"]
-    for current, held in (trust.get("held") or {}).items():
-        lo, hi = (held.get("range") or [None, None])[:2]
-        lines.append(f"  {current} held at {_ma(held.get('value'))} mA (datasheet scaled like {held.get('anchor')}; "
+    lines = [f"  commands: {COMMAND_SOURCES.get(str(fit.commands), str(fit.commands))}"]
+    for current, held in fit.held.items():
+        lo, hi = held.range_a
+        lines.append(f"  {current} held at {_ma(held.value_a)} mA (datasheet scaled like {held.anchor}; "
                      f"no run shows its state; range [{_ma(lo)}, {_ma(hi)}] carried into the others)")
-    if trust.get("unconfirmed"):
-        lines.append(f"  rest on modelled activations nothing confirms: {', '.join(trust['unconfirmed'])}")
+    if fit.unconfirmed:
+        lines.append(f"  rest on modelled activations nothing confirms: {', '.join(fit.unconfirmed)}")
     return lines
 
 

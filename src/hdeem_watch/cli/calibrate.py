@@ -182,8 +182,9 @@ def format_table(result: FitResult, memory_id: str) -> str:
         lines.append(f"held at a physical rule (the data wants past it): {', '.join(result.rules_held)}")
     if result.trust is not None:
         from hdeem_watch.cli.calib import trust_lines
+        from hdeem_watch.fit_record import FitRecord
 
-        lines.extend(line.strip() for line in trust_lines({"trust": dict(result.trust)}))
+        lines.extend(line.strip() for line in trust_lines(FitRecord.from_dict(result.to_dict())))
     if result.intercept_fitted:
         lo, hi = result.intercept_ci95_j
         lines.append(f"intercept {result.intercept_j:.4g} J per run  [{lo:.4g}, {hi:.4g}]")

@@ -29,6 +29,7 @@ from typing import Any
 from hdeem_watch.cli.control_port import CONTROL_PORT, CONTROL_PORT_ENV, control_port
 from hdeem_watch.cli.curve_options import add_server_key_argument, client_kwargs, curve_keys
 from hdeem_watch.errors import InputError
+from hdeem_watch.job_record import JobRecord
 from hdeem_watch.report.records import is_dram_channel
 
 _AGO = re.compile(r"^(\d+(?:\.\d+)?)\s*(s|min|h|d)$")
@@ -209,6 +210,28 @@ def _duration(seconds: Any) -> str:
     return f"{whole // 3600}:{whole // 60 % 60:02d}:{whole % 60:02d}"
 
 
+def answer_jobs(answer: Mapping[str, Any]) -> list[JobRecord | str]:
+    """The jobs of one answer read by the one parser; an entry that is no job record is one line
+    saying so (the daemon's JSON stays as it was for ``--json``)."""
+    out: list[JobRecord | str] = []
+    for data in (answer.get("jobs") or []) if answer["ok"] else []:
+        try:
+            out.append(JobRecord.from_dict(data))
+        except ValueError as error:
+            out.append(f"unreadable job entry: {error}")
+    return out
+
+
+def _job_line(node: str, job: JobRecord) -> str:
+    started = datetime.fromtimestamp(job.t_start_ns / 1e9).strftime("%m-%d %H:%M") \
+        if job.t_start_ns is not None else "–"
+    peaks = [v for c, v in job.peak_power_w.items() if is_dram_channel(c) and math.isfinite(v)]
+    return (f"{node:<10}{job.job_id[:9]:<10}{(job.user or '–')[:7]:<8}"
+            f"{started:<12}{_duration(job.duration_s):>9}{_fmt(job.dram_energy_j):>9}"
+            f"{_fmt(job.dram_above_baseline_j):>8}{_fmt(job.dram_mean_power_w):>7}"
+            f"{_fmt(max(peaks) if peaks else None):>7}")
+
+
 def table(answers: Sequence[dict[str, Any]]) -> list[str]:
     """The human table, 80 columns: one line per job and node (the job's state and status under it
     when it is still running or not fully measured); a line per node that did not answer or has no
@@ -223,20 +246,14 @@ def table(answers: Sequence[dict[str, Any]]) -> list[str]:
         if not answer["jobs"]:
             lines.append(f"{node:<10}(no jobs on this node)" if answer.get("op") == "job.list"
                          else f"{node:<10}(no such job on this node)")
-        for job in answer["jobs"]:
-            started = datetime.fromtimestamp(int(job.get("t_start_ns") or 0) / 1e9).strftime("%m-%d %H:%M")
-            measured = job.get("measured_s")
-            mean = job["dram_energy_j"] / measured if isinstance(job.get("dram_energy_j"), int | float) \
-                and isinstance(measured, int | float) and measured > 0 else math.nan
-            peaks = [v for c, v in (job.get("peak_power_w") or {}).items()
-                     if is_dram_channel(str(c)) and isinstance(v, int | float) and math.isfinite(v)]
-            lines.append(f"{node:<10}{str(job.get('job_id', ''))[:9]:<10}{(job.get('user') or '–')[:7]:<8}"
-                         f"{started:<12}{_duration(job.get('duration_s')):>9}{_fmt(job.get('dram_energy_j')):>9}"
-                         f"{_fmt(job.get('dram_above_baseline_j')):>8}{_fmt(mean):>7}"
-                         f"{_fmt(max(peaks) if peaks else None):>7}")
-            status = job.get("status") or "ok"
-            if job.get("state") != "done" or status != "ok":
-                lines.append(f"{'':<10}{job.get('state', '')}: {status}")
+        for job in answer_jobs(answer):
+            if isinstance(job, str):
+                lines.append(f"{node:<10}{job}")
+                continue
+            lines.append(_job_line(node, job))
+            status = job.status or "ok"
+            if job.state != "done" or status != "ok":
+                lines.append(f"{'':<10}{job.state}: {status}")
     return lines
 
 
@@ -245,8 +262,9 @@ def total_line(answers: Sequence[dict[str, Any]]) -> str | None:
     does not know it); None for fewer than two nodes."""
     if len(answers) < 2:
         return None
-    values = [a["jobs"][0].get("dram_energy_j") if a["ok"] and a["jobs"] else None for a in answers]
-    known = [v for v in values if isinstance(v, int | float) and math.isfinite(v)]
+    firsts = [next(iter(answer_jobs(a)), None) for a in answers]
+    values = [job.dram_energy_j if isinstance(job, JobRecord) else math.nan for job in firsts]
+    known = [v for v in values if math.isfinite(v)]
     total = sum(known) if len(known) == len(values) else math.nan
     note = "" if math.isfinite(total) else f"  (unknown: {len(values) - len(known)} of {len(values)} nodes missing)"
     return f"{'total':<10}{'':<10}{'':<8}{'':<12}{'':>9}{_fmt(total):>9}{note}"
@@ -258,12 +276,13 @@ def model_lines(answers: Sequence[dict[str, Any]]) -> list[str]:
     that has ended, why there is none."""
     lines = []
     for answer in answers:
-        jobs = (answer.get("jobs") or []) if answer["ok"] else []
-        for job in jobs:
-            model = job.get("model")
-            if not isinstance(model, Mapping):
-                if job.get("state") != "running":  # a running job is modelled when it stops: nothing to say yet
-                    lines.append(f"{answer['node']:<10}model: – ({job.get('model_error') or 'none'})")
+        for job in answer_jobs(answer):
+            if isinstance(job, str):
+                continue  # the table said so
+            model = job.model
+            if model is None:
+                if job.state != "running":  # a running job is modelled when it stops: nothing to say yet
+                    lines.append(f"{answer['node']:<10}model: – ({job.model_error or 'none'})")
                 continue
             calibrated = (model.get("split_j") or {}).get("calibrated")
             which, split = ("calibrated", calibrated) if calibrated else ("datasheet", (model.get("split_j") or {})

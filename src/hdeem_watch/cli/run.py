@@ -20,6 +20,7 @@ from datetime import datetime
 from typing import Any
 
 from hdeem_watch.cli.daemon_client import Failed, add_connect_arguments, open_client, reported
+from hdeem_watch.run_record import RunRecord
 
 EPILOG = """examples:
   hdeem-watch run list                      # this node's daemon: its newest runs
@@ -65,37 +66,42 @@ def _list(args: argparse.Namespace) -> int:
 
 
 def format_runs(runs: list[Mapping[str, Any]]) -> str:
-    """The ``run list`` table (80 columns), newest first; "no runs yet" when there are none.
+    """The ``run list`` table (80 columns), newest first; "no runs yet" when there are none. Each
+    entry is read by the one parser of run records (one that is none is a line saying so).
 
     Example:
         >>> print(format_runs([{"run_id": "r2", "name": "triad-1t", "state": "done", "window_s": 2.01,
         ...     "dram_energy_j": 61.2, "t_start_ns": 0, "fit": {"n_runs": 1}}]))  # doctest: +ELLIPSIS
-        run   name                  state        seconds   DRAM J  started   calibrated
-        r2    triad-1t              done           2.010    61.20  ...       yes
+        run   name                  state       seconds   DRAM J  started   calibrated
+        r2    triad-1t              done          2.010    61.20  ...  yes
     """
     if not runs:
         return "no runs yet"
     lines = [f"{'run':<6}{'name':<22}{'state':<10}{'seconds':>9}{'DRAM J':>9}  {'started':<10}calibrated"]
-    for run in runs:
-        lines.append(f"{run.get('run_id')!s:<6}{str(run.get('name'))[:21]:<22}{run.get('state')!s:<10}"
-                     f"{_number(run.get('window_s'), 3):>9}{_number(run.get('dram_energy_j'), 2):>9}  "
-                     f"{_clock(run.get('t_start_ns')):<10}{_calibrated(run)}")
+    for entry in runs:
+        try:
+            run = RunRecord.from_dict(entry)
+        except ValueError as error:
+            lines.append(f"unreadable run entry: {error}")
+            continue
+        lines.append(f"{run.run_id:<6}{run.name[:21]:<22}{run.state:<10}"
+                     f"{_number(run.window_s, 3):>9}{_number(run.dram_energy_j, 2):>9}  "
+                     f"{_clock(run.t_start_ns):<10}{_calibrated(run)}")
     return "\n".join(lines)
 
 
-def _number(value: Any, digits: int) -> str:
-    return f"{value:.{digits}f}" if isinstance(value, int | float) and math.isfinite(value) else "–"
+def _number(value: float | None, digits: int) -> str:
+    return f"{value:.{digits}f}" if value is not None and math.isfinite(value) else "–"
 
 
-def _clock(t_ns: Any) -> str:
-    return datetime.fromtimestamp(t_ns / 1e9).strftime("%H:%M:%S") if isinstance(t_ns, int) else "–"
+def _clock(t_ns: int | None) -> str:
+    return datetime.fromtimestamp(t_ns / 1e9).strftime("%H:%M:%S") if t_ns is not None else "–"
 
 
-def _calibrated(run: Mapping[str, Any]) -> str:
-    state = run.get("state")
-    if state == "done":
-        return "yes" if run.get("fit") else "no (run list --json: model_error)"
-    return {"aborted": "no (aborted)", "running": "–", "modelling": "…"}.get(str(state), "–")
+def _calibrated(run: RunRecord) -> str:
+    if run.state == "done":
+        return "yes" if run.fit else "no (run list --json: model_error)"
+    return {"aborted": "no (aborted)", "running": "–", "modelling": "…"}.get(run.state, "–")
 
 
 def _stop(args: argparse.Namespace) -> int:
@@ -107,10 +113,14 @@ def _stop(args: argparse.Namespace) -> int:
                 raise Failed("no run is in progress on this daemon (run list shows the finished ones)")
             run_id = running.get("run_id")
         record = client.call("run.stop", {"run_id": run_id, "abort": bool(args.abort)})
-    if args.json:
-        print(json.dumps(record))
-        return 0
-    how = "aborted (stored, not calibrated)" if record.get("state") == "aborted" else "stopped"
-    print(f"run {record.get('run_id')} ({record.get('name')}) {how}: {_number(record.get('window_s'), 3)} s, "
-          f"DRAM {_number(record.get('dram_energy_j'), 2)} J")
+        if args.json:
+            print(json.dumps(record))
+            return 0
+        try:
+            run = RunRecord.from_dict(record)
+        except ValueError as error:
+            raise Failed(f"the daemon's run.stop reply is {error}") from None
+    how = "aborted (stored, not calibrated)" if run.state == "aborted" else "stopped"
+    print(f"run {run.run_id} ({run.name}) {how}: {_number(run.window_s, 3)} s, "
+          f"DRAM {_number(run.dram_energy_j, 2)} J")
     return 0

@@ -500,8 +500,8 @@ class Daemon:
                 self.counters.flush()
         if now >= republish.next_ns:
             republish.advance(now)
-            reporter.look_for_quiet_periods(window_s=settings.quiet_window_s,
-                                            max_spread_w=settings.quiet_max_spread_w)
+            reporter.look_for_quiet_periods(window_s=settings.quiet_window_s, max_spread_w=settings.quiet_max_spread_w,
+                                            history_s=settings.quiet_history_s)
             reporter.publish_calib()
             reporter.publish_baselines()
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from datetime import UTC
 from typing import Any
@@ -22,6 +22,7 @@ import numpy as np
 from hdeem_watch.dram.energy import COMPONENT_KINDS, component_energy
 from hdeem_watch.dram.kernels import HOLDOUT_KERNELS
 from hdeem_watch.errors import InputError
+from hdeem_watch.fit_record import FitRecord
 from hdeem_watch.report.records import BaselinePoint, FitEntry, JobRow, ReportData, RunRow, finite
 from hdeem_watch.run_record import RunRecord
 
@@ -33,7 +34,7 @@ COMPONENT_GROUPS: dict[str, tuple[str, ...]] = {
                                                      ("power_down", "power-down"))}
 
 
-def model_currents(spec: Any, fit: Mapping[str, Any] | None) -> tuple[np.ndarray, float]:
+def model_currents(spec: Any, fit: FitRecord | None) -> tuple[np.ndarray, float]:
     """Every current of the energy model (``energy.CURRENT_NAMES`` order, A) and the intercept (J):
     the fit's calibrated values where it has them, the datasheet's elsewhere (as the daemon does)."""
     from hdeem_watch.dram.energy import CURRENT_NAMES
@@ -41,18 +42,11 @@ def model_currents(spec: Any, fit: Mapping[str, Any] | None) -> tuple[np.ndarray
     values = {name: float(spec.currents.get(name, 0.0)) for name in CURRENT_NAMES}
     intercept = 0.0
     if fit is not None:
-        for name, entry in (fit.get("currents") or {}).items():
-            value = finite((entry or {}).get("calibrated"))
+        for name, value in fit.calibrated_a.items():
             if name in values and math.isfinite(value):
                 values[name] = value
-        value = finite(fit.get("intercept_j"))
-        intercept = value if math.isfinite(value) else 0.0
+        intercept = fit.intercept_j if math.isfinite(fit.intercept_j) else 0.0
     return np.array([values[name] for name in CURRENT_NAMES]), intercept
-
-
-def fit_runs_by_name(fit: Mapping[str, Any] | None) -> dict[str, Mapping[str, Any]]:
-    """The fit's per-run entries (``before_j``, ``after_j``, ``loo_j``) by observation name."""
-    return {str(r.get("name")): r for r in (fit or {}).get("runs") or [] if isinstance(r, Mapping)}
 
 
 @dataclass(frozen=True)
@@ -128,14 +122,13 @@ def drift_flags(history: Sequence[FitEntry], lag_s: float | None) -> list[dict[s
         reference = next((h.fit for h in reversed(history[:i]) if h.fit is not None and h.t_ns <= cutoff), None)
         if reference is None:
             continue
-        for name, now in (current.get("currents") or {}).items():
-            before = (reference.get("currents") or {}).get(name)
-            if not before:
+        for name, now in current.currents.items():
+            before = reference.currents.get(name)
+            if before is None:
                 continue
-            low, high = (finite(v) for v in (before.get("ci95") or [None, None]))
-            value = finite(now.get("calibrated"))
-            usable = bool(before.get("identifiable") and now.get("identifiable")) and math.isfinite(low + high)
-            row[name] = bool(usable and not low <= value <= high)
+            low, high = before.ci95_a
+            usable = bool(before.identifiable and now.identifiable) and math.isfinite(low + high)
+            row[name] = bool(usable and not low <= now.calibrated_a <= high)
     return flags
 
 
@@ -150,7 +143,7 @@ def run_groups(spec: Any, run: RunRow) -> list[tuple[Any, float]]:
                                                                run.repeat, topology)]
 
 
-def component_energies(spec: Any, fit: Mapping[str, Any] | None, run: RunRow) -> dict[str, float]:
+def component_energies(spec: Any, fit: FitRecord | None, run: RunRow) -> dict[str, float]:
     """Energy of each of :data:`COMPONENT_GROUPS` for one run with the calibrated currents (J).
 
     The statistics are stretched over the measured window (:func:`hdeem_watch.dram.energy.component_energy`);

@@ -12,9 +12,10 @@ from typing import Any
 
 import numpy as np
 
+from hdeem_watch.fit_record import CurrentFit
 from hdeem_watch.report import analysis
 from hdeem_watch.report.figure import ReportFigure, Table, rows
-from hdeem_watch.report.records import ReportData, finite
+from hdeem_watch.report.records import ReportData
 from hdeem_watch.report.style import SERIES, legend_outside, message_figure, percent_axis, pyplot, style
 
 
@@ -83,20 +84,20 @@ def currents_figure(data: ReportData) -> ReportFigure:
         fig = message_figure(title, "no calibration yet: no fit in this state")
         return ReportFigure("fig2-currents", title, how, fig, missing=("calibration", *missing))
     fig, ax = plt.subplots(figsize=(8.5, 4.2))
-    names = list((next(iter(fits.values())) or {}).get("currents") or {})
+    first = next(iter(fits.values()))
+    names = list(first.currents)
     x = np.arange(len(names))
     bars = 1 + len(fits)
     width = 0.8 / bars
-    first = next(iter(fits.values())) or {}
-    datasheet = [finite(first["currents"][n].get("datasheet")) * 1e3 for n in names]
+    datasheet = [first.currents[n].datasheet_a * 1e3 for n in names]
     s = SERIES["datasheet"]
     ax.bar(x - 0.4 + width / 2, datasheet, width, color=s.color, hatch=s.hatch, edgecolor="#333333", linewidth=0.4,
            label="datasheet")
     table_rows = []
     for k, (group, fit) in enumerate(fits.items(), start=1):
-        entries = [(fit or {}).get("currents", {}).get(n, {}) for n in names]
-        values = np.array([finite(e.get("calibrated")) * 1e3 for e in entries])
-        ci = np.array([[finite(v) * 1e3 for v in (e.get("ci95") or [None, None])] for e in entries])
+        entries = [fit.currents.get(n, CurrentFit(n)) for n in names]
+        values = np.array([e.calibrated_a * 1e3 for e in entries])
+        ci = np.array([[v * 1e3 for v in e.ci95_a] for e in entries])
         s = SERIES["calibrated"] if group == "node" else style(k)
         low = np.where(np.isfinite(ci[:, 0]), values - ci[:, 0], 0.0)
         high = np.where(np.isfinite(ci[:, 1]), ci[:, 1] - values, 0.0)
@@ -106,8 +107,8 @@ def currents_figure(data: ReportData) -> ReportFigure:
                label="calibrated (node)" if group == "node" else f"calibrated ({group})")
         for j, name in enumerate(names):
             table_rows.append((group, name, datasheet[j], values[j], ci[j, 0], ci[j, 1],
-                               bool(entries[j].get("identifiable")), entries[j].get("at_bound")))
-    weak = {n for n in names if not (first["currents"][n].get("identifiable"))}
+                               bool(entries[j].identifiable), entries[j].at_bound))
+    weak = {n for n in names if not first.currents[n].identifiable}
     ax.set_xticks(x, [n.upper() + (" (weak)" if n in weak else "") for n in names])
     ax.set_ylabel("current per device (mA)")
     scope = ("node-level fit" + (f" and {len(data.pair_fits)} per-DIMM-pair fits" if data.pair_fits
@@ -118,14 +119,12 @@ def currents_figure(data: ReportData) -> ReportFigure:
     table = Table(("fit", "current", "datasheet mA", "calibrated mA", "95 % low mA", "95 % high mA", "determined",
                    "at bound"), rows(table_rows))
     tables = {"currents": table}
-    intercept = finite((data.fit or {}).get("intercept_j"))
-    if math.isfinite(intercept):
-        errors = (data.fit or {}).get("error") or {}
+    if data.fit is not None and math.isfinite(data.fit.intercept_j):
+        error = data.fit.error
         tables["fit summary"] = Table(
             ("runs", "intercept J", "error before %", "error after %", "leave-one-out error %", "status"),
-            ((data.fit.get("n_runs") if data.fit else None, intercept, finite(errors.get("before")) * 100,
-              finite(errors.get("after")) * 100, finite(errors.get("loo")) * 100,
-              (data.fit or {}).get("status")),))
+            ((data.fit.n_runs, data.fit.intercept_j, error.before * 100, error.after * 100, error.loo * 100,
+              data.fit.status),))
     return ReportFigure("fig2-currents", title, how, fig, tables, tuple(missing))
 
 
@@ -176,5 +175,5 @@ def calibrated_memspec(data: ReportData) -> dict[str, Any] | None:
     """The memspec with the latest fit's currents (DRAMPower JSON), None without spec or fit."""
     if data.spec is None or data.fit is None:
         return None
-    currents = {name: finite(entry.get("calibrated")) for name, entry in (data.fit.get("currents") or {}).items()}
+    currents = data.fit.calibrated_a
     return dict(data.spec.with_currents({n: v for n, v in currents.items() if math.isfinite(v)}).to_json_dict())

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from hdeem_watch.fit_record import CurrentFit, FitError
 from hdeem_watch.report import analysis
 from hdeem_watch.report.figure import ReportFigure, Table, rows
 from hdeem_watch.report.records import FitEntry, ReportData, RunRow, finite
@@ -48,8 +49,7 @@ def determined(history: Sequence[FitEntry]) -> tuple[list[FitEntry], int]:
     a figure of fit errors over time leaves them out."""
     kept = []
     for entry in history:
-        fit = entry.fit or {}
-        if int(fit.get("n_runs") or 0) > len(fit.get("currents") or {}) + 1:
+        if entry.fit is not None and (entry.fit.n_runs or 0) > len(entry.fit.currents) + 1:
             kept.append(entry)
     return kept, sum(1 for h in history if h.fit is not None) - len(kept)
 
@@ -91,11 +91,11 @@ def residuals_figure(data: ReportData) -> ReportFigure:
         missing.append(f"fit errors over time ({reason})")
     fig = _panels(title, drawers, reasons)
     table_history = []
-    for h in [h for h in data.fit_history if h.fit is not None]:
-        errors = (h.fit or {}).get("error") or {}
-        table_history.append((_stamp(h.t_ns), h.run_id, (h.fit or {}).get("n_runs"),
-                              finite(errors.get("before")) * 100, finite(errors.get("after")) * 100,
-                              finite(errors.get("loo")) * 100))
+    for h in data.fit_history:
+        if h.fit is not None:
+            error = h.fit.error
+            table_history.append((_stamp(h.t_ns), h.run_id, h.fit.n_runs, error.before * 100, error.after * 100,
+                                  error.loo * 100))
     tables = {
         "residual per run": Table(
             ("run", "kernel", "threads", "end (UTC)", "measured J", "latest fit error %", "fit-before error %",
@@ -126,9 +126,10 @@ def _draw_residuals(ax: Any, runs: Sequence[RunRow], title: str) -> None:
 
 def _draw_fit_errors(ax: Any, history: Sequence[FitEntry]) -> None:
     hx, _ = _time_axis(ax, [h.t_ns for h in history])
-    for label, key, k in (("calibrated (in sample)", "after", 0), ("leave-one-out", "loo", 2),
-                          ("datasheet", "before", 4)):
-        values = [finite(((h.fit or {}).get("error") or {}).get(key)) * 100 for h in history]
+    errors = [h.fit.error if h.fit is not None else FitError() for h in history]
+    for label, values, k in (("calibrated (in sample)", [e.after * 100 for e in errors], 0),
+                             ("leave-one-out", [e.loo * 100 for e in errors], 2),
+                             ("datasheet", [e.before * 100 for e in errors], 4)):
         s = style(k)
         ax.plot(hx, values, marker=s.marker, color=s.color, label=label, markersize=4, linewidth=1.0)
     ax.set_yscale("log")
@@ -144,7 +145,7 @@ def aging_figure(data: ReportData) -> ReportFigure:
            "measured — a rising line is a pair drawing more.")
     missing: list[str] = []
     history = [h for h in data.fit_history if h.fit is not None]
-    names = list((history[-1].fit or {}).get("currents") or {}) if history else []
+    names = list(history[-1].fit.currents) if history and history[-1].fit is not None else []
     drawers: list[Any] = []
     reasons: list[str] = []
     if len(history) >= 2:
@@ -165,8 +166,7 @@ def aging_figure(data: ReportData) -> ReportFigure:
     fig = _panels(title, drawers, reasons)
     flags = analysis.drift_flags(history, data.drift_lag_s)
     table_currents = [(_stamp(h.t_ns), h.run_id,
-                       *[finite((((h.fit or {}).get("currents") or {}).get(n) or {}).get("calibrated")) * 1e3
-                         for n in names],
+                       *[_current(h, n).calibrated_a * 1e3 for n in names],
                        ", ".join(n for n, v in f.items() if v) or "none") for h, f in zip(history, flags)]
     tables = {
         "currents over time (mA)": Table(("time (UTC)", "after run", *[f"{n} mA" for n in names], "drift alarm"),
@@ -182,6 +182,12 @@ def aging_figure(data: ReportData) -> ReportFigure:
     return ReportFigure("fig4-aging", title, how, fig, tables, tuple(missing))
 
 
+def _current(entry: FitEntry, name: str) -> CurrentFit:
+    """Current ``name`` of the entry's fit (all unknown when the fit lacks it)."""
+    fit = entry.fit
+    return fit.currents.get(name, CurrentFit(name)) if fit is not None else CurrentFit(name)
+
+
 def _draw_currents(ax: Any, data: ReportData, history: Sequence[FitEntry], names: Sequence[str], title: str) -> None:
     """The node fit's currents over time with their bands, the node-level drift flags and the
     daemon's per-pair alarms."""
@@ -189,9 +195,9 @@ def _draw_currents(ax: Any, data: ReportData, history: Sequence[FitEntry], names
     flags = analysis.drift_flags(history, data.drift_lag_s)
     alarm_x, alarm_y = [], []
     for k, name in enumerate(names):
-        entries = [((h.fit or {}).get("currents") or {}).get(name) or {} for h in history]
-        values = np.array([finite(e.get("calibrated")) * 1e3 for e in entries])
-        ci = np.array([[finite(v) * 1e3 for v in (e.get("ci95") or [None, None])] for e in entries])
+        entries = [_current(h, name) for h in history]
+        values = np.array([e.calibrated_a * 1e3 for e in entries])
+        ci = np.array([[v * 1e3 for v in e.ci95_a] for e in entries])
         s = style(k)
         band = np.isfinite(ci).all(axis=1)
         ax.plot(x, values, marker=s.marker, color=s.color, label=name.upper(), markersize=5, linewidth=1.0)

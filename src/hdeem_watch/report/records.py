@@ -18,6 +18,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from hdeem_watch.fit_record import FitRecord
+
 NAN = math.nan
 
 
@@ -79,7 +81,7 @@ class RunRow:
 
 @dataclass(frozen=True)
 class FitEntry:
-    """One fit of the history (``FitResult.to_dict()``; None after a calibrator reset).
+    """One fit of the history (None after a calibrator reset).
 
     Older fits of a daemon state are read without their per-run details and correlation matrix
     (only the newest is read whole); ``row`` is the fit's row id in the state (0 = none).
@@ -87,7 +89,7 @@ class FitEntry:
 
     t_ns: int
     run_id: str | None
-    fit: Mapping[str, Any] | None
+    fit: FitRecord | None
     row: int = 0
 
 
@@ -119,8 +121,8 @@ class JobRow:
         node: the node.
         dram_energy_j: measured DRAM energy over the job's runs (J).
         baseline_j: the idle baseline's energy over the same windows (J; NaN = no baseline).
-        window_s: summed run windows (s).
-        runs: number of runs.
+        window_s: summed run windows, or a SLURM job's measured time (s).
+        runs: number of runs (None for a SLURM job's record: it counts none).
     """
 
     job_id: str
@@ -128,7 +130,7 @@ class JobRow:
     dram_energy_j: float
     baseline_j: float
     window_s: float
-    runs: int
+    runs: int | None
 
     @property
     def above_baseline_j(self) -> float:
@@ -144,7 +146,7 @@ class ReportData:
         source: what was read (shown on the page).
         spec: the datasheet memspec (:class:`~hdeem_watch.dram.memspec.MemSpec`), None if unknown.
         runs: finished runs, oldest first.
-        fit: the latest fit (``FitResult.to_dict()``), None without one.
+        fit: the latest fit, None without one.
         fit_history: every stored fit, oldest first.
         drift_lag_s: how far back the drift reference fit is (None = the calibrator flags no drift).
         baselines: idle baselines per channel over time, oldest first.
@@ -161,12 +163,12 @@ class ReportData:
     source: str
     spec: Any
     runs: tuple[RunRow, ...]
-    fit: Mapping[str, Any] | None
+    fit: FitRecord | None
     fit_history: tuple[FitEntry, ...] = ()
     drift_lag_s: float | None = None
     baselines: tuple[BaselinePoint, ...] = ()
     jobs: tuple[JobRow, ...] = ()
-    pair_fits: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    pair_fits: Mapping[str, FitRecord] = field(default_factory=dict)
     pair_history: Mapping[str, tuple[FitEntry, ...]] = field(default_factory=dict)
     alarms: tuple[Mapping[str, Any], ...] = ()
     channels: tuple[str, ...] = ()

@@ -9,7 +9,7 @@ count; any other name is its own kernel. A RUNS.json has no fit history, baselin
 Example::
 
     data = read_runs("RUNS.json")
-    data.fit["error"]["loo"]     # leave-one-out mean |relative error|
+    data.fit.error.loo           # leave-one-out mean |relative error|
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from hdeem_watch.errors import InputError
+from hdeem_watch.fit_record import FitRecord
 from hdeem_watch.report.analysis import model_currents
 from hdeem_watch.report.records import FitEntry, ReportData, RunRow
 
@@ -50,11 +51,11 @@ def read_runs(path: str | Path) -> ReportData:
 
     path = Path(path)
     spec, observations = read_runs_file(path)
-    result = fit(observations, spec).to_dict()
+    result = FitRecord.from_dict(fit(observations, spec).to_dict())
     datasheet, _ = model_currents(spec, None)
     raw_runs = json.loads(path.read_text(encoding="utf-8"))["runs"]
     rows = []
-    for i, (obs, entry, raw) in enumerate(zip(observations, result["runs"], raw_runs)):
+    for i, (obs, entry, raw) in enumerate(zip(observations, result.runs, raw_runs)):
         kernel, threads = kernel_and_threads(obs.name)
         loo = entry.get("loo_j")
         rows.append(RunRow(

@@ -25,7 +25,9 @@ from pathlib import Path
 from typing import Any
 
 from hdeem_watch.errors import InputError
-from hdeem_watch.report.analysis import fit_runs_by_name, jobs_from_runs, model_currents
+from hdeem_watch.fit_record import FitRecord
+from hdeem_watch.job_record import JobRecord
+from hdeem_watch.report.analysis import jobs_from_runs, model_currents
 from hdeem_watch.report.records import (
     BaselinePoint,
     FitEntry,
@@ -148,7 +150,7 @@ def _group_histories(groups: Any) -> dict[str, list[FitEntry]]:
         history = state.get("history") if isinstance(state, Mapping) else None
         if str(name) == "node" or not isinstance(history, list):
             continue
-        entries = [FitEntry(t_ns=int(h.get("time_ns") or 0), run_id=None, fit=h["fit"], row=i)
+        entries = [FitEntry(t_ns=int(h.get("time_ns") or 0), run_id=None, fit=_fit(h["fit"]), row=i)
                    for i, h in enumerate(history) if isinstance(h, Mapping) and isinstance(h.get("fit"), Mapping)]
         if entries:
             out[str(name)] = entries
@@ -179,7 +181,10 @@ def _fit_history(db: sqlite3.Connection, tables: Mapping[str, list[str]]
     node: list[FitEntry] = []
     groups: dict[str, list[FitEntry]] = {}
     for t_ns, run_id, text, group, row in db.execute(select):
-        entry = FitEntry(t_ns=int(t_ns or 0), run_id=run_id, fit=_json(text), row=int(row))
+        value = _json(text)
+        if value is not None and not isinstance(value, Mapping):
+            continue  # a damaged row (no fit, nor a reset's null): the daemon sets it aside at its next start
+        entry = FitEntry(t_ns=int(t_ns or 0), run_id=run_id, fit=_fit(value), row=int(row))
         if group in (None, "", "node"):
             node.append(entry)
         else:
@@ -210,7 +215,8 @@ def _with_full_latest(db: sqlite3.Connection, history: list[FitEntry]) -> list[F
     for i in range(len(history) - 1, -1, -1):
         if history[i].fit is not None:
             (text,) = db.execute("SELECT fit FROM fits WHERE id = ?", (history[i].row,)).fetchone()
-            history[i] = FitEntry(t_ns=history[i].t_ns, run_id=history[i].run_id, fit=_json(text), row=history[i].row)
+            history[i] = FitEntry(t_ns=history[i].t_ns, run_id=history[i].run_id, fit=_fit(_json(text)),
+                                  row=history[i].row)
             break
     return history
 
@@ -237,16 +243,15 @@ def _job_table(db: sqlite3.Connection, tables: Mapping[str, list[str]]) -> list[
         return []
     jobs = []
     for (text,) in db.execute("SELECT record FROM jobs"):
-        record = _json(text) or {}
-        energy = finite(record.get("dram_energy_j"))
-        if not math.isfinite(energy):
+        try:
+            job = JobRecord.from_dict(_json(text))
+        except ValueError:  # not a job record: left out
             continue
-        baseline = finite(record.get("baseline_j"))
-        if not math.isfinite(baseline) and math.isfinite(finite(record.get("above_baseline_j"))):
-            baseline = energy - finite(record.get("above_baseline_j"))
-        jobs.append(JobRow(job_id=str(record.get("job_id", "?")), node=str(record.get("node", "")),
-                           dram_energy_j=energy, baseline_j=baseline, window_s=finite(record.get("window_s")),
-                           runs=int(record.get("runs") or 0)))
+        if not math.isfinite(job.dram_energy_j):
+            continue
+        jobs.append(JobRow(job_id=job.job_id, node=job.node, dram_energy_j=job.dram_energy_j,
+                           baseline_j=job.dram_energy_j - job.dram_above_baseline_j, window_s=job.measured_s,
+                           runs=None))
     return jobs
 
 
@@ -281,11 +286,16 @@ def _spec_of(records: Sequence[RunRecord], notes: list[str]) -> Any:
         return None
 
 
-def _runs(records: Sequence[RunRecord], spec: Any, fit: Mapping[str, Any] | None) -> list[RunRow]:
+def _fit(value: Any) -> FitRecord | None:
+    """A stored fit read by the one parser (None for none, or for JSON that is no object)."""
+    return FitRecord.from_dict(value) if isinstance(value, Mapping) else None
+
+
+def _runs(records: Sequence[RunRecord], spec: Any, fit: FitRecord | None) -> list[RunRow]:
     import numpy as np
 
     currents = model_currents(spec, fit) if spec is not None and fit is not None else None
-    by_name = fit_runs_by_name(fit)
+    by_name = fit.runs_by_name() if fit is not None else {}
     out = []
     for record in records:
         measured = finite(record.dram_energy_j)

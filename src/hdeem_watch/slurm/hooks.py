@@ -31,6 +31,7 @@ import contextlib
 import json
 import logging
 import logging.handlers
+import math
 import os
 import signal
 import subprocess
@@ -41,6 +42,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
+from hdeem_watch.job_record import JobRecord
 from hdeem_watch.slurm import allocation_nodes, hook_context, hook_setting
 
 #: The daemon's config file of a system install (``systemd/hdeem-watchd.service``).
@@ -333,8 +335,13 @@ def epilog(env: Mapping[str, str] | None = None) -> dict[str, Any]:
         _write_private(s.hook_dir / f"stop-{job_id}.json", json.dumps(args))
         _log(f"epilog job {job_id}: {why}; the stop is kept and sent by the next hook", env)
     elif isinstance(result, dict):
-        record["dram_energy_j"] = result.get("dram_energy_j")
-        record["state"] = result.get("state")
+        try:
+            job = JobRecord.from_dict(result)
+        except ValueError as error:
+            record["job_stop"] = f"unreadable reply: {error}"
+        else:
+            record["dram_energy_j"] = job.dram_energy_j if math.isfinite(job.dram_energy_j) else None
+            record["state"] = job.state
     record["daemon"] = _stop_started_daemon(s)
     (s.hook_dir / f"job-{job_id}.json").unlink(missing_ok=True)
     _append_bounded(s.hook_dir / "jobs.jsonl", record)

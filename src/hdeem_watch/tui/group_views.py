@@ -17,6 +17,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from hdeem_watch.fit_record import FitRecord
 from hdeem_watch.tui.snapshot import AlarmView, CurrentView, GroupFitView
 
 #: The name of the groups' sum (the node-level fit) beside the groups, and its key in the body.
@@ -62,32 +63,23 @@ def alarm_text(alarm: AlarmView) -> str:
             f"({alarm.kind} {abs(alarm.statistic):.3g} > {alarm.threshold:.3g})")
 
 
-def _currents(fit: Mapping[str, Any]) -> tuple[CurrentView, ...]:
-    currents = fit.get("currents")
-    out = []
-    for name, entry in (currents.items() if isinstance(currents, Mapping) else ()):
-        if not isinstance(entry, Mapping):
-            continue
-        ci = entry.get("ci95")
-        half = (_num(ci[1]) - _num(ci[0])) / 2 if isinstance(ci, list) and len(ci) == 2 else _num(ci)
-        out.append(CurrentView(name=str(name).lower(), datasheet_a=_num(entry.get("datasheet")),
-                               calibrated_a=_num(entry.get("calibrated")), ci95_a=half,
-                               identifiable=bool(entry.get("identifiable", False))))
-    return tuple(out)
+def _currents(fit: FitRecord) -> tuple[CurrentView, ...]:
+    return tuple(CurrentView(name=cur.name.lower(), datasheet_a=cur.datasheet_a, calibrated_a=cur.calibrated_a,
+                             ci95_a=cur.half_width_a, identifiable=bool(cur.identifiable))
+                 for cur in fit.currents.values())
 
 
 def group_view(name: str, entry: Mapping[str, Any], alarms: tuple[AlarmView, ...]) -> GroupFitView:
     """One group's view from its ``calib`` entry."""
-    fit = entry.get("fit") if isinstance(entry.get("fit"), Mapping) else None
+    fit = FitRecord.from_dict(entry["fit"]) if isinstance(entry.get("fit"), Mapping) else None
     dimms = entry.get("dimms_per_socket")
-    error = (fit or {}).get("error")
     runs = entry.get("runs")
     return GroupFitView(
         name=name,
         currents=_currents(fit) if fit is not None else (),
         runs=int(runs) if isinstance(runs, int) else 0,
-        status=str((fit or {}).get("status") or ""),
-        error_loo=_num(error.get("loo")) if isinstance(error, Mapping) else math.nan,
+        status=(fit.status or "") if fit is not None else "",
+        error_loo=fit.error.loo if fit is not None else math.nan,
         dimms=sum(d for d in dimms if isinstance(d, int)) if isinstance(dimms, list) else 0,
         alarms=tuple(a for a in alarms if a.group == name),
     )

@@ -27,10 +27,11 @@ from typing import Any
 
 import numpy as np
 
+from hdeem_watch.job_record import JobRecord
 from hdeem_watch.run_record import RunRecord
 from hdeem_watch.tui.downsample import ColumnCache
 from hdeem_watch.tui.recent_samples import RecentSamples
-from hdeem_watch.tui.records import calib_view, num, run_record, run_view, sensor_command_rates
+from hdeem_watch.tui.records import calib_view, job_record, num, run_record, run_view, sensor_command_rates
 from hdeem_watch.tui.snapshot import (
     CalibView,
     ChannelView,
@@ -111,7 +112,7 @@ class NodeModel:
         self._stored_runs: int | None = None  # the daemon's count at the last status reply
         self._runs_since_status = 0
         self._current_run: RunRecord | None = None
-        self._jobs: dict[str, Mapping[str, Any]] = {}  # open SLURM jobs by id
+        self._jobs: dict[str, JobRecord] = {}  # open SLURM jobs by id
         self._calib_body: Mapping[str, Any] = {}
         self._calib_cache: tuple[int, CalibView] | None = None
         self._calib_version = 0
@@ -206,7 +207,7 @@ class NodeModel:
             self._current_run = run_record(body.get("run"))
         jobs = body.get("jobs")  # the status reply lists the open jobs (the heartbeat does not)
         if isinstance(jobs, list):
-            self._jobs = {str(j.get("job_id")): j for j in jobs if isinstance(j, Mapping)}
+            self._jobs = {j.job_id: j for j in map(job_record, jobs) if j is not None}
         stored = body.get("runs")  # the status reply counts the stored runs (the heartbeat does not)
         if isinstance(stored, int) and not isinstance(stored, bool):
             self._stored_runs = stored
@@ -214,13 +215,13 @@ class NodeModel:
 
     def apply_job_event(self, body: Mapping[str, Any]) -> None:
         """Take a ``job`` message: ``{"event": "start"|"stop", "job": {...}}``."""
-        job = body.get("job")
-        if not isinstance(job, Mapping):
+        job = job_record(body.get("job"))
+        if job is None:
             return
         if body.get("event") == "start":
-            self._jobs[str(job.get("job_id"))] = job
+            self._jobs[job.job_id] = job
         else:
-            self._jobs.pop(str(job.get("job_id")), None)
+            self._jobs.pop(job.job_id, None)
 
     def apply_run_event(self, body: Mapping[str, Any]) -> None:
         """Take a ``run`` message: ``{"event": "start"|"stop", "run": {...}}``."""
@@ -375,8 +376,8 @@ class NodeModel:
             started = self._current_run.t_start_ns
             elapsed = (now_wall_ns - started) / 1e9 if started is not None else math.nan
             current = run_view(self._current_run, running=True, elapsed_s=elapsed)
-        jobs = tuple(JobView(job_id=key, user=str(job.get("user") or ""),
-                             elapsed_s=(now_wall_ns - num(job.get("t_start_ns"))) / 1e9)
+        jobs = tuple(JobView(job_id=key, user=job.user,
+                             elapsed_s=(now_wall_ns - job.t_start_ns) / 1e9 if job.t_start_ns is not None else math.nan)
                      for key, job in self._jobs.items())
         return NodeSnapshot(
             node=self.node,

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from hdeem_watch.channels import DRAM_CHANNELS
+from hdeem_watch.fit_record import FitRecord
+from hdeem_watch.job_record import JobRecord
 from hdeem_watch.run_record import RunRecord
 from hdeem_watch.tui.group_views import group_views
 from hdeem_watch.tui.snapshot import CalibView, CommandRates, CurrentView, RunView
@@ -35,17 +37,6 @@ def num(value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         return math.nan
     return float(value)
-
-
-def first_num(record: Mapping[str, Any], *keys: str) -> float:
-    """The first of ``keys`` that holds a number (dotted keys descend into objects), else NaN."""
-    for key in keys:
-        value: Any = record
-        for part in key.split("."):
-            value = value.get(part) if isinstance(value, Mapping) else None
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            return float(value)
-    return math.nan
 
 
 def measured_dram_j(record: RunRecord) -> float:
@@ -87,6 +78,14 @@ def run_record(value: Any) -> RunRecord | None:
     """The run record a message carries (None: not one, e.g. from a daemon this UI cannot read)."""
     try:
         return RunRecord.from_dict(value)
+    except ValueError:
+        return None
+
+
+def job_record(value: Any) -> JobRecord | None:
+    """A job record (or summary) from a message, None when it is no job record."""
+    try:
+        return JobRecord.from_dict(value)
     except ValueError:
         return None
 
@@ -149,12 +148,11 @@ def _suggestion(value: Any) -> str:
 
 def calib_view(body: Mapping[str, Any], *, history_len: int = 40) -> CalibView:
     """A :class:`CalibView` from a ``calib`` message body (or the ``calib.get`` result)."""
-    fit = body.get("fit") if isinstance(body.get("fit"), Mapping) else None
+    fit = FitRecord.from_dict(body["fit"]) if isinstance(body.get("fit"), Mapping) else None
     truth_raw = body.get("truth")
     truth = _current_values(truth_raw) if isinstance(truth_raw, Mapping) else {}
     truth_core: dict[str, float] = {}
-    counted = isinstance(fit, Mapping) and isinstance(fit.get("trust"), Mapping) and \
-        fit["trust"].get("commands") == "counted"  # a fit of counted windows recovers other effective values
+    counted = fit is not None and fit.commands == "counted"  # a fit of counted windows recovers other effective values
     key = "counted_currents_a" if counted and isinstance(truth_raw, Mapping) and \
         isinstance(truth_raw.get("counted_currents_a"), Mapping) else "effective_currents_a"
     if isinstance(truth_raw, Mapping) and isinstance(truth_raw.get(key), Mapping):
@@ -163,68 +161,38 @@ def calib_view(body: Mapping[str, Any], *, history_len: int = 40) -> CalibView:
     simulated = bool(truth) or bool(isinstance(truth_raw, Mapping) and truth_raw.get("simulated"))
     history_raw = body.get("history")
     series = history_series(history_raw if isinstance(history_raw, list) else [])
-    suggestion = _suggestion(
-        body.get("suggested_next") or body.get("suggest") or body.get("next") or (fit or {}).get("suggested_next")
-    )
+    suggestion = _suggestion(body.get("suggested_next") or body.get("suggest") or body.get("next")
+                             or (fit.extra.get("suggested_next") if fit is not None else None))
     model_error = str(body.get("model_error") or "")
     groups, alarms = group_views(body)
     if fit is None:
         return CalibView(simulated=simulated, suggested_next=suggestion, model_error=model_error, groups=groups,
                          alarms=alarms)
-    currents_raw = fit.get("currents") if isinstance(fit.get("currents"), Mapping) else {}
-    assert isinstance(currents_raw, Mapping)
     currents: list[CurrentView] = []
-    for name, entry in currents_raw.items():
-        if not isinstance(entry, Mapping):
-            continue
-        key = str(name).lower()
+    for cur in fit.currents.values():
         fields: dict[str, Any] = {
-            "name": key,
-            "datasheet_a": num(entry.get("datasheet")),
-            "calibrated_a": num(entry.get("calibrated")),
-            "ci95_a": _ci_half_width(entry.get("ci95"), num(entry.get("calibrated"))),
-            "identifiable": bool(entry.get("identifiable", False)),
-            "truth_a": truth.get(key, math.nan),
-            "history_a": tuple(series.get(key, [])[-history_len:]),
+            "name": cur.name.lower(), "datasheet_a": cur.datasheet_a, "calibrated_a": cur.calibrated_a,
+            "ci95_a": cur.half_width_a, "identifiable": bool(cur.identifiable),
+            "truth_a": truth.get(cur.name.lower(), math.nan),
+            "history_a": tuple(series.get(cur.name.lower(), [])[-history_len:]),
         }
         if truth_core:
-            currents.append(SimCurrentView(**fields, truth_core_a=truth_core.get(key, math.nan)))
+            currents.append(SimCurrentView(**fields, truth_core_a=truth_core.get(cur.name.lower(), math.nan)))
         else:
             currents.append(CurrentView(**fields))
-    error = fit.get("error") if isinstance(fit.get("error"), Mapping) else {}
-    assert isinstance(error, Mapping)
-    n_runs = first_num(fit, "n_runs", "runs", "n_observations", "observability.n_runs")
     return CalibView(
-        determined=fit_determined(fit, len(currents), n_runs),
+        determined=fit.determined,
         currents=tuple(currents),
-        error_before=num(error.get("before")),
-        error_after=num(error.get("after")),
-        error_loo=num(error.get("loo")),
-        n_runs=int(n_runs) if math.isfinite(n_runs) else 0,
+        error_before=fit.error.before,
+        error_after=fit.error.after,
+        error_loo=fit.error.loo,
+        n_runs=fit.n_runs or 0,
         suggested_next=suggestion,
         simulated=simulated,
         model_error=model_error,
         groups=groups,
         alarms=alarms,
     )
-
-
-def fit_determined(fit: Mapping[str, Any], n_currents: int, n_runs: float) -> bool:
-    """Whether a fit has more runs than unknowns: its residual degrees of freedom (``dof``) are
-    positive; without ``dof``, more runs than currents (+ the intercept when fitted)."""
-    dof = first_num(fit, "dof")
-    if math.isfinite(dof):
-        return dof > 0
-    unknowns = n_currents + (1 if fit.get("intercept_fitted") else 0)
-    return math.isfinite(n_runs) and n_runs > unknowns
-
-
-def _ci_half_width(ci: Any, value: float) -> float:
-    """The 95 % interval as a half-width: from a number, or from ``[low, high]``."""
-    if isinstance(ci, Sequence) and not isinstance(ci, str) and len(ci) == 2:
-        low, high = num(ci[0]), num(ci[1])
-        return (high - low) / 2.0
-    return num(ci)
 
 
 def sensor_command_rates(body: Mapping[str, Any]) -> dict[str, CommandRates]:

@@ -180,6 +180,11 @@ class NodeState:
 
     # -- the channels now -------------------------------------------------------------------------
 
+    def newest_dram_sample_ns(self) -> int | None:
+        """The time of the newest sample of any DRAM channel (None before the first)."""
+        last = [t for c in self.dram_channels if (t := self.accounts[c].last_t_ns) is not None]
+        return max(last) if last else None
+
     def energies(self) -> dict[str, float]:
         """The cumulative energy of every channel."""
         return {name: a.energy_j for name, a in self.accounts.items()}
@@ -264,8 +269,8 @@ class NodeState:
         self.ensure_free()
         now = self.monotonic()
         window = self._open("baseline", now)
-        last = [t for c in self.dram_channels if (t := self.accounts[c].last_t_ns) is not None]
-        start = max(last) if last else self.sample_time_of(now)
+        newest = self.newest_dram_sample_ns()
+        start = newest if newest is not None else self.sample_time_of(now)
         window.request_close(target_t_ns=start + round(seconds * 1e9),
                              deadline_mono_ns=self._close_deadline(now, seconds / self.speed), rates_hz=self.rates())
         self.windows.append(window)

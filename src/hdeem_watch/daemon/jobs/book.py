@@ -52,7 +52,8 @@ from hdeem_watch.daemon.book.runs import window_energy
 from hdeem_watch.daemon.book.state import ClosedWindow, Conflict, NodeState
 from hdeem_watch.daemon.book.windows import Window
 from hdeem_watch.daemon.counters.windows import CounterWindows, window_key
-from hdeem_watch.daemon.jobs.records import JobArgs, JobRecord, Segment
+from hdeem_watch.daemon.jobs.records import finish, with_segments
+from hdeem_watch.job_record import JobArgs, JobRecord, Segment
 
 #: Most jobs open at once on one node (beyond, ``job.start`` is refused: a Prolog storm or stale
 #: jobs whose Epilog never reached the daemon).
@@ -154,7 +155,8 @@ class JobBook:
             job = self._open[other]
             job.record = job.record.sharing([record.job_id])
         window = self.book.open_job_window(record.job_id)
-        begin = record.t_start_ns if fresh else self.book.wall()  # a resumed job: a gap since its last segment
+        # a resumed job: a gap since its last segment (a record read without its start has none)
+        begin = record.t_start_ns if fresh and record.t_start_ns is not None else self.book.wall()
         self._open[record.job_id] = _OpenJob(record.sharing(others), window, t_segment_ns=begin)
 
     def stop(self, job_id: str, exit_code: int | str | None = None, *, ended_ns: int | None = None) -> JobRecord | None:
@@ -181,7 +183,7 @@ class JobBook:
             self._forget_counters(job.window)
             if job.window in self.book.windows:
                 self.book.windows.remove(job.window)
-            return job.record.finish(state="interrupted", t_wall_ns=ended_ns, dram_channels=self.book.dram_channels,
+            return finish(job.record, state="interrupted", t_wall_ns=ended_ns, dram_channels=self.book.dram_channels,
                                      baselines_w=self._baselines_w(), exit_code=job.exit_code)
         self.book.close_job_window(job.window)
         return None
@@ -201,7 +203,7 @@ class JobBook:
         segment = Segment(t_start_ns=job.t_segment_ns, t_stop_ns=now, energy_j=dict(closed.energy_j),
                           spans_s=spans, samples_ns=samples, peak_w=dict(window.peak_w), counters=counters)
         record = dataclasses.replace(job.record, segments=(*job.record.segments, segment))
-        return record.finish(state="done", t_wall_ns=now, dram_channels=self.book.dram_channels,
+        return finish(record, state="done", t_wall_ns=now, dram_channels=self.book.dram_channels,
                              baselines_w=self._baselines_w(), exit_code=job.exit_code)
 
     def checkpoint(self) -> list[JobRecord]:
@@ -230,5 +232,5 @@ class JobBook:
         return {c: b.power_w for c, b in self.book.baselines.items()}
 
     def _totals(self, record: JobRecord, segments: Iterable[Segment]) -> JobRecord:
-        return record.with_segments(list(segments), dram_channels=self.book.dram_channels,
+        return with_segments(record, list(segments), dram_channels=self.book.dram_channels,
                                     baselines_w=self._baselines_w(), t_wall_ns=self.book.wall())

@@ -1,4 +1,5 @@
-"""SLURM jobs as the daemon records them: arguments, measured segments, the record (pure).
+"""SLURM jobs as the daemon measures them: ``job.start``'s arguments and the record's totals over
+its segments (pure; the record itself is :class:`hdeem_watch.job_record.JobRecord`).
 
 A job is opened by ``job.start`` (the Prolog) and closed by ``job.stop`` (the Epilog). The daemon
 integrates every channel over the job exactly as over a run window (the same
@@ -23,8 +24,8 @@ Example:
     >>> job = JobRecord.start(args, node="n1", t_wall_ns=0)
     >>> seg = Segment(t_start_ns=0, t_stop_ns=2_000_000_000, energy_j={"DDR_AB": 10.0}, spans_s={"DDR_AB": 2.0},
     ...               samples_ns={"DDR_AB": [0, 2_000_000_000]}, peak_w={"DDR_AB": 6.0})
-    >>> done = job.with_segments([seg]).finish(state="done", t_wall_ns=2_000_000_000, dram_channels=("DDR_AB",),
-    ...                                        baselines_w={"DDR_AB": 4.0})
+    >>> done = finish(with_segments(job, [seg]), state="done", t_wall_ns=2_000_000_000, dram_channels=("DDR_AB",),
+    ...               baselines_w={"DDR_AB": 4.0})
     >>> done.energy_j, done.above_baseline_j, done.mean_power_w, done.status
     ({'DDR_AB': 10.0}, {'DDR_AB': 2.0}, {'DDR_AB': 5.0}, 'ok')
 """
@@ -35,31 +36,17 @@ import dataclasses
 import itertools
 import math
 import re
-import typing
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 from hdeem_watch.calibrate.counter_model import sum_counters
+from hdeem_watch.job_record import JobArgs, JobRecord, JobState, Segment
 from hdeem_watch.run_record import total_energy
 from hdeem_watch.wire.protocol import ProtocolError, quoted
 from hdeem_watch.wire.requests import job_id_arg
 
-JobState = Literal["running", "done", "interrupted"]
-JOB_STATES: tuple[str, ...] = typing.get_args(JobState)
 #: Most node names a ``job.start`` may list.
 MAX_JOB_NODES = 100_000
-
-
-@dataclass(frozen=True)
-class JobArgs:
-    """Validated arguments of ``job.start``."""
-
-    job_id: str
-    user: str
-    uid: int | None
-    nodes: tuple[str, ...]
-    cpus: int | None
 
 
 def _optional_int(args: Mapping[str, Any], key: str, maximum: int) -> int | None:
@@ -107,146 +94,24 @@ def exit_code_arg(value: Any) -> int | str | None:
     raise ProtocolError(f"args.exit_code = {quoted(value)}: expected an integer (SLURM_JOB_EXIT_CODE)", code="bad-args")
 
 
-@dataclass(frozen=True)
-class Segment:
-    """What one daemon session measured of a job.
-
-    Attributes:
-        t_start_ns, t_stop_ns: wall clock at the segment's start and end (its last checkpoint while
-            open).
-        energy_j: per channel, J over the segment (NaN = unknown).
-        spans_s: per channel, seconds of sample time the energy covers.
-        samples_ns: per channel ``[last sample time before the segment, last sample time in it]``:
-            the samples with ``first < t <= last`` make up the energy.
-        peak_w: per channel, the highest sample in the segment.
-        open: the segment was still being measured when it was saved (a checkpoint).
-        counters: the memory controller's counts over the segment
-            (:meth:`~hdeem_watch.daemon.counters.windows.CounterWindows.finish_window`; None with
-            counters off or without a counter read at its start).
-    """
-
-    t_start_ns: int
-    t_stop_ns: int
-    energy_j: dict[str, float]
-    spans_s: dict[str, float]
-    samples_ns: dict[str, list[int | None]]
-    peak_w: dict[str, float] = field(default_factory=dict)
-    open: bool = False
-    counters: dict[str, Any] | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready form."""
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> Segment:
-        """Inverse of :meth:`to_dict` (null → NaN)."""
-        def floats(key: str) -> dict[str, float]:
-            values = data.get(key) or {}
-            return {str(c): math.nan if v is None else float(v) for c, v in values.items()}
-
-        return cls(t_start_ns=int(data["t_start_ns"]), t_stop_ns=int(data["t_stop_ns"]), energy_j=floats("energy_j"),
-                   spans_s=floats("spans_s"), samples_ns={str(c): list(v) for c, v in (data.get("samples_ns") or {}).items()},
-                   peak_w=floats("peak_w"), open=bool(data.get("open", False)),
-                   counters=dict(data["counters"]) if isinstance(data.get("counters"), Mapping) else None)
-
-
 def _sum(values: Iterable[float]) -> float:
     items = list(values)
     return float(sum(items)) if items else math.nan
 
 
-@dataclass(frozen=True)
-class JobRecord:
-    """One job on this node, from ``job.start`` to ``job.stop`` (or its interruption).
+def with_segments(job: JobRecord, segments: Sequence[Segment], *, dram_channels: Sequence[str] = (),
+                  baselines_w: Mapping[str, float] | None = None, t_wall_ns: int | None = None) -> JobRecord:
+    """A copy of ``job`` with these segments and the totals over them (a running job's energy so far)."""
+    return _totals(dataclasses.replace(job, segments=tuple(segments)), dram_channels, baselines_w or {}, t_wall_ns)
 
-    The totals (``energy_j`` … ``status``) are derived from the segments by :meth:`finish` (a
-    finished job) or :meth:`with_segments` (a running job's energy so far).
-    """
 
-    job_id: str
-    node: str
-    user: str
-    uid: int | None
-    nodes: tuple[str, ...]
-    cpus: int | None
-    t_start_ns: int
-    state: JobState = "running"
-    t_stop_ns: int | None = None
-    exit_code: int | str | None = None
-    segments: tuple[Segment, ...] = ()
-    energy_j: dict[str, float] = field(default_factory=dict)
-    dram_energy_j: float = math.nan
-    above_baseline_j: dict[str, float] = field(default_factory=dict)
-    dram_above_baseline_j: float = math.nan
-    baseline_w: dict[str, float] = field(default_factory=dict)
-    baseline_status: str = "no baseline"
-    mean_power_w: dict[str, float] = field(default_factory=dict)
-    peak_power_w: dict[str, float] = field(default_factory=dict)
-    measured_s: float = 0.0
-    unmeasured_s: float = 0.0
-    duration_s: float | None = None
-    status: str = "ok"
-    shared_with: tuple[str, ...] = ()
-    late_stop_s: float = 0.0
-    counters: dict[str, Any] | None = None
-    model: dict[str, Any] | None = None
-    model_error: str | None = None
-
-    @classmethod
-    def start(cls, args: JobArgs, *, node: str, t_wall_ns: int) -> JobRecord:
-        """The record of a job that just started."""
-        return cls(job_id=args.job_id, node=node, user=args.user, uid=args.uid, nodes=args.nodes, cpus=args.cpus,
-                   t_start_ns=int(t_wall_ns))
-
-    def sharing(self, job_ids: Iterable[str]) -> JobRecord:
-        """A copy that also names ``job_ids`` as jobs that ran on the node at the same time."""
-        merged = tuple(dict.fromkeys((*self.shared_with, *(j for j in job_ids if j != self.job_id))))
-        return dataclasses.replace(self, shared_with=merged)
-
-    def with_segments(self, segments: Sequence[Segment], *, dram_channels: Sequence[str] = (),
-                      baselines_w: Mapping[str, float] | None = None, t_wall_ns: int | None = None) -> JobRecord:
-        """A copy with these segments and the totals over them (a running job's energy so far)."""
-        return _totals(dataclasses.replace(self, segments=tuple(segments)), dram_channels, baselines_w or {},
-                       t_wall_ns)
-
-    def finish(self, *, state: JobState, t_wall_ns: int, dram_channels: Sequence[str],
-               baselines_w: Mapping[str, float], exit_code: int | str | None = None) -> JobRecord:
-        """The finished record (``done`` or ``interrupted``) with its totals."""
-        closed = tuple(dataclasses.replace(s, open=False) for s in self.segments)
-        ended = dataclasses.replace(self, state=state, t_stop_ns=int(t_wall_ns), segments=closed,
-                                    exit_code=exit_code if exit_code is not None else self.exit_code)
-        return _totals(ended, dram_channels, baselines_w, t_wall_ns)
-
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON-ready record (NaN stays NaN; the protocol encoder sends null)."""
-        body = dataclasses.asdict(self)
-        body["nodes"] = list(self.nodes)
-        body["shared_with"] = list(self.shared_with)
-        body["segments"] = list(body["segments"])  # asdict made each segment its to_dict() already
-        return body
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> JobRecord:
-        """A record from its stored form (unknown keys ignored; null energies → NaN).
-
-        Raises:
-            KeyError, TypeError, ValueError: not a job record.
-        """
-        names = {f.name for f in dataclasses.fields(cls)}
-        values = {k: v for k, v in data.items() if k in names}
-        for key in ("energy_j", "above_baseline_j", "baseline_w", "mean_power_w", "peak_power_w"):
-            if isinstance(values.get(key), Mapping):
-                values[key] = {c: math.nan if v is None else float(v) for c, v in values[key].items()}
-        for key in ("dram_energy_j", "dram_above_baseline_j"):
-            values[key] = math.nan if values.get(key) is None else float(values[key])
-        values["nodes"] = tuple(values.get("nodes") or ())
-        values["shared_with"] = tuple(values.get("shared_with") or ())
-        values["segments"] = tuple(Segment.from_dict(s) for s in values.get("segments") or ())
-        record = cls(**values)
-        if not isinstance(record.job_id, str) or record.state not in JOB_STATES:
-            raise ValueError(f"not a job record: job_id {record.job_id!r}, state {record.state!r}")
-        return record
+def finish(job: JobRecord, *, state: JobState, t_wall_ns: int, dram_channels: Sequence[str],
+           baselines_w: Mapping[str, float], exit_code: int | str | None = None) -> JobRecord:
+    """The finished record (``done`` or ``interrupted``) with its totals."""
+    closed = tuple(dataclasses.replace(s, open=False) for s in job.segments)
+    ended = dataclasses.replace(job, state=state, t_stop_ns=int(t_wall_ns), segments=closed,
+                                exit_code=exit_code if exit_code is not None else job.exit_code)
+    return _totals(ended, dram_channels, baselines_w, t_wall_ns)
 
 
 def _totals(job: JobRecord, dram_channels: Sequence[str], baselines_w: Mapping[str, float],
@@ -265,7 +130,8 @@ def _totals(job: JobRecord, dram_channels: Sequence[str], baselines_w: Mapping[s
     missing = [c for c in channels if not math.isfinite(baseline[c])]
     dram = [c for c in dram_channels if c in energy]
     gap_ns = 0
-    edges = [(job.t_start_ns, job.t_start_ns)] + [(s.t_start_ns, s.t_stop_ns) for s in segments]
+    start = job.t_start_ns if job.t_start_ns is not None else (segments[0].t_start_ns if segments else None)
+    edges = ([(start, start)] if start is not None else []) + [(s.t_start_ns, s.t_stop_ns) for s in segments]
     if job.state != "running" and job.t_stop_ns is not None:
         edges.append((job.t_stop_ns, job.t_stop_ns))
     for (_a0, a1), (b0, _b1) in itertools.pairwise(edges):
@@ -289,7 +155,7 @@ def _totals(job: JobRecord, dram_channels: Sequence[str], baselines_w: Mapping[s
         above_baseline_j=above, dram_above_baseline_j=total_energy(above, dram) if dram else math.nan,
         baseline_w=baseline, baseline_status="ok" if not missing else "no baseline: " + ", ".join(missing),
         mean_power_w=mean, peak_power_w=peaks, measured_s=float(measured), unmeasured_s=gap_ns / 1e9,
-        duration_s=None if end is None else (end - job.t_start_ns) / 1e9, status=status, counters=counters,
+        duration_s=None if end is None or start is None else (end - start) / 1e9, status=status, counters=counters,
         model_error=model_error)
 
 

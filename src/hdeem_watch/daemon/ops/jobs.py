@@ -24,17 +24,12 @@ from typing import Any, Protocol, cast
 
 from hdeem_watch.daemon.book.state import ClosedWindow, Conflict
 from hdeem_watch.daemon.jobs.book import JobBook
-from hdeem_watch.daemon.jobs.records import (
-    JOB_STATES,
-    JobRecord,
-    exit_code_arg,
-    job_summary,
-    parse_job_args,
-)
+from hdeem_watch.daemon.jobs.records import exit_code_arg, job_summary, parse_job_args
 from hdeem_watch.daemon.ops.ports import PublisherPort, Reply
 from hdeem_watch.daemon.shell.control import Handler, OpError, Pending
 from hdeem_watch.daemon.store.port import StorePort
 from hdeem_watch.daemon.store.worker import StoreWorker
+from hdeem_watch.job_record import JOB_STATES, JobRecord
 from hdeem_watch.wire.protocol import quoted
 from hdeem_watch.wire.requests import job_id_arg
 
@@ -229,8 +224,8 @@ class JobOperations:
         count = 0
         for data in sorted(stored, key=lambda r: int(r.get("t_start_ns") or 0)):
             try:
-                record = JobRecord.from_dict(data)
-            except (KeyError, TypeError, ValueError) as error:
+                record = JobRecord.from_dict(data, strict=True)
+            except ValueError as error:
                 log.warning("stored job %s cannot be resumed: %s", data.get("job_id"), error)
                 continue
             if self.jobs.is_open(record.job_id):
@@ -259,8 +254,8 @@ class JobOperations:
         count = 0
         for data in stored:
             try:
-                record = JobRecord.from_dict(data)
-            except (KeyError, TypeError, ValueError) as error:
+                record = JobRecord.from_dict(data, strict=True)
+            except ValueError as error:
                 log.warning("stored job %s cannot be modelled: %s", data.get("job_id"), error)
                 continue
             if record.counters is None or self.submit is None or self.calibration is None:

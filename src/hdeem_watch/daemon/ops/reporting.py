@@ -65,6 +65,7 @@ class Reporter:
         self._process = psutil.Process()
         self._process.cpu_percent(None)
         self._cpu_percent = math.nan
+        self._searched_t_ns: int | None = None
 
     def source_health(self) -> str:
         """The source's own health, or the last poll failure while polls fail."""
@@ -131,8 +132,19 @@ class Reporter:
         self.store.write(f"baselines {', '.join(records)}", _save_baselines(records))
         self.publish_baselines()
 
-    def look_for_quiet_periods(self, *, window_s: float, max_spread_w: float) -> None:
-        """Baselines from quiet periods of the recent samples (only while no window is open)."""
+    def look_for_quiet_periods(self, *, window_s: float, max_spread_w: float, history_s: float) -> None:
+        """Baselines from quiet periods of the recent samples (only while no window is open).
+
+        A window stays in the ``history_s`` of kept samples for ``history_s - window_s`` of sample
+        time, so a search every half history (of sample time) sees every window at least once; the
+        searches between would only find the same windows again (a search reads every kept sample).
+        """
+        newest = self.book.newest_dram_sample_ns()
+        if newest is None:
+            return
+        if self._searched_t_ns is not None and newest - self._searched_t_ns < history_s * 0.5e9:
+            return
+        self._searched_t_ns = newest
         self.baselines_kept(self.book.quiet_baselines(window_s=window_s, max_spread_w=max_spread_w))
 
 

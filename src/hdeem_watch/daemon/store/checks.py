@@ -13,11 +13,11 @@ every baseline and alarm); the calibrator's state is checked by restoring it
 
 Example:
     >>> check = ROW_CHECKS["fits"].check
-    >>> check({"n_runs": 3, "currents": {"idd0": {"calibrated": 0.05}}})
-    >>> check({"currents": [1, 2]})
+    >>> check({"n_runs": 3, "error": {"after": 0.1}, "currents": {"idd0": {"calibrated": 0.05}}})
+    >>> check({"n_runs": 3, "error": {}, "currents": [1, 2]})
     Traceback (most recent call last):
     ...
-    AttributeError: 'list' object has no attribute 'items'
+    ValueError: fit: currents = '[1, 2]': expected an object
 """
 
 from __future__ import annotations
@@ -27,11 +27,13 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from hdeem_watch.calibrate.run_model import MAX_HISTORY, compact_fit
+from hdeem_watch.calibrate.run_model import MAX_HISTORY
 from hdeem_watch.daemon.book.baselines import Baseline
 from hdeem_watch.daemon.book.runs import run_summary
-from hdeem_watch.daemon.jobs.records import JobRecord, job_summary
+from hdeem_watch.daemon.jobs.records import job_summary
 from hdeem_watch.daemon.store.jobs import job_row
+from hdeem_watch.fit_record import FitRecord
+from hdeem_watch.job_record import JobRecord
 from hdeem_watch.run_record import RunRecord
 
 _RUN_ID = re.compile(r"^r\d{1,18}$")
@@ -66,14 +68,14 @@ def check_open_run(record: Mapping[str, Any]) -> None:
 
 def check_open_job(record: Mapping[str, Any]) -> None:
     """A job a previous daemon left running (resumed at start, listed in every ``status``)."""
-    JobRecord.from_dict(record)
+    JobRecord.from_dict(record, strict=True)
     job_row(record)
     job_summary(record)
 
 
 def check_fit(fit: Mapping[str, Any]) -> None:
-    """A fit of the history (the ``calib`` body's ``history`` entries)."""
-    compact_fit(0, fit)
+    """A fit of the history (the ``calib`` body's ``history`` entries): every field readable."""
+    FitRecord.from_dict(fit, strict=True)
 
 
 def check_alarm(alarm: Mapping[str, Any]) -> None:

@@ -1,0 +1,67 @@
+"""Calibrated currents on the DDR5 demo node against the sim's truth (issue #30's Done-when), one seed.
+
+With the sim's Sapphire Rapids counters (both pseudo-channels, no per-rank CKE counter) every row
+comes from the counted commands: IDD0/IDD4R/IDD4W come back determined and within 15 % of the
+sim's truth incl. I/O, IDD2N (seen only in DDR5's mixed active standby, ρ = 0.5) is tied to IDD3N
+and held, and the hold-out runs are predicted to a median within 5 % with the fit from before them
+(the 4-thread pointer chase ~10 % high: it sits in active power-down, which no Sapphire Rapids
+counter shows). Truth is the sim's own analytic mapping of its hidden currents
+(``counted_currents_a``), never a fit. Seed 1; on other seeds IDD0/IDD4R may stay undetermined (one
+node fit over two sockets of different parts: docs/dram-model.md), ``benchmarks/bench_trust.py --node
+ddr5`` has the figures."""
+
+from __future__ import annotations
+
+import statistics
+from typing import Any
+
+import pytest
+
+from hdeem_watch.calibrate.trust import TrustOptions
+from hdeem_watch.demo.nodes import DEMO_NODES
+from hdeem_watch.demo.sim_runs import DEMO_TAIL_S, SimRuns
+
+#: Two refits in full over 160 sim runs of the DDR5 node (~20 s of CPU): in the full run only.
+pytestmark = [pytest.mark.xdist_group("demo-trust_ddr5"), pytest.mark.slow]
+
+RUNS = 160
+
+
+@pytest.fixture(scope="module")
+def counted() -> tuple[SimRuns, list[Any]]:
+    sim = SimRuns(1, counters=True, groups=False, holdout=True, tail_s=DEMO_TAIL_S, node=DEMO_NODES["ddr5"])
+    sim.modeller.calibrator.trust = TrustOptions(jackknife=False, draws=0)
+    done = [sim.step() for _ in range(RUNS)]
+    sim.modeller.calibrator.trust = TrustOptions()
+    sim.modeller.calibrator.refit()
+    return sim, done
+
+
+def test_idd0_idd4r_idd4w_are_determined_and_every_determined_current_is_within_15_percent(counted) -> None:
+    sim, _done = counted
+    fit_now = sim.modeller.latest_fit()
+    truth = sim.sim.truth()["counted_currents_a"]
+    assert fit_now["trust"]["commands"] == "counted"
+    for name in ("idd0", "idd4r", "idd4w"):
+        assert fit_now["currents"][name]["identifiable"], name
+    for name, entry in fit_now["currents"].items():
+        if entry["identifiable"]:
+            assert entry["calibrated"] == pytest.approx(truth[name], rel=0.15), name
+
+
+def test_idd2n_is_tied_to_idd3n_and_held(counted) -> None:
+    sim, _done = counted
+    fit_now = sim.modeller.latest_fit()
+    held = fit_now["trust"]["held"]["idd2n"]
+    assert held["tied"] is True and held["anchor"] == "idd3n"
+    assert not fit_now["currents"]["idd2n"]["identifiable"]
+
+
+def test_hold_out_runs_are_predicted_to_a_median_within_five_percent(counted) -> None:
+    _sim, done = counted
+    late = [d for d in done if (d.record.get("metadata") or {}).get("holdout") and d.index > 40]
+    assert late
+    errors = [abs(d.model["calibrated_j"] / d.record["dram_energy_j"] - 1) for d in late]
+    assert statistics.median(errors) <= 0.05 and max(errors) <= 0.12, errors
+    datasheet = [abs(d.model["datasheet_j"] / d.record["dram_energy_j"] - 1) for d in late]
+    assert min(datasheet) > 0.5  # what the calibration is for
