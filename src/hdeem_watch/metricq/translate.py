@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from hdeem_watch.fit_record import FitRecord
 from hdeem_watch.metricq.naming import FAMILIES, MetricNames, is_dram
 from hdeem_watch.wire.protocol import Message
 
@@ -166,12 +167,6 @@ class StreamTranslator:
 
 def _calibrated(fit: Any) -> list[tuple[str, float]]:
     """``(current, A)`` of a fit's calibrated currents, NaN where unknown (never 0); none without a fit."""
-    currents = fit.get("currents") if isinstance(fit, Mapping) else None
-    if not isinstance(currents, Mapping):
+    if not isinstance(fit, Mapping):
         return []
-    found = []
-    for name, entry in sorted(currents.items()):
-        value = entry.get("calibrated") if isinstance(entry, Mapping) else None
-        amps = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
-        found.append((str(name), amps))
-    return found
+    return [(name, entry.calibrated_a) for name, entry in sorted(FitRecord.from_dict(fit).currents.items())]

@@ -40,6 +40,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 
 from hdeem_watch.daemon.book.baselines import Baseline
 from hdeem_watch.daemon.book.channels import ChannelAccount
+from hdeem_watch.fit_record import FitRecord
 
 
 class NodeCollector:
@@ -105,13 +106,12 @@ def _fit_metrics(node: str, fit: Mapping[str, Any] | None) -> Iterator[Metric]:
     error = GaugeMetricFamily("hdeem_watch_calibration_error_ratio",
                               "Mean absolute relative energy error after the fit.", labels=["node"])
     if fit:
-        for name, entry in sorted((fit.get("currents") or {}).items()):
-            value = entry.get("calibrated") if isinstance(entry, Mapping) else None
-            if isinstance(value, int | float) and not isinstance(value, bool):
-                current.add_metric([node, name], float(value))
-        after = (fit.get("error") or {}).get("after")
-        if isinstance(after, int | float) and not isinstance(after, bool):
-            error.add_metric([node], float(after))
+        record = FitRecord.from_dict(fit)  # an unknown value is left out of the scrape, never 0
+        for name, entry in sorted(record.currents.items()):
+            if math.isfinite(entry.calibrated_a):
+                current.add_metric([node, name], entry.calibrated_a)
+        if math.isfinite(record.error.after):
+            error.add_metric([node], record.error.after)
     yield current
     yield error
 
