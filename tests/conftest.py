@@ -239,3 +239,40 @@ def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> 
     """Teardowns are not watched: a wider fixture's teardown (the session's SLURM) runs in the last
     test's, and a function fixture that starts a process has done so in its setup."""
     _guard.stop()
+
+
+#: The tests that take longest (10-40 s each on the CI machine, measured with ``--durations``), by
+#: node-id prefix. They are handed out first so that the end of a ``-n 2`` run is short tests on both
+#: workers: the run lasts as long as its busier worker, and a 40 s test started last would leave the
+#: other idle. Only the order changes (xdist's loadgroup sends the groups first, then single tests in
+#: this order); a test missing here just runs in its place.
+LONG_TESTS_FIRST = (
+    "tests/demo/test_sim_runs.py::",
+    "tests/bench/test_daemon_announce.py::test_default_runs",
+    "tests/test_packaging.py::test_the_wheel",
+    "tests/tui/test_demo_aging.py::",
+    "tests/report/test_cli_report.py::test_demo_headless_with_report",
+    "tests/tui/test_demo_lifecycle.py::test_the_log_is_kept",
+    "tests/tui/test_demo.py::test_demo_design_determines",
+    "tests/daemon/test_quiet_polling.py::",
+    "tests/daemon/test_physical_rules_modeller.py::",
+    "tests/dram/test_kernels.py::test_streams_reproduce_reference_trace_hashes",
+    "tests/tui/test_groups_tmux.py::",
+    "tests/tui/test_demo.py::test_demo_in_a_real_terminal",
+    "tests/slurm/test_hooks.py::",
+)
+
+
+def long_first_rank(nodeid: str) -> int:
+    """The place of ``nodeid`` in :data:`LONG_TESTS_FIRST` (its length for any other test).
+
+    Example:
+        >>> long_first_rank("tests/demo/test_sim_runs.py::test_x"), long_first_rank("tests/test_cli.py::test_y")
+        (0, 13)
+    """
+    return next((i for i, prefix in enumerate(LONG_TESTS_FIRST) if nodeid.startswith(prefix)), len(LONG_TESTS_FIRST))
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The long tests first (:data:`LONG_TESTS_FIRST`), every other test in its collected order."""
+    items.sort(key=lambda item: long_first_rank(item.nodeid))

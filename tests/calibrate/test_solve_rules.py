@@ -4,7 +4,7 @@ calibrated currents), checked against scipy's SLSQP on random problems."""
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import minimize
 
@@ -25,6 +25,7 @@ def _problem(seed: int, n: int, p: int, k: int):  # type: ignore[no-untyped-def]
 @settings(max_examples=80, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), n=st.integers(2, 30), p=st.integers(2, 6), k=st.integers(1, 4),
        prior=st.sampled_from([0.0, 1e-3]))
+@example(seed=4, n=18, p=4, k=3, prior=1e-3)  # SLSQP ends 1.9e-7 outside the rules here
 def test_solution_keeps_bounds_and_rules_and_is_optimal(seed: int, n: int, p: int, k: int, prior: float) -> None:
     """The answer keeps every bound and rule and reaches SLSQP's optimum (also with fewer rows than
     unknowns, where only the tiny ridge makes the problem strictly convex); bounds it sits on are
@@ -43,7 +44,12 @@ def test_solution_keeps_bounds_and_rules_and_is_optimal(seed: int, n: int, p: in
                                  for lo, hi in zip(lower, upper)],
                          constraints=[{"type": "ineq", "fun": lambda x: rules @ x - floors}],
                          options={"ftol": 1e-15, "maxiter": 1000})
-    assert cost(sol.x) <= reference.fun + 1e-7 * max(1.0, reference.fun)
+    # SLSQP may stop slightly outside the rules (and so below the true optimum, seed=4 n=18 p=4 k=3
+    # prior=1e-3: 1.9e-7 outside, 2.4e-5 lower): allow what moving back inside costs to first order.
+    outside = np.maximum(0.0, floors - rules @ reference.x)
+    gradient = design.T @ (design @ reference.x - target) + (prior + ridge) * reference.x
+    back = 2.0 * np.linalg.norm(gradient) * np.linalg.norm(np.linalg.pinv(rules), 2) * np.linalg.norm(outside)
+    assert cost(sol.x) <= reference.fun + 1e-7 * max(1.0, reference.fun) + back
     assert np.all(sol.x[sol.active == -1] == lower[sol.active == -1])
     assert np.all(sol.x[sol.active == 1] == upper[sol.active == 1])
     assert np.allclose(rules[sol.held] @ sol.x, floors[sol.held], atol=1e-8)

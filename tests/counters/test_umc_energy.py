@@ -139,6 +139,6 @@ def test_job_record_model_says_which_currents(pmu_trees: Path) -> None:
     model = counters_model(imported, counters, datasheet_a=None, calibrated_a=None)  # type: ignore[arg-type]
     assert model["datasheet_j"] is None and model["calibrated_j"] == pytest.approx(plain["datasheet_j"], rel=1e-12)
     assert model["currents"]["kind"] == "calibrated"
-    lines = model_lines([{"ok": True, "node": "genoa1", "jobs": [{"state": "completed", "model": model}]}])
+    lines = model_lines([{"ok": True, "node": "genoa1", "jobs": [{"job_id": "1", "state": "done", "model": model}]}])
     assert any("by component (calibrated, J)" in line for line in lines)
     assert any("currents: calibrated currents imported from a node with DRAM sensors" in line for line in lines)

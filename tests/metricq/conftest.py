@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import itertools
 import sys
 from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
@@ -42,15 +43,49 @@ def daemon_fixtures_fixture() -> ModuleType:
     return daemon_fixtures
 
 
-@pytest.fixture
-def broker(tmp_path: Path) -> Iterator[object]:
-    """A running private RabbitMQ node, closed (with its epmd) at the end."""
-    b = standin.Broker(tmp_path / "rabbitmq")
+#: Vhosts of the shared node: one per test that asks for ``broker`` (more than this module has tests).
+VHOSTS = tuple(f"test{i}" for i in range(16))
+_next_vhost = itertools.count()
+
+
+class VhostBroker:
+    """One test's view of the shared RabbitMQ node: its own vhost (no exchange, queue or message of
+    another test is visible there), and the node itself to stop, start or kill."""
+
+    def __init__(self, node: object, vhost: str) -> None:
+        self.node = node
+        self.url: str = node.vhost_url(vhost)  # type: ignore[attr-defined]
+
+    @property
+    def proc(self) -> object:
+        return self.node.proc  # type: ignore[attr-defined]
+
+    def start(self) -> object:
+        return self.node.start()  # type: ignore[attr-defined]
+
+    def stop(self) -> None:
+        self.node.stop()  # type: ignore[attr-defined]
+
+
+@pytest.fixture(scope="module")
+def rabbit_node(tmp_path_factory: pytest.TempPathFactory) -> Iterator[object]:
+    """One private RabbitMQ node for the module (its boot is ~9 s), with a vhost per test; closed
+    (with its epmd) at the end."""
+    node = standin.Broker(tmp_path_factory.mktemp("rabbitmq"), vhosts=VHOSTS)
     try:
-        b.start()
-        yield b
+        node.start()
+        yield node
     finally:
-        b.close()
+        node.close()
+
+
+@pytest.fixture
+def broker(rabbit_node: object) -> Iterator[VhostBroker]:
+    """The running RabbitMQ node as this test's own vhost (a test that stopped or killed the node and
+    failed before starting it again leaves it running for the next: started here if it is down)."""
+    if rabbit_node.proc is None or rabbit_node.proc.poll() is not None:  # type: ignore[attr-defined]
+        rabbit_node.start()  # type: ignore[attr-defined]
+    yield VhostBroker(rabbit_node, VHOSTS[next(_next_vhost)])
 
 
 @pytest.fixture

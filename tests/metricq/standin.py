@@ -26,6 +26,9 @@ importlib mode).
 from __future__ import annotations
 
 import asyncio
+import base64
+import hashlib
+import json
 import os
 import shutil
 import signal
@@ -34,6 +37,7 @@ import subprocess
 import time
 import uuid
 from collections import defaultdict
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -61,10 +65,26 @@ def rabbitmq_available() -> bool:
     return RABBITMQ_SERVER.exists()
 
 
+def definitions(vhosts: Sequence[str]) -> dict[str, Any]:
+    """RabbitMQ definitions (``load_definitions``, read at boot) of ``vhosts`` with the guest user
+    allowed everything in each. A node that loads definitions seeds no default user, so guest is
+    defined here too, its password hashed as RabbitMQ's ``rabbit_password_hashing_sha256`` does:
+    base64(salt + sha256(salt + password)) with a 4-byte salt."""
+    salt = os.urandom(4)
+    password_hash = base64.b64encode(salt + hashlib.sha256(salt + b"guest").digest()).decode()
+    return {
+        "users": [{"name": "guest", "password_hash": password_hash,
+                   "hashing_algorithm": "rabbit_password_hashing_sha256", "tags": ["administrator"]}],
+        "vhosts": [{"name": v} for v in vhosts],
+        "permissions": [{"user": "guest", "vhost": v, "configure": ".*", "write": ".*", "read": ".*"}
+                        for v in vhosts],
+    }
+
+
 class Broker:
     """A private RabbitMQ node in ``directory`` (state kept across :meth:`stop` / :meth:`start`)."""
 
-    def __init__(self, directory: Path) -> None:
+    def __init__(self, directory: Path, vhosts: Sequence[str] = ()) -> None:
         self.directory = directory
         self.port = free_port()
         self.dist_port = free_port()
@@ -75,11 +95,18 @@ class Broker:
             (directory / sub).mkdir(parents=True, exist_ok=True)
         (directory / "enabled_plugins").write_text("[].\n")
         (directory / "env.conf").write_text("")
+        if vhosts:  # created at boot from a definitions file: no rabbitmqctl (an Erlang VM each) per vhost
+            (directory / "definitions.json").write_text(json.dumps(definitions(["/", *vhosts])))
+            (directory / "rabbitmq.conf").write_text(f"load_definitions = {directory / 'definitions.json'}\n")
 
     @property
     def url(self) -> str:
-        """The AMQP URL (the default guest user, allowed from the loopback interface)."""
+        """The AMQP URL of the default vhost (the guest user, allowed from the loopback interface)."""
         return f"amqp://guest:guest@127.0.0.1:{self.port}/"
+
+    def vhost_url(self, vhost: str) -> str:
+        """The AMQP URL of ``vhost`` (one given to the constructor)."""
+        return f"amqp://guest:guest@127.0.0.1:{self.port}/{vhost}"
 
     def env(self) -> dict[str, str]:
         d = self.directory

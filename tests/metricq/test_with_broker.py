@@ -26,7 +26,8 @@ import zmq.asyncio
 from hdeem_watch.wire import protocol
 
 pytest.importorskip("metricq")
-pytestmark = pytest.mark.timeout(240)
+#: one worker runs them all: they share one RabbitMQ node (conftest.rabbit_node), each in its own vhost
+pytestmark = [pytest.mark.timeout(240), pytest.mark.xdist_group("metricq-broker")]
 
 PREFIX = "test.hw"
 CHANNELS = {"BLADE": ("blade", 1000.0), "CPU0": ("cpu0", 100.0), "CPU1": ("cpu1", 100.0),

@@ -32,7 +32,7 @@ import os
 import stat
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import zmq
 
@@ -242,18 +242,14 @@ class ControlClient:
 
     def _roundtrip(self, data: bytes, request_id: int, timeout_s: float) -> protocol.Reply:
         sock = self._connect()
-        if self._type == zmq.DEALER:
-            sock.send_multipart([b"", data])
-        else:
-            sock.send(data)
-        deadline_ms = max(1, int(timeout_s * 1000))
+        end = time.monotonic() + timeout_s
+        self._send(sock, [b"", data] if self._type == zmq.DEALER else [data], end, timeout_s)
         poller = zmq.Poller()
         poller.register(sock, zmq.POLLIN)
         watch = self._watch
         if watch is not None:
             poller.register(watch.socket, zmq.POLLIN)
-        remaining = deadline_ms
-        end = time.monotonic() + timeout_s
+        remaining = max(1, int((end - time.monotonic()) * 1000))
         while remaining > 0:
             ready = dict(poller.poll(remaining))
             if not ready:
@@ -273,7 +269,34 @@ class ControlClient:
             if reply.id == request_id or (reply.id is None and not reply.ok):
                 return reply
             remaining = int((end - time.monotonic()) * 1000)  # a late reply to an earlier request
-        failure = watch.failure if watch is not None else None
+        self._give_up(timeout_s)
+
+    def _send(self, sock: zmq.Socket[Any], frames: list[bytes], end: float, timeout_s: float) -> None:
+        """Send ``frames`` by the monotonic time ``end``. A blocking send would wait for ever when the
+        socket has no connection to queue on, as after a refused CURVE handshake tore it down: so
+        the send waits, until ``end``, for the socket to take it or the handshake watch to fail."""
+        poller = zmq.Poller()
+        poller.register(sock, zmq.POLLOUT)
+        watch = self._watch
+        if watch is not None:
+            poller.register(watch.socket, zmq.POLLIN)
+        while True:
+            try:
+                sock.send_multipart(frames, zmq.NOBLOCK)
+                return
+            except zmq.Again:
+                pass
+            remaining = int((end - time.monotonic()) * 1000)
+            if remaining <= 0:
+                self._give_up(timeout_s)
+            ready = dict(poller.poll(remaining))
+            if watch is not None and watch.socket in ready and (failure := watch.read()) is not None:
+                self._drop_socket()
+                raise HandshakeFailed(f"{self.endpoint}: {failure}")
+
+    def _give_up(self, timeout_s: float) -> NoReturn:
+        """Drop the socket and raise why no reply came: the handshake's failure, else the timeout."""
+        failure = self._watch.failure if self._watch is not None else None
         self._drop_socket()
         if failure is not None:
             raise HandshakeFailed(f"{self.endpoint}: {failure}")
