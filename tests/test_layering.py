@@ -32,6 +32,7 @@ TIERS: dict[str, int] = {
     "addresses": 0,  # which endpoints stay on the node (config and daemon both ask)
     "run_record": 0,  # one run as daemon, store, report, TUI and calibrator see it (one parser)
     "fit_record": 0,  # one calibration fit as TUI, report and the store's checks read it (one parser)
+    "record_fields": -1,  # the tolerant field reader under the fit and job records (below them)
     "job_record": 0,  # one SLURM job as daemon, store, report, CLI and hooks see it (one parser)
     "state_schema": 0,  # the SQLite state file's tables (the daemon writes them, the report reads them)
     "perf_event": 0,  # perf_event_open through ctypes (sources: RAPL energy; counters: the IMC PMUs)

@@ -32,6 +32,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from hdeem_watch.record_fields import FieldReader, is_number
+
 #: A fit's keys, in the order the calibrator writes them (``FitResult.to_dict``).
 FIT_FIELDS = ("currents", "intercept_j", "intercept_ci95_j", "intercept_fitted", "error", "observability",
               "n_runs", "dof", "noise_rel", "status", "rules_held", "uncertainty", "time_ns", "runs", "trust")
@@ -280,60 +282,23 @@ def _error(reader: _Reader) -> FitError:
                     extra={k: v for k, v in data.items() if k not in ERROR_FIELDS})
 
 
-class _Reader:
-    """Reads the fields of one JSON object, collecting what it could not read. A key that is
-    absent is unknown and a problem only when :data:`_REQUIRED` (top level); null is unknown."""
+class _Reader(FieldReader):
+    """Reads a fit's fields (:class:`~hdeem_watch.record_fields.FieldReader`); an absent key is a
+    problem only when :data:`_REQUIRED` (top level); null is unknown."""
 
     def __init__(self, data: Mapping[str, Any], *, prefix: str = "", problems: list[str] | None = None) -> None:
-        self.data = data
-        self.prefix = prefix
-        self.problems: list[str] = problems if problems is not None else []
-        if not prefix:
-            self.problems.extend(f"{key}: missing" for key in _REQUIRED if key not in data)
-
-    def _value(self, key: str, ok: Any, expected: str) -> Any:
-        value = self.data.get(key)
-        if value is None:
-            return None
-        if ok(value):
-            return value
-        self.problems.append(f"{self.prefix}{key} = {str(value)[:40]!r}: expected {expected}")
-        return None
-
-    def real(self, key: str) -> float:
-        value = self._value(key, _is_number, "a number")
-        return math.nan if value is None else float(value)
-
-    def integer(self, key: str) -> int | None:
-        value = self._value(key, lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer")
-        return None if value is None else int(value)
+        super().__init__(data, required=() if prefix else _REQUIRED, prefix=prefix, problems=problems)
 
     def flag(self, key: str) -> bool | None:
-        value = self._value(key, lambda v: isinstance(v, bool), "true or false")
+        value = self.value(key, lambda v: isinstance(v, bool), "true or false")
         return None if value is None else bool(value)
 
-    def text(self, key: str) -> str | None:
-        value = self._value(key, lambda v: isinstance(v, str), "a string")
-        return None if value is None else str(value)
-
-    def mapping(self, key: str) -> dict[str, Any] | None:
-        value = self._value(key, lambda v: isinstance(v, Mapping), "an object")
-        return None if value is None else dict(value)
-
-    def array(self, key: str) -> list[Any] | None:
-        value = self._value(key, lambda v: isinstance(v, list), "a list")
-        return None if value is None else list(value)
-
     def pair(self, key: str) -> tuple[float, float]:
-        value = self._value(key, lambda v: isinstance(v, list) and len(v) == 2 and
-                            all(x is None or _is_number(x) for x in v), "[low, high]")
+        value = self.value(key, lambda v: isinstance(v, list) and len(v) == 2 and
+                           all(x is None or is_number(x) for x in v), "[low, high]")
         if value is None:
             return (math.nan, math.nan)
         return (math.nan if value[0] is None else float(value[0]), math.nan if value[1] is None else float(value[1]))
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 def _out(value: float) -> float | None:

@@ -31,6 +31,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from hdeem_watch.record_fields import FieldReader, is_number
+
 JobState = Literal["running", "done", "interrupted"]
 JOB_STATES: tuple[str, ...] = typing.get_args(JobState)
 
@@ -212,60 +214,35 @@ class JobRecord:
         return record
 
 
-class _Reader:
-    """Reads the fields of one job record, collecting what it could not read. Null is unknown
-    (no problem); an absent key is a problem only when in :data:`_REQUIRED`."""
+class _Reader(FieldReader):
+    """Reads a job record's fields (:class:`~hdeem_watch.record_fields.FieldReader`). Null is
+    unknown (no problem); an absent key is a problem only when in :data:`_REQUIRED`."""
 
     def __init__(self, data: Mapping[str, Any]) -> None:
-        self.data = data
-        self.problems: list[str] = [f"{key}: missing" for key in _REQUIRED if key not in data]
-
-    def _value(self, key: str, ok: typing.Callable[[Any], bool], expected: str) -> Any:
-        value = self.data.get(key)
-        if value is None or ok(value):
-            return value
-        self.problems.append(f"{key} = {str(value)[:40]!r}: expected {expected}")
-        return None
+        super().__init__(data, required=_REQUIRED)
 
     def text(self, key: str) -> str:
-        return self._value(key, lambda v: isinstance(v, str), "a string") or ""
+        return super().text(key) or ""
 
     def optional_text(self, key: str) -> str | None:
-        value = self._value(key, lambda v: isinstance(v, str), "a string")
-        return None if value is None else str(value)
-
-    def integer(self, key: str) -> int | None:
-        value = self._value(key, lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer")
-        return None if value is None else int(value)
-
-    def optional_real(self, key: str) -> float | None:
-        value = self._value(key, _is_number, "a number")
-        return None if value is None else float(value)
-
-    def real(self, key: str) -> float:
-        value = self.optional_real(key)
-        return math.nan if value is None else value
-
-    def mapping(self, key: str) -> dict[str, Any] | None:
-        value = self._value(key, lambda v: isinstance(v, Mapping), "an object")
-        return None if value is None else dict(value)
+        return super().text(key)
 
     def names(self, key: str) -> tuple[str, ...]:
-        value = self._value(key, lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v),
-                            "a list of names")
+        value = self.value(key, lambda v: isinstance(v, list) and all(isinstance(n, str) for n in v),
+                           "a list of names")
         return tuple(value or ())
 
     def energies(self, key: str) -> dict[str, float]:
-        value = self._value(key, lambda v: isinstance(v, Mapping) and all(x is None or _is_number(x) for x in v.values()),
-                            "an object of numbers")
+        value = self.value(key, lambda v: isinstance(v, Mapping) and all(x is None or is_number(x) for x in v.values()),
+                           "an object of numbers")
         return {str(c): math.nan if v is None else float(v) for c, v in (value or {}).items()}
 
     def exit_code(self) -> int | str | None:
-        return self._value("exit_code", lambda v: isinstance(v, str | int) and not isinstance(v, bool),
-                           "an integer or SLURM's \"0:15\"")
+        return self.value("exit_code", lambda v: isinstance(v, str | int) and not isinstance(v, bool),
+                          "an integer or SLURM's \"0:15\"")
 
     def segments(self) -> tuple[Segment, ...]:
-        raw = self._value("segments", lambda v: isinstance(v, list), "a list")
+        raw = self.value("segments", lambda v: isinstance(v, list), "a list")
         out = []
         for i, entry in enumerate(raw or ()):
             try:
@@ -273,7 +250,3 @@ class _Reader:
             except (KeyError, TypeError, ValueError, AttributeError) as error:
                 self.problems.append(f"segments[{i}]: not a segment ({error!r}; left out)")
         return tuple(out)
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
