@@ -275,17 +275,19 @@ class ControlClient:
         """Send ``frames`` by the monotonic time ``end``. A blocking send would wait for ever when the
         socket has no connection to queue on, as after a refused CURVE handshake tore it down: so
         the send waits, until ``end``, for the socket to take it or the handshake watch to fail."""
-        poller = zmq.Poller()
-        poller.register(sock, zmq.POLLOUT)
+        poller: zmq.Poller | None = None  # only when the socket does not take the request at once
         watch = self._watch
-        if watch is not None:
-            poller.register(watch.socket, zmq.POLLIN)
         while True:
             try:
                 sock.send_multipart(frames, zmq.NOBLOCK)
                 return
             except zmq.Again:
                 pass
+            if poller is None:
+                poller = zmq.Poller()
+                poller.register(sock, zmq.POLLOUT)
+                if watch is not None:
+                    poller.register(watch.socket, zmq.POLLIN)
             remaining = int((end - time.monotonic()) * 1000)
             if remaining <= 0:
                 self._give_up(timeout_s)
