@@ -42,3 +42,20 @@ def test_variance_reduction_matches_refitting_the_information() -> None:
     for row, score in zip(rows, scores):
         new = np.linalg.inv(info + np.outer(row, row))[2, 2]
         assert score == pytest.approx(1 - new / var, abs=1e-10)
+
+
+def test_directions_no_run_sees_stay_exactly_at_the_prior_target() -> None:
+    """One run that sees three of eight unknowns, the ridge pulling toward the prior target at the
+    upper bound (the datasheet, as the calibrator scales it): the five unseen unknowns land exactly
+    on that target, the seen ones fit the run. (An interior-point solver stopped 4·10⁻⁴ short of
+    the bound here, on a problem the calibrator met at its first runs.)"""
+    p = 8
+    design = np.zeros((1, p))
+    design[0, [1, 2, 5]] = [0.1162, -0.136, 1.4768]
+    lower, upper = np.zeros(p), np.ones(p)
+    sol = solve_bounded(design, np.array([0.1612]), lower, upper, prior_weight=0.0,
+                        prior_target=np.ones(p), ridge=3.2e-12)
+    unseen = [0, 3, 4, 6, 7]
+    assert np.all(sol.x[unseen] == 1.0)
+    assert np.all(sol.active[unseen] == 1)
+    assert float(design[0] @ sol.x) == pytest.approx(0.1612, abs=1e-9)

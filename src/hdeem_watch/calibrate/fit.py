@@ -142,7 +142,9 @@ def fit(observations: Sequence[Observation], spec: SpecLike, options: FitOptions
     problem = _prepare(observations, spec, options, weights)
     sol = solve.solve_bounded(problem.design, problem.target, problem.lower, problem.upper, **problem.solver)
     k, p, n, intercept = problem.k, problem.p, problem.n, problem.intercept
-    dof = int(np.count_nonzero(problem.weight > 0)) - sol.free_dimension
+    # Fewer runs than unknowns: the bounds the exact solver lands on are the data's choice, not
+    # knowledge, so the residual variance (and every interval built on it) stays unknown.
+    dof = int(np.count_nonzero(problem.weight > 0)) - sol.free_dimension if n >= p else 0
     s2 = sol.rss / dof if dof > 0 else math.nan
     ci, method = _uncertainty(problem, sol, options, s2, dof)
     param_scale = np.concatenate([problem.scales, [problem.b_scale] if intercept else []])

@@ -9,7 +9,9 @@ data do not determine stay at the prior target.
 
 The solver works on the ``p × p`` triangular factor ``R`` of the QR decomposition of ``D`` (same
 minimiser, so the cost of a solve does not grow with the rows): :func:`scipy.optimize.lsq_linear`
-(``trf``) for bounds alone; when that answer breaks a rule, Lawson and Hanson's reduction of least
+(``bvls``, Stark and Parker's active-set method: exact, and a few least-squares solves for the
+handful of unknowns here; ``trf``'s interior-point iterations cost ~9× the CPU and stop short of
+the bound on flat problems) for bounds alone; when that answer breaks a rule, Lawson and Hanson's reduction of least
 squares under linear inequalities (LSI) to a least-distance problem (LDP), solved by
 :func:`scipy.optimize.nnls` (Lawson & Hanson, *Solving Least Squares Problems*, 1974, ch. 23), and
 finished by a primal active-set method (exact where ``R`` is ill conditioned).
@@ -108,14 +110,11 @@ def solve_bounded(design: np.ndarray, target: np.ndarray, lower: np.ndarray, upp
     rhs = np.concatenate([target, root * x0])
     q, r = np.linalg.qr(stacked, mode="reduced")
     reduced_rhs = q.T @ rhs
-    # Start inside the box, at the prior target clipped to it (trf needs a strictly feasible start
-    # only internally; it handles this itself).
     # scipy.optimize is imported here, on first use: importing it costs every process that merely
     # imports the calibrator (the daemon, each CLI command) ~0.3 s of start-up.
     from scipy.optimize import lsq_linear
 
-    result = lsq_linear(r, reduced_rhs, bounds=(lower, upper), method="trf", lsq_solver="exact",
-                        tol=1e-12, max_iter=200)
+    result = lsq_linear(r, reduced_rhs, bounds=(lower, upper), method="bvls", tol=1e-12, max_iter=200)
     x, active = _polish(r, reduced_rhs, lower, upper, np.clip(result.x, lower, upper),
                         np.asarray(result.active_mask, dtype=int))
     held, held_rows = np.zeros(0, dtype=bool), np.zeros((0, p))
@@ -270,9 +269,10 @@ def _null_space(rows: np.ndarray) -> np.ndarray:
 
 def _polish(r: np.ndarray, rhs: np.ndarray, lower: np.ndarray, upper: np.ndarray, x: np.ndarray,
             mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Finish trf's interior-point answer exactly: take the bounds it (nearly) reached as active,
-    solve the free parameters by least squares, and keep that if it is feasible and optimal (KKT:
-    the gradient pushes every active parameter against its bound); else keep trf's answer."""
+    """Finish the solver's answer exactly: take the bounds it (nearly) reached as active, solve the
+    free parameters by least squares, and keep that if it is feasible and optimal (KKT: the
+    gradient pushes every active parameter against its bound); else keep the solver's answer
+    (bvls's own stopping test is on the cost, so an ill-conditioned ``R`` may leave it short)."""
     span = np.where(np.isfinite(upper - lower), upper - lower, np.maximum(np.abs(x), 1.0))
     active = mask.copy()
     active[(x - lower) <= 1e-6 * span] = -1
