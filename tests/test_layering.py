@@ -13,6 +13,7 @@ came were listed in :data:`LONG_FUNCTIONS` with their length then, and could onl
 from __future__ import annotations
 
 import ast
+import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -92,6 +93,13 @@ def module_names(src: Path = SRC) -> dict[str, Path]:
     return names
 
 
+@functools.cache
+def parsed(path: Path) -> ast.Module:
+    """The syntax tree of ``path``, parsed once per process (the import graph and the function
+    lengths walk the same ~300 modules; each parse of them all costs ~1 s)."""
+    return ast.parse(path.read_text(encoding="utf-8"))
+
+
 def _is_type_checking(test: ast.expr) -> bool:
     return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
         isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
@@ -121,7 +129,7 @@ def import_edges(src: Path = SRC) -> list[Edge]:
     for name, path in modules.items():
         package = name if path.name == "__init__.py" else name.rpartition(".")[0]
         shown = str(path.relative_to(src.parent))
-        for node in _import_nodes(ast.parse(path.read_text(encoding="utf-8"))):
+        for node in _import_nodes(parsed(path)):
             if isinstance(node, ast.Import):
                 targets = [alias.name for alias in node.names]
             else:
@@ -317,7 +325,7 @@ def function_lengths(src: Path = SRC) -> dict[str, int]:
                 walk(child, prefix, where)
 
     for path in sorted((src / ROOT).rglob("*.py")):
-        walk(ast.parse(path.read_text(encoding="utf-8")), "", path.relative_to(src).as_posix())
+        walk(parsed(path), "", path.relative_to(src).as_posix())
     return lengths
 
 

@@ -294,7 +294,7 @@ def _prepare(observations: Sequence[Observation], spec: SpecLike, options: FitOp
     index = np.array([names.index(c) for c in chosen], dtype=int)
     all_a = np.array([float(spec.currents.get(nm, 0.0)) for nm in names])
     datasheet = all_a[index]
-    used = {name for name, column in zip(names, cols.T) if np.any(column != 0)}
+    used = {name for name, seen in zip(names, np.any(cols != 0, axis=0)) if seen}
     # With the rules kept, every rule holds (a memspec DRAMPower and the memspec check accept), also
     # those against a current whose state no run uses (IDD3N ≥ IDD3P without power-down residency).
     limits = physical_limits(spec, chosen, None if options.rules else used) if options.physical or options.rules else None

@@ -97,7 +97,10 @@ def build_report(data: ReportData, out_dir: str | Path, *, fmt: str = "png",
                 drawn.figure.savefig(svg, format="svg")
                 if fmt != "html":
                     path = out / f"{drawn.key}.{fmt}"
-                    drawn.figure.savefig(path, format=fmt)
+                    if fmt == "svg":  # the page's own drawing: the same bytes, not drawn twice
+                        path.write_bytes(svg.getvalue())
+                    else:
+                        drawn.figure.savefig(path, format=fmt)
                     files.append(path)
             finally:
                 plt.close(drawn.figure)
