@@ -127,8 +127,10 @@ def test_respects_the_cpus_it_was_given() -> None:
 class FakeRouter:
     """A real ROUTER socket answering the control protocol, recording each request with its time."""
 
-    def __init__(self, endpoint: str, fail_start_after: int | None = None, conflicts: int = 0) -> None:
+    def __init__(self, endpoint: str, fail_start_after: int | None = None, conflicts: int = 0,
+                 shortest_s: float = 0.0) -> None:
         self.endpoint = endpoint
+        self.shortest_s = shortest_s  # as the daemon's guard rail: a shorter window is not calibrated
         self.fail_start_after = fail_start_after
         self.conflicts = conflicts  # refuse this many run.start with "conflict" (another run open)
         self.requests: list[tuple[int, dict[str, Any]]] = []
@@ -170,6 +172,10 @@ class FakeRouter:
                 result = {"run_id": f"r{runs}"}
             elif op == "run.stop":
                 result = {"run_id": request["args"]["run_id"], "energy_j": {"DDR_AB": 1.5}}
+                window_s = (time.time_ns() - self.requests[-2][0]) / 1e9
+                if self.shortest_s:
+                    result.update({"fit": None, "model_error": f"not calibrated: too short ({window_s:.2f} s)"}
+                                  if window_s < self.shortest_s else {"fit": {"currents": {}}, "model_error": None})
             else:
                 reply = {"id": request["id"], "ok": False, "error": {"code": "unknown-op", "message": op}}
                 sock.send_multipart([*frames[:-1], json.dumps(reply).encode()])
@@ -323,3 +329,30 @@ def test_a_run_still_refused_after_the_wait_exits_1(tmp_path: Path) -> None:
     assert "after waiting 1.5 s" in error and "run 7 is in progress" in error and "0 of 2 runs done" in error
     ops = [r["op"] for _, r in server.requests]
     assert ops[:2] == ["status", "whoami"] and set(ops[2:]) == {"run.start"} and 2 <= len(ops) - 2 <= 4
+
+
+@pytest.mark.slow
+def test_a_run_cut_short_by_a_slowed_probe_is_run_again(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """A probe slowed 8x (another process had the core while the passes were timed, as under load)
+    sizes the run far too short; the daemon does not calibrate it, so the bench runs it once more
+    with the passes scaled by the time it missed, and that run is the one reported."""
+    from hdeem_watch.bench import runner
+    from hdeem_watch.cli import main
+
+    real_probe = runner._probe
+    monkeypatch.setattr(runner, "_probe", lambda probe, more: 8 * real_probe(probe, more))
+    server = FakeRouter(f"ipc://{tmp_path / 'control.sock'}", shortest_s=0.25)
+    try:
+        code = main(["bench", "--kernels", "copy", "--threads", "1", "--elements", "262144", "--seconds", "0.5",
+                     "--daemon", server.endpoint, "--json"])
+    finally:
+        server.close()
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    starts = [r["args"]["repeat"] for _, r in server.requests if r["op"] == "run.start"]
+    assert len(starts) == 2 and starts[1] >= 5 * starts[0], starts
+    (record,) = [json.loads(line) for line in out.splitlines()]
+    assert record["run_id"] == "r2" and record["repeat"] == starts[1] and record["seconds"] >= 0.25
+    assert record["daemon"]["fit"] is not None
+    assert "running it again with" in err and "not calibrated" not in err

@@ -7,7 +7,9 @@ Example::
 
 Runs are sized by time: each lasts ``--seconds`` (default 2 s, twice what the daemon's guard rail
 needs to measure a run: 100 samples of a 100 Sa/s sensor), with the pass count derived from one
-timed probe pass; ``--repeat N`` gives exactly N passes instead. Runs the daemon still could not
+timed probe pass (a run the probe's slowed timing left under half its time, and the daemon did not
+calibrate, is run once more with the passes it missed); ``--repeat N`` gives exactly N passes
+instead. Runs the daemon still could not
 calibrate get one summary warning that says how to lengthen them. Ctrl-C aborts the announced run
 (stored, not calibrated) before exiting 130, so the daemon takes the next run at once.
 
@@ -22,6 +24,7 @@ a job running on the node; said before any kernel runs).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -29,7 +32,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 from hdeem_watch import slurm
 from hdeem_watch.bench.announce import WAIT_S, RunRefused
-from hdeem_watch.bench.runner import BACKENDS, RunResult, run_one, validate
+from hdeem_watch.bench.runner import BACKENDS, MAX_TIMED_REPEAT, RunResult, run_one, validate
 from hdeem_watch.bench.schedule import sweep
 from hdeem_watch.cli.curve_options import add_server_key_argument, client_kwargs, curve_keys
 from hdeem_watch.cli.numbers import counted
@@ -151,6 +154,18 @@ def _not_calibrated(result: RunResult) -> str | None:
     return f"run {record.get('run_id')} ({result.spec.kernel} x{result.spec.threads}): {record['model_error']}"
 
 
+def rerun_passes(result: RunResult, seconds: float | None) -> int | None:
+    """Passes for running ``result``'s run again, or None when it stands.
+
+    A run sized by time (``seconds``) is timed by a probe just before it; on a shared node the
+    probe can be slowed by another process and the run then comes out far too short (0.2 s of 2 s
+    was seen under load). Such a run, if the daemon did not calibrate it, is run once more with its
+    pass count scaled by the time it missed; a run the daemon took, or one near its time, stands."""
+    if seconds is None or _not_calibrated(result) is None or result.seconds >= 0.5 * seconds:
+        return None
+    return max(result.spec.repeat + 1, min(MAX_TIMED_REPEAT, math.ceil(1.1 * result.spec.repeat * seconds / result.seconds)))
+
+
 def too_short_summary(results: list[RunResult], seconds: float | None) -> str | None:
     """One warning for all runs the daemon did not calibrate, with the fix; None when it took them all.
 
@@ -199,6 +214,14 @@ def _run(args: argparse.Namespace) -> int:
                 result = run_one(spec, backend=args.backend, allowed=allowed, oversubscribe=args.oversubscribe,
                                  on_start=announcer.on_start if announcer else None,
                                  on_stop=announcer.on_stop if announcer else None, seconds=by_time)
+                if (passes := rerun_passes(result, by_time)) is not None:
+                    warn(f"run {result.announce['daemon'].get('run_id')} ({spec.kernel} x{spec.threads}) lasted "
+                         f"{result.seconds:.2f} s of the {by_time:g} s asked (the node was busier while its passes "
+                         f"were timed): running it again with {passes} passes")
+                    result = run_one(dataclasses.replace(result.spec, repeat=passes), backend=args.backend,
+                                     allowed=allowed, oversubscribe=args.oversubscribe,
+                                     on_start=announcer.on_start if announcer else None,
+                                     on_stop=announcer.on_stop if announcer else None)
             except RunRefused as error:
                 refused = error
                 break
