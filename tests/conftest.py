@@ -242,9 +242,9 @@ def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> 
 
 
 #: The tests that take longest (10-40 s each on the CI machine, measured with ``--durations``), by
-#: node-id prefix. They are handed out first so that the end of a ``-n 2`` run is short tests on both
-#: workers: the run lasts as long as its busier worker, and a 40 s test started last would leave the
-#: other idle. Only the order changes (xdist's loadgroup sends the groups first, then single tests in
+#: node-id prefix. They are handed out first so that the end of a ``-n 3`` run is short tests on all
+#: workers: the run lasts as long as its busiest worker, and a 40 s test started last would leave the
+#: others idle. Only the order changes (xdist's loadgroup sends the groups first, then single tests in
 #: this order); a test missing here just runs in its place.
 LONG_TESTS_FIRST = (
     "tests/demo/test_sim_runs.py::",
