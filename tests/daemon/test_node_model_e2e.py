@@ -24,6 +24,10 @@ from hdeem_watch.node.description import describe_node
 from hdeem_watch.node.overrides import apply_overrides, parse_node_table
 from hdeem_watch.node.topology import topology_from_node
 
+#: A long end-to-end accuracy check of the calibrator (three nodes' schedules through the daemon's
+#: real core: ~6 s of CPU): in the full run only, like the others of its kind.
+pytestmark = pytest.mark.slow
+
 CURRENTS = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
 #: (kernel, threads, elements, repeat): idle runs and kernels at several thread counts, all fitting on
 #: one socket of every node below (at most 12 threads), each kernel run 0.3-1.6 s long.
