@@ -172,8 +172,8 @@ class FakeRouter:
                 result = {"run_id": f"r{runs}"}
             elif op == "run.stop":
                 result = {"run_id": request["args"]["run_id"], "energy_j": {"DDR_AB": 1.5}}
-                window_s = (time.time_ns() - self.requests[-2][0]) / 1e9
                 if self.shortest_s:
+                    window_s = (time.time_ns() - self.requests[-2][0]) / 1e9
                     result.update({"fit": None, "model_error": f"not calibrated: too short ({window_s:.2f} s)"}
                                   if window_s < self.shortest_s else {"fit": {"currents": {}}, "model_error": None})
             else:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
 import sys
@@ -205,23 +206,21 @@ def _run(args: argparse.Namespace) -> int:
     announcer = _announcer(args, warn) if args.daemon else None
     if isinstance(announcer, int):
         return announcer
+    run = functools.partial(run_one, backend=args.backend, allowed=allowed, oversubscribe=args.oversubscribe,
+                            on_start=announcer.on_start if announcer else None,
+                            on_stop=announcer.on_stop if announcer else None)
     results: list[RunResult] = []
     refused: RunRefused | None = None
     try:
         for i, spec in enumerate(specs):
             progress.show(i, f"{spec.kernel} x{spec.threads}")
             try:
-                result = run_one(spec, backend=args.backend, allowed=allowed, oversubscribe=args.oversubscribe,
-                                 on_start=announcer.on_start if announcer else None,
-                                 on_stop=announcer.on_stop if announcer else None, seconds=by_time)
+                result = run(spec, seconds=by_time)
                 if (passes := rerun_passes(result, by_time)) is not None:
                     warn(f"run {result.announce['daemon'].get('run_id')} ({spec.kernel} x{spec.threads}) lasted "
                          f"{result.seconds:.2f} s of the {by_time:g} s asked (the node was busier while its passes "
                          f"were timed): running it again with {passes} passes")
-                    result = run_one(dataclasses.replace(result.spec, repeat=passes), backend=args.backend,
-                                     allowed=allowed, oversubscribe=args.oversubscribe,
-                                     on_start=announcer.on_start if announcer else None,
-                                     on_stop=announcer.on_stop if announcer else None)
+                    result = run(dataclasses.replace(result.spec, repeat=passes))
             except RunRefused as error:
                 refused = error
                 break

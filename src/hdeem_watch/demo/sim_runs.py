@@ -118,10 +118,11 @@ class SimRuns:
         rates = {i.name: float(i.rate_hz) for i in infos if i.kind == "dram"}
         self.counters = SimCounters(self.sim) if counters else None
         currents = ("idd0", "idd2n", "idd3n", "idd4r", "idd4w")
+        sensor_groups = source_groups(self.sim, rates, 2, 4)
         self.modeller = RunModeller(memspec or memspec_setting(layout), topology=layout.topology,
                                     currents=currents_with_counters(currents) if counters else currents,
-                                    half_life_s=half_life_s, groups=source_groups(self.sim, rates, 2, 4) if groups else (),
-                                    dram_rates_hz=rates, sockets=source_groups(self.sim, rates, 2, 4))
+                                    half_life_s=half_life_s, groups=sensor_groups if groups else (),
+                                    dram_rates_hz=rates, sockets=sensor_groups)
         if self.modeller.error is not None:
             raise RuntimeError(self.modeller.error)
         self._energy = dict(self.sim.poll().energy_j)
