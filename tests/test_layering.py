@@ -20,6 +20,9 @@ from pathlib import Path
 
 import pytest
 
+# One worker runs the module, so the package is parsed once per test run, not once per worker.
+pytestmark = pytest.mark.xdist_group("layering")
+
 SRC = Path(__file__).resolve().parents[1] / "src"
 ROOT = "hdeem_watch"
 
