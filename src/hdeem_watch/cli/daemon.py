@@ -14,14 +14,11 @@ import logging
 import re
 import signal
 import sys
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from hdeem_watch.config import SOURCE_KINDS, load_settings
 from hdeem_watch.errors import InputError
 from hdeem_watch.sources.options import add_source_flags, source_flag_overrides
-
-if TYPE_CHECKING:
-    from hdeem_watch.daemon.service import Daemon
 
 
 def register(subparsers: Any) -> None:
@@ -90,7 +87,6 @@ def _run(args: argparse.Namespace) -> int:
                   f"secret key (--client-key): {secret}")
         return 0
     from hdeem_watch.daemon.service import Daemon
-    from hdeem_watch.daemon.shell.publisher import quiet_io_context
 
     settings = load_settings(
         args.config,
@@ -110,16 +106,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     logging.basicConfig(level=settings.log_level.upper(), stream=sys.stderr,
                         format="%(asctime)s hdeem-watchd %(levelname)s %(message)s")
-    context = quiet_io_context()
-    try:
-        serve(Daemon(settings, context=context))
-    finally:
-        context.destroy(linger=0)
-    return 0
-
-
-def serve(daemon: Daemon) -> None:
-    """Start ``daemon`` and serve until SIGTERM or SIGINT; close it in any case."""
+    daemon = Daemon(settings)
     daemon.start()
 
     def stop(signum: int, frame: Any) -> None:
@@ -132,3 +119,4 @@ def serve(daemon: Daemon) -> None:
         daemon.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+    return 0

@@ -18,7 +18,6 @@ Example:
 from __future__ import annotations
 
 import logging
-import os
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -30,7 +29,7 @@ from hdeem_watch.daemon.shell.endpoints import bind, bind_endpoint, is_loopback
 from hdeem_watch.errors import InputError
 from hdeem_watch.wire import protocol
 
-__all__ = ["CACHED_KINDS", "MAX_SUBSCRIPTIONS", "Publisher", "bind_endpoint", "quiet_io_context"]
+__all__ = ["CACHED_KINDS", "MAX_SUBSCRIPTIONS", "Publisher", "bind_endpoint"]
 
 log = logging.getLogger("hdeem_watch.daemon")
 
@@ -44,25 +43,6 @@ CACHED_KINDS = ("calib", "baseline")
 #: and an XPUB cannot tell which peer sent which, so beyond this bound every stream connection is
 #: dropped (subscribers reconnect and subscribe again by themselves) and a warning is logged.
 MAX_SUBSCRIPTIONS = 10_000
-
-
-def quiet_io_context() -> zmq.Context[Any]:
-    """A new ZeroMQ context for the daemon whose I/O thread is scheduled ``SCHED_BATCH``.
-
-    A poll hands its messages to ZeroMQ back to back (7 samples messages at full HDEEM rate). Under
-    the default policy the I/O thread, woken by the first of them, preempts the sending thread and
-    drains the queues before the rest arrive, so it wakes again for nearly every message and each
-    wake-up writes to every subscriber. A batch-scheduled thread does not preempt on wake-up (it
-    keeps its fair share of the CPU otherwise): it runs once the loop blocks, and writes a poll's
-    messages to each subscriber at once. ``libzmq``'s ``ZMQ_THREAD_SCHED_POLICY``, applied by the
-    I/O thread to itself when it starts (the context's first socket). Only from ``SCHED_OTHER``:
-    moving a thread that runs ``SCHED_IDLE`` (``chrt --idle``) or a real-time policy needs a
-    privilege, and ``libzmq`` aborts when the change is refused, so such a process keeps its policy.
-    """
-    context: zmq.Context[Any] = zmq.Context()
-    if os.sched_getscheduler(0) == os.SCHED_OTHER:
-        context.set(zmq.THREAD_SCHED_POLICY, os.SCHED_BATCH)
-    return context
 
 
 class Publisher:
