@@ -11,10 +11,13 @@ which build the C test doubles once per session.
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import os
+import shutil
 import signal
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Generator, Iterator
@@ -92,23 +95,56 @@ def _build_trees(generator: str, dest: Path) -> Path:
     return Path(module.build(dest))
 
 
+def _trees(config: pytest.Config, generator: str, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The trees of a generator (a file under tests/, standard library only), built at test time
+    once for its source: in pytest's cache directory under the hash of the generator, shared by
+    the workers and by later runs (the trees are read-only to the tests; a test that changes one
+    copies it first). The first worker to finish moves its build into place; a worker that loses
+    that race uses the winner's. Without a cache directory (``-p no:cacheprovider``, a read-only
+    clone), every worker builds its own under its temporary directory."""
+    key = hashlib.sha256((Path(__file__).resolve().parent / generator).read_bytes()).hexdigest()[:16]
+    name = Path(generator).stem
+    cache = getattr(config, "cache", None)
+    try:
+        root = Path(cache.mkdir(f"trees-{name}")) if cache is not None else None
+    except OSError:
+        root = None
+    if root is None:
+        return _build_trees(generator, tmp_path_factory.mktemp(name))
+    final = root / key
+    if not final.is_dir():
+        staging = Path(tempfile.mkdtemp(prefix=".build-", dir=root))
+        try:
+            _build_trees(generator, staging / "trees")
+            os.rename(staging / "trees", final)  # atomic: whole trees or none
+        except OSError:
+            if not final.is_dir():
+                raise
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+        for stale in root.iterdir():  # the trees of an older generator
+            if stale.name != key and not stale.name.startswith(".build-"):
+                shutil.rmtree(stale, ignore_errors=True)
+    return final
+
+
 @pytest.fixture(scope="session")
-def node_trees(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def node_trees(pytestconfig: pytest.Config, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The node fixtures (``<node>/sys``, ``<node>/dmidecode.txt``), built by tests/node/make_fixtures.py."""
-    return _build_trees("node/make_fixtures.py", tmp_path_factory.mktemp("node_trees"))
+    return _trees(pytestconfig, "node/make_fixtures.py", tmp_path_factory)
 
 
 @pytest.fixture(scope="session")
-def pmu_trees(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def pmu_trees(pytestconfig: pytest.Config, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The perf PMU trees (``sysfs_<host>/bus/event_source/devices``), built by tests/counters/pmu_trees.py."""
-    return _build_trees("counters/pmu_trees.py", tmp_path_factory.mktemp("pmu_trees"))
+    return _trees(pytestconfig, "counters/pmu_trees.py", tmp_path_factory)
 
 
 @pytest.fixture(scope="session")
-def powercap_trees(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def powercap_trees(pytestconfig: pytest.Config, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The powercap and perf ``power`` trees, built by tests/sources/powercap_trees.py (tests that
     write counters copy a tree first, with ``symlinks=True``)."""
-    return _build_trees("sources/powercap_trees.py", tmp_path_factory.mktemp("powercap_trees"))
+    return _trees(pytestconfig, "sources/powercap_trees.py", tmp_path_factory)
 
 
 #: Audit events (PEP 578) raised when a process is started.
