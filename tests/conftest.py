@@ -11,6 +11,7 @@ which build the C test doubles once per session.
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import importlib.util
 import os
@@ -99,8 +100,7 @@ def _trees(config: pytest.Config, generator: str, tmp_path_factory: pytest.TempP
     """The trees of a generator (a file under tests/, standard library only), built at test time
     once for its source: in pytest's cache directory under the hash of the generator, shared by
     the workers and by later runs (the trees are read-only to the tests; a test that changes one
-    copies it first). The first worker to finish moves its build into place; a worker that loses
-    that race uses the winner's. Without a cache directory (``-p no:cacheprovider``, a read-only
+    copies it first). The first worker builds them under a lock while the others wait. Without a cache directory (``-p no:cacheprovider``, a read-only
     clone), every worker builds its own under its temporary directory."""
     key = hashlib.sha256((Path(__file__).resolve().parent / generator).read_bytes()).hexdigest()[:16]
     name = Path(generator).stem
@@ -112,19 +112,18 @@ def _trees(config: pytest.Config, generator: str, tmp_path_factory: pytest.TempP
     if root is None:
         return _build_trees(generator, tmp_path_factory.mktemp(name))
     final = root / key
-    if not final.is_dir():
-        staging = Path(tempfile.mkdtemp(prefix=".build-", dir=root))
-        try:
-            _build_trees(generator, staging / "trees")
-            os.rename(staging / "trees", final)  # atomic: whole trees or none
-        except OSError:
-            if not final.is_dir():
-                raise
-        finally:
-            shutil.rmtree(staging, ignore_errors=True)
-        for stale in root.iterdir():  # the trees of an older generator
-            if stale.name != key and not stale.name.startswith(".build-"):
-                shutil.rmtree(stale, ignore_errors=True)
+    with open(root / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # one worker builds, the others wait for its trees
+        if not final.is_dir():
+            staging = Path(tempfile.mkdtemp(prefix=".build-", dir=root))
+            try:
+                _build_trees(generator, staging / "trees")
+                os.rename(staging / "trees", final)  # whole trees or none (a build cut short leaves none)
+            finally:
+                shutil.rmtree(staging, ignore_errors=True)
+            for stale in root.iterdir():  # the trees of an older generator
+                if stale.name not in (key, ".lock"):
+                    shutil.rmtree(stale, ignore_errors=True)
     return final
 
 
