@@ -100,8 +100,9 @@ def _trees(config: pytest.Config, generator: str, tmp_path_factory: pytest.TempP
     """The trees of a generator (a file under tests/, standard library only), built at test time
     once for its source: in pytest's cache directory under the hash of the generator, shared by
     the workers and by later runs (the trees are read-only to the tests; a test that changes one
-    copies it first). The first worker builds them under a lock while the others wait. Without a cache directory (``-p no:cacheprovider``, a read-only
-    clone), every worker builds its own under its temporary directory."""
+    copies it first). The first worker builds them under a lock while the others wait. Without a
+    cache directory (``-p no:cacheprovider``, a read-only clone), every worker builds its own under
+    its temporary directory."""
     key = hashlib.sha256((Path(__file__).resolve().parent / generator).read_bytes()).hexdigest()[:16]
     name = Path(generator).stem
     cache = getattr(config, "cache", None)
