@@ -128,6 +128,13 @@ def _trees(config: pytest.Config, generator: str, tmp_path_factory: pytest.TempP
     return final
 
 
+@pytest.fixture
+def build_trees() -> Callable[[str, Path], Path]:
+    """``build_trees(generator, dest)``: a fresh build of a generator's trees (test modules cannot
+    import conftest in importlib mode)."""
+    return _build_trees
+
+
 @pytest.fixture(scope="session")
 def node_trees(pytestconfig: pytest.Config, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The node fixtures (``<node>/sys``, ``<node>/dmidecode.txt``), built by tests/node/make_fixtures.py."""
