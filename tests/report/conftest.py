@@ -32,6 +32,16 @@ def shared_state_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture
+def fresh_state_dir(tmp_path: Path) -> Path:
+    """The state directory of a daemon that has just started: no runs, no fits, no baselines."""
+    from hdeem_watch.daemon.store.database import Store
+
+    directory = tmp_path / "fresh-state"
+    Store(directory / "state.db").close()
+    return directory
+
+
+@pytest.fixture
 def aged_state_dir(tmp_path: Path) -> Path:
     """A state directory holding a 150-second demo's ``state.db`` in which DDR_CD aged (per-pair
     fits, one drift alarm; see data/README.md)."""

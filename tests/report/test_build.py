@@ -110,18 +110,14 @@ def test_what_the_state_lacks_is_said(built: tuple[ReportData, Path]) -> None:
 
 
 @pytest.mark.parametrize("fmt", ["svg", "pdf", "html"])
-def test_other_formats(state_dir: Path, tmp_path: Path, fmt: str) -> None:
+def test_other_formats(state_dir: Path, fresh_state_dir: Path, tmp_path: Path, fmt: str) -> None:
     """svg and pdf figure files start with their format's magic; html writes the page only. pdf
     draws the demo's data (its own backend); an svg file is the page's drawing and html is the
     page alone, both drawn from the demo's data by the png report above, so they take a fresh
     state here (a third of the time)."""
-    if fmt != "pdf":
-        from hdeem_watch.daemon.store.database import Store
-
-        state_dir = tmp_path / "fresh"
-        Store(state_dir / "state.db").close()
-    build_report(read_state(state_dir), tmp_path, fmt=fmt)
-    files = sorted(tmp_path.glob("fig*"))
+    out = tmp_path / "out"
+    build_report(read_state(state_dir if fmt == "pdf" else fresh_state_dir), out, fmt=fmt)
+    files = sorted(out.glob("fig*"))
     if fmt == "html":
         assert files == []
         return
@@ -141,12 +137,9 @@ def test_a_runs_json_report(runs_json: Path, tmp_path: Path) -> None:
     assert len(written.figures) == len(FIGURES)
 
 
-def test_an_empty_state_draws_every_figure_saying_no_data(tmp_path: Path) -> None:
+def test_an_empty_state_draws_every_figure_saying_no_data(fresh_state_dir: Path, tmp_path: Path) -> None:
     """A fresh daemon state (no runs, no fits) still gives every figure, each saying it has no data."""
-    from hdeem_watch.daemon.store.database import Store
-
-    Store(tmp_path / "state" / "state.db").close()
-    written = build_report(read_state(tmp_path / "state"), tmp_path / "out", fmt="png")
+    written = build_report(read_state(fresh_state_dir), tmp_path / "out", fmt="png")
     assert len(written.figures) == len(FIGURES)
     assert written.memspec is None
     assert written.missing["fig1-energy"] == ("runs",)

@@ -74,19 +74,16 @@ def test_daemon_and_report_cli_do_not_import_matplotlib() -> None:
     assert done.stdout.strip() == "False"
 
 
-def test_demo_report_at_end(tmp_path: Path) -> None:
+def test_demo_report_at_end(fresh_state_dir: Path, tmp_path: Path) -> None:
     """``demo --report`` writes the report of the demo's state and says where; a state it cannot
     read costs one line, not the demo. (A fresh state: the wiring is what is tested here; drawing a
     demo's data is test_build's and the slow ``test_demo_headless_with_report``'s.)"""
     import io
 
-    from hdeem_watch.daemon.store.database import Store
     from hdeem_watch.report.demo import report_at_end
 
-    state_dir = tmp_path / "fresh"
-    Store(state_dir / "state.db").close()
     stream = io.StringIO()
-    assert report_at_end(state_dir, tmp_path / "r", stream=stream)
+    assert report_at_end(fresh_state_dir, tmp_path / "r", stream=stream)
     assert (tmp_path / "r" / "index.html").is_file()
     assert stream.getvalue() == f"demo: report written to {tmp_path / 'r' / 'index.html'} (open it in a browser)\n"
     stream = io.StringIO()
