@@ -134,6 +134,21 @@ def test_requests_and_replies() -> None:
     assert not err.ok and err.code == "bad-args" and err.message == "line one line two"
 
 
+_JSON_VALUES = st.recursive(
+    st.none() | st.booleans() | st.integers(-(2**53), 2**53) | st.floats() | st.text(max_size=8),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=6), inner, max_size=4),
+    max_leaves=20)
+
+
+@given(result=_JSON_VALUES, request_id=st.integers(0, 2**31) | st.text(max_size=6) | st.none())
+def test_a_pre_encoded_result_gives_the_same_reply_bytes(result: object, request_id: object) -> None:
+    """A result encoded once (a cached ``runs.list`` page) is spliced into each reply: the bytes are
+    those of the reply of the value itself, NaN and infinities included (``null``), for any id."""
+    encoded = protocol.EncodedResult.of(result)
+    assert protocol.encode_reply_ok(request_id, encoded) == protocol.encode_reply_ok(request_id, result)
+    assert protocol.decode_reply(protocol.encode_reply_ok(request_id, encoded)).result == encoded.decoded()
+
+
 @pytest.mark.parametrize(
     ("data", "code"),
     [

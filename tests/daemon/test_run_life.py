@@ -28,7 +28,7 @@ from hdeem_watch.daemon.store.database import Store
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.run_record import RunRecord
 from hdeem_watch.sources.base import ChannelInfo, RunAware, RunEvent, SourceBatch
-from hdeem_watch.wire.protocol import ProtocolError, decode_reply
+from hdeem_watch.wire.protocol import EncodedResult, ProtocolError, decode_reply
 
 MEMSPEC = "samsung-m393a1g43db0-cpb"
 DRAM = ("DDR_AB", "DDR_CD", "DDR_EF", "DDR_GH")
@@ -174,14 +174,14 @@ class Node:
         except (OpError, ProtocolError) as error:
             raise OpFailed(error.code, str(error)) from None
         if not isinstance(result, Pending):
-            return result
+            return decoded(result)
         for _ in range(500):
             self.settle()
             if id(result) in self.replies:
                 value, error = self.replies.pop(id(result))
                 if error is not None:
                     raise OpFailed(*error)
-                return value
+                return decoded(value)
             self.advance(POLL_NS / 1e9)
         raise AssertionError(f"{op}: no reply")
 
@@ -189,6 +189,11 @@ class Node:
         self.models.shutdown(cancel_queued=True)
         self.writer.shutdown()
         self.store.close()
+
+
+def decoded(result: Any) -> Any:
+    """A result as a client reads it (the control server sends a pre-encoded one as it is)."""
+    return result.decoded() if isinstance(result, EncodedResult) else result
 
 
 class OpFailed(Exception):
@@ -242,7 +247,8 @@ def test_a_run_from_start_to_reply(node: Node) -> None:
     assert page["runs"][0]["model"]["observation"] and page["next_before"] == "r2"
     assert [r["run_id"] for r in node.call("runs.list", {"full": True, "before": "r2"})["runs"]] == ["r1"]
     # The same page again is answered at once from the last read, until a run is written.
-    assert node.ops.handlers()["runs.list"]({}) == listed
+    again = node.ops.handlers()["runs.list"]({})
+    assert isinstance(again, EncodedResult) and again.decoded() == listed
     node.call("run.start", {"kernel": "idle"})
     assert [r["run_id"] for r in node.call("runs.list")["runs"]] == ["r3", "r2", "r1"]
 

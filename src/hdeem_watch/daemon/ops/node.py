@@ -39,7 +39,7 @@ from hdeem_watch.errors import InputError
 from hdeem_watch.run_record import FINISHED_STATES, OPAQUE_KERNEL, RunRecord
 from hdeem_watch.sources.base import RunAware, RunEvent, Source
 from hdeem_watch.wire import protocol
-from hdeem_watch.wire.protocol import quoted
+from hdeem_watch.wire.protocol import EncodedResult, quoted
 
 log = logging.getLogger("hdeem_watch.daemon")
 
@@ -110,7 +110,7 @@ class Operations:
         self.waiters: dict[str, list[Pending]] = {}
         self.dispatch = dispatch or self.window_closed
         #: ``runs.list`` pages already read, valid until a run is written (``_runs_generation``).
-        self._pages: dict[tuple[Any, ...], dict[str, Any]] = {}
+        self._pages: dict[tuple[Any, ...], EncodedResult] = {}
         self._runs_generation = 0
         self.open_jobs: Callable[[], list[dict[str, Any]]] = open_jobs or list
 
@@ -131,7 +131,7 @@ class Operations:
                      "model_error": self.calibration.body.get("model_error"), "jobs": self.open_jobs()})
         return body
 
-    def op_runs_list(self, args: dict[str, Any]) -> Pending | dict[str, Any]:
+    def op_runs_list(self, args: dict[str, Any]) -> Pending | EncodedResult:
         """Stored runs, newest first: summaries, or full records with ``"full": true`` (read off the loop)."""
         full = args.get("full", False)
         if not isinstance(full, bool):
@@ -157,12 +157,14 @@ class Operations:
         pending = Pending("runs.list")
         generation = self._runs_generation
 
-        def read(store: StorePort) -> dict[str, Any]:
+        def read(store: StorePort) -> EncodedResult:
             runs = list_page(store, limit=limit, kernel=kernel, before_seq=before_seq, full=full)
             more = len(runs) == limit and runs[-1].get("run_id") not in (None, "r1")
-            return {"runs": runs, "next_before": runs[-1].get("run_id") if more else None}
+            # Encoded once, here: a page of full records is ~200 KB of JSON (milliseconds to encode),
+            # and a crowd of clients asks for the same page again and again.
+            return EncodedResult.of({"runs": runs, "next_before": runs[-1].get("run_id") if more else None})
 
-        def done(body: dict[str, Any]) -> None:
+        def done(body: EncodedResult) -> None:
             if generation == self._runs_generation:
                 if len(self._pages) >= MAX_CACHED_PAGES:
                     self._pages.clear()
@@ -194,9 +196,9 @@ class Operations:
         """The current baselines."""
         return bl.baselines_body(self.book.baselines)
 
-    def op_calib_get(self, args: dict[str, Any]) -> dict[str, Any]:
+    def op_calib_get(self, args: dict[str, Any]) -> EncodedResult:
         """The latest calibration (with the sim's truth when simulated)."""
-        return self.reporter.calib_with_truth()
+        return self.reporter.calib_reply()
 
     def op_calib_reset(self, args: dict[str, Any]) -> Pending:
         """Forget the calibration runs (on the worker, after any refit in progress): of every fit, or
@@ -244,7 +246,7 @@ class Operations:
 
     def _after_reset(self, pending: Pending) -> None:
         self.reporter.publish_calib()
-        self.reply(pending, self.reporter.calib_with_truth(), None)
+        self.reply(pending, self.reporter.calib_reply(), None)
 
     # -- runs ------------------------------------------------------------------------------------------
 

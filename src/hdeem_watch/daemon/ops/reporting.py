@@ -22,8 +22,13 @@ from hdeem_watch.daemon.shell.workers import Calibration
 from hdeem_watch.daemon.store.port import StorePort
 from hdeem_watch.daemon.store.worker import StoreWorker
 from hdeem_watch.sources.base import HasTruth, Source
+from hdeem_watch.wire.protocol import EncodedResult
 
 Clock = Callable[[], int]
+
+#: The sim's hidden truth is computed again after this much source time: its currents drift over
+#: hours, and each computation costs about a millisecond of the loop (``calib.get``, ``calib``).
+TRUTH_MAX_AGE_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -66,6 +71,10 @@ class Reporter:
         self._process.cpu_percent(None)
         self._cpu_percent = math.nan
         self._searched_t_ns: int | None = None
+        self._truth: dict[str, Any] | None = None
+        self._truth_at_ns: int | None = None
+        self._truth_max_age_ns = round(TRUTH_MAX_AGE_S * 1e9 / book.speed)
+        self._calib_reply: tuple[dict[str, Any], dict[str, Any] | None, EncodedResult] | None = None
 
     def source_health(self) -> str:
         """The source's own health, or the last poll failure while polls fail."""
@@ -101,19 +110,34 @@ class Reporter:
         self.publisher.publish("status", self.status_body())
 
     def truth(self) -> dict[str, Any] | None:
-        """The simulated source's hidden truth, or None for real sensors."""
+        """The simulated source's hidden truth (computed again after :data:`TRUTH_MAX_AGE_S` of source
+        time), or None for real sensors."""
         if not isinstance(self.source, HasTruth):
             return None
+        now = self._clock()
+        if self._truth_at_ns is not None and now - self._truth_at_ns < self._truth_max_age_ns:
+            return self._truth
         try:
-            return dict(self.source.truth())
+            truth: dict[str, Any] | None = dict(self.source.truth())
         except Exception:
-            return None
+            truth = None
+        self._truth, self._truth_at_ns = truth, now
+        return truth
 
     def calib_with_truth(self) -> dict[str, Any]:
         """The latest ``calib`` body with the sim's truth now."""
         body = dict(self.calibration.body)
         body["truth"] = self.truth()
         return body
+
+    def calib_reply(self) -> EncodedResult:
+        """``calib.get``'s result, encoded once per calibration body and truth (a crowd of clients
+        asking for it costs one encoding, not one each)."""
+        body, truth = self.calibration.body, self.truth()
+        cached = self._calib_reply
+        if cached is None or cached[0] is not body or cached[1] is not truth:
+            cached = self._calib_reply = (body, truth, EncodedResult.of({**body, "truth": truth}))
+        return cached[2]
 
     def publish_calib(self) -> None:
         """Publish the ``calib`` body (cached by the publisher for late joiners)."""
