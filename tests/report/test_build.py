@@ -109,7 +109,8 @@ def test_what_the_state_lacks_is_said(built: tuple[ReportData, Path]) -> None:
     assert "No data: drift alarms" in page
 
 
-@pytest.mark.parametrize("fmt", ["svg", "pdf", "html"])
+# pdf draws the demo's data with its own backend (3.5 s): in the full run only.
+@pytest.mark.parametrize("fmt", ["svg", pytest.param("pdf", marks=pytest.mark.slow), "html"])
 def test_other_formats(state_dir: Path, fresh_state_dir: Path, tmp_path: Path, fmt: str) -> None:
     """svg and pdf figure files start with their format's magic; html writes the page only. pdf
     draws the demo's data (its own backend); an svg file is the page's drawing and html is the
