@@ -10,7 +10,7 @@ The sim polls 25 times a second inside the daemon, so each poll's cost is mostly
 * :func:`idle_rows` computes the samples of several channels with the same grid (the six 100 Sa/s
   channels) as one 2-D array while the node is idle (its noise-free power is then one number per
   channel), with the same float operations in the same order as the general path.
-* :func:`idle_block` generates an idle group's samples *ahead* (about a second of sim time), with
+* :func:`idle_block` generates an idle group's samples *ahead* (a few seconds of sim time), with
   their timestamps and cumulative energies, so most polls only slice what became due
   (:class:`IdleBlock`). The sim drops the unpublished part of a block (and rewinds its noise) as
   soon as the node stops being idle, so the power still responds to runs at once.
