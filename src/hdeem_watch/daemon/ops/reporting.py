@@ -126,9 +126,7 @@ class Reporter:
 
     def calib_with_truth(self) -> dict[str, Any]:
         """The latest ``calib`` body with the sim's truth now."""
-        body = dict(self.calibration.body)
-        body["truth"] = self.truth()
-        return body
+        return {**self.calibration.body, "truth": self.truth()}
 
     def calib_reply(self) -> EncodedResult:
         """``calib.get``'s result, encoded once per calibration body and truth (a crowd of clients
@@ -136,7 +134,7 @@ class Reporter:
         body, truth = self.calibration.body, self.truth()
         cached = self._calib_reply
         if cached is None or cached[0] is not body or cached[1] is not truth:
-            cached = self._calib_reply = (body, truth, EncodedResult.of({**body, "truth": truth}))
+            cached = self._calib_reply = (body, truth, EncodedResult.of(self.calib_with_truth()))
         return cached[2]
 
     def publish_calib(self) -> None:
