@@ -285,7 +285,7 @@ def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> 
 
 
 #: The tests that take longest (10-40 s each on the CI machine, measured with ``--durations``), by
-#: node-id prefix. They are handed out first so that the end of a ``-n 3`` run is short tests on all
+#: node-id prefix. They are handed out first so that the end of a ``-n 4`` run is short tests on all
 #: workers: the run lasts as long as its busiest worker, and a 40 s test started last would leave the
 #: others idle. Only the order changes (xdist's loadgroup sends the groups first, then single tests in
 #: this order); a test missing here just runs in its place.

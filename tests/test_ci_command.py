@@ -32,15 +32,16 @@ def test_the_test_command_groups_tests_that_share_a_machine_wide_resource() -> N
     assert "-n" in words and words[words.index("--dist") + 1] == "loadgroup", words
 
 
-def test_a_plain_pytest_runs_on_both_cores_and_the_test_command_on_one_worker_more() -> None:
+def test_a_plain_pytest_runs_on_both_cores_and_the_test_command_on_two_workers_more() -> None:
     """pyproject's ``addopts`` spread the inner loop's plain ``python3 -m pytest -q -m "not slow"``
     over the machine's 2 cores (``-n 2``, its tests are computation: a third worker only costs a
-    collection), with the README command's ``--dist``; the README command runs one worker more,
+    collection), with the README command's ``--dist``; the README command runs two workers more,
     because a third of its tests' time is spent waiting on the processes they start (daemons,
-    brokers, SLURM, terminals), which a third worker fills."""
+    brokers, SLURM, terminals), which the extra workers fill (at stop 40: 245-262 s on four
+    workers against 278-280 s on three, 0 failures in 3 full runs each)."""
     words = shlex.split(readme_test_command())
     pyproject = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))
     addopts = shlex.split(pyproject["tool"]["pytest"]["ini_options"]["addopts"])
     assert addopts[addopts.index("--dist") + 1] == words[words.index("--dist") + 1], (addopts, words)
     assert int(addopts[addopts.index("-n") + 1]) == 2, addopts
-    assert int(words[words.index("-n") + 1]) == 3, words
+    assert int(words[words.index("-n") + 1]) == 4, words
