@@ -123,8 +123,9 @@ def window_stats(power_w: np.ndarray, width: int, step: int) -> tuple[np.ndarray
         return np.empty(0, dtype=np.int64), empty, empty
     bad = ~np.isfinite(values)
     clean = np.where(bad, 0.0, values)
-    # Centre on the median before summing squares so the variance does not cancel catastrophically.
-    centre = float(np.median(clean[~bad])) if (~bad).any() else 0.0
+    # Centre on the mean before summing squares (the two-pass form) so the variance does not cancel
+    # catastrophically. (Not the median: its first call imports numpy.ma, 10-15 ms in the poll loop.)
+    centre = float(np.mean(clean[~bad])) if (~bad).any() else 0.0
     shifted = clean - centre
     c1 = np.concatenate(([0.0], np.cumsum(shifted)))
     c2 = np.concatenate(([0.0], np.cumsum(shifted * shifted)))
