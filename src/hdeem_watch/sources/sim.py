@@ -115,8 +115,8 @@ class SimSource:
         block_s: while the node is idle, its samples are generated this far (sim s) ahead of the
             polls, in one computation per block (the hidden currents' drift is evaluated once per
             block: at 5 s their idle power steps by < 0.05 % at +30 %/h of aging); a run drops the
-            unpublished rest at once. 0 = one block per poll. 5 s instead of 1 s took 11 % off the
-            watched daemon's sim poll (176 → 157 µs a poll, after a 40 ms sleep).
+            unpublished rest at once. 0 = one block per poll (``benchmarks/bench_sim_poll.py``
+            compares the default with 1-s blocks).
         layout: the node modelled (default :data:`~hdeem_watch.sim.layout.TAURUS`): its
             sockets, cores and channels; channels ``BLADE``, ``CPU<n>`` per socket and one
             ``DDR_<letters>`` sensor per pair of channels.

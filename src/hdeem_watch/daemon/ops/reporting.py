@@ -134,7 +134,7 @@ class Reporter:
         body, truth = self.calibration.body, self.truth()
         cached = self._calib_reply
         if cached is None or cached[0] is not body or cached[1] is not truth:
-            cached = self._calib_reply = (body, truth, EncodedResult.of(self.calib_with_truth()))
+            cached = self._calib_reply = (body, truth, EncodedResult.of({**body, "truth": truth}))
         return cached[2]
 
     def publish_calib(self) -> None:
