@@ -43,7 +43,7 @@ def stats_array(stats: CommandStats) -> np.ndarray:
 
 def array_stats(values: np.ndarray) -> CommandStats:
     """:class:`CommandStats` of a ``(ranks, fields)`` array."""
-    return CommandStats(ranks=tuple(RankStats(**dict(zip(FIELDS, map(float, row), strict=True))) for row in values))
+    return CommandStats(ranks=tuple(RankStats(*row) for row in values.tolist()))  # fields in FIELDS order
 
 
 def _plan_part(plan: RunPlan | JobPlan, t_ns: int, idle_per_s: np.ndarray) -> np.ndarray:

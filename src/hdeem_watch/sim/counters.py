@@ -118,8 +118,9 @@ class SimCounters:
         for n, channel in enumerate(self._channels):
             units = stats[n * self._units:(n + 1) * self._units]
             merged = CommandStats(ranks=tuple(rank for unit in units for rank in unit.ranks))
-            cas = _cas(merged)
-            pch0 = _cas(units[0]) / cas if cas > 0 and self._units == 2 else 0.5
+            pch0 = 0.5
+            if self._units == 2 and (cas := _cas(merged)) > 0:
+                pch0 = _cas(units[0]) / cas
             events = imc_event_counts(merged, self.table, opportunistic_refresh_share=SIM_OPPORTUNISTIC_REFRESH,
                                       page_close_share=SIM_PAGE_CLOSE, pch0_share=pch0)
             counts[channel.name] = role_counts_from_events(self.table, events)

@@ -118,6 +118,10 @@ def imc_event_counts(stats: CommandStats, table: EventTable, **options: float) -
     counts: dict[str, int] = {}
     for role, total in roles.items():
         events = table.events_of(role)
+        if len(events) == 1:  # most roles: one event counts all of it
+            name = events[0].name
+            counts[name] = counts.get(name, 0) + round(total)
+            continue
         for event, share in zip(events, _shares(role, len(events), read_share)):
             counts[event.name] = counts.get(event.name, 0) + round(total * share)
     return counts
@@ -125,6 +129,7 @@ def imc_event_counts(stats: CommandStats, table: EventTable, **options: float) -
 
 def role_counts_from_events(table: EventTable, event_counts: Mapping[str, float]) -> dict[str, float]:
     """Role → sum of its events' counts (the reader's side of the split above)."""
-    return {role: float(sum(event_counts.get(e.name, float("nan")) for e in events))
+    nan = float("nan")
+    return {role: float(sum([event_counts.get(e.name, nan) for e in events]))
             for role, events in table.roles.items() if events}
 
