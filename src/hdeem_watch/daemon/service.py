@@ -491,6 +491,7 @@ class Daemon:
             heartbeat.advance(now)
             reporter.publish_status()
             if self.counters is not None:
+                self.counters.read(force=True)
                 self.publisher.publish("counters", self.counters.rates_body())
             if self.job_ops is not None:
                 self.job_ops.checkpoint()
@@ -568,7 +569,8 @@ class Daemon:
 
     def poll_once(self, *, force_counters: bool = False) -> SourceBatch | None:
         """Poll the source; account, publish and window the batch; return it (None if the poll failed).
-        The counters are read when due, when a window closed, or when ``force_counters``."""
+        While a window is open the counters are read when due, when a window closed, or when
+        ``force_counters``; otherwise at the heartbeat."""
         assert self.publisher is not None and self.book is not None and self.source is not None
         book = self.book
         batch: SourceBatch | None = None
@@ -595,7 +597,7 @@ class Daemon:
                 self.publisher.send_all(outgoing)
             if self.recorder is not None:
                 self.recorder.write_batch(batch)
-        if self.counters is not None:
+        if self.counters is not None and (force_counters or closed or book.windows):  # else at the heartbeat
             self.counters.read(force=force_counters or bool(closed))
         if closed and self.core is not None:
             for window in closed:
