@@ -33,3 +33,25 @@ def test_template_frames_equal_encode_samples(channel, rate_hz, n, energy_j, sta
             assert protocol.decode(got).header["n"] == n
     finally:
         pub.close()
+
+
+@pytest.mark.parametrize(("time_dtype", "power_dtype"), [(">i8", "<f8"), ("<i8", ">f8"), ("<i4", "<f4"),
+                                                          ("<u8", "<f8")])
+def test_times_and_powers_of_other_dtypes_give_the_native_frames(time_dtype: str, power_dtype: str) -> None:
+    """The encoder's fast path takes only native int64 times and float64 powers; any other dtype is
+    converted on the general path, to the same bytes."""
+    encoder = protocol.SamplesEncoder("n1", "DDR_AB", 100.0)
+    t_ns = np.arange(4, dtype=np.int64) * 10_000_000 + 1_000_000_000
+    power_w = np.array([1.5, 2.0, 2.5, 3.0])
+    want = encoder.frames(7, 42, t_ns, power_w, 3.0, "ok")
+    got = encoder.frames(7, 42, t_ns.astype(time_dtype), power_w.astype(power_dtype), 3.0, "ok")
+    assert got == want
+
+
+def test_times_and_powers_of_different_lengths_or_shapes_are_refused() -> None:
+    encoder = protocol.SamplesEncoder("n1", "DDR_AB", 100.0)
+    t_ns = np.arange(4, dtype=np.int64)
+    with pytest.raises(protocol.ProtocolError):
+        encoder.frames(0, 0, t_ns, np.zeros(3), 0.0, "ok")
+    with pytest.raises(protocol.ProtocolError):
+        encoder.frames(0, 0, t_ns, np.zeros((4, 1)), 0.0, "ok")

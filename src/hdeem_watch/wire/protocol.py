@@ -284,8 +284,9 @@ class SamplesEncoder:
         Raises:
             ProtocolError: times and powers of different lengths or not one-dimensional.
         """
-        if (t_wall_ns.dtype == _TIME and power_w.dtype == _SAMPLE and t_wall_ns.ndim == 1
-                and power_w.shape == t_wall_ns.shape):
+        # identity, not equality: the native dtypes are numpy's singletons (any other takes pack_samples)
+        if (t_wall_ns.dtype is _TIME and power_w.dtype is _SAMPLE and t_wall_ns.ndim == power_w.ndim == 1
+                and len(t_wall_ns) == len(power_w)):
             payload = t_wall_ns.tobytes() + power_w.tobytes()
         else:
             payload = pack_samples(t_wall_ns, power_w)
