@@ -288,15 +288,18 @@ class SamplesEncoder:
         if (t_wall_ns.dtype is _TIME and power_w.dtype is _SAMPLE and t_wall_ns.ndim == power_w.ndim == 1
                 and len(t_wall_ns) == len(power_w)):
             payload = t_wall_ns.tobytes() + power_w.tobytes()
+            n = len(t_wall_ns)
+            t0 = str(t_wall_ns.item(0)) if n else "null"
         else:
             payload = pack_samples(t_wall_ns, power_w)
-        n = len(payload) >> 4
+            n = len(payload) >> 4
+            t0 = str(int(t_wall_ns[0])) if n else "null"
         energy = float(energy_j)
         header = self._template % (
             int(seq),
             int(t_ns),
             n,
-            str(int(t_wall_ns[0])) if n else "null",
+            t0,
             repr(energy) if math.isfinite(energy) else "null",
             _quoted(status),
         )
