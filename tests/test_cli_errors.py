@@ -139,3 +139,25 @@ def test_calib_show_prints_intervals_one_way() -> None:
     assert "[45.00, 55.00]" in lines[1] and "—" not in "\n".join(lines)
     assert "no interval" in lines[2] and lines[-1].startswith("no interval: the fit gives none")
     assert lines[1].index("datasheet") == lines[2].index("datasheet")
+
+
+def test_calib_show_prints_each_sockets_value_where_the_node_is_fitted_per_socket() -> None:
+    """A node with one DRAM sensor per socket (RAPL, DDR5) has its currents as the sockets' mean:
+    `calib show` prints each socket's own value under the node's, starred where that socket's fit
+    leaves it undetermined; a fit without sockets prints no such block."""
+    from hdeem_watch.cli.calib import format_fits
+
+    currents = {"idd0": {"calibrated": 0.051, "ci95": [0.048, 0.054], "datasheet": 0.1, "identifiable": True},
+                "idd2n": {"calibrated": 0.03, "ci95": None, "datasheet": 0.05, "identifiable": False}}
+    per_socket = {"DRAM0": {"idd0": {"calibrated": 0.050, "identifiable": True},
+                            "idd2n": {"calibrated": 0.029, "identifiable": False}},
+                  "DRAM1": {"idd0": {"calibrated": 0.052, "identifiable": True},
+                            "idd2n": {"calibrated": "?", "identifiable": False}}}
+    fit = {"n_runs": 40, "status": "ok", "error": {"loo": 0.02}, "currents": currents,
+           "trust": {"commands": "counted", "held": {}, "per_socket": per_socket}}
+    lines = format_fits({"node": {"fit": fit}}, [], []).splitlines()
+    start = next(i for i, line in enumerate(lines) if line.strip().startswith("per socket"))
+    assert lines[start + 1].split() == ["idd0", "DRAM0", "50.00", "DRAM1", "52.00"]
+    assert lines[start + 2].split() == ["idd2n", "DRAM0", "29.00*", "DRAM1", "—*"]
+    plain = format_fits({"node": {"fit": {**fit, "trust": {"commands": "counted", "held": {}}}}}, [], [])
+    assert "per socket" not in plain

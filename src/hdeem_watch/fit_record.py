@@ -196,6 +196,24 @@ class FitRecord:
         return tuple(str(n) for n in names) if isinstance(names, list) else ()
 
     @property
+    def per_socket(self) -> dict[str, dict[str, tuple[float, bool]]]:
+        """Per socket sensor, each current's value in its own fit (A; NaN = unknown) and whether that
+        fit determines it (``trust.per_socket``: a node with one DRAM sensor per socket, whose
+        currents are the sockets' mean over the DIMMs); ``{}`` for any other fit."""
+        table = (self.trust or {}).get("per_socket")
+        if not isinstance(table, Mapping):
+            return {}
+        out: dict[str, dict[str, tuple[float, bool]]] = {}
+        for sensor, currents in table.items():
+            if not isinstance(currents, Mapping):
+                continue
+            out[str(sensor)] = {
+                str(name): (float(entry["calibrated"]) if is_number(entry.get("calibrated")) else math.nan,
+                            entry.get("identifiable") is True)
+                for name, entry in currents.items() if isinstance(entry, Mapping)}
+        return out
+
+    @property
     def calibrated_a(self) -> dict[str, float]:
         """The calibrated value of every current (A; NaN = unknown)."""
         return {name: cur.calibrated_a for name, cur in self.currents.items()}

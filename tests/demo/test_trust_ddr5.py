@@ -68,3 +68,22 @@ def test_hold_out_runs_are_predicted_to_a_median_within_five_percent(counted) ->
     assert statistics.median(errors) <= 0.05 and max(errors) <= 0.12, errors
     datasheet = [abs(d.model["datasheet_j"] / d.record["dram_energy_j"] - 1) for d in late]
     assert min(datasheet) > 0.5  # what the calibration is for
+
+
+def test_calib_show_prints_both_sockets_values_of_the_counted_fits(counted) -> None:
+    """`calib show` on this node lists each socket's own value under the node's (their DIMM mean)."""
+    from hdeem_watch.cli.calib import format_fits
+
+    sim, _done = counted
+    fit_now = sim.modeller.latest_fit()
+    lines = format_fits({"node": {"fit": fit_now}}, [], []).splitlines()
+    start = next(i for i, line in enumerate(lines) if line.strip().startswith("per socket"))
+    rows = {line.split()[0]: line.split()[1:] for line in lines[start + 1:start + 1 + len(fit_now["currents"])]}
+    assert set(rows) == set(fit_now["currents"])
+    for name, cells in rows.items():
+        sockets = fit_now["trust"]["per_socket"]
+        assert cells[0::2] == list(sockets)
+        for sensor, cell in zip(sockets, cells[1::2], strict=True):
+            entry = sockets[sensor][name]
+            assert float(cell.rstrip("*")) == pytest.approx(entry["calibrated"] * 1e3, abs=0.006)
+            assert cell.endswith("*") != entry["identifiable"]

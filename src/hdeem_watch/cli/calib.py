@@ -141,6 +141,7 @@ def format_fits(chosen: dict[str, dict[str, Any]], alarms: list[dict[str, Any]],
             missing_interval = missing_interval or interval == "no interval"
             lines.append(f"  {current:<6} {_ma(c.calibrated_a):>8} mA  {interval:<17}  "
                          f"datasheet {_ma(c.datasheet_a)}{flags}")
+        lines.extend(socket_lines(fit))
     if missing_interval:
         lines.append("no interval: the fit gives none for that current (too few runs for it to be determined)")
     for a in alarms:
@@ -149,6 +150,22 @@ def format_fits(chosen: dict[str, dict[str, Any]], alarms: list[dict[str, Any]],
     for s in skipped[-5:]:
         lines.append(f"not fitted: {s.get('reason')}")
     return "\n".join(lines)
+
+
+def socket_lines(fit: FitRecord) -> list[str]:
+    """Each socket's own value of every current, for a node fitted per socket (its currents are the
+    sockets' mean over the DIMMs: a spread between the sockets is the parts', not noise)."""
+    sockets = fit.per_socket
+    if not sockets:
+        return []
+    lines = ["  per socket (mA; the node's value is their mean over the DIMMs; * = not determined there):"]
+    for current in fit.currents:
+        cells = []
+        for sensor, values in sockets.items():
+            value, determined = values.get(current, (math.nan, False))
+            cells.append(f"{sensor} {_ma(value):>8}{' ' if determined else '*'}")
+        lines.append(f"    {current:<6} " + "  ".join(cells).rstrip())
+    return lines
 
 
 COMMAND_SOURCES = {"counted": "commands counted in each run's window (memory-controller counters)",
