@@ -87,6 +87,7 @@ def _run(args: argparse.Namespace) -> int:
                   f"secret key (--client-key): {secret}")
         return 0
     from hdeem_watch.daemon.service import Daemon
+    from hdeem_watch.daemon.shell.publisher import daemon_context
 
     settings = load_settings(
         args.config,
@@ -106,7 +107,8 @@ def _run(args: argparse.Namespace) -> int:
     )
     logging.basicConfig(level=settings.log_level.upper(), stream=sys.stderr,
                         format="%(asctime)s hdeem-watchd %(levelname)s %(message)s")
-    daemon = Daemon(settings)
+    context = daemon_context()
+    daemon = Daemon(settings, context=context)
     daemon.start()
 
     def stop(signum: int, frame: Any) -> None:
@@ -117,6 +119,7 @@ def _run(args: argparse.Namespace) -> int:
         daemon.run()
     finally:
         daemon.close()
+        context.destroy(linger=0)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return 0

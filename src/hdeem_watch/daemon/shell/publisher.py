@@ -18,6 +18,7 @@ Example:
 from __future__ import annotations
 
 import logging
+import sys
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -29,7 +30,7 @@ from hdeem_watch.daemon.shell.endpoints import bind, bind_endpoint, is_loopback
 from hdeem_watch.errors import InputError
 from hdeem_watch.wire import protocol
 
-__all__ = ["CACHED_KINDS", "MAX_SUBSCRIPTIONS", "Publisher", "bind_endpoint"]
+__all__ = ["CACHED_KINDS", "MAX_SUBSCRIPTIONS", "Publisher", "bind_endpoint", "daemon_context"]
 
 log = logging.getLogger("hdeem_watch.daemon")
 
@@ -43,6 +44,26 @@ CACHED_KINDS = ("calib", "baseline")
 #: and an XPUB cannot tell which peer sent which, so beyond this bound every stream connection is
 #: dropped (subscribers reconnect and subscribe again by themselves) and a warning is logged.
 MAX_SUBSCRIPTIONS = 10_000
+
+
+#: Linux's ``SCHED_BATCH`` policy (``os.SCHED_BATCH``; ZeroMQ takes the number).
+SCHED_BATCH = 3
+
+
+def daemon_context() -> zmq.Context[Any]:
+    """A ZeroMQ context whose I/O thread runs under ``SCHED_BATCH`` (``ZMQ_THREAD_SCHED_POLICY``).
+
+    A woken ``SCHED_BATCH`` thread does not preempt the running one. Without it, the first message
+    of a poll woke the I/O thread on the loop's own core, where it preempted the loop, wrote that one
+    message and slept, and the next message woke it again: about 3.8 wake-ups and 3 preemptions of
+    the loop per poll with 4 subscribers. Under ``SCHED_BATCH`` it wakes once a poll and writes all
+    of the poll's messages together. It does not preempt the node's applications either. Linux only:
+    elsewhere the option is left alone.
+    """
+    context: zmq.Context[Any] = zmq.Context()
+    if sys.platform.startswith("linux"):
+        context.set(zmq.THREAD_SCHED_POLICY, SCHED_BATCH)
+    return context
 
 
 class Publisher:
