@@ -186,10 +186,10 @@ while True:
 SEND_LOOP = """
 import subprocess, sys, time, zmq
 import numpy as np
-from hdeem_watch.daemon.shell.publisher import Publisher
+from hdeem_watch.daemon.shell.publisher import Publisher, daemon_context
 from hdeem_watch.sources.base import hdeem_channel_infos
 endpoint, interval_s, subscribers = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
-ctx = zmq.Context()
+ctx = daemon_context()  # the daemon's transport: its I/O thread under SCHED_BATCH
 publisher = Publisher(ctx, endpoint + "/s1.sock", node="bench")
 control = ctx.socket(zmq.ROUTER); control.bind(endpoint + "/s2.sock")
 sub = ("import sys, zmq\\ns = zmq.Context().socket(zmq.SUB); s.connect(sys.argv[1]); "
@@ -221,7 +221,8 @@ while True:
 
 def send_baseline_cpu(seconds: float, interval_s: float, subscribers: int) -> float:
     """CPU share of a process that only wakes at the poll rate and hands one poll's pre-built messages
-    (one per channel, the daemon's sizes) to ZeroMQ for ``subscribers`` subscribers: the transport's floor."""
+    (one per channel, the daemon's sizes) to ZeroMQ, in the daemon's context, for ``subscribers``
+    subscribers: the transport's floor."""
     with tempfile.TemporaryDirectory(prefix="hws-") as tmp:
         argv = [sys.executable, "-c", SEND_LOOP, f"ipc://{tmp}", str(interval_s), str(subscribers)]
         return _baseline_cpu(argv, seconds, warmup_s=1.0)
