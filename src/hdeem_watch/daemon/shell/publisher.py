@@ -18,6 +18,7 @@ Example:
 from __future__ import annotations
 
 import logging
+import os
 import sys
 import time
 from collections.abc import Callable, Mapping
@@ -46,10 +47,6 @@ CACHED_KINDS = ("calib", "baseline")
 MAX_SUBSCRIPTIONS = 10_000
 
 
-#: Linux's ``SCHED_BATCH`` policy (``os.SCHED_BATCH``; ZeroMQ takes the number).
-SCHED_BATCH = 3
-
-
 def daemon_context() -> zmq.Context[Any]:
     """A ZeroMQ context whose I/O thread runs under ``SCHED_BATCH`` (``ZMQ_THREAD_SCHED_POLICY``).
 
@@ -62,7 +59,7 @@ def daemon_context() -> zmq.Context[Any]:
     """
     context: zmq.Context[Any] = zmq.Context()
     if sys.platform.startswith("linux"):
-        context.set(zmq.THREAD_SCHED_POLICY, SCHED_BATCH)
+        context.set(zmq.THREAD_SCHED_POLICY, os.SCHED_BATCH)
     return context
 
 
