@@ -118,10 +118,6 @@ def imc_event_counts(stats: CommandStats, table: EventTable, **options: float) -
     counts: dict[str, int] = {}
     for role, total in roles.items():
         events = table.events_of(role)
-        if len(events) == 1:  # most roles: one event counts all of it
-            name = events[0].name
-            counts[name] = counts.get(name, 0) + round(total)
-            continue
         for event, share in zip(events, _shares(role, len(events), read_share)):
             counts[event.name] = counts.get(event.name, 0) + round(total * share)
     return counts
