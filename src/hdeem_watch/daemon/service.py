@@ -486,12 +486,14 @@ class Daemon:
     def _periodic(self, now: int, heartbeat: IntervalTimer, republish: IntervalTimer) -> None:
         """The heartbeat's and the re-publication's work when due (they never wake the loop alone)."""
         assert self.reporter is not None and self.publisher is not None and self.store_worker is not None
+        assert self.book is not None
         reporter, settings = self.reporter, self.settings
         if now >= heartbeat.next_ns:
             heartbeat.advance(now)
             reporter.publish_status()
             if self.counters is not None:
-                self.counters.read(force=True)
+                if not self.book.windows:  # with a window open, poll_once reads them when due
+                    self.counters.read(force=True)
                 self.publisher.publish("counters", self.counters.rates_body())
             if self.job_ops is not None:
                 self.job_ops.checkpoint()

@@ -111,8 +111,8 @@ class Reporter:
         self.publisher.publish("status", self.status_body())
 
     def _cpu_share(self) -> float:
-        """Percent of one core the daemon's threads used since the previous call (one clock read each
-        side; psutil's ``cpu_percent`` parsed ``/proc`` for the same figure at 40 times the cost)."""
+        """Percent of one core the daemon's threads used since the previous call (the process CPU
+        clock over real time; psutil's ``cpu_percent`` parsed ``/proc`` for the same figure)."""
         cpu, wall = time.process_time_ns(), time.monotonic_ns()
         (cpu_before, wall_before), self._cpu_mark = self._cpu_mark, (cpu, wall)
         return 100.0 * (cpu - cpu_before) / (wall - wall_before) if wall > wall_before else math.nan
